@@ -1,0 +1,35 @@
+# penumbra: the two commands of the README, and a few more for developers.
+#   make demo   install missing Debian packages, build, run the main job on the bundled data
+#   make test   install missing Debian packages, build, run the whole test suite (ctest)
+# Developers: make build | make test-asan | make bench | make clean
+JOBS  ?= $(shell nproc)
+BUILD ?= build
+
+.PHONY: all deps build demo test test-asan bench clean
+
+all: build
+
+deps:
+	@sh scripts/install-deps.sh
+
+build: deps
+	@cmake -S . -B $(BUILD) -DCMAKE_BUILD_TYPE=Release >/dev/null
+	@cmake --build $(BUILD) -j $(JOBS)
+
+demo: build
+	@sh scripts/demo.sh $(BUILD)/penumbra
+
+test: build
+	@cd $(BUILD) && ctest --output-on-failure -j $(JOBS)
+
+# Same suite under AddressSanitizer + UndefinedBehaviorSanitizer (Debug, no -march=native).
+test-asan: deps
+	@cmake -S . -B $(BUILD)-asan -DCMAKE_BUILD_TYPE=RelWithDebInfo -DPEN_SANITIZE=ON >/dev/null
+	@cmake --build $(BUILD)-asan -j $(JOBS)
+	@cd $(BUILD)-asan && ASAN_OPTIONS=detect_leaks=1 PEN_TEST_QUICK=1 ctest --output-on-failure -j $(JOBS)
+
+bench: build
+	@$(BUILD)/penumbra bench
+
+clean:
+	rm -rf $(BUILD) $(BUILD)-asan

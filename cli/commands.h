@@ -1,0 +1,34 @@
+/* The penumbra subcommands: one file each (cli/cmd_<name>.c), dispatched by cli/main.c.
+ * Each takes the arguments after the command name (argv[0] is the command name) and returns the
+ * process exit status. Shared helpers for argument parsing and error reporting live in
+ * cli/common.c. */
+#ifndef PEN_CLI_COMMANDS_H
+#define PEN_CLI_COMMANDS_H
+
+#include "penumbra/penumbra.h"
+
+typedef struct pen_command {
+    const char *name;
+    const char *summary;                 /* one line for `penumbra --help` */
+    int (*run)(int argc, char **argv);
+} pen_command;
+
+/* Every command. Add a line here and in cli/main.c's table. */
+int pen_cmd_sh_accuracy(int argc, char **argv);
+
+/* ---- Helpers (cli/common.c) ---- */
+
+/* Prints "penumbra <cmd>: <message>" on stderr and returns exit status 1 (or 2 for usage). */
+int pen_cli_fail(const char *cmd, const char *fmt, ...);
+int pen_cli_usage_error(const char *cmd, const char *fmt, ...);
+/* Prints the context's error as the one error line and returns 1. */
+int pen_cli_fail_ctx(const char *cmd, const pen_context *ctx);
+/* Parses an integer / float option value; on error prints a usage line and returns 0. */
+int pen_cli_parse_int(const char *cmd, const char *flag, const char *text, long lo, long hi,
+                      int *out);
+int pen_cli_parse_float(const char *cmd, const char *flag, const char *text, double lo, double hi,
+                        double *out);
+/* 1 if arg is -h or --help. */
+int pen_cli_is_help(const char *arg);
+
+#endif

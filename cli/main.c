@@ -1,0 +1,42 @@
+/* penumbra: the command-line tool. Dispatches to one subcommand per file. */
+#include "commands.h"
+
+#include <stdio.h>
+#include <string.h>
+
+static const pen_command commands[] = {
+    {"sh-accuracy", "irradiance error of SH visibility against ray-tested truth", pen_cmd_sh_accuracy},
+};
+static const int command_count = (int)(sizeof commands / sizeof commands[0]);
+
+static void print_help(FILE *f) {
+    fprintf(f,
+            "penumbra %s -- differentiable soft-shadow rendering with spherical-harmonics "
+            "visibility\n\n"
+            "Usage: penumbra <command> [options]\n"
+            "       penumbra <command> --help\n"
+            "       penumbra --version\n\nCommands:\n",
+            pen_version());
+    for (int i = 0; i < command_count; ++i)
+        fprintf(f, "  %-14s %s\n", commands[i].name, commands[i].summary);
+}
+
+int main(int argc, char **argv) {
+    if (argc < 2) {
+        print_help(stderr);
+        return 2;
+    }
+    if (pen_cli_is_help(argv[1])) {
+        print_help(stdout);
+        return 0;
+    }
+    if (strcmp(argv[1], "--version") == 0 || strcmp(argv[1], "version") == 0) {
+        printf("penumbra %s\n", pen_version());
+        return 0;
+    }
+    for (int i = 0; i < command_count; ++i)
+        if (strcmp(argv[1], commands[i].name) == 0) return commands[i].run(argc - 1, argv + 1);
+    fprintf(stderr, "penumbra: unknown command '%s'\n", argv[1]);
+    fprintf(stderr, "Try 'penumbra --help'.\n");
+    return 2;
+}

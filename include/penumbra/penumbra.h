@@ -1,0 +1,18 @@
+/* penumbra.h -- differentiable soft-shadow rendering with spherical-harmonics visibility.
+ *
+ * penumbra approximates objects by spheres, computes visibility in spherical harmonics as the SH
+ * exponential of the summed per-sphere log-visibilities (Lyu et al., ICCV 2021), shades diffuse
+ * surfaces under SH environment lighting on top of a rasterizer, and differentiates every stage.
+ * Include this header for the whole public API; each concern has its own header below.
+ */
+#ifndef PENUMBRA_H
+#define PENUMBRA_H
+
+#include "penumbra/core.h"
+#include "penumbra/image.h"
+#include "penumbra/mesh.h"
+#include "penumbra/scene.h"
+#include "penumbra/sh.h"
+#include "penumbra/spheres.h"
+
+#endif

@@ -1,0 +1,18 @@
+#!/bin/sh
+# Installs the Debian packages penumbra builds and tests with, only those that are missing.
+# Called by `make`; safe to run again. Needs root (or sudo) only when something is missing.
+set -e
+PKGS="build-essential cmake pkg-config libembree-dev libcjson-dev libpng-dev libstb-dev \
+libopenexr-dev libsleef-dev"
+[ -n "$PEN_WITH_PYTHON" ] && PKGS="$PKGS python3 python3-numpy python3-torch"
+missing=""
+for p in $PKGS; do
+    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing="$missing $p"
+done
+[ -z "$missing" ] && exit 0
+echo "penumbra: installing Debian packages:$missing"
+SUDO=""
+[ "$(id -u)" -ne 0 ] && SUDO="sudo"
+export DEBIAN_FRONTEND=noninteractive
+$SUDO apt-get update -qq
+$SUDO apt-get install -y -qq --no-install-recommends $missing

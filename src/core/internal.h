@@ -1,0 +1,42 @@
+/* Internal helpers shared by every module: error reporting, checked allocation, numerics.
+ * Not installed; public code includes only include/penumbra/. */
+#ifndef PEN_INTERNAL_H
+#define PEN_INTERNAL_H
+
+#include "penumbra/core.h"
+
+#include <math.h>
+#include <stddef.h>
+#include <stdint.h>
+
+struct pen_context {
+    pen_status status;
+    int threads;
+    char message[1024];
+};
+
+#if defined(__GNUC__)
+#define PEN_PRINTF(f, a) __attribute__((format(printf, f, a)))
+#else
+#define PEN_PRINTF(f, a)
+#endif
+
+/* Records an error in ctx (if not NULL) and returns status, so callers can write
+ *     return pen__error(ctx, PEN_ERROR_PARSE, "%s:%d: bad index", path, line);            */
+pen_status pen__error(pen_context *ctx, pen_status status, const char *fmt, ...) PEN_PRINTF(3, 4);
+
+/* Allocation with overflow-checked sizes (stb's mul2sizes habit). Return NULL on overflow or
+ * exhaustion and record PEN_ERROR_MEMORY in ctx with `what` in the message. */
+void *pen__malloc(pen_context *ctx, size_t count, size_t size, const char *what);
+void *pen__calloc(pen_context *ctx, size_t count, size_t size, const char *what);
+/* Largest element count any loader will accept for one array (guards against absurd headers). */
+#define PEN_MAX_ELEMENTS ((size_t)1 << 28)
+
+static inline int pen__finite3(const float v[3]) {
+    return isfinite(v[0]) && isfinite(v[1]) && isfinite(v[2]);
+}
+
+#define PEN_PI 3.14159265358979323846
+#define PEN_PI_F 3.14159265358979323846f
+
+#endif
