@@ -58,14 +58,19 @@ extern "C" pen_status pen__exr_load(pen_context *ctx, const char *path, pen_imag
                                   "%s: channel %s is subsampled (not supported)", path, it.name());
         pen_status s = pen_image_create(ctx, (int)w, (int)hh, 3, out);
         if (s) return s;
+        /* A frame buffer holds one slice per channel name, so grey is read into the first
+         * channel and copied to the others afterwards. */
         Imf::FrameBuffer fb;
         const size_t xs = 3 * sizeof(float), ys = xs * (size_t)w;
-        for (int c = 0; c < 3; ++c)
+        for (int c = 0; c < (rgb ? 3 : 1); ++c)
             fb.insert(rgb ? names[c] : "Y",
                       Imf::Slice(Imf::FLOAT, slice_base(out->data, dw.min.x, dw.min.y, (int)w, 3, c),
                                  xs, ys, 1, 1, 0.0));
         file.setFrameBuffer(fb);
         file.readPixels(dw.min.y, dw.max.y);
+        if (!rgb)
+            for (size_t i = 0; i < (size_t)w * (size_t)hh; ++i)
+                out->data[3 * i + 1] = out->data[3 * i + 2] = out->data[3 * i];
         return PEN_OK;
     } catch (const std::exception &e) {
         pen_image_free(out);
