@@ -87,4 +87,45 @@ static inline int ru_same_coverage(const pen_gbuffer *a, const pen_gbuffer *b) {
     return 1;
 }
 
+/* Two objects over a ground plane: a tilted quad (object 0, two triangles, with a separate
+ * colour index buffer as for UV seams) and a triangle partly in front of it (object 1). */
+typedef struct ru_scene {
+    float pos0[12], pos1[9], col0[5 * 3];
+    uint32_t idx0[6], idx1[3], cidx0[6];
+    int32_t adj0[6], adj1[3];
+    pen_raster_mesh meshes[2];
+    pen_camera cam;
+    pen_view view;
+    pen_ground ground;
+} ru_scene;
+
+static inline void ru_scene_init(ru_scene *s) {
+    const float p0[12] = {-1.0f, -0.8f, 0.2f,  1.1f,  -0.9f, -0.3f,
+                          0.9f,  1.0f,  -0.1f, -1.2f, 0.9f,  0.4f};
+    const float p1[9] = {-0.3f, -0.5f, 1.2f, 0.8f, 0.1f, 1.0f, 0.0f, 0.7f, 1.3f};
+    const uint32_t i0[6] = {0, 1, 2, 0, 2, 3}, i1[3] = {0, 1, 2}, c0[6] = {0, 1, 2, 4, 2, 3};
+    memcpy(s->pos0, p0, sizeof p0);
+    memcpy(s->pos1, p1, sizeof p1);
+    memcpy(s->idx0, i0, sizeof i0);
+    memcpy(s->idx1, i1, sizeof i1);
+    memcpy(s->cidx0, c0, sizeof c0);
+    for (int i = 0; i < 15; ++i)
+        s->col0[i] = (float)(0.1 + 0.8 * ((i * 7) % 11) / 11.0);
+    CHECK(pen_raster_adjacency(NULL, 4, 2, s->idx0, s->adj0) == PEN_OK);
+    CHECK(pen_raster_adjacency(NULL, 3, 1, s->idx1, s->adj1) == PEN_OK);
+    s->meshes[0] = ru_mesh(4, s->pos0, 2, s->idx0, s->adj0);
+    s->meshes[1] = ru_mesh(3, s->pos1, 1, s->idx1, s->adj1);
+    s->cam = ru_camera(32, 28, 50.0f, 0.3f, 0.4f, 4.0f, 0, 0, 0);
+    s->view = ru_view(&s->cam);
+    pen_ground g = {1, -1.1f, {1, 1, 1}, 3};
+    s->ground = g;
+}
+
+/* A G-buffer of the scene's size with the scene rasterized into it. */
+static inline pen_gbuffer ru_scene_gbuffer(const ru_scene *s) {
+    pen_gbuffer gb = ru_gbuffer(s->cam.width, s->cam.height);
+    CHECK(ru_raster(&s->view, s->meshes, 2, &s->ground, &gb, 0) == PEN_OK);
+    return gb;
+}
+
 #endif

@@ -22,7 +22,8 @@ static void rotation_ref(const double w[3], double R[9]) {
 }
 
 static void random_w(unsigned long long *seed, double scale, double w[3]) {
-    for (int i = 0; i < 3; ++i) w[i] = scale * (2 * check_rand_(seed) - 1);
+    for (int i = 0; i < 3; ++i)
+        w[i] = scale * (2 * check_rand_(seed) - 1);
 }
 
 static void test_rotation_matches_reference(void) {
@@ -34,12 +35,14 @@ static void test_rotation_matches_reference(void) {
             random_w(&seed, scales[s], w);
             pen__pose_rotation_d(w, R, NULL);
             rotation_ref(w, Rr);
-            for (int i = 0; i < 9; ++i) CHECK_NEAR(R[i], Rr[i], 1e-14);
+            for (int i = 0; i < 9; ++i)
+                CHECK_NEAR(R[i], Rr[i], 1e-14);
             /* Orthonormal with determinant 1. */
             for (int a = 0; a < 3; ++a)
                 for (int b = 0; b < 3; ++b) {
                     double d = 0;
-                    for (int c = 0; c < 3; ++c) d += R[3 * a + c] * R[3 * b + c];
+                    for (int c = 0; c < 3; ++c)
+                        d += R[3 * a + c] * R[3 * b + c];
                     CHECK_NEAR(d, a == b, 1e-14);
                 }
         }
@@ -116,9 +119,16 @@ static void test_pose_backward_fd(void) {
                 prm[7 + i] = p[i];
             }
             prm[6] = pose.scale;
-            float an[10] = {d.rotation_axis_angle_deg[0], d.rotation_axis_angle_deg[1],
-                            d.rotation_axis_angle_deg[2], d.translation[0], d.translation[1],
-                            d.translation[2], d.scale, dp[0], dp[1], dp[2]};
+            float an[10] = {d.rotation_axis_angle_deg[0],
+                            d.rotation_axis_angle_deg[1],
+                            d.rotation_axis_angle_deg[2],
+                            d.translation[0],
+                            d.translation[1],
+                            d.translation[2],
+                            d.scale,
+                            dp[0],
+                            dp[1],
+                            dp[2]};
             for (int i = 0; i < 10; ++i) {
                 double h = i < 3 ? 1e-4 : 1e-6, pp[10], pm[10];
                 memcpy(pp, prm, sizeof pp), memcpy(pm, prm, sizeof pm);
@@ -143,10 +153,12 @@ static void test_points_match_single(void) {
     for (int k = 0; k < 5; ++k) {
         float o[3];
         pen_pose_apply(&pose, p + 3 * k, o);
-        for (int i = 0; i < 3; ++i) CHECK(o[i] == out[3 * k + i]);
+        for (int i = 0; i < 3; ++i)
+            CHECK(o[i] == out[3 * k + i]);
         dp1[0] = dp1[1] = dp1[2] = 0;
         pen_pose_apply_bwd(&pose, p + 3 * k, g + 3 * k, &d, dp1);
-        for (int i = 0; i < 3; ++i) CHECK_NEAR(dp1[i], dp[3 * k + i], 1e-6);
+        for (int i = 0; i < 3; ++i)
+            CHECK_NEAR(dp1[i], dp[3 * k + i], 1e-6);
     }
     for (int i = 0; i < 3; ++i) {
         CHECK_NEAR(d.rotation_axis_angle_deg[i], dsum.rotation_axis_angle_deg[i], 1e-5);

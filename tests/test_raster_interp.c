@@ -49,36 +49,8 @@ static void test_ray_bary_backward_fd(void) {
 
 /* ---- A small scene ------------------------------------------------------------------------- */
 
-/* Two objects: a tilted quad (two triangles, UV-style separate attribute indices) and a
- * triangle partly in front of it, over a ground plane. */
-typedef struct scene {
-    float pos0[12], pos1[9], col0[5 * 3];
-    uint32_t idx0[6], idx1[3], cidx0[6];
-    pen_raster_mesh meshes[2];
-    pen_camera cam;
-    pen_view view;
-    pen_ground ground;
-} scene;
-
-static void scene_init(scene *s) {
-    const float p0[12] = {-1.0f, -0.8f, 0.2f,  1.1f,  -0.9f, -0.3f,
-                          0.9f,  1.0f,  -0.1f, -1.2f, 0.9f,  0.4f};
-    const float p1[9] = {-0.3f, -0.5f, 1.2f, 0.8f, 0.1f, 1.0f, 0.0f, 0.7f, 1.3f};
-    const uint32_t i0[6] = {0, 1, 2, 0, 2, 3}, i1[3] = {0, 1, 2}, c0[6] = {0, 1, 2, 4, 2, 3};
-    memcpy(s->pos0, p0, sizeof p0), memcpy(s->pos1, p1, sizeof p1);
-    memcpy(s->idx0, i0, sizeof i0), memcpy(s->idx1, i1, sizeof i1), memcpy(s->cidx0, c0, sizeof c0);
-    for (int i = 0; i < 15; ++i)
-        s->col0[i] = (float)(0.1 + 0.8 * ((i * 7) % 11) / 11.0);
-    s->meshes[0] = ru_mesh(4, s->pos0, 2, s->idx0, NULL);
-    s->meshes[1] = ru_mesh(3, s->pos1, 1, s->idx1, NULL);
-    s->cam = ru_camera(24, 20, 50.0f, 0.3f, 0.4f, 4.0f, 0, 0, 0);
-    s->view = ru_view(&s->cam);
-    pen_ground g = {1, -1.5f, {1, 1, 1}, 3};
-    s->ground = g;
-}
-
 /* loss = sum W . position (both objects) + sum V . colour (object 0), summed in double. */
-static double scene_loss(const scene *s, const float *W, const float *V, pen_gbuffer *gb) {
+static double scene_loss(const ru_scene *s, const float *W, const float *V, pen_gbuffer *gb) {
     size_t n = (size_t)s->cam.width * s->cam.height;
     float *pos = calloc(3 * n, sizeof(float)), *col = calloc(3 * n, sizeof(float));
     CHECK(ru_raster(&s->view, s->meshes, 2, &s->ground, gb, 0) == PEN_OK);
@@ -94,8 +66,8 @@ static double scene_loss(const scene *s, const float *W, const float *V, pen_gbu
 }
 
 static void test_interpolation_pipeline_fd(void) {
-    scene s;
-    scene_init(&s);
+    ru_scene s;
+    ru_scene_init(&s);
     size_t n = (size_t)s.cam.width * s.cam.height;
     float *W = malloc(3 * n * sizeof(float)), *V = malloc(3 * n * sizeof(float));
     unsigned long long seed = 52;
@@ -157,7 +129,7 @@ static void test_interpolation_pipeline_fd(void) {
                 CHECK_NEAR(pts[3 * i + c], ip[3 * i + c], 1e-5);
         if (gb.surface[i] == PEN_SURFACE_GROUND) {
             ++ground;
-            CHECK_NEAR(pts[3 * i + 1], -1.5, 1e-5);
+            CHECK_NEAR(pts[3 * i + 1], s.ground.height, 1e-5);
         }
         if (gb.surface[i] == PEN_SURFACE_BACKGROUND) CHECK(pts[3 * i] == 0 && ip[3 * i] == 0);
     }
@@ -168,11 +140,10 @@ static void test_interpolation_pipeline_fd(void) {
 
 static void test_interpolation_bary_fd(void) {
     /* d_bary against finite differences of the barycentrics themselves (linear: exact). */
-    scene s;
-    scene_init(&s);
+    ru_scene s;
+    ru_scene_init(&s);
     size_t n = (size_t)s.cam.width * s.cam.height;
-    pen_gbuffer gb = ru_gbuffer(s.cam.width, s.cam.height);
-    CHECK(ru_raster(&s.view, s.meshes, 2, &s.ground, &gb, 0) == PEN_OK);
+    pen_gbuffer gb = ru_scene_gbuffer(&s);
     float *d_out = malloc(3 * n * sizeof(float)), *out = calloc(3 * n, sizeof(float));
     float *d_bary = calloc(2 * n, sizeof(float));
     unsigned long long seed = 53;
