@@ -83,8 +83,10 @@ static inline void fixture_cleanup_dir_(const char *dir) {
     rmdir(dir);
 }
 
+/* Removes the folder, unless PEN_TEST_KEEP is set (to look at what a test wrote). */
 static inline void fixture_cleanup(void) {
-    if (fixture_dir_[0]) fixture_cleanup_dir_(fixture_dir_);
+    if (fixture_dir_[0] && getenv("PEN_TEST_KEEP")) fprintf(stderr, "kept %s\n", fixture_dir_);
+    else if (fixture_dir_[0]) fixture_cleanup_dir_(fixture_dir_);
     fixture_dir_[0] = '\0';
 }
 
