@@ -19,7 +19,7 @@
 static char fixture_dir_[256];
 
 /* The test's temporary folder (created on first use, removed by fixture_cleanup). */
-static const char *fixture_dir(void) {
+static inline const char *fixture_dir(void) {
     if (!fixture_dir_[0]) {
         snprintf(fixture_dir_, sizeof fixture_dir_, "/tmp/pen_test_XXXXXX");
         if (!mkdtemp(fixture_dir_)) {
@@ -31,7 +31,7 @@ static const char *fixture_dir(void) {
 }
 
 /* fixture_dir()/name in one of 8 rotating buffers (so a call may use several). */
-static const char *fixture_path(const char *name) {
+static inline const char *fixture_path(const char *name) {
     static char bufs[8][512];
     static int next = 0;
     char *b = bufs[next++ & 7];
@@ -39,7 +39,7 @@ static const char *fixture_path(const char *name) {
     return b;
 }
 
-static const char *fixture_write(const char *name, const void *data, size_t size) {
+static inline const char *fixture_write(const char *name, const void *data, size_t size) {
     const char *path = fixture_path(name);
     FILE *f = fopen(path, "wb");
     if (!f || fwrite(data, 1, size, f) != size || fclose(f) != 0) {
@@ -49,17 +49,17 @@ static const char *fixture_write(const char *name, const void *data, size_t size
     return path;
 }
 
-static const char *fixture_text(const char *name, const char *text) {
+static inline const char *fixture_text(const char *name, const char *text) {
     return fixture_write(name, text, strlen(text));
 }
 
-static int fixture_exists(const char *path) {
+static inline int fixture_exists(const char *path) {
     struct stat st;
     return stat(path, &st) == 0;
 }
 
 /* Number of entries of the folder whose name contains ".tmp-" (left-over temporary files). */
-static int fixture_temp_files(void) {
+static inline int fixture_temp_files(void) {
     DIR *d = opendir(fixture_dir());
     int n = 0;
     for (struct dirent *e; d && (e = readdir(d));) n += strstr(e->d_name, ".tmp-") != NULL;
@@ -67,12 +67,12 @@ static int fixture_temp_files(void) {
     return n;
 }
 
-static void fixture_cleanup_dir_(const char *dir) {
+static inline void fixture_cleanup_dir_(const char *dir) {
     DIR *d = opendir(dir);
     for (struct dirent *e; d && (e = readdir(d));) {
         if (strcmp(e->d_name, ".") == 0 || strcmp(e->d_name, "..") == 0) continue;
         char p[1024];
-        snprintf(p, sizeof p, "%s/%s", dir, e->d_name);
+        if (snprintf(p, sizeof p, "%s/%s", dir, e->d_name) >= (int)sizeof p) continue;
         struct stat st;
         if (lstat(p, &st) == 0 && S_ISDIR(st.st_mode))
             fixture_cleanup_dir_(p);
@@ -83,19 +83,21 @@ static void fixture_cleanup_dir_(const char *dir) {
     rmdir(dir);
 }
 
-static void fixture_cleanup(void) {
-    if (fixture_dir_[0]) fixture_cleanup_dir_(fixture_dir_);
+/* Removes the folder, unless PEN_TEST_KEEP is set (to look at what a test wrote). */
+static inline void fixture_cleanup(void) {
+    if (fixture_dir_[0] && getenv("PEN_TEST_KEEP")) fprintf(stderr, "kept %s\n", fixture_dir_);
+    else if (fixture_dir_[0]) fixture_cleanup_dir_(fixture_dir_);
     fixture_dir_[0] = '\0';
 }
 
 /* One context for the whole test program, created on first use; it and the temporary folder are
  * released at exit. */
 static pen_context *fixture_ctx_;
-static void fixture_exit_(void) {
+static inline void fixture_exit_(void) {
     pen_context_destroy(fixture_ctx_);
     fixture_cleanup();
 }
-static pen_context *fixture_ctx(void) {
+static inline pen_context *fixture_ctx(void) {
     if (!fixture_ctx_) {
         fixture_ctx_ = pen_context_create();
         atexit(fixture_exit_);
@@ -105,7 +107,7 @@ static pen_context *fixture_ctx(void) {
 
 /* Checks that `got` equals `want` and that the context's message contains each of the
  * NULL-terminated substrings. */
-static void check_error_(int line, pen_context *ctx, pen_status got, pen_status want, ...) {
+static inline void check_error_(int line, pen_context *ctx, pen_status got, pen_status want, ...) {
     const char *msg = pen_context_error(ctx);
     ++check_count_;
     if (got != want) {

@@ -11,6 +11,7 @@
 #include "io/io_internal.h"
 #include "penumbra/image.h"
 
+#include <errno.h>
 #include <stb_image.h>
 #include <stb_image_write.h>
 #include <stdlib.h>
@@ -133,6 +134,15 @@ static pen_status check_finite(pen_context *ctx, pen_status status, const char *
     return PEN_OK;
 }
 
+/* OpenEXR reports a missing file as just another exception: open it first so that a missing or
+ * unreadable file is an i/o error like everywhere else. */
+static pen_status exr_load(pen_context *ctx, const char *path, pen_image *out) {
+    FILE *f = fopen(path, "rb");
+    if (!f) return pen__error(ctx, PEN_ERROR_IO, "%s: cannot open: %s", path, strerror(errno));
+    fclose(f);
+    return pen__exr_load(ctx, path, out);
+}
+
 pen_status pen_image_load_ex(pen_context *ctx, const char *path, unsigned flags, pen_image *out) {
     memset(out, 0, sizeof *out);
     int raw = (flags & PEN_IMAGE_LOAD_RAW) != 0;
@@ -142,7 +152,7 @@ pen_status pen_image_load_ex(pen_context *ctx, const char *path, unsigned flags,
     else if (pen__io_has_ext(path, "hdr") || pen__io_has_ext(path, "pic"))
         s = load_stb(ctx, path, 1, raw, out);
     else if (pen__io_has_ext(path, "exr"))
-        s = pen__exr_load(ctx, path, out);
+        s = exr_load(ctx, path, out);
     else
         return pen__error(ctx, PEN_ERROR_UNSUPPORTED,
                           "%s: unknown image format (expected .png, .hdr or .exr)", path);

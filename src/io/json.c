@@ -80,7 +80,7 @@ const char *pen__json_type_name(const cJSON *item) {
 
 pen_status pen__json_error(pen_context *ctx, pen_status status, const pen__json_where *w,
                            const char *fmt, ...) {
-    char what[512];
+    char what[1024];
     va_list ap;
     va_start(ap, fmt);
     vsnprintf(what, sizeof what, fmt, ap);
