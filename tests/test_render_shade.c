@@ -2,9 +2,9 @@
  * closed-form irradiance without occluders, finite differences in double for every input of the
  * backward, float against double, the self-shadowing rule (continuity, spheres behind the tangent
  * plane), and finite results at singular inputs. */
-#include "check.h"
 #include "core/internal.h"
 #include "render/render_internal.h"
+#include "render_scenes.h"
 
 #include <string.h>
 
@@ -15,20 +15,6 @@ static double urand(double lo, double hi) {
 static void rand_unit(double d[3]) {
     double z = urand(-1, 1), phi = urand(0, 2 * M_PI), s = sqrt(1 - z * z);
     d[0] = s * cos(phi), d[1] = s * sin(phi), d[2] = z;
-}
-
-/* Real SH up to l = 2 written out (Condon-Shortley phase), independent of src/sh. */
-static void y_band2(const double n[3], double y[9]) {
-    const double x = n[0], yy = n[1], z = n[2];
-    y[0] = 0.28209479177387814;
-    y[1] = -0.48860251190291992 * yy;
-    y[2] = 0.48860251190291992 * z;
-    y[3] = -0.48860251190291992 * x;
-    y[4] = 1.0925484305920792 * x * yy;
-    y[5] = -1.0925484305920792 * yy * z;
-    y[6] = 0.31539156525252005 * (3 * z * z - 1);
-    y[7] = -1.0925484305920792 * x * z;
-    y[8] = 0.54627421529603959 * (x * x - yy * yy);
 }
 
 static pen__shade_params params(int bands, pen_sh_exp_method method, int shadows) {
@@ -53,7 +39,7 @@ static void test_irradiance_closed_form(void) {
             rand_unit(n);
             pen__shade_fwd_d(&p, (const double(*)[3])L, 0, NULL, x, n, rho, rgb);
             double y[9];
-            y_band2(n, y);
+            rs_y_band2(n, y);
             for (int ch = 0; ch < 3; ++ch) {
                 double e = 0;
                 for (int l = 0; l < 3; ++l)
