@@ -5,8 +5,10 @@
  *
  *     pen_view_init(ctx, &scene->camera, &view);
  *     pen_pose_points_fwd(&obj->pose, n, obj->mesh.positions, world);        object -> world
+ *     pen_vertex_normals_fwd(ctx, n, world, t, indices, normals);             smooth normals
  *     pen_raster_gbuffer(ctx, &view, meshes, count, &scene->ground, &gb);       visibility
  *     pen_interpolate_fwd(&gb, object, indices, world, 3, position);          per-pixel attributes
+ *     (normals likewise, then pen_normalize_fwd; UVs with the mesh's uv_indices)
  *     ... shade every pixel into `color` (RGB) ...
  *     pen_antialias_fwd(ctx, &gb, &view, meshes, count, color, 3, image);     silhouette blending
  *   backward, in reverse:
@@ -14,6 +16,7 @@
  *     ... shading backward: d_color -> d_position, d_normal, d_uv ...
  *     pen_interpolate_bwd(...)  d_position -> d_world (direct), d_bary
  *     pen_raster_bary_bwd(...)  d_bary -> d_world (the pixel's point slides over the triangle)
+ *     pen_vertex_normals_bwd(...)  d_normals -> d_world
  *     pen_pose_points_bwd(...)  d_world -> d_pose
  *
  * Conventions:
