@@ -5,8 +5,10 @@
  *
  *     pen_view_init(ctx, &scene->camera, &view);
  *     pen_pose_points_fwd(&obj->pose, n, obj->mesh.positions, world);        object -> world
+ *     pen_vertex_normals_fwd(ctx, n, world, t, indices, normals);             smooth normals
  *     pen_raster_gbuffer(ctx, &view, meshes, count, &scene->ground, &gb);       visibility
  *     pen_interpolate_fwd(&gb, object, indices, world, 3, position);          per-pixel attributes
+ *     (normals likewise, then pen_normalize_fwd; UVs with the mesh's uv_indices)
  *     ... shade every pixel into `color` (RGB) ...
  *     pen_antialias_fwd(ctx, &gb, &view, meshes, count, color, 3, image);     silhouette blending
  *   backward, in reverse:
@@ -14,6 +16,7 @@
  *     ... shading backward: d_color -> d_position, d_normal, d_uv ...
  *     pen_interpolate_bwd(...)  d_position -> d_world (direct), d_bary
  *     pen_raster_bary_bwd(...)  d_bary -> d_world (the pixel's point slides over the triangle)
+ *     pen_vertex_normals_bwd(...)  d_normals -> d_world
  *     pen_pose_points_bwd(...)  d_world -> d_pose
  *
  * Conventions:
@@ -59,18 +62,18 @@ typedef struct pen_view {
  * direction another axis is used, as pen_camera_frame does. */
 pen_status pen_view_init(pen_context *ctx, const pen_camera *cam, pen_view *view);
 
-/* World point -> (sx, sy, depth): sx = cx + f (d.right)/(d.forward), sy = cy - f (d.up)/(d.forward),
- * depth = d.forward with d = p - eye. Points at depth <= 0 give non-finite screen coordinates;
- * callers test depth against near_plane first. */
+/* World point -> (sx, sy, depth): sx = cx + f (d.right)/(d.forward), sy = cy - f
+ * (d.up)/(d.forward), depth = d.forward with d = p - eye. Points at depth <= 0 give non-finite
+ * screen coordinates; callers test depth against near_plane first. */
 void pen_view_project_fwd(const pen_view *view, const float p[3], float s[3]);
 /* d_p += J^T d_s with J = d(sx, sy, depth)/dp. */
-void pen_view_project_bwd(const pen_view *view, const float p[3], const float d_s[3],
-                          float d_p[3]);
+void pen_view_project_bwd(const pen_view *view, const float p[3], const float d_s[3], float d_p[3]);
 /* The world-space ray direction through image point (px, py), scaled so that its forward
  * component is 1: the point at depth z on that ray is eye + z * dir. */
 void pen_view_ray(const pen_view *view, double px, double py, double dir[3]);
 
-/* ---- Rigid pose backward (the forward, pen_pose_rotation / pen_pose_apply, is in scene.h) ----- */
+/* ---- Rigid pose backward (the forward, pen_pose_rotation / pen_pose_apply, is in scene.h) -----
+ */
 
 /* Gradient of a pose: the same fields as pen_pose, holding d/d(field). */
 typedef pen_pose pen_pose_grad;
@@ -92,8 +95,8 @@ void pen_pose_points_bwd(const pen_pose *pose, int n, const float *p, const floa
 typedef struct pen_raster_mesh {
     int vertex_count;
     int triangle_count;
-    const float *positions;   /* 3 * vertex_count, world space */
-    const uint32_t *indices;  /* 3 * triangle_count, into positions */
+    const float *positions;  /* 3 * vertex_count, world space */
+    const uint32_t *indices; /* 3 * triangle_count, into positions */
     /* 3 * triangle_count from pen_raster_adjacency: for edge k of triangle t (corner k to corner
      * (k+1) % 3) the vertex of the neighbouring triangle opposite that edge, or -1. Needed by
      * pen_antialias_*, ignored by the rasterizer; may be NULL when no antialiasing is done. */
@@ -132,9 +135,8 @@ void pen_gbuffer_free(pen_gbuffer *gb);
  * the earlier mesh and triangle, and meshes win ties against the ground. Tiles of 16x16 pixels
  * are processed in parallel (pen_context_threads); the result does not depend on the thread
  * count. Fails on a size mismatch, an index out of range or a non-finite position. */
-pen_status pen_raster_gbuffer(pen_context *ctx, const pen_view *view,
-                              const pen_raster_mesh *meshes, int mesh_count,
-                              const pen_ground *ground, pen_gbuffer *gb);
+pen_status pen_raster_gbuffer(pen_context *ctx, const pen_view *view, const pen_raster_mesh *meshes,
+                              int mesh_count, const pen_ground *ground, pen_gbuffer *gb);
 
 /* Backward of the barycentrics of the visible points: with d_bary (2 per pixel, d/du and d/dv),
  * adds into d_positions[m] (3 * vertex_count, or NULL to skip mesh m) the gradient through the

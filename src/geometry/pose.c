@@ -43,8 +43,10 @@ void pen__pose_rotation_d(const double w[3], double R[9], double dR[27]) {
     double W[9] = {0.0, -w[2], w[1], w[2], 0.0, -w[0], -w[1], w[0], 0.0};
     double W2[9];
     for (int a = 0; a < 3; ++a)
-        for (int b = 0; b < 3; ++b) W2[3 * a + b] = w[a] * w[b] - (a == b ? s : 0.0);
-    for (int i = 0; i < 9; ++i) R[i] = (i % 4 == 0 ? 1.0 : 0.0) + c[0] * W[i] + c[1] * W2[i];
+        for (int b = 0; b < 3; ++b)
+            W2[3 * a + b] = w[a] * w[b] - (a == b ? s : 0.0);
+    for (int i = 0; i < 9; ++i)
+        R[i] = (i % 4 == 0 ? 1.0 : 0.0) + c[0] * W[i] + c[1] * W2[i];
     if (!dR) return;
     for (int j = 0; j < 3; ++j) {
         double *D = dR + 9 * j;
@@ -55,8 +57,8 @@ void pen__pose_rotation_d(const double w[3], double R[9], double dR[27]) {
         E[3 * j1 + j2] = -1.0;
         for (int a = 0; a < 3; ++a)
             for (int b = 0; b < 3; ++b) {
-                double dW2 = (a == j ? w[b] : 0.0) + (b == j ? w[a] : 0.0) -
-                             (a == b ? 2.0 * w[j] : 0.0);
+                double dW2 =
+                    (a == j ? w[b] : 0.0) + (b == j ? w[a] : 0.0) - (a == b ? 2.0 * w[j] : 0.0);
                 int i = 3 * a + b;
                 D[i] = c[0] * E[i] + c[1] * dW2 + 2.0 * w[j] * (c[2] * W[i] + c[3] * W2[i]);
             }
@@ -65,18 +67,19 @@ void pen__pose_rotation_d(const double w[3], double R[9], double dR[27]) {
 
 static void pose_matrix(const pen_pose *pose, double R[9], double dR[27]) {
     double w[3];
-    for (int i = 0; i < 3; ++i) w[i] = (double)pose->rotation_axis_angle_deg[i] * DEG;
+    for (int i = 0; i < 3; ++i)
+        w[i] = (double)pose->rotation_axis_angle_deg[i] * DEG;
     pen__pose_rotation_d(w, R, dR);
 }
 
 void pen_pose_rotation(const pen_pose *pose, float R[9]) {
     double Rd[9];
     pose_matrix(pose, Rd, NULL);
-    for (int i = 0; i < 9; ++i) R[i] = (float)Rd[i];
+    for (int i = 0; i < 9; ++i)
+        R[i] = (float)Rd[i];
 }
 
-static void apply_d(const double R[9], double scale, const float t[3], const float *p,
-                    float *out) {
+static void apply_d(const double R[9], double scale, const float t[3], const float *p, float *out) {
     for (int a = 0; a < 3; ++a)
         out[a] = (float)(scale * (R[3 * a] * (double)p[0] + R[3 * a + 1] * (double)p[1] +
                                   R[3 * a + 2] * (double)p[2]) +
@@ -107,7 +110,8 @@ void pen_pose_points_bwd(const pen_pose *pose, int n, const float *p, const floa
         const float *q = p + 3 * i;
         for (int a = 0; a < 3; ++a) {
             dt[a] += (double)g[a];
-            for (int b = 0; b < 3; ++b) G[3 * a + b] += (double)g[a] * (double)q[b];
+            for (int b = 0; b < 3; ++b)
+                G[3 * a + b] += (double)g[a] * (double)q[b];
         }
         if (d_p)
             for (int b = 0; b < 3; ++b)
@@ -116,11 +120,13 @@ void pen_pose_points_bwd(const pen_pose *pose, int n, const float *p, const floa
     }
     if (!d_pose) return;
     double ds = 0.0;
-    for (int i = 0; i < 9; ++i) ds += R[i] * G[i];
+    for (int i = 0; i < 9; ++i)
+        ds += R[i] * G[i];
     d_pose->scale += (float)ds;
     for (int j = 0; j < 3; ++j) {
         double dw = 0.0;
-        for (int i = 0; i < 9; ++i) dw += dR[9 * j + i] * G[i];
+        for (int i = 0; i < 9; ++i)
+            dw += dR[9 * j + i] * G[i];
         d_pose->rotation_axis_angle_deg[j] += (float)(scale * dw * DEG);
         d_pose->translation[j] += (float)dt[j];
     }

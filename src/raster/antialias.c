@@ -59,6 +59,8 @@ typedef struct aa_ctx {
     const pen_view *view;
     const pen_raster_mesh *meshes;
     int mesh_count;
+    const size_t *first_vertex; /* per mesh, into screen */
+    const double *screen;       /* per vertex of every mesh: sx, sy, depth */
 } aa_ctx;
 
 typedef struct aa_pair {
@@ -96,10 +98,9 @@ static aa_pair analyze_pair(const aa_ctx *ac, int x, int y, int axis, aa_edge *e
     if (t < 0 || t >= mesh->triangle_count) return none;
     const uint32_t *idx = mesh->indices + 3 * (size_t)t;
     const pen_view *view = ac->view;
-    double p[3][3], s[3][3], J[3][9];
+    const double *s[3];
     for (int k = 0; k < 3; ++k) {
-        pen__load3_d(mesh->positions + 3 * (size_t)idx[k], p[k]);
-        pen__raster_project_d(view, p[k], s[k], edge ? J[k] : NULL);
+        s[k] = ac->screen + 3 * (ac->first_vertex[gb->surface[io]] + idx[k]);
         if (!(s[k][2] >= view->near_plane)) return none;
     }
     /* Pair coordinates: u along the pair, v across; the occluder's centre and the direction. */
@@ -117,12 +118,14 @@ static aa_pair analyze_pair(const aa_ctx *ac, int x, int y, int axis, aa_edge *e
         if (axis == 0 ? !(fabs(dv) >= fabs(du)) : !(fabs(dv) > fabs(du))) return none;
         int32_t opp = mesh->adjacency[3 * (size_t)t + k];
         if (opp >= 0) {
-            double a[3], b[3], c[3], o[3], nrm[3], po[3];
+            double a[3], b[3], c[3], o[3], nrm[3], p[4][3];
+            for (int j = 0; j < 3; ++j)
+                pen__load3_d(mesh->positions + 3 * (size_t)idx[j], p[j]);
+            pen__load3_d(mesh->positions + 3 * (size_t)opp, p[3]);
             pen__sub_d(p[k], view->eye, a);
             pen__sub_d(p[(k + 1) % 3], view->eye, b);
             pen__sub_d(p[(k + 2) % 3], view->eye, c);
-            pen__load3_d(mesh->positions + 3 * (size_t)opp, po);
-            pen__sub_d(po, view->eye, o);
+            pen__sub_d(p[3], view->eye, o);
             pen__cross_d(a, b, nrm);
             if (pen__dot_d(nrm, c) * pen__dot_d(nrm, o) < 0.0) return none; /* not a silhouette */
         }
@@ -147,25 +150,6 @@ static aa_pair analyze_pair(const aa_ctx *ac, int x, int y, int axis, aa_edge *e
         return out;
     }
     return none;
-}
-
-/* Pairs of the image: horizontal ones at y * (W-1) + x, then vertical ones at y * W + x. */
-static pen_status analyze_all(pen_context *ctx, const aa_ctx *ac, aa_pair **pairs_out) {
-    int W = ac->gb->width, H = ac->gb->height;
-    size_t nh = (size_t)(W - 1) * (size_t)H, nv = (size_t)W * (size_t)(H - 1);
-    aa_pair *pairs = pen__malloc(ctx, nh + nv + 1, sizeof *pairs, "antialias pairs");
-    if (!pairs) return PEN_ERROR_MEMORY;
-    int threads = pen__raster_threads(ctx);
-#pragma omp parallel for num_threads(threads) schedule(static)
-    for (int y = 0; y < H; ++y) {
-        for (int x = 0; x + 1 < W; ++x)
-            pairs[(size_t)y * (size_t)(W - 1) + (size_t)x] = analyze_pair(ac, x, y, 0, NULL);
-        if (y + 1 < H)
-            for (int x = 0; x < W; ++x)
-                pairs[nh + (size_t)y * (size_t)W + (size_t)x] = analyze_pair(ac, x, y, 1, NULL);
-    }
-    *pairs_out = pairs;
-    return PEN_OK;
 }
 
 /* The (up to) four pairs around pixel (x, y): pair index, whether the pixel is its first
@@ -204,6 +188,66 @@ static pen_status check_args(pen_context *ctx, const pen_gbuffer *gb, const pen_
     return PEN_OK;
 }
 
+/* Everything both directions need: validated arguments, the screen position of every vertex,
+ * and each pair's blend (horizontal pairs at y * (W-1) + x, then vertical ones at y * W + x). */
+typedef struct aa_state {
+    aa_ctx ac;
+    aa_pair *pairs;
+    size_t *first_vertex;
+    double *screen;
+} aa_state;
+
+static void aa_end(aa_state *st) {
+    free(st->pairs);
+    free(st->first_vertex);
+    free(st->screen);
+}
+
+static pen_status aa_begin(pen_context *ctx, const pen_gbuffer *gb, const pen_view *view,
+                           const pen_raster_mesh *meshes, int mesh_count, int channels,
+                           aa_state *st) {
+    memset(st, 0, sizeof *st);
+    pen_status status = check_args(ctx, gb, view, meshes, mesh_count, channels);
+    if (status) return status;
+    int W = gb->width, H = gb->height, threads = pen__raster_threads(ctx);
+    size_t nh = (size_t)(W - 1) * (size_t)H, nv = (size_t)W * (size_t)(H - 1), total = 0;
+    st->first_vertex = pen__malloc(ctx, (size_t)mesh_count + 1, sizeof(size_t), "antialias");
+    if (!st->first_vertex) return PEN_ERROR_MEMORY;
+    for (int m = 0; m < mesh_count; ++m) {
+        st->first_vertex[m] = total;
+        total += (size_t)meshes[m].vertex_count;
+    }
+    st->screen = pen__malloc(ctx, 3 * total + 1, sizeof(double), "antialias screen vertices");
+    st->pairs = pen__malloc(ctx, nh + nv + 1, sizeof *st->pairs, "antialias pairs");
+    if (!st->screen || !st->pairs) {
+        aa_end(st);
+        return PEN_ERROR_MEMORY;
+    }
+    for (int m = 0; m < mesh_count; ++m) {
+        double *out = st->screen + 3 * st->first_vertex[m];
+        const float *pos = meshes[m].positions;
+#pragma omp parallel for num_threads(threads) schedule(static)
+        for (int v = 0; v < meshes[m].vertex_count; ++v) {
+            double p[3];
+            pen__load3_d(pos + 3 * (size_t)v, p);
+            pen__raster_project_d(view, p, out + 3 * (size_t)v, NULL);
+        }
+    }
+    aa_ctx ac = {gb, view, meshes, mesh_count, st->first_vertex, st->screen};
+    st->ac = ac;
+    aa_pair *pairs = st->pairs;
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (int y = 0; y < H; ++y) {
+        for (int x = 0; x + 1 < W; ++x)
+            pairs[(size_t)y * (size_t)(W - 1) + (size_t)x] = analyze_pair(&st->ac, x, y, 0, NULL);
+        if (y + 1 < H)
+            for (int x = 0; x < W; ++x)
+                pairs[nh + (size_t)y * (size_t)W + (size_t)x] =
+                    analyze_pair(&st->ac, x, y, 1, NULL);
+    }
+    return PEN_OK;
+}
+
 /* The blend is linear in the colours: out = A c with, for each pair (receiver R, source S,
  * weight w), A_RR -= w and A_RS += w on top of the identity. The forward applies A (each pixel
  * gathers its row), the backward A^T (each pixel gathers its column) and adds into dst. */
@@ -213,16 +257,25 @@ static void apply_blend(int threads, const aa_pair *pairs, int W, int H, const f
     for (int y = 0; y < H; ++y)
         for (int x = 0; x < W; ++x) {
             size_t i = (size_t)y * (size_t)W + (size_t)x, idx[4], other[4];
-            int first[4], n = pixel_pairs(W, H, x, y, idx, first, other);
+            int first[4], n = pixel_pairs(W, H, x, y, idx, first, other), m = 0;
+            /* The pairs that touch this pixel: receiving (+1) or, for A^T, giving (-1). */
+            double w[4];
+            int role[4];
+            size_t from[4];
+            for (int j = 0; j < n; ++j) {
+                const aa_pair *pr = pairs + idx[j];
+                int recv = pr->receiver == (first[j] ? 1 : 2);
+                if (!recv && !(transpose && pr->receiver)) continue;
+                w[m] = (double)pr->weight, role[m] = recv, from[m++] = other[j];
+            }
             for (int c = 0; c < channels; ++c) {
                 double vi = (double)v[i * channels + c], acc = vi;
-                for (int j = 0; j < n; ++j) {
-                    const aa_pair *pr = pairs + idx[j];
-                    double w = (double)pr->weight, vo = (double)v[other[j] * channels + c];
-                    if (pr->receiver == (first[j] ? 1 : 2)) /* this pixel receives */
-                        acc += transpose ? -w * vi : w * (vo - vi);
-                    else if (pr->receiver && transpose) /* the other pixel receives from this */
-                        acc += w * vo;
+                for (int j = 0; j < m; ++j) {
+                    double vo = (double)v[from[j] * channels + c];
+                    if (role[j]) /* this pixel receives */
+                        acc += transpose ? -w[j] * vi : w[j] * (vo - vi);
+                    else /* the other pixel receives from this one */
+                        acc += w[j] * vo;
                 }
                 if (transpose)
                     dst[i * channels + c] += (float)acc;
@@ -237,13 +290,11 @@ static void apply_blend(int threads, const aa_pair *pairs, int W, int H, const f
 pen_status pen_antialias_fwd(pen_context *ctx, const pen_gbuffer *gb, const pen_view *view,
                              const pen_raster_mesh *meshes, int mesh_count, const float *color,
                              int channels, float *out) {
-    pen_status st = check_args(ctx, gb, view, meshes, mesh_count, channels);
-    if (st) return st;
-    aa_ctx ac = {gb, view, meshes, mesh_count};
-    aa_pair *pairs;
-    if ((st = analyze_all(ctx, &ac, &pairs))) return st;
-    apply_blend(pen__raster_threads(ctx), pairs, gb->width, gb->height, color, channels, 0, out);
-    free(pairs);
+    aa_state st;
+    pen_status status = aa_begin(ctx, gb, view, meshes, mesh_count, channels, &st);
+    if (status) return status;
+    apply_blend(pen__raster_threads(ctx), st.pairs, gb->width, gb->height, color, channels, 0, out);
+    aa_end(&st);
     return PEN_OK;
 }
 
@@ -253,11 +304,10 @@ pen_status pen_antialias_bwd(pen_context *ctx, const pen_gbuffer *gb, const pen_
                              const pen_raster_mesh *meshes, int mesh_count, const float *color,
                              int channels, const float *d_out, float *d_color,
                              float *const *d_positions) {
-    pen_status st = check_args(ctx, gb, view, meshes, mesh_count, channels);
-    if (st) return st;
-    aa_ctx ac = {gb, view, meshes, mesh_count};
-    aa_pair *pairs;
-    if ((st = analyze_all(ctx, &ac, &pairs))) return st;
+    aa_state st;
+    pen_status status = aa_begin(ctx, gb, view, meshes, mesh_count, channels, &st);
+    if (status) return status;
+    const aa_pair *pairs = st.pairs;
     int W = gb->width, H = gb->height;
     if (d_color) apply_blend(pen__raster_threads(ctx), pairs, W, H, d_out, channels, 1, d_color);
     if (d_positions) {
@@ -269,7 +319,7 @@ pen_status pen_antialias_bwd(pen_context *ctx, const pen_gbuffer *gb, const pen_
             size_t r = axis ? pi - nh : pi;
             int rw = axis ? W : W - 1, x = (int)(r % (size_t)rw), y = (int)(r / (size_t)rw);
             aa_edge e;
-            aa_pair pr = analyze_pair(&ac, x, y, axis, &e);
+            aa_pair pr = analyze_pair(&st.ac, x, y, axis, &e);
             if (!pr.receiver || !d_positions[e.mesh]) continue;
             size_t i0 = (size_t)y * (size_t)W + (size_t)x;
             size_t i1 = axis ? i0 + (size_t)W : i0 + 1;
@@ -292,6 +342,6 @@ pen_status pen_antialias_bwd(pen_context *ctx, const pen_gbuffer *gb, const pen_
             }
         }
     }
-    free(pairs);
+    aa_end(&st);
     return PEN_OK;
 }

@@ -155,10 +155,12 @@ static int tri_bounds(const pen_view *view, const double v[3][3], int *x0, int *
         lo[0] = fmin(lo[0], sx), hi[0] = fmax(hi[0], sx);
         lo[1] = fmin(lo[1], sy), hi[1] = fmax(hi[1], sy);
     }
-    /* Centres px + 0.5 in [lo, hi], widened by a pixel: the coverage test itself is exact. */
-    double bx0 = fmax(floor(lo[0] - 0.5) - 1.0, 0.0), by0 = fmax(floor(lo[1] - 0.5) - 1.0, 0.0);
-    double bx1 = fmin(ceil(hi[0] - 0.5) + 1.0, view->width - 1.0);
-    double by1 = fmin(ceil(hi[1] - 0.5) + 1.0, view->height - 1.0);
+    /* Centres px + 0.5 in [lo, hi], widened by a hair for rounding in the projection: the
+     * coverage test itself is exact, the box only has to contain it. */
+    const double eps = 1e-6;
+    double bx0 = fmax(ceil(lo[0] - 0.5 - eps), 0.0), by0 = fmax(ceil(lo[1] - 0.5 - eps), 0.0);
+    double bx1 = fmin(floor(hi[0] - 0.5 + eps), view->width - 1.0);
+    double by1 = fmin(floor(hi[1] - 0.5 + eps), view->height - 1.0);
     if (!(bx0 <= bx1 && by0 <= by1)) return 0; /* off screen (or NaN) */
     *x0 = (int)bx0, *y0 = (int)by0, *x1 = (int)bx1, *y1 = (int)by1;
     return 1;
@@ -242,8 +244,9 @@ static void raster_tile(const tile_ctx *tc, int tx, int ty, int tiles_x) {
         for (int x = X0; x <= X1; ++x) {
             int i = (y - Y0) * TILE + (x - X0);
             if (g && g->enabled) {
-                double D[3];
-                pen_view_ray(view, x + 0.5, y + 0.5, D);
+                double D[3]; /* pen_view_ray from the tables */
+                for (int c = 0; c < 3; ++c)
+                    D[c] = tc->rx[x] * view->right[c] + tc->ry[y] * view->up[c] + view->forward[c];
                 double z = ((double)g->height - view->eye[1]) / D[1];
                 double hx = view->eye[0] + z * D[0], hz = view->eye[2] + z * D[2];
                 double hs = (double)g->half_size;
