@@ -5,6 +5,7 @@
 #include <string.h>
 
 static const pen_command commands[] = {
+    {"render", "SH-shadow render of a scene JSON into .png/.exr/.hdr", pen_cmd_render},
     {"sh-accuracy", "irradiance error of SH visibility against ray-tested truth", pen_cmd_sh_accuracy},
 };
 static const int command_count = (int)(sizeof commands / sizeof commands[0]);
