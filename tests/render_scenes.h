@@ -64,7 +64,8 @@ static inline void rs_unit(float p[3]) {
 }
 
 /* Recursively subdivided octant triangle (corners on the unit sphere, CCW from outside). */
-static inline void rs_subdivide(rs_builder *b, const float *a, const float *c, const float *d, int level) {
+static inline void rs_subdivide(rs_builder *b, const float *a, const float *c, const float *d,
+                                int level) {
     if (level == 0) {
         rs_triangle(b, rs_vertex(b, a), rs_vertex(b, c), rs_vertex(b, d));
         return;
@@ -82,19 +83,22 @@ static inline void rs_subdivide(rs_builder *b, const float *a, const float *c, c
 /* A sphere of the given radius around the origin: 8 * 4^level triangles. With `uv`, planar
  * texture coordinates (x, z) / (2 radius) + 1/2 shared with the position indices. */
 static inline pen_mesh rs_octasphere(int level, float radius, int uv) {
-    static const float P[6][3] = {{1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};
+    static const float P[6][3] = {{1, 0, 0},  {-1, 0, 0}, {0, 1, 0},
+                                  {0, -1, 0}, {0, 0, 1},  {0, 0, -1}};
     /* Faces (x, y, z) sign octants, ordered counter-clockwise seen from outside. */
     static const int F[8][3] = {{0, 2, 4}, {4, 2, 1}, {1, 2, 5}, {5, 2, 0},
                                 {0, 4, 3}, {4, 1, 3}, {1, 5, 3}, {5, 0, 3}};
     rs_builder b = {0, 0, 0, 0, NULL, NULL};
-    for (int f = 0; f < 8; ++f) rs_subdivide(&b, P[F[f][0]], P[F[f][1]], P[F[f][2]], level);
+    for (int f = 0; f < 8; ++f)
+        rs_subdivide(&b, P[F[f][0]], P[F[f][1]], P[F[f][2]], level);
     pen_mesh m;
     memset(&m, 0, sizeof m);
     m.vertex_count = b.nv;
     m.triangle_count = b.nt;
     m.positions = b.pos;
     m.indices = b.idx;
-    for (int i = 0; i < 3 * b.nv; ++i) m.positions[i] *= radius;
+    for (int i = 0; i < 3 * b.nv; ++i)
+        m.positions[i] *= radius;
     if (uv) {
         m.uv_count = b.nv;
         m.uvs = malloc(sizeof(float) * 2 * (size_t)b.nv);
@@ -113,11 +117,12 @@ static inline pen_mesh rs_octasphere(int level, float radius, int uv) {
 /* Lighting: a bright overhead lobe with a side component and some colour, 4 bands. */
 static inline void rs_lighting(pen_scene *sc) {
     memset(sc->lighting.sh, 0, sizeof sc->lighting.sh);
-    const float base[16] = {1.6f,  -1.1f, 0.25f, -0.35f, 0.1f,  -0.3f,  0.45f, 0.2f,
+    const float base[16] = {1.6f,  -1.1f, 0.25f, -0.35f, 0.1f,  -0.3f, 0.45f, 0.2f,
                             -0.1f, 0.05f, -0.1f, 0.15f,  -0.1f, 0.05f, 0.08f, -0.05f};
     const float tint[3] = {1.0f, 0.9f, 0.8f};
     for (int k = 0; k < 16; ++k)
-        for (int ch = 0; ch < 3; ++ch) sc->lighting.sh[k][ch] = base[k] * (k ? 1.0f : tint[ch]);
+        for (int ch = 0; ch < 3; ++ch)
+            sc->lighting.sh[k][ch] = base[k] * (k ? 1.0f : tint[ch]);
     sc->lighting.scale = 1.0f;
 }
 
@@ -143,7 +148,8 @@ static inline pen_scene rs_scene(int w, int h) {
 }
 
 /* Adds an object (takes the mesh) with `count` spheres (x, y, z, r, object space). */
-static inline pen_object *rs_add_object(pen_scene *sc, pen_mesh mesh, int count, const float *spheres) {
+static inline pen_object *rs_add_object(pen_scene *sc, pen_mesh mesh, int count,
+                                        const float *spheres) {
     sc->objects = realloc(sc->objects, sizeof(pen_object) * (size_t)(sc->object_count + 1));
     pen_object *ob = &sc->objects[sc->object_count++];
     memset(ob, 0, sizeof *ob);
@@ -163,7 +169,8 @@ static inline pen_image rs_texture(int w, int h, unsigned long long *seed) {
     pen_image t;
     pen_status s = pen_image_create(NULL, w, h, 3, &t);
     CHECK(s == PEN_OK);
-    for (int i = 0; i < 3 * w * h; ++i) t.data[i] = (float)(0.2 + 0.7 * check_rand_(seed));
+    for (int i = 0; i < 3 * w * h; ++i)
+        t.data[i] = (float)(0.2 + 0.7 * check_rand_(seed));
     return t;
 }
 
@@ -194,7 +201,7 @@ static inline int rs_all_finite(const float *v, size_t n) {
 
 /* Renders with a fresh context; returns the status and fills *img (allocated). */
 static inline pen_status rs_render(const pen_scene *sc, const pen_render_options *opt, int threads,
-                            pen_image *img) {
+                                   pen_image *img) {
     pen_context *ctx = pen_context_create();
     pen_context_set_threads(ctx, threads);
     memset(img, 0, sizeof *img);

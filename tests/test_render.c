@@ -79,12 +79,14 @@ static void test_golden_sphere(void) {
                     pen_view_ray(&view, x + dx + 0.5, y + dy + 0.5, d);
                     double dd = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
                     double b = 0, c = -(double)R * (double)R;
-                    for (int a = 0; a < 3; ++a) b += d[a] * view.eye[a], c += view.eye[a] * view.eye[a];
+                    for (int a = 0; a < 3; ++a)
+                        b += d[a] * view.eye[a], c += view.eye[a] * view.eye[a];
                     double disc = b * b - dd * c;
                     if (disc < 0.02 * dd) inside = 0;
                     if (dx == 0 && dy == 0 && inside) {
                         double t = (-b - sqrt(disc)) / dd;
-                        for (int a = 0; a < 3; ++a) hit_n[a] = (view.eye[a] + t * d[a]) / (double)R;
+                        for (int a = 0; a < 3; ++a)
+                            hit_n[a] = (view.eye[a] + t * d[a]) / (double)R;
                     }
                 }
             if (!inside) continue;
@@ -116,7 +118,8 @@ static pen_scene occluder_scene(float height, float radius) {
     memcpy(sc.camera.up, up, sizeof up);
     sc.camera.fov_y_deg = 10.0f;
     memset(sc.lighting.sh, 0, sizeof sc.lighting.sh);
-    for (int ch = 0; ch < 3; ++ch) sc.lighting.sh[0][ch] = (float)sqrt(4 * M_PI);
+    for (int ch = 0; ch < 3; ++ch)
+        sc.lighting.sh[0][ch] = (float)sqrt(4 * M_PI);
     pen_mesh tri;
     memset(&tri, 0, sizeof tri);
     tri.vertex_count = 3, tri.triangle_count = 1;
@@ -150,8 +153,8 @@ static void test_shadow_depth_against_exact_occlusion(void) {
         if (getenv("PEN_TEST_VERBOSE"))
             printf("  r %.2f: E %.4f, exact %.4f, error %.4f of unoccluded\n", (double)radii[k], E,
                    E_true, err);
-        CHECK_MSG(err < 0.1, "r %.2f: E %.4f, exact %.4f, error %.3f of unoccluded", (double)radii[k],
-                  E, E_true, err);
+        CHECK_MSG(err < 0.1, "r %.2f: E %.4f, exact %.4f, error %.3f of unoccluded",
+                  (double)radii[k], E, E_true, err);
         CHECK_MSG(E < prev, "shadow does not deepen: %.4f after %.4f", E, prev);
         prev = E;
         pen_image_free(&img);
@@ -187,7 +190,8 @@ static void test_convex_object_does_not_shadow_itself(void) {
     pen_gbuffer_create(ctx, 48, 48, &gb);
     float *world = malloc(sizeof(float) * 3 * (size_t)ob->mesh.vertex_count);
     pen_pose_points_fwd(&ob->pose, ob->mesh.vertex_count, ob->mesh.positions, world);
-    pen_raster_mesh m = {ob->mesh.vertex_count, ob->mesh.triangle_count, world, ob->mesh.indices, NULL};
+    pen_raster_mesh m = {ob->mesh.vertex_count, ob->mesh.triangle_count, world, ob->mesh.indices,
+                         NULL};
     CHECK(pen_raster_gbuffer(ctx, &view, &m, 1, &sc.ground, &gb) == PEN_OK);
     for (int y = 1; y < 47; ++y)
         for (int x = 1; x < 47; ++x) {
@@ -208,7 +212,8 @@ static void test_convex_object_does_not_shadow_itself(void) {
     /* V = exp*(0) is 1 up to the float model's rounding (about 1e-6). */
     CHECK_MSG(worst < 1e-5, "object pixels differ by %.3g with shadows on", worst);
     CHECK_MSG(ground_darker > 20, "only %d of %d ground pixels darkened", ground_darker, ground);
-    for (int i = 0; i < 3 * 48 * 48; ++i) CHECK(c.data[i] == a.data[i]); /* with a state */
+    for (int i = 0; i < 3 * 48 * 48; ++i)
+        CHECK(c.data[i] == a.data[i]); /* with a state */
     free(world);
     pen_gbuffer_free(&gb);
     pen_image_free(&a), pen_image_free(&b), pen_image_free(&c);
@@ -224,7 +229,8 @@ static void test_background_constant(void) {
     pen_image img;
     CHECK(rs_render(&sc, NULL, 0, &img) == PEN_OK);
     for (int i = 0; i < 16 * 16; ++i)
-        for (int ch = 0; ch < 3; ++ch) CHECK(img.data[3 * i + ch] == sc.background[ch]);
+        for (int ch = 0; ch < 3; ++ch)
+            CHECK(img.data[3 * i + ch] == sc.background[ch]);
     pen_image_free(&img);
     pen_scene_free(&sc);
 }

@@ -46,7 +46,8 @@ static fd_rig rig_grad(const pen_scene *sc, int shadows, pen_render_grad *g) {
     CHECK_MSG(s == PEN_OK, "%s", pen_context_error(r.ctx));
     size_t n = 3 * (size_t)r.img.width * (size_t)r.img.height;
     r.q = malloc(sizeof(float) * n);
-    for (size_t i = 0; i < n; ++i) r.q[i] = (float)check_rand_(&seed);
+    for (size_t i = 0; i < n; ++i)
+        r.q[i] = (float)check_rand_(&seed);
     pen_image d = {r.img.width, r.img.height, 3, r.q};
     s = pen_render_grad_create(r.ctx, sc, g);
     CHECK(s == PEN_OK);
@@ -87,12 +88,15 @@ static int cmp_double(const void *a, const void *b) {
 #define FD_SUB 16
 static double fd_robust(double (*eval)(void *, double), void *arg, double h) {
     double l[FD_SUB + 1], q[FD_SUB], sorted[FD_SUB], dev[FD_SUB];
-    for (int j = 0; j <= FD_SUB; ++j) l[j] = eval(arg, h * (2.0 * j / FD_SUB - 1.0));
+    for (int j = 0; j <= FD_SUB; ++j)
+        l[j] = eval(arg, h * (2.0 * j / FD_SUB - 1.0));
     const double step = 2.0 * h / FD_SUB;
-    for (int j = 0; j < FD_SUB; ++j) q[j] = sorted[j] = (l[j + 1] - l[j]) / step;
+    for (int j = 0; j < FD_SUB; ++j)
+        q[j] = sorted[j] = (l[j + 1] - l[j]) / step;
     qsort(sorted, FD_SUB, sizeof(double), cmp_double);
     const double med = 0.5 * (sorted[FD_SUB / 2 - 1] + sorted[FD_SUB / 2]);
-    for (int j = 0; j < FD_SUB; ++j) dev[j] = fabs(q[j] - med);
+    for (int j = 0; j < FD_SUB; ++j)
+        dev[j] = fabs(q[j] - med);
     qsort(dev, FD_SUB, sizeof(double), cmp_double);
     const double mad = 0.5 * (dev[FD_SUB / 2 - 1] + dev[FD_SUB / 2]);
     double sum = 0.0;
@@ -130,7 +134,8 @@ static double check_group(fd_rig *r, const pen_scene *sc, const char *name, floa
                           const float *g, int gstride, int n, float h, double tol,
                           double scale_floor, int robust) {
     double gmax = 0.0;
-    for (int i = 0; i < n; ++i) gmax = fmax(gmax, fabs((double)g[i * gstride]));
+    for (int i = 0; i < n; ++i)
+        gmax = fmax(gmax, fabs((double)g[i * gstride]));
     double worst = 0.0;
     for (int i = 0; i < n; ++i) {
         const double fd = fd_param(r, sc, p + (size_t)i * (size_t)stride, h, robust);
@@ -151,8 +156,8 @@ static void test_lighting_and_albedo(void) {
         pen_scene sc = rs_ball_scene(32, textured, &seed);
         pen_render_grad g;
         fd_rig r = rig_grad(&sc, 1, &g);
-        check_group(&r, &sc, "sh", &sc.lighting.sh[0][0], 1, &g.sh[0][0], 1, 48, 0.05f, 1e-3,
-                    1e-3, 0);
+        check_group(&r, &sc, "sh", &sc.lighting.sh[0][0], 1, &g.sh[0][0], 1, 48, 0.05f, 1e-3, 1e-3,
+                    0);
         check_group(&r, &sc, "ground albedo", sc.ground.albedo, 1, g.ground_albedo, 1, 3, 0.05f,
                     1e-3, 1e-3, 0);
         if (!textured) {
@@ -176,8 +181,8 @@ static void test_sphere_gradients(void) {
     pen_render_grad g;
     fd_rig r = rig_grad(&sc, 1, &g);
     /* Step 1e-3 scene units (a pixel is about 0.05 at this distance). */
-    check_group(&r, &sc, "sphere", sc.objects[0].spheres.data, 1, g.objects[0].spheres, 1, 8,
-                1e-3f, 2e-2, 0.05, 0);
+    check_group(&r, &sc, "sphere", sc.objects[0].spheres.data, 1, g.objects[0].spheres, 1, 8, 1e-3f,
+                2e-2, 0.05, 0);
     rig_free(&r);
     pen_render_grad_free(&g);
     pen_scene_free(&sc);
@@ -191,11 +196,12 @@ static void test_occluder_only(void) {
     /* The mesh far outside the ground and the view, the spheres where they were. */
     ps->rotation_axis_angle_deg[0] = ps->rotation_axis_angle_deg[1] = 0.0f;
     ps->translation[0] = 40.0f;
-    for (int i = 0; i < 2; ++i) sc.objects[0].spheres.data[4 * i] -= 40.0f;
+    for (int i = 0; i < 2; ++i)
+        sc.objects[0].spheres.data[4 * i] -= 40.0f;
     pen_render_grad g;
     fd_rig r = rig_grad(&sc, 1, &g);
-    check_group(&r, &sc, "occluder sphere", sc.objects[0].spheres.data, 1, g.objects[0].spheres,
-                1, 8, 1e-3f, 2e-2, 0.05, 0);
+    check_group(&r, &sc, "occluder sphere", sc.objects[0].spheres.data, 1, g.objects[0].spheres, 1,
+                8, 1e-3f, 2e-2, 0.05, 0);
     for (int i = 0; i < 3 * g.objects[0].vertex_count; ++i)
         CHECK(g.objects[0].positions[i] == 0.0f);
     rig_free(&r);
@@ -238,7 +244,8 @@ typedef struct vertex_arg {
 
 static double eval_vertices(void *arg, double offset) {
     vertex_arg *a = arg;
-    for (size_t i = 0; i < a->n; ++i) a->pos[i] = a->keep[i] + (float)offset * a->delta[i];
+    for (size_t i = 0; i < a->n; ++i)
+        a->pos[i] = a->keep[i] + (float)offset * a->delta[i];
     return projected(a->r, a->sc);
 }
 
@@ -285,7 +292,8 @@ static void test_vertex_gradients(void) {
  * against the ground and the background. */
 static void test_silhouette_gradients(void) {
     pen_scene sc = rs_ball_scene(32, 0, &seed);
-    for (int k = 1; k < 16; ++k) sc.lighting.sh[k][0] = sc.lighting.sh[k][1] = sc.lighting.sh[k][2] = 0;
+    for (int k = 1; k < 16; ++k)
+        sc.lighting.sh[k][0] = sc.lighting.sh[k][1] = sc.lighting.sh[k][2] = 0;
     sc.camera.eye[1] = 0.9f; /* lower, so the silhouette crosses the background too */
     check_vertex_directions("vertices (silhouettes only)", &sc, 0, 4);
     /* With antialiasing off, the same scene has no vertex gradient at all. */
@@ -297,7 +305,8 @@ static void test_silhouette_gradients(void) {
     pen_image img = {0, 0, 0, NULL}, d = {0, 0, 0, NULL};
     CHECK(pen_render_fwd(ctx, &sc, &opt, st, &img) == PEN_OK);
     pen_image_create(ctx, img.width, img.height, 3, &d);
-    for (int i = 0; i < 3 * img.width * img.height; ++i) d.data[i] = 1.0f;
+    for (int i = 0; i < 3 * img.width * img.height; ++i)
+        d.data[i] = 1.0f;
     pen_render_grad g;
     pen_render_grad_create(ctx, &sc, &g);
     CHECK(pen_render_bwd(ctx, &sc, &opt, st, &d, PEN_GRAD_VERTICES, &g) == PEN_OK);
@@ -328,7 +337,8 @@ static void test_thread_count_independent(void) {
         CHECK(pen_render_fwd(ctx, &sc, NULL, st, &im) == PEN_OK);
         pen_image_create(ctx, im.width, im.height, 3, &d);
         unsigned long long s2 = 99;
-        for (int i = 0; i < 3 * im.width * im.height; ++i) d.data[i] = (float)check_rand_(&s2);
+        for (int i = 0; i < 3 * im.width * im.height; ++i)
+            d.data[i] = (float)check_rand_(&s2);
         pen_render_grad_create(ctx, &sc, &g[k]);
         CHECK(pen_render_bwd(ctx, &sc, NULL, st, &d, PEN_GRAD_ALL, &g[k]) == PEN_OK);
         img[k] = im.data;
@@ -344,7 +354,8 @@ static void test_thread_count_independent(void) {
     CHECK(memcmp(a->spheres, b->spheres, sizeof(float) * 4 * (size_t)a->sphere_count) == 0);
     CHECK(memcmp(a->texture, b->texture, sizeof(float) * 3 * (size_t)a->texel_count) == 0);
     CHECK(memcmp(&a->pose, &b->pose, sizeof a->pose) == 0);
-    for (int k = 0; k < 2; ++k) free(img[k]), pen_render_grad_free(&g[k]);
+    for (int k = 0; k < 2; ++k)
+        free(img[k]), pen_render_grad_free(&g[k]);
     pen_scene_free(&sc);
 }
 
@@ -376,7 +387,8 @@ static void test_torture_finite(void) {
         } else if (variant == 1) {
             /* Degenerate triangles: collapse some triangles to a point or a segment. */
             pen_mesh *m = &ob->mesh;
-            for (int t = 0; t < m->triangle_count; t += 7) m->indices[3 * t + 1] = m->indices[3 * t];
+            for (int t = 0; t < m->triangle_count; t += 7)
+                m->indices[3 * t + 1] = m->indices[3 * t];
             for (int t = 3; t < m->triangle_count; t += 11) {
                 const uint32_t a = m->indices[3 * t], b = m->indices[3 * t + 1];
                 for (int k = 0; k < 3; ++k)

@@ -57,21 +57,21 @@ pen_render_options pen_render_options_default(void);
 
 /* What pen_render_bwd computes (bit mask). Skipping unwanted groups saves time; the fields of
  * groups not asked for are left untouched. */
-#define PEN_GRAD_LIGHTING 1u /* sh */
-#define PEN_GRAD_ALBEDO 2u   /* constant albedo, texture texels, ground albedo */
-#define PEN_GRAD_SPHERES 4u  /* sphere centres and radii (object space) */
-#define PEN_GRAD_POSE 8u     /* rigid pose of each object (moves vertices and spheres) */
-#define PEN_GRAD_VERTICES 16u/* vertex positions (object space), incl. silhouettes */
+#define PEN_GRAD_LIGHTING 1u  /* sh */
+#define PEN_GRAD_ALBEDO 2u    /* constant albedo, texture texels, ground albedo */
+#define PEN_GRAD_SPHERES 4u   /* sphere centres and radii (object space) */
+#define PEN_GRAD_POSE 8u      /* rigid pose of each object (moves vertices and spheres) */
+#define PEN_GRAD_VERTICES 16u /* vertex positions (object space), incl. silhouettes */
 #define PEN_GRAD_ALL 31u
 
 typedef struct pen_object_grad {
-    float albedo[3];      /* d constant albedo (objects without a texture) */
-    float *texture;       /* 3 per texel, the texture's layout; NULL if the object has none */
+    float albedo[3]; /* d constant albedo (objects without a texture) */
+    float *texture;  /* 3 per texel, the texture's layout; NULL if the object has none */
     int texel_count;
-    float *spheres;       /* 4 per sphere: d center (x, y, z), d radius; object space */
+    float *spheres; /* 4 per sphere: d center (x, y, z), d radius; object space */
     int sphere_count;
-    pen_pose_grad pose;   /* d rotation_axis_angle_deg (per degree), d translation, d scale */
-    float *positions;     /* 3 per vertex, object space */
+    pen_pose_grad pose; /* d rotation_axis_angle_deg (per degree), d translation, d scale */
+    float *positions;   /* 3 per vertex, object space */
     int vertex_count;
 } pen_object_grad;
 

@@ -39,12 +39,13 @@
 
 typedef struct object_buf {
     float *world, *vnormal, *d_world, *d_vnormal; /* 3 per vertex */
-    int32_t *adjacency;                          /* 3 per triangle */
+    int32_t *adjacency;                           /* 3 per triangle */
     size_t cap_v, cap_t;
 } object_buf;
 
 struct pen_render_state {
-    int valid;                 /* a forward has filled the buffers */
+    int valid;              /* a forward has filled the buffers */
+    pen_render_options opt; /* the forward's options */
     int width, height;
     pen_view view;
     pen_gbuffer gb;
@@ -54,13 +55,14 @@ struct pen_render_state {
     pen_raster_mesh *meshes;
     int sphere_count;
     size_t sphere_cap;
-    float *spheres;            /* world space, all objects */
-    int *sphere_first;         /* object o owns spheres [first[o], first[o+1]) */
+    float *spheres;    /* world space, all objects */
+    int *sphere_first; /* object o owns spheres [first[o], first[o+1]) */
     size_t pixel_cap;
     float *x, *nraw, *n, *rho, *uv, *color, *nsign;
     float *d_color, *d_x, *d_nraw, *d_uv, *d_rho, *d_bary;
-    size_t scratch_cap, rows_cap;
-    float *scratch;
+    size_t fv_cap, rows_cap;
+    float *fv; /* per pixel F and V (2 bands^2) when shadows are on */
+    int fv_valid;
     double *rows;
 };
 
@@ -77,10 +79,11 @@ void pen_render_state_free(pen_render_state *st) {
         free(b->world), free(b->vnormal), free(b->d_world), free(b->d_vnormal), free(b->adjacency);
     }
     free(st->obj), free(st->meshes), free(st->spheres), free(st->sphere_first);
-    float *px[] = {st->x,       st->nraw, st->n,    st->rho,  st->uv,   st->color, st->nsign,
+    float *px[] = {st->x,       st->nraw, st->n,      st->rho,  st->uv,    st->color, st->nsign,
                    st->d_color, st->d_x,  st->d_nraw, st->d_uv, st->d_rho, st->d_bary};
-    for (size_t i = 0; i < sizeof px / sizeof px[0]; ++i) free(px[i]);
-    free(st->scratch), free(st->rows);
+    for (size_t i = 0; i < sizeof px / sizeof px[0]; ++i)
+        free(px[i]);
+    free(st->fv), free(st->rows);
     free(st);
 }
 
@@ -128,9 +131,9 @@ static pen_status ensure_objects(pen_context *ctx, pen_render_state *st, int cou
 
 static pen_status ensure_pixels(pen_context *ctx, pen_render_state *st, size_t n) {
     if (st->pixel_cap >= n) return PEN_OK;
-    float **px[] = {&st->x,       &st->nraw, &st->n,      &st->rho,  &st->uv,   &st->color,
-                    &st->nsign,   &st->d_color, &st->d_x, &st->d_nraw, &st->d_uv, &st->d_rho,
-                    &st->d_bary};
+    float **px[] = {&st->x,     &st->nraw,  &st->n,       &st->rho, &st->uv,
+                    &st->color, &st->nsign, &st->d_color, &st->d_x, &st->d_nraw,
+                    &st->d_uv,  &st->d_rho, &st->d_bary};
     /* 3 floats per pixel is enough for every buffer (uv and d_bary use 2, nsign 1). */
     for (size_t i = 0; i < sizeof px / sizeof px[0]; ++i) {
         free(*px[i]);
@@ -173,9 +176,8 @@ static pen_status validate(pen_context *ctx, const pen_scene *sc) {
         (sc->ground.enabled && (!finite_n(sc->ground.albedo, 3) || !isfinite(sc->ground.height) ||
                                 !isfinite(sc->ground.half_size))))
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "render: non-finite background or ground");
-    if (sc->background_envmap &&
-        (!sc->lighting.envmap.data || !isfinite(sc->lighting.scale) ||
-         !isfinite(sc->lighting.rotation_y_deg)))
+    if (sc->background_envmap && (!sc->lighting.envmap.data || !isfinite(sc->lighting.scale) ||
+                                  !isfinite(sc->lighting.rotation_y_deg)))
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "render: the background shows the environment map, but there is none");
     for (int o = 0; o < sc->object_count; ++o) {
@@ -183,7 +185,7 @@ static pen_status validate(pen_context *ctx, const pen_scene *sc) {
         const char *name = object_name(ob);
         pen_status s = pen_mesh_validate(ctx, &ob->mesh);
         if (s) {
-            char msg[sizeof ((pen_context *)0)->message];
+            char msg[sizeof((pen_context *)0)->message];
             snprintf(msg, sizeof msg, "%s", pen_context_error(ctx));
             return pen__error(ctx, s, "render: objects[%d] (%s): %s", o, name, msg);
         }
@@ -193,10 +195,9 @@ static pen_status validate(pen_context *ctx, const pen_scene *sc) {
                                   "render: objects[%d] (%s): texture must be RGB", o, name);
             if (ob->mesh.uv_count <= 0)
                 return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                                  "render: objects[%d] (%s): texture but no texture coordinates",
-                                  o, name);
-            if (!finite_n(ob->texture.data, (size_t)ob->texture.width *
-                                                (size_t)ob->texture.height *
+                                  "render: objects[%d] (%s): texture but no texture coordinates", o,
+                                  name);
+            if (!finite_n(ob->texture.data, (size_t)ob->texture.width * (size_t)ob->texture.height *
                                                 (size_t)ob->texture.channels))
                 return pen__error(ctx, PEN_ERROR_ARGUMENT,
                                   "render: objects[%d] (%s): non-finite texel", o, name);
@@ -232,12 +233,14 @@ static void pixel_dir(const pen_view *v, int px, int py, float dir[3]) {
     double d[3];
     pen_view_ray(v, px + 0.5, py + 0.5, d);
     const double len = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-    for (int a = 0; a < 3; ++a) dir[a] = (float)(d[a] / len);
+    for (int a = 0; a < 3; ++a)
+        dir[a] = (float)(d[a] / len);
 }
 
 static void background_fwd(const pen_scene *sc, const pen_view *v, int px, int py, float rgb[3]) {
     if (!sc->background_envmap) {
-        for (int ch = 0; ch < 3; ++ch) rgb[ch] = sc->background[ch];
+        for (int ch = 0; ch < 3; ++ch)
+            rgb[ch] = sc->background[ch];
         return;
     }
     float dir[3];
@@ -302,8 +305,8 @@ static pen_status prepare(pen_context *ctx, const pen_scene *sc, const pen_rende
     }
     st->sphere_first[sc->object_count] = spheres;
     st->sphere_count = spheres;
-    if ((s = ensure(ctx, (void **)&st->spheres, &st->sphere_cap, 4 * (size_t)spheres,
-                    sizeof(float), "posed spheres")))
+    if ((s = ensure(ctx, (void **)&st->spheres, &st->sphere_cap, 4 * (size_t)spheres, sizeof(float),
+                    "posed spheres")))
         return s;
     for (int o = 0; o < sc->object_count; ++o) {
         const pen_object *ob = &sc->objects[o];
@@ -333,11 +336,6 @@ static pen_status prepare(pen_context *ctx, const pen_scene *sc, const pen_rende
     if (!st->params.gaunt)
         return pen__error(ctx, PEN_ERROR_INTERNAL, "render: no product table for %d bands",
                           sc->sh_bands);
-    const int nt = thread_count(ctx);
-    const size_t per = (size_t)pen__shade_scratch_per_sphere(sc->sh_bands) * (size_t)spheres;
-    if ((s = ensure(ctx, (void **)&st->scratch, &st->scratch_cap, per * (size_t)nt + 1,
-                    sizeof(float), "shading scratch")))
-        return s;
     return PEN_OK;
 }
 
@@ -384,6 +382,17 @@ pen_status pen_render_fwd(pen_context *ctx, const pen_scene *sc, const pen_rende
         goto done;
     }
 
+    /* Keep F and V per pixel for the backward (2 bands^2 floats: 32 MB at 512 x 512, 4 bands),
+     * which saves it the sphere sum and the exponential's squarings. */
+    const size_t nfv = 2 * (size_t)sc->sh_bands * (size_t)sc->sh_bands;
+    float *fv_all = NULL;
+    if (own == NULL && opt->shadows) {
+        if ((s = ensure(ctx, (void **)&st->fv, &st->fv_cap, nfv * (size_t)W * (size_t)H,
+                        sizeof(float), "visibility buffer")))
+            goto done;
+        fv_all = st->fv;
+    }
+    st->fv_valid = fv_all != NULL;
     const int nt = thread_count(ctx);
 #pragma omp parallel for schedule(dynamic, 1) num_threads(nt)
     for (int py = 0; py < H; ++py) {
@@ -397,30 +406,35 @@ pen_status pen_render_fwd(pen_context *ctx, const pen_scene *sc, const pen_rende
             }
             if (surf == PEN_SURFACE_GROUND) {
                 n[0] = 0.0f, n[1] = 1.0f, n[2] = 0.0f;
-                for (int ch = 0; ch < 3; ++ch) rho[ch] = sc->ground.albedo[ch];
+                for (int ch = 0; ch < 3; ++ch)
+                    rho[ch] = sc->ground.albedo[ch];
             } else {
                 const pen_object *ob = &sc->objects[surf];
                 const float sign = facing_sign(st, ob, surf, i);
                 st->nsign[i] = sign;
                 pen_normalize_fwd(1, st->nraw + 3 * i, n);
-                for (int a = 0; a < 3; ++a) n[a] *= sign;
+                for (int a = 0; a < 3; ++a)
+                    n[a] *= sign;
                 if (ob->texture.data)
                     pen__texture_fwd(&ob->texture, st->uv + 2 * i, rho);
                 else
-                    for (int ch = 0; ch < 3; ++ch) rho[ch] = ob->albedo[ch];
+                    for (int ch = 0; ch < 3; ++ch)
+                        rho[ch] = ob->albedo[ch];
             }
             pen__shade_fwd(&st->params, (const float(*)[3])sc->lighting.sh, st->sphere_count,
-                           st->spheres, st->x + 3 * i, n, rho, col);
+                           st->spheres, st->x + 3 * i, n, rho, col,
+                           fv_all ? fv_all + nfv * i : NULL);
         }
     }
 
     if (opt->antialias && sc->object_count > 0) {
-        if ((s = pen_antialias_fwd(ctx, &st->gb, &st->view, st->meshes, sc->object_count,
-                                   st->color, 3, image->data)))
+        if ((s = pen_antialias_fwd(ctx, &st->gb, &st->view, st->meshes, sc->object_count, st->color,
+                                   3, image->data)))
             goto done;
     } else {
         memcpy(image->data, st->color, sizeof(float) * 3 * (size_t)W * (size_t)H);
     }
+    st->opt = *opt;
     st->valid = 1;
     s = PEN_OK;
 done:
@@ -434,8 +448,8 @@ pen_status pen_render_grad_create(pen_context *ctx, const pen_scene *sc, pen_ren
     memset(out, 0, sizeof *out);
     out->bands = sc->sh_bands;
     if (sc->object_count <= 0) return PEN_OK;
-    out->objects = pen__calloc(ctx, (size_t)sc->object_count, sizeof *out->objects,
-                               "gradient objects");
+    out->objects =
+        pen__calloc(ctx, (size_t)sc->object_count, sizeof *out->objects, "gradient objects");
     if (!out->objects) return PEN_ERROR_MEMORY;
     out->object_count = sc->object_count;
     for (int o = 0; o < sc->object_count; ++o) {
@@ -443,16 +457,16 @@ pen_status pen_render_grad_create(pen_context *ctx, const pen_scene *sc, pen_ren
         pen_object_grad *g = &out->objects[o];
         g->vertex_count = ob->mesh.vertex_count > 0 ? ob->mesh.vertex_count : 0;
         g->sphere_count = ob->spheres.count > 0 ? ob->spheres.count : 0;
-        g->positions = pen__calloc(ctx, 3 * (size_t)g->vertex_count + 1, sizeof(float),
-                                   "vertex gradient");
-        g->spheres = pen__calloc(ctx, 4 * (size_t)g->sphere_count + 1, sizeof(float),
-                                 "sphere gradient");
+        g->positions =
+            pen__calloc(ctx, 3 * (size_t)g->vertex_count + 1, sizeof(float), "vertex gradient");
+        g->spheres =
+            pen__calloc(ctx, 4 * (size_t)g->sphere_count + 1, sizeof(float), "sphere gradient");
         if (!g->positions || !g->spheres) goto fail;
         if (ob->texture.data) {
             g->texel_count = ob->texture.width * ob->texture.height;
-            g->texture = pen__calloc(ctx, (size_t)g->texel_count,
-                                     sizeof(float) * (size_t)ob->texture.channels,
-                                     "texture gradient");
+            g->texture =
+                pen__calloc(ctx, (size_t)g->texel_count,
+                            sizeof(float) * (size_t)ob->texture.channels, "texture gradient");
             if (!g->texture) goto fail;
         }
     }
@@ -528,6 +542,9 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     if (!opt) opt = &def;
     if (!st || !st->valid)
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "render backward: no forward pass to undo");
+    if (opt->shadows != st->opt.shadows || opt->antialias != st->opt.antialias)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "render backward: options differ from the forward pass");
     const int W = st->width, H = st->height;
     if (!d_image || !d_image->data || d_image->width != W || d_image->height != H ||
         d_image->channels != 3)
@@ -586,56 +603,50 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     }
     memset(st->rows, 0, sizeof(double) * rl.stride * (size_t)H);
     const int nt = thread_count(ctx);
-    const size_t per = (size_t)pen__shade_scratch_per_sphere(sc->sh_bands) * (size_t)S;
-    if ((s = ensure(ctx, (void **)&st->scratch, &st->scratch_cap, per * (size_t)nt + 1,
-                    sizeof(float), "shading scratch"))) {
-        free(d_world);
-        return s;
-    }
-#pragma omp parallel num_threads(nt)
-    {
-        float *scratch = st->scratch + per * (size_t)omp_get_thread_num();
-#pragma omp for schedule(dynamic, 1)
-        for (int py = 0; py < H; ++py) {
-            double *row = st->rows + rl.stride * (size_t)py;
-            double(*d_sh)[3] = want_light ? (double(*)[3])(row + rl.sh) : NULL;
-            double *d_sph = want_sph ? row + rl.spheres : NULL;
-            for (int px = 0; px < W; ++px) {
-                const size_t i = (size_t)py * (size_t)W + (size_t)px;
-                const int surf = st->gb.surface[i];
-                const float *dc = st->d_color + 3 * i;
-                float *d_x = st->d_x + 3 * i, *d_nraw = st->d_nraw + 3 * i;
-                float *d_uv = st->d_uv + 2 * i, *d_rho = st->d_rho + 3 * i;
-                d_x[0] = d_x[1] = d_x[2] = 0.0f;
-                d_nraw[0] = d_nraw[1] = d_nraw[2] = 0.0f;
-                d_uv[0] = d_uv[1] = 0.0f;
-                d_rho[0] = d_rho[1] = d_rho[2] = 0.0f;
-                if (dc[0] == 0.0f && dc[1] == 0.0f && dc[2] == 0.0f) continue;
-                if (surf == PEN_SURFACE_BACKGROUND) continue; /* no parameters */
-                const int is_obj = surf >= 0;
-                const pen_object *ob = is_obj ? &sc->objects[surf] : NULL;
-                const int textured = is_obj && ob->texture.data;
-                float d_n[3] = {0.0f, 0.0f, 0.0f};
-                const int geom = is_obj && want_geom;
-                const int need_rho = want_albedo || (textured && geom);
-                pen__shade_bwd(&st->params, (const float(*)[3])sc->lighting.sh, S, st->spheres,
-                               st->x + 3 * i, st->n + 3 * i, st->rho + 3 * i, dc, scratch, d_sh,
-                               d_sph, geom ? d_x : NULL, geom ? d_n : NULL,
-                               need_rho ? d_rho : NULL);
-                if (!is_obj) {
-                    if (want_albedo)
-                        for (int ch = 0; ch < 3; ++ch) row[rl.ground + ch] += (double)d_rho[ch];
-                    continue;
-                }
-                if (!textured && want_albedo)
+    const size_t nfv = 2 * (size_t)nc;
+    const float *fv_all = st->fv_valid && st->params.shadows ? st->fv : NULL;
+#pragma omp parallel for schedule(dynamic, 1) num_threads(nt)
+    for (int py = 0; py < H; ++py) {
+        double *row = st->rows + rl.stride * (size_t)py;
+        double(*d_sh)[3] = want_light ? (double(*)[3])(row + rl.sh) : NULL;
+        double *d_sph = want_sph ? row + rl.spheres : NULL;
+        for (int px = 0; px < W; ++px) {
+            const size_t i = (size_t)py * (size_t)W + (size_t)px;
+            const int surf = st->gb.surface[i];
+            const float *dc = st->d_color + 3 * i;
+            float *d_x = st->d_x + 3 * i, *d_nraw = st->d_nraw + 3 * i;
+            float *d_uv = st->d_uv + 2 * i, *d_rho = st->d_rho + 3 * i;
+            d_x[0] = d_x[1] = d_x[2] = 0.0f;
+            d_nraw[0] = d_nraw[1] = d_nraw[2] = 0.0f;
+            d_uv[0] = d_uv[1] = 0.0f;
+            d_rho[0] = d_rho[1] = d_rho[2] = 0.0f;
+            if (dc[0] == 0.0f && dc[1] == 0.0f && dc[2] == 0.0f) continue;
+            if (surf == PEN_SURFACE_BACKGROUND) continue; /* no parameters */
+            const int is_obj = surf >= 0;
+            const pen_object *ob = is_obj ? &sc->objects[surf] : NULL;
+            const int textured = is_obj && ob->texture.data;
+            float d_n[3] = {0.0f, 0.0f, 0.0f};
+            const int geom = is_obj && want_geom;
+            const int need_rho = want_albedo || (textured && geom);
+            pen__shade_bwd(&st->params, (const float(*)[3])sc->lighting.sh, S, st->spheres,
+                           st->x + 3 * i, st->n + 3 * i, st->rho + 3 * i, dc,
+                           fv_all ? fv_all + nfv * i : NULL, d_sh, d_sph, geom ? d_x : NULL,
+                           geom ? d_n : NULL, need_rho ? d_rho : NULL);
+            if (!is_obj) {
+                if (want_albedo)
                     for (int ch = 0; ch < 3; ++ch)
-                        row[rl.albedo + 3 * (size_t)surf + ch] += (double)d_rho[ch];
-                if (!geom) continue;
-                if (textured) pen__texture_bwd(&ob->texture, st->uv + 2 * i, d_rho, NULL, d_uv);
-                const float sign = st->nsign[i];
-                for (int a = 0; a < 3; ++a) d_n[a] *= sign;
-                pen_normalize_bwd(1, st->nraw + 3 * i, d_n, d_nraw);
+                        row[rl.ground + ch] += (double)d_rho[ch];
+                continue;
             }
+            if (!textured && want_albedo)
+                for (int ch = 0; ch < 3; ++ch)
+                    row[rl.albedo + 3 * (size_t)surf + ch] += (double)d_rho[ch];
+            if (!geom) continue;
+            if (textured) pen__texture_bwd(&ob->texture, st->uv + 2 * i, d_rho, NULL, d_uv);
+            const float sign = st->nsign[i];
+            for (int a = 0; a < 3; ++a)
+                d_n[a] *= sign;
+            pen_normalize_bwd(1, st->nraw + 3 * i, d_n, d_nraw);
         }
     }
 
@@ -647,13 +658,16 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     }
     for (int py = 0; py < H; ++py) {
         const double *row = st->rows + rl.stride * (size_t)py;
-        for (size_t k = 0; k < rl.stride; ++k) sum[k] += row[k];
+        for (size_t k = 0; k < rl.stride; ++k)
+            sum[k] += row[k];
     }
     if (want_light)
         for (int k = 0; k < nc; ++k)
-            for (int ch = 0; ch < 3; ++ch) grad->sh[k][ch] += (float)sum[rl.sh + 3 * (size_t)k + ch];
+            for (int ch = 0; ch < 3; ++ch)
+                grad->sh[k][ch] += (float)sum[rl.sh + 3 * (size_t)k + ch];
     if (want_albedo) {
-        for (int ch = 0; ch < 3; ++ch) grad->ground_albedo[ch] += (float)sum[rl.ground + ch];
+        for (int ch = 0; ch < 3; ++ch)
+            grad->ground_albedo[ch] += (float)sum[rl.ground + ch];
         for (int o = 0; o < O; ++o)
             for (int ch = 0; ch < 3; ++ch)
                 grad->objects[o].albedo[ch] += (float)sum[rl.albedo + 3 * (size_t)o + ch];
@@ -679,7 +693,8 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
                 pen_pose_apply_bwd(&ob->pose, c, d_c, (wrt & PEN_GRAD_POSE) ? &og->pose : NULL,
                                    d_co);
                 if (wrt & PEN_GRAD_SPHERES) {
-                    for (int a = 0; a < 3; ++a) og->spheres[4 * (size_t)i + a] += d_co[a];
+                    for (int a = 0; a < 3; ++a)
+                        og->spheres[4 * (size_t)i + a] += d_co[a];
                     og->spheres[4 * (size_t)i + 3] += (float)(dw[3] * (double)ob->pose.scale);
                 }
                 if (wrt & PEN_GRAD_POSE) og->pose.scale += (float)(dw[3] * (double)c[3]);

@@ -31,15 +31,16 @@ void pen__shade_params_init(pen__shade_params *p, int bands, const pen_sh_exp_mo
     p->model = *model;
     p->epsilon = (isfinite(epsilon) && epsilon > 0.0) ? epsilon : model->epsilon;
     p->shadows = shadows;
-    for (int l = 0; l < PEN_SH_MAX_BANDS; ++l) p->hz[l] = 0.0;
+    for (int l = 0; l < PEN_SH_MAX_BANDS; ++l)
+        p->hz[l] = 0.0;
     pen_sh_zonal_clamped_cosine_d(bands, p->hz);
 }
 
 /* ---- Texture ------------------------------------------------------------------------------- */
 
 typedef struct bilinear {
-    size_t idx[4];   /* texel offsets (in texels) of (i0,j0), (i1,j0), (i0,j1), (i1,j1) */
-    float a, b;      /* fractions along u (columns) and down the rows */
+    size_t idx[4]; /* texel offsets (in texels) of (i0,j0), (i1,j0), (i0,j1), (i1,j1) */
+    float a, b;    /* fractions along u (columns) and down the rows */
 } bilinear;
 
 static int wrap(long i, int n) {
@@ -76,7 +77,8 @@ void pen__texture_fwd(const pen_image *tex, const float uv[2], float rgb[3]) {
     for (int ch = 0; ch < 3; ++ch) {
         const int c = ch < nch ? ch : nch - 1;
         float v = 0.0f;
-        for (int q = 0; q < 4; ++q) v += wt[q] * tex->data[s.idx[q] * (size_t)nch + (size_t)c];
+        for (int q = 0; q < 4; ++q)
+            v += wt[q] * tex->data[s.idx[q] * (size_t)nch + (size_t)c];
         rgb[ch] = v;
     }
 }
@@ -86,8 +88,7 @@ void pen__texture_bwd(const pen_image *tex, const float uv[2], const float d_rgb
     const bilinear s = bilinear_at(tex, uv);
     const int nch = tex->channels;
     if (d_texels) {
-        const float wt[4] = {(1 - s.a) * (1 - s.b), s.a * (1 - s.b), (1 - s.a) * s.b,
-                             s.a * s.b};
+        const float wt[4] = {(1 - s.a) * (1 - s.b), s.a * (1 - s.b), (1 - s.a) * s.b, s.a * s.b};
         for (int q = 0; q < 4; ++q)
             for (int ch = 0; ch < 3 && ch < nch; ++ch)
                 d_texels[s.idx[q] * (size_t)nch + (size_t)ch] += wt[q] * d_rgb[ch];
