@@ -9,8 +9,9 @@
  *   - spheres: step 1e-3 scene units (1/50 pixel), tolerance 2e-2 relative to max(|FD|,
  *     |analytic|, 5% of the group's largest derivative);
  *   - pose, vertices: the geometry moves, and the antialiased image has isolated jumps; a
- *     jump-tolerant difference (fd_robust) with steps of about 1/500 pixel, tolerance 2e-2 (3e-2
- *     for random vertex directions) relative as above.
+ *     jump-tolerant difference (fd_robust) with steps of about 1/500 pixel, tolerance 2e-2
+ *     relative as above; random vertex directions 5e-2 on the textured ball (texel-centre kinks),
+ *     1e-2 for silhouettes alone.
  * The shading kernel itself is checked in double precision in tests/test_render_shade.c. */
 #include "render_scenes.h"
 
@@ -146,6 +147,8 @@ static double check_group(fd_rig *r, const pen_scene *sc, const char *name, floa
         CHECK_MSG(err <= tol, "%s[%d]: analytic %.6g, FD %.6g (rel %.3g)", name, i, an, fd, err);
     }
     CHECK_MSG(gmax > 0.0, "%s: all gradients are zero", name);
+    if (getenv("PEN_TEST_VERBOSE"))
+        printf("  %s: %d checked, worst relative error %.2g\n", name, n, worst);
     return worst;
 }
 
@@ -251,7 +254,8 @@ static double eval_vertices(void *arg, double offset) {
 
 /* Directional derivative along random vertex displacements delta (object space, each coordinate
  * in [-1, 1]) against fd_robust of the render with step 1e-4. */
-static void check_vertex_directions(const char *name, pen_scene *sc, int shadows, int trials) {
+static void check_vertex_directions(const char *name, pen_scene *sc, int shadows, int trials,
+                                    double tol) {
     pen_render_grad g;
     fd_rig r = rig_grad(sc, shadows, &g);
     pen_mesh *m = &sc->objects[0].mesh;
@@ -273,7 +277,10 @@ static void check_vertex_directions(const char *name, pen_scene *sc, int shadows
         memcpy(m->positions, keep, sizeof(float) * n);
         /* Floor: 5% of the gradient's norm times the typical |delta| (a random direction). */
         const double scale = fmax(fmax(fabs(fd), fabs(an)), 0.05 * sqrt(gnorm / 3.0));
-        CHECK_MSG(fabs(fd - an) <= 3e-2 * scale, "%s trial %d: analytic %.6g, FD %.6g (rel %.3g)",
+        if (getenv("PEN_TEST_VERBOSE"))
+            printf("  %s trial %d: analytic %.6g, FD %.6g, relative error %.2g\n", name, t, an, fd,
+                   fabs(fd - an) / scale);
+        CHECK_MSG(fabs(fd - an) <= tol * scale, "%s trial %d: analytic %.6g, FD %.6g (rel %.3g)",
                   name, t, an, fd, fabs(fd - an) / scale);
     }
     free(keep), free(delta);
@@ -283,7 +290,9 @@ static void check_vertex_directions(const char *name, pen_scene *sc, int shadows
 
 static void test_vertex_gradients(void) {
     pen_scene sc = rs_ball_scene(32, 1, &seed);
-    check_vertex_directions("vertices (textured, shadows)", &sc, 1, 4);
+    /* Tolerance 5e-2: the bilinear texture's kinks at texel centres bend the image within the
+     * step (measured worst 2.6%, on a small directional derivative). */
+    check_vertex_directions("vertices (textured, shadows)", &sc, 1, 4, 5e-2);
     pen_scene_free(&sc);
 }
 
@@ -295,7 +304,7 @@ static void test_silhouette_gradients(void) {
     for (int k = 1; k < 16; ++k)
         sc.lighting.sh[k][0] = sc.lighting.sh[k][1] = sc.lighting.sh[k][2] = 0;
     sc.camera.eye[1] = 0.9f; /* lower, so the silhouette crosses the background too */
-    check_vertex_directions("vertices (silhouettes only)", &sc, 0, 4);
+    check_vertex_directions("vertices (silhouettes only)", &sc, 0, 4, 1e-2);
     /* With antialiasing off, the same scene has no vertex gradient at all. */
     pen_context *ctx = pen_context_create();
     pen_render_state *st = NULL;
