@@ -214,7 +214,7 @@ static void test_full_chain_fd(void) {
     }
     pen_interpolate_bwd(&gb, 0, s.idx0, s.pos0, 3, d_x, d_pos0, d_bary);
     pen_interpolate_bwd(&gb, 1, s.idx1, s.pos1, 3, d_x, d_pos1, d_bary);
-    pen_raster_bary_bwd(&s.view, s.meshes, 2, &gb, d_bary, d_positions);
+    CHECK(pen_raster_bary_bwd(NULL, &s.view, s.meshes, 2, &gb, d_bary, d_positions) == PEN_OK);
     const float h = 1.0f / 4096;
     int tested = 0;
     for (int m = 0; m < 2; ++m) {

@@ -89,7 +89,18 @@ static void test_interpolation_pipeline_fd(void) {
     pen_interpolate_bwd(&gb, 1, s.idx1, s.pos1, 3, W, d_pos1, d_bary);
     pen_interpolate_bwd(&gb, 0, s.cidx0, s.col0, 3, V, d_col0, d_bary);
     float *d_positions[2] = {d_pos0, d_pos1};
-    pen_raster_bary_bwd(&s.view, s.meshes, 2, &gb, d_bary, d_positions);
+    CHECK(pen_raster_bary_bwd(NULL, &s.view, s.meshes, 2, &gb, d_bary, d_positions) == PEN_OK);
+    /* The same sums with 1 and 3 threads (the vertex scatter is ordered). */
+    for (int threads = 1; threads <= 3; threads += 2) {
+        float e0[12] = {0}, e1[9] = {0}, *e[2] = {e0, e1};
+        pen_context *ctx = pen_context_create();
+        pen_context_set_threads(ctx, threads);
+        pen_interpolate_bwd(&gb, 0, s.idx0, s.pos0, 3, W, e0, NULL);
+        pen_interpolate_bwd(&gb, 1, s.idx1, s.pos1, 3, W, e1, NULL);
+        CHECK(pen_raster_bary_bwd(ctx, &s.view, s.meshes, 2, &gb, d_bary, e) == PEN_OK);
+        pen_context_destroy(ctx);
+        CHECK(memcmp(e0, d_pos0, sizeof e0) == 0 && memcmp(e1, d_pos1, sizeof e1) == 0);
+    }
     const float h = 1.0f / 2048;
     int tested = 0;
     for (int m = 0; m < 2; ++m) {
