@@ -33,14 +33,15 @@
  * Derivative. With pair axis u and cross axis v (u = x for horizontal pairs), edge endpoints
  * P, Q on screen and the centres' common cross coordinate v_c: s = (v_c - P_v) / (Q_v - P_v),
  * u_c = P_u + s (Q_u - P_u), alpha = dir (u_c - u_A) with dir = +-1 pointing from A to B. So
- *     d alpha / d(P_u, P_v, Q_u, Q_v) = dir ((1-s), -k(1-s), s, -k s),   k = (Q_u - P_u)/(Q_v -
- * P_v), and the screen gradients go to the world vertices through the projection's Jacobian. The
+ *     d alpha / d(P_u, P_v, Q_u, Q_v) = dir ((1-s), -k(1-s), s, -k s),  k = du/dv of the edge,
+ * and the screen gradients go to the world vertices through the projection's Jacobian. The
  * colours get d c_R += (1 - w) d c'_R, d c_S += w d c'_R for receiver R, source S, weight w.
  *
  * Limits (documented in docs/rasterizer.md): the occluder is chosen by comparing the two pixels'
  * depths; interpenetrations and the ground square's own border give no gradient; a pair whose
- * triangle has a vertex behind the near plane is skipped; the switch between horizontal and
- * vertical pairs at 45 degrees is a small discontinuity in the edge's orientation.
+ * triangle has a vertex behind the near plane is skipped. The 45-degree rule leaves measure-zero
+ * jumps: when a silhouette vertex whose two edges lie on both sides of 45 degrees crosses a row
+ * (column) of pixel centres, the pair there changes exit edge and with it scheme.
  *
  * Passes: (1) in parallel over rows, each pair's receiver and weight; (2) in parallel over
  * pixels, each pixel gathers its up-to-four pairs. The backward mirrors this and scatters the
