@@ -291,7 +291,7 @@ static void test_malformed(void) {
         {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/bad_index.obj\"}]}",
          PEN_ERROR_PARSE, "objects[0].mesh: ", "bad_index.obj:4: vertex index 4 out of range"},
         {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", \"spheres\": "
-                            "\"../assets/bad_spheres.json\"}]}",
+         "\"../assets/bad_spheres.json\"}]}",
          PEN_ERROR_PARSE, "objects[0].spheres: ",
          "bad_spheres.json: spheres[1].radius: expected a positive number, got -1"},
         {"{" CAM ", " LIGHT
@@ -300,7 +300,7 @@ static void test_malformed(void) {
         {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", \"spheres\": 3}]}",
          PEN_ERROR_PARSE, "objects[0].spheres", "{\"fit\": N}"},
         {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", \"spheres\": "
-                            "[{\"center\": [0, 0, 0], \"radius\": 0}]}]}",
+         "[{\"center\": [0, 0, 0], \"radius\": 0}]}]}",
          PEN_ERROR_PARSE, "objects[0].spheres[0].radius", "positive"},
         {"{" CAM ", " LIGHT ", " OBJ ", \"background\": \"sky\"}", PEN_ERROR_PARSE, "background",
          "'sky'"},
@@ -316,16 +316,16 @@ static void test_malformed(void) {
          ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", \"pose\": {\"scale\": -1}}]}",
          PEN_ERROR_PARSE, "objects[0].pose.scale", "positive"},
         {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/quad.obj\", \"albedo\": [1, 1, "
-                            "1], \"albedo_texture\": \"../assets/tex.png\"}]}",
+         "1], \"albedo_texture\": \"../assets/tex.png\"}]}",
          PEN_ERROR_PARSE, "objects[0]", "not both"},
         {"{" CAM ", " LIGHT
          ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", \"albedo\": [2, 0, 0]}]}",
          PEN_ERROR_PARSE, "objects[0].albedo[0]", "[0, 1]"},
         {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", "
-                            "\"albedo_texture\": \"../assets/tex.png\"}]}",
+         "\"albedo_texture\": \"../assets/tex.png\"}]}",
          PEN_ERROR_PARSE, "objects[0].albedo_texture", "texture coordinates"},
         {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/quad.obj\", "
-                            "\"albedo_texture\": \"../assets/gone.png\"}]}",
+         "\"albedo_texture\": \"../assets/gone.png\"}]}",
          PEN_ERROR_IO, "objects[0].albedo_texture", "gone.png"},
         {"[1, 2]", PEN_ERROR_PARSE, "bad.json", "expected a JSON object"},
         {"{\n\"camera\": {\n  ,}\n}", PEN_ERROR_PARSE, "bad.json:3:", "invalid JSON"},

@@ -349,15 +349,17 @@ static void test_thread_count_independent(void) {
     float *pos = malloc(sizeof(float) * 9 * n);
     uint32_t *idx = malloc(sizeof(uint32_t) * 3 * n);
     random_soup(&seed, n, pos, idx);
-    pen_camera cam = ru_camera(97, 61, 50.0f, 0.5f, 0.8f, 3.0f, 0, 0, 0);
+    pen_camera cam = ru_camera(RU_PARALLEL_W, RU_PARALLEL_H, 50.0f, 0.5f, 0.8f, 3.0f, 0, 0, 0);
     pen_view view = ru_view(&cam);
     pen_raster_mesh mesh = ru_mesh(3 * n, pos, n, idx, NULL);
     pen_ground ground = {1, -0.5f, {1, 1, 1}, 3};
-    pen_gbuffer g1 = ru_gbuffer(97, 61), g[2] = {ru_gbuffer(97, 61), ru_gbuffer(97, 61)};
+    pen_gbuffer g1 = ru_gbuffer(RU_PARALLEL_W, RU_PARALLEL_H);
+    pen_gbuffer g[2] = {ru_gbuffer(RU_PARALLEL_W, RU_PARALLEL_H),
+                        ru_gbuffer(RU_PARALLEL_W, RU_PARALLEL_H)};
     CHECK(ru_raster(&view, &mesh, 1, &ground, &g1, 1) == PEN_OK);
     for (int k = 0; k < 2; ++k) {
         CHECK(ru_raster(&view, &mesh, 1, &ground, &g[k], k + 2) == PEN_OK);
-        size_t n_px = 97 * 61;
+        size_t n_px = RU_PARALLEL_W * RU_PARALLEL_H;
         CHECK(memcmp(g1.surface, g[k].surface, n_px * 4) == 0);
         CHECK(memcmp(g1.triangle, g[k].triangle, n_px * 4) == 0);
         CHECK(memcmp(g1.bary, g[k].bary, n_px * 8) == 0);

@@ -417,7 +417,7 @@ static void test_spot_silhouette_fd(void) {
 
 static void test_threads_and_identity(void) {
     ru_scene s;
-    ru_scene_init(&s);
+    ru_scene_init_size(&s, RU_PARALLEL_W, RU_PARALLEL_H);
     size_t n = (size_t)s.cam.width * s.cam.height;
     pen_gbuffer gb = ru_scene_gbuffer(&s);
     float *c = malloc(3 * n * sizeof(float)), *o1 = malloc(3 * n * sizeof(float));

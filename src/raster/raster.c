@@ -284,7 +284,6 @@ pen_status pen_raster_gbuffer(pen_context *ctx, const pen_view *view, const pen_
     pen_status st = pen__raster_check_meshes(ctx, meshes, mesh_count, &total);
     if (st) return st;
 
-    int threads = pen__raster_threads(ctx);
     int W = view->width, H = view->height;
     int tiles_x = (W + TILE - 1) / TILE, tiles_y = (H + TILE - 1) / TILE;
     size_t tiles = (size_t)tiles_x * (size_t)tiles_y;
@@ -314,10 +313,12 @@ pen_status pen_raster_gbuffer(pen_context *ctx, const pen_view *view, const pen_
     for (int m = 0; m < mesh_count; ++m) {
         const pen_raster_mesh *mesh = meshes + m;
         int nv = mesh->vertex_count, nt = mesh->triangle_count;
-#pragma omp parallel for num_threads(threads) schedule(static)
+        int vthreads = pen__raster_threads_for(ctx, (size_t)nv);
+        int tthreads = pen__raster_threads_for(ctx, (size_t)nt);
+#pragma omp parallel for num_threads(vthreads) schedule(static)
         for (int v = 0; v < nv; ++v)
             to_camera(view, mesh->positions + 3 * (size_t)v, cam + 3 * (size_t)v);
-#pragma omp parallel for num_threads(threads) schedule(static)
+#pragma omp parallel for num_threads(tthreads) schedule(static)
         for (int t = 0; t < nt; ++t) {
             tri_setup *s = setups + base + (size_t)t;
             tri_setup_one(view, cam, mesh->indices + 3 * (size_t)t, s);
@@ -368,6 +369,7 @@ pen_status pen_raster_gbuffer(pen_context *ctx, const pen_view *view, const pen_
 
     tile_ctx tc = {view, ground, setups, bin_start, bin_items, rx, ry, gb};
     int ntiles = (int)tiles;
+    int threads = pen__raster_threads_for(ctx, (size_t)W * (size_t)H);
 #pragma omp parallel for num_threads(threads) schedule(dynamic, 1)
     for (int t = 0; t < ntiles; ++t)
         raster_tile(&tc, t % tiles_x, t / tiles_x, tiles_x);
@@ -433,7 +435,7 @@ pen_status pen_raster_bary_bwd(pen_context *ctx, const pen_view *view,
      * added to the shared vertices serially in pixel order, so sums do not depend on threads. */
     float *g = pen__malloc(ctx, 9 * n, sizeof(float), "barycentric backward");
     if (!g) return PEN_ERROR_MEMORY;
-    int W = gb->width, H = gb->height, threads = pen__raster_threads(ctx);
+    int W = gb->width, H = gb->height, threads = pen__raster_threads_for(ctx, n);
 #pragma omp parallel for num_threads(threads) schedule(static)
     for (int y = 0; y < H; ++y)
         for (int x = 0; x < W; ++x) {
