@@ -41,6 +41,9 @@ static inline const char *fixture_path(const char *name) {
 
 static inline const char *fixture_write(const char *name, const void *data, size_t size) {
     const char *path = fixture_path(name);
+    /* A new file rather than a truncated one: ext4 flushes a truncated-and-rewritten file on
+     * close (auto_da_alloc), which made the mutation test wait on the disk. */
+    unlink(path);
     FILE *f = fopen(path, "wb");
     if (!f || fwrite(data, 1, size, f) != size || fclose(f) != 0) {
         perror(path);
