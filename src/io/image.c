@@ -12,12 +12,13 @@
 #include "penumbra/image.h"
 
 #include <errno.h>
+#include <limits.h>
 #include <stb_image.h>
 #include <stb_image_write.h>
 #include <stdlib.h>
 #include <string.h>
 
-#define IMAGE_MAX_FILE_BYTES ((size_t)1 << 31)
+#define IMAGE_MAX_FILE_BYTES ((size_t)INT_MAX) /* stb takes an int length */
 
 pen_status pen_image_create(pen_context *ctx, int width, int height, int channels,
                             pen_image *out) {

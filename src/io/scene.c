@@ -382,7 +382,8 @@ static pen_status scene_from_text(pen_context *ctx, const char *text, size_t siz
 pen_status pen_scene_parse(pen_context *ctx, const char *json_text, const char *path,
                            pen_scene *out) {
     memset(out, 0, sizeof *out);
-    return scene_from_text(ctx, json_text, strlen(json_text), path, out);
+    if (!json_text) return pen__error(ctx, PEN_ERROR_ARGUMENT, "scene: no JSON text");
+    return scene_from_text(ctx, json_text, strlen(json_text), path ? path : "scene", out);
 }
 
 pen_status pen_scene_load(pen_context *ctx, const char *path, pen_scene *out) {
