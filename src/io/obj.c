@@ -371,6 +371,10 @@ static pen_status use_material(obj_state *st, const line *ln, const char *p) {
         const material *mt = &st->mats.items[i];
         if (mt->map_kd && strcmp(mt->name, name) == 0) {
             st->mesh->texture_path = pen__io_strdup(st->ctx, mt->map_kd);
+            if (!st->mesh->texture_path) {
+                free(name);
+                return PEN_ERROR_MEMORY;
+            }
             break;
         }
     }

@@ -401,7 +401,7 @@ static pen_status load(ply_reader *r, pen_mesh *m) {
             s = read_vertices(r, e, m);
         } else if (e == face) {
             s = read_faces(r, e, vertex->count, &t);
-        } else {
+        } else if (e->property_count > 0) { /* rows without properties take no bytes */
             for (size_t row = 0; !s && row < e->count; ++row)
                 for (int k = 0; !s && k < e->property_count; ++k) s = skip_property(r, &e->props[k]);
         }
