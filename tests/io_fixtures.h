@@ -65,7 +65,8 @@ static inline int fixture_exists(const char *path) {
 static inline int fixture_temp_files(void) {
     DIR *d = opendir(fixture_dir());
     int n = 0;
-    for (struct dirent *e; d && (e = readdir(d));) n += strstr(e->d_name, ".tmp-") != NULL;
+    for (struct dirent *e; d && (e = readdir(d));)
+        n += strstr(e->d_name, ".tmp-") != NULL;
     if (d) closedir(d);
     return n;
 }
@@ -88,8 +89,10 @@ static inline void fixture_cleanup_dir_(const char *dir) {
 
 /* Removes the folder, unless PEN_TEST_KEEP is set (to look at what a test wrote). */
 static inline void fixture_cleanup(void) {
-    if (fixture_dir_[0] && getenv("PEN_TEST_KEEP")) fprintf(stderr, "kept %s\n", fixture_dir_);
-    else if (fixture_dir_[0]) fixture_cleanup_dir_(fixture_dir_);
+    if (fixture_dir_[0] && getenv("PEN_TEST_KEEP"))
+        fprintf(stderr, "kept %s\n", fixture_dir_);
+    else if (fixture_dir_[0])
+        fixture_cleanup_dir_(fixture_dir_);
     fixture_dir_[0] = '\0';
 }
 
