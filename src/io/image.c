@@ -149,7 +149,7 @@ pen_status pen_image_load_ex(pen_context *ctx, const char *path, unsigned flags,
     pen_status s;
     if (pen__io_has_ext(path, "png"))
         s = load_stb(ctx, path, 0, raw, out);
-    else if (pen__io_has_ext(path, "hdr") || pen__io_has_ext(path, "pic"))
+    else if (pen__io_has_ext(path, "hdr"))
         s = load_stb(ctx, path, 1, raw, out);
     else if (pen__io_has_ext(path, "exr"))
         s = exr_load(ctx, path, out);
