@@ -11,6 +11,7 @@
 #include "penumbra/core.h"
 #include "penumbra/image.h"
 #include "penumbra/mesh.h"
+#include "penumbra/raster.h"
 #include "penumbra/scene.h"
 #include "penumbra/sh.h"
 #include "penumbra/spheres.h"
