@@ -14,8 +14,7 @@ static const char *data_path(const char *name) {
     return b;
 }
 
-/* ---- Bundled meshes -----------------------------------------------------------------------------
- */
+/* ---- Bundled meshes -------------------------------------------------------------------------- */
 
 static void test_bundled(void) {
     pen_mesh m;
@@ -46,8 +45,7 @@ static void test_bundled(void) {
     pen_mesh_free(NULL);
 }
 
-/* ---- OBJ features -----------------------------------------------------------------------------
- */
+/* ---- OBJ features ---------------------------------------------------------------------------- */
 
 static void test_obj_features(void) {
     /* A quad and a pentagon (fans), negative indices, comments, unknown statements, CRLF. */
@@ -145,8 +143,7 @@ static void test_obj_round_trip(void) {
                 "x.ply");
 }
 
-/* ---- PLY --------------------------------------------------------------------------------------
- */
+/* ---- PLY ------------------------------------------------------------------------------------- */
 
 /* A binary PLY writer for the tests: appends values in either byte order. */
 typedef struct bytes {
@@ -246,8 +243,7 @@ static void test_ply(void) {
     pen_mesh_free(&m[0]);
 }
 
-/* ---- Malformed inputs -------------------------------------------------------------------------
- */
+/* ---- Malformed inputs ------------------------------------------------------------------------ */
 
 typedef struct bad_case {
     const char *name, *text;
@@ -361,5 +357,53 @@ static void test_malformed_binary(void) {
     CHECK_ERROR(ctx, pen_mesh_load(ctx, p, &m), PEN_ERROR_PARSE, "list_bin.ply", "truncated");
 }
 
+/* Random byte edits and truncations of valid files: every load either succeeds with a valid mesh
+ * or fails with a message; under the sanitizers this also checks every read stays in bounds. */
+static void test_mutations(void) {
+    const char *sources[] = {write_quad_ply("m_ascii.ply", 0), write_quad_ply("m_le.ply", 1),
+                             write_quad_ply("m_be.ply", 2),
+                             fixture_text("m.obj", "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\n"
+                                                   "vt 1 1\nvn 0 0 1\nf 1/1/1 2/2/1 3/2/1 4/1/1\n"
+                                                   "f -1//1 -2//1 -3//1\n")};
+    static const char charset[] = "0123456789 -+./\nefvtnx\xff\x00";
+    unsigned long long seed = 99;
+    int rounds = check_quick_() ? 60 : 400, loaded = 0, failed = 0;
+    for (int k = 0; k < 4; ++k) {
+        FILE *f = fopen(sources[k], "rb");
+        unsigned char orig[4096];
+        size_t n = f ? fread(orig, 1, sizeof orig, f) : 0;
+        if (f) fclose(f);
+        for (int r = 0; r < rounds; ++r) {
+            unsigned char buf[4096];
+            memcpy(buf, orig, n);
+            size_t len = n;
+            int edits = 1 + (int)(4 * check_rand_(&seed));
+            for (int e = 0; e < edits; ++e) {
+                size_t at = (size_t)(check_rand_(&seed) * (double)len);
+                if (check_rand_(&seed) < 0.5)
+                    buf[at] =
+                        (unsigned char)charset[(int)(check_rand_(&seed) * (sizeof charset - 1))];
+                else
+                    buf[at] = (unsigned char)(256 * check_rand_(&seed));
+            }
+            if (check_rand_(&seed) < 0.3) len = (size_t)(check_rand_(&seed) * (double)len);
+            const char *p = fixture_write(k == 3 ? "mut.obj" : "mut.ply", buf, len);
+            pen_mesh m;
+            pen_status s = pen_mesh_load(ctx, p, &m);
+            if (s == PEN_OK) {
+                ++loaded;
+                CHECK(pen_mesh_validate(ctx, &m) == PEN_OK);
+                pen_mesh_free(&m);
+            } else {
+                ++failed;
+                CHECK(strstr(pen_context_error(ctx), "mut.") != NULL);
+                CHECK(m.positions == NULL);
+                pen_context_clear_error(ctx);
+            }
+        }
+    }
+    CHECK(loaded > 0 && failed > 0);
+}
+
 RUN_TESTS(TEST(test_bundled), TEST(test_obj_features), TEST(test_obj_round_trip), TEST(test_ply),
-          TEST(test_malformed_text), TEST(test_malformed_binary))
+          TEST(test_malformed_text), TEST(test_malformed_binary), TEST(test_mutations))

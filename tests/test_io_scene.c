@@ -1,6 +1,8 @@
 /* Scene and sphere-set JSON: a full scene with every kind of reference, defaults, save -> load
  * round trips, and a table of malformed scenes whose errors must name the file and key path. */
-#include "io_fixtures.h"
+#include "io_fixtures.h" /* first: it sets the feature-test macros */
+
+#include "io/io_internal.h"
 
 #define ctx fixture_ctx()
 
@@ -345,8 +347,7 @@ static void test_malformed(void) {
                 "missing.json");
 }
 
-/* ---- Sphere sets ------------------------------------------------------------------------------
- */
+/* ---- Sphere sets ----------------------------------------------------------------------------- */
 
 static void test_spheres(void) {
     pen_spheres a, b;
@@ -415,5 +416,41 @@ static void test_spheres(void) {
     pen_spheres_free(NULL);
 }
 
-RUN_TESTS(TEST(test_full_scene), TEST(test_defaults_and_parse), TEST(test_malformed),
-          TEST(test_spheres))
+/* Relative paths for saved references: same folder, parent, child, and through a "..". */
+static void test_paths(void) {
+    write_assets();
+    mkdir(fixture_path("assets/sub"), 0755);
+    fixture_text("assets/sub/deep.obj", "");
+    static const struct {
+        const char *from, *to, *want;
+    } cases[] = {
+        {"assets/new.json", "assets/quad.obj", "quad.obj"},
+        {"scenes/new.json", "assets/quad.obj", "../assets/quad.obj"},
+        {"new.json", "assets/sub/deep.obj", "assets/sub/deep.obj"},
+        {"assets/sub/new.json", "assets/quad.obj", "../quad.obj"},
+        {"scenes/../assets/sub/new.json", "scenes/../assets/quad.obj", "../quad.obj"},
+        {"out/new.json", "assets/sub/deep.obj", "../assets/sub/deep.obj"},
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; ++i) {
+        char from[512];
+        snprintf(from, sizeof from, "%s", fixture_path(cases[i].from));
+        char *rel = pen__io_path_relative(ctx, from, fixture_path(cases[i].to));
+        CHECK_MSG(rel && strcmp(rel, cases[i].want) == 0, "case %zu: %s", i, rel ? rel : "NULL");
+        free(rel);
+    }
+    /* A target that does not exist is written as given. */
+    char *rel = pen__io_path_relative(ctx, fixture_path("out/x.json"), "no/such/file.obj");
+    CHECK(rel && strcmp(rel, "no/such/file.obj") == 0);
+    free(rel);
+    char *res = pen__io_path_resolve(ctx, "a/b/scene.json", "../m.obj");
+    CHECK(res && strcmp(res, "a/b/../m.obj") == 0);
+    free(res);
+    res = pen__io_path_resolve(ctx, "scene.json", "/abs/m.obj");
+    CHECK(res && strcmp(res, "/abs/m.obj") == 0);
+    free(res);
+    CHECK(pen__io_has_ext("a.b/MESH.OBJ", "obj") && !pen__io_has_ext("a.obj/mesh", "obj") &&
+          !pen__io_has_ext("mesh.objx", "obj"));
+}
+
+RUN_TESTS(TEST(test_paths), TEST(test_full_scene), TEST(test_defaults_and_parse),
+          TEST(test_malformed), TEST(test_spheres))

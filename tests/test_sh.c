@@ -1,7 +1,6 @@
-/* Tests of the SH engine (src/sh): basis, zonal functions, rotation, product tensor,
- * log-visibility, exponential. Reference values come from independent quadrature in this file,
- * closed forms, and finite differences in double; the float path is checked against the double
- * path. */
+/* Tests of the SH engine (src/sh): basis, zonal functions, rotation, product tensor, log-visibility,
+ * exponential. Reference values come from independent quadrature in this file, closed forms, and
+ * finite differences in double; the float path is checked against the double path. */
 #include "check.h"
 #include "penumbra/sh.h"
 
@@ -24,8 +23,7 @@ typedef struct {
     double *w;
 } quad;
 static quad make_quad(int nt, int np) {
-    quad q = {nt * np, malloc(sizeof(double[3]) * (size_t)(nt * np)),
-              malloc(sizeof(double) * (size_t)(nt * np))};
+    quad q = {nt * np, malloc(sizeof(double[3]) * (size_t)(nt * np)), malloc(sizeof(double) * (size_t)(nt * np))};
     for (int a = 0; a < nt; ++a)
         for (int b = 0; b < np; ++b) {
             /* Substitution z = sin(u) clusters nodes near the poles; still midpoint in u. */
@@ -68,13 +66,11 @@ static void test_basis_orthonormal(void) {
     for (int p = 0; p < q.count; ++p) {
         pen_sh_eval_d(L, q.dir[p], y);
         for (int i = 0; i < N; ++i)
-            for (int j = 0; j < N; ++j)
-                G[i][j] += q.w[p] * y[i] * y[j];
+            for (int j = 0; j < N; ++j) G[i][j] += q.w[p] * y[i] * y[j];
     }
     double worst = 0;
     for (int i = 0; i < N; ++i)
-        for (int j = 0; j < N; ++j)
-            worst = fmax(worst, fabs(G[i][j] - (i == j)));
+        for (int j = 0; j < N; ++j) worst = fmax(worst, fabs(G[i][j] - (i == j)));
     CHECK_MSG(worst < 1e-4, "max |<Y_i,Y_j> - delta| = %g", worst);
     free_quad(&q);
 }
@@ -83,8 +79,7 @@ static void test_basis_gradient_fd(void) {
     for (int trial = 0; trial < 20; ++trial) {
         double d[3], w[64], g[3] = {0, 0, 0};
         rand_dir(d);
-        for (int i = 0; i < 64; ++i)
-            w[i] = urand(-1, 1);
+        for (int i = 0; i < 64; ++i) w[i] = urand(-1, 1);
         pen_sh_eval_bwd_d(8, d, w, g);
         for (int k = 0; k < 3; ++k) {
             double h = 1e-6, dp[3] = {d[0], d[1], d[2]}, dm[3] = {d[0], d[1], d[2]}, yp[64], ym[64];
@@ -92,8 +87,7 @@ static void test_basis_gradient_fd(void) {
             pen_sh_eval_d(8, dp, yp);
             pen_sh_eval_d(8, dm, ym);
             double fd = 0;
-            for (int i = 0; i < 64; ++i)
-                fd += w[i] * (yp[i] - ym[i]) / (2 * h);
+            for (int i = 0; i < 64; ++i) fd += w[i] * (yp[i] - ym[i]) / (2 * h);
             CHECK_REL(g[k], fd, 1e-6, 1e-3);
         }
     }
@@ -137,8 +131,7 @@ static void test_zonal_cap_derivative_fd(void) {
         pen_sh_zonal_cap_d(8, t, z, dz);
         pen_sh_zonal_cap_d(8, t + h, zp, NULL);
         pen_sh_zonal_cap_d(8, t - h, zm, NULL);
-        for (int l = 0; l < 8; ++l)
-            CHECK_REL(dz[l], (zp[l] - zm[l]) / (2 * h), 1e-6, 1e-3);
+        for (int l = 0; l < 8; ++l) CHECK_REL(dz[l], (zp[l] - zm[l]) / (2 * h), 1e-6, 1e-3);
     }
 }
 
@@ -146,8 +139,7 @@ static void test_clamped_cosine(void) {
     double z[8];
     pen_sh_zonal_clamped_cosine_d(8, z);
     const double expect[5] = {0.886227, 1.023327, 0.495416, 0, -0.110778};
-    for (int l = 0; l < 5; ++l)
-        CHECK_NEAR(z[l], expect[l], 1e-6);
+    for (int l = 0; l < 5; ++l) CHECK_NEAR(z[l], expect[l], 1e-6);
     CHECK_NEAR(z[5], 0, 1e-15);
     CHECK_NEAR(z[7], 0, 1e-15);
     /* l = 6 by quadrature: 2 pi sqrt(13/(4 pi)) integral_0^1 t P_6(t) dt */
@@ -164,16 +156,13 @@ static void test_rotate_zonal_addition_theorem(void) {
     /* sum_i out_i Y_i(w) must equal sum_l z_l sqrt((2l+1)/(4 pi)) P_l(d . w). */
     for (int trial = 0; trial < 10; ++trial) {
         double z[8], d[3], w[3], out[64], y[64];
-        for (int l = 0; l < 8; ++l)
-            z[l] = urand(-1, 1);
+        for (int l = 0; l < 8; ++l) z[l] = urand(-1, 1);
         rand_dir(d), rand_dir(w);
         pen_sh_rotate_zonal_d(8, z, d, out);
         pen_sh_eval_d(8, w, y);
         double lhs = 0, rhs = 0, cw = d[0] * w[0] + d[1] * w[1] + d[2] * w[2];
-        for (int i = 0; i < 64; ++i)
-            lhs += out[i] * y[i];
-        for (int l = 0; l < 8; ++l)
-            rhs += z[l] * sqrt((2 * l + 1) / (4 * M_PI)) * legendre(l, cw);
+        for (int i = 0; i < 64; ++i) lhs += out[i] * y[i];
+        for (int l = 0; l < 8; ++l) rhs += z[l] * sqrt((2 * l + 1) / (4 * M_PI)) * legendre(l, cw);
         CHECK_NEAR(lhs, rhs, 1e-12);
     }
 }
@@ -181,10 +170,8 @@ static void test_rotate_zonal_addition_theorem(void) {
 static void test_rotate_zonal_bwd_fd(void) {
     for (int trial = 0; trial < 10; ++trial) {
         double z[8], d[3], w[64], d_z[8] = {0}, d_d[3] = {0, 0, 0};
-        for (int l = 0; l < 8; ++l)
-            z[l] = urand(-1, 1);
-        for (int i = 0; i < 64; ++i)
-            w[i] = urand(-1, 1);
+        for (int l = 0; l < 8; ++l) z[l] = urand(-1, 1);
+        for (int i = 0; i < 64; ++i) w[i] = urand(-1, 1);
         rand_dir(d);
         pen_sh_rotate_zonal_bwd_d(8, z, d, w, d_z, d_d);
         double h = 1e-6, op[64], om[64];
@@ -195,8 +182,7 @@ static void test_rotate_zonal_bwd_fd(void) {
             pen_sh_rotate_zonal_d(8, zp, d, op);
             pen_sh_rotate_zonal_d(8, zm, d, om);
             double fd = 0;
-            for (int i = 0; i < 64; ++i)
-                fd += w[i] * (op[i] - om[i]) / (2 * h);
+            for (int i = 0; i < 64; ++i) fd += w[i] * (op[i] - om[i]) / (2 * h);
             CHECK_REL(d_z[l], fd, 1e-6, 1e-3);
         }
         for (int k = 0; k < 3; ++k) {
@@ -205,8 +191,7 @@ static void test_rotate_zonal_bwd_fd(void) {
             pen_sh_rotate_zonal_d(8, z, dp, op);
             pen_sh_rotate_zonal_d(8, z, dm, om);
             double fd = 0;
-            for (int i = 0; i < 64; ++i)
-                fd += w[i] * (op[i] - om[i]) / (2 * h);
+            for (int i = 0; i < 64; ++i) fd += w[i] * (op[i] - om[i]) / (2 * h);
             CHECK_REL(d_d[k], fd, 1e-6, 1e-3);
         }
     }
@@ -223,8 +208,7 @@ static void test_gaunt_identity_and_symmetry(void) {
         /* Gamma_0jk = delta_jk / sqrt(4 pi) */
         double *G0 = calloc((size_t)(n * n), sizeof(double));
         for (int e = 0; e < g->count; ++e)
-            if (g->entries[e].i == 0)
-                G0[g->entries[e].j * n + g->entries[e].k] = g->entries[e].value;
+            if (g->entries[e].i == 0) G0[g->entries[e].j * n + g->entries[e].k] = g->entries[e].value;
         double worst = 0;
         for (int j = 0; j < n; ++j)
             for (int k = 0; k < n; ++k)
@@ -254,19 +238,16 @@ static void test_gaunt_by_quadrature(void) {
         pen_sh_eval_d(L, q.dir[p], y);
         for (int i = 0; i < n; ++i)
             for (int j = 0; j < n; ++j)
-                for (int k = 0; k < n; ++k)
-                    T[i][j][k] += q.w[p] * y[i] * y[j] * y[k];
+                for (int k = 0; k < n; ++k) T[i][j][k] += q.w[p] * y[i] * y[j] * y[k];
     }
     const pen_sh_gaunt *g = pen_sh_gaunt_table(L);
     static double G[16][16][16];
     memset(G, 0, sizeof G);
-    for (int e = 0; e < g->count; ++e)
-        G[g->entries[e].i][g->entries[e].j][g->entries[e].k] += g->entries[e].value;
+    for (int e = 0; e < g->count; ++e) G[g->entries[e].i][g->entries[e].j][g->entries[e].k] += g->entries[e].value;
     double worst = 0;
     for (int i = 0; i < n; ++i)
         for (int j = 0; j < n; ++j)
-            for (int k = 0; k < n; ++k)
-                worst = fmax(worst, fabs(G[i][j][k] - T[i][j][k]));
+            for (int k = 0; k < n; ++k) worst = fmax(worst, fabs(G[i][j][k] - T[i][j][k]));
     CHECK_MSG(worst < 1e-5, "max |Gamma - quadrature| = %g", worst);
     free_quad(&q);
 }
@@ -275,20 +256,16 @@ static void test_product_is_projection(void) {
     /* The product of two 5-band functions projected back onto 5 bands, by quadrature. */
     const int L = 5, n = 25;
     double a[25], b[25], c[25], ref[25] = {0}, ya[25];
-    for (int i = 0; i < n; ++i)
-        a[i] = urand(-1, 1), b[i] = urand(-1, 1);
+    for (int i = 0; i < n; ++i) a[i] = urand(-1, 1), b[i] = urand(-1, 1);
     pen_sh_product_d(pen_sh_gaunt_table(L), a, b, c);
     quad q = make_quad(800, 64);
     for (int p = 0; p < q.count; ++p) {
         pen_sh_eval_d(L, q.dir[p], ya);
         double fa = 0, fb = 0;
-        for (int i = 0; i < n; ++i)
-            fa += a[i] * ya[i], fb += b[i] * ya[i];
-        for (int k = 0; k < n; ++k)
-            ref[k] += q.w[p] * fa * fb * ya[k];
+        for (int i = 0; i < n; ++i) fa += a[i] * ya[i], fb += b[i] * ya[i];
+        for (int k = 0; k < n; ++k) ref[k] += q.w[p] * fa * fb * ya[k];
     }
-    for (int k = 0; k < n; ++k)
-        CHECK_NEAR(c[k], ref[k], 1e-5);
+    for (int k = 0; k < n; ++k) CHECK_NEAR(c[k], ref[k], 1e-5);
     free_quad(&q);
 }
 
@@ -296,8 +273,7 @@ static void test_product_bwd_fd(void) {
     const int L = 4, n = 16;
     const pen_sh_gaunt *g = pen_sh_gaunt_table(L);
     double a[16], b[16], w[16], da[16] = {0}, db[16] = {0}, cp[16], cm[16], h = 1e-6;
-    for (int i = 0; i < n; ++i)
-        a[i] = urand(-1, 1), b[i] = urand(-1, 1), w[i] = urand(-1, 1);
+    for (int i = 0; i < n; ++i) a[i] = urand(-1, 1), b[i] = urand(-1, 1), w[i] = urand(-1, 1);
     pen_sh_product_bwd_d(g, a, b, w, da, db);
     for (int i = 0; i < n; ++i) {
         double s = a[i];
@@ -305,16 +281,14 @@ static void test_product_bwd_fd(void) {
         a[i] = s - h, pen_sh_product_d(g, a, b, cm);
         a[i] = s;
         double fd = 0;
-        for (int k = 0; k < n; ++k)
-            fd += w[k] * (cp[k] - cm[k]) / (2 * h);
+        for (int k = 0; k < n; ++k) fd += w[k] * (cp[k] - cm[k]) / (2 * h);
         CHECK_REL(da[i], fd, 1e-6, 1e-3);
         s = b[i];
         b[i] = s + h, pen_sh_product_d(g, a, b, cp);
         b[i] = s - h, pen_sh_product_d(g, a, b, cm);
         b[i] = s;
         fd = 0;
-        for (int k = 0; k < n; ++k)
-            fd += w[k] * (cp[k] - cm[k]) / (2 * h);
+        for (int k = 0; k < n; ++k) fd += w[k] * (cp[k] - cm[k]) / (2 * h);
         CHECK_REL(db[i], fd, 1e-6, 1e-3);
     }
 }
@@ -334,11 +308,9 @@ static void test_logvis_matches_cap_projection(void) {
         double cw = (v[0] * q.dir[p][0] + v[1] * q.dir[p][1] + v[2] * q.dir[p][2]) / D;
         if (cw < cos_a) continue;
         pen_sh_eval_d(L, q.dir[p], y);
-        for (int i = 0; i < n; ++i)
-            ref[i] -= eps * q.w[p] * y[i];
+        for (int i = 0; i < n; ++i) ref[i] -= eps * q.w[p] * y[i];
     }
-    for (int i = 0; i < n; ++i)
-        CHECK_NEAR(f[i], ref[i], 2e-3);
+    for (int i = 0; i < n; ++i) CHECK_NEAR(f[i], ref[i], 2e-3);
     free_quad(&q);
 }
 
@@ -346,8 +318,7 @@ static void test_logvis_matches_cap_projection(void) {
 static void check_logvis_fd(const double x[3], const double c[3], double r, double eps) {
     const int L = 5, n = 25;
     double w[25], dx[3] = {0, 0, 0}, dc[3] = {0, 0, 0}, dr = 0, de = 0, fp[25], fm[25];
-    for (int i = 0; i < n; ++i)
-        w[i] = urand(-1, 1);
+    for (int i = 0; i < n; ++i) w[i] = urand(-1, 1);
     pen_sh_logvis_bwd_d(L, x, c, r, eps, w, dx, dc, &dr, &de);
     double p[8] = {x[0], x[1], x[2], c[0], c[1], c[2], r, eps};
     double an[8] = {dx[0], dx[1], dx[2], dc[0], dc[1], dc[2], dr, de};
@@ -358,8 +329,7 @@ static void check_logvis_fd(const double x[3], const double c[3], double r, doub
         pen_sh_logvis_d(L, pp, pp + 3, pp[6], pp[7], fp);
         pen_sh_logvis_d(L, pm, pm + 3, pm[6], pm[7], fm);
         double fd = 0;
-        for (int i = 0; i < n; ++i)
-            fd += w[i] * (fp[i] - fm[i]) / (2 * h);
+        for (int i = 0; i < n; ++i) fd += w[i] * (fp[i] - fm[i]) / (2 * h);
         CHECK_REL(an[k], fd, 1e-6, 1e-2);
         CHECK(isfinite(an[k]));
     }
@@ -369,21 +339,19 @@ static void test_logvis_bwd_fd(void) {
     for (int trial = 0; trial < 20; ++trial) {
         double x[3], c[3], dir[3];
         rand_dir(dir);
-        for (int k = 0; k < 3; ++k)
-            x[k] = urand(-1, 1);
+        for (int k = 0; k < 3; ++k) x[k] = urand(-1, 1);
         double D = urand(0.5, 3), r = urand(0.05, 0.9) * D;
-        for (int k = 0; k < 3; ++k)
-            c[k] = x[k] + D * dir[k];
+        for (int k = 0; k < 3; ++k) c[k] = x[k] + D * dir[k];
         check_logvis_fd(x, c, r, urand(1, 6));
     }
     /* Edge cases: alpha -> 0, receiver just outside / on / inside the sphere. */
     const double x[3] = {0, 0, 0}, c[3] = {0.3, 0.8, 0.2};
     const double D = sqrt(0.09 + 0.64 + 0.04);
-    check_logvis_fd(x, c, 1e-4 * D, 4.0);   /* tiny cap */
-    check_logvis_fd(x, c, D / 1.0005, 4.0); /* t just below PEN_SH_CAP_T0: linear branch */
-    check_logvis_fd(x, c, D / 1.02, 4.0);   /* t above it */
-    check_logvis_fd(x, c, D / 0.95, 4.0);   /* inside, not yet fully blocked */
-    check_logvis_fd(x, c, D / 0.5, 4.0);    /* deep inside: clamped, gradients zero */
+    check_logvis_fd(x, c, 1e-4 * D, 4.0);     /* tiny cap */
+    check_logvis_fd(x, c, D / 1.0005, 4.0);   /* t just below PEN_SH_CAP_T0: linear branch */
+    check_logvis_fd(x, c, D / 1.02, 4.0);     /* t above it */
+    check_logvis_fd(x, c, D / 0.95, 4.0);     /* inside, not yet fully blocked */
+    check_logvis_fd(x, c, D / 0.5, 4.0);      /* deep inside: clamped, gradients zero */
 }
 
 static void test_logvis_singular_finite(void) {
@@ -391,16 +359,14 @@ static void test_logvis_singular_finite(void) {
     const double radii[] = {1e-30, 1e-8, 0.5, 10, 1e6};
     for (int a = 0; a < 5; ++a) {
         double f[64], w[64], dx[3] = {0, 0, 0}, dc[3] = {0, 0, 0}, dr = 0;
-        for (int i = 0; i < 64; ++i)
-            w[i] = 1;
+        for (int i = 0; i < 64; ++i) w[i] = 1;
         /* the receiver at the centre, and at the surface exactly */
         const double cs[2][3] = {{0.2, 0.3, 0.4}, {0.2 + radii[a], 0.3, 0.4}};
         for (int s = 0; s < 2; ++s) {
             pen_sh_logvis_d(8, x, cs[s], radii[a], 4.0, f);
             pen_sh_logvis_bwd_d(8, x, cs[s], radii[a], 4.0, w, dx, dc, &dr, NULL);
             int ok = isfinite(dx[0] + dx[1] + dx[2] + dc[0] + dc[1] + dc[2] + dr);
-            for (int i = 0; i < 64; ++i)
-                ok &= isfinite(f[i]);
+            for (int i = 0; i < 64; ++i) ok &= isfinite(f[i]);
             CHECK_MSG(ok, "radius %g, case %d", radii[a], s);
         }
     }
@@ -408,18 +374,15 @@ static void test_logvis_singular_finite(void) {
     double f[16], c[3] = {0.2, 0.3, 0.41};
     pen_sh_logvis_d(4, x, c, 1.0, 2.0, f);
     CHECK_NEAR(f[0], -2.0 * sqrt(4 * M_PI), 1e-12);
-    for (int i = 1; i < 16; ++i)
-        CHECK_NEAR(f[i], 0, 1e-12);
+    for (int i = 1; i < 16; ++i) CHECK_NEAR(f[i], 0, 1e-12);
 }
 
 /* ---- Exponential ---------------------------------------------------------------------------- */
 
 static void random_F(int n, double norm, double dc, double *F) {
     double s = 0;
-    for (int i = 1; i < n; ++i)
-        F[i] = urand(-1, 1), s += F[i] * F[i];
-    for (int i = 1; i < n; ++i)
-        F[i] *= norm / sqrt(s);
+    for (int i = 1; i < n; ++i) F[i] = urand(-1, 1), s += F[i] * F[i];
+    for (int i = 1; i < n; ++i) F[i] *= norm / sqrt(s);
     F[0] = dc;
 }
 
@@ -431,8 +394,7 @@ static void test_exp_dc_isolation_exact(void) {
         pen_sh_exp_d(&m, pen_sh_gaunt_table(4), F, V);
         /* exp of a constant function c = F_0 Y_00 is the constant exp(c). */
         CHECK_NEAR(V[0], exp(-2.5 / sqrt(4 * M_PI)) * sqrt(4 * M_PI), 1e-12);
-        for (int i = 1; i < 16; ++i)
-            CHECK_NEAR(V[i], 0, 1e-14);
+        for (int i = 1; i < 16; ++i) CHECK_NEAR(V[i], 0, 1e-14);
     }
 }
 
@@ -444,8 +406,7 @@ static void test_exp_paper_formula(void) {
     pen_sh_exp_d(&m, pen_sh_gaunt_table(4), F, V);
     double dc = exp(-1.0 / sqrt(4 * M_PI));
     CHECK_NEAR(V[0], dc * exp(0.07) * sqrt(4 * M_PI), 1e-12);
-    for (int i = 1; i < 16; ++i)
-        CHECK_NEAR(V[i], dc * exp(-0.14) * F[i], 1e-12);
+    for (int i = 1; i < 16; ++i) CHECK_NEAR(V[i], dc * exp(-0.14) * F[i], 1e-12);
 }
 
 static void test_exp_exact_against_series(void) {
@@ -457,14 +418,11 @@ static void test_exp_exact_against_series(void) {
     pen_sh_exp_d(&m, g, F, V);
     term[0] = sqrt(4 * M_PI);
     for (int j = 0; j < 40; ++j) {
-        for (int i = 0; i < 16; ++i)
-            sum[i] += term[i];
+        for (int i = 0; i < 16; ++i) sum[i] += term[i];
         pen_sh_product_d(g, term, F, next);
-        for (int i = 0; i < 16; ++i)
-            term[i] = next[i] / (j + 1);
+        for (int i = 0; i < 16; ++i) term[i] = next[i] / (j + 1);
     }
-    for (int i = 0; i < 16; ++i)
-        CHECK_NEAR(V[i], sum[i], 1e-14);
+    for (int i = 0; i < 16; ++i) CHECK_NEAR(V[i], sum[i], 1e-14);
     /* A 1-band-wide zonal F^ at larger norm: exp of the band-limited function projected, compared
      * loosely (the truncated algebra differs from the true projection by the truncation). */
 }
@@ -475,8 +433,7 @@ static void check_exp_fd(pen_sh_exp_method method, int L, double norm) {
     pen_sh_exp_model m = pen_sh_exp_model_default(method, L);
     double F[64], w[64], dF[64] = {0}, Vp[64], Vm[64];
     random_F(n, norm, urand(-3, 0), F);
-    for (int i = 0; i < n; ++i)
-        w[i] = urand(-1, 1);
+    for (int i = 0; i < n; ++i) w[i] = urand(-1, 1);
     pen_sh_exp_bwd_d(&m, g, F, w, dF);
     /* Many squarings amplify rounding, so a plain central difference is noisy at large |F^|:
      * use the fourth-order stencil (8 (f(h) - f(-h)) - (f(2h) - f(-2h))) / 12h with a larger h. */
@@ -504,8 +461,7 @@ static void test_exp_bwd_fd(void) {
     const double norms[] = {0.03, 0.7, 5.3, 23.0};
     for (int mi = 0; mi < 3; ++mi)
         for (int a = 0; a < 4; ++a)
-            for (int L = 3; L <= 5; ++L)
-                check_exp_fd(methods[mi], L, norms[a]);
+            for (int L = 3; L <= 5; ++L) check_exp_fd(methods[mi], L, norms[a]);
 }
 
 /* ---- Float path against double -------------------------------------------------------------- */
@@ -518,30 +474,24 @@ static void test_float_matches_double(void) {
         float df[3], xf[3] = {0, 0, 0}, cf[3], ff[16], Vf[16], gf[3] = {0, 0, 0};
         rand_dir(dd);
         double D = urand(0.4, 2), r = urand(0.1, 0.6) * D;
-        for (int k = 0; k < 3; ++k)
-            c[k] = D * dd[k], cf[k] = (float)c[k], df[k] = (float)dd[k];
+        for (int k = 0; k < 3; ++k) c[k] = D * dd[k], cf[k] = (float)c[k], df[k] = (float)dd[k];
         pen_sh_logvis_d(L, x, c, r, 4.0, fd_);
         pen_sh_logvis(L, xf, cf, (float)r, 4.0f, ff);
-        for (int i = 0; i < n; ++i)
-            CHECK_NEAR(ff[i], fd_[i], 1e-4 * (1 + fabs(fd_[i])));
+        for (int i = 0; i < n; ++i) CHECK_NEAR(ff[i], fd_[i], 1e-4 * (1 + fabs(fd_[i])));
         for (int mi = 0; mi < 3; ++mi) {
             pen_sh_exp_model m = pen_sh_exp_model_default((pen_sh_exp_method)mi, L);
             float Ff[16];
-            for (int i = 0; i < n; ++i)
-                Ff[i] = (float)fd_[i];
+            for (int i = 0; i < n; ++i) Ff[i] = (float)fd_[i];
             pen_sh_exp_d(&m, g, fd_, Vd);
             pen_sh_exp(&m, g, Ff, Vf);
-            for (int i = 0; i < n; ++i)
-                CHECK_NEAR(Vf[i], Vd[i], 2e-4 * (1 + fabs(Vd[i])));
+            for (int i = 0; i < n; ++i) CHECK_NEAR(Vf[i], Vd[i], 2e-4 * (1 + fabs(Vd[i])));
         }
         double wd[16];
         float wf[16];
-        for (int i = 0; i < n; ++i)
-            wd[i] = urand(-1, 1), wf[i] = (float)wd[i];
+        for (int i = 0; i < n; ++i) wd[i] = urand(-1, 1), wf[i] = (float)wd[i];
         pen_sh_eval_bwd_d(L, dd, wd, gd);
         pen_sh_eval_bwd(L, df, wf, gf);
-        for (int k = 0; k < 3; ++k)
-            CHECK_NEAR(gf[k], gd[k], 1e-4 * (1 + fabs(gd[k])));
+        for (int k = 0; k < 3; ++k) CHECK_NEAR(gf[k], gd[k], 1e-4 * (1 + fabs(gd[k])));
     }
 }
 
