@@ -41,6 +41,9 @@ static inline const char *fixture_path(const char *name) {
 
 static inline const char *fixture_write(const char *name, const void *data, size_t size) {
     const char *path = fixture_path(name);
+    /* A new file rather than a truncated one: ext4 flushes a truncated-and-rewritten file on
+     * close (auto_da_alloc), which made the mutation test wait on the disk. */
+    unlink(path);
     FILE *f = fopen(path, "wb");
     if (!f || fwrite(data, 1, size, f) != size || fclose(f) != 0) {
         perror(path);
@@ -62,7 +65,8 @@ static inline int fixture_exists(const char *path) {
 static inline int fixture_temp_files(void) {
     DIR *d = opendir(fixture_dir());
     int n = 0;
-    for (struct dirent *e; d && (e = readdir(d));) n += strstr(e->d_name, ".tmp-") != NULL;
+    for (struct dirent *e; d && (e = readdir(d));)
+        n += strstr(e->d_name, ".tmp-") != NULL;
     if (d) closedir(d);
     return n;
 }
@@ -85,8 +89,10 @@ static inline void fixture_cleanup_dir_(const char *dir) {
 
 /* Removes the folder, unless PEN_TEST_KEEP is set (to look at what a test wrote). */
 static inline void fixture_cleanup(void) {
-    if (fixture_dir_[0] && getenv("PEN_TEST_KEEP")) fprintf(stderr, "kept %s\n", fixture_dir_);
-    else if (fixture_dir_[0]) fixture_cleanup_dir_(fixture_dir_);
+    if (fixture_dir_[0] && getenv("PEN_TEST_KEEP"))
+        fprintf(stderr, "kept %s\n", fixture_dir_);
+    else if (fixture_dir_[0])
+        fixture_cleanup_dir_(fixture_dir_);
     fixture_dir_[0] = '\0';
 }
 

@@ -18,7 +18,8 @@ static pen_image make_map(int W, int H, map_fn f, const void *arg) {
             pen_envmap_direction((x + 0.5f) / (float)W, (y + 0.5f) / (float)H, d);
             double dd[3] = {d[0], d[1], d[2]}, rgb[3];
             f(dd, arg, rgb);
-            for (int c = 0; c < 3; ++c) im.data[3 * ((size_t)y * W + x) + c] = (float)rgb[c];
+            for (int c = 0; c < 3; ++c)
+                im.data[3 * ((size_t)y * W + x) + c] = (float)rgb[c];
         }
     }
     return im;
@@ -26,7 +27,8 @@ static pen_image make_map(int W, int H, map_fn f, const void *arg) {
 
 static void constant_fn(const double d[3], const void *arg, double rgb[3]) {
     const double *v = arg;
-    for (int c = 0; c < 3; ++c) rgb[c] = v[c];
+    for (int c = 0; c < 3; ++c)
+        rgb[c] = v[c];
 }
 
 /* Sum of c[i][ch] Y_i(d) for 4 bands. */
@@ -36,7 +38,8 @@ static void sh_fn(const double d[3], const void *arg, double rgb[3]) {
     pen_sh_eval_d(4, d, y);
     for (int ch = 0; ch < 3; ++ch) {
         rgb[ch] = 0;
-        for (int i = 0; i < 16; ++i) rgb[ch] += c[i][ch] * y[i];
+        for (int i = 0; i < 16; ++i)
+            rgb[ch] += c[i][ch] * y[i];
     }
 }
 
@@ -63,7 +66,8 @@ static void test_convention(void) {
         float u0 = (float)check_rand_(&seed), v0 = (float)(0.01 + 0.98 * check_rand_(&seed));
         pen_envmap_direction(u0, v0, d);
         double n2 = 0;
-        for (int k = 0; k < 3; ++k) n2 += (double)d[k] * (double)d[k];
+        for (int k = 0; k < 3; ++k)
+            n2 += (double)d[k] * (double)d[k];
         CHECK_NEAR(n2, 1, 1e-6);
         d[0] *= 3, d[1] *= 3, d[2] *= 3; /* any length */
         pen_envmap_uv(d, &u, &v);
@@ -83,7 +87,8 @@ static void test_constant_map(void) {
     pen_image im = make_map(W, H, constant_fn, value);
     float sh[PEN_SH_MAX_COEFFS][3];
     CHECK(pen_envmap_to_sh(ctx, &im, 8, 33.0f, 1.0f, sh) == PEN_OK);
-    for (int c = 0; c < 3; ++c) CHECK_REL(sh[0][c], SQRT_4PI * value[c], 1e-6, 0);
+    for (int c = 0; c < 3; ++c)
+        CHECK_REL(sh[0][c], SQRT_4PI * value[c], 1e-6, 0);
     /* l > 0: only the quadrature error of sampling each row at its centre, O(l^2 / H^2); at
      * H = 64 and l < 8 it stays below 1e-3 of the DC term (measured: 2.5e-4). */
     for (int i = 1; i < 64; ++i) {
@@ -96,10 +101,12 @@ static void test_constant_map(void) {
     float sh2[PEN_SH_MAX_COEFFS][3];
     CHECK(pen_envmap_to_sh(ctx, &im, 2, 0.0f, 3.0f, sh2) == PEN_OK);
     CHECK_REL(sh2[0][1], 3.0 * SQRT_4PI, 1e-6, 0);
-    for (size_t i = 0; i < (size_t)W * H * 3; ++i) im.data[i] = -1.0f;
+    for (size_t i = 0; i < (size_t)W * H * 3; ++i)
+        im.data[i] = -1.0f;
     CHECK(pen_envmap_to_sh(ctx, &im, 2, 0.0f, 1.0f, sh2) == PEN_OK);
     for (int i = 0; i < 4; ++i)
-        for (int c = 0; c < 3; ++c) CHECK(sh2[i][c] == 0.0f);
+        for (int c = 0; c < 3; ++c)
+            CHECK(sh2[i][c] == 0.0f);
     pen_image_free(&im);
 }
 
@@ -109,14 +116,16 @@ static void test_known_sh(void) {
     double c[16][3];
     unsigned long long seed = 11;
     for (int i = 0; i < 16; ++i)
-        for (int ch = 0; ch < 3; ++ch) c[i][ch] = i == 0 ? 5.0 : 0.2 * check_rand_(&seed) - 0.1;
+        for (int ch = 0; ch < 3; ++ch)
+            c[i][ch] = i == 0 ? 5.0 : 0.2 * check_rand_(&seed) - 0.1;
     pen_image im = make_map(256, 128, sh_fn, c);
     float sh[PEN_SH_MAX_COEFFS][3];
     CHECK(pen_envmap_to_sh(ctx, &im, 6, 0.0f, 1.0f, sh) == PEN_OK);
     /* Recovered to the error of sampling cells at their centres, O(1/H^2) (measured 2.7e-4 at
      * H = 128 with a DC of 5); bands 4 and 5 vanish to the same error. */
     for (int i = 0; i < 36; ++i)
-        for (int ch = 0; ch < 3; ++ch) CHECK_NEAR(sh[i][ch], i < 16 ? c[i][ch] : 0.0, 1e-3);
+        for (int ch = 0; ch < 3; ++ch)
+            CHECK_NEAR(sh[i][ch], i < 16 ? c[i][ch] : 0.0, 1e-3);
     pen_image_free(&im);
 
     /* Rotation about +Y: the l = 1 part of a + b (k . d) is the vector k; projecting with
@@ -142,13 +151,15 @@ static void test_known_sh(void) {
 static void test_eval(void) {
     pen_image im;
     CHECK(pen_image_create(ctx, 8, 4, 3, &im) == PEN_OK);
-    for (size_t i = 0; i < 8 * 4 * 3; ++i) im.data[i] = (float)i;
+    for (size_t i = 0; i < 8 * 4 * 3; ++i)
+        im.data[i] = (float)i;
     im.data[3 * (8 + 2)] = -5.0f; /* pixel (2, 1), red */
     /* At a texel centre the lookup is that texel, times scale; negatives read as 0. */
     float d[3], rgb[3];
     pen_envmap_direction(5.5f / 8, 2.5f / 4, d);
     pen_envmap_eval(&im, 0.0f, 2.0f, d, rgb);
-    for (int c = 0; c < 3; ++c) CHECK_NEAR(rgb[c], 2.0 * (3 * (8 * 2 + 5) + c), 1e-3);
+    for (int c = 0; c < 3; ++c)
+        CHECK_NEAR(rgb[c], 2.0 * (3 * (8 * 2 + 5) + c), 1e-3);
     pen_envmap_direction(2.5f / 8, 1.5f / 4, d);
     pen_envmap_eval(&im, 0.0f, 1.0f, d, rgb);
     CHECK_NEAR(rgb[0], 0.0, 1e-4);
@@ -169,7 +180,8 @@ static void test_eval(void) {
         float want[3];
         pen_envmap_eval(&im, 0.0f, 1.0f, d, want);
         pen_envmap_eval(&im, (float)(a * 180.0 / 3.14159265358979323846), 1.0f, r, rgb);
-        for (int c = 0; c < 3; ++c) CHECK_NEAR(rgb[c], want[c], 1e-2);
+        for (int c = 0; c < 3; ++c)
+            CHECK_NEAR(rgb[c], want[c], 1e-2);
     }
     pen_image_free(&im);
 }
@@ -197,9 +209,11 @@ static void test_errors_and_bundled(void) {
     float se[PEN_SH_MAX_COEFFS][3], shh[PEN_SH_MAX_COEFFS][3];
     CHECK(pen_envmap_to_sh(ctx, &e, 4, 0.0f, 1.0f, se) == PEN_OK);
     CHECK(pen_envmap_to_sh(ctx, &h, 4, 0.0f, 1.0f, shh) == PEN_OK);
-    for (int c = 0; c < 3; ++c) CHECK(se[0][c] > 0);
+    for (int c = 0; c < 3; ++c)
+        CHECK(se[0][c] > 0);
     for (int i = 0; i < 16; ++i)
-        for (int c = 0; c < 3; ++c) CHECK_NEAR(se[i][c], shh[i][c], 0.02 * (double)se[0][c]);
+        for (int c = 0; c < 3; ++c)
+            CHECK_NEAR(se[i][c], shh[i][c], 0.02 * (double)se[0][c]);
     pen_image_free(&e);
     pen_image_free(&h);
 }

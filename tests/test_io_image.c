@@ -72,7 +72,8 @@ static void test_png_round_trip(void) {
 
 /* Grey, grey+alpha and RGBA 8-bit PNGs (written by stb) and a 16-bit grey PNG (libpng). */
 static void test_png_layouts(void) {
-    unsigned char px[2 * 2 * 4] = {0, 64, 128, 255, 10, 20, 30, 40, 50, 60, 70, 80, 90, 100, 110, 120};
+    unsigned char px[2 * 2 * 4] = {0,  64, 128, 255, 10, 20,  30,  40,
+                                   50, 60, 70,  80,  90, 100, 110, 120};
     const int comps[] = {1, 2, 4};
     for (int k = 0; k < 3; ++k) {
         int comp = comps[k];
@@ -102,7 +103,8 @@ static void test_png_layouts(void) {
     png_write_info(png, info);
     unsigned short vals[3] = {0, 1000, 65535};
     unsigned char row[6];
-    for (int i = 0; i < 3; ++i) row[2 * i] = (unsigned char)(vals[i] >> 8), row[2 * i + 1] = (unsigned char)vals[i];
+    for (int i = 0; i < 3; ++i)
+        row[2 * i] = (unsigned char)(vals[i] >> 8), row[2 * i + 1] = (unsigned char)vals[i];
     png_write_row(png, row);
     png_write_end(png, NULL);
     png_destroy_write_struct(&png, &info);
@@ -110,7 +112,8 @@ static void test_png_layouts(void) {
     pen_image im;
     CHECK(pen_image_load(ctx, p, &im) == PEN_OK);
     for (int i = 0; i < 3; ++i)
-        for (int c = 0; c < 3; ++c) CHECK_NEAR(im.data[3 * i + c], srgb_decode(vals[i] / 65535.0), 1e-6);
+        for (int c = 0; c < 3; ++c)
+            CHECK_NEAR(im.data[3 * i + c], srgb_decode(vals[i] / 65535.0), 1e-6);
     pen_image_free(&im);
 }
 
@@ -126,8 +129,10 @@ static void test_hdr_exr_round_trip(void) {
     CHECK(pen_image_load(ctx, p, &b) == PEN_OK);
     CHECK(b.width == 13 && b.height == 7);
     for (size_t px = 0; px < 13 * 7; ++px) {
-        double big = fmax(fmax((double)a.data[3 * px], (double)a.data[3 * px + 1]), (double)a.data[3 * px + 2]);
-        for (int c = 0; c < 3; ++c) CHECK_NEAR(b.data[3 * px + c], a.data[3 * px + c], big / 128.0);
+        double big = fmax(fmax((double)a.data[3 * px], (double)a.data[3 * px + 1]),
+                          (double)a.data[3 * px + 2]);
+        for (int c = 0; c < 3; ++c)
+            CHECK_NEAR(b.data[3 * px + c], a.data[3 * px + c], big / 128.0);
     }
     pen_image_free(&b);
     /* EXR: 32-bit floats, lossless. Negative values survive. */
@@ -145,7 +150,8 @@ static void test_hdr_exr_round_trip(void) {
     CHECK(pen_image_save(ctx, p, &a) == PEN_OK);
     CHECK(pen_image_load(ctx, p, &b) == PEN_OK);
     for (size_t i = 0; i < 20; ++i)
-        for (int c = 0; c < 3; ++c) CHECK(b.data[3 * i + c] == a.data[i]);
+        for (int c = 0; c < 3; ++c)
+            CHECK(b.data[3 * i + c] == a.data[i]);
     pen_image_free(&a);
     pen_image_free(&b);
     CHECK(fixture_temp_files() == 0);
@@ -179,7 +185,8 @@ static void test_bundled_envmaps(void) {
 
 /* A PNG whose IHDR claims the given size (valid CRC, no pixel data). */
 static const char *png_header_only(const char *name, uint32_t w, uint32_t h) {
-    unsigned char b[33] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n', 0, 0, 0, 13, 'I', 'H', 'D', 'R'};
+    unsigned char b[33] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n',
+                           0,    0,   0,   13,  'I',  'H',  'D',  'R'};
     for (int i = 0; i < 4; ++i) {
         b[16 + i] = (unsigned char)(w >> (24 - 8 * i));
         b[20 + i] = (unsigned char)(h >> (24 - 8 * i));
@@ -187,7 +194,8 @@ static const char *png_header_only(const char *name, uint32_t w, uint32_t h) {
     b[24] = 8; /* bit depth */
     b[25] = 2; /* RGB */
     uLong crc = crc32(0, b + 12, 17);
-    for (int i = 0; i < 4; ++i) b[29 + i] = (unsigned char)(crc >> (24 - 8 * i));
+    for (int i = 0; i < 4; ++i)
+        b[29 + i] = (unsigned char)(crc >> (24 - 8 * i));
     return fixture_write(name, b, sizeof b);
 }
 
@@ -203,8 +211,12 @@ static void test_malformed(void) {
                 "text.png", "not a PNG");
     CHECK_ERROR(ctx, pen_image_load(ctx, fixture_text("text.hdr", "hello"), &im), PEN_ERROR_PARSE,
                 "text.hdr", "not a Radiance");
-    CHECK_ERROR(ctx, pen_image_load(ctx, fixture_text("huge.hdr", "#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 20 +X 20000\n"), &im),
-                PEN_ERROR_PARSE, "huge.hdr", "20000 x 20");
+    CHECK_ERROR(
+        ctx,
+        pen_image_load(
+            ctx, fixture_text("huge.hdr", "#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 20 +X 20000\n"),
+            &im),
+        PEN_ERROR_PARSE, "huge.hdr", "20000 x 20");
     CHECK_ERROR(ctx, pen_image_load(ctx, fixture_text("text.exr", "hello"), &im), PEN_ERROR_PARSE,
                 "text.exr", "OpenEXR");
     CHECK_ERROR(ctx, pen_image_load(ctx, fixture_path("missing.png"), &im), PEN_ERROR_IO,
@@ -225,7 +237,8 @@ static void test_malformed(void) {
     a.data[3 * (4 * 2 + 1) + 2] = INFINITY;
     CHECK_ERROR(ctx, pen_image_save(ctx, fixture_path("inf.exr"), &a), PEN_ERROR_ARGUMENT,
                 "infinite");
-    CHECK_ERROR(ctx, pen_image_save(ctx, fixture_path("x.tiff"), &a), PEN_ERROR_UNSUPPORTED, "x.tiff");
+    CHECK_ERROR(ctx, pen_image_save(ctx, fixture_path("x.tiff"), &a), PEN_ERROR_UNSUPPORTED,
+                "x.tiff");
     a.data[3 * (4 * 2 + 1) + 2] = 0.5f;
     CHECK_ERROR(ctx, pen_image_save(ctx, fixture_path("no/such/dir/x.png"), &a), PEN_ERROR_IO,
                 "x.png");

@@ -1,6 +1,8 @@
 /* Scene and sphere-set JSON: a full scene with every kind of reference, defaults, save -> load
  * round trips, and a table of malformed scenes whose errors must name the file and key path. */
-#include "io_fixtures.h"
+#include "io_fixtures.h" /* first: it sets the feature-test macros */
+
+#include "io/io_internal.h"
 
 #define ctx fixture_ctx()
 
@@ -22,12 +24,12 @@ static void write_assets(void) {
     fixture_text("assets/s.json", "{\"spheres\": [{\"center\": [0, 0.5, 0], \"radius\": 0.5},"
                                   " {\"center\": [0.25, 0.75, -0.5], \"radius\": 0.125}],"
                                   " \"metrics\": {\"sov\": 0.1}}");
-    fixture_text("assets/bad_spheres.json",
-                 "{\"spheres\": [{\"center\": [0, 0, 0], \"radius\": 1},"
-                 " {\"center\": [0, 0, 0], \"radius\": -1}]}");
+    fixture_text("assets/bad_spheres.json", "{\"spheres\": [{\"center\": [0, 0, 0], \"radius\": 1},"
+                                            " {\"center\": [0, 0, 0], \"radius\": -1}]}");
     pen_image im;
     CHECK(pen_image_create(ctx, 4, 2, 3, &im) == PEN_OK);
-    for (int i = 0; i < 24; ++i) im.data[i] = (float)(i % 5) / 4.0f;
+    for (int i = 0; i < 24; ++i)
+        im.data[i] = (float)(i % 5) / 4.0f;
     CHECK(pen_image_save(ctx, fixture_path("assets/tex.png"), &im) == PEN_OK);
     CHECK(pen_image_save(ctx, fixture_path("assets/mat_tex.png"), &im) == PEN_OK);
     pen_image_free(&im);
@@ -36,7 +38,8 @@ static void write_assets(void) {
     for (int y = 0; y < 16; ++y)
         for (int x = 0; x < 32; ++x)
             for (int c = 0; c < 3; ++c)
-                im.data[3 * (y * 32 + x) + c] = (y < 8 ? 2.0f : 0.2f) + 0.05f * (float)x + 0.1f * (float)c;
+                im.data[3 * (y * 32 + x) + c] =
+                    (y < 8 ? 2.0f : 0.2f) + 0.05f * (float)x + 0.1f * (float)c;
     CHECK(pen_image_save(ctx, fixture_path("assets/sky.exr"), &im) == PEN_OK);
     pen_image_free(&im);
 }
@@ -54,8 +57,10 @@ static const char *FULL_SCENE =
     " \"spheres\": \"../assets/s.json\", \"pose\": {\"rotation_axis_angle_deg\": [0, 90, 0],"
     " \"translation\": [1, 0, 0.3], \"scale\": 2}},\n"
     "    {\"mesh\": \"../assets/quad.obj\"},\n"
-    "    {\"mesh\": \"../assets/nouv.obj\", \"albedo\": [0.2, 0.3, 0.4], \"spheres\": {\"fit\": 16}},\n"
-    "    {\"mesh\": \"../assets/nouv.obj\", \"spheres\": [{\"center\": [0, 0.1, 0], \"radius\": 0.3}]}\n"
+    "    {\"mesh\": \"../assets/nouv.obj\", \"albedo\": [0.2, 0.3, 0.4], \"spheres\": {\"fit\": "
+    "16}},\n"
+    "    {\"mesh\": \"../assets/nouv.obj\", \"spheres\": [{\"center\": [0, 0.1, 0], \"radius\": "
+    "0.3}]}\n"
     "  ],\n"
     "  \"ground\": {\"height\": -0.5, \"albedo\": [0.5, 0.6, 0.7], \"half_size\": 3},\n"
     "  \"background\": \"envmap\"\n"
@@ -95,7 +100,8 @@ static int same_scene(const pen_scene *a, const pen_scene *b) {
              memcmp(&a->ground, &b->ground, sizeof a->ground) == 0 &&
              a->background_envmap == b->background_envmap &&
              memcmp(a->background, b->background, sizeof a->background) == 0 &&
-             memcmp(a->lighting.sh, b->lighting.sh, sizeof(float) * 3 * (size_t)(a->sh_bands * a->sh_bands)) == 0 &&
+             memcmp(a->lighting.sh, b->lighting.sh,
+                    sizeof(float) * 3 * (size_t)(a->sh_bands * a->sh_bands)) == 0 &&
              a->lighting.scale == b->lighting.scale &&
              a->lighting.rotation_y_deg == b->lighting.rotation_y_deg &&
              (a->lighting.envmap.data != NULL) == (b->lighting.envmap.data != NULL) &&
@@ -109,8 +115,8 @@ static int same_scene(const pen_scene *a, const pen_scene *b) {
              memcmp(x->albedo, y->albedo, sizeof x->albedo) == 0 &&
              x->spheres.count == y->spheres.count && x->fit_spheres == y->fit_spheres &&
              memcmp(&x->pose, &y->pose, sizeof x->pose) == 0 &&
-             (x->spheres.count == 0 ||
-              memcmp(x->spheres.data, y->spheres.data, 4 * sizeof(float) * (size_t)x->spheres.count) == 0);
+             (x->spheres.count == 0 || memcmp(x->spheres.data, y->spheres.data,
+                                              4 * sizeof(float) * (size_t)x->spheres.count) == 0);
         CHECK_MSG(ok, "object %d differs", i);
     }
     return ok;
@@ -179,16 +185,19 @@ static void test_full_scene(void) {
     pen_scene_free(NULL);
 }
 
-#define CAM "\"camera\": {\"width\": 8, \"height\": 8, \"fov_y_deg\": 40, \"eye\": [0, 0, 3], \"target\": [0, 0, 0]}"
+#define CAM                                                                                        \
+    "\"camera\": {\"width\": 8, \"height\": 8, \"fov_y_deg\": 40, \"eye\": [0, 0, 3], "            \
+    "\"target\": [0, 0, 0]}"
 #define LIGHT "\"lighting\": {\"sh\": [[1, 1, 1]]}, \"sh_bands\": 1"
 #define OBJ "\"objects\": [{\"mesh\": \"../assets/nouv.obj\"}]"
 
 static void test_defaults_and_parse(void) {
     write_assets();
     pen_scene sc;
-    const char *text = "{" CAM ", \"lighting\": {\"sh\": [[1, 2, 3], [0, 0, 0], [0.5, 0, 0], [0, 0, 0],"
-                       " [0, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, 0],"
-                       " [0, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, -1]]}, " OBJ "}";
+    const char *text =
+        "{" CAM ", \"lighting\": {\"sh\": [[1, 2, 3], [0, 0, 0], [0.5, 0, 0], [0, 0, 0],"
+        " [0, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, 0],"
+        " [0, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, -1]]}, " OBJ "}";
     /* pen_scene_parse: paths relative to the given name. */
     CHECK_MSG(pen_scene_parse(ctx, text, fixture_path("scenes/inline.json"), &sc) == PEN_OK, "%s",
               pen_context_error(ctx));
@@ -198,7 +207,8 @@ static void test_defaults_and_parse(void) {
     CHECK(sc.shadow.epsilon == (float)pen_sh_exp_model_default(PEN_SH_EXP_CALIBRATED, 4).epsilon);
     CHECK(!sc.ground.enabled && !sc.background_envmap && sc.background[0] == 0.0f);
     CHECK(sc.camera.up[0] == 0.0f && sc.camera.up[1] == 1.0f);
-    CHECK(sc.object_count == 1 && sc.objects[0].albedo[0] == 0.8f && sc.objects[0].pose.scale == 1.0f);
+    CHECK(sc.object_count == 1 && sc.objects[0].albedo[0] == 0.8f &&
+          sc.objects[0].pose.scale == 1.0f);
     CHECK(sc.objects[0].texture.data == NULL && sc.objects[0].spheres.count == 0);
     const char *out = fixture_path("out/defaults.json");
     CHECK(pen_scene_save(ctx, out, &sc) == PEN_OK);
@@ -229,56 +239,70 @@ static void test_malformed(void) {
     write_assets();
     static const bad_scene cases[] = {
         {"{" LIGHT ", " OBJ "}", PEN_ERROR_PARSE, "bad.json: camera: missing", "object"},
-        {"{\"camera\": {\"width\": -3, \"height\": 8, \"fov_y_deg\": 40, \"eye\": [0, 0, 3], \"target\": [0, 0, 0]}, " LIGHT ", " OBJ "}",
+        {"{\"camera\": {\"width\": -3, \"height\": 8, \"fov_y_deg\": 40, \"eye\": [0, 0, 3], "
+         "\"target\": [0, 0, 0]}, " LIGHT ", " OBJ "}",
          PEN_ERROR_PARSE, "camera.width: expected a positive integer", "got -3"},
-        {"{\"camera\": {\"width\": \"8\", \"height\": 8, \"fov_y_deg\": 40, \"eye\": [0, 0, 3], \"target\": [0, 0, 0]}, " LIGHT ", " OBJ "}",
+        {"{\"camera\": {\"width\": \"8\", \"height\": 8, \"fov_y_deg\": 40, \"eye\": [0, 0, 3], "
+         "\"target\": [0, 0, 0]}, " LIGHT ", " OBJ "}",
          PEN_ERROR_PARSE, "camera.width", "got a string"},
-        {"{\"camera\": {\"width\": 8, \"height\": 8, \"fov_y_deg\": 40, \"eye\": [0, 1e999, 3], \"target\": [0, 0, 0]}, " LIGHT ", " OBJ "}",
+        {"{\"camera\": {\"width\": 8, \"height\": 8, \"fov_y_deg\": 40, \"eye\": [0, 1e999, 3], "
+         "\"target\": [0, 0, 0]}, " LIGHT ", " OBJ "}",
          PEN_ERROR_PARSE, "camera.eye[1]: expected a finite number", "inf"},
-        {"{\"camera\": {\"width\": 8, \"height\": 8, \"fov_y_deg\": 40, \"eye\": [0, NaN, 3], \"target\": [0, 0, 0]}, " LIGHT ", " OBJ "}",
+        {"{\"camera\": {\"width\": 8, \"height\": 8, \"fov_y_deg\": 40, \"eye\": [0, NaN, 3], "
+         "\"target\": [0, 0, 0]}, " LIGHT ", " OBJ "}",
          PEN_ERROR_PARSE, "bad.json:1:", "invalid JSON"},
-        {"{\"camera\": {\"width\": 8, \"height\": 8, \"fov_y_deg\": 40, \"eye\": [0, 3], \"target\": [0, 0, 0]}, " LIGHT ", " OBJ "}",
+        {"{\"camera\": {\"width\": 8, \"height\": 8, \"fov_y_deg\": 40, \"eye\": [0, 3], "
+         "\"target\": [0, 0, 0]}, " LIGHT ", " OBJ "}",
          PEN_ERROR_PARSE, "camera.eye", "expected an array of 3 numbers, got 2"},
-        {"{\"camera\": {\"width\": 8, \"height\": 8, \"fov_y_deg\": 180, \"eye\": [0, 0, 3], \"target\": [0, 0, 0]}, " LIGHT ", " OBJ "}",
+        {"{\"camera\": {\"width\": 8, \"height\": 8, \"fov_y_deg\": 180, \"eye\": [0, 0, 3], "
+         "\"target\": [0, 0, 0]}, " LIGHT ", " OBJ "}",
          PEN_ERROR_PARSE, "camera.fov_y_deg", "(0, 180)"},
-        {"{\"camera\": {\"width\": 8, \"height\": 8, \"fov_y_deg\": 40, \"eye\": [0, 0, 3], \"target\": [0, 0, 3]}, " LIGHT ", " OBJ "}",
+        {"{\"camera\": {\"width\": 8, \"height\": 8, \"fov_y_deg\": 40, \"eye\": [0, 0, 3], "
+         "\"target\": [0, 0, 3]}, " LIGHT ", " OBJ "}",
          PEN_ERROR_PARSE, "camera.target", "equals camera.eye"},
-        {"{\"camera\": {\"width\": 8, \"height\": 8, \"fov_y_deg\": 40, \"eye\": [0, 0, 3], \"target\": [0, 0, 0], \"up\": [0, 0, 2]}, " LIGHT ", " OBJ "}",
+        {"{\"camera\": {\"width\": 8, \"height\": 8, \"fov_y_deg\": 40, \"eye\": [0, 0, 3], "
+         "\"target\": [0, 0, 0], \"up\": [0, 0, 2]}, " LIGHT ", " OBJ "}",
          PEN_ERROR_PARSE, "camera.up", "parallel"},
-        {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", \"albdo\": [1, 1, 1]}]}",
+        {"{" CAM ", " LIGHT
+         ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", \"albdo\": [1, 1, 1]}]}",
          PEN_ERROR_PARSE, "objects[0].albdo", "unknown key"},
-        {"{" CAM ", " LIGHT ", \"sh_bands\": 1, " OBJ "}", PEN_ERROR_PARSE, "sh_bands", "duplicate key"},
+        {"{" CAM ", " LIGHT ", \"sh_bands\": 1, " OBJ "}", PEN_ERROR_PARSE, "sh_bands",
+         "duplicate key"},
         {"{" CAM ", \"lighting\": {\"sh\": [[1, 1, 1]]}, \"sh_bands\": 2, " OBJ "}",
          PEN_ERROR_PARSE, "lighting.sh: expected 4 rows (sh_bands 2 squared)", "got 1"},
-        {"{" CAM ", \"lighting\": {\"sh\": [[1, 1]]}, \"sh_bands\": 1, " OBJ "}",
-         PEN_ERROR_PARSE, "lighting.sh[0]", "expected an array of 3 numbers"},
+        {"{" CAM ", \"lighting\": {\"sh\": [[1, 1]]}, \"sh_bands\": 1, " OBJ "}", PEN_ERROR_PARSE,
+         "lighting.sh[0]", "expected an array of 3 numbers"},
         {"{" CAM ", \"lighting\": {\"sh\": [[1, 1, \"x\"]]}, \"sh_bands\": 1, " OBJ "}",
          PEN_ERROR_PARSE, "lighting.sh[0][2]", "got a string"},
-        {"{" CAM ", \"lighting\": {}, " OBJ "}", PEN_ERROR_PARSE, "lighting", "needs \"envmap\" or \"sh\""},
+        {"{" CAM ", \"lighting\": {}, " OBJ "}", PEN_ERROR_PARSE, "lighting",
+         "needs \"envmap\" or \"sh\""},
         {"{" CAM ", \"lighting\": {\"sh\": [[1, 1, 1]], \"scale\": 2}, \"sh_bands\": 1, " OBJ "}",
          PEN_ERROR_PARSE, "lighting", "envmap"},
-        {"{" CAM ", \"lighting\": {\"envmap\": \"../assets/none.exr\"}, " OBJ "}",
-         PEN_ERROR_IO, "lighting.envmap", "none.exr"},
+        {"{" CAM ", \"lighting\": {\"envmap\": \"../assets/none.exr\"}, " OBJ "}", PEN_ERROR_IO,
+         "lighting.envmap", "none.exr"},
         {"{" CAM ", " LIGHT ", " OBJ ", \"shadow\": {\"exp\": \"magic\"}}", PEN_ERROR_PARSE,
          "shadow.exp", "unknown method 'magic'"},
         {"{" CAM ", " LIGHT ", " OBJ ", \"shadow\": {\"epsilon\": -1}}", PEN_ERROR_PARSE,
          "shadow.epsilon", "positive"},
-        {"{" CAM ", \"lighting\": {\"sh\": [[1, 1, 1]]}, \"sh_bands\": 9, " OBJ "}", PEN_ERROR_PARSE,
-         "sh_bands", "[1, 8]"},
+        {"{" CAM ", \"lighting\": {\"sh\": [[1, 1, 1]]}, \"sh_bands\": 9, " OBJ "}",
+         PEN_ERROR_PARSE, "sh_bands", "[1, 8]"},
         {"{" CAM ", " LIGHT ", \"objects\": [{}]}", PEN_ERROR_PARSE, "objects[0].mesh", "missing"},
         {"{" CAM ", " LIGHT ", \"objects\": {}}", PEN_ERROR_PARSE, "objects", "expected an array"},
         {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/nope.obj\"}]}", PEN_ERROR_IO,
          "objects[0].mesh", "nope.obj: cannot open"},
         {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/bad_index.obj\"}]}",
          PEN_ERROR_PARSE, "objects[0].mesh: ", "bad_index.obj:4: vertex index 4 out of range"},
-        {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", \"spheres\": \"../assets/bad_spheres.json\"}]}",
+        {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", \"spheres\": "
+         "\"../assets/bad_spheres.json\"}]}",
          PEN_ERROR_PARSE, "objects[0].spheres: ",
          "bad_spheres.json: spheres[1].radius: expected a positive number, got -1"},
-        {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", \"spheres\": {\"fit\": 0}}]}",
+        {"{" CAM ", " LIGHT
+         ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", \"spheres\": {\"fit\": 0}}]}",
          PEN_ERROR_PARSE, "objects[0].spheres.fit", "[1, 4096]"},
         {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", \"spheres\": 3}]}",
          PEN_ERROR_PARSE, "objects[0].spheres", "{\"fit\": N}"},
-        {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", \"spheres\": [{\"center\": [0, 0, 0], \"radius\": 0}]}]}",
+        {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", \"spheres\": "
+         "[{\"center\": [0, 0, 0], \"radius\": 0}]}]}",
          PEN_ERROR_PARSE, "objects[0].spheres[0].radius", "positive"},
         {"{" CAM ", " LIGHT ", " OBJ ", \"background\": \"sky\"}", PEN_ERROR_PARSE, "background",
          "'sky'"},
@@ -288,16 +312,22 @@ static void test_malformed(void) {
          "background[1]", "got -1"},
         {"{" CAM ", " LIGHT ", " OBJ ", \"ground\": {\"half_size\": 0}}", PEN_ERROR_PARSE,
          "ground.half_size", "positive"},
-        {"{" CAM ", " LIGHT ", " OBJ ", \"ground\": 5}", PEN_ERROR_PARSE, "ground", "expected an object"},
-        {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", \"pose\": {\"scale\": -1}}]}",
+        {"{" CAM ", " LIGHT ", " OBJ ", \"ground\": 5}", PEN_ERROR_PARSE, "ground",
+         "expected an object"},
+        {"{" CAM ", " LIGHT
+         ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", \"pose\": {\"scale\": -1}}]}",
          PEN_ERROR_PARSE, "objects[0].pose.scale", "positive"},
-        {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/quad.obj\", \"albedo\": [1, 1, 1], \"albedo_texture\": \"../assets/tex.png\"}]}",
+        {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/quad.obj\", \"albedo\": [1, 1, "
+         "1], \"albedo_texture\": \"../assets/tex.png\"}]}",
          PEN_ERROR_PARSE, "objects[0]", "not both"},
-        {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", \"albedo\": [2, 0, 0]}]}",
+        {"{" CAM ", " LIGHT
+         ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", \"albedo\": [2, 0, 0]}]}",
          PEN_ERROR_PARSE, "objects[0].albedo[0]", "[0, 1]"},
-        {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", \"albedo_texture\": \"../assets/tex.png\"}]}",
+        {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", "
+         "\"albedo_texture\": \"../assets/tex.png\"}]}",
          PEN_ERROR_PARSE, "objects[0].albedo_texture", "texture coordinates"},
-        {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/quad.obj\", \"albedo_texture\": \"../assets/gone.png\"}]}",
+        {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/quad.obj\", "
+         "\"albedo_texture\": \"../assets/gone.png\"}]}",
          PEN_ERROR_IO, "objects[0].albedo_texture", "gone.png"},
         {"[1, 2]", PEN_ERROR_PARSE, "bad.json", "expected a JSON object"},
         {"{\n\"camera\": {\n  ,}\n}", PEN_ERROR_PARSE, "bad.json:3:", "invalid JSON"},
@@ -317,14 +347,16 @@ static void test_malformed(void) {
                 "missing.json");
 }
 
-/* ---- Sphere sets ------------------------------------------------------------------------------ */
+/* ---- Sphere sets ----------------------------------------------------------------------------- */
 
 static void test_spheres(void) {
     pen_spheres a, b;
     CHECK(pen_spheres_create(ctx, 3, &a) == PEN_OK);
-    for (int i = 0; i < 12; ++i) a.data[i] = (i % 4 == 3) ? 0.1f * (float)(i + 1) : 0.3f * (float)i - 1.0f;
+    for (int i = 0; i < 12; ++i)
+        a.data[i] = (i % 4 == 3) ? 0.1f * (float)(i + 1) : 0.3f * (float)i - 1.0f;
     const char *p = fixture_path("spheres.json");
-    CHECK(pen_spheres_save(ctx, p, &a, "{\"metrics\": {\"sov\": 0.25}, \"note\": \"x\"}") == PEN_OK);
+    CHECK(pen_spheres_save(ctx, p, &a, "{\"metrics\": {\"sov\": 0.25}, \"note\": \"x\"}") ==
+          PEN_OK);
     CHECK(pen_spheres_load(ctx, p, &b) == PEN_OK);
     CHECK(b.count == 3 && memcmp(a.data, b.data, 12 * sizeof(float)) == 0);
     pen_spheres_free(&b);
@@ -345,14 +377,21 @@ static void test_spheres(void) {
     CHECK(pen_spheres_load(ctx, p, &b) == PEN_OK && b.count == 0);
     pen_spheres_free(&b);
 
-    static const struct { const char *name, *text, *key, *what; } bad[] = {
-        {"r.json", "{\"spheres\": [{\"center\": [0,0,0], \"radius\": 1}, {\"center\": [0,0,0], \"radius\": 1},"
-                   " {\"center\": [0,0,0], \"radius\": 1}, {\"center\": [0,0,0], \"radius\": -2}]}",
+    static const struct {
+        const char *name, *text, *key, *what;
+    } bad[] = {
+        {"r.json",
+         "{\"spheres\": [{\"center\": [0,0,0], \"radius\": 1}, {\"center\": [0,0,0], \"radius\": "
+         "1},"
+         " {\"center\": [0,0,0], \"radius\": 1}, {\"center\": [0,0,0], \"radius\": -2}]}",
          "r.json: spheres[3].radius: expected a positive number", "got -2"},
         {"c.json", "{\"spheres\": [{\"radius\": 1}]}", "c.json: spheres[0].center", "missing"},
-        {"n.json", "{\"spheres\": [{\"center\": [0, 1e400, 0], \"radius\": 1}]}", "spheres[0].center[1]", "finite"},
-        {"f.json", "{\"spheres\": [{\"center\": [0, 1e39, 0], \"radius\": 1}]}", "spheres[0].center[1]", "float range"},
-        {"k.json", "{\"spheres\": [{\"center\": [0, 0, 0], \"radius\": 1, \"radus\": 2}]}", "spheres[0].radus", "unknown key"},
+        {"n.json", "{\"spheres\": [{\"center\": [0, 1e400, 0], \"radius\": 1}]}",
+         "spheres[0].center[1]", "finite"},
+        {"f.json", "{\"spheres\": [{\"center\": [0, 1e39, 0], \"radius\": 1}]}",
+         "spheres[0].center[1]", "float range"},
+        {"k.json", "{\"spheres\": [{\"center\": [0, 0, 0], \"radius\": 1, \"radus\": 2}]}",
+         "spheres[0].radus", "unknown key"},
         {"m.json", "{\"balls\": []}", "m.json: spheres", "missing"},
         {"t.json", "{\"spheres\": {}}", "t.json: spheres", "expected an array"},
         {"e.json", "[3]", "e.json: [0]", "expected a sphere object, got a number"},
@@ -377,5 +416,41 @@ static void test_spheres(void) {
     pen_spheres_free(NULL);
 }
 
-RUN_TESTS(TEST(test_full_scene), TEST(test_defaults_and_parse), TEST(test_malformed),
-          TEST(test_spheres))
+/* Relative paths for saved references: same folder, parent, child, and through a "..". */
+static void test_paths(void) {
+    write_assets();
+    mkdir(fixture_path("assets/sub"), 0755);
+    fixture_text("assets/sub/deep.obj", "");
+    static const struct {
+        const char *from, *to, *want;
+    } cases[] = {
+        {"assets/new.json", "assets/quad.obj", "quad.obj"},
+        {"scenes/new.json", "assets/quad.obj", "../assets/quad.obj"},
+        {"new.json", "assets/sub/deep.obj", "assets/sub/deep.obj"},
+        {"assets/sub/new.json", "assets/quad.obj", "../quad.obj"},
+        {"scenes/../assets/sub/new.json", "scenes/../assets/quad.obj", "../quad.obj"},
+        {"out/new.json", "assets/sub/deep.obj", "../assets/sub/deep.obj"},
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; ++i) {
+        char from[512];
+        snprintf(from, sizeof from, "%s", fixture_path(cases[i].from));
+        char *rel = pen__io_path_relative(ctx, from, fixture_path(cases[i].to));
+        CHECK_MSG(rel && strcmp(rel, cases[i].want) == 0, "case %zu: %s", i, rel ? rel : "NULL");
+        free(rel);
+    }
+    /* A target that does not exist is written as given. */
+    char *rel = pen__io_path_relative(ctx, fixture_path("out/x.json"), "no/such/file.obj");
+    CHECK(rel && strcmp(rel, "no/such/file.obj") == 0);
+    free(rel);
+    char *res = pen__io_path_resolve(ctx, "a/b/scene.json", "../m.obj");
+    CHECK(res && strcmp(res, "a/b/../m.obj") == 0);
+    free(res);
+    res = pen__io_path_resolve(ctx, "scene.json", "/abs/m.obj");
+    CHECK(res && strcmp(res, "/abs/m.obj") == 0);
+    free(res);
+    CHECK(pen__io_has_ext("a.b/MESH.OBJ", "obj") && !pen__io_has_ext("a.obj/mesh", "obj") &&
+          !pen__io_has_ext("mesh.objx", "obj"));
+}
+
+RUN_TESTS(TEST(test_paths), TEST(test_full_scene), TEST(test_defaults_and_parse),
+          TEST(test_malformed), TEST(test_spheres))

@@ -1,7 +1,7 @@
 /* Triangle meshes: freeing, bounds, validation, and loading/saving by file extension. */
+#include "penumbra/mesh.h"
 #include "core/internal.h"
 #include "io/io_internal.h"
-#include "penumbra/mesh.h"
 
 #include <stdlib.h>
 #include <string.h>
@@ -38,8 +38,8 @@ static pen_status check_indices(pen_context *ctx, const uint32_t *idx, int trian
     for (size_t c = 0; c < 3 * (size_t)triangles; ++c)
         if (idx[c] >= (uint32_t)count)
             return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                              "mesh: triangle %zu: %s index %u out of range [0, %d)", c / 3,
-                              which, idx[c], count);
+                              "mesh: triangle %zu: %s index %u out of range [0, %d)", c / 3, which,
+                              idx[c], count);
     return PEN_OK;
 }
 
@@ -66,17 +66,19 @@ pen_status pen_mesh_validate(pen_context *ctx, const pen_mesh *mesh) {
         (mesh->normal_count > 0 && (!mesh->normals || !mesh->normal_indices)))
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "mesh: missing UV or normal arrays");
     pen_status s = check_finite(ctx, mesh->positions, mesh->vertex_count, 3, "vertex");
-    if (!s) s = check_indices(ctx, mesh->indices, mesh->triangle_count, mesh->vertex_count,
-                              "vertex");
+    if (!s)
+        s = check_indices(ctx, mesh->indices, mesh->triangle_count, mesh->vertex_count, "vertex");
     if (!s && mesh->uv_count > 0) {
         s = check_finite(ctx, mesh->uvs, mesh->uv_count, 2, "texture coordinate");
-        if (!s) s = check_indices(ctx, mesh->uv_indices, mesh->triangle_count, mesh->uv_count,
-                                  "texture coordinate");
+        if (!s)
+            s = check_indices(ctx, mesh->uv_indices, mesh->triangle_count, mesh->uv_count,
+                              "texture coordinate");
     }
     if (!s && mesh->normal_count > 0) {
         s = check_finite(ctx, mesh->normals, mesh->normal_count, 3, "normal");
-        if (!s) s = check_indices(ctx, mesh->normal_indices, mesh->triangle_count,
-                                  mesh->normal_count, "normal");
+        if (!s)
+            s = check_indices(ctx, mesh->normal_indices, mesh->triangle_count, mesh->normal_count,
+                              "normal");
     }
     return s;
 }

@@ -74,8 +74,8 @@ static double texel(const pen_image *env, int x, int y, int c) {
     return v > 0.0 ? v : 0.0;
 }
 
-pen_status pen_envmap_to_sh(pen_context *ctx, const pen_image *env, int bands,
-                            float rotation_y_deg, float scale, float sh[][3]) {
+pen_status pen_envmap_to_sh(pen_context *ctx, const pen_image *env, int bands, float rotation_y_deg,
+                            float scale, float sh[][3]) {
     pen_status s = check_envmap(ctx, env);
     if (s) return s;
     if (bands < 1 || bands > PEN_SH_MAX_BANDS)
@@ -90,8 +90,8 @@ pen_status pen_envmap_to_sh(pen_context *ctx, const pen_image *env, int bands,
         if (!isfinite(env->data[i])) {
             size_t p = i / (size_t)env->channels;
             return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                              "environment map: pixel (%zu, %zu) is not finite",
-                              p % (size_t)W, p / (size_t)W);
+                              "environment map: pixel (%zu, %zu) is not finite", p % (size_t)W,
+                              p / (size_t)W);
         }
     }
     double acc[PEN_SH_MAX_COEFFS][3];
@@ -113,13 +113,16 @@ pen_status pen_envmap_to_sh(pen_context *ctx, const pen_image *env, int bands,
             double L[3] = {texel(env, col, row, 0), texel(env, col, row, 1),
                            texel(env, col, row, 2)};
             for (int i = 0; i < n; ++i)
-                for (int c = 0; c < 3; ++c) row_acc[i][c] += L[c] * y[i];
+                for (int c = 0; c < 3; ++c)
+                    row_acc[i][c] += L[c] * y[i];
         }
         for (int i = 0; i < n; ++i)
-            for (int c = 0; c < 3; ++c) acc[i][c] += weight * row_acc[i][c];
+            for (int c = 0; c < 3; ++c)
+                acc[i][c] += weight * row_acc[i][c];
     }
     for (int i = 0; i < n; ++i)
-        for (int c = 0; c < 3; ++c) sh[i][c] = (float)((double)scale * acc[i][c]);
+        for (int c = 0; c < 3; ++c)
+            sh[i][c] = (float)((double)scale * acc[i][c]);
     return PEN_OK;
 }
 

@@ -6,11 +6,11 @@
  * every value read or written to 11 bits. Imf::InputFile reads any compression, scanline or
  * tiled, half/float/uint channels, into 32-bit float slices; Imf::OutputFile writes 32-bit float
  * channels with ZIP compression (lossless). No exception leaves this file. */
+#include <cjson/cJSON.h>
 #include <math.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
-#include <cjson/cJSON.h>
 
 extern "C" {
 #include "io/io_internal.h"
@@ -32,7 +32,8 @@ namespace {
  * pointer is formed before OpenEXR adds the offsets back. */
 char *slice_base(float *data, int x0, int y0, int width, int channels, int c) {
     ptrdiff_t offset = (-(ptrdiff_t)y0 * width - x0) * channels + c;
-    return reinterpret_cast<char *>(reinterpret_cast<uintptr_t>(data) + offset * (ptrdiff_t)sizeof(float));
+    return reinterpret_cast<char *>(reinterpret_cast<uintptr_t>(data) +
+                                    offset * (ptrdiff_t)sizeof(float));
 }
 
 } // namespace
@@ -64,8 +65,9 @@ extern "C" pen_status pen__exr_load(pen_context *ctx, const char *path, pen_imag
         const size_t xs = 3 * sizeof(float), ys = xs * (size_t)w;
         for (int c = 0; c < (rgb ? 3 : 1); ++c)
             fb.insert(rgb ? names[c] : "Y",
-                      Imf::Slice(Imf::FLOAT, slice_base(out->data, dw.min.x, dw.min.y, (int)w, 3, c),
-                                 xs, ys, 1, 1, 0.0));
+                      Imf::Slice(Imf::FLOAT,
+                                 slice_base(out->data, dw.min.x, dw.min.y, (int)w, 3, c), xs, ys, 1,
+                                 1, 0.0));
         file.setFrameBuffer(fb);
         file.readPixels(dw.min.y, dw.max.y);
         if (!rgb)

@@ -10,7 +10,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
-/* ---- Reading -------------------------------------------------------------------------------- */
+/* ---- Reading --------------------------------------------------------------------------------- */
 
 pen_status pen__io_read_file(pen_context *ctx, const char *path, size_t max_bytes, char **data,
                              size_t *size) {
@@ -31,8 +31,8 @@ pen_status pen__io_read_file(pen_context *ctx, const char *path, size_t max_byte
             if (cap >= max_bytes) {
                 free(buf);
                 fclose(f);
-                return pen__error(ctx, PEN_ERROR_IO, "%s: larger than the limit of %zu bytes",
-                                  path, max_bytes);
+                return pen__error(ctx, PEN_ERROR_IO, "%s: larger than the limit of %zu bytes", path,
+                                  max_bytes);
             }
             size_t next = cap > max_bytes / 2 ? max_bytes : cap * 2;
             char *grown = realloc(buf, next + 1);
@@ -61,7 +61,7 @@ pen_status pen__io_read_file(pen_context *ctx, const char *path, size_t max_byte
     return PEN_OK;
 }
 
-/* ---- Atomic writing ------------------------------------------------------------------------- */
+/* ---- Atomic writing -------------------------------------------------------------------------- */
 
 pen_status pen__io_temp_create(pen_context *ctx, const char *path, char **tmp_path) {
     *tmp_path = NULL;
@@ -72,8 +72,8 @@ pen_status pen__io_temp_create(pen_context *ctx, const char *path, char **tmp_pa
     memcpy(tmp + len, ".tmp-XXXXXX", 12);
     int fd = mkstemp(tmp);
     if (fd < 0) {
-        pen_status s = pen__error(ctx, PEN_ERROR_IO, "%s: cannot create a temporary file: %s",
-                                  path, strerror(errno));
+        pen_status s = pen__error(ctx, PEN_ERROR_IO, "%s: cannot create a temporary file: %s", path,
+                                  strerror(errno));
         free(tmp);
         return s;
     }
@@ -86,8 +86,7 @@ pen_status pen__io_temp_create(pen_context *ctx, const char *path, char **tmp_pa
 
 pen_status pen__io_temp_commit(pen_context *ctx, char *tmp_path, const char *path) {
     if (rename(tmp_path, path) != 0) {
-        pen_status s =
-            pen__error(ctx, PEN_ERROR_IO, "%s: cannot write: %s", path, strerror(errno));
+        pen_status s = pen__error(ctx, PEN_ERROR_IO, "%s: cannot write: %s", path, strerror(errno));
         pen__io_temp_discard(tmp_path);
         return s;
     }
@@ -115,7 +114,7 @@ pen_status pen__io_write_file(pen_context *ctx, const char *path, const char *da
     return pen__io_temp_commit(ctx, tmp, path);
 }
 
-/* ---- Paths ---------------------------------------------------------------------------------- */
+/* ---- Paths ----------------------------------------------------------------------------------- */
 
 int pen__io_has_ext(const char *path, const char *ext) {
     const char *dot = strrchr(path, '.');
@@ -182,8 +181,10 @@ char *pen__io_path_relative(pen_context *ctx, const char *new_file, const char *
      * component of `to` is its file name and is never shared. */
     const char *f = from, *t = to;
     for (;;) {
-        while (*f == '/') ++f;
-        while (*t == '/') ++t;
+        while (*f == '/')
+            ++f;
+        while (*t == '/')
+            ++t;
         size_t fl = strcspn(f, "/"), tl = strcspn(t, "/");
         if (fl == 0 || t[tl] == '\0' || fl != tl || memcmp(f, t, fl) != 0) break;
         f += fl;
@@ -191,7 +192,8 @@ char *pen__io_path_relative(pen_context *ctx, const char *new_file, const char *
     }
     size_t ups = 0;
     for (const char *p = f; *p;) {
-        while (*p == '/') ++p;
+        while (*p == '/')
+            ++p;
         if (!*p) break;
         ++ups;
         p += strcspn(p, "/");
@@ -199,7 +201,8 @@ char *pen__io_path_relative(pen_context *ctx, const char *new_file, const char *
     size_t rn = strlen(t);
     char *out = pen__malloc(ctx, ups * 3 + rn + 1, 1, "path");
     if (out) {
-        for (size_t k = 0; k < ups; ++k) memcpy(out + 3 * k, "../", 3);
+        for (size_t k = 0; k < ups; ++k)
+            memcpy(out + 3 * k, "../", 3);
         memcpy(out + 3 * ups, t, rn + 1);
     }
     free(from);

@@ -8,19 +8,19 @@
  *
  * sRGB: the IEC 61966-2-1 curve, decoded exactly (a table for 8-bit, the formula for 16-bit) and
  * encoded with rounding to the nearest 8-bit code after clamping to [0, 1]. */
-#include "io/io_internal.h"
 #include "penumbra/image.h"
+#include "io/io_internal.h"
 
 #include <errno.h>
+#include <limits.h>
 #include <stb_image.h>
 #include <stb_image_write.h>
 #include <stdlib.h>
 #include <string.h>
 
-#define IMAGE_MAX_FILE_BYTES ((size_t)1 << 31)
+#define IMAGE_MAX_FILE_BYTES ((size_t)INT_MAX) /* stb takes an int length */
 
-pen_status pen_image_create(pen_context *ctx, int width, int height, int channels,
-                            pen_image *out) {
+pen_status pen_image_create(pen_context *ctx, int width, int height, int channels, pen_image *out) {
     memset(out, 0, sizeof *out);
     if (width < 1 || height < 1 || width > PEN_IMAGE_MAX_DIM || height > PEN_IMAGE_MAX_DIM ||
         channels < 1 || channels > 4)
@@ -52,7 +52,7 @@ static double linear_to_srgb(double c) {
     return c <= 0.0031308 ? 12.92 * c : 1.055 * pow(c, 1.0 / 2.4) - 0.055;
 }
 
-/* ---- Loading ---------------------------------------------------------------------------------- */
+/* ---- Loading --------------------------------------------------------------------------------- */
 
 /* Converts n decoded pixels of `comp` 8- or 16-bit components (1 grey, 2 grey + alpha, 3 RGB,
  * 4 RGBA; alpha is dropped, grey replicated) into 3-channel floats, decoding sRGB unless raw. */
@@ -96,8 +96,8 @@ static pen_status load_stb(pen_context *ctx, const char *path, int hdr, int raw,
         s = pen__error(ctx, PEN_ERROR_PARSE, "%s: unreadable header (%s)", path,
                        stbi_failure_reason());
     else if (w < 1 || h < 1 || w > PEN_IMAGE_MAX_DIM || h > PEN_IMAGE_MAX_DIM)
-        s = pen__error(ctx, PEN_ERROR_PARSE, "%s: image size %d x %d outside [1, %d]", path, w,
-                       h, PEN_IMAGE_MAX_DIM);
+        s = pen__error(ctx, PEN_ERROR_PARSE, "%s: image size %d x %d outside [1, %d]", path, w, h,
+                       PEN_IMAGE_MAX_DIM);
     else
         s = pen_image_create(ctx, w, h, 3, out);
     if (!s) {
@@ -126,8 +126,8 @@ static pen_status check_finite(pen_context *ctx, pen_status status, const char *
     for (size_t i = 0; i < n; ++i) {
         if (!isfinite(im->data[i])) {
             size_t p = i / (size_t)im->channels;
-            return pen__error(ctx, status, "%s: pixel (%zu, %zu) channel %zu is %s",
-                              path, p % (size_t)im->width, p / (size_t)im->width,
+            return pen__error(ctx, status, "%s: pixel (%zu, %zu) channel %zu is %s", path,
+                              p % (size_t)im->width, p / (size_t)im->width,
                               i % (size_t)im->channels, isnan(im->data[i]) ? "NaN" : "infinite");
         }
     }
@@ -149,7 +149,7 @@ pen_status pen_image_load_ex(pen_context *ctx, const char *path, unsigned flags,
     pen_status s;
     if (pen__io_has_ext(path, "png"))
         s = load_stb(ctx, path, 0, raw, out);
-    else if (pen__io_has_ext(path, "hdr") || pen__io_has_ext(path, "pic"))
+    else if (pen__io_has_ext(path, "hdr"))
         s = load_stb(ctx, path, 1, raw, out);
     else if (pen__io_has_ext(path, "exr"))
         s = exr_load(ctx, path, out);
@@ -165,7 +165,7 @@ pen_status pen_image_load(pen_context *ctx, const char *path, pen_image *out) {
     return pen_image_load_ex(ctx, path, 0, out);
 }
 
-/* ---- Saving ----------------------------------------------------------------------------------- */
+/* ---- Saving ---------------------------------------------------------------------------------- */
 
 typedef struct sink {
     FILE *f;
@@ -192,8 +192,8 @@ static unsigned char *encode_png(pen_context *ctx, const pen_image *im) {
     return px;
 }
 
-static pen_status save_stb(pen_context *ctx, const char *path, const char *tmp,
-                           const pen_image *im, int hdr) {
+static pen_status save_stb(pen_context *ctx, const char *path, const char *tmp, const pen_image *im,
+                           int hdr) {
     FILE *f = fopen(tmp, "wb");
     if (!f) return pen__error(ctx, PEN_ERROR_IO, "%s: cannot write", path);
     sink k = {f, 0};
@@ -220,8 +220,10 @@ pen_status pen_image_save(pen_context *ctx, const char *path, const pen_image *i
         image->width > PEN_IMAGE_MAX_DIM || image->height > PEN_IMAGE_MAX_DIM ||
         image->channels < 1 || image->channels > 4)
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: invalid image to save", path);
-    int kind = pen__io_has_ext(path, "png") ? 0 : pen__io_has_ext(path, "hdr") ? 1
-               : pen__io_has_ext(path, "exr") ? 2 : -1;
+    int kind = pen__io_has_ext(path, "png")   ? 0
+               : pen__io_has_ext(path, "hdr") ? 1
+               : pen__io_has_ext(path, "exr") ? 2
+                                              : -1;
     if (kind < 0)
         return pen__error(ctx, PEN_ERROR_UNSUPPORTED,
                           "%s: unknown image format (expected .png, .hdr or .exr)", path);
@@ -230,7 +232,8 @@ pen_status pen_image_save(pen_context *ctx, const char *path, const pen_image *i
     char *tmp = NULL;
     s = pen__io_temp_create(ctx, path, &tmp);
     if (s) return s;
-    s = kind == 2 ? pen__exr_save(ctx, path, tmp, image) : save_stb(ctx, path, tmp, image, kind == 1);
+    s = kind == 2 ? pen__exr_save(ctx, path, tmp, image)
+                  : save_stb(ctx, path, tmp, image, kind == 1);
     if (s) {
         pen__io_temp_discard(tmp);
         return s;

@@ -10,7 +10,7 @@
 #include <cjson/cJSON.h>
 #include <stdio.h>
 
-/* ---- Files (src/io/file.c) ------------------------------------------------------------------ */
+/* ---- Files (src/io/file.c) ------------------------------------------------------------------- */
 
 /* Reads a whole file into a NUL-terminated buffer (*size excludes the NUL). Files larger than
  * max_bytes are an error (PEN_ERROR_IO naming the file), so a stray multi-gigabyte input fails
@@ -28,7 +28,7 @@ void pen__io_temp_discard(char *tmp_path);
 /* Writes `size` bytes of text atomically (temp + rename). */
 pen_status pen__io_write_file(pen_context *ctx, const char *path, const char *data, size_t size);
 
-/* ---- Paths (src/io/file.c) ------------------------------------------------------------------ */
+/* ---- Paths (src/io/file.c) ------------------------------------------------------------------- */
 
 /* 1 if the extension of path (after the last '.', case-insensitive) equals ext (no dot). */
 int pen__io_has_ext(const char *path, const char *ext);

@@ -35,8 +35,8 @@ pen_status pen__json_parse(pen_context *ctx, const char *file, const char *text,
     if (end && end < text + size)
         return pen__error(ctx, PEN_ERROR_PARSE, "%s:%d:%d: invalid JSON near '%.12s'", file, line,
                           col, end);
-    return pen__error(ctx, PEN_ERROR_PARSE, "%s:%d:%d: invalid JSON (unexpected end)", file,
-                      line, col);
+    return pen__error(ctx, PEN_ERROR_PARSE, "%s:%d:%d: invalid JSON (unexpected end)", file, line,
+                      col);
 }
 
 pen_status pen__json_load(pen_context *ctx, const char *path, cJSON **root) {
@@ -169,7 +169,8 @@ pen_status pen__json_known_keys(pen_context *ctx, const pen__json_where *w, cons
             }
         }
         int found = 0;
-        for (const char *const *k = known; *k && !found; ++k) found = strcmp(*k, e->string) == 0;
+        for (const char *const *k = known; *k && !found; ++k)
+            found = strcmp(*k, e->string) == 0;
         if (!found) {
             pen__json_where wk;
             pen__json_child(w, e->string, &wk);

@@ -43,14 +43,16 @@ static int next_line(const char **cursor, const char *text_end, line *ln) {
 }
 
 static void skip_blanks(const char **p, const char *end) {
-    while (*p < end && (**p == ' ' || **p == '\t')) ++*p;
+    while (*p < end && (**p == ' ' || **p == '\t'))
+        ++*p;
 }
 
 /* The next blank-separated token of a line as [start, start + length); length 0 at the end. */
 static size_t next_token(const char **p, const char *end, const char **start) {
     skip_blanks(p, end);
     *start = *p;
-    while (*p < end && **p != ' ' && **p != '\t') ++*p;
+    while (*p < end && **p != ' ' && **p != '\t')
+        ++*p;
     return (size_t)(*p - *start);
 }
 
@@ -62,16 +64,18 @@ static int token_is(const char *t, size_t n, const char *word) {
  * into slashes (Windows exporters write "textures\wood.png"). */
 static char *rest_of_line(pen_context *ctx, const char *p, const char *end) {
     skip_blanks(&p, end);
-    while (end > p && (end[-1] == ' ' || end[-1] == '\t')) --end;
+    while (end > p && (end[-1] == ' ' || end[-1] == '\t'))
+        --end;
     size_t n = (size_t)(end - p);
     char *s = pen__malloc(ctx, n + 1, 1, "OBJ name");
     if (!s) return NULL;
-    for (size_t i = 0; i < n; ++i) s[i] = p[i] == '\\' ? '/' : p[i];
+    for (size_t i = 0; i < n; ++i)
+        s[i] = p[i] == '\\' ? '/' : p[i];
     s[n] = '\0';
     return s;
 }
 
-/* ---- MTL -------------------------------------------------------------------------------------- */
+/* ---- MTL ------------------------------------------------------------------------------------- */
 
 typedef struct material {
     char *name;
@@ -112,10 +116,12 @@ static pen_status materials_add(pen_context *ctx, materials *m, char *name) {
 /* Skips the options of a map_Kd statement ("-s 1 1 1 -clamp on file.png"): each option is
  * followed by its arguments; -o, -s and -t take one to three numbers. */
 static void skip_map_options(const char **p, const char *end) {
-    static const struct { const char *name; int args; } options[] = {
-        {"-blendu", 1}, {"-blendv", 1}, {"-bm", 1},   {"-boost", 1}, {"-cc", 1},
-        {"-clamp", 1},  {"-imfchan", 1}, {"-mm", 2},  {"-texres", 1}, {"-o", -3},
-        {"-s", -3},     {"-t", -3},
+    static const struct {
+        const char *name;
+        int args;
+    } options[] = {
+        {"-blendu", 1},  {"-blendv", 1}, {"-bm", 1},     {"-boost", 1}, {"-cc", 1}, {"-clamp", 1},
+        {"-imfchan", 1}, {"-mm", 2},     {"-texres", 1}, {"-o", -3},    {"-s", -3}, {"-t", -3},
     };
     for (;;) {
         const char *save = *p, *t;
@@ -166,8 +172,8 @@ static pen_status mtl_read(pen_context *ctx, const char *mtl_path, materials *m)
             if (!file) {
                 s = PEN_ERROR_MEMORY;
             } else if (!file[0]) {
-                s = pen__error(ctx, PEN_ERROR_PARSE, "%s:%d: map_Kd without a file name",
-                               mtl_path, ln.number);
+                s = pen__error(ctx, PEN_ERROR_PARSE, "%s:%d: map_Kd without a file name", mtl_path,
+                               ln.number);
             } else {
                 material *cur = &m->items[m->count - 1];
                 free(cur->map_kd);
@@ -181,16 +187,16 @@ static pen_status mtl_read(pen_context *ctx, const char *mtl_path, materials *m)
     return s;
 }
 
-/* ---- OBJ -------------------------------------------------------------------------------------- */
+/* ---- OBJ ------------------------------------------------------------------------------------- */
 
 typedef struct obj_state {
     pen_context *ctx;
     const char *path;
     pen_mesh *mesh;
-    long nv, nvt, nvn;       /* final counts (pass 1) */
+    long nv, nvt, nvn; /* final counts (pass 1) */
     long seen_v, seen_vt, seen_vn;
-    long tri;                /* triangles written so far */
-    int has_vt, has_vn;      /* -1: not decided yet (no face seen) */
+    long tri;           /* triangles written so far */
+    int has_vt, has_vn; /* -1: not decided yet (no face seen) */
     materials mats;
 } obj_state;
 
@@ -211,8 +217,8 @@ static pen_status parse_floats(obj_state *st, const line *ln, const char *p, int
         errno = 0;
         double v = strtod(p, &stop);
         if (stop == p || stop > ln->end || (stop < ln->end && *stop != ' ' && *stop != '\t'))
-            return pen__error(st->ctx, PEN_ERROR_PARSE, "%s:%d: malformed number '%.*s'",
-                              st->path, ln->number, (int)strcspn(p, " \t\r\n"), p);
+            return pen__error(st->ctx, PEN_ERROR_PARSE, "%s:%d: malformed number '%.*s'", st->path,
+                              ln->number, (int)strcspn(p, " \t\r\n"), p);
         if (!isfinite(v) || !isfinite((float)v))
             return pen__error(st->ctx, PEN_ERROR_PARSE,
                               "%s:%d: coordinate %d is not a finite float ('%.*s')", st->path,
@@ -263,8 +269,7 @@ typedef struct corner {
 } corner;
 
 /* Parses one corner token "v", "v/vt", "v//vn" or "v/vt/vn" spanning [t, t + n). */
-static pen_status parse_corner(obj_state *st, const line *ln, const char *t, size_t n,
-                               corner *c) {
+static pen_status parse_corner(obj_state *st, const line *ln, const char *t, size_t n, corner *c) {
     const char *p = t, *end = t + n;
     long iv = 0, ivt = 0, ivn = 0;
     int has_vt = 0, has_vn = 0;
@@ -284,8 +289,8 @@ static pen_status parse_corner(obj_state *st, const line *ln, const char *t, siz
         }
     }
     if (!ok || p != end)
-        return pen__error(st->ctx, PEN_ERROR_PARSE, "%s:%d: malformed face corner '%.*s'",
-                          st->path, ln->number, (int)n, t);
+        return pen__error(st->ctx, PEN_ERROR_PARSE, "%s:%d: malformed face corner '%.*s'", st->path,
+                          ln->number, (int)n, t);
     if (st->has_vt < 0) {
         st->has_vt = has_vt;
         st->has_vn = has_vn;
@@ -349,14 +354,14 @@ static pen_status count_elements(obj_state *st, const char *text, size_t size, l
             ++st->nvn;
         } else if (token_is(t, n, "f")) {
             long corners = 0;
-            while (next_token(&p, ln.end, &t) > 0) ++corners;
+            while (next_token(&p, ln.end, &t) > 0)
+                ++corners;
             if (corners > 2) *tris += corners - 2;
         }
         if ((size_t)st->nv > PEN_MAX_ELEMENTS || (size_t)st->nvt > PEN_MAX_ELEMENTS ||
             (size_t)st->nvn > PEN_MAX_ELEMENTS || (size_t)*tris > PEN_MAX_ELEMENTS)
-            return pen__error(st->ctx, PEN_ERROR_PARSE,
-                              "%s:%d: more than %zu elements of one kind", st->path, ln.number,
-                              (size_t)PEN_MAX_ELEMENTS);
+            return pen__error(st->ctx, PEN_ERROR_PARSE, "%s:%d: more than %zu elements of one kind",
+                              st->path, ln.number, (size_t)PEN_MAX_ELEMENTS);
     }
     if (st->nv == 0) return pen__error(st->ctx, PEN_ERROR_PARSE, "%s: no vertices", st->path);
     if (*tris == 0) return pen__error(st->ctx, PEN_ERROR_PARSE, "%s: no faces", st->path);
@@ -371,6 +376,10 @@ static pen_status use_material(obj_state *st, const line *ln, const char *p) {
         const material *mt = &st->mats.items[i];
         if (mt->map_kd && strcmp(mt->name, name) == 0) {
             st->mesh->texture_path = pen__io_strdup(st->ctx, mt->map_kd);
+            if (!st->mesh->texture_path) {
+                free(name);
+                return PEN_ERROR_MEMORY;
+            }
             break;
         }
     }
@@ -457,7 +466,7 @@ pen_status pen_mesh_load_obj(pen_context *ctx, const char *path, pen_mesh *out) 
     return PEN_OK;
 }
 
-/* ---- Writing ---------------------------------------------------------------------------------- */
+/* ---- Writing --------------------------------------------------------------------------------- */
 
 pen_status pen_mesh_save_obj(pen_context *ctx, const char *path, const pen_mesh *mesh) {
     pen_status s = pen_mesh_validate(ctx, mesh);

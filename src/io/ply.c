@@ -44,7 +44,9 @@ static const struct {
     [T_F64] = {{"double", "float64"}, 8, 0, 0},
 };
 
-static int is_float_type(ply_type t) { return t == T_F32 || t == T_F64; }
+static int is_float_type(ply_type t) {
+    return t == T_F32 || t == T_F64;
+}
 
 typedef struct ply_property {
     char name[64];
@@ -81,12 +83,13 @@ static pen_status ply_error(const ply_reader *r, const char *fmt, ...) {
     va_start(ap, fmt);
     vsnprintf(what, sizeof what, fmt, ap);
     va_end(ap);
-    if (r->format == F_ASCII) return pen__error(r->ctx, PEN_ERROR_PARSE, "%s:%d: %s", r->path, r->line, what);
+    if (r->format == F_ASCII)
+        return pen__error(r->ctx, PEN_ERROR_PARSE, "%s:%d: %s", r->path, r->line, what);
     return pen__error(r->ctx, PEN_ERROR_PARSE, "%s: byte %zu: %s", r->path,
                       (size_t)(r->p - r->begin), what);
 }
 
-/* ---- Header ----------------------------------------------------------------------------------- */
+/* ---- Header ---------------------------------------------------------------------------------- */
 
 static ply_type parse_type(const char *word) {
     for (int t = T_I8; t <= T_F64; ++t)
@@ -115,7 +118,8 @@ static pen_status parse_header(ply_reader *r, ply_header *h) {
         char w0[64] = "", w1[64] = "", w2[64] = "", w3[64] = "", w4[64] = "";
         int words = sscanf(buf, "%63s %63s %63s %63s %63s", w0, w1, w2, w3, w4);
         if (r->line == 1) {
-            if (strcmp(w0, "ply") != 0 || words != 1) return ply_error(r, "not a PLY file (no 'ply' magic)");
+            if (strcmp(w0, "ply") != 0 || words != 1)
+                return ply_error(r, "not a PLY file (no 'ply' magic)");
             continue;
         }
         if (words <= 0 || strcmp(w0, "comment") == 0 || strcmp(w0, "obj_info") == 0) continue;
@@ -123,10 +127,14 @@ static pen_status parse_header(ply_reader *r, ply_header *h) {
         if (strcmp(w0, "format") == 0) {
             if (words != 3 || strcmp(w2, "1.0") != 0)
                 return ply_error(r, "malformed format line '%s'", buf);
-            if (strcmp(w1, "ascii") == 0) h->format = F_ASCII;
-            else if (strcmp(w1, "binary_little_endian") == 0) h->format = F_LE;
-            else if (strcmp(w1, "binary_big_endian") == 0) h->format = F_BE;
-            else return ply_error(r, "unknown format '%s'", w1);
+            if (strcmp(w1, "ascii") == 0)
+                h->format = F_ASCII;
+            else if (strcmp(w1, "binary_little_endian") == 0)
+                h->format = F_LE;
+            else if (strcmp(w1, "binary_big_endian") == 0)
+                h->format = F_BE;
+            else
+                return ply_error(r, "unknown format '%s'", w1);
             have_format = 1;
         } else if (strcmp(w0, "element") == 0) {
             if (words != 3) return ply_error(r, "malformed element line '%s'", buf);
@@ -134,7 +142,8 @@ static pen_status parse_header(ply_reader *r, ply_header *h) {
             char *stop = NULL;
             errno = 0;
             unsigned long long count = strtoull(w2, &stop, 10);
-            if (*stop || errno || w2[0] == '-') return ply_error(r, "malformed element count '%s'", w2);
+            if (*stop || errno || w2[0] == '-')
+                return ply_error(r, "malformed element count '%s'", w2);
             if (count > PEN_MAX_ELEMENTS)
                 return ply_error(r, "element '%s' count %llu exceeds the limit of %zu", w1, count,
                                  (size_t)PEN_MAX_ELEMENTS);
@@ -171,22 +180,42 @@ static pen_status parse_header(ply_reader *r, ply_header *h) {
     return PEN_OK;
 }
 
-/* ---- Values ----------------------------------------------------------------------------------- */
+/* ---- Values ---------------------------------------------------------------------------------- */
+
+/* The value of a binary scalar: bytes put in host order, then reinterpreted. */
+#define DECODE_AS(type)                                                                            \
+    do {                                                                                           \
+        type x_;                                                                                   \
+        memcpy(&x_, v, sizeof x_);                                                                 \
+        return (double)x_;                                                                         \
+    } while (0)
 
 static double decode_binary(const unsigned char *b, ply_type t, int big_endian) {
+    const uint16_t one = 1;
+    const int host_big = *(const unsigned char *)&one == 0;
     unsigned char v[8];
     int n = type_info[t].size;
-    for (int i = 0; i < n; ++i) v[i] = big_endian ? b[n - 1 - i] : b[i];
+    for (int i = 0; i < n; ++i)
+        v[i] = big_endian != host_big ? b[n - 1 - i] : b[i];
     switch (t) {
-    case T_I8: return (double)(int8_t)v[0];
-    case T_U8: return (double)v[0];
-    case T_I16: { int16_t x; memcpy(&x, v, 2); return x; }
-    case T_U16: { uint16_t x; memcpy(&x, v, 2); return x; }
-    case T_I32: { int32_t x; memcpy(&x, v, 4); return x; }
-    case T_U32: { uint32_t x; memcpy(&x, v, 4); return x; }
-    case T_F32: { float x; memcpy(&x, v, 4); return (double)x; }
-    case T_F64: { double x; memcpy(&x, v, 8); return x; }
-    case T_NONE: break;
+    case T_I8:
+        DECODE_AS(int8_t);
+    case T_U8:
+        DECODE_AS(uint8_t);
+    case T_I16:
+        DECODE_AS(int16_t);
+    case T_U16:
+        DECODE_AS(uint16_t);
+    case T_I32:
+        DECODE_AS(int32_t);
+    case T_U32:
+        DECODE_AS(uint32_t);
+    case T_F32:
+        DECODE_AS(float);
+    case T_F64:
+        DECODE_AS(double);
+    case T_NONE:
+        break;
     }
     return 0.0;
 }
@@ -207,10 +236,12 @@ static pen_status read_value(ply_reader *r, ply_type t, double *out) {
     if (r->p == r->end) return ply_error(r, "file truncated");
     char *stop = NULL;
     double v = strtod(r->p, &stop);
-    if (stop == r->p || (stop < r->end && *stop != ' ' && *stop != '\t' && *stop != '\r' && *stop != '\n'))
+    if (stop == r->p ||
+        (stop < r->end && *stop != ' ' && *stop != '\t' && *stop != '\r' && *stop != '\n'))
         return ply_error(r, "malformed number '%.*s'", (int)strcspn(r->p, " \t\r\n"), r->p);
     if (!is_float_type(t) && (v != floor(v) || v < type_info[t].lo || v > type_info[t].hi))
-        return ply_error(r, "'%.*s' is not a valid %s", (int)(stop - r->p), r->p, type_info[t].names[0]);
+        return ply_error(r, "'%.*s' is not a valid %s", (int)(stop - r->p), r->p,
+                         type_info[t].names[0]);
     r->p = stop;
     *out = v;
     return PEN_OK;
@@ -256,12 +287,13 @@ static pen_status check_rows_fit(ply_reader *r, const ply_element *e) {
     }
     size_t left = (size_t)(r->end - r->p) + (r->format == F_ASCII ? 1 : 0);
     if (min_row > 0 && e->count > left / min_row)
-        return ply_error(r, "file truncated: element '%s' declares %zu rows but only %zu bytes follow", e->name,
-                         e->count, (size_t)(r->end - r->p));
+        return ply_error(r,
+                         "file truncated: element '%s' declares %zu rows but only %zu bytes follow",
+                         e->name, e->count, (size_t)(r->end - r->p));
     return PEN_OK;
 }
 
-/* ---- Elements --------------------------------------------------------------------------------- */
+/* ---- Elements -------------------------------------------------------------------------------- */
 
 static int find_property(const ply_element *e, const char *name) {
     for (int i = 0; i < e->property_count; ++i)
@@ -308,8 +340,10 @@ static pen_status read_vertices(ply_reader *r, const ply_element *e, pen_mesh *m
             pen_status s = read_value(r, pr->type, &v);
             if (s) return s;
             float *dst = NULL;
-            if (k == ix || k == iy || k == iz) dst = m->positions + 3 * i + (k == ix ? 0 : k == iy ? 1 : 2);
-            else if (k == iu || k == iv) dst = m->uvs + 2 * i + (k == iu ? 0 : 1);
+            if (k == ix || k == iy || k == iz)
+                dst = m->positions + 3 * i + (k == ix ? 0 : k == iy ? 1 : 2);
+            else if (k == iu || k == iv)
+                dst = m->uvs + 2 * i + (k == iu ? 0 : 1);
             else if (has_n && (k == inx || k == iny || k == inz))
                 dst = m->normals + 3 * i + (k == inx ? 0 : k == iny ? 1 : 2);
             if (!dst) continue;
@@ -330,10 +364,12 @@ typedef struct tri_list {
 static pen_status tri_push(ply_reader *r, tri_list *t, uint32_t a, uint32_t b, uint32_t c) {
     if (t->count == t->cap) {
         size_t cap = t->cap ? 2 * t->cap : 1024;
-        if (t->count >= PEN_MAX_ELEMENTS) return ply_error(r, "more than %zu triangles", (size_t)PEN_MAX_ELEMENTS);
+        if (t->count >= PEN_MAX_ELEMENTS)
+            return ply_error(r, "more than %zu triangles", (size_t)PEN_MAX_ELEMENTS);
         if (cap > PEN_MAX_ELEMENTS) cap = PEN_MAX_ELEMENTS;
         uint32_t *grown = realloc(t->idx, cap * 3 * sizeof *grown);
-        if (!grown) return pen__error(r->ctx, PEN_ERROR_MEMORY, "%s: cannot allocate triangles", r->path);
+        if (!grown)
+            return pen__error(r->ctx, PEN_ERROR_MEMORY, "%s: cannot allocate triangles", r->path);
         t->idx = grown;
         t->cap = cap;
     }
@@ -344,14 +380,16 @@ static pen_status tri_push(ply_reader *r, tri_list *t, uint32_t a, uint32_t b, u
     return PEN_OK;
 }
 
-static pen_status read_faces(ply_reader *r, const ply_element *e, size_t vertex_count, tri_list *t) {
+static pen_status read_faces(ply_reader *r, const ply_element *e, size_t vertex_count,
+                             tri_list *t) {
     int iv = -1;
     for (int k = 0; k < e->property_count; ++k)
-        if (e->props[k].count_type != T_NONE &&
-            (strcmp(e->props[k].name, "vertex_indices") == 0 || strcmp(e->props[k].name, "vertex_index") == 0))
+        if (e->props[k].count_type != T_NONE && (strcmp(e->props[k].name, "vertex_indices") == 0 ||
+                                                 strcmp(e->props[k].name, "vertex_index") == 0))
             iv = k;
     if (iv < 0) return ply_error(r, "face element lacks a vertex_indices list");
-    if (is_float_type(e->props[iv].type)) return ply_error(r, "vertex_indices must have an integer type");
+    if (is_float_type(e->props[iv].type))
+        return ply_error(r, "vertex_indices must have an integer type");
     for (size_t f = 0; f < e->count; ++f) {
         for (int k = 0; k < e->property_count; ++k) {
             const ply_property *pr = &e->props[k];
@@ -368,7 +406,8 @@ static pen_status read_faces(ply_reader *r, const ply_element *e, size_t vertex_
                 double v;
                 if ((s = read_value(r, pr->type, &v))) return s;
                 if (v < 0 || v >= (double)vertex_count)
-                    return ply_error(r, "face %zu: vertex index %.0f out of range [0, %zu)", f, v, vertex_count);
+                    return ply_error(r, "face %zu: vertex index %.0f out of range [0, %zu)", f, v,
+                                     vertex_count);
                 uint32_t idx = (uint32_t)v;
                 if (c == 0) first = idx;
                 if (c >= 2 && (s = tri_push(r, t, first, prev, idx))) return s;
@@ -379,7 +418,7 @@ static pen_status read_faces(ply_reader *r, const ply_element *e, size_t vertex_
     return PEN_OK;
 }
 
-/* ---- Loading ---------------------------------------------------------------------------------- */
+/* ---- Loading --------------------------------------------------------------------------------- */
 
 static pen_status load(ply_reader *r, pen_mesh *m) {
     ply_header *h = malloc(sizeof *h);
@@ -390,7 +429,8 @@ static pen_status load(ply_reader *r, pen_mesh *m) {
         if (strcmp(h->elements[i].name, "vertex") == 0) vertex = &h->elements[i];
         if (strcmp(h->elements[i].name, "face") == 0) face = &h->elements[i];
     }
-    if (!s && (!vertex || vertex->count == 0)) s = ply_error(r, "no vertex element (or zero vertices)");
+    if (!s && (!vertex || vertex->count == 0))
+        s = ply_error(r, "no vertex element (or zero vertices)");
     if (!s && (!face || face->count == 0)) s = ply_error(r, "no face element (or zero faces)");
     tri_list t = {0};
     for (int i = 0; !s && i < h->element_count; ++i) {
@@ -401,9 +441,10 @@ static pen_status load(ply_reader *r, pen_mesh *m) {
             s = read_vertices(r, e, m);
         } else if (e == face) {
             s = read_faces(r, e, vertex->count, &t);
-        } else {
+        } else if (e->property_count > 0) { /* rows without properties take no bytes */
             for (size_t row = 0; !s && row < e->count; ++row)
-                for (int k = 0; !s && k < e->property_count; ++k) s = skip_property(r, &e->props[k]);
+                for (int k = 0; !s && k < e->property_count; ++k)
+                    s = skip_property(r, &e->props[k]);
         }
     }
     free(h);

@@ -6,9 +6,9 @@
  * scene references (a mesh, a texture) are prefixed with the key that named them. Unknown keys
  * are errors, because a misspelt optional key ("albdeo") would otherwise be silently ignored;
  * keys starting with '_' are comments. Defaults are applied here and nowhere else. */
+#include "penumbra/scene.h"
 #include "io/io_internal.h"
 #include "io/spheres_json.h"
-#include "penumbra/scene.h"
 
 #include <float.h>
 #include <stdlib.h>
@@ -40,9 +40,8 @@ static pen_status need_object(pen_context *ctx, const where *w, const cJSON *ite
                            pen__json_type_name(item));
 }
 
-static pen_status opt_number(pen_context *ctx, const where *w, const cJSON *obj,
-                             const char *name, double lo, double hi, const char *what,
-                             float *out) {
+static pen_status opt_number(pen_context *ctx, const where *w, const cJSON *obj, const char *name,
+                             double lo, double hi, const char *what, float *out) {
     const cJSON *item = member(obj, name);
     if (!item) return PEN_OK;
     where wk = at(w, name);
@@ -68,14 +67,14 @@ static pen_status wrap(pen_context *ctx, const where *w, pen_status s) {
     return pen__json_error(ctx, s, w, "%s", inner);
 }
 
-/* ---- Loading -------------------------------------------------------------------------------- */
+/* ---- Loading --------------------------------------------------------------------------------- */
 
 static pen_status parse_camera(pen_context *ctx, const where *top, const cJSON *root,
                                pen_camera *cam) {
     where w = at(top, "camera");
     const cJSON *o = member(root, "camera");
-    static const char *const known[] = {"width", "height", "fov_y_deg", "eye", "target", "up",
-                                        NULL};
+    static const char *const known[] = {"width",  "height", "fov_y_deg", "eye",
+                                        "target", "up",     NULL};
     pen_status s = need_object(ctx, &w, o);
     if (!s) s = pen__json_known_keys(ctx, &w, o, known);
     where ww = at(&w, "width"), wh = at(&w, "height"), wf = at(&w, "fov_y_deg");
@@ -83,19 +82,24 @@ static pen_status parse_camera(pen_context *ctx, const where *top, const cJSON *
     const char *dim = "a positive integer (at most 16384)";
     double fov = 0;
     if (!s) s = pen__json_int(ctx, &ww, member(o, "width"), 1, PEN_IMAGE_MAX_DIM, dim, &cam->width);
-    if (!s) s = pen__json_int(ctx, &wh, member(o, "height"), 1, PEN_IMAGE_MAX_DIM, dim, &cam->height);
-    if (!s) s = pen__json_number(ctx, &wf, member(o, "fov_y_deg"), 1e-3, 179.999,
-                                 "a number of degrees in (0, 180)", &fov);
+    if (!s)
+        s = pen__json_int(ctx, &wh, member(o, "height"), 1, PEN_IMAGE_MAX_DIM, dim, &cam->height);
+    if (!s)
+        s = pen__json_number(ctx, &wf, member(o, "fov_y_deg"), 1e-3, 179.999,
+                             "a number of degrees in (0, 180)", &fov);
     cam->fov_y_deg = (float)fov;
     if (!s) s = pen__json_floats(ctx, &we, member(o, "eye"), 3, -HUGE_VAL, HUGE_VAL, cam->eye);
-    if (!s) s = pen__json_floats(ctx, &wt, member(o, "target"), 3, -HUGE_VAL, HUGE_VAL, cam->target);
+    if (!s)
+        s = pen__json_floats(ctx, &wt, member(o, "target"), 3, -HUGE_VAL, HUGE_VAL, cam->target);
     cam->up[0] = 0.0f, cam->up[1] = 1.0f, cam->up[2] = 0.0f;
     if (!s) s = opt_floats(ctx, &w, o, "up", -HUGE_VAL, HUGE_VAL, cam->up);
     if (s) return s;
     /* A frame must exist: a viewing direction, and an up vector not along it. */
     double f[3], u[3], x[3];
-    for (int k = 0; k < 3; ++k) f[k] = (double)cam->target[k] - (double)cam->eye[k];
-    for (int k = 0; k < 3; ++k) u[k] = cam->up[k];
+    for (int k = 0; k < 3; ++k)
+        f[k] = (double)cam->target[k] - (double)cam->eye[k];
+    for (int k = 0; k < 3; ++k)
+        u[k] = cam->up[k];
     x[0] = f[1] * u[2] - f[2] * u[1];
     x[1] = f[2] * u[0] - f[0] * u[2];
     x[2] = f[0] * u[1] - f[1] * u[0];
@@ -120,8 +124,7 @@ static pen_status parse_lighting(pen_context *ctx, const char *path, const where
     const cJSON *env = member(o, "envmap"), *sh = member(o, "sh");
     L->scale = 1.0f;
     L->rotation_y_deg = 0.0f;
-    if (!env && !sh)
-        return pen__json_error(ctx, PEN_ERROR_PARSE, &w, "needs \"envmap\" or \"sh\"");
+    if (!env && !sh) return pen__json_error(ctx, PEN_ERROR_PARSE, &w, "needs \"envmap\" or \"sh\"");
     if (!env && (member(o, "scale") || member(o, "rotation_y_deg")))
         return pen__json_error(ctx, PEN_ERROR_PARSE, &w,
                                "\"scale\" and \"rotation_y_deg\" apply to an \"envmap\" only");
@@ -130,20 +133,23 @@ static pen_status parse_lighting(pen_context *ctx, const char *path, const where
         const char *rel;
         s = pen__json_string(ctx, &we, env, &rel);
         if (!s) s = opt_number(ctx, &w, o, "scale", 0.0, FLT_MAX, "a number >= 0", &L->scale);
-        if (!s) s = opt_number(ctx, &w, o, "rotation_y_deg", -1e6, 1e6, "a number of degrees",
-                               &L->rotation_y_deg);
+        if (!s)
+            s = opt_number(ctx, &w, o, "rotation_y_deg", -1e6, 1e6, "a number of degrees",
+                           &L->rotation_y_deg);
         if (s) return s;
         L->envmap_path = pen__io_path_resolve(ctx, path, rel);
         if (!L->envmap_path) return PEN_ERROR_MEMORY;
         s = pen_image_load(ctx, L->envmap_path, &L->envmap);
-        if (!s && !sh) s = pen_envmap_to_sh(ctx, &L->envmap, bands, L->rotation_y_deg, L->scale, L->sh);
+        if (!s && !sh)
+            s = pen_envmap_to_sh(ctx, &L->envmap, bands, L->rotation_y_deg, L->scale, L->sh);
         if (s) return wrap(ctx, &we, s);
     }
     if (sh) {
         where ws = at(&w, "sh");
         int n = bands * bands;
         if (!cJSON_IsArray(sh))
-            return pen__json_error(ctx, PEN_ERROR_PARSE, &ws, "expected an array of [r, g, b] rows, got %s",
+            return pen__json_error(ctx, PEN_ERROR_PARSE, &ws,
+                                   "expected an array of [r, g, b] rows, got %s",
                                    pen__json_type_name(sh));
         if (cJSON_GetArraySize(sh) != n)
             return pen__json_error(ctx, PEN_ERROR_PARSE, &ws,
@@ -187,7 +193,8 @@ static pen_status parse_shadow(pen_context *ctx, const where *top, const cJSON *
     }
     /* The epsilon the exponential model was fitted with, unless given. */
     sh->epsilon = (float)pen_sh_exp_model_default(sh->exp, bands).epsilon;
-    if (!s && o) s = opt_number(ctx, &w, o, "epsilon", 1e-6, 1e6, "a positive number", &sh->epsilon);
+    if (!s && o)
+        s = opt_number(ctx, &w, o, "epsilon", 1e-6, 1e6, "a positive number", &sh->epsilon);
     return s;
 }
 
@@ -198,9 +205,13 @@ static pen_status parse_pose(pen_context *ctx, const where *w, const cJSON *o, p
     static const char *const known[] = {"rotation_axis_angle_deg", "translation", "scale", NULL};
     pen_status s = need_object(ctx, w, o);
     if (!s) s = pen__json_known_keys(ctx, w, o, known);
-    if (!s) s = opt_floats(ctx, w, o, "rotation_axis_angle_deg", -1e6, 1e6, pose->rotation_axis_angle_deg);
+    if (!s)
+        s = opt_floats(ctx, w, o, "rotation_axis_angle_deg", -1e6, 1e6,
+                       pose->rotation_axis_angle_deg);
     if (!s) s = opt_floats(ctx, w, o, "translation", -HUGE_VAL, HUGE_VAL, pose->translation);
-    if (!s) s = opt_number(ctx, w, o, "scale", (double)FLT_MIN, (double)FLT_MAX, "a positive number", &pose->scale);
+    if (!s)
+        s = opt_number(ctx, w, o, "scale", (double)FLT_MIN, (double)FLT_MAX, "a positive number",
+                       &pose->scale);
     return s;
 }
 
@@ -221,8 +232,9 @@ static pen_status parse_spheres(pen_context *ctx, const char *path, const where 
         static const char *const known[] = {"fit", NULL};
         where wf = at(w, "fit");
         pen_status s = pen__json_known_keys(ctx, w, item, known);
-        if (!s) s = pen__json_int(ctx, &wf, member(item, "fit"), 1, SCENE_MAX_FIT_SPHERES,
-                                  "a sphere count in [1, 4096]", &obj->fit_spheres);
+        if (!s)
+            s = pen__json_int(ctx, &wf, member(item, "fit"), 1, SCENE_MAX_FIT_SPHERES,
+                              "a sphere count in [1, 4096]", &obj->fit_spheres);
         return s;
     }
     return pen__json_error(ctx, PEN_ERROR_PARSE, w,
@@ -230,19 +242,22 @@ static pen_status parse_spheres(pen_context *ctx, const char *path, const where 
                            pen__json_type_name(item));
 }
 
-static pen_status parse_object(pen_context *ctx, const char *path, const where *w,
-                               const cJSON *o, pen_object *obj) {
-    static const char *const known[] = {"mesh", "albedo_texture", "albedo", "spheres", "pose",
-                                        NULL};
+static pen_status parse_object(pen_context *ctx, const char *path, const where *w, const cJSON *o,
+                               pen_object *obj) {
+    static const char *const known[] = {"mesh",    "albedo_texture", "albedo",
+                                        "spheres", "pose",           NULL};
     pen_status s = need_object(ctx, w, o);
     if (!s) s = pen__json_known_keys(ctx, w, o, known);
     where wm = at(w, "mesh"), wt = at(w, "albedo_texture");
     const char *mesh_rel = NULL, *tex_rel = NULL;
     if (!s) s = pen__json_string(ctx, &wm, member(o, "mesh"), &mesh_rel);
-    if (!s && member(o, "albedo_texture")) s = pen__json_string(ctx, &wt, member(o, "albedo_texture"), &tex_rel);
+    if (!s && member(o, "albedo_texture"))
+        s = pen__json_string(ctx, &wt, member(o, "albedo_texture"), &tex_rel);
     if (!s && tex_rel && member(o, "albedo"))
-        s = pen__json_error(ctx, PEN_ERROR_PARSE, w, "give \"albedo_texture\" or \"albedo\", not both");
-    for (int k = 0; k < 3; ++k) obj->albedo[k] = DEFAULT_ALBEDO;
+        s = pen__json_error(ctx, PEN_ERROR_PARSE, w,
+                            "give \"albedo_texture\" or \"albedo\", not both");
+    for (int k = 0; k < 3; ++k)
+        obj->albedo[k] = DEFAULT_ALBEDO;
     if (!s) s = opt_floats(ctx, w, o, "albedo", 0.0, 1.0, obj->albedo);
     where wp = at(w, "pose"), ws = at(w, "spheres");
     if (!s) s = parse_pose(ctx, &wp, member(o, "pose"), &obj->pose);
@@ -309,11 +324,14 @@ static pen_status parse_ground(pen_context *ctx, const where *top, const cJSON *
     pen_status s = need_object(ctx, &w, o);
     if (!s) s = pen__json_known_keys(ctx, &w, o, known);
     g->enabled = 1;
-    for (int k = 0; k < 3; ++k) g->albedo[k] = DEFAULT_ALBEDO;
+    for (int k = 0; k < 3; ++k)
+        g->albedo[k] = DEFAULT_ALBEDO;
     g->half_size = DEFAULT_GROUND_HALF_SIZE;
     if (!s) s = opt_number(ctx, &w, o, "height", -FLT_MAX, FLT_MAX, "a finite number", &g->height);
     if (!s) s = opt_floats(ctx, &w, o, "albedo", 0.0, 1.0, g->albedo);
-    if (!s) s = opt_number(ctx, &w, o, "half_size", (double)FLT_MIN, FLT_MAX, "a positive number", &g->half_size);
+    if (!s)
+        s = opt_number(ctx, &w, o, "half_size", (double)FLT_MIN, FLT_MAX, "a positive number",
+                       &g->half_size);
     return s;
 }
 
@@ -330,8 +348,7 @@ static pen_status parse_background(pen_context *ctx, const where *top, const cJS
     }
     if (cJSON_IsString(b) && strcmp(b->valuestring, "envmap") == 0) {
         if (!has_env)
-            return pen__json_error(ctx, PEN_ERROR_PARSE, &w,
-                                   "\"envmap\" needs lighting.envmap");
+            return pen__json_error(ctx, PEN_ERROR_PARSE, &w, "\"envmap\" needs lighting.envmap");
         sc->background_envmap = 1;
         return PEN_OK;
     }
@@ -350,8 +367,8 @@ static pen_status parse_scene(pen_context *ctx, const char *path, const cJSON *r
     if (!cJSON_IsObject(root))
         return pen__json_error(ctx, PEN_ERROR_PARSE, &top, "expected a JSON object, got %s",
                                pen__json_type_name(root));
-    static const char *const known[] = {"camera", "lighting", "sh_bands", "shadow", "objects",
-                                        "ground", "background", NULL};
+    static const char *const known[] = {"camera",  "lighting", "sh_bands",   "shadow",
+                                        "objects", "ground",   "background", NULL};
     pen_status s = pen__json_known_keys(ctx, &top, root, known);
     sc->sh_bands = 4;
     where wb = at(&top, "sh_bands");
@@ -367,8 +384,8 @@ static pen_status parse_scene(pen_context *ctx, const char *path, const cJSON *r
     return s;
 }
 
-static pen_status scene_from_text(pen_context *ctx, const char *text, size_t size,
-                                  const char *path, pen_scene *out) {
+static pen_status scene_from_text(pen_context *ctx, const char *text, size_t size, const char *path,
+                                  pen_scene *out) {
     cJSON *root = NULL;
     pen_status s = pen__json_parse(ctx, path, text, size, &root);
     if (s) return s;
@@ -382,7 +399,8 @@ static pen_status scene_from_text(pen_context *ctx, const char *text, size_t siz
 pen_status pen_scene_parse(pen_context *ctx, const char *json_text, const char *path,
                            pen_scene *out) {
     memset(out, 0, sizeof *out);
-    return scene_from_text(ctx, json_text, strlen(json_text), path, out);
+    if (!json_text) return pen__error(ctx, PEN_ERROR_ARGUMENT, "scene: no JSON text");
+    return scene_from_text(ctx, json_text, strlen(json_text), path ? path : "scene", out);
 }
 
 pen_status pen_scene_load(pen_context *ctx, const char *path, pen_scene *out) {
@@ -414,7 +432,7 @@ void pen_scene_free(pen_scene *scene) {
     memset(scene, 0, sizeof *scene);
 }
 
-/* ---- Saving ----------------------------------------------------------------------------------- */
+/* ---- Saving ---------------------------------------------------------------------------------- */
 
 /* Adds item to obj under name; on failure deletes item and returns 0. */
 static int add(cJSON *obj, const char *name, cJSON *item) {
@@ -498,16 +516,18 @@ static pen_status check_saveable(pen_context *ctx, const char *path, const pen_s
             return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: lighting coefficient %d is not finite",
                               path, i);
     if (sc->background_envmap && !sc->lighting.envmap.data)
-        return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: background shows an envmap but there is none",
-                          path);
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: background shows an envmap but there is none", path);
     for (int i = 0; i < sc->object_count; ++i) {
         const pen_object *o = &sc->objects[i];
         char what[64];
         snprintf(what, sizeof what, "%s: objects[%d]", path, i);
         if (!o->mesh_path)
-            return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: no mesh path (save the mesh first)", what);
+            return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: no mesh path (save the mesh first)",
+                              what);
         if (o->texture.data && !o->texture_path)
-            return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: no texture path (save the texture first)", what);
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "%s: no texture path (save the texture first)", what);
         pen_status s = pen__spheres_check(ctx, what, &o->spheres);
         if (s) return s;
     }
@@ -553,9 +573,9 @@ pen_status pen_scene_save_ex(pen_context *ctx, const char *path, const pen_scene
              add(root, "shadow", shadow_json(&sc->shadow)) &&
              add(root, "objects", objects_json(ctx, path, sc)) &&
              add(root, "ground", ground_json(&sc->ground)) &&
-             add(root, "background", sc->background_envmap
-                                         ? cJSON_CreateString("envmap")
-                                         : pen__json_float_array(sc->background, 3));
+             add(root, "background",
+                 sc->background_envmap ? cJSON_CreateString("envmap")
+                                       : pen__json_float_array(sc->background, 3));
     char *text = ok ? cJSON_Print(root) : NULL;
     cJSON_Delete(root);
     if (!text) {

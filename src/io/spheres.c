@@ -2,9 +2,9 @@
  *     {"spheres": [{"center": [x, y, z], "radius": r}, ...], "metrics": {...}, ...}
  * (or a bare array of sphere objects). Other top-level members are kept by writers and ignored
  * by the reader; inside a sphere object only "center" and "radius" (and "_comments") may appear. */
+#include "penumbra/spheres.h"
 #include "io/io_internal.h"
 #include "io/spheres_json.h"
-#include "penumbra/spheres.h"
 
 #include <float.h>
 #include <stdlib.h>
@@ -13,8 +13,8 @@
 pen_status pen_spheres_create(pen_context *ctx, int count, pen_spheres *out) {
     memset(out, 0, sizeof *out);
     if (count < 0 || (size_t)count > PEN_MAX_ELEMENTS)
-        return pen__error(ctx, PEN_ERROR_ARGUMENT, "spheres: count %d out of range [0, %zu]",
-                          count, (size_t)PEN_MAX_ELEMENTS);
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "spheres: count %d out of range [0, %zu]", count,
+                          (size_t)PEN_MAX_ELEMENTS);
     if (count == 0) return PEN_OK;
     out->data = pen__calloc(ctx, 4 * (size_t)count, sizeof(float), "spheres");
     if (!out->data) return PEN_ERROR_MEMORY;
