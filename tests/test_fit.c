@@ -52,11 +52,12 @@ static pen_mesh revolve(const double *ys, const double *rhos, int K, int M) {
     for (int k = 1; k < K; ++k)
         for (int j = 0; j < M; ++j) {
             double th = 2 * PEN_PI * j / M;
-            *p++ = (float)(rhos[k] * cos(th)), *p++ = (float)ys[k], *p++ = (float)(rhos[k] * sin(th));
+            *p++ = (float)(rhos[k] * cos(th)), *p++ = (float)ys[k],
+            *p++ = (float)(rhos[k] * sin(th));
         }
     *p++ = 0, *p++ = (float)ys[K], *p++ = 0;
     uint32_t *ix = m.indices, top = (uint32_t)m.vertex_count - 1;
-#define RING(k, j) (uint32_t)(1 + ((k) - 1) * M + ((j) % M))
+#define RING(k, j) (uint32_t)(1 + ((k)-1) * M + ((j) % M))
     for (int j = 0; j < M; ++j) {
         *ix++ = 0, *ix++ = RING(1, j), *ix++ = RING(1, j + 1);
         for (int k = 1; k < K - 1; ++k) {
@@ -109,7 +110,8 @@ static pen_mesh make_dumbbell(double R, double D, double rn) {
     return revolve(ys, rhos, k, 32);
 }
 
-/* ---- Energy gradient -------------------------------------------------------------------------- */
+/* ---- Energy gradient --------------------------------------------------------------------------
+ */
 
 static void random_points(unsigned long long *rng, int n, double scale, float *pts) {
     for (int i = 0; i < 3 * n; ++i) pts[i] = (float)(scale * (2 * check_rand_(rng) - 1));
@@ -121,8 +123,8 @@ static void test_energy_gradient(void) {
     static float vox[3 * NV], surf[3 * NS];
     random_points(&rng, NV, 1.5, vox);
     random_points(&rng, NS, 1.0, surf);
-    pen__fit_problem p = {{NV, vox, 0, NULL, NULL}, {NS, surf, 0, NULL, NULL}, 20.0, 1 / 0.08,
-                          PEN__FIT_U_EXACT, 0};
+    pen__fit_problem p = {
+        {NV, vox, 0, NULL, NULL}, {NS, surf, 0, NULL, NULL}, 20.0, 1 / 0.08, PEN__FIT_U_EXACT, 0};
     double sph[4 * NSPH];
     for (int trial = 0; trial < 4; ++trial) {
         for (int i = 0; i < NSPH; ++i) {
@@ -181,12 +183,14 @@ static int make_cells(float *pts, long n, int per, long *start, double *bound) {
         double lo[3] = {1e30, 1e30, 1e30}, hi[3] = {-1e30, -1e30, -1e30}, r2 = 0;
         for (long j = b; j < e; ++j)
             for (int a = 0; a < 3; ++a)
-                lo[a] = fmin(lo[a], (double)pts[3 * j + a]), hi[a] = fmax(hi[a], (double)pts[3 * j + a]);
+                lo[a] = fmin(lo[a], (double)pts[3 * j + a]),
+                hi[a] = fmax(hi[a], (double)pts[3 * j + a]);
         double *c = bound + 4 * cells;
         for (int a = 0; a < 3; ++a) c[a] = 0.5 * (lo[a] + hi[a]);
         for (long j = b; j < e; ++j) {
             double d = 0;
-            for (int a = 0; a < 3; ++a) d += ((double)pts[3 * j + a] - c[a]) * ((double)pts[3 * j + a] - c[a]);
+            for (int a = 0; a < 3; ++a)
+                d += ((double)pts[3 * j + a] - c[a]) * ((double)pts[3 * j + a] - c[a]);
             r2 = fmax(r2, d);
         }
         c[3] = sqrt(r2) * (1 + 1e-12);
@@ -205,8 +209,8 @@ static void test_energy_cells(void) {
     static double vb[4 * NV], sb[4 * NS];
     random_points(&rng, NV, 1.5, vox);
     random_points(&rng, NS, 1.0, surf);
-    pen__fit_problem plain = {{NV, vox, 0, NULL, NULL}, {NS, surf, 0, NULL, NULL}, 5.0, 1 / 0.01,
-                              PEN__FIT_U_FAST, 2};
+    pen__fit_problem plain = {
+        {NV, vox, 0, NULL, NULL}, {NS, surf, 0, NULL, NULL}, 5.0, 1 / 0.01, PEN__FIT_U_FAST, 2};
     pen__fit_problem culled = plain;
     culled.sov.cells = make_cells(vox, NV, 40, vs, vb);
     culled.sov.cell_start = vs, culled.sov.cell_bound = vb;
@@ -228,7 +232,8 @@ static void test_energy_cells(void) {
     CHECK_REL(pen__fit_energy_fwd(&culled, NSPH, sph), eb, 1e-12, 1e-9);
 }
 
-/* ---- Inside test -------------------------------------------------------------------------------- */
+/* ---- Inside test --------------------------------------------------------------------------------
+ */
 
 /* Share of voxel centres farther than `band` from the unit sphere's surface that are classified
  * wrongly. */
@@ -348,7 +353,8 @@ static void test_surface_samples(void) {
     pen_context_destroy(ctx);
 }
 
-/* ---- Fits ------------------------------------------------------------------------------------- */
+/* ---- Fits -------------------------------------------------------------------------------------
+ */
 
 /* Coarse enough to keep the whole file under a second in Release; the sanitizer build runs the
  * same sizes (a few seconds), since coarser grids make the small fits too rough to judge. */
@@ -360,44 +366,53 @@ static pen_fit_settings small_settings(void) {
     return s;
 }
 
-static void test_fit_sphere(void) {
+/* Fits `count` spheres with small_settings, prints the metrics and spheres. */
+static pen_fit_metrics fit_shape(const char *name, const pen_mesh *m, int count, pen_spheres *sp) {
     pen_context *ctx = pen_context_create();
-    pen_mesh m = make_sphere(1.0, 24);
     pen_fit_settings s = small_settings();
-    pen_spheres sp;
     pen_fit_metrics met;
-    CHECK(pen_spheres_fit(ctx, &m, 1, &s, &sp, &met) == PEN_OK);
-    CHECK(sp.count == 1);
-    double h = 2.0 * (1 + 2 * 0.12) / s.voxels;
+    memset(&met, 0, sizeof met);
+    pen_status st = pen_spheres_fit(ctx, m, count, &s, sp, &met);
+    CHECK_MSG(st == PEN_OK, "%s", pen_context_error(ctx));
+    printf("  %s N=%d: E %.1f sov %.3f surface %.3f volume %.3f\n", name, count, met.energy,
+           met.sov_fraction, met.surface_coverage, met.volume_coverage);
+    for (int i = 0; i < sp->count && count <= 4; ++i)
+        printf("    (%.3f %.3f %.3f) r %.3f\n", (double)sp->data[4 * i],
+               (double)sp->data[4 * i + 1], (double)sp->data[4 * i + 2],
+               (double)sp->data[4 * i + 3]);
+    pen_context_destroy(ctx);
+    return met;
+}
+
+/* Voxel edge of small_settings for a mesh whose longest extent is `extent`. */
+static double small_h(double extent) {
+    return extent * (1 + 2 * 0.12) / small_settings().voxels;
+}
+
+/* A sphere by one sphere: the same sphere, to a fraction of a voxel. */
+static void test_fit_sphere(void) {
+    pen_mesh m = make_sphere(1.0, 24);
+    pen_spheres sp;
+    pen_fit_metrics met = fit_shape("sphere", &m, 1, &sp);
+    double h = small_h(2.0);
     double cx = sp.data[0], cy = sp.data[1], cz = sp.data[2], r = sp.data[3];
-    double c = sqrt(cx * cx + cy * cy + cz * cz);
-    printf("  sphere: centre offset %.4f, radius %.4f, h %.4f; sov %.3f surface %.3f volume %.3f\n",
-           c, r, h, met.sov_fraction, met.surface_coverage, met.volume_coverage);
-    CHECK(c < 0.25 * h);
+    CHECK(sqrt(cx * cx + cy * cy + cz * cz) < 0.25 * h);
     CHECK_NEAR(r, 1.0, 0.5 * h);
     CHECK(met.surface_coverage > 0.95);
     CHECK(met.volume_coverage > 0.98);
     CHECK(met.sov_fraction < 0.1);
     free(sp.data);
     free_mesh(&m);
-    pen_context_destroy(ctx);
 }
-
 
 /* A capsule by four spheres: all on the axis, the surface nearly covered, little outside. */
 static void test_fit_capsule(void) {
-    pen_context *ctx = pen_context_create();
     pen_mesh m = make_capsule(0.4, 0.6);
-    pen_fit_settings s = small_settings();
     pen_spheres sp;
-    pen_fit_metrics met;
-    CHECK(pen_spheres_fit(ctx, &m, 4, &s, &sp, &met) == PEN_OK);
-    printf("  capsule: sov %.3f surface %.3f volume %.3f\n", met.sov_fraction,
-           met.surface_coverage, met.volume_coverage);
+    pen_fit_metrics met = fit_shape("capsule", &m, 4, &sp);
     for (int i = 0; i < sp.count; ++i) {
         double x = sp.data[4 * i], y = sp.data[4 * i + 1], z = sp.data[4 * i + 2];
         double r = sp.data[4 * i + 3];
-        printf("    (%.3f %.3f %.3f) r %.3f\n", x, y, z, r);
         CHECK(sqrt(x * x + z * z) < 0.05);
         CHECK(fabs(y) < 1.0 && r > 0.3 && r < 0.6);
     }
@@ -406,47 +421,35 @@ static void test_fit_capsule(void) {
     CHECK(met.volume_coverage > 0.95);
     free(sp.data);
     free_mesh(&m);
-    pen_context_destroy(ctx);
 }
 
 /* A dumbbell by two spheres: one per ball, each close to the ball. */
 static void test_fit_dumbbell(void) {
-    pen_context *ctx = pen_context_create();
     pen_mesh m = make_dumbbell(0.5, 0.8, 0.15);
-    pen_fit_settings s = small_settings();
     pen_spheres sp;
-    pen_fit_metrics met;
-    CHECK(pen_spheres_fit(ctx, &m, 2, &s, &sp, &met) == PEN_OK);
-    printf("  dumbbell N=2: sov %.3f surface %.3f volume %.3f\n", met.sov_fraction,
-           met.surface_coverage, met.volume_coverage);
-    double h = 2.6 * (1 + 2 * 0.12) / s.voxels;
+    fit_shape("dumbbell", &m, 2, &sp);
+    double h = small_h(2.6);
     int lower = sp.data[1] < sp.data[5] ? 0 : 1;
     for (int i = 0; i < 2; ++i) {
         const float *b = sp.data + 4 * (i == 0 ? lower : 1 - lower);
         double x = b[0], y = b[1], z = b[2], r = b[3];
-        printf("    (%.3f %.3f %.3f) r %.3f\n", x, y, z, r);
         CHECK(sqrt(x * x + z * z) < 0.5 * h);
         CHECK_NEAR(y, i == 0 ? -0.8 : 0.8, h);
         CHECK_NEAR(r, 0.5, h);
     }
     free(sp.data);
     free_mesh(&m);
-    pen_context_destroy(ctx);
 }
 
 /* More spheres fit better: the energy falls, coverage rises, and SOV does not grow much. */
 static void test_fit_more_spheres(void) {
-    pen_context *ctx = pen_context_create();
     pen_mesh m = make_dumbbell(0.5, 0.8, 0.25);
-    pen_fit_settings s = small_settings();
     static const int counts[] = {1, 2, 4, 8};
     pen_fit_metrics prev;
+    memset(&prev, 0, sizeof prev);
     for (int c = 0; c < 4; ++c) {
         pen_spheres sp;
-        pen_fit_metrics met;
-        CHECK(pen_spheres_fit(ctx, &m, counts[c], &s, &sp, &met) == PEN_OK);
-        printf("  N=%d: E %.1f sov %.3f surface %.3f volume %.3f\n", counts[c], met.energy,
-               met.sov_fraction, met.surface_coverage, met.volume_coverage);
+        pen_fit_metrics met = fit_shape("dumbbell", &m, counts[c], &sp);
         if (c > 0) {
             CHECK(met.energy < prev.energy);
             CHECK(met.surface_coverage >= prev.surface_coverage - 0.01);
@@ -457,9 +460,8 @@ static void test_fit_more_spheres(void) {
     }
     CHECK(prev.surface_coverage > 0.95);
     free_mesh(&m);
-    pen_context_destroy(ctx);
 }
 
-RUN_TESTS(TEST(test_energy_gradient), TEST(test_energy_cells), TEST(test_inside), TEST(test_surface_samples),
-          TEST(test_fit_sphere), TEST(test_fit_capsule), TEST(test_fit_dumbbell),
-          TEST(test_fit_more_spheres))
+RUN_TESTS(TEST(test_energy_gradient), TEST(test_energy_cells), TEST(test_inside),
+          TEST(test_surface_samples), TEST(test_fit_sphere), TEST(test_fit_capsule),
+          TEST(test_fit_dumbbell), TEST(test_fit_more_spheres))

@@ -45,13 +45,13 @@ extern "C" {
 
 /* Fit settings. A field left at 0 takes its default (pen_fit_settings_default fills them in). */
 typedef struct pen_fit_settings {
-    int voxels;             /* voxels along the longest axis of the padded bounds (cubic voxels) */
-    double surface_weight;  /* w_s of eq. 5 */
-    double margin_voxels;   /* kappa: soft margin, see sigma^2 in docs/fit-spheres.md */
+    int voxels;            /* voxels along the longest axis of the padded bounds (cubic voxels) */
+    double surface_weight; /* w_s of eq. 5 */
+    double margin_voxels;  /* kappa: soft margin, see sigma^2 in docs/fit-spheres.md */
     double samples_per_voxel_area; /* surface samples per h^2 of surface (h = voxel edge) */
-    int iterations;         /* Adam iterations (the most; it stops early when E settles) */
-    double learning_rate;   /* Adam step in voxel edges (decays by a cosine to 5 % of it) */
-    unsigned long long seed;/* k-means++ seeding and surface sampling */
+    int iterations;                /* Adam iterations (the most; it stops early when E settles) */
+    double learning_rate;          /* Adam step in voxel edges (decays by a cosine to 5 % of it) */
+    unsigned long long seed;       /* k-means++ seeding and surface sampling */
 } pen_fit_settings;
 
 /* What the fit achieved, measured with hard sphere tests on its own voxel grid and samples. */
@@ -65,7 +65,7 @@ typedef struct pen_fit_metrics {
     int grid[3];             /* voxel grid size */
     long inside_voxels;
     int surface_samples;
-    int from_cache;          /* pen_spheres_fit_cached: 1 if read from the cache file */
+    int from_cache; /* pen_spheres_fit_cached: 1 if read from the cache file */
 } pen_fit_metrics;
 
 /* The defaults (measured on the bundled meshes; docs/fit-spheres.md). */
@@ -96,8 +96,7 @@ pen_status pen_spheres_fit_cached(pen_context *ctx, const pen_mesh *mesh, const 
  * Flat shading with one fixed light; linear RGB in [0, 1], white background. On success *out owns
  * a new (3 size) x size RGB image (free with pen_image_free). */
 pen_status pen_spheres_preview(pen_context *ctx, const pen_mesh *mesh, const pen_spheres *spheres,
-                               float azimuth_deg, float elevation_deg, int size,
-                               pen_image *out);
+                               float azimuth_deg, float elevation_deg, int size, pen_image *out);
 
 /* Writes the metrics as a JSON object text {"metrics": {...}} into buf (NUL-terminated, cut
  * at size); returns the length it needed, as snprintf does. */

@@ -62,8 +62,8 @@ static pen_status resolve_settings(pen_context *ctx, const pen_fit_settings *in,
     if (s->iterations == 0) s->iterations = d.iterations;
     if (s->learning_rate == 0) s->learning_rate = d.learning_rate;
     if (s->voxels < 4 || s->voxels > PEN_FIT_MAX_VOXELS)
-        return pen__error(ctx, PEN_ERROR_ARGUMENT, "fit: voxels %d out of range [4, %d]",
-                          s->voxels, PEN_FIT_MAX_VOXELS);
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "fit: voxels %d out of range [4, %d]", s->voxels,
+                          PEN_FIT_MAX_VOXELS);
     if (!(s->surface_weight > 0 && s->surface_weight <= 1e6))
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "fit: surface weight %g out of range (0, 1e6]",
                           s->surface_weight);
@@ -95,9 +95,8 @@ typedef struct point_scratch {
 /* One point's term and, when grad != NULL, its gradient times d_E added into grad. Only the
  * spheres near[0..n_near) can reach the point. g is dE/dP for this point (-1 outside voxel, w_s
  * surface sample); the term is 1 - P for an outside voxel, w_s P for a surface sample. */
-static double point_term(const pen__fit_problem *p, const double *sph, const int *near,
-                         int n_near, const float *x, double g, double d_E, point_scratch *sc,
-                         double *grad) {
+static double point_term(const pen__fit_problem *p, const double *sph, const int *near, int n_near,
+                         const float *x, double g, double d_E, point_scratch *sc, double *grad) {
     double px = (double)x[0], py = (double)x[1], pz = (double)x[2];
     int m = 0;
     for (int k = 0; k < n_near; ++k) {
@@ -135,9 +134,8 @@ static double point_term(const pen__fit_problem *p, const double *sph, const int
 /* One cell's terms. A sphere farther from every point of the cell than sqrt(r^2 + u_max sigma^2)
  * has u >= u_max there, a factor of exactly 1 that point_term would skip anyway; a sphere that
  * holds the whole cell zeroes every product. */
-static double cell_terms(const pen__fit_problem *p, const pen__fit_points *pts, int cell,
-                         int count, const double *sph, double g, double d_E, point_scratch *sc,
-                         double *grad) {
+static double cell_terms(const pen__fit_problem *p, const pen__fit_points *pts, int cell, int count,
+                         const double *sph, double g, double d_E, point_scratch *sc, double *grad) {
     long begin = pts->cells ? pts->cell_start[cell] : 0;
     long end = pts->cells ? pts->cell_start[cell + 1] : pts->count;
     int n_near = 0;
@@ -191,8 +189,8 @@ static double energy_eval(const pen__fit_problem *p, int count, const double *sp
             if (c < sov_cells)
                 e += cell_terms(p, &p->sov, c, count, sph, -1, d_E, &sc, g);
             else
-                e += cell_terms(p, &p->surf, c - sov_cells, count, sph, p->surface_weight, d_E,
-                                &sc, g);
+                e += cell_terms(p, &p->surf, c - sov_cells, count, sph, p->surface_weight, d_E, &sc,
+                                g);
         }
         partial[t] = e;
         free(sc.near);
@@ -274,7 +272,7 @@ static pen_status kmeans(pen_context *ctx, const float *pts, long n_pts, int k, 
         memset(acc, 0, sizeof(double) * 4 * (size_t)k);
         for (long j = 0; j < n_pts; ++j) {
             double *a = acc + 4 * label[j];
-            a[0] += (double)pts[3 * j], a[1] += (double)pts[3 * j + 1], a[2] += (double)pts[3 * j + 2];
+            for (int c = 0; c < 3; ++c) a[c] += (double)pts[3 * j + c];
             a[3] += 1;
         }
         for (int i = 0; i < k; ++i)
@@ -300,12 +298,12 @@ static pen_status kmeans(pen_context *ctx, const float *pts, long n_pts, int k, 
 }
 
 /* Radius of each sphere: the distance from its centre to the nearest surface sample. */
-static void inscribe(const float *surf, int n_surf, int k, double r_min, int threads,
-                     double *sph) {
+static void inscribe(const float *surf, int n_surf, int k, double r_min, int threads, double *sph) {
 #pragma omp parallel for num_threads(threads) schedule(static)
     for (int i = 0; i < k; ++i) {
         double best = (double)INFINITY;
-        for (int j = 0; j < n_surf; ++j) best = fmin(best, dist2(surf + 3 * (size_t)j, sph + 4 * i));
+        for (int j = 0; j < n_surf; ++j)
+            best = fmin(best, dist2(surf + 3 * (size_t)j, sph + 4 * i));
         sph[4 * i + 3] = fmax(sqrt(best), r_min);
     }
 }
@@ -445,8 +443,8 @@ static pen_status prepare(pen_context *ctx, const pen_mesh *mesh, const pen_fit_
                           "(is the mesh closed? try more voxels)",
                           d->n_inside, total, count);
     d->inside_pts = pen__malloc(ctx, (size_t)d->n_inside, 3 * sizeof(float), "fit: inside voxels");
-    d->outside_pts = pen__malloc(ctx, (size_t)d->n_outside + 1, 3 * sizeof(float),
-                                 "fit: outside voxels");
+    d->outside_pts =
+        pen__malloc(ctx, (size_t)d->n_outside + 1, 3 * sizeof(float), "fit: outside voxels");
     if (!d->inside_pts || !d->outside_pts) return PEN_ERROR_MEMORY;
     long ni = 0, no = 0;
     for (int k = 0; k < g->n[2]; ++k)
@@ -490,7 +488,8 @@ static void inside_distances(fit_data *d, int threads) {
     for (long j = 0; j < d->n_inside; ++j) {
         double best = (double)INFINITY;
         double c[3] = {d->inside_pts[3 * j], d->inside_pts[3 * j + 1], d->inside_pts[3 * j + 2]};
-        for (int k = 0; k < d->n_surf; ++k) best = fmin(best, dist2(d->surf_pts + 3 * (size_t)k, c));
+        for (int k = 0; k < d->n_surf; ++k)
+            best = fmin(best, dist2(d->surf_pts + 3 * (size_t)k, c));
         d->inside_dist[j] = sqrt(best);
     }
 }
@@ -539,7 +538,8 @@ static int relocate_idle(fit_data *d, int count, double h, int threads, uint8_t 
         moved[i] = 1;
         ++n_moved;
         for (int j = 0; j < d->n_surf; ++j)
-            gap[j] = fmin(gap[j], sqrt(dist2(d->surf_pts + 3 * (size_t)j, d->sph + 4 * i)) - best_r);
+            gap[j] =
+                fmin(gap[j], sqrt(dist2(d->surf_pts + 3 * (size_t)j, d->sph + 4 * i)) - best_r);
     }
     return n_moved;
 }
@@ -629,11 +629,11 @@ pen_status pen_spheres_fit(pen_context *ctx, const pen_mesh *mesh, int count,
     pen__fit_problem p = {
         .sov = {d.n_outside, d.outside_pts, d.outside_cells.cells, d.outside_cells.start,
                 d.outside_cells.bound},
-        .surf = {d.n_surf, d.surf_pts, d.surf_cells.cells, d.surf_cells.start,
-                 d.surf_cells.bound},
+        .surf = {d.n_surf, d.surf_pts, d.surf_cells.cells, d.surf_cells.start, d.surf_cells.bound},
         .surface_weight = s.surface_weight,
         .inv_sigma2 = 1 / (2 * r_n * s.margin_voxels * h),
-        .u_max = PEN__FIT_U_FAST, .threads = threads,
+        .u_max = PEN__FIT_U_FAST,
+        .threads = threads,
     };
     int iterations = 0;
     adam_run(&p, &s, h, count, &d, &iterations);

@@ -29,8 +29,8 @@ pen_status pen__fit_voxelize(pen_context *ctx, const pen_mesh *mesh, int voxels,
 void pen__fit_grid_free(pen__fit_grid *grid);
 
 /* Area-uniform random points on the surface: 3 * count floats. Also returns the total area. */
-pen_status pen__fit_sample_surface(pen_context *ctx, const pen_mesh *mesh, int count,
-                                   uint64_t seed, float *points, double *area);
+pen_status pen__fit_sample_surface(pen_context *ctx, const pen_mesh *mesh, int count, uint64_t seed,
+                                   float *points, double *area);
 
 /* splitmix64: the fitter's only random source (seeded, reproducible). */
 static inline uint64_t pen__fit_rand_u64(uint64_t *state) {
@@ -55,19 +55,19 @@ static inline double pen__fit_rand(uint64_t *state) {
  * influence cannot reach a cell is skipped for all of its points. */
 typedef struct pen__fit_points {
     long count;
-    const float *xyz;          /* 3 * count, cell by cell */
-    int cells;                 /* 0: one cell with every point and no bound */
-    const long *cell_start;    /* cells + 1 offsets into the points */
-    const double *cell_bound;  /* 4 per cell: centre x, y, z and a radius enclosing its points */
+    const float *xyz;         /* 3 * count, cell by cell */
+    int cells;                /* 0: one cell with every point and no bound */
+    const long *cell_start;   /* cells + 1 offsets into the points */
+    const double *cell_bound; /* 4 per cell: centre x, y, z and a radius enclosing its points */
 } pen__fit_points;
 
 typedef struct pen__fit_problem {
-    pen__fit_points sov;       /* outside voxel centres (Og = 1) */
-    pen__fit_points surf;      /* surface samples */
-    double surface_weight;     /* w_s */
-    double inv_sigma2;         /* 1 / sigma^2: phi(s) = tanh(relu(s * inv_sigma2)) */
-    double u_max;              /* phi = 1 for s * inv_sigma2 >= u_max (PEN__FIT_U_*) */
-    int threads;               /* 0: OpenMP default */
+    pen__fit_points sov;   /* outside voxel centres (Og = 1) */
+    pen__fit_points surf;  /* surface samples */
+    double surface_weight; /* w_s */
+    double inv_sigma2;     /* 1 / sigma^2: phi(s) = tanh(relu(s * inv_sigma2)) */
+    double u_max;          /* phi = 1 for s * inv_sigma2 >= u_max (PEN__FIT_U_*) */
+    int threads;           /* 0: OpenMP default */
 } pen__fit_problem;
 
 /* E(C, R) of eq. 5 for `count` spheres given as x, y, z, r (4 doubles each). */

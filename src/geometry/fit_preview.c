@@ -81,12 +81,30 @@ static void sphere_colour(int i, double *rgb) {
     int sector = (int)hue;
     double f = hue - sector, lo = 0.25, hi = 0.95, mid;
     switch (sector) {
-    case 0: mid = lo + (hi - lo) * f; rgb[0] = hi, rgb[1] = mid, rgb[2] = lo; break;
-    case 1: mid = hi - (hi - lo) * f; rgb[0] = mid, rgb[1] = hi, rgb[2] = lo; break;
-    case 2: mid = lo + (hi - lo) * f; rgb[0] = lo, rgb[1] = hi, rgb[2] = mid; break;
-    case 3: mid = hi - (hi - lo) * f; rgb[0] = lo, rgb[1] = mid, rgb[2] = hi; break;
-    case 4: mid = lo + (hi - lo) * f; rgb[0] = mid, rgb[1] = lo, rgb[2] = hi; break;
-    default: mid = hi - (hi - lo) * f; rgb[0] = hi, rgb[1] = lo, rgb[2] = mid; break;
+    case 0:
+        mid = lo + (hi - lo) * f;
+        rgb[0] = hi, rgb[1] = mid, rgb[2] = lo;
+        break;
+    case 1:
+        mid = hi - (hi - lo) * f;
+        rgb[0] = mid, rgb[1] = hi, rgb[2] = lo;
+        break;
+    case 2:
+        mid = lo + (hi - lo) * f;
+        rgb[0] = lo, rgb[1] = hi, rgb[2] = mid;
+        break;
+    case 3:
+        mid = hi - (hi - lo) * f;
+        rgb[0] = lo, rgb[1] = mid, rgb[2] = hi;
+        break;
+    case 4:
+        mid = lo + (hi - lo) * f;
+        rgb[0] = mid, rgb[1] = lo, rgb[2] = hi;
+        break;
+    default:
+        mid = hi - (hi - lo) * f;
+        rgb[0] = hi, rgb[1] = lo, rgb[2] = mid;
+        break;
     }
 }
 
@@ -133,7 +151,8 @@ pen_status pen_spheres_preview(pen_context *ctx, const pen_mesh *mesh, const pen
         if (!pen__finite3(s) || !(s[3] >= 0) || !isfinite(s[3]))
             return pen__error(ctx, PEN_ERROR_ARGUMENT, "preview: sphere %d is not finite", i);
         for (int a = 0; a < 3; ++a)
-            blo[a] = fmin(blo[a], (double)(s[a] - s[3])), bhi[a] = fmax(bhi[a], (double)(s[a] + s[3]));
+            blo[a] = fmin(blo[a], (double)(s[a] - s[3])),
+            bhi[a] = fmax(bhi[a], (double)(s[a] + s[3]));
     }
     view v;
     v.size = size;

@@ -28,8 +28,9 @@ pen_status pen__fit_check_mesh(pen_context *ctx, const pen_mesh *mesh, float lo[
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "fit: the mesh has no triangles");
     if ((size_t)mesh->vertex_count > PEN_MAX_ELEMENTS ||
         (size_t)mesh->triangle_count > PEN_MAX_ELEMENTS)
-        return pen__error(ctx, PEN_ERROR_ARGUMENT, "fit: mesh too large (%d vertices, %d triangles)",
-                          mesh->vertex_count, mesh->triangle_count);
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "fit: mesh too large (%d vertices, %d triangles)", mesh->vertex_count,
+                          mesh->triangle_count);
     for (int a = 0; a < 3; ++a) lo[a] = INFINITY, hi[a] = -INFINITY;
     for (int v = 0; v < mesh->vertex_count; ++v) {
         const float *p = mesh->positions + 3 * (size_t)v;
@@ -53,7 +54,8 @@ void pen__fit_grid_free(pen__fit_grid *grid) {
     memset(grid, 0, sizeof *grid);
 }
 
-/* ---- Crossings along one grid line ------------------------------------------------------------ */
+/* ---- Crossings along one grid line ------------------------------------------------------------
+ */
 
 typedef struct crossing {
     float t;
@@ -117,7 +119,8 @@ static int tidy_crossings(const pen_mesh *mesh, int axis, double h, crossing *hi
         if (dup) continue;
         int sign = crossing_sign(mesh, hits[i].prim, axis);
         if (sign == 0) continue;
-        if (out > 0 && hits[out - 1].sign == sign && (double)(hits[i].t - hits[out - 1].t) <= 1e-6 * h)
+        if (out > 0 && hits[out - 1].sign == sign &&
+            (double)(hits[i].t - hits[out - 1].t) <= 1e-6 * h)
             continue;
         hits[out] = hits[i];
         hits[out].sign = sign;
@@ -274,7 +277,8 @@ pen_status pen__fit_voxelize(pen_context *ctx, const pen_mesh *mesh, int voxels,
     return PEN_OK;
 }
 
-/* ---- Surface samples -------------------------------------------------------------------------- */
+/* ---- Surface samples --------------------------------------------------------------------------
+ */
 
 static double triangle_area(const pen_mesh *mesh, int t) {
     const uint32_t *tri = mesh->indices + 3 * (size_t)t;
@@ -282,15 +286,16 @@ static double triangle_area(const pen_mesh *mesh, int t) {
     const float *b = mesh->positions + 3 * (size_t)tri[1];
     const float *c = mesh->positions + 3 * (size_t)tri[2];
     double e1[3], e2[3];
-    for (int k = 0; k < 3; ++k) e1[k] = (double)b[k] - (double)a[k], e2[k] = (double)c[k] - (double)a[k];
+    for (int k = 0; k < 3; ++k)
+        e1[k] = (double)b[k] - (double)a[k], e2[k] = (double)c[k] - (double)a[k];
     double n0 = e1[1] * e2[2] - e1[2] * e2[1];
     double n1 = e1[2] * e2[0] - e1[0] * e2[2];
     double n2 = e1[0] * e2[1] - e1[1] * e2[0];
     return 0.5 * sqrt(n0 * n0 + n1 * n1 + n2 * n2);
 }
 
-pen_status pen__fit_sample_surface(pen_context *ctx, const pen_mesh *mesh, int count,
-                                   uint64_t seed, float *points, double *area) {
+pen_status pen__fit_sample_surface(pen_context *ctx, const pen_mesh *mesh, int count, uint64_t seed,
+                                   float *points, double *area) {
     double *cdf = pen__malloc(ctx, (size_t)mesh->triangle_count, sizeof(double), "fit: area table");
     if (!cdf) return PEN_ERROR_MEMORY;
     double sum = 0;
@@ -306,8 +311,10 @@ pen_status pen__fit_sample_surface(pen_context *ctx, const pen_mesh *mesh, int c
         int lo = 0, hi = mesh->triangle_count - 1; /* first t with cdf[t] > x */
         while (lo < hi) {
             int mid = lo + (hi - lo) / 2;
-            if (cdf[mid] > x) hi = mid;
-            else lo = mid + 1;
+            if (cdf[mid] > x)
+                hi = mid;
+            else
+                lo = mid + 1;
         }
         double r1 = sqrt(pen__fit_rand(&rng)), r2 = pen__fit_rand(&rng);
         double wa = 1 - r1, wb = r1 * (1 - r2), wc = r1 * r2; /* uniform barycentrics */
