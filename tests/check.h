@@ -7,6 +7,10 @@
 #include <stdio.h>
 #include <stdlib.h>
 
+#ifndef M_PI /* strict C11 does not define it */
+#define M_PI 3.14159265358979323846
+#endif
+
 static int check_failures_ = 0;
 static int check_count_ = 0;
 

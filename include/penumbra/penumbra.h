@@ -12,6 +12,7 @@
 #include "penumbra/fit.h"
 #include "penumbra/image.h"
 #include "penumbra/mesh.h"
+#include "penumbra/raster.h"
 #include "penumbra/scene.h"
 #include "penumbra/sh.h"
 #include "penumbra/spheres.h"

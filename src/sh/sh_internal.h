@@ -1,0 +1,18 @@
+/* Internal declarations of the SH engine (src/sh). */
+#ifndef PEN_SH_INTERNAL_H
+#define PEN_SH_INTERNAL_H
+
+#include "penumbra/sh.h"
+
+extern const double pen__sh_K[PEN_SH_MAX_BANDS][PEN_SH_MAX_BANDS];
+
+/* sqrt(4 pi): the DC coefficient of the constant function 1. */
+#define PEN_SH_SQRT_4PI 3.5449077018110320546
+
+/* Most squarings any method takes (EXACT on huge inputs); bounds the backward's stack use. */
+#define PEN_SH_EXP_MAX_SQUARINGS 20
+/* Degree of the EXACT method's Taylor series: after scaling |g| <= 1/16, the remainder
+ * |g|^11 / 11! is below 1e-20. */
+#define PEN_SH_EXP_TAYLOR_ORDER 10
+
+#endif
