@@ -9,6 +9,7 @@
 #define PENUMBRA_H
 
 #include "penumbra/core.h"
+#include "penumbra/fit.h"
 #include "penumbra/image.h"
 #include "penumbra/mesh.h"
 #include "penumbra/raster.h"
