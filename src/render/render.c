@@ -719,8 +719,9 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
                                        ob->mesh.triangle_count, ob->mesh.indices, b->d_vnormal,
                                        b->d_world);
         }
+        if (!s)
+            s = pen_raster_bary_bwd(ctx, &st->view, st->meshes, O, &st->gb, st->d_bary, d_world);
         if (!s) {
-            pen_raster_bary_bwd(&st->view, st->meshes, O, &st->gb, st->d_bary, d_world);
             for (int o = 0; o < O; ++o) {
                 const pen_object *ob = &sc->objects[o];
                 pen_object_grad *og = &grad->objects[o];
