@@ -59,15 +59,12 @@ lines=$("$BIN" render "$T/nosuch.json" -o "$T/bad.png" 2>&1 >/dev/null | wc -l)
 # A malformed scene: the key path is named.
 sed 's/"radius": 0.36/"radius": -1/' "$T/scene.json" > "$T/neg.json"
 expect_error "radius" "$T/neg.json" -o "$T/bad.png"
-# A scene asking for fitted spheres, while this build has no fitter: refused, unless shadows are off.
-sed 's/"spheres": \[{"center": \[0, -0.07, 0.3\], "radius": 0.36},/"spheres": {"fit": 8}, "_s": [{"center": [0, -0.07, 0.3], "radius": 0.36},/' \
+# A scene asking for fitted spheres: fitted before rendering (and not needed with --no-shadows).
+sed 's/"spheres": \[{"center": \[0, -0.07, 0.3\], "radius": 0.36},/"spheres": {"fit": 4}, "_s": [{"center": [0, -0.07, 0.3], "radius": 0.36},/' \
     "$T/scene.json" > "$T/fit.json"
-if "$BIN" fit-spheres --help >/dev/null 2>&1; then
-    "$BIN" render "$T/fit.json" -o "$T/fit.png" -q || fail "render with a fitted sphere set"
-else
-    expect_error "sphere fitting not available" "$T/fit.json" -o "$T/bad.png"
-    "$BIN" render "$T/fit.json" -o "$T/fitplain.png" --no-shadows -q || fail "fit scene, --no-shadows"
-fi
+out=$("$BIN" render "$T/fit.json" -o "$T/fit.png" --threads 2) || fail "render with a fitted sphere set"
+case "$out" in *"fitted 4 spheres"*"4 spheres, shadows"*) ;; *) fail "fit summary: $out" ;; esac
+"$BIN" render "$T/fit.json" -o "$T/fitplain.png" --no-shadows -q || fail "fit scene, --no-shadows"
 # The output folder does not exist: an i/o error, nothing written.
 expect_error "nodir" "$T/scene.json" -o "$T/nodir/bad.png"
 
