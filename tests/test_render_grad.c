@@ -212,6 +212,71 @@ static void test_occluder_only(void) {
     pen_scene_free(&sc);
 }
 
+/* Self-shadowing in the pipeline: proxy spheres that stick out of the ellipsoid put many of its
+ * surface points inside the self-shadowing weight's ramp (-1 < h < 1), so the weight's
+ * derivative carries part of the sphere and pose gradients. */
+static void test_self_shadowing_gradients(void) {
+    pen_scene sc = rs_ball_scene(32, 0, &seed);
+    pen_object *ob = &sc.objects[0];
+    const float big[8] = {-0.22f, 0.05f, 0.0f, 0.42f, 0.25f, 0.0f, 0.05f, 0.38f};
+    memcpy(ob->spheres.data, big, sizeof big);
+    /* Share of vertices (with their smooth normals) that see an own sphere inside the ramp. */
+    const int V = ob->mesh.vertex_count;
+    float *nrm = malloc(sizeof(float) * 3 * (size_t)V);
+    pen_vertex_normals_fwd(NULL, V, ob->mesh.positions, ob->mesh.triangle_count, ob->mesh.indices,
+                           nrm);
+    int ramp = 0;
+    for (int v = 0; v < V; ++v) {
+        int in = 0;
+        for (int i = 0; i < 2; ++i) {
+            const float *c = big + 4 * i, *x = ob->mesh.positions + 3 * v, *n = nrm + 3 * v;
+            const float h =
+                (n[0] * (c[0] - x[0]) + n[1] * (c[1] - x[1]) + n[2] * (c[2] - x[2])) / c[3];
+            in |= h > -1.0f && h < 1.0f;
+        }
+        ramp += in;
+    }
+    free(nrm);
+    CHECK_MSG(ramp > V / 5, "only %d of %d vertices in the ramp", ramp, V);
+    pen_render_grad g;
+    fd_rig r = rig_grad(&sc, 1, &g);
+    check_group(&r, &sc, "self-shadowing sphere", ob->spheres.data, 1, g.objects[0].spheres, 1, 8,
+                1e-3f, 2e-2, 0.05, 0);
+    check_group(&r, &sc, "self-shadowing translation", ob->pose.translation, 1,
+                g.objects[0].pose.translation, 1, 3, 1e-4f, 2e-2, 0.05, 1);
+    rig_free(&r);
+    pen_render_grad_free(&g);
+    pen_scene_free(&sc);
+}
+
+/* Two objects: a small ball whose spheres shadow the ellipsoid and the ground. Its sphere and
+ * pose gradients flow through the other object's pixels too. */
+static void test_two_objects(void) {
+    pen_scene sc = rs_ball_scene(32, 1, &seed);
+    /* The proxy lies just inside the ball (its surface points see it behind their tangent
+     * planes), large and close enough that the float render resolves its cap's motion: a small
+     * far cap's coefficients cancel in float (P_{l-1} - P_{l+1} near cos a = 1), which makes
+     * differences of the render noisy while the analytic gradient stays exact. */
+    const float s[4] = {0.0f, 0.0f, 0.0f, 0.24f};
+    pen_object *b = rs_add_object(&sc, rs_octasphere(2, 0.25f, 0), 1, s);
+    b->pose.translation[0] = -0.45f, b->pose.translation[1] = 1.0f;
+    b->pose.translation[2] = 0.2f;
+    b->albedo[0] = 0.3f, b->albedo[1] = 0.7f, b->albedo[2] = 0.4f;
+    pen_render_grad g;
+    fd_rig r = rig_grad(&sc, 1, &g);
+    check_group(&r, &sc, "second object's sphere", b->spheres.data, 1, g.objects[1].spheres, 1, 4,
+                1e-3f, 2e-2, 0.05, 0);
+    check_group(&r, &sc, "second object's translation", b->pose.translation, 1,
+                g.objects[1].pose.translation, 1, 3, 1e-4f, 2e-2, 0.05, 1);
+    check_group(&r, &sc, "second object's albedo", b->albedo, 1, g.objects[1].albedo, 1, 3, 0.05f,
+                1e-3, 1e-3, 0);
+    check_group(&r, &sc, "first object's sphere", sc.objects[0].spheres.data, 1,
+                g.objects[0].spheres, 1, 8, 1e-3f, 2e-2, 0.05, 0);
+    rig_free(&r);
+    pen_render_grad_free(&g);
+    pen_scene_free(&sc);
+}
+
 /* ---- Pose ------------------------------------------------------------------------------------ */
 
 static void test_pose_gradients(void) {
@@ -419,5 +484,6 @@ static void test_torture_finite(void) {
 }
 
 RUN_TESTS(TEST(test_lighting_and_albedo), TEST(test_sphere_gradients), TEST(test_occluder_only),
-          TEST(test_pose_gradients), TEST(test_vertex_gradients), TEST(test_silhouette_gradients),
+          TEST(test_self_shadowing_gradients), TEST(test_two_objects), TEST(test_pose_gradients),
+          TEST(test_vertex_gradients), TEST(test_silhouette_gradients),
           TEST(test_thread_count_independent), TEST(test_torture_finite))
