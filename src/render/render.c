@@ -35,6 +35,10 @@
 #include <stdlib.h>
 #include <string.h>
 
+/* Frames smaller than this are shaded on the calling thread: waking a team costs more than a few
+ * thousand pixels take, and optimisers render many small frames. */
+#define PARALLEL_MIN_PIXELS 4096
+
 /* ---- State ----------------------------------------------------------------------------------- */
 
 typedef struct object_buf {
@@ -394,7 +398,7 @@ pen_status pen_render_fwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     }
     st->fv_valid = fv_all != NULL;
     const int nt = thread_count(ctx);
-#pragma omp parallel for schedule(dynamic, 1) num_threads(nt)
+#pragma omp parallel for schedule(dynamic, 1) num_threads(nt) if (W * H >= PARALLEL_MIN_PIXELS)
     for (int py = 0; py < H; ++py) {
         for (int px = 0; px < W; ++px) {
             const size_t i = (size_t)py * (size_t)W + (size_t)px;
@@ -605,7 +609,7 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     const int nt = thread_count(ctx);
     const size_t nfv = 2 * (size_t)nc;
     const float *fv_all = st->fv_valid && st->params.shadows ? st->fv : NULL;
-#pragma omp parallel for schedule(dynamic, 1) num_threads(nt)
+#pragma omp parallel for schedule(dynamic, 1) num_threads(nt) if (W * H >= PARALLEL_MIN_PIXELS)
     for (int py = 0; py < H; ++py) {
         double *row = st->rows + rl.stride * (size_t)py;
         double(*d_sh)[3] = want_light ? (double(*)[3])(row + rl.sh) : NULL;
