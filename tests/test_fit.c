@@ -92,7 +92,8 @@ static pen_mesh make_sphere(double R, int K) {
 static pen_mesh make_capsule(double R, double L) {
     double ys[256], rhos[256];
     int k = arc(ys, rhos, 0, -L, R, 0, PEN_PI / 2, 12);
-    for (int i = 0; i < 8; ++i) ys[k] = -L + 2 * L * i / 8, rhos[k] = R, ++k;
+    for (int i = 0; i < 8; ++i)
+        ys[k] = -L + 2 * L * i / 8, rhos[k] = R, ++k;
     k = arc(ys, rhos, k, L, R, PEN_PI / 2, PEN_PI, 12);
     ys[k] = L + R, rhos[k] = 0;
     return revolve(ys, rhos, k, 32);
@@ -104,7 +105,8 @@ static pen_mesh make_dumbbell(double R, double D, double rn) {
     double phi = PEN_PI - asin(rn / R);
     int k = arc(ys, rhos, 0, -D, R, 0, phi, 20);
     double y0 = -D - R * cos(phi);
-    for (int i = 0; i < 6; ++i) ys[k] = y0 + (-2 * y0) * i / 6, rhos[k] = rn, ++k;
+    for (int i = 0; i < 6; ++i)
+        ys[k] = y0 + (-2 * y0) * i / 6, rhos[k] = rn, ++k;
     k = arc(ys, rhos, k, D, R, PEN_PI - phi, PEN_PI, 20);
     ys[k] = D + R, rhos[k] = 0;
     return revolve(ys, rhos, k, 32);
@@ -114,7 +116,8 @@ static pen_mesh make_dumbbell(double R, double D, double rn) {
  */
 
 static void random_points(unsigned long long *rng, int n, double scale, float *pts) {
-    for (int i = 0; i < 3 * n; ++i) pts[i] = (float)(scale * (2 * check_rand_(rng) - 1));
+    for (int i = 0; i < 3 * n; ++i)
+        pts[i] = (float)(scale * (2 * check_rand_(rng) - 1));
 }
 
 static void test_energy_gradient(void) {
@@ -128,7 +131,8 @@ static void test_energy_gradient(void) {
     double sph[4 * NSPH];
     for (int trial = 0; trial < 4; ++trial) {
         for (int i = 0; i < NSPH; ++i) {
-            for (int a = 0; a < 3; ++a) sph[4 * i + a] = 1.2 * (2 * check_rand_(&rng) - 1);
+            for (int a = 0; a < 3; ++a)
+                sph[4 * i + a] = 1.2 * (2 * check_rand_(&rng) - 1);
             sph[4 * i + 3] = 0.1 + 0.4 * check_rand_(&rng);
         }
         double grad[4 * NSPH] = {0};
@@ -136,9 +140,11 @@ static void test_energy_gradient(void) {
         CHECK_REL(E, pen__fit_energy_fwd(&p, NSPH, sph), 1e-12, 1e-12);
         /* Backward adds into d_spheres and scales with d_E. */
         double grad2[4 * NSPH];
-        for (int k = 0; k < 4 * NSPH; ++k) grad2[k] = 1.0;
+        for (int k = 0; k < 4 * NSPH; ++k)
+            grad2[k] = 1.0;
         pen__fit_energy_bwd(&p, NSPH, sph, 2.0, grad2);
-        for (int k = 0; k < 4 * NSPH; ++k) CHECK_REL(grad2[k], 1.0 + 2 * grad[k], 1e-12, 1e-9);
+        for (int k = 0; k < 4 * NSPH; ++k)
+            CHECK_REL(grad2[k], 1.0 + 2 * grad[k], 1e-12, 1e-9);
         double gnorm = 0;
         for (int k = 0; k < 4 * NSPH; ++k) {
             const double step = 1e-6;
@@ -163,7 +169,8 @@ static void test_energy_gradient(void) {
     double g[4] = {0};
     double E = pen__fit_energy_bwd(&p, 1, big, 1.0, g);
     CHECK_NEAR(E, NV, 1e-9);
-    for (int k = 0; k < 4; ++k) CHECK(g[k] == 0);
+    for (int k = 0; k < 4; ++k)
+        CHECK(g[k] == 0);
     /* A sphere far away: E = w_s * samples (every factor tanh(u) = 1 in double). */
     double far[4] = {100, 0, 0, 0.5};
     CHECK_REL(pen__fit_energy_fwd(&p, 1, far), 20.0 * NS, 1e-12, 1);
@@ -186,7 +193,8 @@ static int make_cells(float *pts, long n, int per, long *start, double *bound) {
                 lo[a] = fmin(lo[a], (double)pts[3 * j + a]),
                 hi[a] = fmax(hi[a], (double)pts[3 * j + a]);
         double *c = bound + 4 * cells;
-        for (int a = 0; a < 3; ++a) c[a] = 0.5 * (lo[a] + hi[a]);
+        for (int a = 0; a < 3; ++a)
+            c[a] = 0.5 * (lo[a] + hi[a]);
         for (long j = b; j < e; ++j) {
             double d = 0;
             for (int a = 0; a < 3; ++a)
@@ -218,7 +226,8 @@ static void test_energy_cells(void) {
     culled.surf.cell_start = ss, culled.surf.cell_bound = sb;
     double sph[4 * NSPH];
     for (int i = 0; i < NSPH; ++i) {
-        for (int a = 0; a < 3; ++a) sph[4 * i + a] = 1.2 * (2 * check_rand_(&rng) - 1);
+        for (int a = 0; a < 3; ++a)
+            sph[4 * i + a] = 1.2 * (2 * check_rand_(&rng) - 1);
         sph[4 * i + 3] = 0.05 + 0.3 * check_rand_(&rng);
     }
     sph[3] = 0.9; /* one large sphere that holds whole cells */
@@ -226,7 +235,8 @@ static void test_energy_cells(void) {
     double ea = pen__fit_energy_bwd(&plain, NSPH, sph, 1.0, ga);
     double eb = pen__fit_energy_bwd(&culled, NSPH, sph, 1.0, gb);
     CHECK_REL(ea, eb, 1e-12, 1e-9);
-    for (int k = 0; k < 4 * NSPH; ++k) CHECK_REL(ga[k], gb[k], 1e-9, 1e-9);
+    for (int k = 0; k < 4 * NSPH; ++k)
+        CHECK_REL(ga[k], gb[k], 1e-9, 1e-9);
     /* One thread and two threads agree. */
     culled.threads = 1;
     CHECK_REL(pen__fit_energy_fwd(&culled, NSPH, sph), eb, 1e-12, 1e-9);
@@ -261,7 +271,8 @@ static void test_inside(void) {
     CHECK(g.n[0] == 40 || g.n[0] == 39); /* the longest axis: x and z span 2 cos(pi/48) */
     CHECK(misclassified(&g, 1.0, band) == 0);
     long inside = 0;
-    for (long v = 0; v < (long)g.n[0] * g.n[1] * g.n[2]; ++v) inside += g.inside[v];
+    for (long v = 0; v < (long)g.n[0] * g.n[1] * g.n[2]; ++v)
+        inside += g.inside[v];
     double vol = (double)inside * g.h * g.h * g.h;
     CHECK_REL(vol, fabs(signed_volume(&m)), 0.05, 0);
     pen__fit_grid_free(&g);
@@ -401,7 +412,7 @@ static void test_fit_sphere(void) {
     CHECK(met.surface_coverage > 0.95);
     CHECK(met.volume_coverage > 0.98);
     CHECK(met.sov_fraction < 0.1);
-    free(sp.data);
+    pen_spheres_free(&sp);
     free_mesh(&m);
 }
 
@@ -419,7 +430,7 @@ static void test_fit_capsule(void) {
     CHECK(met.surface_coverage > 0.9);
     CHECK(met.sov_fraction < 0.2);
     CHECK(met.volume_coverage > 0.95);
-    free(sp.data);
+    pen_spheres_free(&sp);
     free_mesh(&m);
 }
 
@@ -437,7 +448,7 @@ static void test_fit_dumbbell(void) {
         CHECK_NEAR(y, i == 0 ? -0.8 : 0.8, h);
         CHECK_NEAR(r, 0.5, h);
     }
-    free(sp.data);
+    pen_spheres_free(&sp);
     free_mesh(&m);
 }
 
@@ -456,12 +467,158 @@ static void test_fit_more_spheres(void) {
             CHECK(met.sov_fraction <= prev.sov_fraction + 0.02);
         }
         prev = met;
-        free(sp.data);
+        pen_spheres_free(&sp);
     }
     CHECK(prev.surface_coverage > 0.95);
     free_mesh(&m);
 }
 
+/* The cache: a miss fits and writes, a hit reads the same spheres back, a broken or foreign file
+ * is refitted, an unwritable folder is no error, and a scene's {"fit": N} objects get spheres. */
+static void test_fit_cache(void) {
+    pen_context *ctx = pen_context_create();
+    pen_mesh m = make_capsule(0.3, 0.4);
+    pen_fit_settings s = small_settings();
+    s.iterations = 60;
+    const char *mesh_path = "test_fit_cache_capsule.obj"; /* only names the cache's place */
+    char *path = NULL;
+    CHECK(pen_spheres_fit_cache_path(ctx, &m, mesh_path, 3, &s, &path) == PEN_OK);
+    CHECK(path && strncmp(path, "test_fit_cache_capsule.obj.fit-3-", 33) == 0);
+    remove(path);
+    pen_spheres a, b;
+    pen_fit_metrics ma, mb;
+    CHECK(pen_spheres_fit_cached(ctx, &m, mesh_path, 3, &s, &a, &ma) == PEN_OK);
+    CHECK(ma.from_cache == 0 && a.count == 3);
+    FILE *f = fopen(path, "r");
+    CHECK(f != NULL);
+    if (f) fclose(f);
+    CHECK(pen_spheres_fit_cached(ctx, &m, mesh_path, 3, &s, &b, &mb) == PEN_OK);
+    CHECK(mb.from_cache == 1 && b.count == 3);
+    for (int k = 0; k < 12 && b.count == 3; ++k)
+        CHECK_REL(a.data[k], b.data[k], 1e-6, 1e-6);
+    CHECK_NEAR(mb.surface_coverage, ma.surface_coverage, 1e-6);
+    CHECK_NEAR(mb.sov_fraction, ma.sov_fraction, 1e-6);
+    CHECK(mb.iterations == ma.iterations && mb.grid[1] == ma.grid[1]);
+    pen_spheres_free(&b);
+    /* Other settings, other file. */
+    char *other = NULL;
+    s.seed = 99;
+    CHECK(pen_spheres_fit_cache_path(ctx, &m, mesh_path, 3, &s, &other) == PEN_OK);
+    CHECK(other && strcmp(other, path) != 0);
+    free(other);
+    s.seed = 1;
+    /* A file with the right name but a wrong key is not trusted. */
+    f = fopen(path, "w");
+    if (f) {
+        fputs("{\"fit_key\": \"0000000000000000\", \"spheres\": [{\"center\": [0,0,0], "
+              "\"radius\": 1}]}\n",
+              f);
+        fclose(f);
+    }
+    CHECK(pen_spheres_fit_cached(ctx, &m, mesh_path, 3, &s, &b, &mb) == PEN_OK);
+    CHECK(mb.from_cache == 0 && b.count == 3);
+    pen_spheres_free(&b);
+    CHECK(pen_spheres_fit_cached(ctx, &m, mesh_path, 3, &s, &b, &mb) == PEN_OK);
+    CHECK(mb.from_cache == 1); /* rewritten by the refit */
+    pen_spheres_free(&b);
+    remove(path);
+    free(path);
+    /* No folder to write to: still a fit. */
+    CHECK(pen_spheres_fit_cached(ctx, &m, "/nonexistent-folder/x.obj", 2, &s, &b, &mb) == PEN_OK);
+    CHECK(b.count == 2 && mb.from_cache == 0);
+    pen_spheres_free(&b);
+
+    /* A scene object asking for {"fit": 2}. */
+    pen_object obj;
+    memset(&obj, 0, sizeof obj);
+    obj.mesh = m;
+    obj.fit_spheres = 2;
+    obj.mesh_path = "test_fit_cache_scene.obj";
+    pen_scene scene;
+    memset(&scene, 0, sizeof scene);
+    scene.object_count = 1;
+    scene.objects = &obj;
+    CHECK(pen_scene_fit_spheres(ctx, &scene) == PEN_OK);
+    CHECK(obj.spheres.count == 2);
+    CHECK(pen_spheres_fit_cache_path(ctx, &m, obj.mesh_path, 2, NULL, &path) == PEN_OK);
+    remove(path);
+    free(path);
+    pen_spheres_free(&obj.spheres);
+    pen_spheres_free(&a);
+    free_mesh(&m);
+    pen_context_destroy(ctx);
+}
+
+/* Bad inputs: an error naming the problem, and a zeroed output. */
+static void test_fit_errors(void) {
+    pen_context *ctx = pen_context_create();
+    pen_mesh m = make_sphere(1.0, 8);
+    pen_fit_settings s = small_settings();
+    pen_spheres sp;
+    CHECK(pen_spheres_fit(ctx, &m, 0, &s, &sp, NULL) == PEN_ERROR_ARGUMENT);
+    CHECK(strstr(pen_context_error(ctx), "sphere count") && sp.data == NULL && sp.count == 0);
+    CHECK(pen_spheres_fit(ctx, &m, PEN_FIT_MAX_SPHERES + 1, &s, &sp, NULL) == PEN_ERROR_ARGUMENT);
+    s.voxels = 2;
+    CHECK(pen_spheres_fit(ctx, &m, 1, &s, &sp, NULL) == PEN_ERROR_ARGUMENT);
+    CHECK(strstr(pen_context_error(ctx), "voxels"));
+    s = small_settings();
+    s.surface_weight = -1;
+    CHECK(pen_spheres_fit(ctx, &m, 1, &s, &sp, NULL) == PEN_ERROR_ARGUMENT);
+    s = small_settings();
+    /* More spheres than inside voxels. */
+    s.voxels = 4;
+    CHECK(pen_spheres_fit(ctx, &m, 50, &s, &sp, NULL) == PEN_ERROR_ARGUMENT);
+    CHECK(strstr(pen_context_error(ctx), "inside"));
+    s = small_settings();
+    m.positions[4] = NAN;
+    CHECK(pen_spheres_fit(ctx, &m, 1, &s, &sp, NULL) == PEN_ERROR_ARGUMENT);
+    CHECK(strstr(pen_context_error(ctx), "not finite"));
+    m.positions[4] = 0;
+    m.indices[7] = (uint32_t)m.vertex_count;
+    CHECK(pen_spheres_fit(ctx, &m, 1, &s, &sp, NULL) == PEN_ERROR_ARGUMENT);
+    CHECK(strstr(pen_context_error(ctx), "out of range"));
+    free_mesh(&m);
+    /* An open, flat mesh holds no volume. */
+    float quad[] = {0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0};
+    uint32_t tris[] = {0, 1, 2, 0, 2, 3};
+    pen_mesh flat;
+    memset(&flat, 0, sizeof flat);
+    flat.vertex_count = 4, flat.triangle_count = 2, flat.positions = quad, flat.indices = tris;
+    CHECK(pen_spheres_fit(ctx, &flat, 1, &s, &sp, NULL) == PEN_ERROR_ARGUMENT);
+    CHECK(strstr(pen_context_error(ctx), "inside"));
+    CHECK(sp.data == NULL);
+    pen_context_destroy(ctx);
+}
+
+/* The picture: mesh pixels in the left panel, sphere pixels in the middle one. */
+static void test_preview(void) {
+    pen_context *ctx = pen_context_create();
+    pen_mesh m = make_sphere(1.0, 12);
+    float one[4] = {0, 0, 0, 1};
+    pen_spheres sp = {1, one};
+    pen_image img;
+    CHECK(pen_spheres_preview(ctx, &m, &sp, 30, 20, 64, &img) == PEN_OK);
+    CHECK(img.width == 192 && img.height == 64 && img.channels == 3);
+    int mesh_px = 0, sphere_px = 0;
+    for (int y = 0; y < 64; ++y)
+        for (int x = 0; x < 64; ++x) {
+            mesh_px += img.data[3 * (y * 192 + x)] < 0.99f;
+            sphere_px += img.data[3 * (y * 192 + 64 + x)] < 0.99f;
+        }
+    /* Both are nearly the unit disc; the view spans 2.1 x the half-diagonal (sqrt 3) of the
+     * bounds [-1, 1]^3 over 64 pixels. */
+    double disc = PEN_PI * pow(64 / (2.1 * sqrt(3.0)), 2);
+    CHECK(mesh_px > 0.5 * disc && sphere_px > 0.5 * disc);
+    CHECK(abs(mesh_px - sphere_px) < 0.1 * sphere_px);
+    pen_image_free(&img);
+    float bad[4] = {0, 0, NAN, 1};
+    pen_spheres nan_sp = {1, bad};
+    CHECK(pen_spheres_preview(ctx, &m, &nan_sp, 30, 20, 64, &img) == PEN_ERROR_ARGUMENT);
+    free_mesh(&m);
+    pen_context_destroy(ctx);
+}
+
 RUN_TESTS(TEST(test_energy_gradient), TEST(test_energy_cells), TEST(test_inside),
           TEST(test_surface_samples), TEST(test_fit_sphere), TEST(test_fit_capsule),
-          TEST(test_fit_dumbbell), TEST(test_fit_more_spheres))
+          TEST(test_fit_dumbbell), TEST(test_fit_more_spheres), TEST(test_fit_cache),
+          TEST(test_fit_errors), TEST(test_preview))

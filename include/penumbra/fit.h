@@ -33,6 +33,7 @@
 #include "penumbra/core.h"
 #include "penumbra/image.h"
 #include "penumbra/mesh.h"
+#include "penumbra/scene.h"
 #include "penumbra/spheres.h"
 
 #ifdef __cplusplus
@@ -43,7 +44,9 @@ extern "C" {
 #define PEN_FIT_MAX_SPHERES 4096
 #define PEN_FIT_MAX_VOXELS 512
 
-/* Fit settings. A field left at 0 takes its default (pen_fit_settings_default fills them in). */
+/* Fit settings. A field left at 0 takes its default (pen_fit_settings_default fills them in). The
+ * result depends on the settings and, in its last bits, on the thread count (sums run per thread
+ * in a fixed order, so one thread count always gives the same spheres). */
 typedef struct pen_fit_settings {
     int voxels;            /* voxels along the longest axis of the padded bounds (cubic voxels) */
     double surface_weight; /* w_s of eq. 5 */
@@ -90,6 +93,11 @@ pen_status pen_spheres_fit_cached(pen_context *ctx, const pen_mesh *mesh, const 
                                   int count, const pen_fit_settings *settings, pen_spheres *out,
                                   pen_fit_metrics *metrics);
 
+/* The cache file pen_spheres_fit_cached uses for these arguments (malloc'd into *path; the
+ * caller frees it), e.g. to remove a cached fit. */
+pen_status pen_spheres_fit_cache_path(pen_context *ctx, const pen_mesh *mesh, const char *mesh_path,
+                                      int count, const pen_fit_settings *settings, char **path);
+
 /* A picture of a sphere set over its mesh: three square orthographic panels of size x size
  * pixels side by side (the mesh, the spheres, the spheres blended over the mesh), seen from
  * azimuth_deg about +Y (0 looks from +Z towards -Z) and elevation_deg above the horizon.
@@ -98,9 +106,16 @@ pen_status pen_spheres_fit_cached(pen_context *ctx, const pen_mesh *mesh, const 
 pen_status pen_spheres_preview(pen_context *ctx, const pen_mesh *mesh, const pen_spheres *spheres,
                                float azimuth_deg, float elevation_deg, int size, pen_image *out);
 
-/* Writes the metrics as a JSON object text {"metrics": {...}} into buf (NUL-terminated, cut
- * at size); returns the length it needed, as snprintf does. */
-int pen_fit_metrics_json(const pen_fit_metrics *metrics, char *buf, size_t size);
+/* Fits every object of a loaded scene that asks for it ("spheres": {"fit": N}, so fit_spheres > 0
+ * and no spheres yet) with pen_spheres_fit_cached and the default settings, next to the object's
+ * mesh file. Objects that have spheres are left alone. */
+pen_status pen_scene_fit_spheres(pen_context *ctx, pen_scene *scene);
+
+/* Writes {"metrics": {...}, "fit_settings": {...}} (the settings member only when settings is
+ * not NULL) into buf, NUL-terminated and cut at size; returns the length it needed, as snprintf
+ * does. The text is what pen_spheres_save takes as extra_json. */
+int pen_fit_json(const pen_fit_settings *settings, const pen_fit_metrics *metrics, char *buf,
+                 size_t size);
 
 #ifdef __cplusplus
 }

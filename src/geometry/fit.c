@@ -49,9 +49,8 @@ void pen_fit_settings_default(pen_fit_settings *s) {
     s->seed = 1;
 }
 
-/* Fills zero fields with the defaults and checks the ranges. */
-static pen_status resolve_settings(pen_context *ctx, const pen_fit_settings *in,
-                                   pen_fit_settings *s) {
+pen_status pen__fit_resolve_settings(pen_context *ctx, const pen_fit_settings *in,
+                                     pen_fit_settings *s) {
     pen_fit_settings d;
     pen_fit_settings_default(&d);
     *s = in ? *in : d;
@@ -111,10 +110,12 @@ static double point_term(const pen__fit_problem *p, const double *sph, const int
         }
     }
     double P = 1;
-    for (int a = 0; a < m; ++a) P *= sc->os[a];
+    for (int a = 0; a < m; ++a)
+        P *= sc->os[a];
     if (grad && m > 0) {
         sc->suffix[m] = 1;
-        for (int a = m - 1; a >= 0; --a) sc->suffix[a] = sc->suffix[a + 1] * sc->os[a];
+        for (int a = m - 1; a >= 0; --a)
+            sc->suffix[a] = sc->suffix[a + 1] * sc->os[a];
         double prefix = 1;
         for (int a = 0; a < m; ++a) {
             double os = sc->os[a];
@@ -199,10 +200,12 @@ static double energy_eval(const pen__fit_problem *p, int count, const double *sp
         free(sc.suffix);
     }
     double E = 0;
-    for (int t = 0; t < threads; ++t) E += partial[t];
+    for (int t = 0; t < threads; ++t)
+        E += partial[t];
     if (grads)
         for (int t = 0; t < threads; ++t)
-            for (int k = 0; k < 4 * count; ++k) d_spheres[k] += grads[(size_t)t * 4 * count + k];
+            for (int k = 0; k < 4 * count; ++k)
+                d_spheres[k] += grads[(size_t)t * 4 * count + k];
     free(partial);
     free(grads);
     return failed ? (double)NAN : E;
@@ -251,11 +254,14 @@ static pen_status kmeans(pen_context *ctx, const float *pts, long n_pts, int k, 
     }
     uint64_t rng = seed;
     long first = (long)(pen__fit_rand(&rng) * (double)n_pts);
-    for (int a = 0; a < 3; ++a) sph[a] = (double)pts[3 * first + a];
-    for (long j = 0; j < n_pts; ++j) d2[j] = dist2(pts + 3 * j, sph);
+    for (int a = 0; a < 3; ++a)
+        sph[a] = (double)pts[3 * first + a];
+    for (long j = 0; j < n_pts; ++j)
+        d2[j] = dist2(pts + 3 * j, sph);
     for (int i = 1; i < k; ++i) {
         double sum = 0;
-        for (long j = 0; j < n_pts; ++j) sum += d2[j];
+        for (long j = 0; j < n_pts; ++j)
+            sum += d2[j];
         double x = pen__fit_rand(&rng) * sum;
         long pick = n_pts - 1;
         for (long j = 0; j < n_pts; ++j)
@@ -263,36 +269,43 @@ static pen_status kmeans(pen_context *ctx, const float *pts, long n_pts, int k, 
                 pick = j;
                 break;
             }
-        for (int a = 0; a < 3; ++a) sph[4 * i + a] = (double)pts[3 * pick + a];
+        for (int a = 0; a < 3; ++a)
+            sph[4 * i + a] = (double)pts[3 * pick + a];
 #pragma omp parallel for num_threads(threads) schedule(static)
-        for (long j = 0; j < n_pts; ++j) d2[j] = fmin(d2[j], dist2(pts + 3 * j, sph + 4 * i));
+        for (long j = 0; j < n_pts; ++j)
+            d2[j] = fmin(d2[j], dist2(pts + 3 * j, sph + 4 * i));
     }
     for (int step = 0; step < FIT_LLOYD_STEPS; ++step) {
         assign(pts, n_pts, sph, k, threads, label);
         memset(acc, 0, sizeof(double) * 4 * (size_t)k);
         for (long j = 0; j < n_pts; ++j) {
             double *a = acc + 4 * label[j];
-            for (int c = 0; c < 3; ++c) a[c] += (double)pts[3 * j + c];
+            for (int c = 0; c < 3; ++c)
+                a[c] += (double)pts[3 * j + c];
             a[3] += 1;
         }
         for (int i = 0; i < k; ++i)
             if (acc[4 * i + 3] > 0)
-                for (int a = 0; a < 3; ++a) sph[4 * i + a] = acc[4 * i + a] / acc[4 * i + 3];
+                for (int a = 0; a < 3; ++a)
+                    sph[4 * i + a] = acc[4 * i + a] / acc[4 * i + 3];
     }
     /* A mean of a bent cluster can lie outside the mesh: move it to the nearest member. */
     assign(pts, n_pts, sph, k, threads, label);
-    for (int i = 0; i < k; ++i) acc[4 * i + 3] = (double)INFINITY;
+    for (int i = 0; i < k; ++i)
+        acc[4 * i + 3] = (double)INFINITY;
     for (long j = 0; j < n_pts; ++j) {
         int i = label[j];
         double d = dist2(pts + 3 * j, sph + 4 * i);
         if (d < acc[4 * i + 3]) {
             acc[4 * i + 3] = d;
-            for (int a = 0; a < 3; ++a) acc[4 * i + a] = (double)pts[3 * j + a];
+            for (int a = 0; a < 3; ++a)
+                acc[4 * i + a] = (double)pts[3 * j + a];
         }
     }
     for (int i = 0; i < k; ++i)
         if (acc[4 * i + 3] < (double)INFINITY)
-            for (int a = 0; a < 3; ++a) sph[4 * i + a] = acc[4 * i + a];
+            for (int a = 0; a < 3; ++a)
+                sph[4 * i + a] = acc[4 * i + a];
     free(d2), free(label), free(acc);
     return PEN_OK;
 }
@@ -322,15 +335,23 @@ static long count_covered(const float *pts, long n_pts, const double *sph, int k
     return hits;
 }
 
-int pen_fit_metrics_json(const pen_fit_metrics *m, char *buf, size_t size) {
+int pen_fit_json(const pen_fit_settings *st, const pen_fit_metrics *m, char *buf, size_t size) {
+    char settings[512] = "";
+    if (st)
+        snprintf(settings, sizeof settings,
+                 ", \"fit_settings\": {\"voxels\": %d, \"surface_weight\": %.17g, "
+                 "\"margin_voxels\": %.17g, \"samples_per_voxel_area\": %.17g, "
+                 "\"iterations\": %d, \"learning_rate\": %.17g, \"seed\": %llu}",
+                 st->voxels, st->surface_weight, st->margin_voxels, st->samples_per_voxel_area,
+                 st->iterations, st->learning_rate, st->seed);
     return snprintf(buf, size,
                     "{\"metrics\": {\"sov_fraction\": %.6f, \"surface_coverage\": %.6f, "
                     "\"volume_coverage\": %.6f, \"iterations\": %d, \"seconds\": %.3f, "
-                    "\"energy\": %.6g, \"grid\": [%d, %d, %d], \"inside_voxels\": %ld, "
-                    "\"surface_samples\": %d}}",
+                    "\"energy\": %.9g, \"grid\": [%d, %d, %d], \"inside_voxels\": %ld, "
+                    "\"surface_samples\": %d}%s}",
                     m->sov_fraction, m->surface_coverage, m->volume_coverage, m->iterations,
                     m->seconds, m->energy, m->grid[0], m->grid[1], m->grid[2], m->inside_voxels,
-                    m->surface_samples);
+                    m->surface_samples, settings);
 }
 
 /* ---- The fit ------------------------------------------------------------------------------ */
@@ -368,7 +389,8 @@ static void fit_data_free(fit_data *d) {
 static pen_status build_cells(pen_context *ctx, const pen__fit_grid *g, float *pts, long n,
                               fit_cells *out) {
     int nb[3];
-    for (int a = 0; a < 3; ++a) nb[a] = (g->n[a] + FIT_BRICK - 1) / FIT_BRICK;
+    for (int a = 0; a < 3; ++a)
+        nb[a] = (g->n[a] + FIT_BRICK - 1) / FIT_BRICK;
     long bricks = (long)nb[0] * nb[1] * nb[2];
     long *key = pen__malloc(ctx, (size_t)n + 1, sizeof(long), "fit: cell keys");
     long *first = pen__calloc(ctx, (size_t)bricks + 1, sizeof(long), "fit: cell offsets");
@@ -415,8 +437,10 @@ static pen_status build_cells(pen_context *ctx, const pen__fit_grid *g, float *p
                 hi[a] = fmax(hi[a], (double)sorted[3 * j + a]);
             }
         double *bd = out->bound + 4 * c, r2 = 0;
-        for (int a = 0; a < 3; ++a) bd[a] = 0.5 * (lo[a] + hi[a]);
-        for (long j = begin; j < end; ++j) r2 = fmax(r2, dist2(sorted + 3 * j, bd));
+        for (int a = 0; a < 3; ++a)
+            bd[a] = 0.5 * (lo[a] + hi[a]);
+        for (long j = begin; j < end; ++j)
+            r2 = fmax(r2, dist2(sorted + 3 * j, bd));
         bd[3] = sqrt(r2) * (1 + 1e-12) + 1e-12 * g->h; /* enclose the points despite rounding */
         out->start[c++] = begin;
         begin = end;
@@ -435,7 +459,8 @@ static pen_status prepare(pen_context *ctx, const pen_mesh *mesh, const pen_fit_
     if (st) return st;
     const pen__fit_grid *g = &d->grid;
     long total = (long)g->n[0] * g->n[1] * g->n[2];
-    for (long v = 0; v < total; ++v) d->n_inside += g->inside[v];
+    for (long v = 0; v < total; ++v)
+        d->n_inside += g->inside[v];
     d->n_outside = total - d->n_inside;
     if (d->n_inside < count)
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
@@ -533,7 +558,8 @@ static int relocate_idle(fit_data *d, int count, double h, int threads, uint8_t 
             if (fits && r > best_r) best = v, best_r = r;
         }
         if (best < 0) continue;
-        for (int a = 0; a < 3; ++a) d->sph[4 * i + a] = d->inside_pts[3 * best + a];
+        for (int a = 0; a < 3; ++a)
+            d->sph[4 * i + a] = d->inside_pts[3 * best + a];
         d->sph[4 * i + 3] = best_r;
         moved[i] = 1;
         ++n_moved;
@@ -562,13 +588,15 @@ static void adam_run(const pen__fit_problem *p, const pen_fit_settings *s, doubl
             double mh = d->m1[k] / (1 - b1t), vh = d->m2[k] / (1 - b2t);
             d->sph[k] -= lr * mh / (sqrt(vh) + eps);
         }
-        for (int i = 0; i < count; ++i) d->sph[4 * i + 3] = fmax(d->sph[4 * i + 3], 0.25 * h);
+        for (int i = 0; i < count; ++i)
+            d->sph[4 * i + 3] = fmax(d->sph[4 * i + 3], 0.25 * h);
         int checkpoint = s->iterations / 8;
         if (checkpoint > 0 && it > 0 && it % checkpoint == 0 && it <= 4 * checkpoint) {
             relocate_idle(d, count, h, p->threads, d->moved);
             for (int i = 0; i < count; ++i)
                 if (d->moved[i])
-                    for (int a = 0; a < 4; ++a) d->m1[4 * i + a] = d->m2[4 * i + a] = 0;
+                    for (int a = 0; a < 4; ++a)
+                        d->m1[4 * i + a] = d->m2[4 * i + a] = 0;
         }
     }
     *iterations = it;
@@ -585,7 +613,7 @@ pen_status pen_spheres_fit(pen_context *ctx, const pen_mesh *mesh, int count,
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "fit: sphere count %d out of range [1, %d]",
                           count, PEN_FIT_MAX_SPHERES);
     pen_fit_settings s;
-    pen_status st = resolve_settings(ctx, settings, &s);
+    pen_status st = pen__fit_resolve_settings(ctx, settings, &s);
     if (st) return st;
     int threads = pen_context_threads(ctx) > 0 ? pen_context_threads(ctx) : omp_get_max_threads();
 
@@ -606,19 +634,13 @@ pen_status pen_spheres_fit(pen_context *ctx, const pen_mesh *mesh, int count,
     d.gap = pen__malloc(ctx, (size_t)d.n_surf, sizeof(double), "fit: gaps");
     d.excl = pen__malloc(ctx, (size_t)count, sizeof(int), "fit: exclusive counts");
     d.moved = pen__malloc(ctx, (size_t)count, 1, "fit: moved flags");
-    out->data = pen__malloc(ctx, n, sizeof(float), "fit: spheres");
-    if (!d.sph || !d.grad || !d.m1 || !d.m2 || !d.inside_dist || !d.gap || !d.excl || !d.moved ||
-        !out->data) {
+    if (!d.sph || !d.grad || !d.m1 || !d.m2 || !d.inside_dist || !d.gap || !d.excl || !d.moved) {
         fit_data_free(&d);
-        free(out->data);
-        out->data = NULL;
         return PEN_ERROR_MEMORY;
     }
     st = kmeans(ctx, d.inside_pts, d.n_inside, count, s.seed, threads, d.sph);
     if (st) {
         fit_data_free(&d);
-        free(out->data);
-        out->data = NULL;
         return st;
     }
     inscribe(d.surf_pts, d.n_surf, count, 0.5 * h, threads, d.sph);
@@ -640,15 +662,19 @@ pen_status pen_spheres_fit(pen_context *ctx, const pen_mesh *mesh, int count,
     double energy = pen__fit_energy_fwd(&p, count, d.sph);
     if (!isfinite(energy)) {
         fit_data_free(&d);
-        free(out->data);
-        out->data = NULL;
         return pen__error(ctx, PEN_ERROR_MEMORY, "fit: energy evaluation ran out of memory");
     }
-    for (size_t k = 0; k < n; ++k) out->data[k] = (float)d.sph[k];
-    out->count = count;
+    st = pen_spheres_create(ctx, count, out);
+    if (st) {
+        fit_data_free(&d);
+        return st;
+    }
+    for (size_t k = 0; k < n; ++k)
+        out->data[k] = (float)d.sph[k];
     if (metrics) {
         /* Hard tests on the float spheres that are returned. */
-        for (size_t k = 0; k < n; ++k) d.sph[k] = (double)out->data[k];
+        for (size_t k = 0; k < n; ++k)
+            d.sph[k] = (double)out->data[k];
         long in_cov = count_covered(d.inside_pts, d.n_inside, d.sph, count, threads);
         long out_cov = count_covered(d.outside_pts, d.n_outside, d.sph, count, threads);
         long surf_cov = count_covered(d.surf_pts, d.n_surf, d.sph, count, threads);
@@ -657,7 +683,8 @@ pen_status pen_spheres_fit(pen_context *ctx, const pen_mesh *mesh, int count,
         metrics->surface_coverage = (double)surf_cov / d.n_surf;
         metrics->iterations = iterations;
         metrics->energy = energy;
-        for (int a = 0; a < 3; ++a) metrics->grid[a] = d.grid.n[a];
+        for (int a = 0; a < 3; ++a)
+            metrics->grid[a] = d.grid.n[a];
         metrics->inside_voxels = d.n_inside;
         metrics->surface_samples = d.n_surf;
         metrics->seconds = omp_get_wtime() - t0;

@@ -7,6 +7,10 @@
 
 #include <stdint.h>
 
+/* Copies the settings (defaults for NULL), fills zero fields with the defaults, checks ranges. */
+pen_status pen__fit_resolve_settings(pen_context *ctx, const pen_fit_settings *in,
+                                     pen_fit_settings *out);
+
 /* ---- Voxel grid and inside test (voxelize.c) ------------------------------------------------ */
 
 /* Cubic voxels of edge h; voxel (i, j, k) has its centre at origin + h * (i, j, k) (the origin is
@@ -18,8 +22,7 @@ typedef struct pen__fit_grid {
     uint8_t *inside; /* n[0] n[1] n[2] flags, 1 = inside the mesh */
 } pen__fit_grid;
 
-/* Checks the mesh (counts, indices, finite positions, bounds not a point) and records the error;
- * on success lo/hi are the bounds of the positions. */
+/* pen_mesh_validate, and a bounding box that is not a point; on success lo/hi are the bounds. */
 pen_status pen__fit_check_mesh(pen_context *ctx, const pen_mesh *mesh, float lo[3], float hi[3]);
 /* Builds the grid over the mesh bounds padded by `pad` of the longest extent on every side, with
  * `voxels` voxels along the longest padded axis, and classifies every centre (six-vote winding

@@ -45,15 +45,18 @@ static void raster_mesh(const view *v, const pen_mesh *m, const double *light, d
             project(v, p[k], sx + k, sy + k, sz + k);
         }
         double e1[3], e2[3], n[3];
-        for (int a = 0; a < 3; ++a) e1[a] = p[1][a] - p[0][a], e2[a] = p[2][a] - p[0][a];
+        for (int a = 0; a < 3; ++a)
+            e1[a] = p[1][a] - p[0][a], e2[a] = p[2][a] - p[0][a];
         n[0] = e1[1] * e2[2] - e1[2] * e2[1];
         n[1] = e1[2] * e2[0] - e1[0] * e2[2];
         n[2] = e1[0] * e2[1] - e1[1] * e2[0];
         double len = sqrt(dot3(n, n));
         if (!(len > 0)) continue;
-        for (int a = 0; a < 3; ++a) n[a] /= len;
+        for (int a = 0; a < 3; ++a)
+            n[a] /= len;
         if (dot3(n, v->fwd) > 0)
-            for (int a = 0; a < 3; ++a) n[a] = -n[a]; /* light the side we see */
+            for (int a = 0; a < 3; ++a)
+                n[a] = -n[a]; /* light the side we see */
         double area = (sx[1] - sx[0]) * (sy[2] - sy[0]) - (sx[2] - sx[0]) * (sy[1] - sy[0]);
         if (area == 0) continue;
         int x0 = (int)fmax(0, floor(fmin(sx[0], fmin(sx[1], sx[2]))));
@@ -90,7 +93,8 @@ static int trace_spheres(const view *v, const pen_spheres *s, double px, double 
                          const double *light, double *depth, double *g) {
     double o[3];
     double dx = (px - 0.5 * v->size) * v->scale, dy = (0.5 * v->size - py) * v->scale;
-    for (int a = 0; a < 3; ++a) o[a] = v->centre[a] + dx * v->right[a] + dy * v->up[a];
+    for (int a = 0; a < 3; ++a)
+        o[a] = v->centre[a] + dx * v->right[a] + dy * v->up[a];
     int best = -1;
     *depth = (double)INFINITY;
     for (int i = 0; i < s->count; ++i) {
@@ -103,7 +107,8 @@ static int trace_spheres(const view *v, const pen_spheres *s, double px, double 
         if (hit < *depth) {
             *depth = hit, best = i;
             double n[3];
-            for (int a = 0; a < 3; ++a) n[a] = (hit * v->fwd[a] - c[a]) / r;
+            for (int a = 0; a < 3; ++a)
+                n[a] = (hit * v->fwd[a] - c[a]) / r;
             *g = shade(n, light);
         }
     }
@@ -122,7 +127,8 @@ pen_status pen_spheres_preview(pen_context *ctx, const pen_mesh *mesh, const pen
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "preview: size %d out of range [16, 4096]",
                           size);
     double blo[3], bhi[3];
-    for (int a = 0; a < 3; ++a) blo[a] = (double)lo[a], bhi[a] = (double)hi[a];
+    for (int a = 0; a < 3; ++a)
+        blo[a] = (double)lo[a], bhi[a] = (double)hi[a];
     for (int i = 0; i < spheres->count; ++i) {
         const float *s = spheres->data + 4 * (size_t)i;
         if (!pen__finite3(s) || !(s[3] >= 0) || !isfinite(s[3]))
@@ -150,17 +156,24 @@ pen_status pen_spheres_preview(pen_context *ctx, const pen_mesh *mesh, const pen
                        0.5 * v.right[1] + 0.7 * v.up[1] - 0.5 * v.fwd[1],
                        0.5 * v.right[2] + 0.7 * v.up[2] - 0.5 * v.fwd[2]};
     double ll = sqrt(dot3(light, light));
-    for (int a = 0; a < 3; ++a) light[a] /= ll;
+    for (int a = 0; a < 3; ++a)
+        light[a] /= ll;
 
     size_t pixels = (size_t)size * size;
     double *depth = pen__malloc(ctx, pixels, sizeof(double), "preview: depth");
     double *grey = pen__malloc(ctx, pixels, sizeof(double), "preview: shade");
-    float *img = pen__calloc(ctx, pixels * 9, sizeof(float), "preview: image"); /* 3 panels x RGB */
-    if (!depth || !grey || !img) {
-        free(depth), free(grey), free(img);
+    if (!depth || !grey) {
+        free(depth), free(grey);
         return PEN_ERROR_MEMORY;
     }
-    for (size_t i = 0; i < pixels; ++i) depth[i] = (double)INFINITY, grey[i] = 0;
+    st = pen_image_create(ctx, 3 * size, size, 3, out);
+    if (st) {
+        free(depth), free(grey);
+        return st;
+    }
+    float *img = out->data;
+    for (size_t i = 0; i < pixels; ++i)
+        depth[i] = (double)INFINITY, grey[i] = 0;
     raster_mesh(&v, mesh, light, depth, grey);
     const double bg = 1.0;
     for (int y = 0; y < size; ++y)
@@ -185,6 +198,5 @@ pen_status pen_spheres_preview(pen_context *ctx, const pen_mesh *mesh, const pen
             }
         }
     free(depth), free(grey);
-    out->width = 3 * size, out->height = size, out->channels = 3, out->data = img;
     return PEN_OK;
 }

@@ -23,26 +23,9 @@
 #include <string.h>
 
 pen_status pen__fit_check_mesh(pen_context *ctx, const pen_mesh *mesh, float lo[3], float hi[3]) {
-    if (!mesh || !mesh->positions || !mesh->indices || mesh->vertex_count <= 0 ||
-        mesh->triangle_count <= 0)
-        return pen__error(ctx, PEN_ERROR_ARGUMENT, "fit: the mesh has no triangles");
-    if ((size_t)mesh->vertex_count > PEN_MAX_ELEMENTS ||
-        (size_t)mesh->triangle_count > PEN_MAX_ELEMENTS)
-        return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                          "fit: mesh too large (%d vertices, %d triangles)", mesh->vertex_count,
-                          mesh->triangle_count);
-    for (int a = 0; a < 3; ++a) lo[a] = INFINITY, hi[a] = -INFINITY;
-    for (int v = 0; v < mesh->vertex_count; ++v) {
-        const float *p = mesh->positions + 3 * (size_t)v;
-        if (!pen__finite3(p))
-            return pen__error(ctx, PEN_ERROR_ARGUMENT, "fit: vertex %d is not finite", v);
-        for (int a = 0; a < 3; ++a) lo[a] = fminf(lo[a], p[a]), hi[a] = fmaxf(hi[a], p[a]);
-    }
-    for (size_t i = 0; i < 3 * (size_t)mesh->triangle_count; ++i)
-        if (mesh->indices[i] >= (uint32_t)mesh->vertex_count)
-            return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                              "fit: triangle %zu: vertex index %u out of range [0, %d)", i / 3,
-                              mesh->indices[i], mesh->vertex_count);
+    pen_status st = pen_mesh_validate(ctx, mesh);
+    if (st) return st;
+    pen_mesh_bounds(mesh, lo, hi);
     if (!(hi[0] > lo[0] || hi[1] > lo[1] || hi[2] > lo[2]))
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "fit: the mesh's bounding box is a point");
     return PEN_OK;
@@ -205,12 +188,14 @@ static int vote_axis(RTCScene scene, const pen_mesh *mesh, const pen__fit_grid *
             rtcIntersect1(scene, &lc.rtc, &rh);
             int count = tidy_crossings(mesh, axis, g->h, lc.hits, lc.count);
             int total = 0;
-            for (int c = 0; c < count; ++c) total += lc.hits[c].sign;
+            for (int c = 0; c < count; ++c)
+                total += lc.hits[c].sign;
             /* Walk the voxel centres (at t = h (i + 1)) and the sorted crossings together. */
             int before = 0, c = 0;
             for (int i = 0; i < g->n[axis]; ++i) {
                 float t = (float)(g->h * (i + 1));
-                while (c < count && lc.hits[c].t < t) before += lc.hits[c++].sign;
+                while (c < count && lc.hits[c].t < t)
+                    before += lc.hits[c++].sign;
                 int after = -(total - before);
                 long idx[3];
                 idx[axis] = i, idx[u] = iu, idx[v] = iv;
@@ -234,7 +219,8 @@ pen_status pen__fit_voxelize(pen_context *ctx, const pen_mesh *mesh, int voxels,
     pen_status st = pen__fit_check_mesh(ctx, mesh, lo, hi);
     if (st) return st;
     double longest = 0;
-    for (int a = 0; a < 3; ++a) longest = fmax(longest, (double)hi[a] - (double)lo[a]);
+    for (int a = 0; a < 3; ++a)
+        longest = fmax(longest, (double)hi[a] - (double)lo[a]);
     double padded = longest * (1 + 2 * pad);
     out->h = padded / voxels;
     static const double jitter[3] = {0.0137, 0.0291, 0.0419}; /* of a voxel, see the top */
@@ -272,7 +258,8 @@ pen_status pen__fit_voxelize(pen_context *ctx, const pen_mesh *mesh, int voxels,
         free(votes);
         return pen__error(ctx, PEN_ERROR_MEMORY, "fit: too many surface crossings on a grid line");
     }
-    for (size_t i = 0; i < total; ++i) votes[i] = votes[i] >= 4;
+    for (size_t i = 0; i < total; ++i)
+        votes[i] = votes[i] >= 4;
     out->inside = votes;
     return PEN_OK;
 }
@@ -299,7 +286,8 @@ pen_status pen__fit_sample_surface(pen_context *ctx, const pen_mesh *mesh, int c
     double *cdf = pen__malloc(ctx, (size_t)mesh->triangle_count, sizeof(double), "fit: area table");
     if (!cdf) return PEN_ERROR_MEMORY;
     double sum = 0;
-    for (int t = 0; t < mesh->triangle_count; ++t) cdf[t] = (sum += triangle_area(mesh, t));
+    for (int t = 0; t < mesh->triangle_count; ++t)
+        cdf[t] = (sum += triangle_area(mesh, t));
     *area = sum;
     if (!(sum > 0)) {
         free(cdf);
