@@ -59,11 +59,16 @@ lines=$("$BIN" render "$T/nosuch.json" -o "$T/bad.png" 2>&1 >/dev/null | wc -l)
 # A malformed scene: the key path is named.
 sed 's/"radius": 0.36/"radius": -1/' "$T/scene.json" > "$T/neg.json"
 expect_error "radius" "$T/neg.json" -o "$T/bad.png"
-# A scene asking for fitted spheres: fitted before rendering (and not needed with --no-shadows).
-sed 's/"spheres": \[{"center": \[0, -0.07, 0.3\], "radius": 0.36},/"spheres": {"fit": 4}, "_s": [{"center": [0, -0.07, 0.3], "radius": 0.36},/' \
-    "$T/scene.json" > "$T/fit.json"
+# A scene asking for fitted spheres: fitted before rendering, cached beside the mesh (a copy
+# here, so that the source tree stays untouched) and reused; not needed with --no-shadows.
+cp "$SRC/data/meshes/spot_triangulated.obj" "$T/spot.obj"
+sed -e 's/"spheres": \[{"center": \[0, -0.07, 0.3\], "radius": 0.36},/"spheres": {"fit": 4}, "_s": [{"center": [0, -0.07, 0.3], "radius": 0.36},/' \
+    -e "s|$SRC/data/meshes/spot_triangulated.obj|spot.obj|" "$T/scene.json" > "$T/fit.json"
 out=$("$BIN" render "$T/fit.json" -o "$T/fit.png" --threads 2) || fail "render with a fitted sphere set"
-case "$out" in *"fitted 4 spheres"*"4 spheres, shadows"*) ;; *) fail "fit summary: $out" ;; esac
+case "$out" in *"4 fitted spheres (fitted now"*"4 spheres, shadows"*) ;; *) fail "fit summary: $out" ;; esac
+out=$("$BIN" render "$T/fit.json" -o "$T/fit2.png") || fail "render with a cached fit"
+case "$out" in *"(from the cache"*) ;; *) fail "cached fit summary: $out" ;; esac
+cmp -s "$T/fit.png" "$T/fit2.png" || fail "the cached fit renders differently"
 "$BIN" render "$T/fit.json" -o "$T/fitplain.png" --no-shadows -q || fail "fit scene, --no-shadows"
 # The output folder does not exist: an i/o error, nothing written.
 expect_error "nodir" "$T/scene.json" -o "$T/nodir/bad.png"
