@@ -107,7 +107,8 @@ pen_status pen_render_fwd(pen_context *ctx, const pen_scene *scene, const pen_re
                           pen_render_state *state, pen_image *image);
 
 /* Backward of the last pen_render_fwd with this state: adds the gradient of the loss into
- * `grad` for the groups in `wrt` (PEN_GRAD_*), given d_image (3 channels, image size). */
+ * `grad` for the groups in `wrt` (PEN_GRAD_*), given d_image (3 channels, image size). `opt`
+ * must equal the forward's (NULL: the defaults); the scene must be the forward's, unchanged. */
 pen_status pen_render_bwd(pen_context *ctx, const pen_scene *scene, const pen_render_options *opt,
                           pen_render_state *state, const pen_image *d_image, unsigned wrt,
                           pen_render_grad *grad);
