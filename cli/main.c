@@ -7,7 +7,7 @@
 static const pen_command commands[] = {
     {"render", "SH-shadow render of a scene JSON into .png/.exr/.hdr", pen_cmd_render},
     {"sh-accuracy", "irradiance error of SH visibility against ray-tested truth", pen_cmd_sh_accuracy},
-    {"fit-spheres", "fit a sphere set to a closed mesh (SOV + surface coverage)", pen_cmd_fit_spheres},
+    {"fit-spheres", "fit a sphere set to a closed mesh", pen_cmd_fit_spheres},
 };
 static const int command_count = (int)(sizeof commands / sizeof commands[0]);
 
