@@ -146,7 +146,7 @@ static int blocked(const sample *s, const double w[3]) {
 void pen__accuracy_truth(const float (*spheres)[4], int count, int nq, double *T, double *P) {
     sample s;
     s.count = count;
-    memcpy(s.spheres, spheres, sizeof(float[4]) * (size_t)count);
+    if (count > 0) memcpy(s.spheres, spheres, sizeof(float[4]) * (size_t)count);
     const int nz = nq, np = 2 * nq;
     const double dw = (2.0 / nz) * (2.0 * PEN_PI / np);
     memset(T, 0, sizeof(double) * NC);
