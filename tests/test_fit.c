@@ -126,8 +126,12 @@ static void test_energy_gradient(void) {
     static float vox[3 * NV], surf[3 * NS];
     random_points(&rng, NV, 1.5, vox);
     random_points(&rng, NS, 1.0, surf);
-    pen__fit_problem p = {
-        {NV, vox, 0, NULL, NULL}, {NS, surf, 0, NULL, NULL}, 20.0, 1 / 0.08, PEN__FIT_U_EXACT, 0};
+    pen__fit_problem p = {.sov = {NV, vox, 0, NULL, NULL},
+                          .surf = {NS, surf, 0, NULL, NULL},
+                          .surface_weight = 20.0,
+                          .inv_sigma2 = 1 / 0.08,
+                          .u_max = PEN__FIT_U_EXACT,
+                          .threads = 1};
     double sph[4 * NSPH];
     for (int trial = 0; trial < 4; ++trial) {
         for (int i = 0; i < NSPH; ++i) {
@@ -217,8 +221,13 @@ static void test_energy_cells(void) {
     static double vb[4 * NV], sb[4 * NS];
     random_points(&rng, NV, 1.5, vox);
     random_points(&rng, NS, 1.0, surf);
-    pen__fit_problem plain = {
-        {NV, vox, 0, NULL, NULL}, {NS, surf, 0, NULL, NULL}, 5.0, 1 / 0.01, PEN__FIT_U_FAST, 2};
+    pen__fit_problem plain = {.sov = {NV, vox, 0, NULL, NULL},
+                              .surf = {NS, surf, 0, NULL, NULL},
+                              .surface_weight = 5.0,
+                              .inv_sigma2 = 1 / 0.01,
+                              .u_max = PEN__FIT_U_FAST,
+                              .threads = 2,
+                              .serial_pairs = 0}; /* two threads however small */
     pen__fit_problem culled = plain;
     culled.sov.cells = make_cells(vox, NV, 40, vs, vb);
     culled.sov.cell_start = vs, culled.sov.cell_bound = vb;

@@ -36,6 +36,14 @@
  * spheres that cover the surface bulge out of the bounds, and SOV must be counted there too. */
 #define FIT_PAD 0.12
 #define FIT_LLOYD_STEPS 12
+/* Loops of fewer than this many point-sphere pairs take a millisecond or less and run on one
+ * thread: the energy runs once per Adam step, and waking a thread team that often cost more than
+ * it saved (on a loaded 2-core machine, spinning barriers made the small test fits 15x slower). */
+#define FIT_SERIAL_PAIRS 4e6
+
+static int parallel_worth(double pairs) {
+    return pairs >= FIT_SERIAL_PAIRS;
+}
 /* Cells of the energy's culling: bricks of FIT_BRICK^3 voxels. */
 #define FIT_BRICK 4
 
@@ -173,7 +181,8 @@ static double energy_eval(const pen__fit_problem *p, int count, const double *sp
         return (double)NAN; /* the caller reports it */
     }
     int failed = 0;
-#pragma omp parallel num_threads(threads) reduction(| : failed)
+    double pairs = ((double)p->sov.count + (double)p->surf.count) * count;
+#pragma omp parallel num_threads(threads) if (pairs >= p->serial_pairs) reduction(| : failed)
     {
         int t = omp_get_thread_num();
         point_scratch sc;
@@ -230,7 +239,8 @@ static double dist2(const float *a, const double *b) {
 /* Nearest centre of every point (parallel). */
 static void assign(const float *pts, long n_pts, const double *centres, int k, int threads,
                    int *label) {
-#pragma omp parallel for num_threads(threads) schedule(static)
+#pragma omp parallel for num_threads(threads) if (parallel_worth((double)n_pts * k))               \
+    schedule(static)
     for (long j = 0; j < n_pts; ++j) {
         double best = (double)INFINITY;
         int bi = 0;
@@ -271,7 +281,7 @@ static pen_status kmeans(pen_context *ctx, const float *pts, long n_pts, int k, 
             }
         for (int a = 0; a < 3; ++a)
             sph[4 * i + a] = (double)pts[3 * pick + a];
-#pragma omp parallel for num_threads(threads) schedule(static)
+#pragma omp parallel for num_threads(threads) if (parallel_worth((double)n_pts)) schedule(static)
         for (long j = 0; j < n_pts; ++j)
             d2[j] = fmin(d2[j], dist2(pts + 3 * j, sph + 4 * i));
     }
@@ -312,7 +322,8 @@ static pen_status kmeans(pen_context *ctx, const float *pts, long n_pts, int k, 
 
 /* Radius of each sphere: the distance from its centre to the nearest surface sample. */
 static void inscribe(const float *surf, int n_surf, int k, double r_min, int threads, double *sph) {
-#pragma omp parallel for num_threads(threads) schedule(static)
+#pragma omp parallel for num_threads(threads) if (parallel_worth((double)n_surf * k))              \
+    schedule(static)
     for (int i = 0; i < k; ++i) {
         double best = (double)INFINITY;
         for (int j = 0; j < n_surf; ++j)
@@ -325,7 +336,7 @@ static void inscribe(const float *surf, int n_surf, int k, double r_min, int thr
 
 static long count_covered(const float *pts, long n_pts, const double *sph, int k, int threads) {
     long hits = 0;
-#pragma omp parallel for num_threads(threads) schedule(static) reduction(+ : hits)
+#pragma omp parallel for num_threads(threads) if (parallel_worth((double)n_pts * k)) schedule(static) reduction(+ : hits)
     for (long j = 0; j < n_pts; ++j)
         for (int i = 0; i < k; ++i)
             if (dist2(pts + 3 * j, sph + 4 * i) <= sph[4 * i + 3] * sph[4 * i + 3]) {
@@ -509,7 +520,8 @@ static pen_status prepare(pen_context *ctx, const pen_mesh *mesh, const pen_fit_
 
 /* Distance from each inside voxel centre to the nearest surface sample. */
 static void inside_distances(fit_data *d, int threads) {
-#pragma omp parallel for num_threads(threads) schedule(static)
+#pragma omp parallel for num_threads(threads) if (parallel_worth((double)d->n_inside * d->n_surf)) \
+    schedule(static)
     for (long j = 0; j < d->n_inside; ++j) {
         double best = (double)INFINITY;
         double c[3] = {d->inside_pts[3 * j], d->inside_pts[3 * j + 1], d->inside_pts[3 * j + 2]};
@@ -524,7 +536,8 @@ static int relocate_idle(fit_data *d, int count, double h, int threads, uint8_t 
     int *excl = d->excl;
     memset(excl, 0, sizeof(int) * (size_t)count);
     double *gap = d->gap;
-#pragma omp parallel for num_threads(threads) schedule(static)
+#pragma omp parallel for num_threads(threads) if (parallel_worth((double)d->n_surf * count))       \
+    schedule(static)
     for (int j = 0; j < d->n_surf; ++j) {
         const float *p = d->surf_pts + 3 * (size_t)j;
         int covers = 0, who = -1;
@@ -656,6 +669,7 @@ pen_status pen_spheres_fit(pen_context *ctx, const pen_mesh *mesh, int count,
         .inv_sigma2 = 1 / (2 * r_n * s.margin_voxels * h),
         .u_max = PEN__FIT_U_FAST,
         .threads = threads,
+        .serial_pairs = FIT_SERIAL_PAIRS,
     };
     int iterations = 0;
     adam_run(&p, &s, h, count, &d, &iterations);

@@ -71,6 +71,7 @@ typedef struct pen__fit_problem {
     double inv_sigma2;     /* 1 / sigma^2: phi(s) = tanh(relu(s * inv_sigma2)) */
     double u_max;          /* phi = 1 for s * inv_sigma2 >= u_max (PEN__FIT_U_*) */
     int threads;           /* 0: OpenMP default */
+    double serial_pairs;   /* one thread below this many point-sphere pairs (0: never) */
 } pen__fit_problem;
 
 /* E(C, R) of eq. 5 for `count` spheres given as x, y, z, r (4 doubles each). */

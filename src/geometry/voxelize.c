@@ -157,7 +157,8 @@ static int vote_axis(RTCScene scene, const pen_mesh *mesh, const pen__fit_grid *
     int u = (axis + 1) % 3, v = (axis + 2) % 3;
     long lines = (long)g->n[u] * g->n[v];
     int ok = 1;
-#pragma omp parallel num_threads(threads) reduction(&& : ok)
+    /* A few thousand lines take a few milliseconds: not worth waking a thread team. */
+#pragma omp parallel num_threads(threads) if (lines >= 16384) reduction(&& : ok)
     {
         line_context lc;
         lc.hits = malloc(sizeof(crossing) * (size_t)capacity);
@@ -235,7 +236,9 @@ pen_status pen__fit_voxelize(pen_context *ctx, const pen_mesh *mesh, int voxels,
     uint8_t *votes = pen__calloc(ctx, total, 1, "fit: voxel votes");
     if (!votes) return PEN_ERROR_MEMORY;
 
-    RTCDevice device = rtcNewDevice(NULL);
+    /* One build thread: the BVH of a mesh of this kind builds in milliseconds, less than it takes
+     * to start Embree's worker pool for every fit. */
+    RTCDevice device = rtcNewDevice("threads=1");
     if (!device) {
         free(votes);
         return pen__error(ctx, PEN_ERROR_INTERNAL, "fit: cannot create an Embree device");
