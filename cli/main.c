@@ -6,6 +6,8 @@
 
 static const pen_command commands[] = {
     {"sh-accuracy", "irradiance error of SH visibility against ray-tested truth", pen_cmd_sh_accuracy},
+    {"reference", "ray-traced Monte-Carlo ground truth of a scene (Embree)", pen_cmd_reference},
+    {"compare", "image error (rmse, rel_rmse, psnr) as JSON", pen_cmd_compare},
 };
 static const int command_count = (int)(sizeof commands / sizeof commands[0]);
 

@@ -11,6 +11,8 @@
 #include "penumbra/core.h"
 #include "penumbra/image.h"
 #include "penumbra/mesh.h"
+#include "penumbra/metrics.h"
+#include "penumbra/reference.h"
 #include "penumbra/scene.h"
 #include "penumbra/sh.h"
 #include "penumbra/spheres.h"
