@@ -11,6 +11,7 @@
 #include "check.h"
 
 #include "penumbra/penumbra.h"
+#include "reference/internal.h"
 
 #include <math.h>
 #include <stdint.h>
@@ -134,6 +135,62 @@ static void irradiance_stats(pen_context *ctx, const pen_reference *ref, const f
     for (int ch = 0; ch < 3; ++ch) mean[ch] = sum[ch] / batches;
     double var = fmax(sum2 / batches - mean[0] * mean[0], 0.0) * batches / (batches - 1);
     *se = sqrt(var / batches);
+}
+
+/* ---- The envmap sampler ----------------------------------------------------------------------- */
+
+/* Texel frequencies of many draws match the probabilities (luminance x sin(theta)), black texels
+ * are never drawn, and the density integrates to 1 over the sphere. */
+static void test_envmap_sampler(void) {
+    pen_context *ctx = pen_context_create();
+    const int w = 8, h = 4, draws = check_quick_() ? 50000 : 400000;
+    pen_image env;
+    CHECK(pen_image_create(ctx, w, h, 3, &env) == PEN_OK);
+    unsigned long long seed = 3;
+    for (int i = 0; i < w * h; ++i)
+        for (int ch = 0; ch < 3; ++ch)
+            env.data[3 * i + ch] = i % 5 == 0 ? (ch == 0 ? -1.0f : 0.0f) /* black after clamping */
+                                              : (float)(0.1 + 3 * check_rand_(&seed));
+    pen__envmap_sampler s;
+    CHECK(pen__envmap_sampler_init(ctx, &env, &s) == PEN_OK);
+    int count[8 * 4] = {0};
+    pen__rng rng = pen__rng_stream(7, 0, 0);
+    for (int k = 0; k < draws; ++k) {
+        float r[3] = {pen__rng_next(&rng), pen__rng_next(&rng), pen__rng_next(&rng)}, u, v;
+        int tx, ty;
+        pen__envmap_sampler_sample(&s, pen__rng_next_double(&rng), r, &u, &v, &tx, &ty);
+        CHECK(u >= tx / (float)w && u <= (tx + 1) / (float)w && v >= ty / (float)h &&
+              v <= (ty + 1) / (float)h);
+        ++count[ty * w + tx];
+    }
+    /* expected probabilities from the definition: clamped luminance x sin(theta at row centre) */
+    double want[8 * 4], sum = 0, integral = 0;
+    for (int i = 0; i < w * h; ++i) {
+        const float *t = env.data + 3 * i;
+        double lum = 0.2126 * fmax((double)t[0], 0) + 0.7152 * fmax((double)t[1], 0) +
+                     0.0722 * fmax((double)t[2], 0);
+        want[i] = lum * sin(PI * (i / w + 0.5) / h);
+        sum += want[i];
+    }
+    for (int i = 0; i < w * h; ++i) {
+        double p = want[i] / sum;
+        CHECK_NEAR(s.texel_prob[i], p, 1e-6);
+        double sd = sqrt(draws * p * (1 - p));
+        CHECK_MSG(fabs(count[i] - draws * p) <= 5 * sd + 1, "texel %d: %d draws, expected %g", i,
+                  count[i], draws * p);
+        if (i % 5 == 0) CHECK(count[i] == 0 && p == 0);
+        /* integral of the density over the texel's solid angle, by the midpoint rule in v */
+        int ty = i / w;
+        for (int k = 0; k < 64; ++k) {
+            double vv = (ty + (k + 0.5) / 64) / h, st = sin(PI * vv);
+            integral += (double)pen__envmap_sampler_pdf(&s, i % w, ty, (float)st) * 2 * PI * PI *
+                        st / (64.0 * w * h);
+        }
+    }
+    CHECK_NEAR(integral, 1.0, 1e-5);
+    pen__envmap_sampler_free(&s);
+    pen_image_free(&env);
+    pen_context_destroy(ctx);
 }
 
 /* ---- Analytic: unoccluded plane ---------------------------------------------------------------- */
@@ -493,6 +550,6 @@ static void test_errors(void) {
     pen_context_destroy(ctx);
 }
 
-RUN_TESTS(TEST(test_constant_sh_plane), TEST(test_constant_envmap_plane), TEST(test_sh_plane),
+RUN_TESTS(TEST(test_envmap_sampler), TEST(test_constant_sh_plane), TEST(test_constant_envmap_plane), TEST(test_sh_plane),
           TEST(test_envmap_sh_function), TEST(test_occluding_square), TEST(test_textured_quad),
           TEST(test_convergence), TEST(test_determinism), TEST(test_errors))

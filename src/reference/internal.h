@@ -35,15 +35,25 @@ static inline float pen__rng_next(pen__rng *r) {
     return (float)(pen__rng_mix(r->state) >> 40) * 0x1p-24f;
 }
 
+/* Uniform in [0, 1) with 53 random bits, for choices among more than 2^24 items. */
+static inline double pen__rng_next_double(pen__rng *r) {
+    r->state += 0x9E3779B97F4A7C15ull;
+    return (double)(pen__rng_mix(r->state) >> 11) * 0x1p-53;
+}
+
 /* ---- Environment-map sampling ------------------------------------------------------------------
  * A piecewise-constant 2-D distribution over the texels of an equirectangular map, weight =
  * luminance of the (clamped) texel times the sine of its row's polar angle, i.e. proportional to
- * the texel's contribution to the light arriving from it. */
+ * the texel's contribution to the light arriving from it. Drawn in O(1) by an alias table. */
+typedef struct pen__alias_cell {
+    float threshold;   /* keep the cell with this probability, else take `alias` */
+    uint32_t alias;
+} pen__alias_cell;
+
 typedef struct pen__envmap_sampler {
     int width, height;
     double total;              /* sum of the weights; 0 for a black map (sampling disabled) */
-    double *row_cdf;           /* height + 1 entries, row_cdf[0] = 0, row_cdf[height] = 1 */
-    double *col_cdf;           /* height rows of width + 1 entries, each from 0 to 1 */
+    pen__alias_cell *cells;    /* width * height, row-major like the image */
     float *texel_prob;         /* width * height probabilities, summing to 1 */
 } pen__envmap_sampler;
 
@@ -51,10 +61,11 @@ typedef struct pen__envmap_sampler {
 pen_status pen__envmap_sampler_init(pen_context *ctx, const pen_image *env,
                                     pen__envmap_sampler *s);
 void pen__envmap_sampler_free(pen__envmap_sampler *s);
-/* Draws a texel (from r[0], r[1]) and a point uniform in it (r[2], r[3]), r in [0,1)^4. Returns
- * the map coordinates (u, v) and the texel; the density is pen__envmap_sampler_pdf there. */
-void pen__envmap_sampler_sample(const pen__envmap_sampler *s, const float r[4], float *u, float *v,
-                                int *tx, int *ty);
+/* Draws a texel (from pick, in [0,1) with enough bits to index every texel, and r[0]) and a point
+ * uniform in it (r[1], r[2]), r in [0,1)^3. Returns the map coordinates (u, v) and the texel; the
+ * density is pen__envmap_sampler_pdf there. */
+void pen__envmap_sampler_sample(const pen__envmap_sampler *s, double pick, const float r[3],
+                                float *u, float *v, int *tx, int *ty);
 /* Density in solid angle of a direction that falls in texel (tx, ty), whose polar angle has
  * sine sin_theta: prob(texel) * width * height / (2 pi^2 sin_theta). 0 when sampling is off. */
 float pen__envmap_sampler_pdf(const pen__envmap_sampler *s, int tx, int ty, float sin_theta);

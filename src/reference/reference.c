@@ -187,9 +187,10 @@ static void irradiance_sample(const pen_reference *ref, const float org[3], cons
     float m[3], u, v;
     int tx, ty;
     if (ref->sampler.total > 0) { /* light strategy */
-        float r[4];
-        for (int i = 0; i < 4; ++i) r[i] = pen__rng_next(rng);
-        pen__envmap_sampler_sample(&ref->sampler, r, &u, &v, &tx, &ty);
+        double pick = pen__rng_next_double(rng);
+        float r[3];
+        for (int i = 0; i < 3; ++i) r[i] = pen__rng_next(rng);
+        pen__envmap_sampler_sample(&ref->sampler, pick, r, &u, &v, &tx, &ty);
         pen_envmap_direction(u, v, m);
         map_to_world(ref, m, w);
         float c = dot3(n, w);
