@@ -13,6 +13,7 @@
 #include "penumbra/mesh.h"
 #include "penumbra/metrics.h"
 #include "penumbra/reference.h"
+#include "penumbra/raster.h"
 #include "penumbra/scene.h"
 #include "penumbra/sh.h"
 #include "penumbra/spheres.h"

@@ -7,7 +7,7 @@
  * Lighting: SH coefficients per colour channel, sh[i][ch] for i < sh_bands^2 (index l*l + l + m),
  * radiance units; projected from an equirectangular environment map or given in the JSON.
  * Equirectangular maps: column u in [0,1) is the azimuth, row v in [0,1) the polar angle from +Y
- * (row 0 = zenith); see pen_envmap_direction for the exact map.
+ * (row 0 = zenith, image centre = -Z); see pen_envmap_direction for the exact map.
  */
 #ifndef PENUMBRA_SCENE_H
 #define PENUMBRA_SCENE_H
@@ -49,11 +49,15 @@ typedef struct pen_object {
     pen_mesh mesh;          /* object space */
     pen_image texture;      /* albedo texture (linear RGB), data == NULL if constant albedo */
     float albedo[3];        /* constant albedo (used when texture.data == NULL) */
-    pen_spheres spheres;    /* object space */
+    pen_spheres spheres;    /* object space; empty when none were given or fit_spheres is set */
+    int fit_spheres;        /* "spheres": {"fit": N} asks for N fitted spheres (0: no request);
+                               the loader leaves `spheres` empty for the fitter to fill */
     pen_pose pose;
     char *mesh_path;        /* as resolved when loading, for messages and saving */
-    char *texture_path;
-    char *spheres_path;
+    char *texture_path;     /* NULL for a constant albedo */
+    char *spheres_path;     /* NULL when the spheres were inline, fitted or absent; clear it (free
+                               and set NULL) after changing the spheres so that pen_scene_save
+                               writes them inline instead of referencing the old file */
 } pen_object;
 
 typedef struct pen_ground {
@@ -64,11 +68,11 @@ typedef struct pen_ground {
 } pen_ground;
 
 typedef struct pen_lighting {
-    float sh[PEN_SH_MAX_COEFFS][3];
-    pen_image envmap;       /* data == NULL when lighting is given as SH */
+    float sh[PEN_SH_MAX_COEFFS][3]; /* the lighting used for shading, sh_bands^2 rows */
+    pen_image envmap;       /* raw map as loaded (not rotated or scaled); data == NULL if none */
     char *envmap_path;
-    float scale;
-    float rotation_y_deg;
+    float scale;            /* applied to the map (projection and lookups); 1 without a map */
+    float rotation_y_deg;   /* applied to the map; 0 without a map */
 } pen_lighting;
 
 typedef struct pen_shadow {
@@ -89,22 +93,54 @@ typedef struct pen_scene {
     char *path;                     /* the JSON file, for relative paths and messages */
 } pen_scene;
 
-/* Loads a scene JSON with everything it references (meshes, textures, sphere sets, envmap).
- * Errors name the file and the JSON key path, e.g. "scene.json: camera.width: expected a
- * positive integer, got -3". On failure *out is zeroed. */
+/* Loads a scene JSON (docs/file-formats.md) with everything it references (meshes, textures,
+ * sphere sets, envmap), paths relative to the JSON file. Lighting: "envmap" is projected onto
+ * sh_bands bands (pen_envmap_to_sh) and kept for the background; "sh" gives the coefficients
+ * directly (and wins over the projection when both are present). Errors name the file and the
+ * JSON key path, e.g. "scene.json: camera.width: expected a positive integer, got -3"; errors of
+ * a referenced file are prefixed with the key that named it. Unknown keys are errors (keys
+ * starting with '_' are comments). On failure *out is zeroed. */
 pen_status pen_scene_load(pen_context *ctx, const char *path, pen_scene *out);
+/* The same from JSON text (e.g. a scene embedded in a task file, printed back to text): `path`
+ * names the text in messages and is the base of its relative paths. */
+pen_status pen_scene_parse(pen_context *ctx, const char *json_text, const char *path,
+                           pen_scene *out);
 void pen_scene_free(pen_scene *scene);
 /* Writes a scene JSON that pen_scene_load reads back to the same scene (paths relative to the
- * new file where possible). Atomic. */
+ * new file where possible; the referenced files are not written). Atomic. */
 pen_status pen_scene_save(pen_context *ctx, const char *path, const pen_scene *scene);
+/* Flags of pen_scene_save_ex. PEN_SCENE_SAVE_SH_LIGHTING writes the SH coefficients as "sh" even
+ * when there is an envmap (which is then written too, for the background): for lighting that was
+ * optimized and no longer equals the map's projection. */
+#define PEN_SCENE_SAVE_SH_LIGHTING 1u
+pen_status pen_scene_save_ex(pen_context *ctx, const char *path, const pen_scene *scene,
+                             unsigned flags);
 
-/* Equirectangular map: direction of image point (u, v) in [0,1]^2 and back. */
+/* Equirectangular maps (Y up). u in [0, 1) is the azimuth phi = 2 pi u, v in [0, 1] the polar
+ * angle theta = pi v from +Y:
+ *     dir(u, v) = (-sin(theta) sin(phi), cos(theta), sin(theta) cos(phi)).
+ * Row 0 is the zenith, the middle row the horizon; the image centre (u = 1/2) is the direction
+ * -Z, u = 3/4 is +X, u = 1/4 is -X, and u = 0 is +Z: seen from the origin looking along -Z the
+ * map is not mirrored. Pixel (x, y) of a W x H map covers u in [x/W, (x+1)/W), v in
+ * [y/H, (y+1)/H).
+ * A rotation by rotation_y_deg = a turns the map right-handedly about +Y: map direction d lights
+ * the scene from world direction R_y(a) d, R_y(a) (x, y, z) = (cos a x + sin a z, y,
+ * -sin a x + cos a z). */
 void pen_envmap_direction(float u, float v, float dir[3]);
+/* The inverse (dir need not be unit length; the zero vector gives u = v = 0). */
 void pen_envmap_uv(const float dir[3], float *u, float *v);
-/* Projects an equirectangular map onto `bands` bands with solid-angle weights, after rotating the
- * map by rotation_y_deg about +Y and multiplying by scale: sh[i][ch]. */
+/* Projects an equirectangular map (1 or >= 3 channels; grey is repeated) onto `bands` bands,
+ * after rotating it by rotation_y_deg about +Y and multiplying by scale (finite, >= 0):
+ * sh[i][ch] for i < bands^2. Each pixel is weighted by the exact solid angle of its cell,
+ * (2 pi / W) (cos theta_top - cos theta_bottom), and sampled at its centre; negative pixel values
+ * are clamped to 0. NaN/Inf pixels are an error. */
 pen_status pen_envmap_to_sh(pen_context *ctx, const pen_image *env, int bands,
                             float rotation_y_deg, float scale, float sh[][3]);
+/* The radiance arriving from world direction dir (the background seen along a camera ray):
+ * the map rotated by rotation_y_deg and multiplied by scale, bilinear between texel centres
+ * (wrapping in u, clamped in v), negative texels clamped to 0. An invalid map gives black. */
+void pen_envmap_eval(const pen_image *env, float rotation_y_deg, float scale, const float dir[3],
+                     float rgb[3]);
 
 #ifdef __cplusplus
 }

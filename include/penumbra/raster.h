@@ -1,0 +1,203 @@
+/* penumbra/raster.h -- camera projection, rasterizer (G-buffer), attribute interpolation, edge
+ * antialiasing and the rigid-pose backward: the differentiable visibility stage of the renderer.
+ *
+ * Data flow of one frame (the shading pipeline in src/render drives it):
+ *
+ *     pen_view_init(ctx, &scene->camera, &view);
+ *     pen_pose_points_fwd(&obj->pose, n, obj->mesh.positions, world);        object -> world
+ *     pen_vertex_normals_fwd(ctx, n, world, t, indices, normals);             smooth normals
+ *     pen_raster_gbuffer(ctx, &view, meshes, count, &scene->ground, &gb);       visibility
+ *     pen_interpolate_fwd(&gb, object, indices, world, 3, position);          per-pixel attributes
+ *     (normals likewise, then pen_normalize_fwd; UVs with the mesh's uv_indices)
+ *     ... shade every pixel into `color` (RGB) ...
+ *     pen_antialias_fwd(ctx, &gb, &view, meshes, count, color, 3, image);     silhouette blending
+ *   backward, in reverse:
+ *     pen_antialias_bwd(...)    d_image -> d_color, d_world (silhouette edges)
+ *     ... shading backward: d_color -> d_position, d_normal, d_uv ...
+ *     pen_interpolate_bwd(...)  d_position -> d_world (direct), d_bary
+ *     pen_raster_bary_bwd(...)  d_bary -> d_world (the pixel's point slides over the triangle)
+ *     pen_vertex_normals_bwd(...)  d_normals -> d_world
+ *     pen_pose_points_bwd(...)  d_world -> d_pose
+ *
+ * Conventions:
+ *   - Right-handed world, Y up. Camera per penumbra/scene.h: pinhole, row 0 at the top, pixel
+ *     (px, py) covers [px, px+1) x [py, py+1), its centre is (px + 0.5, py + 0.5); square pixels.
+ *   - Screen coordinates (sx, sy) are in pixels with the same origin; "depth" is the view-space
+ *     distance along the camera's forward axis (not the ray length).
+ *   - Every image-sized buffer is row-major, top row first: element (x, y) is at y * width + x
+ *     (times the channel count).
+ *   - Backward functions take the forward's inputs in the same order, then the gradient of the
+ *     output (d_*), and ADD into the gradients of the inputs; a NULL d_* input is skipped.
+ *   - Floats in the API; sensitive arithmetic (projection, barycentrics, edge crossings) runs in
+ *     double inside.
+ * See docs/rasterizer.md for the G-buffer, the near plane and the antialiasing scheme.
+ */
+#ifndef PENUMBRA_RASTER_H
+#define PENUMBRA_RASTER_H
+
+#include "penumbra/core.h"
+#include "penumbra/scene.h"
+
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* ---- Camera ---------------------------------------------------------------------------------- */
+
+/* A camera prepared for projection: orthonormal frame, focal length in pixels, near plane. */
+typedef struct pen_view {
+    int width, height;
+    double eye[3];
+    double right[3], up[3], forward[3]; /* orthonormal, right-handed: right x up = -forward */
+    double focal;                       /* pixels: height / (2 tan(fov_y / 2)) */
+    double cx, cy;                      /* principal point: width / 2, height / 2 */
+    double near_plane;                  /* depth below which geometry is clipped */
+} pen_view;
+
+/* Validates a camera (size in [1, PEN_IMAGE_MAX_DIM], fov_y in (0, 180) degrees, finite vectors,
+ * eye != target) and prepares the view. The near plane defaults to 1e-3 * |target - eye|; a
+ * caller may overwrite view->near_plane (> 0) afterwards. If `up` is parallel to the viewing
+ * direction another axis is used, as pen_camera_frame does. */
+pen_status pen_view_init(pen_context *ctx, const pen_camera *cam, pen_view *view);
+
+/* World point -> (sx, sy, depth): sx = cx + f (d.right)/(d.forward), sy = cy - f
+ * (d.up)/(d.forward), depth = d.forward with d = p - eye. Points at depth <= 0 give non-finite
+ * screen coordinates; callers test depth against near_plane first. */
+void pen_view_project_fwd(const pen_view *view, const float p[3], float s[3]);
+/* d_p += J^T d_s with J = d(sx, sy, depth)/dp. */
+void pen_view_project_bwd(const pen_view *view, const float p[3], const float d_s[3], float d_p[3]);
+/* The world-space ray direction through image point (px, py), scaled so that its forward
+ * component is 1: the point at depth z on that ray is eye + z * dir. */
+void pen_view_ray(const pen_view *view, double px, double py, double dir[3]);
+
+/* ---- Rigid pose backward (the forward, pen_pose_rotation / pen_pose_apply, is in scene.h) -----
+ */
+
+/* Gradient of a pose: the same fields as pen_pose, holding d/d(field). */
+typedef pen_pose pen_pose_grad;
+
+/* Backward of pen_pose_apply: with out = R(a) * (scale * p) + t, adds d_out's pull-back into
+ * d_pose (rotation_axis_angle_deg per degree, translation, scale) and d_p (each may be NULL).
+ * Exact at and near angle 0 (series expansion of the Rodrigues coefficients). */
+void pen_pose_apply_bwd(const pen_pose *pose, const float p[3], const float d_out[3],
+                        pen_pose_grad *d_pose, float d_p[3]);
+/* pen_pose_apply over n points (3 floats each). `out` may not alias `p`. */
+void pen_pose_points_fwd(const pen_pose *pose, int n, const float *p, float *out);
+/* Backward of pen_pose_points_fwd; reduces over the points in double. */
+void pen_pose_points_bwd(const pen_pose *pose, int n, const float *p, const float *d_out,
+                         pen_pose_grad *d_pose, float *d_p);
+
+/* ---- Rasterizer ------------------------------------------------------------------------------ */
+
+/* A triangle mesh already in world space, borrowed for the call. */
+typedef struct pen_raster_mesh {
+    int vertex_count;
+    int triangle_count;
+    const float *positions;  /* 3 * vertex_count, world space */
+    const uint32_t *indices; /* 3 * triangle_count, into positions */
+    /* 3 * triangle_count from pen_raster_adjacency: for edge k of triangle t (corner k to corner
+     * (k+1) % 3) the vertex of the neighbouring triangle opposite that edge, or -1. Needed by
+     * pen_antialias_*, ignored by the rasterizer; may be NULL when no antialiasing is done. */
+    const int32_t *adjacency;
+} pen_raster_mesh;
+
+/* Surface ids of the G-buffer besides object indices 0, 1, ... */
+#define PEN_SURFACE_BACKGROUND (-1)
+#define PEN_SURFACE_GROUND (-2)
+
+/* Per-pixel visibility, sampled at the pixel centre. For pixel i = y * width + x:
+ *   surface[i]  object index (position in the mesh list), PEN_SURFACE_GROUND or
+ *               PEN_SURFACE_BACKGROUND;
+ *   triangle[i] triangle index within the object, or -1;
+ *   bary[2i], bary[2i+1]  perspective-correct barycentrics (u, v) of the visible point: it is
+ *               (1-u-v) p0 + u p1 + v p2 for the triangle's corners p0, p1, p2; 0 for ground and
+ *               background pixels;
+ *   depth[i]    view depth of the visible point (ground pixels too); INFINITY for background.
+ * Owns its arrays; pen_gbuffer_free releases them. */
+typedef struct pen_gbuffer {
+    int width, height;
+    int32_t *surface;
+    int32_t *triangle;
+    float *bary;
+    float *depth;
+} pen_gbuffer;
+
+pen_status pen_gbuffer_create(pen_context *ctx, int width, int height, pen_gbuffer *out);
+void pen_gbuffer_free(pen_gbuffer *gb);
+
+/* Rasterizes the meshes and the ground plane (may be NULL or disabled) into gb, which must have
+ * the view's size. Both faces of every triangle are drawn (no culling). The ground is the finite
+ * square y = height, |x|, |z| <= half_size, intersected analytically with each pixel's ray.
+ * Geometry in front of view->near_plane is kept; triangles crossing it are clipped exactly (the
+ * per-pixel depth test), and zero-area or edge-on triangles cover nothing. Ties in depth go to
+ * the earlier mesh and triangle, and meshes win ties against the ground. Tiles of 16x16 pixels
+ * are processed in parallel (pen_context_threads); the result does not depend on the thread
+ * count. Fails on a size mismatch, an index out of range or a non-finite position. */
+pen_status pen_raster_gbuffer(pen_context *ctx, const pen_view *view, const pen_raster_mesh *meshes,
+                              int mesh_count, const pen_ground *ground, pen_gbuffer *gb);
+
+/* Backward of the barycentrics of the visible points: with d_bary (2 per pixel, d/du and d/dv),
+ * adds into d_positions[m] (3 * vertex_count, or NULL to skip mesh m) the gradient through the
+ * barycentrics of each pixel's point, which moves on its fixed pixel ray as the triangle moves.
+ * Ground and background pixels are skipped. */
+void pen_raster_bary_bwd(const pen_view *view, const pen_raster_mesh *meshes, int mesh_count,
+                         const pen_gbuffer *gb, const float *d_bary, float *const *d_positions);
+
+/* World position of every non-background pixel's visible point, eye + depth * ray (3 floats per
+ * pixel; background pixels get 0). For ground pixels this is the position to shade; mesh pixels
+ * should use pen_interpolate_fwd of the positions, which carries gradients. */
+void pen_gbuffer_points(const pen_view *view, const pen_gbuffer *gb, float *out);
+
+/* Edge adjacency of a triangle list (see pen_raster_mesh.adjacency): an edge shared by exactly
+ * two triangles records the other triangle's third vertex; boundary and non-manifold edges get
+ * -1 and are always treated as possible silhouettes. adjacency has 3 * triangle_count entries. */
+pen_status pen_raster_adjacency(pen_context *ctx, int vertex_count, int triangle_count,
+                                const uint32_t *indices, int32_t *adjacency);
+
+/* ---- Attribute interpolation ----------------------------------------------------------------- */
+
+/* For every pixel whose surface is `object`: out[i*dim + c] = sum_k b_k values[idx_k*dim + c]
+ * with idx_k = indices[3 * triangle + k] and (b0, b1, b2) = (1-u-v, u, v). Other pixels of out
+ * are left untouched. `indices` may differ from the position indices (UV seams). */
+void pen_interpolate_fwd(const pen_gbuffer *gb, int object, const uint32_t *indices,
+                         const float *values, int dim, float *out);
+/* Adds into d_values (per value, dim each) and d_bary (2 per pixel, may be NULL). */
+void pen_interpolate_bwd(const pen_gbuffer *gb, int object, const uint32_t *indices,
+                         const float *values, int dim, const float *d_out, float *d_values,
+                         float *d_bary);
+
+/* Smooth vertex normals weighted by triangle area: normals[v] = normalize(sum over triangles
+ * around v of (p1 - p0) x (p2 - p0)), summed in double. A vertex whose sum is shorter than 1e-20
+ * (no non-degenerate triangle) gets (0, 0, 0) and no gradient. Fails on an index out of range. */
+pen_status pen_vertex_normals_fwd(pen_context *ctx, int vertex_count, const float *positions,
+                                  int triangle_count, const uint32_t *indices, float *normals);
+pen_status pen_vertex_normals_bwd(pen_context *ctx, int vertex_count, const float *positions,
+                                  int triangle_count, const uint32_t *indices,
+                                  const float *d_normals, float *d_positions);
+
+/* out[i] = v[i] / |v[i]| for n 3-vectors (interpolated normals are no longer unit); a vector of
+ * length below 1e-20 gives (0, 0, 0) and no gradient. `out` may alias `v`. */
+void pen_normalize_fwd(int n, const float *v, float *out);
+void pen_normalize_bwd(int n, const float *v, const float *d_out, float *d_v);
+
+/* ---- Edge antialiasing ----------------------------------------------------------------------- */
+
+/* Blends the colours (channels floats per pixel) of neighbouring pixels across geometric
+ * silhouette edges by the fraction of the pixel the edge leaves to the other side, so that the
+ * image becomes a continuous function of vertex positions (Laine et al. 2020 in idea; the
+ * scheme is in docs/rasterizer.md). Every mesh needs its adjacency. `out` may not alias `color`. */
+pen_status pen_antialias_fwd(pen_context *ctx, const pen_gbuffer *gb, const pen_view *view,
+                             const pen_raster_mesh *meshes, int mesh_count, const float *color,
+                             int channels, float *out);
+/* Adds into d_color (per pixel) and d_positions[m] (3 * vertex_count, or NULL). */
+pen_status pen_antialias_bwd(pen_context *ctx, const pen_gbuffer *gb, const pen_view *view,
+                             const pen_raster_mesh *meshes, int mesh_count, const float *color,
+                             int channels, const float *d_out, float *d_color,
+                             float *const *d_positions);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

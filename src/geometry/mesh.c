@@ -1,0 +1,97 @@
+/* Triangle meshes: freeing, bounds, validation, and loading/saving by file extension. */
+#include "penumbra/mesh.h"
+#include "core/internal.h"
+#include "io/io_internal.h"
+
+#include <stdlib.h>
+#include <string.h>
+
+void pen_mesh_free(pen_mesh *mesh) {
+    if (!mesh) return;
+    free(mesh->positions);
+    free(mesh->indices);
+    free(mesh->uvs);
+    free(mesh->uv_indices);
+    free(mesh->normals);
+    free(mesh->normal_indices);
+    free(mesh->texture_path);
+    memset(mesh, 0, sizeof *mesh);
+}
+
+void pen_mesh_bounds(const pen_mesh *mesh, float lo[3], float hi[3]) {
+    for (int k = 0; k < 3; ++k) {
+        lo[k] = mesh->vertex_count > 0 ? mesh->positions[k] : 0.0f;
+        hi[k] = lo[k];
+    }
+    for (int i = 1; i < mesh->vertex_count; ++i) {
+        const float *p = mesh->positions + 3 * (size_t)i;
+        for (int k = 0; k < 3; ++k) {
+            lo[k] = p[k] < lo[k] ? p[k] : lo[k];
+            hi[k] = p[k] > hi[k] ? p[k] : hi[k];
+        }
+    }
+}
+
+/* Every index of `which` below count. */
+static pen_status check_indices(pen_context *ctx, const uint32_t *idx, int triangles, int count,
+                                const char *which) {
+    for (size_t c = 0; c < 3 * (size_t)triangles; ++c)
+        if (idx[c] >= (uint32_t)count)
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "mesh: triangle %zu: %s index %u out of range [0, %d)", c / 3, which,
+                              idx[c], count);
+    return PEN_OK;
+}
+
+static pen_status check_finite(pen_context *ctx, const float *v, int count, int dim,
+                               const char *which) {
+    for (size_t i = 0; i < (size_t)count * (size_t)dim; ++i)
+        if (!isfinite(v[i]))
+            return pen__error(ctx, PEN_ERROR_ARGUMENT, "mesh: %s %zu is not finite", which,
+                              i / (size_t)dim);
+    return PEN_OK;
+}
+
+pen_status pen_mesh_validate(pen_context *ctx, const pen_mesh *mesh) {
+    if (!mesh || mesh->vertex_count <= 0 || mesh->triangle_count <= 0 || !mesh->positions ||
+        !mesh->indices)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "mesh: no vertices or no triangles");
+    if ((size_t)mesh->vertex_count > PEN_MAX_ELEMENTS ||
+        (size_t)mesh->triangle_count > PEN_MAX_ELEMENTS ||
+        (size_t)mesh->uv_count > PEN_MAX_ELEMENTS ||
+        (size_t)mesh->normal_count > PEN_MAX_ELEMENTS || mesh->uv_count < 0 ||
+        mesh->normal_count < 0)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "mesh: counts out of range");
+    if ((mesh->uv_count > 0 && (!mesh->uvs || !mesh->uv_indices)) ||
+        (mesh->normal_count > 0 && (!mesh->normals || !mesh->normal_indices)))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "mesh: missing UV or normal arrays");
+    pen_status s = check_finite(ctx, mesh->positions, mesh->vertex_count, 3, "vertex");
+    if (!s)
+        s = check_indices(ctx, mesh->indices, mesh->triangle_count, mesh->vertex_count, "vertex");
+    if (!s && mesh->uv_count > 0) {
+        s = check_finite(ctx, mesh->uvs, mesh->uv_count, 2, "texture coordinate");
+        if (!s)
+            s = check_indices(ctx, mesh->uv_indices, mesh->triangle_count, mesh->uv_count,
+                              "texture coordinate");
+    }
+    if (!s && mesh->normal_count > 0) {
+        s = check_finite(ctx, mesh->normals, mesh->normal_count, 3, "normal");
+        if (!s)
+            s = check_indices(ctx, mesh->normal_indices, mesh->triangle_count, mesh->normal_count,
+                              "normal");
+    }
+    return s;
+}
+
+pen_status pen_mesh_load(pen_context *ctx, const char *path, pen_mesh *out) {
+    memset(out, 0, sizeof *out);
+    if (pen__io_has_ext(path, "obj")) return pen_mesh_load_obj(ctx, path, out);
+    if (pen__io_has_ext(path, "ply")) return pen_mesh_load_ply(ctx, path, out);
+    return pen__error(ctx, PEN_ERROR_UNSUPPORTED,
+                      "%s: unknown mesh format (expected a .obj or .ply file)", path);
+}
+
+pen_status pen_mesh_save(pen_context *ctx, const char *path, const pen_mesh *mesh) {
+    if (pen__io_has_ext(path, "obj")) return pen_mesh_save_obj(ctx, path, mesh);
+    return pen__error(ctx, PEN_ERROR_UNSUPPORTED, "%s: meshes are saved as .obj only", path);
+}

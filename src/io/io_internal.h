@@ -1,0 +1,101 @@
+/* Internal helpers of the file formats (src/io/): whole-file reads with a size cap, atomic
+ * writes (temporary file + rename), paths relative to a referencing file, JSON values with key
+ * paths in their error messages, and the OpenEXR bridge. Not installed. */
+#ifndef PEN_IO_INTERNAL_H
+#define PEN_IO_INTERNAL_H
+
+#include "core/internal.h"
+#include "penumbra/image.h"
+
+#include <cjson/cJSON.h>
+#include <stdio.h>
+
+/* ---- Files (src/io/file.c) ------------------------------------------------------------------- */
+
+/* Reads a whole file into a NUL-terminated buffer (*size excludes the NUL). Files larger than
+ * max_bytes are an error (PEN_ERROR_IO naming the file), so a stray multi-gigabyte input fails
+ * before it is read. The caller frees *data. */
+pen_status pen__io_read_file(pen_context *ctx, const char *path, size_t max_bytes, char **data,
+                             size_t *size);
+
+/* Atomic writes: pen__io_temp_create makes an empty file "<path>.tmp-XXXXXX" beside `path`
+ * (mode 0644) and returns its name (malloc'd); the caller writes it completely, then
+ * pen__io_temp_commit renames it over `path`, or pen__io_temp_discard removes it. Both free
+ * the name. */
+pen_status pen__io_temp_create(pen_context *ctx, const char *path, char **tmp_path);
+pen_status pen__io_temp_commit(pen_context *ctx, char *tmp_path, const char *path);
+void pen__io_temp_discard(char *tmp_path);
+/* Writes `size` bytes of text atomically (temp + rename). */
+pen_status pen__io_write_file(pen_context *ctx, const char *path, const char *data, size_t size);
+
+/* ---- Paths (src/io/file.c) ------------------------------------------------------------------- */
+
+/* 1 if the extension of path (after the last '.', case-insensitive) equals ext (no dot). */
+int pen__io_has_ext(const char *path, const char *ext);
+/* A malloc'd copy of s (NULL on exhaustion, recorded in ctx). */
+char *pen__io_strdup(pen_context *ctx, const char *s);
+/* `rel` resolved against the folder holding `base_file`: absolute paths and a base without a
+ * folder leave rel as is. malloc'd. */
+char *pen__io_path_resolve(pen_context *ctx, const char *base_file, const char *rel);
+/* The path of the existing file `target` written relative to the folder that will hold
+ * `new_file` (which need not exist yet; its folder must). Falls back to the absolute path of
+ * target, or target itself, when no relative form can be computed. malloc'd. */
+char *pen__io_path_relative(pen_context *ctx, const char *new_file, const char *target);
+
+/* ---- JSON with key paths (src/io/json.c) ---------------------------------------------------
+ * Every reader takes the file name and the key path of the item ("camera.eye[2]") so that its
+ * one error line reads "scene.json: camera.eye[2]: expected a finite number, got a string". */
+
+typedef struct pen__json_where {
+    const char *file;
+    char key[256];
+} pen__json_where;
+
+/* Parses a JSON text (NUL-terminated at text[size]); a syntax error names file:line:column. */
+pen_status pen__json_parse(pen_context *ctx, const char *file, const char *text, size_t size,
+                           cJSON **root);
+/* Reads and parses a file (size-capped). */
+pen_status pen__json_load(pen_context *ctx, const char *path, cJSON **root);
+/* Child key paths: "parent.name" or "name" at the top, and "parent[i]". */
+void pen__json_child(const pen__json_where *parent, const char *name, pen__json_where *child);
+void pen__json_index(const pen__json_where *parent, int index, pen__json_where *child);
+/* A short description of an item's type for messages ("a string", "null", ...). */
+const char *pen__json_type_name(const cJSON *item);
+/* Records "file: key: <what>" (what is a printf format) and returns status. */
+pen_status pen__json_error(pen_context *ctx, pen_status status, const pen__json_where *w,
+                           const char *fmt, ...) PEN_PRINTF(4, 5);
+
+/* A finite number in [lo, hi]. `what` describes the expectation ("a positive number"). */
+pen_status pen__json_number(pen_context *ctx, const pen__json_where *w, const cJSON *item,
+                            double lo, double hi, const char *what, double *out);
+/* An integer in [lo, hi]. */
+pen_status pen__json_int(pen_context *ctx, const pen__json_where *w, const cJSON *item, int lo,
+                         int hi, const char *what, int *out);
+/* An array of exactly n finite numbers in [lo, hi], stored as floats. */
+pen_status pen__json_floats(pen_context *ctx, const pen__json_where *w, const cJSON *item, int n,
+                            double lo, double hi, float *out);
+/* A non-empty string. */
+pen_status pen__json_string(pen_context *ctx, const pen__json_where *w, const cJSON *item,
+                            const char **out);
+/* Fails on any member of object `obj` whose name is not in the NULL-terminated list `known`
+ * (members whose names start with '_' are comments and allowed). */
+pen_status pen__json_known_keys(pen_context *ctx, const pen__json_where *w, const cJSON *obj,
+                                const char *const *known);
+/* A JSON number for a float with the fewest decimal digits that read back to the same float
+ * (so 0.3f is written 0.3, not 0.30000001192092896). NULL on exhaustion. */
+cJSON *pen__json_float(float value);
+cJSON *pen__json_float_array(const float *v, int n);
+
+/* ---- OpenEXR (src/io/exr.cpp) -------------------------------------------------------------
+ * C++ because the bundled maps use DWAB compression, which OpenEXR 3.1 decodes only in its C++
+ * library (OpenEXRCore's C decoder stops at "not yet implemented"), and its C RGBA interface
+ * rounds everything to half floats. Exceptions never leave these functions. */
+
+/* Loads R, G, B (or Y as grey) as 32-bit floats into a 3-channel image; A is ignored. */
+pen_status pen__exr_load(pen_context *ctx, const char *path, pen_image *out);
+/* Writes 32-bit float channels (1: Y, 2: Y A, 3: R G B, 4: R G B A) with ZIP compression to
+ * file_name; messages name `path` (the caller writes a temporary file and renames it). */
+pen_status pen__exr_save(pen_context *ctx, const char *path, const char *file_name,
+                         const pen_image *image);
+
+#endif

@@ -1,0 +1,513 @@
+/* Wavefront OBJ meshes (and the map_Kd of their MTL materials).
+ *
+ * Two passes over the file held in memory: the first counts v, vt, vn and the triangles the
+ * faces will make, so every array is allocated once at its exact size (and absurd counts fail
+ * before any allocation); the second parses and fills. Faces are triangulated as fans around
+ * their first corner. Positive indices may refer to vertices defined later in the file (they are
+ * checked against the final counts); negative indices are relative to the vertices defined so
+ * far (-1 is the latest). Index 0 does not exist in OBJ. Every corner of every face must have
+ * the same kind of reference (v, v/vt, v//vn or v/vt/vn): a mesh has one UV and one normal
+ * index per triangle corner or none at all.
+ *
+ * Materials: the texture of the first `usemtl` material (in file order) whose MTL entry has a
+ * `map_Kd` becomes mesh.texture_path, resolved relative to the .mtl file. A missing .mtl file is
+ * not an error (OBJ files often travel without theirs): the mesh simply has no texture path.
+ * Every statement other than v, vt, vn, f, mtllib and usemtl is ignored. */
+#include "io/io_internal.h"
+#include "penumbra/mesh.h"
+
+#include <errno.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define OBJ_MAX_BYTES ((size_t)1 << 32)
+
+/* A line of the file: [p, end), with its 1-based number. */
+typedef struct line {
+    const char *p, *end;
+    int number;
+} line;
+
+/* Moves *cursor to the next line; returns 0 at the end of the text. */
+static int next_line(const char **cursor, const char *text_end, line *ln) {
+    if (*cursor >= text_end) return 0;
+    const char *p = *cursor;
+    const char *nl = memchr(p, '\n', (size_t)(text_end - p));
+    const char *end = nl ? nl : text_end;
+    *cursor = nl ? nl + 1 : text_end;
+    if (end > p && end[-1] == '\r') --end;
+    ln->p = p;
+    ln->end = end;
+    ++ln->number;
+    return 1;
+}
+
+static void skip_blanks(const char **p, const char *end) {
+    while (*p < end && (**p == ' ' || **p == '\t'))
+        ++*p;
+}
+
+/* The next blank-separated token of a line as [start, start + length); length 0 at the end. */
+static size_t next_token(const char **p, const char *end, const char **start) {
+    skip_blanks(p, end);
+    *start = *p;
+    while (*p < end && **p != ' ' && **p != '\t')
+        ++*p;
+    return (size_t)(*p - *start);
+}
+
+static int token_is(const char *t, size_t n, const char *word) {
+    return strlen(word) == n && memcmp(t, word, n) == 0;
+}
+
+/* The rest of the line without surrounding blanks, as a malloc'd string with backslashes turned
+ * into slashes (Windows exporters write "textures\wood.png"). */
+static char *rest_of_line(pen_context *ctx, const char *p, const char *end) {
+    skip_blanks(&p, end);
+    while (end > p && (end[-1] == ' ' || end[-1] == '\t'))
+        --end;
+    size_t n = (size_t)(end - p);
+    char *s = pen__malloc(ctx, n + 1, 1, "OBJ name");
+    if (!s) return NULL;
+    for (size_t i = 0; i < n; ++i)
+        s[i] = p[i] == '\\' ? '/' : p[i];
+    s[n] = '\0';
+    return s;
+}
+
+/* ---- MTL ------------------------------------------------------------------------------------- */
+
+typedef struct material {
+    char *name;
+    char *map_kd; /* resolved path, or NULL */
+} material;
+
+typedef struct materials {
+    material *items;
+    int count, cap;
+} materials;
+
+static void materials_free(materials *m) {
+    for (int i = 0; i < m->count; ++i) {
+        free(m->items[i].name);
+        free(m->items[i].map_kd);
+    }
+    free(m->items);
+    memset(m, 0, sizeof *m);
+}
+
+static pen_status materials_add(pen_context *ctx, materials *m, char *name) {
+    if (m->count == m->cap) {
+        int cap = m->cap ? 2 * m->cap : 8;
+        material *grown = cap > (1 << 20) ? NULL : realloc(m->items, (size_t)cap * sizeof *grown);
+        if (!grown) {
+            free(name);
+            return pen__error(ctx, PEN_ERROR_MEMORY, "too many materials");
+        }
+        m->items = grown;
+        m->cap = cap;
+    }
+    m->items[m->count].name = name;
+    m->items[m->count].map_kd = NULL;
+    ++m->count;
+    return PEN_OK;
+}
+
+/* Skips the options of a map_Kd statement ("-s 1 1 1 -clamp on file.png"): each option is
+ * followed by its arguments; -o, -s and -t take one to three numbers. */
+static void skip_map_options(const char **p, const char *end) {
+    static const struct {
+        const char *name;
+        int args;
+    } options[] = {
+        {"-blendu", 1},  {"-blendv", 1}, {"-bm", 1},     {"-boost", 1}, {"-cc", 1}, {"-clamp", 1},
+        {"-imfchan", 1}, {"-mm", 2},     {"-texres", 1}, {"-o", -3},    {"-s", -3}, {"-t", -3},
+    };
+    for (;;) {
+        const char *save = *p, *t;
+        size_t n = next_token(p, end, &t);
+        int args = 0;
+        for (size_t k = 0; k < sizeof options / sizeof options[0]; ++k)
+            if (token_is(t, n, options[k].name)) args = options[k].args;
+        if (args == 0) {
+            *p = save;
+            return;
+        }
+        for (int a = 0; a < (args < 0 ? -args : args); ++a) {
+            const char *save_arg = *p, *v;
+            size_t vn = next_token(p, end, &v);
+            if (args < 0 && a > 0) { /* optional numeric arguments */
+                char *stop = NULL;
+                strtod(v, &stop);
+                if (vn == 0 || stop != v + vn) {
+                    *p = save_arg;
+                    break;
+                }
+            }
+        }
+    }
+}
+
+/* Reads the newmtl / map_Kd pairs of an MTL file into m. A file that cannot be opened adds
+ * nothing (see the design note above). */
+static pen_status mtl_read(pen_context *ctx, const char *mtl_path, materials *m) {
+    FILE *probe = fopen(mtl_path, "rb");
+    if (!probe) return PEN_OK;
+    fclose(probe);
+    char *text = NULL;
+    size_t size = 0;
+    pen_status s = pen__io_read_file(ctx, mtl_path, (size_t)64 << 20, &text, &size);
+    if (s) return s;
+    const char *cursor = text;
+    line ln = {0};
+    while (s == PEN_OK && next_line(&cursor, text + size, &ln)) {
+        const char *p = ln.p, *t;
+        size_t n = next_token(&p, ln.end, &t);
+        if (token_is(t, n, "newmtl")) {
+            char *name = rest_of_line(ctx, p, ln.end);
+            s = name ? materials_add(ctx, m, name) : PEN_ERROR_MEMORY;
+        } else if (token_is(t, n, "map_Kd") && m->count > 0) {
+            skip_map_options(&p, ln.end);
+            char *file = rest_of_line(ctx, p, ln.end);
+            if (!file) {
+                s = PEN_ERROR_MEMORY;
+            } else if (!file[0]) {
+                s = pen__error(ctx, PEN_ERROR_PARSE, "%s:%d: map_Kd without a file name", mtl_path,
+                               ln.number);
+            } else {
+                material *cur = &m->items[m->count - 1];
+                free(cur->map_kd);
+                cur->map_kd = pen__io_path_resolve(ctx, mtl_path, file);
+                if (!cur->map_kd) s = PEN_ERROR_MEMORY;
+            }
+            free(file);
+        }
+    }
+    free(text);
+    return s;
+}
+
+/* ---- OBJ ------------------------------------------------------------------------------------- */
+
+typedef struct obj_state {
+    pen_context *ctx;
+    const char *path;
+    pen_mesh *mesh;
+    long nv, nvt, nvn; /* final counts (pass 1) */
+    long seen_v, seen_vt, seen_vn;
+    long tri;           /* triangles written so far */
+    int has_vt, has_vn; /* -1: not decided yet (no face seen) */
+    materials mats;
+} obj_state;
+
+/* Parses `count` numbers of a v / vt / vn statement into out (at least `required`; the others
+ * default to 0; extra numbers such as vertex colours are ignored). */
+static pen_status parse_floats(obj_state *st, const line *ln, const char *p, int required,
+                               int count, float *out) {
+    for (int k = 0; k < count; ++k) {
+        skip_blanks(&p, ln->end);
+        if (p == ln->end) {
+            if (k < required)
+                return pen__error(st->ctx, PEN_ERROR_PARSE, "%s:%d: expected %d numbers, got %d",
+                                  st->path, ln->number, required, k);
+            out[k] = 0.0f;
+            continue;
+        }
+        char *stop = NULL;
+        errno = 0;
+        double v = strtod(p, &stop);
+        if (stop == p || stop > ln->end || (stop < ln->end && *stop != ' ' && *stop != '\t'))
+            return pen__error(st->ctx, PEN_ERROR_PARSE, "%s:%d: malformed number '%.*s'", st->path,
+                              ln->number, (int)strcspn(p, " \t\r\n"), p);
+        if (!isfinite(v) || !isfinite((float)v))
+            return pen__error(st->ctx, PEN_ERROR_PARSE,
+                              "%s:%d: coordinate %d is not a finite float ('%.*s')", st->path,
+                              ln->number, k + 1, (int)(stop - p), p);
+        out[k] = (float)v;
+        p = stop;
+    }
+    return PEN_OK;
+}
+
+/* Resolves one OBJ index (1-based, or negative relative to `seen`) to a 0-based one in
+ * [0, total). `kind` names the array for messages. */
+static pen_status resolve_index(obj_state *st, const line *ln, long idx, long seen, long total,
+                                const char *kind, uint32_t *out) {
+    if (idx == 0)
+        return pen__error(st->ctx, PEN_ERROR_PARSE,
+                          "%s:%d: %s index 0 is invalid (OBJ indices start at 1)", st->path,
+                          ln->number, kind);
+    if (idx < 0) {
+        if (-idx > seen)
+            return pen__error(st->ctx, PEN_ERROR_PARSE,
+                              "%s:%d: relative %s index %ld reaches before the first one "
+                              "(%ld defined so far)",
+                              st->path, ln->number, kind, idx, seen);
+        *out = (uint32_t)(seen + idx);
+        return PEN_OK;
+    }
+    if (idx > total)
+        return pen__error(st->ctx, PEN_ERROR_PARSE, "%s:%d: %s index %ld out of range [1, %ld]",
+                          st->path, ln->number, kind, idx, total);
+    *out = (uint32_t)(idx - 1);
+    return PEN_OK;
+}
+
+/* Parses an integer of a face corner; *p advances past it. */
+static int parse_long(const char **p, const char *end, long *out) {
+    char *stop = NULL;
+    errno = 0;
+    long v = strtol(*p, &stop, 10);
+    if (stop == *p || stop > end || errno) return 0;
+    *p = stop;
+    *out = v;
+    return 1;
+}
+
+typedef struct corner {
+    uint32_t v, vt, vn;
+} corner;
+
+/* Parses one corner token "v", "v/vt", "v//vn" or "v/vt/vn" spanning [t, t + n). */
+static pen_status parse_corner(obj_state *st, const line *ln, const char *t, size_t n, corner *c) {
+    const char *p = t, *end = t + n;
+    long iv = 0, ivt = 0, ivn = 0;
+    int has_vt = 0, has_vn = 0;
+    int ok = parse_long(&p, end, &iv);
+    if (ok && p < end && *p == '/') {
+        ++p;
+        if (p < end && *p != '/') {
+            ok = parse_long(&p, end, &ivt);
+            has_vt = 1;
+        }
+        if (ok && p < end && *p == '/') {
+            ++p;
+            ok = parse_long(&p, end, &ivn);
+            has_vn = 1;
+        } else if (!has_vt) {
+            ok = 0; /* "1/" */
+        }
+    }
+    if (!ok || p != end)
+        return pen__error(st->ctx, PEN_ERROR_PARSE, "%s:%d: malformed face corner '%.*s'", st->path,
+                          ln->number, (int)n, t);
+    if (st->has_vt < 0) {
+        st->has_vt = has_vt;
+        st->has_vn = has_vn;
+    } else if (has_vt != st->has_vt || has_vn != st->has_vn) {
+        return pen__error(st->ctx, PEN_ERROR_PARSE,
+                          "%s:%d: face corner '%.*s' mixes reference kinds (earlier corners %s "
+                          "texture coordinates and %s normals)",
+                          st->path, ln->number, (int)n, t, st->has_vt ? "have" : "have no",
+                          st->has_vn ? "have" : "have no");
+    }
+    pen_status s = resolve_index(st, ln, iv, st->seen_v, st->nv, "vertex", &c->v);
+    if (!s && has_vt)
+        s = resolve_index(st, ln, ivt, st->seen_vt, st->nvt, "texture coordinate", &c->vt);
+    if (!s && has_vn) s = resolve_index(st, ln, ivn, st->seen_vn, st->nvn, "normal", &c->vn);
+    return s;
+}
+
+static void put_triangle(obj_state *st, const corner *a, const corner *b, const corner *c) {
+    pen_mesh *m = st->mesh;
+    size_t o = 3 * (size_t)st->tri++;
+    const corner *k[3] = {a, b, c};
+    for (int i = 0; i < 3; ++i) {
+        m->indices[o + i] = k[i]->v;
+        if (st->has_vt) m->uv_indices[o + i] = k[i]->vt;
+        if (st->has_vn) m->normal_indices[o + i] = k[i]->vn;
+    }
+}
+
+static pen_status parse_face(obj_state *st, const line *ln, const char *p) {
+    corner first = {0, 0, 0}, prev = first, cur = first;
+    int n = 0;
+    const char *t;
+    size_t len;
+    while ((len = next_token(&p, ln->end, &t)) > 0) {
+        pen_status s = parse_corner(st, ln, t, len, &cur);
+        if (s) return s;
+        if (n == 0) first = cur;
+        if (n >= 2) put_triangle(st, &first, &prev, &cur);
+        prev = cur;
+        ++n;
+    }
+    if (n < 3)
+        return pen__error(st->ctx, PEN_ERROR_PARSE, "%s:%d: face with %d corner%s (needs 3)",
+                          st->path, ln->number, n, n == 1 ? "" : "s");
+    return PEN_OK;
+}
+
+/* Pass 1: counts. Faces contribute (corners - 2) triangles. */
+static pen_status count_elements(obj_state *st, const char *text, size_t size, long *tris) {
+    const char *cursor = text;
+    line ln = {0};
+    *tris = 0;
+    while (next_line(&cursor, text + size, &ln)) {
+        const char *p = ln.p, *t;
+        size_t n = next_token(&p, ln.end, &t);
+        if (token_is(t, n, "v")) {
+            ++st->nv;
+        } else if (token_is(t, n, "vt")) {
+            ++st->nvt;
+        } else if (token_is(t, n, "vn")) {
+            ++st->nvn;
+        } else if (token_is(t, n, "f")) {
+            long corners = 0;
+            while (next_token(&p, ln.end, &t) > 0)
+                ++corners;
+            if (corners > 2) *tris += corners - 2;
+        }
+        if ((size_t)st->nv > PEN_MAX_ELEMENTS || (size_t)st->nvt > PEN_MAX_ELEMENTS ||
+            (size_t)st->nvn > PEN_MAX_ELEMENTS || (size_t)*tris > PEN_MAX_ELEMENTS)
+            return pen__error(st->ctx, PEN_ERROR_PARSE, "%s:%d: more than %zu elements of one kind",
+                              st->path, ln.number, (size_t)PEN_MAX_ELEMENTS);
+    }
+    if (st->nv == 0) return pen__error(st->ctx, PEN_ERROR_PARSE, "%s: no vertices", st->path);
+    if (*tris == 0) return pen__error(st->ctx, PEN_ERROR_PARSE, "%s: no faces", st->path);
+    return PEN_OK;
+}
+
+static pen_status use_material(obj_state *st, const line *ln, const char *p) {
+    if (st->mesh->texture_path) return PEN_OK;
+    char *name = rest_of_line(st->ctx, p, ln->end);
+    if (!name) return PEN_ERROR_MEMORY;
+    for (int i = 0; i < st->mats.count; ++i) {
+        const material *mt = &st->mats.items[i];
+        if (mt->map_kd && strcmp(mt->name, name) == 0) {
+            st->mesh->texture_path = pen__io_strdup(st->ctx, mt->map_kd);
+            if (!st->mesh->texture_path) {
+                free(name);
+                return PEN_ERROR_MEMORY;
+            }
+            break;
+        }
+    }
+    free(name);
+    return PEN_OK;
+}
+
+/* Pass 2: fill the arrays. */
+static pen_status parse_elements(obj_state *st, const char *text, size_t size) {
+    pen_mesh *m = st->mesh;
+    const char *cursor = text;
+    line ln = {0};
+    pen_status s = PEN_OK;
+    while (!s && next_line(&cursor, text + size, &ln)) {
+        const char *p = ln.p, *t;
+        size_t n = next_token(&p, ln.end, &t);
+        if (token_is(t, n, "v")) {
+            s = parse_floats(st, &ln, p, 3, 3, m->positions + 3 * st->seen_v++);
+        } else if (token_is(t, n, "vt")) {
+            s = parse_floats(st, &ln, p, 1, 2, m->uvs + 2 * st->seen_vt++);
+        } else if (token_is(t, n, "vn")) {
+            s = parse_floats(st, &ln, p, 3, 3, m->normals + 3 * st->seen_vn++);
+        } else if (token_is(t, n, "f")) {
+            s = parse_face(st, &ln, p);
+        } else if (token_is(t, n, "mtllib")) {
+            char *name = rest_of_line(st->ctx, p, ln.end);
+            char *mtl = name ? pen__io_path_resolve(st->ctx, st->path, name) : NULL;
+            s = mtl ? mtl_read(st->ctx, mtl, &st->mats) : PEN_ERROR_MEMORY;
+            free(name);
+            free(mtl);
+        } else if (token_is(t, n, "usemtl")) {
+            s = use_material(st, &ln, p);
+        }
+    }
+    return s;
+}
+
+pen_status pen_mesh_load_obj(pen_context *ctx, const char *path, pen_mesh *out) {
+    memset(out, 0, sizeof *out);
+    char *text = NULL;
+    size_t size = 0;
+    pen_status s = pen__io_read_file(ctx, path, OBJ_MAX_BYTES, &text, &size);
+    if (s) return s;
+    obj_state st = {.ctx = ctx, .path = path, .mesh = out, .has_vt = -1, .has_vn = -1};
+    long tris = 0;
+    s = count_elements(&st, text, size, &tris);
+    if (!s) {
+        out->vertex_count = (int)st.nv;
+        out->triangle_count = (int)tris;
+        out->positions = pen__malloc(ctx, 3 * (size_t)st.nv, sizeof(float), path);
+        out->indices = pen__malloc(ctx, 3 * (size_t)tris, sizeof(uint32_t), path);
+        out->uvs = pen__malloc(ctx, 2 * (size_t)st.nvt, sizeof(float), path);
+        out->uv_indices = pen__malloc(ctx, 3 * (size_t)tris, sizeof(uint32_t), path);
+        out->normals = pen__malloc(ctx, 3 * (size_t)st.nvn, sizeof(float), path);
+        out->normal_indices = pen__malloc(ctx, 3 * (size_t)tris, sizeof(uint32_t), path);
+        if (!out->positions || !out->indices || !out->uvs || !out->uv_indices || !out->normals ||
+            !out->normal_indices)
+            s = PEN_ERROR_MEMORY;
+    }
+    if (!s) s = parse_elements(&st, text, size);
+    free(text);
+    materials_free(&st.mats);
+    if (s) {
+        pen_mesh_free(out);
+        return s;
+    }
+    /* Keep UVs and normals only when the faces use them. */
+    if (st.has_vt == 1) {
+        out->uv_count = (int)st.nvt;
+    } else {
+        free(out->uvs);
+        free(out->uv_indices);
+        out->uvs = NULL;
+        out->uv_indices = NULL;
+    }
+    if (st.has_vn == 1) {
+        out->normal_count = (int)st.nvn;
+    } else {
+        free(out->normals);
+        free(out->normal_indices);
+        out->normals = NULL;
+        out->normal_indices = NULL;
+    }
+    return PEN_OK;
+}
+
+/* ---- Writing --------------------------------------------------------------------------------- */
+
+pen_status pen_mesh_save_obj(pen_context *ctx, const char *path, const pen_mesh *mesh) {
+    pen_status s = pen_mesh_validate(ctx, mesh);
+    if (s) return s;
+    char *tmp = NULL;
+    s = pen__io_temp_create(ctx, path, &tmp);
+    if (s) return s;
+    FILE *f = fopen(tmp, "w");
+    if (!f) {
+        pen__io_temp_discard(tmp);
+        return pen__error(ctx, PEN_ERROR_IO, "%s: cannot write", path);
+    }
+    fprintf(f, "# penumbra %s: %d vertices, %d triangles\n", pen_version(), mesh->vertex_count,
+            mesh->triangle_count);
+    for (int i = 0; i < mesh->vertex_count; ++i) {
+        const float *p = mesh->positions + 3 * (size_t)i;
+        fprintf(f, "v %.9g %.9g %.9g\n", (double)p[0], (double)p[1], (double)p[2]);
+    }
+    for (int i = 0; i < mesh->uv_count; ++i) {
+        const float *t = mesh->uvs + 2 * (size_t)i;
+        fprintf(f, "vt %.9g %.9g\n", (double)t[0], (double)t[1]);
+    }
+    for (int i = 0; i < mesh->normal_count; ++i) {
+        const float *n = mesh->normals + 3 * (size_t)i;
+        fprintf(f, "vn %.9g %.9g %.9g\n", (double)n[0], (double)n[1], (double)n[2]);
+    }
+    for (int t = 0; t < mesh->triangle_count; ++t) {
+        fputc('f', f);
+        for (int k = 0; k < 3; ++k) {
+            size_t c = 3 * (size_t)t + (size_t)k;
+            fprintf(f, " %u", mesh->indices[c] + 1);
+            if (mesh->uv_count) fprintf(f, "/%u", mesh->uv_indices[c] + 1);
+            if (mesh->normal_count)
+                fprintf(f, mesh->uv_count ? "/%u" : "//%u", mesh->normal_indices[c] + 1);
+        }
+        fputc('\n', f);
+    }
+    int failed = ferror(f);
+    if (fclose(f) != 0 || failed) {
+        pen__io_temp_discard(tmp);
+        return pen__error(ctx, PEN_ERROR_IO, "%s: write error", path);
+    }
+    return pen__io_temp_commit(ctx, tmp, path);
+}

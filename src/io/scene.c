@@ -1,0 +1,594 @@
+/* Scene JSON (DESIGN.md section 3, docs/file-formats.md): loading with everything it references,
+ * and saving back.
+ *
+ * The loader walks the JSON once, key by key, carrying the key path ("objects[1].pose.scale")
+ * so that each error is one line naming the file, the key and the problem; errors from files the
+ * scene references (a mesh, a texture) are prefixed with the key that named them. Unknown keys
+ * are errors, because a misspelt optional key ("albdeo") would otherwise be silently ignored;
+ * keys starting with '_' are comments. Defaults are applied here and nowhere else. */
+#include "penumbra/scene.h"
+#include "io/io_internal.h"
+#include "io/spheres_json.h"
+
+#include <float.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define SCENE_MAX_OBJECTS 4096
+#define SCENE_MAX_FIT_SPHERES 4096
+static const float DEFAULT_ALBEDO = 0.8f;
+static const float DEFAULT_GROUND_HALF_SIZE = 4.0f;
+
+typedef pen__json_where where;
+
+/* Reads an optional member: absent leaves *out as is (the default). */
+static const cJSON *member(const cJSON *obj, const char *name) {
+    return cJSON_GetObjectItemCaseSensitive(obj, name);
+}
+
+/* The key path of member `name` of the object at `w`. */
+static where at(const where *w, const char *name) {
+    where c;
+    pen__json_child(w, name, &c);
+    return c;
+}
+
+static pen_status need_object(pen_context *ctx, const where *w, const cJSON *item) {
+    if (cJSON_IsObject(item)) return PEN_OK;
+    if (!item) return pen__json_error(ctx, PEN_ERROR_PARSE, w, "missing (expected an object)");
+    return pen__json_error(ctx, PEN_ERROR_PARSE, w, "expected an object, got %s",
+                           pen__json_type_name(item));
+}
+
+static pen_status opt_number(pen_context *ctx, const where *w, const cJSON *obj, const char *name,
+                             double lo, double hi, const char *what, float *out) {
+    const cJSON *item = member(obj, name);
+    if (!item) return PEN_OK;
+    where wk = at(w, name);
+    double v;
+    pen_status s = pen__json_number(ctx, &wk, item, lo, hi, what, &v);
+    if (!s) *out = (float)v;
+    return s;
+}
+
+static pen_status opt_floats(pen_context *ctx, const where *w, const cJSON *obj, const char *name,
+                             double lo, double hi, float *out) {
+    const cJSON *item = member(obj, name);
+    if (!item) return PEN_OK;
+    where wk = at(w, name);
+    return pen__json_floats(ctx, &wk, item, 3, lo, hi, out);
+}
+
+/* Re-records the context's current error (from a referenced file) behind the key that named the
+ * file: "scene.json: objects[0].mesh: spot.obj:12: ...". */
+static pen_status wrap(pen_context *ctx, const where *w, pen_status s) {
+    char inner[1024];
+    snprintf(inner, sizeof inner, "%s", pen_context_error(ctx));
+    return pen__json_error(ctx, s, w, "%s", inner);
+}
+
+/* ---- Loading --------------------------------------------------------------------------------- */
+
+static pen_status parse_camera(pen_context *ctx, const where *top, const cJSON *root,
+                               pen_camera *cam) {
+    where w = at(top, "camera");
+    const cJSON *o = member(root, "camera");
+    static const char *const known[] = {"width",  "height", "fov_y_deg", "eye",
+                                        "target", "up",     NULL};
+    pen_status s = need_object(ctx, &w, o);
+    if (!s) s = pen__json_known_keys(ctx, &w, o, known);
+    where ww = at(&w, "width"), wh = at(&w, "height"), wf = at(&w, "fov_y_deg");
+    where we = at(&w, "eye"), wt = at(&w, "target"), wu = at(&w, "up");
+    const char *dim = "a positive integer (at most 16384)";
+    double fov = 0;
+    if (!s) s = pen__json_int(ctx, &ww, member(o, "width"), 1, PEN_IMAGE_MAX_DIM, dim, &cam->width);
+    if (!s)
+        s = pen__json_int(ctx, &wh, member(o, "height"), 1, PEN_IMAGE_MAX_DIM, dim, &cam->height);
+    if (!s)
+        s = pen__json_number(ctx, &wf, member(o, "fov_y_deg"), 1e-3, 179.999,
+                             "a number of degrees in (0, 180)", &fov);
+    cam->fov_y_deg = (float)fov;
+    if (!s) s = pen__json_floats(ctx, &we, member(o, "eye"), 3, -HUGE_VAL, HUGE_VAL, cam->eye);
+    if (!s)
+        s = pen__json_floats(ctx, &wt, member(o, "target"), 3, -HUGE_VAL, HUGE_VAL, cam->target);
+    cam->up[0] = 0.0f, cam->up[1] = 1.0f, cam->up[2] = 0.0f;
+    if (!s) s = opt_floats(ctx, &w, o, "up", -HUGE_VAL, HUGE_VAL, cam->up);
+    if (s) return s;
+    /* A frame must exist: a viewing direction, and an up vector not along it. */
+    double f[3], u[3], x[3];
+    for (int k = 0; k < 3; ++k)
+        f[k] = (double)cam->target[k] - (double)cam->eye[k];
+    for (int k = 0; k < 3; ++k)
+        u[k] = cam->up[k];
+    x[0] = f[1] * u[2] - f[2] * u[1];
+    x[1] = f[2] * u[0] - f[0] * u[2];
+    x[2] = f[0] * u[1] - f[1] * u[0];
+    double nf = sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]);
+    double nu = sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
+    double nx = sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]);
+    if (!(nf > 0.0)) return pen__json_error(ctx, PEN_ERROR_PARSE, &wt, "equals camera.eye");
+    if (!(nx > 1e-6 * nf * nu))
+        return pen__json_error(ctx, PEN_ERROR_PARSE, &wu,
+                               "zero or parallel to the viewing direction");
+    return PEN_OK;
+}
+
+static pen_status parse_lighting(pen_context *ctx, const char *path, const where *top,
+                                 const cJSON *root, int bands, pen_lighting *L) {
+    where w = at(top, "lighting");
+    const cJSON *o = member(root, "lighting");
+    static const char *const known[] = {"envmap", "scale", "rotation_y_deg", "sh", NULL};
+    pen_status s = need_object(ctx, &w, o);
+    if (!s) s = pen__json_known_keys(ctx, &w, o, known);
+    if (s) return s;
+    const cJSON *env = member(o, "envmap"), *sh = member(o, "sh");
+    L->scale = 1.0f;
+    L->rotation_y_deg = 0.0f;
+    if (!env && !sh) return pen__json_error(ctx, PEN_ERROR_PARSE, &w, "needs \"envmap\" or \"sh\"");
+    if (!env && (member(o, "scale") || member(o, "rotation_y_deg")))
+        return pen__json_error(ctx, PEN_ERROR_PARSE, &w,
+                               "\"scale\" and \"rotation_y_deg\" apply to an \"envmap\" only");
+    if (env) {
+        where we = at(&w, "envmap");
+        const char *rel;
+        s = pen__json_string(ctx, &we, env, &rel);
+        if (!s) s = opt_number(ctx, &w, o, "scale", 0.0, FLT_MAX, "a number >= 0", &L->scale);
+        if (!s)
+            s = opt_number(ctx, &w, o, "rotation_y_deg", -1e6, 1e6, "a number of degrees",
+                           &L->rotation_y_deg);
+        if (s) return s;
+        L->envmap_path = pen__io_path_resolve(ctx, path, rel);
+        if (!L->envmap_path) return PEN_ERROR_MEMORY;
+        s = pen_image_load(ctx, L->envmap_path, &L->envmap);
+        if (!s && !sh)
+            s = pen_envmap_to_sh(ctx, &L->envmap, bands, L->rotation_y_deg, L->scale, L->sh);
+        if (s) return wrap(ctx, &we, s);
+    }
+    if (sh) {
+        where ws = at(&w, "sh");
+        int n = bands * bands;
+        if (!cJSON_IsArray(sh))
+            return pen__json_error(ctx, PEN_ERROR_PARSE, &ws,
+                                   "expected an array of [r, g, b] rows, got %s",
+                                   pen__json_type_name(sh));
+        if (cJSON_GetArraySize(sh) != n)
+            return pen__json_error(ctx, PEN_ERROR_PARSE, &ws,
+                                   "expected %d rows (sh_bands %d squared), got %d", n, bands,
+                                   cJSON_GetArraySize(sh));
+        int i = 0;
+        const cJSON *row;
+        cJSON_ArrayForEach(row, sh) {
+            where wr;
+            pen__json_index(&ws, i, &wr);
+            s = pen__json_floats(ctx, &wr, row, 3, -HUGE_VAL, HUGE_VAL, L->sh[i++]);
+            if (s) return s;
+        }
+    }
+    return PEN_OK;
+}
+
+static pen_status parse_shadow(pen_context *ctx, const where *top, const cJSON *root, int bands,
+                               pen_shadow *sh) {
+    where w = at(top, "shadow");
+    const cJSON *o = member(root, "shadow");
+    sh->exp = PEN_SH_EXP_CALIBRATED;
+    pen_status s = PEN_OK;
+    if (o) {
+        static const char *const known[] = {"epsilon", "exp", NULL};
+        s = need_object(ctx, &w, o);
+        if (!s) s = pen__json_known_keys(ctx, &w, o, known);
+        const cJSON *e = member(o, "exp");
+        if (!s && e) {
+            where we = at(&w, "exp");
+            const char *name;
+            s = pen__json_string(ctx, &we, e, &name);
+            int m = s ? -1 : pen_sh_exp_method_parse(name);
+            if (!s && m < 0)
+                s = pen__json_error(ctx, PEN_ERROR_PARSE, &we,
+                                    "unknown method '%s' (expected calibrated, default, paper or "
+                                    "exact)",
+                                    name);
+            if (!s) sh->exp = (pen_sh_exp_method)m;
+        }
+    }
+    /* The epsilon the exponential model was fitted with, unless given. */
+    sh->epsilon = (float)pen_sh_exp_model_default(sh->exp, bands).epsilon;
+    if (!s && o)
+        s = opt_number(ctx, &w, o, "epsilon", 1e-6, 1e6, "a positive number", &sh->epsilon);
+    return s;
+}
+
+static pen_status parse_pose(pen_context *ctx, const where *w, const cJSON *o, pen_pose *pose) {
+    memset(pose, 0, sizeof *pose);
+    pose->scale = 1.0f;
+    if (!o) return PEN_OK;
+    static const char *const known[] = {"rotation_axis_angle_deg", "translation", "scale", NULL};
+    pen_status s = need_object(ctx, w, o);
+    if (!s) s = pen__json_known_keys(ctx, w, o, known);
+    if (!s)
+        s = opt_floats(ctx, w, o, "rotation_axis_angle_deg", -1e6, 1e6,
+                       pose->rotation_axis_angle_deg);
+    if (!s) s = opt_floats(ctx, w, o, "translation", -HUGE_VAL, HUGE_VAL, pose->translation);
+    if (!s)
+        s = opt_number(ctx, w, o, "scale", (double)FLT_MIN, (double)FLT_MAX, "a positive number",
+                       &pose->scale);
+    return s;
+}
+
+static pen_status parse_spheres(pen_context *ctx, const char *path, const where *w,
+                                const cJSON *item, pen_object *obj) {
+    if (!item || cJSON_IsNull(item)) return PEN_OK;
+    if (cJSON_IsString(item)) {
+        const char *rel;
+        pen_status s = pen__json_string(ctx, w, item, &rel);
+        if (s) return s;
+        obj->spheres_path = pen__io_path_resolve(ctx, path, rel);
+        if (!obj->spheres_path) return PEN_ERROR_MEMORY;
+        s = pen_spheres_load(ctx, obj->spheres_path, &obj->spheres);
+        return s ? wrap(ctx, w, s) : PEN_OK;
+    }
+    if (cJSON_IsArray(item)) return pen__spheres_from_json(ctx, w, item, &obj->spheres);
+    if (cJSON_IsObject(item)) {
+        static const char *const known[] = {"fit", NULL};
+        where wf = at(w, "fit");
+        pen_status s = pen__json_known_keys(ctx, w, item, known);
+        if (!s)
+            s = pen__json_int(ctx, &wf, member(item, "fit"), 1, SCENE_MAX_FIT_SPHERES,
+                              "a sphere count in [1, 4096]", &obj->fit_spheres);
+        return s;
+    }
+    return pen__json_error(ctx, PEN_ERROR_PARSE, w,
+                           "expected a file name, {\"fit\": N} or an array of spheres, got %s",
+                           pen__json_type_name(item));
+}
+
+static pen_status parse_object(pen_context *ctx, const char *path, const where *w, const cJSON *o,
+                               pen_object *obj) {
+    static const char *const known[] = {"mesh",    "albedo_texture", "albedo",
+                                        "spheres", "pose",           NULL};
+    pen_status s = need_object(ctx, w, o);
+    if (!s) s = pen__json_known_keys(ctx, w, o, known);
+    where wm = at(w, "mesh"), wt = at(w, "albedo_texture");
+    const char *mesh_rel = NULL, *tex_rel = NULL;
+    if (!s) s = pen__json_string(ctx, &wm, member(o, "mesh"), &mesh_rel);
+    if (!s && member(o, "albedo_texture"))
+        s = pen__json_string(ctx, &wt, member(o, "albedo_texture"), &tex_rel);
+    if (!s && tex_rel && member(o, "albedo"))
+        s = pen__json_error(ctx, PEN_ERROR_PARSE, w,
+                            "give \"albedo_texture\" or \"albedo\", not both");
+    for (int k = 0; k < 3; ++k)
+        obj->albedo[k] = DEFAULT_ALBEDO;
+    if (!s) s = opt_floats(ctx, w, o, "albedo", 0.0, 1.0, obj->albedo);
+    where wp = at(w, "pose"), ws = at(w, "spheres");
+    if (!s) s = parse_pose(ctx, &wp, member(o, "pose"), &obj->pose);
+    if (s) return s;
+
+    obj->mesh_path = pen__io_path_resolve(ctx, path, mesh_rel);
+    if (!obj->mesh_path) return PEN_ERROR_MEMORY;
+    s = pen_mesh_load(ctx, obj->mesh_path, &obj->mesh);
+    if (s) return wrap(ctx, &wm, s);
+
+    /* The texture: given, or the mesh material's map_Kd when no constant albedo is given. */
+    const where *wtex = &wt;
+    if (tex_rel) {
+        obj->texture_path = pen__io_path_resolve(ctx, path, tex_rel);
+        if (!obj->texture_path) return PEN_ERROR_MEMORY;
+    } else if (!member(o, "albedo") && obj->mesh.texture_path) {
+        obj->texture_path = pen__io_strdup(ctx, obj->mesh.texture_path);
+        if (!obj->texture_path) return PEN_ERROR_MEMORY;
+        wtex = &wm;
+    }
+    if (obj->texture_path) {
+        if (obj->mesh.uv_count == 0)
+            return pen__json_error(ctx, PEN_ERROR_PARSE, wtex,
+                                   "a texture needs a mesh with texture coordinates");
+        s = pen_image_load(ctx, obj->texture_path, &obj->texture);
+        if (s) return wrap(ctx, wtex, s);
+    }
+    return parse_spheres(ctx, path, &ws, member(o, "spheres"), obj);
+}
+
+static pen_status parse_objects(pen_context *ctx, const char *path, const where *top,
+                                const cJSON *root, pen_scene *sc) {
+    where w = at(top, "objects");
+    const cJSON *list = member(root, "objects");
+    if (!cJSON_IsArray(list))
+        return pen__json_error(ctx, PEN_ERROR_PARSE, &w, "%s (expected an array of objects)",
+                               list ? pen__json_type_name(list) : "missing");
+    int n = cJSON_GetArraySize(list);
+    if (n > SCENE_MAX_OBJECTS)
+        return pen__json_error(ctx, PEN_ERROR_PARSE, &w, "%d objects (limit %d)", n,
+                               SCENE_MAX_OBJECTS);
+    if (n == 0) return PEN_OK;
+    sc->objects = pen__calloc(ctx, (size_t)n, sizeof *sc->objects, "objects");
+    if (!sc->objects) return PEN_ERROR_MEMORY;
+    int i = 0;
+    const cJSON *o;
+    cJSON_ArrayForEach(o, list) {
+        where wi;
+        pen__json_index(&w, i, &wi);
+        sc->object_count = i + 1; /* so that pen_scene_free sees this object on failure */
+        pen_status s = parse_object(ctx, path, &wi, o, &sc->objects[i++]);
+        if (s) return s;
+    }
+    return PEN_OK;
+}
+
+static pen_status parse_ground(pen_context *ctx, const where *top, const cJSON *root,
+                               pen_ground *g) {
+    where w = at(top, "ground");
+    const cJSON *o = member(root, "ground");
+    memset(g, 0, sizeof *g);
+    if (!o || cJSON_IsNull(o)) return PEN_OK;
+    static const char *const known[] = {"height", "albedo", "half_size", NULL};
+    pen_status s = need_object(ctx, &w, o);
+    if (!s) s = pen__json_known_keys(ctx, &w, o, known);
+    g->enabled = 1;
+    for (int k = 0; k < 3; ++k)
+        g->albedo[k] = DEFAULT_ALBEDO;
+    g->half_size = DEFAULT_GROUND_HALF_SIZE;
+    if (!s) s = opt_number(ctx, &w, o, "height", -FLT_MAX, FLT_MAX, "a finite number", &g->height);
+    if (!s) s = opt_floats(ctx, &w, o, "albedo", 0.0, 1.0, g->albedo);
+    if (!s)
+        s = opt_number(ctx, &w, o, "half_size", (double)FLT_MIN, FLT_MAX, "a positive number",
+                       &g->half_size);
+    return s;
+}
+
+static pen_status parse_background(pen_context *ctx, const where *top, const cJSON *root,
+                                   pen_scene *sc) {
+    where w = at(top, "background");
+    const cJSON *b = member(root, "background");
+    int has_env = sc->lighting.envmap.data != NULL;
+    memset(sc->background, 0, sizeof sc->background);
+    sc->background_envmap = 0;
+    if (!b) {
+        sc->background_envmap = has_env;
+        return PEN_OK;
+    }
+    if (cJSON_IsString(b) && strcmp(b->valuestring, "envmap") == 0) {
+        if (!has_env)
+            return pen__json_error(ctx, PEN_ERROR_PARSE, &w, "\"envmap\" needs lighting.envmap");
+        sc->background_envmap = 1;
+        return PEN_OK;
+    }
+    if (!cJSON_IsArray(b))
+        return pen__json_error(ctx, PEN_ERROR_PARSE, &w,
+                               "expected \"envmap\" or [r, g, b], got %s%s%s",
+                               cJSON_IsString(b) ? "'" : "",
+                               cJSON_IsString(b) ? b->valuestring : pen__json_type_name(b),
+                               cJSON_IsString(b) ? "'" : "");
+    return pen__json_floats(ctx, &w, b, 3, 0.0, FLT_MAX, sc->background);
+}
+
+static pen_status parse_scene(pen_context *ctx, const char *path, const cJSON *root,
+                              pen_scene *sc) {
+    where top = {.file = path, .key = ""};
+    if (!cJSON_IsObject(root))
+        return pen__json_error(ctx, PEN_ERROR_PARSE, &top, "expected a JSON object, got %s",
+                               pen__json_type_name(root));
+    static const char *const known[] = {"camera",  "lighting", "sh_bands",   "shadow",
+                                        "objects", "ground",   "background", NULL};
+    pen_status s = pen__json_known_keys(ctx, &top, root, known);
+    sc->sh_bands = 4;
+    where wb = at(&top, "sh_bands");
+    if (!s && member(root, "sh_bands"))
+        s = pen__json_int(ctx, &wb, member(root, "sh_bands"), 1, PEN_SH_MAX_BANDS,
+                          "an integer in [1, 8]", &sc->sh_bands);
+    if (!s) s = parse_camera(ctx, &top, root, &sc->camera);
+    if (!s) s = parse_shadow(ctx, &top, root, sc->sh_bands, &sc->shadow);
+    if (!s) s = parse_ground(ctx, &top, root, &sc->ground);
+    if (!s) s = parse_lighting(ctx, path, &top, root, sc->sh_bands, &sc->lighting);
+    if (!s) s = parse_background(ctx, &top, root, sc);
+    if (!s) s = parse_objects(ctx, path, &top, root, sc);
+    return s;
+}
+
+static pen_status scene_from_text(pen_context *ctx, const char *text, size_t size, const char *path,
+                                  pen_scene *out) {
+    cJSON *root = NULL;
+    pen_status s = pen__json_parse(ctx, path, text, size, &root);
+    if (s) return s;
+    out->path = pen__io_strdup(ctx, path);
+    s = out->path ? parse_scene(ctx, path, root, out) : PEN_ERROR_MEMORY;
+    cJSON_Delete(root);
+    if (s) pen_scene_free(out);
+    return s;
+}
+
+pen_status pen_scene_parse(pen_context *ctx, const char *json_text, const char *path,
+                           pen_scene *out) {
+    memset(out, 0, sizeof *out);
+    if (!json_text) return pen__error(ctx, PEN_ERROR_ARGUMENT, "scene: no JSON text");
+    return scene_from_text(ctx, json_text, strlen(json_text), path ? path : "scene", out);
+}
+
+pen_status pen_scene_load(pen_context *ctx, const char *path, pen_scene *out) {
+    memset(out, 0, sizeof *out);
+    char *text = NULL;
+    size_t size = 0;
+    pen_status s = pen__io_read_file(ctx, path, (size_t)64 << 20, &text, &size);
+    if (s) return s;
+    s = scene_from_text(ctx, text, size, path, out);
+    free(text);
+    return s;
+}
+
+void pen_scene_free(pen_scene *scene) {
+    if (!scene) return;
+    for (int i = 0; i < scene->object_count; ++i) {
+        pen_object *o = &scene->objects[i];
+        pen_mesh_free(&o->mesh);
+        pen_image_free(&o->texture);
+        pen_spheres_free(&o->spheres);
+        free(o->mesh_path);
+        free(o->texture_path);
+        free(o->spheres_path);
+    }
+    free(scene->objects);
+    pen_image_free(&scene->lighting.envmap);
+    free(scene->lighting.envmap_path);
+    free(scene->path);
+    memset(scene, 0, sizeof *scene);
+}
+
+/* ---- Saving ---------------------------------------------------------------------------------- */
+
+/* Adds item to obj under name; on failure deletes item and returns 0. */
+static int add(cJSON *obj, const char *name, cJSON *item) {
+    if (item && cJSON_AddItemToObject(obj, name, item)) return 1;
+    cJSON_Delete(item);
+    return 0;
+}
+
+static int add_path(pen_context *ctx, cJSON *obj, const char *name, const char *json_path,
+                    const char *target) {
+    char *rel = pen__io_path_relative(ctx, json_path, target);
+    int ok = rel && add(obj, name, cJSON_CreateString(rel));
+    free(rel);
+    return ok;
+}
+
+static cJSON *camera_json(const pen_camera *c) {
+    cJSON *o = cJSON_CreateObject();
+    int ok = o && add(o, "width", cJSON_CreateNumber(c->width)) &&
+             add(o, "height", cJSON_CreateNumber(c->height)) &&
+             add(o, "fov_y_deg", pen__json_float(c->fov_y_deg)) &&
+             add(o, "eye", pen__json_float_array(c->eye, 3)) &&
+             add(o, "target", pen__json_float_array(c->target, 3)) &&
+             add(o, "up", pen__json_float_array(c->up, 3));
+    if (!ok) cJSON_Delete(o);
+    return ok ? o : NULL;
+}
+
+static cJSON *lighting_json(pen_context *ctx, const char *path, const pen_scene *sc,
+                            unsigned flags) {
+    const pen_lighting *L = &sc->lighting;
+    cJSON *o = cJSON_CreateObject();
+    int ok = o != NULL;
+    int has_env = L->envmap.data && L->envmap_path;
+    if (ok && has_env)
+        ok = add_path(ctx, o, "envmap", path, L->envmap_path) &&
+             add(o, "scale", pen__json_float(L->scale)) &&
+             add(o, "rotation_y_deg", pen__json_float(L->rotation_y_deg));
+    if (ok && (!has_env || (flags & PEN_SCENE_SAVE_SH_LIGHTING))) {
+        cJSON *rows = cJSON_CreateArray();
+        ok = add(o, "sh", rows);
+        for (int i = 0; ok && i < sc->sh_bands * sc->sh_bands; ++i)
+            ok = cJSON_AddItemToArray(rows, pen__json_float_array(L->sh[i], 3));
+    }
+    if (!ok) cJSON_Delete(o);
+    return ok ? o : NULL;
+}
+
+static cJSON *object_json(pen_context *ctx, const char *path, const pen_object *obj) {
+    cJSON *o = cJSON_CreateObject();
+    int ok = o && add_path(ctx, o, "mesh", path, obj->mesh_path);
+    if (ok && obj->texture.data && obj->texture_path)
+        ok = add_path(ctx, o, "albedo_texture", path, obj->texture_path);
+    else if (ok)
+        ok = add(o, "albedo", pen__json_float_array(obj->albedo, 3));
+    if (ok && obj->spheres_path) {
+        ok = add_path(ctx, o, "spheres", path, obj->spheres_path);
+    } else if (ok && obj->spheres.count > 0) {
+        ok = add(o, "spheres", pen__spheres_to_json(&obj->spheres));
+    } else if (ok && obj->fit_spheres > 0) {
+        cJSON *fit = cJSON_CreateObject();
+        ok = add(o, "spheres", fit) && add(fit, "fit", cJSON_CreateNumber(obj->fit_spheres));
+    }
+    cJSON *pose = ok ? cJSON_CreateObject() : NULL;
+    ok = ok && add(o, "pose", pose) &&
+         add(pose, "rotation_axis_angle_deg",
+             pen__json_float_array(obj->pose.rotation_axis_angle_deg, 3)) &&
+         add(pose, "translation", pen__json_float_array(obj->pose.translation, 3)) &&
+         add(pose, "scale", pen__json_float(obj->pose.scale));
+    if (!ok) cJSON_Delete(o);
+    return ok ? o : NULL;
+}
+
+/* What must hold for the written file to load again. */
+static pen_status check_saveable(pen_context *ctx, const char *path, const pen_scene *sc) {
+    if (sc->sh_bands < 1 || sc->sh_bands > PEN_SH_MAX_BANDS)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: sh_bands %d outside [1, %d]", path,
+                          sc->sh_bands, PEN_SH_MAX_BANDS);
+    for (int i = 0; i < sc->sh_bands * sc->sh_bands; ++i)
+        if (!pen__finite3(sc->lighting.sh[i]))
+            return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: lighting coefficient %d is not finite",
+                              path, i);
+    if (sc->background_envmap && !sc->lighting.envmap.data)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: background shows an envmap but there is none", path);
+    for (int i = 0; i < sc->object_count; ++i) {
+        const pen_object *o = &sc->objects[i];
+        char what[64];
+        snprintf(what, sizeof what, "%s: objects[%d]", path, i);
+        if (!o->mesh_path)
+            return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: no mesh path (save the mesh first)",
+                              what);
+        if (o->texture.data && !o->texture_path)
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "%s: no texture path (save the texture first)", what);
+        pen_status s = pen__spheres_check(ctx, what, &o->spheres);
+        if (s) return s;
+    }
+    return PEN_OK;
+}
+
+static cJSON *shadow_json(const pen_shadow *sh) {
+    cJSON *o = cJSON_CreateObject();
+    int ok = o && add(o, "epsilon", pen__json_float(sh->epsilon)) &&
+             add(o, "exp", cJSON_CreateString(pen_sh_exp_method_name(sh->exp)));
+    if (!ok) cJSON_Delete(o);
+    return ok ? o : NULL;
+}
+
+static cJSON *objects_json(pen_context *ctx, const char *path, const pen_scene *sc) {
+    cJSON *a = cJSON_CreateArray();
+    int ok = a != NULL;
+    for (int i = 0; ok && i < sc->object_count; ++i)
+        ok = cJSON_AddItemToArray(a, object_json(ctx, path, &sc->objects[i]));
+    if (!ok) cJSON_Delete(a);
+    return ok ? a : NULL;
+}
+
+static cJSON *ground_json(const pen_ground *g) {
+    if (!g->enabled) return cJSON_CreateNull();
+    cJSON *o = cJSON_CreateObject();
+    int ok = o && add(o, "height", pen__json_float(g->height)) &&
+             add(o, "albedo", pen__json_float_array(g->albedo, 3)) &&
+             add(o, "half_size", pen__json_float(g->half_size));
+    if (!ok) cJSON_Delete(o);
+    return ok ? o : NULL;
+}
+
+pen_status pen_scene_save_ex(pen_context *ctx, const char *path, const pen_scene *sc,
+                             unsigned flags) {
+    pen_status s = check_saveable(ctx, path, sc);
+    if (s) return s;
+    /* Each member is built inside its add() call, so nothing is left unowned on failure. */
+    cJSON *root = cJSON_CreateObject();
+    int ok = root && add(root, "camera", camera_json(&sc->camera)) &&
+             add(root, "lighting", lighting_json(ctx, path, sc, flags)) &&
+             add(root, "sh_bands", cJSON_CreateNumber(sc->sh_bands)) &&
+             add(root, "shadow", shadow_json(&sc->shadow)) &&
+             add(root, "objects", objects_json(ctx, path, sc)) &&
+             add(root, "ground", ground_json(&sc->ground)) &&
+             add(root, "background",
+                 sc->background_envmap ? cJSON_CreateString("envmap")
+                                       : pen__json_float_array(sc->background, 3));
+    char *text = ok ? cJSON_Print(root) : NULL;
+    cJSON_Delete(root);
+    if (!text) {
+        if (pen_context_status(ctx) == PEN_ERROR_MEMORY) return PEN_ERROR_MEMORY;
+        return pen__error(ctx, PEN_ERROR_MEMORY, "%s: cannot format the scene", path);
+    }
+    size_t n = strlen(text);
+    text[n] = '\n'; /* the buffer has room: it held the NUL */
+    s = pen__io_write_file(ctx, path, text, n + 1);
+    cJSON_free(text);
+    return s;
+}
+
+pen_status pen_scene_save(pen_context *ctx, const char *path, const pen_scene *scene) {
+    return pen_scene_save_ex(ctx, path, scene, 0);
+}

@@ -1,0 +1,156 @@
+/* Sphere sets: allocation and their JSON files
+ *     {"spheres": [{"center": [x, y, z], "radius": r}, ...], "metrics": {...}, ...}
+ * (or a bare array of sphere objects). Other top-level members are kept by writers and ignored
+ * by the reader; inside a sphere object only "center" and "radius" (and "_comments") may appear. */
+#include "penumbra/spheres.h"
+#include "io/io_internal.h"
+#include "io/spheres_json.h"
+
+#include <float.h>
+#include <stdlib.h>
+#include <string.h>
+
+pen_status pen_spheres_create(pen_context *ctx, int count, pen_spheres *out) {
+    memset(out, 0, sizeof *out);
+    if (count < 0 || (size_t)count > PEN_MAX_ELEMENTS)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "spheres: count %d out of range [0, %zu]", count,
+                          (size_t)PEN_MAX_ELEMENTS);
+    if (count == 0) return PEN_OK;
+    out->data = pen__calloc(ctx, 4 * (size_t)count, sizeof(float), "spheres");
+    if (!out->data) return PEN_ERROR_MEMORY;
+    out->count = count;
+    return PEN_OK;
+}
+
+void pen_spheres_free(pen_spheres *spheres) {
+    if (!spheres) return;
+    free(spheres->data);
+    memset(spheres, 0, sizeof *spheres);
+}
+
+pen_status pen__spheres_from_json(pen_context *ctx, const pen__json_where *w, const cJSON *list,
+                                  pen_spheres *out) {
+    memset(out, 0, sizeof *out);
+    if (!cJSON_IsArray(list))
+        return pen__json_error(ctx, PEN_ERROR_PARSE, w, "expected an array of spheres, got %s",
+                               pen__json_type_name(list));
+    pen_status s = pen_spheres_create(ctx, cJSON_GetArraySize(list), out);
+    if (s) return s;
+    static const char *const known[] = {"center", "radius", NULL};
+    int i = 0;
+    const cJSON *e;
+    cJSON_ArrayForEach(e, list) {
+        pen__json_where wi, wc, wr;
+        pen__json_index(w, i, &wi);
+        pen__json_child(&wi, "center", &wc);
+        pen__json_child(&wi, "radius", &wr);
+        double r = 0;
+        if (!cJSON_IsObject(e))
+            s = pen__json_error(ctx, PEN_ERROR_PARSE, &wi, "expected a sphere object, got %s",
+                                pen__json_type_name(e));
+        if (!s) s = pen__json_known_keys(ctx, &wi, e, known);
+        if (!s)
+            s = pen__json_floats(ctx, &wc, cJSON_GetObjectItemCaseSensitive(e, "center"), 3,
+                                 -HUGE_VAL, HUGE_VAL, out->data + 4 * (size_t)i);
+        /* The smallest positive float keeps a radius positive after rounding to float. */
+        if (!s)
+            s = pen__json_number(ctx, &wr, cJSON_GetObjectItemCaseSensitive(e, "radius"),
+                                 (double)FLT_TRUE_MIN, (double)FLT_MAX, "a positive number", &r);
+        if (s) {
+            pen_spheres_free(out);
+            return s;
+        }
+        out->data[4 * (size_t)i + 3] = (float)r;
+        ++i;
+    }
+    return PEN_OK;
+}
+
+pen_status pen_spheres_load(pen_context *ctx, const char *path, pen_spheres *out) {
+    memset(out, 0, sizeof *out);
+    cJSON *root = NULL;
+    pen_status s = pen__json_load(ctx, path, &root);
+    if (s) return s;
+    pen__json_where top = {.file = path, .key = ""}, w = top;
+    const cJSON *list = root;
+    if (cJSON_IsObject(root)) {
+        list = cJSON_GetObjectItemCaseSensitive(root, "spheres");
+        pen__json_child(&top, "spheres", &w);
+        if (!list) s = pen__json_error(ctx, PEN_ERROR_PARSE, &w, "missing");
+    }
+    if (!s) s = pen__spheres_from_json(ctx, &w, list, out);
+    cJSON_Delete(root);
+    return s;
+}
+
+cJSON *pen__spheres_to_json(const pen_spheres *spheres) {
+    cJSON *list = cJSON_CreateArray();
+    for (int i = 0; list && i < spheres->count; ++i) {
+        const float *d = spheres->data + 4 * (size_t)i;
+        cJSON *o = cJSON_CreateObject();
+        cJSON *c = pen__json_float_array(d, 3), *r = pen__json_float(d[3]);
+        if (!o || !c || !r || !cJSON_AddItemToObject(o, "center", c)) {
+            cJSON_Delete(c);
+            cJSON_Delete(r);
+            cJSON_Delete(o);
+            cJSON_Delete(list);
+            return NULL;
+        }
+        if (!cJSON_AddItemToObject(o, "radius", r) || !cJSON_AddItemToArray(list, o)) {
+            cJSON_Delete(r);
+            cJSON_Delete(o);
+            cJSON_Delete(list);
+            return NULL;
+        }
+    }
+    return list;
+}
+
+pen_status pen__spheres_check(pen_context *ctx, const char *what, const pen_spheres *spheres) {
+    if (spheres->count < 0 || (spheres->count > 0 && !spheres->data))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: invalid sphere set", what);
+    for (int i = 0; i < spheres->count; ++i) {
+        const float *d = spheres->data + 4 * (size_t)i;
+        if (!pen__finite3(d) || !isfinite(d[3]) || !(d[3] > 0.0f))
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "%s: sphere %d has a non-finite center or a radius that is not a "
+                              "positive number",
+                              what, i);
+    }
+    return PEN_OK;
+}
+
+pen_status pen_spheres_save(pen_context *ctx, const char *path, const pen_spheres *spheres,
+                            const char *extra_json) {
+    pen_status s = pen__spheres_check(ctx, path, spheres);
+    if (s) return s;
+    cJSON *extra = NULL;
+    if (extra_json) {
+        extra = cJSON_Parse(extra_json);
+        if (!cJSON_IsObject(extra) || cJSON_GetObjectItemCaseSensitive(extra, "spheres")) {
+            cJSON_Delete(extra);
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "%s: extra_json must be a JSON object without a \"spheres\" member",
+                              path);
+        }
+    }
+    cJSON *root = cJSON_CreateObject();
+    cJSON *list = pen__spheres_to_json(spheres);
+    int ok = root && list && cJSON_AddItemToObject(root, "spheres", list);
+    if (!ok) cJSON_Delete(list);
+    /* Move the extra members over, in order. */
+    while (ok && extra && extra->child) {
+        cJSON *m = cJSON_DetachItemViaPointer(extra, extra->child);
+        ok = cJSON_AddItemToObject(root, m->string, m);
+        if (!ok) cJSON_Delete(m);
+    }
+    cJSON_Delete(extra);
+    char *text = ok ? cJSON_Print(root) : NULL;
+    cJSON_Delete(root);
+    if (!text) return pen__error(ctx, PEN_ERROR_MEMORY, "%s: cannot format JSON", path);
+    size_t n = strlen(text);
+    text[n] = '\n'; /* overwrite the NUL: the buffer is not used as a string afterwards */
+    s = pen__io_write_file(ctx, path, text, n + 1);
+    cJSON_free(text);
+    return s;
+}

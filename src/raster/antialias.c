@@ -1,0 +1,347 @@
+/* Edge antialiasing: blends colours across geometric silhouette edges so that the image is a
+ * continuous function of vertex positions, and differentiates that blend (the idea of Laine et
+ * al. 2020, "Modular primitives for high-performance differentiable rendering"; the derivation
+ * below is our own).
+ *
+ * Design. A rasterized image is piecewise constant in the vertex positions: a silhouette edge
+ * moving by less than a pixel changes nothing until it crosses a pixel centre. We look at every
+ * pair of 4-neighbouring pixels A, B whose G-buffer entries differ. The pixel whose surface is a
+ * mesh and is closer (A, say; the ground and the background never occlude) has triangle T, and
+ * T covers A's centre. If B is not covered by T, the segment from A's centre to B's centre leaves
+ * T through exactly one edge of T, at a fraction alpha in [0, 1] of the way (in screen space,
+ * where T's projected edges are straight lines). That edge is a silhouette when it has no single
+ * neighbouring triangle or when the neighbour lies on the same side of the plane through the eye
+ * and the edge as T does (the surface folds away, so the far side shows something else); else
+ * the surface continues across it and the pair is left alone.
+ *
+ * Treat each pixel as a unit box around its centre, and the edge as locally straight. Along the
+ * segment, T reaches alpha pixels from A's centre, so it covers (alpha - 1/2) of B's box when
+ * alpha > 1/2, and leaves (1/2 - alpha) of A's box uncovered when alpha < 1/2:
+ *     alpha >= 1/2:  c'_B = c_B + (alpha - 1/2) (c_A - c_B)
+ *     alpha <  1/2:  c'_A = c_A + (1/2 - alpha) (c_B - c_A)
+ * Both branches change the image at the rate d/d alpha = c_A - c_B (in B, resp. in A), so the
+ * image sum is continuous and differentiable across alpha = 1/2; and when the edge crosses B's
+ * centre (alpha -> 1) the half-blended B hands over to the next pair (alpha -> 0) with the same
+ * colour, so the image is continuous as coverage changes. Moving the edge perpendicular to
+ * itself by delta shifts the crossing of a horizontal pair by delta / |sin theta| (theta the
+ * edge's angle to the pair axis), while the edge meets |sin theta| rows per unit length: the
+ * rate of change of the image per unit edge length is exactly delta (c_A - c_B), as for the box-
+ * filtered image. Using both horizontal and vertical pairs would count it twice, so horizontal
+ * pairs take the edges at least as steep as 45 degrees (|dy| >= |dx| on screen) and vertical
+ * pairs the flatter ones; this also bounds the slope factor in the derivative below by 1.
+ *
+ * Derivative. With pair axis u and cross axis v (u = x for horizontal pairs), edge endpoints
+ * P, Q on screen and the centres' common cross coordinate v_c: s = (v_c - P_v) / (Q_v - P_v),
+ * u_c = P_u + s (Q_u - P_u), alpha = dir (u_c - u_A) with dir = +-1 pointing from A to B. So
+ *     d alpha / d(P_u, P_v, Q_u, Q_v) = dir ((1-s), -k(1-s), s, -k s),   k = (Q_u - P_u)/(Q_v -
+ * P_v), and the screen gradients go to the world vertices through the projection's Jacobian. The
+ * colours get d c_R += (1 - w) d c'_R, d c_S += w d c'_R for receiver R, source S, weight w.
+ *
+ * Limits (documented in docs/rasterizer.md): the occluder is chosen by comparing the two pixels'
+ * depths; interpenetrations and the ground square's own border give no gradient; a pair whose
+ * triangle has a vertex behind the near plane is skipped; the switch between horizontal and
+ * vertical pairs at 45 degrees is a small discontinuity in the edge's orientation.
+ *
+ * Passes: (1) in parallel over rows, each pair's receiver and weight; (2) in parallel over
+ * pixels, each pixel gathers its up-to-four pairs. The backward mirrors this and scatters the
+ * vertex gradients serially in pair order, so the results do not depend on the thread count.
+ */
+#include "core/internal.h"
+#include "raster/raster_internal.h"
+
+#include <stdlib.h>
+#include <string.h>
+
+/* ---- Pair analysis --------------------------------------------------------------------------- */
+
+typedef struct aa_ctx {
+    const pen_gbuffer *gb;
+    const pen_view *view;
+    const pen_raster_mesh *meshes;
+    int mesh_count;
+    const size_t *first_vertex; /* per mesh, into screen */
+    const double *screen;       /* per vertex of every mesh: sx, sy, depth */
+} aa_ctx;
+
+typedef struct aa_pair {
+    float weight;    /* blend fraction of the receiver towards the source */
+    int8_t receiver; /* 0: no blend, 1: the first pixel (left / top) receives, 2: the second */
+    int8_t slope;    /* d weight / d alpha: +1 or -1 */
+} aa_pair;
+
+typedef struct aa_edge {
+    int mesh;
+    uint32_t v[2];    /* world vertices of the edge: P, Q */
+    double dalpha[4]; /* d alpha / d(P.x, P.y, Q.x, Q.y) in screen pixels */
+} aa_edge;
+
+/* Analyzes the pair of pixels (x, y) and its right (axis 0) or lower (axis 1) neighbour. */
+static aa_pair analyze_pair(const aa_ctx *ac, int x, int y, int axis, aa_edge *edge) {
+    aa_pair none = {0.0f, 0, 0};
+    const pen_gbuffer *gb = ac->gb;
+    size_t i0 = (size_t)y * (size_t)gb->width + (size_t)x;
+    size_t i1 = axis ? i0 + (size_t)gb->width : i0 + 1;
+    int s0 = gb->surface[i0], s1 = gb->surface[i1];
+    if (s0 == s1 && gb->triangle[i0] == gb->triangle[i1]) return none;
+    int m0 = s0 >= 0 && s0 < ac->mesh_count, m1 = s1 >= 0 && s1 < ac->mesh_count;
+    float z0 = gb->depth[i0], z1 = gb->depth[i1];
+    int occ; /* 0: the first pixel holds the occluding triangle, 1: the second */
+    if (m0 && (z0 < z1 || (m1 && z0 == z1)))
+        occ = 0;
+    else if (m1 && z1 < z0)
+        occ = 1;
+    else
+        return none;
+    size_t io = occ ? i1 : i0;
+    const pen_raster_mesh *mesh = ac->meshes + gb->surface[io];
+    int t = gb->triangle[io];
+    if (t < 0 || t >= mesh->triangle_count) return none;
+    const uint32_t *idx = mesh->indices + 3 * (size_t)t;
+    const pen_view *view = ac->view;
+    const double *s[3];
+    for (int k = 0; k < 3; ++k) {
+        s[k] = ac->screen + 3 * (ac->first_vertex[gb->surface[io]] + idx[k]);
+        if (!(s[k][2] >= view->near_plane)) return none;
+    }
+    /* Pair coordinates: u along the pair, v across; the occluder's centre and the direction. */
+    int ua = axis, va = 1 - axis;
+    double uo = (axis ? y : x) + 0.5 + occ, vc = (axis ? x : y) + 0.5;
+    double dir = occ ? -1.0 : 1.0;
+    for (int k = 0; k < 3; ++k) {
+        const double *P = s[k], *Q = s[(k + 1) % 3];
+        double dv = Q[va] - P[va], du = Q[ua] - P[ua];
+        if (dv == 0.0 || (P[va] - vc) * (Q[va] - vc) > 0.0) continue;
+        double sp = (vc - P[va]) / dv;
+        double alpha = dir * (P[ua] + sp * du - uo);
+        if (!(alpha >= 0.0 && alpha <= 1.0)) continue;
+        /* This is the edge through which the segment leaves T. */
+        if (axis == 0 ? !(fabs(dv) >= fabs(du)) : !(fabs(dv) > fabs(du))) return none;
+        int32_t opp = mesh->adjacency[3 * (size_t)t + k];
+        if (opp >= 0) {
+            double a[3], b[3], c[3], o[3], nrm[3], p[4][3];
+            for (int j = 0; j < 3; ++j)
+                pen__load3_d(mesh->positions + 3 * (size_t)idx[j], p[j]);
+            pen__load3_d(mesh->positions + 3 * (size_t)opp, p[3]);
+            pen__sub_d(p[k], view->eye, a);
+            pen__sub_d(p[(k + 1) % 3], view->eye, b);
+            pen__sub_d(p[(k + 2) % 3], view->eye, c);
+            pen__sub_d(p[3], view->eye, o);
+            pen__cross_d(a, b, nrm);
+            if (pen__dot_d(nrm, c) * pen__dot_d(nrm, o) < 0.0) return none; /* not a silhouette */
+        }
+        aa_pair out;
+        if (alpha >= 0.5) {
+            out.weight = (float)(alpha - 0.5), out.slope = 1;
+            out.receiver = (int8_t)(occ ? 1 : 2);
+        } else {
+            out.weight = (float)(0.5 - alpha), out.slope = -1;
+            out.receiver = (int8_t)(occ ? 2 : 1);
+        }
+        if (edge) {
+            double kk = du / dv, d[4] = {0};
+            d[ua] = dir * (1.0 - sp);
+            d[va] = -dir * kk * (1.0 - sp);
+            d[2 + ua] = dir * sp;
+            d[2 + va] = -dir * kk * sp;
+            edge->mesh = gb->surface[io];
+            edge->v[0] = idx[k], edge->v[1] = idx[(k + 1) % 3];
+            memcpy(edge->dalpha, d, sizeof d);
+        }
+        return out;
+    }
+    return none;
+}
+
+/* The (up to) four pairs around pixel (x, y): pair index, whether the pixel is its first
+ * member, and the other pixel. Returns the count. */
+static int pixel_pairs(int W, int H, int x, int y, size_t idx[4], int first[4], size_t other[4]) {
+    size_t nh = (size_t)(W - 1) * (size_t)H, i = (size_t)y * (size_t)W + (size_t)x;
+    int n = 0;
+    if (x > 0)
+        idx[n] = (size_t)y * (size_t)(W - 1) + (size_t)(x - 1), first[n] = 0, other[n++] = i - 1;
+    if (x + 1 < W)
+        idx[n] = (size_t)y * (size_t)(W - 1) + (size_t)x, first[n] = 1, other[n++] = i + 1;
+    if (y > 0)
+        idx[n] = nh + (size_t)(y - 1) * (size_t)W + (size_t)x, first[n] = 0,
+        other[n++] = i - (size_t)W;
+    if (y + 1 < H)
+        idx[n] = nh + (size_t)y * (size_t)W + (size_t)x, first[n] = 1, other[n++] = i + (size_t)W;
+    return n;
+}
+
+static pen_status check_args(pen_context *ctx, const pen_gbuffer *gb, const pen_view *view,
+                             const pen_raster_mesh *meshes, int mesh_count, int channels) {
+    if (!gb || !view || !gb->surface)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "antialias: NULL G-buffer or view");
+    if (gb->width != view->width || gb->height != view->height)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "antialias: G-buffer %dx%d, camera %dx%d",
+                          gb->width, gb->height, view->width, view->height);
+    if (channels < 1)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "antialias: %d channels", channels);
+    size_t total;
+    pen_status st = pen__raster_check_meshes(ctx, meshes, mesh_count, &total);
+    if (st) return st;
+    for (int m = 0; m < mesh_count; ++m)
+        if (meshes[m].triangle_count > 0 && !meshes[m].adjacency)
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "antialias: mesh %d has no adjacency (pen_raster_adjacency)", m);
+    return PEN_OK;
+}
+
+/* Everything both directions need: validated arguments, the screen position of every vertex,
+ * and each pair's blend (horizontal pairs at y * (W-1) + x, then vertical ones at y * W + x). */
+typedef struct aa_state {
+    aa_ctx ac;
+    aa_pair *pairs;
+    size_t *first_vertex;
+    double *screen;
+} aa_state;
+
+static void aa_end(aa_state *st) {
+    free(st->pairs);
+    free(st->first_vertex);
+    free(st->screen);
+}
+
+static pen_status aa_begin(pen_context *ctx, const pen_gbuffer *gb, const pen_view *view,
+                           const pen_raster_mesh *meshes, int mesh_count, int channels,
+                           aa_state *st) {
+    memset(st, 0, sizeof *st);
+    pen_status status = check_args(ctx, gb, view, meshes, mesh_count, channels);
+    if (status) return status;
+    int W = gb->width, H = gb->height, threads = pen__raster_threads(ctx);
+    size_t nh = (size_t)(W - 1) * (size_t)H, nv = (size_t)W * (size_t)(H - 1), total = 0;
+    st->first_vertex = pen__malloc(ctx, (size_t)mesh_count + 1, sizeof(size_t), "antialias");
+    if (!st->first_vertex) return PEN_ERROR_MEMORY;
+    for (int m = 0; m < mesh_count; ++m) {
+        st->first_vertex[m] = total;
+        total += (size_t)meshes[m].vertex_count;
+    }
+    st->screen = pen__malloc(ctx, 3 * total + 1, sizeof(double), "antialias screen vertices");
+    st->pairs = pen__malloc(ctx, nh + nv + 1, sizeof *st->pairs, "antialias pairs");
+    if (!st->screen || !st->pairs) {
+        aa_end(st);
+        return PEN_ERROR_MEMORY;
+    }
+    for (int m = 0; m < mesh_count; ++m) {
+        double *out = st->screen + 3 * st->first_vertex[m];
+        const float *pos = meshes[m].positions;
+#pragma omp parallel for num_threads(threads) schedule(static)
+        for (int v = 0; v < meshes[m].vertex_count; ++v) {
+            double p[3];
+            pen__load3_d(pos + 3 * (size_t)v, p);
+            pen__raster_project_d(view, p, out + 3 * (size_t)v, NULL);
+        }
+    }
+    aa_ctx ac = {gb, view, meshes, mesh_count, st->first_vertex, st->screen};
+    st->ac = ac;
+    aa_pair *pairs = st->pairs;
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (int y = 0; y < H; ++y) {
+        for (int x = 0; x + 1 < W; ++x)
+            pairs[(size_t)y * (size_t)(W - 1) + (size_t)x] = analyze_pair(&st->ac, x, y, 0, NULL);
+        if (y + 1 < H)
+            for (int x = 0; x < W; ++x)
+                pairs[nh + (size_t)y * (size_t)W + (size_t)x] =
+                    analyze_pair(&st->ac, x, y, 1, NULL);
+    }
+    return PEN_OK;
+}
+
+/* The blend is linear in the colours: out = A c with, for each pair (receiver R, source S,
+ * weight w), A_RR -= w and A_RS += w on top of the identity. The forward applies A (each pixel
+ * gathers its row), the backward A^T (each pixel gathers its column) and adds into dst. */
+static void apply_blend(int threads, const aa_pair *pairs, int W, int H, const float *v,
+                        int channels, int transpose, float *dst) {
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (int y = 0; y < H; ++y)
+        for (int x = 0; x < W; ++x) {
+            size_t i = (size_t)y * (size_t)W + (size_t)x, idx[4], other[4];
+            int first[4], n = pixel_pairs(W, H, x, y, idx, first, other), m = 0;
+            /* The pairs that touch this pixel: receiving (+1) or, for A^T, giving (-1). */
+            double w[4];
+            int role[4];
+            size_t from[4];
+            for (int j = 0; j < n; ++j) {
+                const aa_pair *pr = pairs + idx[j];
+                int recv = pr->receiver == (first[j] ? 1 : 2);
+                if (!recv && !(transpose && pr->receiver)) continue;
+                w[m] = (double)pr->weight, role[m] = recv, from[m++] = other[j];
+            }
+            for (int c = 0; c < channels; ++c) {
+                double vi = (double)v[i * channels + c], acc = vi;
+                for (int j = 0; j < m; ++j) {
+                    double vo = (double)v[from[j] * channels + c];
+                    if (role[j]) /* this pixel receives */
+                        acc += transpose ? -w[j] * vi : w[j] * (vo - vi);
+                    else /* the other pixel receives from this one */
+                        acc += w[j] * vo;
+                }
+                if (transpose)
+                    dst[i * channels + c] += (float)acc;
+                else
+                    dst[i * channels + c] = (float)acc;
+            }
+        }
+}
+
+/* ---- Forward --------------------------------------------------------------------------------- */
+
+pen_status pen_antialias_fwd(pen_context *ctx, const pen_gbuffer *gb, const pen_view *view,
+                             const pen_raster_mesh *meshes, int mesh_count, const float *color,
+                             int channels, float *out) {
+    aa_state st;
+    pen_status status = aa_begin(ctx, gb, view, meshes, mesh_count, channels, &st);
+    if (status) return status;
+    apply_blend(pen__raster_threads(ctx), st.pairs, gb->width, gb->height, color, channels, 0, out);
+    aa_end(&st);
+    return PEN_OK;
+}
+
+/* ---- Backward -------------------------------------------------------------------------------- */
+
+pen_status pen_antialias_bwd(pen_context *ctx, const pen_gbuffer *gb, const pen_view *view,
+                             const pen_raster_mesh *meshes, int mesh_count, const float *color,
+                             int channels, const float *d_out, float *d_color,
+                             float *const *d_positions) {
+    aa_state st;
+    pen_status status = aa_begin(ctx, gb, view, meshes, mesh_count, channels, &st);
+    if (status) return status;
+    const aa_pair *pairs = st.pairs;
+    int W = gb->width, H = gb->height;
+    if (d_color) apply_blend(pen__raster_threads(ctx), pairs, W, H, d_out, channels, 1, d_color);
+    if (d_positions) {
+        /* Serial, in pair order: few pairs blend, and vertices are shared between them. */
+        size_t nh = (size_t)(W - 1) * (size_t)H, np = nh + (size_t)W * (size_t)(H - 1);
+        for (size_t pi = 0; pi < np; ++pi) {
+            if (!pairs[pi].receiver) continue;
+            int axis = pi >= nh;
+            size_t r = axis ? pi - nh : pi;
+            int rw = axis ? W : W - 1, x = (int)(r % (size_t)rw), y = (int)(r / (size_t)rw);
+            aa_edge e;
+            aa_pair pr = analyze_pair(&st.ac, x, y, axis, &e);
+            if (!pr.receiver || !d_positions[e.mesh]) continue;
+            size_t i0 = (size_t)y * (size_t)W + (size_t)x;
+            size_t i1 = axis ? i0 + (size_t)W : i0 + 1;
+            size_t ir = pr.receiver == 1 ? i0 : i1, is = pr.receiver == 1 ? i1 : i0;
+            double dw = 0.0;
+            for (int c = 0; c < channels; ++c)
+                dw += ((double)color[is * channels + c] - (double)color[ir * channels + c]) *
+                      (double)d_out[ir * channels + c];
+            double da = dw * pr.slope;
+            if (da == 0.0) continue;
+            const float *pos = meshes[e.mesh].positions;
+            for (int k = 0; k < 2; ++k) {
+                double p[3], s[3], J[9];
+                pen__load3_d(pos + 3 * (size_t)e.v[k], p);
+                pen__raster_project_d(view, p, s, J);
+                double gx = da * e.dalpha[2 * k], gy = da * e.dalpha[2 * k + 1];
+                float *d = d_positions[e.mesh] + 3 * (size_t)e.v[k];
+                for (int c = 0; c < 3; ++c)
+                    d[c] += (float)(J[c] * gx + J[3 + c] * gy);
+            }
+        }
+    }
+    aa_end(&st);
+    return PEN_OK;
+}

@@ -1,0 +1,520 @@
+/* Rasterizer: per-pixel visibility (G-buffer) of world-space triangle meshes and the ground
+ * plane, sampled at pixel centres, and the backward of the visible points' barycentrics.
+ *
+ * Design. Vertices are moved to camera space (x along right, y along up, z = view depth) in
+ * double. A pixel centre defines the ray direction r = (rx, ry, 1) in that space, and the ray
+ * point at depth z is z r. For a triangle (v0, v1, v2) the three "homogeneous edge functions"
+ *     E_k(r) = r . (v_{k+1} x v_{k+2})
+ * are linear in the pixel position and proportional to the barycentrics of the point where the
+ * ray meets the triangle's plane: b_k = E_k / (E_0 + E_1 + E_2), perspective-correct by
+ * construction, and the depth there is z = det / (E_0 + E_1 + E_2), det = v0 . (v1 x v2)
+ * (Olano & Greer 1997). The ray hits the triangle in front of the eye exactly when every E_k has
+ * the sign of det, so no vertex needs to be projected for coverage: triangles crossing the near
+ * plane are handled by the per-pixel test z >= near (exact clipping), and only their pixel
+ * bounding box comes from the polygon clipped against z = near. A zero-area triangle, or one
+ * whose plane passes through the eye, has det = 0 and is skipped, so no division by zero can
+ * produce a NaN. Shared edges are watertight: the edge coefficients of a shared edge are exact
+ * negatives in the two triangles, and a pixel exactly on an edge goes to the side selected by a
+ * fixed sign rule on the coefficients (a top-left rule).
+ *
+ * Work is split into 16x16 tiles. Triangles are set up in parallel, binned to tiles serially in
+ * their order (mesh order, then triangle order), and tiles are rasterized in parallel, each by
+ * one thread, depth-testing its triangles in that order with a strict "closer" test. The result
+ * is therefore the same for every thread count. The ground square is intersected analytically
+ * with each pixel's ray after the triangles (meshes win depth ties).
+ *
+ * Backward. A pixel's point x = eye + t D lies on the fixed pixel ray D and on the triangle:
+ * -t D + b1 (p1 - p0) + b2 (p2 - p0) = eye - p0, i.e. M (t, b1, b2)^T = eye - p0 with
+ * M = [-D, p1 - p0, p2 - p0]. Differentiating, dM x + M dx = -dp0, so for an upstream gradient
+ * g on (t, b1, b2) with w = M^-T g the vertex gradients are simply d p_k = -b_k w.
+ */
+#include "core/internal.h"
+#include "raster/raster_internal.h"
+
+#include <limits.h>
+#include <omp.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define TILE 16
+
+int pen__raster_threads(const pen_context *ctx) {
+    int n = pen_context_threads(ctx);
+    return n > 0 ? n : omp_get_max_threads();
+}
+
+/* ---- G-buffer -------------------------------------------------------------------------------- */
+
+pen_status pen_gbuffer_create(pen_context *ctx, int width, int height, pen_gbuffer *out) {
+    memset(out, 0, sizeof *out);
+    if (width < 1 || height < 1 || width > PEN_IMAGE_MAX_DIM || height > PEN_IMAGE_MAX_DIM)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "gbuffer: size %dx%d outside [1, %d]", width,
+                          height, PEN_IMAGE_MAX_DIM);
+    size_t n = (size_t)width * (size_t)height;
+    out->width = width;
+    out->height = height;
+    out->surface = pen__malloc(ctx, n, sizeof(int32_t), "gbuffer surface");
+    out->triangle = pen__malloc(ctx, n, sizeof(int32_t), "gbuffer triangle");
+    out->bary = pen__malloc(ctx, n, 2 * sizeof(float), "gbuffer barycentrics");
+    out->depth = pen__malloc(ctx, n, sizeof(float), "gbuffer depth");
+    if (!out->surface || !out->triangle || !out->bary || !out->depth) {
+        pen_gbuffer_free(out);
+        return PEN_ERROR_MEMORY;
+    }
+    for (size_t i = 0; i < n; ++i) {
+        out->surface[i] = PEN_SURFACE_BACKGROUND;
+        out->triangle[i] = -1;
+        out->bary[2 * i] = out->bary[2 * i + 1] = 0.0f;
+        out->depth[i] = INFINITY;
+    }
+    return PEN_OK;
+}
+
+void pen_gbuffer_free(pen_gbuffer *gb) {
+    if (!gb) return;
+    free(gb->surface);
+    free(gb->triangle);
+    free(gb->bary);
+    free(gb->depth);
+    memset(gb, 0, sizeof *gb);
+}
+
+/* ---- Setup ----------------------------------------------------------------------------------- */
+
+typedef struct tri_setup {
+    double n[3][3];     /* E_k(r) = n[k] . r */
+    double det;         /* v0 . (v1 x v2) */
+    int x0, y0, x1, y1; /* inclusive pixel bounds; x0 > x1 when culled */
+    int object, tri;
+} tri_setup;
+
+pen_status pen__raster_check_meshes(pen_context *ctx, const pen_raster_mesh *meshes, int mesh_count,
+                                    size_t *total) {
+    if (mesh_count < 0 || (mesh_count > 0 && !meshes))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "raster: bad mesh list (count %d)", mesh_count);
+    *total = 0;
+    for (int m = 0; m < mesh_count; ++m) {
+        const pen_raster_mesh *mesh = meshes + m;
+        if (mesh->vertex_count < 0 || mesh->triangle_count < 0 ||
+            (mesh->vertex_count > 0 && !mesh->positions) ||
+            (mesh->triangle_count > 0 && !mesh->indices))
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "raster: mesh %d: bad counts (%d vertices, %d triangles) or NULL "
+                              "arrays",
+                              m, mesh->vertex_count, mesh->triangle_count);
+        for (int v = 0; v < mesh->vertex_count; ++v)
+            if (!pen__finite3(mesh->positions + 3 * (size_t)v))
+                return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                                  "raster: mesh %d: vertex %d has a non-finite position", m, v);
+        for (size_t i = 0; i < 3 * (size_t)mesh->triangle_count; ++i)
+            if (mesh->indices[i] >= (uint32_t)mesh->vertex_count)
+                return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                                  "raster: mesh %d: triangle %zu: index %u out of range [0, %d)", m,
+                                  i / 3, mesh->indices[i], mesh->vertex_count);
+        *total += (size_t)mesh->triangle_count;
+    }
+    if (*total > (size_t)INT_MAX)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "raster: %zu triangles exceed the limit %d",
+                          *total, INT_MAX);
+    return PEN_OK;
+}
+
+static void to_camera(const pen_view *view, const float *p, double out[3]) {
+    double d[3], q[3];
+    pen__load3_d(p, q);
+    pen__sub_d(q, view->eye, d);
+    out[0] = pen__dot_d(d, view->right);
+    out[1] = pen__dot_d(d, view->up);
+    out[2] = pen__dot_d(d, view->forward);
+}
+
+/* Screen bounds of the part of triangle v (camera space) at depth >= near, as an inclusive
+ * pixel range whose centres may be covered; returns 0 if nothing can be. */
+static int tri_bounds(const pen_view *view, const double v[3][3], int *x0, int *y0, int *x1,
+                      int *y1) {
+    double near = view->near_plane;
+    double poly[4][3];
+    int count = 0;
+    /* Sutherland-Hodgman against z >= near: at most one corner is cut off or added. */
+    for (int k = 0; k < 3; ++k) {
+        const double *a = v[k], *b = v[(k + 1) % 3];
+        int ain = a[2] >= near, bin = b[2] >= near;
+        if (ain) memcpy(poly[count++], a, sizeof poly[0]);
+        if (ain != bin) {
+            double t = (near - a[2]) / (b[2] - a[2]);
+            for (int i = 0; i < 3; ++i)
+                poly[count][i] = a[i] + t * (b[i] - a[i]);
+            poly[count++][2] = near;
+        }
+    }
+    if (count == 0) return 0;
+    double lo[2] = {INFINITY, INFINITY}, hi[2] = {-INFINITY, -INFINITY};
+    for (int k = 0; k < count; ++k) {
+        double sx = view->cx + view->focal * poly[k][0] / poly[k][2];
+        double sy = view->cy - view->focal * poly[k][1] / poly[k][2];
+        lo[0] = fmin(lo[0], sx), hi[0] = fmax(hi[0], sx);
+        lo[1] = fmin(lo[1], sy), hi[1] = fmax(hi[1], sy);
+    }
+    /* Centres px + 0.5 in [lo, hi], widened by a hair for rounding in the projection: the
+     * coverage test itself is exact, the box only has to contain it. */
+    const double eps = 1e-6;
+    double bx0 = fmax(ceil(lo[0] - 0.5 - eps), 0.0), by0 = fmax(ceil(lo[1] - 0.5 - eps), 0.0);
+    double bx1 = fmin(floor(hi[0] - 0.5 + eps), view->width - 1.0);
+    double by1 = fmin(floor(hi[1] - 0.5 + eps), view->height - 1.0);
+    if (!(bx0 <= bx1 && by0 <= by1)) return 0; /* off screen (or NaN) */
+    *x0 = (int)bx0, *y0 = (int)by0, *x1 = (int)bx1, *y1 = (int)by1;
+    return 1;
+}
+
+static void tri_setup_one(const pen_view *view, const double *cam, const uint32_t *idx,
+                          tri_setup *s) {
+    double v[3][3];
+    for (int k = 0; k < 3; ++k)
+        memcpy(v[k], cam + 3 * (size_t)idx[k], sizeof v[k]);
+    for (int k = 0; k < 3; ++k)
+        pen__cross_d(v[(k + 1) % 3], v[(k + 2) % 3], s->n[k]);
+    s->det = pen__dot_d(v[0], s->n[0]);
+    s->x0 = 1, s->x1 = 0;
+    if (s->det == 0.0 || !isfinite(s->det)) return; /* degenerate or edge-on: covers nothing */
+    tri_bounds(view, v, &s->x0, &s->y0, &s->x1, &s->y1);
+}
+
+/* A pixel exactly on an edge (E == 0) belongs to the triangle whose signed edge coefficients
+ * point right (or down when vertical); the neighbour across the edge sees them negated. */
+static int edge_owns_ties(const double n[3], double sign) {
+    double a = sign * n[0], b = sign * n[1];
+    return a > 0.0 || (a == 0.0 && b > 0.0);
+}
+
+/* ---- Tiles ----------------------------------------------------------------------------------- */
+
+typedef struct tile_ctx {
+    const pen_view *view;
+    const pen_ground *ground;
+    const tri_setup *setups;
+    const int *bin_start; /* per tile, into bin_items */
+    const int *bin_items;
+    const double *rx, *ry; /* per column / row: camera-space ray of the pixel centre */
+    pen_gbuffer *gb;
+} tile_ctx;
+
+static void raster_tile(const tile_ctx *tc, int tx, int ty, int tiles_x) {
+    const pen_view *view = tc->view;
+    int X0 = tx * TILE, Y0 = ty * TILE;
+    int X1 = X0 + TILE - 1 < view->width - 1 ? X0 + TILE - 1 : view->width - 1;
+    int Y1 = Y0 + TILE - 1 < view->height - 1 ? Y0 + TILE - 1 : view->height - 1;
+    double depth[TILE * TILE], bu[TILE * TILE], bv[TILE * TILE];
+    int surf[TILE * TILE], tri[TILE * TILE];
+    for (int i = 0; i < TILE * TILE; ++i) {
+        depth[i] = INFINITY, bu[i] = bv[i] = 0.0;
+        surf[i] = PEN_SURFACE_BACKGROUND, tri[i] = -1;
+    }
+    double near = view->near_plane;
+    int tile = ty * tiles_x + tx;
+    for (int it = tc->bin_start[tile]; it < tc->bin_start[tile + 1]; ++it) {
+        const tri_setup *s = tc->setups + tc->bin_items[it];
+        double sign = s->det > 0.0 ? 1.0 : -1.0;
+        int own[3];
+        for (int k = 0; k < 3; ++k)
+            own[k] = edge_owns_ties(s->n[k], sign);
+        int xa = s->x0 > X0 ? s->x0 : X0, xb = s->x1 < X1 ? s->x1 : X1;
+        int ya = s->y0 > Y0 ? s->y0 : Y0, yb = s->y1 < Y1 ? s->y1 : Y1;
+        for (int y = ya; y <= yb; ++y) {
+            double ry = tc->ry[y];
+            for (int x = xa; x <= xb; ++x) {
+                double rx = tc->rx[x], e[3];
+                int inside = 1;
+                for (int k = 0; k < 3 && inside; ++k) {
+                    e[k] = sign * (s->n[k][0] * rx + s->n[k][1] * ry + s->n[k][2]);
+                    inside = e[k] > 0.0 || (e[k] == 0.0 && own[k]);
+                }
+                if (!inside) continue;
+                double sum = e[0] + e[1] + e[2];
+                if (!(sum > 0.0)) continue; /* all three on edges: no well-defined point */
+                double z = sign * s->det / sum;
+                int i = (y - Y0) * TILE + (x - X0);
+                if (!(z >= near && z < depth[i])) continue;
+                depth[i] = z, bu[i] = e[1] / sum, bv[i] = e[2] / sum;
+                surf[i] = s->object, tri[i] = s->tri;
+            }
+        }
+    }
+    const pen_ground *g = tc->ground;
+    for (int y = Y0; y <= Y1; ++y)
+        for (int x = X0; x <= X1; ++x) {
+            int i = (y - Y0) * TILE + (x - X0);
+            if (g && g->enabled) {
+                double D[3]; /* pen_view_ray from the tables */
+                for (int c = 0; c < 3; ++c)
+                    D[c] = tc->rx[x] * view->right[c] + tc->ry[y] * view->up[c] + view->forward[c];
+                double z = ((double)g->height - view->eye[1]) / D[1];
+                double hx = view->eye[0] + z * D[0], hz = view->eye[2] + z * D[2];
+                double hs = (double)g->half_size;
+                if (z >= near && z < depth[i] && fabs(hx) <= hs && fabs(hz) <= hs) {
+                    depth[i] = z, bu[i] = bv[i] = 0.0;
+                    surf[i] = PEN_SURFACE_GROUND, tri[i] = -1;
+                }
+            }
+            size_t o = (size_t)y * (size_t)view->width + (size_t)x;
+            tc->gb->surface[o] = surf[i];
+            tc->gb->triangle[o] = tri[i];
+            tc->gb->bary[2 * o] = (float)bu[i];
+            tc->gb->bary[2 * o + 1] = (float)bv[i];
+            tc->gb->depth[o] = (float)depth[i];
+        }
+}
+
+/* ---- Rasterization --------------------------------------------------------------------------- */
+
+pen_status pen_raster_gbuffer(pen_context *ctx, const pen_view *view, const pen_raster_mesh *meshes,
+                              int mesh_count, const pen_ground *ground, pen_gbuffer *gb) {
+    if (!view || !gb || !gb->surface)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "raster: NULL view or G-buffer");
+    if (gb->width != view->width || gb->height != view->height)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "raster: G-buffer %dx%d, camera %dx%d",
+                          gb->width, gb->height, view->width, view->height);
+    if (!(view->near_plane > 0.0) || !isfinite(view->near_plane))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "raster: near plane %g is not positive",
+                          view->near_plane);
+    if (ground && ground->enabled &&
+        (!isfinite(ground->height) || !isfinite(ground->half_size) || ground->half_size < 0.0f))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "raster: ground height %g, half_size %g",
+                          (double)ground->height, (double)ground->half_size);
+    size_t total = 0;
+    pen_status st = pen__raster_check_meshes(ctx, meshes, mesh_count, &total);
+    if (st) return st;
+
+    int threads = pen__raster_threads(ctx);
+    int W = view->width, H = view->height;
+    int tiles_x = (W + TILE - 1) / TILE, tiles_y = (H + TILE - 1) / TILE;
+    size_t tiles = (size_t)tiles_x * (size_t)tiles_y;
+    size_t max_vertices = 0;
+    for (int m = 0; m < mesh_count; ++m)
+        if ((size_t)meshes[m].vertex_count > max_vertices)
+            max_vertices = (size_t)meshes[m].vertex_count;
+
+    tri_setup *setups = pen__malloc(ctx, total ? total : 1, sizeof *setups, "raster setups");
+    double *cam = pen__malloc(ctx, 3 * (max_vertices ? max_vertices : 1), sizeof(double),
+                              "raster camera-space vertices");
+    int *bin_start = pen__calloc(ctx, tiles + 1, sizeof(int), "raster bins");
+    double *rx = pen__malloc(ctx, (size_t)W + (size_t)H, sizeof(double), "raster rays");
+    int *bin_items = NULL;
+    if (!setups || !cam || !bin_start || !rx) {
+        st = PEN_ERROR_MEMORY;
+        goto done;
+    }
+    double *ry = rx + W;
+    for (int x = 0; x < W; ++x)
+        rx[x] = (x + 0.5 - view->cx) / view->focal;
+    for (int y = 0; y < H; ++y)
+        ry[y] = (view->cy - (y + 0.5)) / view->focal;
+
+    /* Setup, mesh by mesh (camera-space vertices shared by a mesh's triangles). */
+    size_t base = 0;
+    for (int m = 0; m < mesh_count; ++m) {
+        const pen_raster_mesh *mesh = meshes + m;
+        int nv = mesh->vertex_count, nt = mesh->triangle_count;
+#pragma omp parallel for num_threads(threads) schedule(static)
+        for (int v = 0; v < nv; ++v)
+            to_camera(view, mesh->positions + 3 * (size_t)v, cam + 3 * (size_t)v);
+#pragma omp parallel for num_threads(threads) schedule(static)
+        for (int t = 0; t < nt; ++t) {
+            tri_setup *s = setups + base + (size_t)t;
+            tri_setup_one(view, cam, mesh->indices + 3 * (size_t)t, s);
+            s->object = m, s->tri = t;
+        }
+        base += (size_t)nt;
+    }
+
+    /* Binning in triangle order: count, prefix sum, fill. */
+    size_t items = 0;
+    for (size_t i = 0; i < total; ++i) {
+        const tri_setup *s = setups + i;
+        if (s->x0 > s->x1) continue;
+        for (int ty = s->y0 / TILE; ty <= s->y1 / TILE; ++ty)
+            for (int tx = s->x0 / TILE; tx <= s->x1 / TILE; ++tx)
+                ++bin_start[ty * tiles_x + tx + 1];
+    }
+    for (size_t t = 0; t < tiles; ++t) {
+        items += (size_t)bin_start[t + 1];
+        if (items > (size_t)INT_MAX) {
+            st = pen__error(ctx, PEN_ERROR_MEMORY, "raster: %zu tile entries exceed %d", items,
+                            INT_MAX);
+            goto done;
+        }
+        bin_start[t + 1] = (int)items;
+    }
+    bin_items = pen__malloc(ctx, items ? items : 1, sizeof(int), "raster bin items");
+    if (!bin_items) {
+        st = PEN_ERROR_MEMORY;
+        goto done;
+    }
+    {
+        int *fill = pen__malloc(ctx, tiles, sizeof(int), "raster bin cursor");
+        if (!fill) {
+            st = PEN_ERROR_MEMORY;
+            goto done;
+        }
+        memcpy(fill, bin_start, tiles * sizeof(int));
+        for (size_t i = 0; i < total; ++i) {
+            const tri_setup *s = setups + i;
+            if (s->x0 > s->x1) continue;
+            for (int ty = s->y0 / TILE; ty <= s->y1 / TILE; ++ty)
+                for (int tx = s->x0 / TILE; tx <= s->x1 / TILE; ++tx)
+                    bin_items[fill[ty * tiles_x + tx]++] = (int)i;
+        }
+        free(fill);
+    }
+
+    tile_ctx tc = {view, ground, setups, bin_start, bin_items, rx, ry, gb};
+    int ntiles = (int)tiles;
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 1)
+    for (int t = 0; t < ntiles; ++t)
+        raster_tile(&tc, t % tiles_x, t / tiles_x, tiles_x);
+
+done:
+    free(setups);
+    free(cam);
+    free(bin_start);
+    free(bin_items);
+    free(rx);
+    return st;
+}
+
+/* ---- Barycentrics of a ray: forward and backward --------------------------------------------- */
+
+int pen__raster_ray_bary_d(const double eye[3], const double dir[3], const double p0[3],
+                           const double p1[3], const double p2[3], double x[3]) {
+    double c[3][3], rhs[3];
+    for (int i = 0; i < 3; ++i)
+        c[0][i] = -dir[i], c[1][i] = p1[i] - p0[i], c[2][i] = p2[i] - p0[i];
+    pen__sub_d(eye, p0, rhs);
+    double r[3][3];
+    for (int k = 0; k < 3; ++k)
+        pen__cross_d(c[(k + 1) % 3], c[(k + 2) % 3], r[k]);
+    double det = pen__dot_d(c[0], r[0]);
+    if (det == 0.0 || !isfinite(det)) return 0;
+    /* Cramer: the rows of M^-1 are (c_{k+1} x c_{k+2}) / det. */
+    for (int k = 0; k < 3; ++k)
+        x[k] = pen__dot_d(r[k], rhs) / det;
+    return 1;
+}
+
+void pen__raster_ray_bary_bwd_d(const double eye[3], const double dir[3], const double p0[3],
+                                const double p1[3], const double p2[3], const double x[3],
+                                const double d_x[3], double d_p0[3], double d_p1[3],
+                                double d_p2[3]) {
+    (void)eye;
+    double c[3][3];
+    for (int i = 0; i < 3; ++i)
+        c[0][i] = -dir[i], c[1][i] = p1[i] - p0[i], c[2][i] = p2[i] - p0[i];
+    double r[3][3];
+    for (int k = 0; k < 3; ++k)
+        pen__cross_d(c[(k + 1) % 3], c[(k + 2) % 3], r[k]);
+    double det = pen__dot_d(c[0], r[0]);
+    if (det == 0.0 || !isfinite(det)) return;
+    double w[3];
+    for (int i = 0; i < 3; ++i)
+        w[i] = (d_x[0] * r[0][i] + d_x[1] * r[1][i] + d_x[2] * r[2][i]) / det;
+    double b0 = 1.0 - x[1] - x[2];
+    for (int i = 0; i < 3; ++i) {
+        d_p0[i] -= b0 * w[i];
+        d_p1[i] -= x[1] * w[i];
+        d_p2[i] -= x[2] * w[i];
+    }
+}
+
+void pen_raster_bary_bwd(const pen_view *view, const pen_raster_mesh *meshes, int mesh_count,
+                         const pen_gbuffer *gb, const float *d_bary, float *const *d_positions) {
+    if (!d_positions || !d_bary) return;
+    int W = gb->width, H = gb->height;
+    /* Serial: pixels of one object scatter into shared vertices; this pass is a small part of a
+     * frame, and a fixed order keeps the sums reproducible. */
+    for (int y = 0; y < H; ++y)
+        for (int x = 0; x < W; ++x) {
+            size_t i = (size_t)y * (size_t)W + (size_t)x;
+            int m = gb->surface[i];
+            if (m < 0 || m >= mesh_count || !d_positions[m]) continue;
+            double g[3] = {0.0, (double)d_bary[2 * i], (double)d_bary[2 * i + 1]};
+            if (g[1] == 0.0 && g[2] == 0.0) continue;
+            const pen_raster_mesh *mesh = meshes + m;
+            const uint32_t *idx = mesh->indices + 3 * (size_t)gb->triangle[i];
+            double p[3][3], D[3], sol[3], dp[3][3] = {{0}};
+            for (int k = 0; k < 3; ++k)
+                pen__load3_d(mesh->positions + 3 * (size_t)idx[k], p[k]);
+            pen_view_ray(view, x + 0.5, y + 0.5, D);
+            if (!pen__raster_ray_bary_d(view->eye, D, p[0], p[1], p[2], sol)) continue;
+            pen__raster_ray_bary_bwd_d(view->eye, D, p[0], p[1], p[2], sol, g, dp[0], dp[1], dp[2]);
+            for (int k = 0; k < 3; ++k)
+                for (int c = 0; c < 3; ++c)
+                    d_positions[m][3 * (size_t)idx[k] + c] += (float)dp[k][c];
+        }
+}
+
+void pen_gbuffer_points(const pen_view *view, const pen_gbuffer *gb, float *out) {
+    int W = gb->width, H = gb->height;
+    for (int y = 0; y < H; ++y)
+        for (int x = 0; x < W; ++x) {
+            size_t i = (size_t)y * (size_t)W + (size_t)x;
+            float *o = out + 3 * i;
+            if (gb->surface[i] == PEN_SURFACE_BACKGROUND) {
+                o[0] = o[1] = o[2] = 0.0f;
+                continue;
+            }
+            double D[3], z = (double)gb->depth[i];
+            pen_view_ray(view, x + 0.5, y + 0.5, D);
+            for (int c = 0; c < 3; ++c)
+                o[c] = (float)(view->eye[c] + z * D[c]);
+        }
+}
+
+/* ---- Edge adjacency -------------------------------------------------------------------------- */
+
+typedef struct half_edge {
+    uint64_t key; /* (min vertex << 32) | max vertex */
+    uint32_t id;  /* 3 * triangle + edge */
+} half_edge;
+
+static int half_edge_cmp(const void *a, const void *b) {
+    const half_edge *x = a, *y = b;
+    if (x->key != y->key) return x->key < y->key ? -1 : 1;
+    return x->id < y->id ? -1 : x->id > y->id;
+}
+
+pen_status pen_raster_adjacency(pen_context *ctx, int vertex_count, int triangle_count,
+                                const uint32_t *indices, int32_t *adjacency) {
+    if (triangle_count < 0 || vertex_count < 0 || (triangle_count > 0 && (!indices || !adjacency)))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "adjacency: bad arguments (%d triangles)",
+                          triangle_count);
+    size_t n = 3 * (size_t)triangle_count;
+    for (size_t i = 0; i < n; ++i)
+        if (indices[i] >= (uint32_t)vertex_count)
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "adjacency: triangle %zu: index %u out of range [0, %d)", i / 3,
+                              indices[i], vertex_count);
+    half_edge *he = pen__malloc(ctx, n ? n : 1, sizeof *he, "adjacency half-edges");
+    if (!he) return PEN_ERROR_MEMORY;
+    for (size_t i = 0; i < n; ++i) {
+        uint32_t a = indices[i], b = indices[i - i % 3 + (i % 3 + 1) % 3];
+        uint32_t lo = a < b ? a : b, hi = a < b ? b : a;
+        he[i].key = ((uint64_t)lo << 32) | hi;
+        he[i].id = (uint32_t)i;
+        adjacency[i] = -1;
+    }
+    qsort(he, n, sizeof *he, half_edge_cmp);
+    for (size_t i = 0; i < n;) {
+        size_t j = i + 1;
+        while (j < n && he[j].key == he[i].key)
+            ++j;
+        uint32_t e0 = he[i].id, e1 = he[i + (j - i > 1)].id;
+        int degenerate = (he[i].key >> 32) == (he[i].key & 0xffffffffu);
+        if (j - i == 2 && e0 / 3 != e1 / 3 && !degenerate) {
+            /* The vertex opposite edge k of a triangle is its corner (k + 2) % 3. */
+            adjacency[e0] = (int32_t)indices[e1 - e1 % 3 + (e1 % 3 + 2) % 3];
+            adjacency[e1] = (int32_t)indices[e0 - e0 % 3 + (e0 % 3 + 2) % 3];
+        }
+        i = j;
+    }
+    free(he);
+    return PEN_OK;
+}

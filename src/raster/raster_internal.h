@@ -1,0 +1,50 @@
+/* Internal interface of src/raster: double-precision kernels shared by the camera, rasterizer,
+ * interpolation and antialiasing files, and exposed to the tests for finite-difference checks. */
+#ifndef PEN_RASTER_INTERNAL_H
+#define PEN_RASTER_INTERNAL_H
+
+#include "penumbra/raster.h"
+
+/* Projection of a world point: s = (sx, sy, depth); J (may be NULL) = ds/dp, row-major 3x3. */
+void pen__raster_project_d(const pen_view *view, const double p[3], double s[3], double J[9]);
+
+/* The pixel ray eye + t * dir meets the plane of (p0, p1, p2) at the point
+ * (1 - b1 - b2) p0 + b1 p1 + b2 p2: x = (t, b1, b2). Returns 0 when the ray is parallel to the
+ * plane (x untouched). */
+int pen__raster_ray_bary_d(const double eye[3], const double dir[3], const double p0[3],
+                           const double p1[3], const double p2[3], double x[3]);
+/* Backward of pen__raster_ray_bary_d at its solution x, for gradient d_x of (t, b1, b2):
+ * adds into d_p0, d_p1, d_p2 (eye and dir are constants). */
+void pen__raster_ray_bary_bwd_d(const double eye[3], const double dir[3], const double p0[3],
+                                const double p1[3], const double p2[3], const double x[3],
+                                const double d_x[3], double d_p0[3], double d_p1[3],
+                                double d_p2[3]);
+
+static inline void pen__cross_d(const double a[3], const double b[3], double out[3]) {
+    double x = a[1] * b[2] - a[2] * b[1];
+    double y = a[2] * b[0] - a[0] * b[2];
+    double z = a[0] * b[1] - a[1] * b[0];
+    out[0] = x, out[1] = y, out[2] = z;
+}
+
+static inline double pen__dot_d(const double a[3], const double b[3]) {
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
+
+static inline void pen__sub_d(const double a[3], const double b[3], double out[3]) {
+    out[0] = a[0] - b[0], out[1] = a[1] - b[1], out[2] = a[2] - b[2];
+}
+
+static inline void pen__load3_d(const float *p, double out[3]) {
+    out[0] = (double)p[0], out[1] = (double)p[1], out[2] = (double)p[2];
+}
+
+/* Validates a mesh list (counts, NULL arrays, finite positions, indices in range); *total gets
+ * the number of triangles. */
+pen_status pen__raster_check_meshes(pen_context *ctx, const pen_raster_mesh *meshes, int mesh_count,
+                                    size_t *total);
+
+/* OpenMP thread count for a context: its setting, or the runtime's default when 0. */
+int pen__raster_threads(const pen_context *ctx);
+
+#endif
