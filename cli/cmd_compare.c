@@ -18,8 +18,10 @@ static void usage(FILE *f) {
 }
 
 static void print_number(const char *key, double v, const char *sep) {
-    if (isfinite(v)) printf("\"%s\": %.9g%s", key, v, sep);
-    else printf("\"%s\": null%s", key, sep);
+    if (isfinite(v))
+        printf("\"%s\": %.9g%s", key, v, sep);
+    else
+        printf("\"%s\": null%s", key, sep);
 }
 
 static void print_error(const pen_image_error *e) {
@@ -61,7 +63,8 @@ int pen_cmd_compare(int argc, char **argv) {
     pen_image a = {0, 0, 0, NULL}, b = a, m = a;
     pen_image_error all, masked;
     int status = 1;
-    if (load(ctx, paths[0], &a) && load(ctx, paths[1], &b) && (!mask_path || load(ctx, mask_path, &m))) {
+    if (load(ctx, paths[0], &a) && load(ctx, paths[1], &b) &&
+        (!mask_path || load(ctx, mask_path, &m))) {
         if (pen_image_compare(ctx, &a, &b, mask_path ? &m : NULL, &all, &masked)) {
             /* Name the files: the library only knows them as A, B and mask. */
             pen_cli_fail(CMD, "%s vs %s: %s", paths[0], paths[1], pen_context_error(ctx));

@@ -9,7 +9,8 @@
 static pen_image make(pen_context *ctx, int w, int h, int c, float value) {
     pen_image img;
     CHECK(pen_image_create(ctx, w, h, c, &img) == PEN_OK);
-    for (size_t i = 0; i < (size_t)w * h * c; ++i) img.data[i] = value;
+    for (size_t i = 0; i < (size_t)w * h * c; ++i)
+        img.data[i] = value;
     return img;
 }
 

@@ -61,7 +61,8 @@ static void add_square(test_scene *t, int k, float a, float y, float rho) {
 
 /* Constant radiance L as SH lighting: only the DC term, L * sqrt(4 pi). */
 static void constant_sh(pen_scene *s, double L) {
-    for (int ch = 0; ch < 3; ++ch) s->lighting.sh[0][ch] = (float)(L * sqrt(4 * PI));
+    for (int ch = 0; ch < 3; ++ch)
+        s->lighting.sh[0][ch] = (float)(L * sqrt(4 * PI));
 }
 
 /* Real SH up to l = 2 (Condon-Shortley phase), written out independently of the library. */
@@ -83,7 +84,8 @@ static double sh_irradiance(float sh[][3], int ch, const double n[3]) {
     static const double A[3] = {PI, 2 * PI / 3, PI / 4};
     double y[9], e = 0;
     sh9(n, y);
-    for (int i = 0; i < 9; ++i) e += A[i == 0 ? 0 : i < 4 ? 1 : 2] * (double)sh[i][ch] * y[i];
+    for (int i = 0; i < 9; ++i)
+        e += A[i == 0 ? 0 : i < 4 ? 1 : 2] * (double)sh[i][ch] * y[i];
     return e;
 }
 
@@ -107,7 +109,8 @@ static void envmap_from_sh(pen_image *env, float sh[][3]) {
             sh9(dd, Y);
             for (int ch = 0; ch < 3; ++ch) {
                 double v = 0;
-                for (int i = 0; i < 9; ++i) v += (double)sh[i][ch] * Y[i];
+                for (int i = 0; i < 9; ++i)
+                    v += (double)sh[i][ch] * Y[i];
                 env->data[3 * ((size_t)y * env->width + x) + ch] = (float)v;
             }
         }
@@ -129,15 +132,18 @@ static void irradiance_stats(pen_context *ctx, const pen_reference *ref, const f
     for (int b = 0; b < batches; ++b) {
         float E[3];
         CHECK(pen_reference_irradiance(ctx, ref, x, n, per_batch, 1000 + b, E) == PEN_OK);
-        for (int ch = 0; ch < 3; ++ch) sum[ch] += (double)E[ch];
+        for (int ch = 0; ch < 3; ++ch)
+            sum[ch] += (double)E[ch];
         sum2 += (double)E[0] * (double)E[0];
     }
-    for (int ch = 0; ch < 3; ++ch) mean[ch] = sum[ch] / batches;
+    for (int ch = 0; ch < 3; ++ch)
+        mean[ch] = sum[ch] / batches;
     double var = fmax(sum2 / batches - mean[0] * mean[0], 0.0) * batches / (batches - 1);
     *se = sqrt(var / batches);
 }
 
-/* ---- The envmap sampler ----------------------------------------------------------------------- */
+/* ---- The envmap sampler -----------------------------------------------------------------------
+ */
 
 /* Texel frequencies of many draws match the probabilities (luminance x sin(theta)), black texels
  * are never drawn, and the density integrates to 1 over the sphere. */
@@ -193,7 +199,8 @@ static void test_envmap_sampler(void) {
     pen_context_destroy(ctx);
 }
 
-/* ---- Analytic: unoccluded plane ---------------------------------------------------------------- */
+/* ---- Analytic: unoccluded plane ----------------------------------------------------------------
+ */
 
 static void test_constant_sh_plane(void) {
     pen_context *ctx = pen_context_create();
@@ -226,15 +233,19 @@ static void test_constant_envmap_plane(void) {
     scene_ground(&t, 8, 8, (float)rho);
     pen_image env;
     CHECK(pen_image_create(ctx, 32, 16, 3, &env) == PEN_OK);
-    for (int i = 0; i < 32 * 16 * 3; ++i) env.data[i] = (float)L;
+    for (int i = 0; i < 32 * 16 * 3; ++i)
+        env.data[i] = (float)L;
     t.scene.lighting.envmap = env;
     t.scene.lighting.scale = 0.5f; /* the map is scaled: radiance L / 2 */
+    /* as pen_scene_load does: the SH lighting is the map's projection (so AUTO picks the map) */
+    CHECK(pen_envmap_to_sh(ctx, &env, t.scene.sh_bands, 0.0f, 0.5f, t.scene.lighting.sh) == PEN_OK);
     pen_reference *ref = make_ref(ctx, &t.scene, PEN_REFERENCE_LIGHTING_AUTO);
     CHECK(ref && pen_reference_lighting_mode(ref) == PEN_REFERENCE_LIGHTING_ENVMAP);
     pen_image img;
     CHECK(pen_reference_render(ctx, ref, 256, 1, &img) == PEN_OK);
     double mean = 0;
-    for (int i = 0; i < img.width * img.height * 3; ++i) mean += (double)img.data[i];
+    for (int i = 0; i < img.width * img.height * 3; ++i)
+        mean += (double)img.data[i];
     mean /= img.width * img.height * 3;
     /* MIS of two unbiased strategies under constant light has tiny variance: 0.5% is > 10 se. */
     CHECK_REL(mean, rho * L * 0.5, 5e-3, 1e-6);
@@ -276,9 +287,11 @@ static void test_sh_plane(void) {
     ref = make_ref(ctx, &t.scene, PEN_REFERENCE_LIGHTING_SH);
     unsigned long long seed = 5;
     for (int k = 0; k < 4; ++k) {
-        double d[3] = {check_rand_(&seed) - 0.5, check_rand_(&seed) - 0.5, check_rand_(&seed) - 0.5};
+        double d[3] = {check_rand_(&seed) - 0.5, check_rand_(&seed) - 0.5,
+                       check_rand_(&seed) - 0.5};
         double len = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-        float x[3] = {0, 1, 0}, n[3] = {(float)(d[0] / len), (float)(d[1] / len), (float)(d[2] / len)};
+        float x[3] = {0, 1, 0},
+              n[3] = {(float)(d[0] / len), (float)(d[1] / len), (float)(d[2] / len)};
         double nd[3] = {n[0], n[1], n[2]}, mean[3], se;
         irradiance_stats(ctx, ref, x, n, 20, check_quick_() ? 200 : 2000, mean, &se);
         double want = sh_irradiance(t.scene.lighting.sh, 0, nd);
@@ -305,12 +318,26 @@ static void test_envmap_sh_function(void) {
     const double rot_deg = 70.0;
     t.scene.lighting.rotation_y_deg = (float)rot_deg;
     pen_reference *ref = make_ref(ctx, &t.scene, PEN_REFERENCE_LIGHTING_ENVMAP);
+    t.scene.sh_bands = 3;
+    CHECK(pen_envmap_to_sh(ctx, &env, 3, (float)rot_deg, 1.0f, t.scene.lighting.sh) == PEN_OK);
+    pen_reference *ref_sh = make_ref(ctx, &t.scene, PEN_REFERENCE_LIGHTING_SH);
+    /* AUTO: the SH is the map's projection, so the map lights; other SH would win. */
+    pen_reference *ref_auto = make_ref(ctx, &t.scene, PEN_REFERENCE_LIGHTING_AUTO);
+    CHECK(ref_auto && pen_reference_lighting_mode(ref_auto) == PEN_REFERENCE_LIGHTING_ENVMAP);
+    pen_reference_destroy(ref_auto);
+    t.scene.lighting.sh[1][0] += 0.01f;
+    ref_auto = make_ref(ctx, &t.scene, PEN_REFERENCE_LIGHTING_AUTO);
+    CHECK(ref_auto && pen_reference_lighting_mode(ref_auto) == PEN_REFERENCE_LIGHTING_SH);
+    pen_reference_destroy(ref_auto);
+    t.scene.lighting.sh[1][0] -= 0.01f;
     unsigned long long seed = 9;
     double c = cos(rot_deg * PI / 180), s = sin(rot_deg * PI / 180);
     for (int k = 0; k < 3; ++k) {
-        double d[3] = {check_rand_(&seed) - 0.5, check_rand_(&seed) - 0.5, check_rand_(&seed) - 0.5};
+        double d[3] = {check_rand_(&seed) - 0.5, check_rand_(&seed) - 0.5,
+                       check_rand_(&seed) - 0.5};
         double len = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-        float x[3] = {0, 0, 0}, n[3] = {(float)(d[0] / len), (float)(d[1] / len), (float)(d[2] / len)};
+        float x[3] = {0, 0, 0},
+              n[3] = {(float)(d[0] / len), (float)(d[1] / len), (float)(d[2] / len)};
         double nd[3] = {n[0], n[1], n[2]};
         /* world = R_y(rot) map, so the irradiance at n is the map's at R_y(-rot) n */
         double nm[3] = {c * nd[0] - s * nd[2], nd[1], s * nd[0] + c * nd[2]}, mean[3], se;
@@ -318,13 +345,20 @@ static void test_envmap_sh_function(void) {
         double want = sh_irradiance(sh, 0, nm);
         CHECK_MSG(fabs(mean[0] - want) < 5 * se + 5e-3 * want, "normal %d: %g vs %g (se %g)", k,
                   mean[0], want, se);
+        /* The same through the SH path with the io projection of the map: both must agree on
+         * the rotation convention (pen_envmap_to_sh). */
+        irradiance_stats(ctx, ref_sh, x, n, 20, check_quick_() ? 200 : 2000, mean, &se);
+        CHECK_MSG(fabs(mean[0] - want) < 5 * se + 5e-3 * want, "SH, normal %d: %g vs %g (se %g)", k,
+                  mean[0], want, se);
     }
+    pen_reference_destroy(ref_sh);
     pen_reference_destroy(ref);
     pen_image_free(&env);
     pen_context_destroy(ctx);
 }
 
-/* ---- Analytic: an occluding square -------------------------------------------------------------- */
+/* ---- Analytic: an occluding square --------------------------------------------------------------
+ */
 
 static double corner_form_factor(double X, double Y) {
     double sx = sqrt(1 + X * X), sy = sqrt(1 + Y * Y);
@@ -351,7 +385,8 @@ static void test_occluding_square(void) {
 
     pen_image env;
     CHECK(pen_image_create(ctx, 64, 32, 3, &env) == PEN_OK);
-    for (int i = 0; i < 64 * 32 * 3; ++i) env.data[i] = (float)L;
+    for (int i = 0; i < 64 * 32 * 3; ++i)
+        env.data[i] = (float)L;
     t.scene.lighting.envmap = env;
     ref = make_ref(ctx, &t.scene, PEN_REFERENCE_LIGHTING_ENVMAP);
     irradiance_stats(ctx, ref, x, n, 20, per, mean, &se);
@@ -361,7 +396,8 @@ static void test_occluding_square(void) {
     pen_context_destroy(ctx);
 }
 
-/* ---- Surfaces: textures, back faces, background ------------------------------------------------ */
+/* ---- Surfaces: textures, back faces, background ------------------------------------------------
+ */
 
 /* A unit quad in the plane z = 0 facing +Z, seen straight on, under constant light L: each pixel
  * is albedo(uv) * L. The texture's row 0 (white) must appear at the top (v = 1). */
@@ -382,14 +418,15 @@ static void test_textured_quad(void) {
     memcpy(t.uvs, uv, sizeof uv);
     memcpy(t.uv_indices, idx, sizeof idx);
     pen_object *o = &t.objects[0];
-    o->mesh = (pen_mesh){4, 2, t.positions[0], t.indices[0], 4, t.uvs, t.uv_indices,
-                         0, NULL, NULL, NULL};
+    o->mesh =
+        (pen_mesh){4, 2, t.positions[0], t.indices[0], 4, t.uvs, t.uv_indices, 0, NULL, NULL, NULL};
     o->pose.scale = 1.0f;
     t.scene.object_count = 1;
     pen_image tex;
     CHECK(pen_image_create(ctx, 4, 64, 3, &tex) == PEN_OK);
     for (int y = 0; y < 64; ++y)
-        for (int i = 0; i < 4 * 3; ++i) tex.data[y * 12 + i] = y < 32 ? 0.9f : 0.1f;
+        for (int i = 0; i < 4 * 3; ++i)
+            tex.data[y * 12 + i] = y < 32 ? 0.9f : 0.1f;
     o->texture = tex;
     pen_reference *ref = make_ref(ctx, &t.scene, PEN_REFERENCE_LIGHTING_SH);
     pen_image img;
@@ -421,7 +458,8 @@ static void test_textured_quad(void) {
     pen_context_destroy(ctx);
 }
 
-/* ---- Convergence and determinism --------------------------------------------------------------- */
+/* ---- Convergence and determinism ---------------------------------------------------------------
+ */
 
 /* A square casting a shadow on the ground under a map with a bright "sun" and a dim sky. */
 static void scene_shadow(test_scene *t, pen_image *env, int size) {
@@ -465,7 +503,8 @@ static void test_convergence(void) {
     for (int k = 0; k < 2; ++k)
         for (int sd = 0; sd < seeds; ++sd) {
             pen_image img;
-            CHECK(pen_reference_render(ctx, ref, spp[k], (uint64_t)(1 + 10 * k + sd), &img) == PEN_OK);
+            CHECK(pen_reference_render(ctx, ref, spp[k], (uint64_t)(1 + 10 * k + sd), &img) ==
+                  PEN_OK);
             double e = image_rmse(&img, &truth);
             mse[k] += e * e / seeds;
             pen_image_free(&img);
@@ -550,6 +589,7 @@ static void test_errors(void) {
     pen_context_destroy(ctx);
 }
 
-RUN_TESTS(TEST(test_envmap_sampler), TEST(test_constant_sh_plane), TEST(test_constant_envmap_plane), TEST(test_sh_plane),
-          TEST(test_envmap_sh_function), TEST(test_occluding_square), TEST(test_textured_quad),
-          TEST(test_convergence), TEST(test_determinism), TEST(test_errors))
+RUN_TESTS(TEST(test_envmap_sampler), TEST(test_constant_sh_plane), TEST(test_constant_envmap_plane),
+          TEST(test_sh_plane), TEST(test_envmap_sh_function), TEST(test_occluding_square),
+          TEST(test_textured_quad), TEST(test_convergence), TEST(test_determinism),
+          TEST(test_errors))

@@ -23,7 +23,7 @@ typedef struct pen_image_error {
     double rmse;
     double rel_rmse;
     double psnr_db;
-    long long pixels;   /* pixels compared */
+    long long pixels; /* pixels compared */
 } pen_image_error;
 
 /* Compares A against the reference B. They must have the same width, height and channels, and
@@ -31,8 +31,7 @@ typedef struct pen_image_error {
  * channel count), and *masked receives the metrics restricted to it (`masked` may be NULL when
  * mask is NULL). Errors name the image ("A", "B", "mask") and the pixel. */
 pen_status pen_image_compare(pen_context *ctx, const pen_image *a, const pen_image *b,
-                             const pen_image *mask, pen_image_error *all,
-                             pen_image_error *masked);
+                             const pen_image *mask, pen_image_error *all, pen_image_error *masked);
 
 #ifdef __cplusplus
 }

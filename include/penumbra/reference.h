@@ -45,7 +45,9 @@ extern "C" {
 #endif
 
 typedef enum pen_reference_lighting {
-    PEN_REFERENCE_LIGHTING_AUTO = 0,   /* the envmap if the scene has one, else SH */
+    PEN_REFERENCE_LIGHTING_AUTO = 0, /* the envmap if the scene has one and its SH lighting is
+                                        the map's projection; else SH (a scene may give "sh"
+                                        next to a map that is only its background) */
     PEN_REFERENCE_LIGHTING_ENVMAP = 1,
     PEN_REFERENCE_LIGHTING_SH = 2
 } pen_reference_lighting;
@@ -69,8 +71,8 @@ pen_reference_lighting pen_reference_lighting_mode(const pen_reference *ref);
 
 /* Renders the camera's image: 3 channels, linear radiance, `spp` in [1, PEN_REFERENCE_MAX_SPP]
  * samples per pixel. *out is allocated here (pen_image_free releases it); zeroed on failure. */
-pen_status pen_reference_render(pen_context *ctx, const pen_reference *ref, int spp,
-                                uint64_t seed, pen_image *out);
+pen_status pen_reference_render(pen_context *ctx, const pen_reference *ref, int spp, uint64_t seed,
+                                pen_image *out);
 
 /* Irradiance E = integral L(w) V(x, w) max(n . w, 0) dw at the surface point x with unit normal
  * n (rays leave from x nudged along n), estimated with `samples` sample pairs. */

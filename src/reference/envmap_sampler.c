@@ -33,8 +33,10 @@ static void build_alias(size_t n, const double *p, uint32_t *work, pen__alias_ce
     size_t ns = 0, nl = 0;
     for (size_t i = 0; i < n; ++i) {
         scaled[i] = p[i] * (double)n;
-        if (scaled[i] < 1.0) small[ns++] = (uint32_t)i;
-        else large[nl++] = (uint32_t)i;
+        if (scaled[i] < 1.0)
+            small[ns++] = (uint32_t)i;
+        else
+            large[nl++] = (uint32_t)i;
     }
     while (ns > 0 && nl > 0) {
         uint32_t s = small[--ns], l = large[nl - 1];

@@ -46,20 +46,19 @@ static inline double pen__rng_next_double(pen__rng *r) {
  * luminance of the (clamped) texel times the sine of its row's polar angle, i.e. proportional to
  * the texel's contribution to the light arriving from it. Drawn in O(1) by an alias table. */
 typedef struct pen__alias_cell {
-    float threshold;   /* keep the cell with this probability, else take `alias` */
+    float threshold; /* keep the cell with this probability, else take `alias` */
     uint32_t alias;
 } pen__alias_cell;
 
 typedef struct pen__envmap_sampler {
     int width, height;
-    double total;              /* sum of the weights; 0 for a black map (sampling disabled) */
-    pen__alias_cell *cells;    /* width * height, row-major like the image */
-    float *texel_prob;         /* width * height probabilities, summing to 1 */
+    double total;           /* sum of the weights; 0 for a black map (sampling disabled) */
+    pen__alias_cell *cells; /* width * height, row-major like the image */
+    float *texel_prob;      /* width * height probabilities, summing to 1 */
 } pen__envmap_sampler;
 
 /* Builds the tables of `env` (any channel count >= 1; channels >= 3 are RGB). */
-pen_status pen__envmap_sampler_init(pen_context *ctx, const pen_image *env,
-                                    pen__envmap_sampler *s);
+pen_status pen__envmap_sampler_init(pen_context *ctx, const pen_image *env, pen__envmap_sampler *s);
 void pen__envmap_sampler_free(pen__envmap_sampler *s);
 /* Draws a texel (from pick, in [0,1) with enough bits to index every texel, and r[0]) and a point
  * uniform in it (r[1], r[2]), r in [0,1)^3. Returns the map coordinates (u, v) and the texel; the
@@ -75,8 +74,8 @@ void pen__envmap_texel(const pen_image *env, float u, float v, int *tx, int *ty)
 /* Channel ch (0..2) of a texel; one-channel images are grey. */
 static inline float pen__texel(const pen_image *img, int x, int y, int ch) {
     int c = img->channels >= 3 ? ch : 0;
-    return img->data[((size_t)y * (size_t)img->width + (size_t)x) * (size_t)img->channels +
-                     (size_t)c];
+    return img
+        ->data[((size_t)y * (size_t)img->width + (size_t)x) * (size_t)img->channels + (size_t)c];
 }
 
 #endif

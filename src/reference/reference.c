@@ -27,6 +27,8 @@
  */
 #include "penumbra/reference.h"
 
+#include "penumbra/raster.h"
+
 #include "core/internal.h"
 #include "reference/internal.h"
 
@@ -42,17 +44,17 @@
 
 struct pen_reference {
     const pen_scene *scene;
-    pen_reference_lighting lighting;   /* ENVMAP or SH */
+    pen_reference_lighting lighting; /* ENVMAP or SH */
     RTCDevice device;
     RTCScene rtc;
     int object_count;
-    float **positions;                 /* per object: world positions, 3 * vertex_count */
-    float **normals;                   /* per object: world smooth normals, 3 * vertex_count */
-    unsigned ground_id;                /* geometry ID of the ground quad, or RTC_INVALID_... */
-    float eps;                         /* ray-origin offset */
-    float rot_cos, rot_sin;            /* the envmap's rotation about +Y */
+    float **positions;      /* per object: world positions, 3 * vertex_count */
+    float **normals;        /* per object: world smooth normals, 3 * vertex_count */
+    unsigned ground_id;     /* geometry ID of the ground quad, or RTC_INVALID_... */
+    float eps;              /* ray-origin offset */
+    float rot_cos, rot_sin; /* the envmap's rotation about +Y */
     int sh_bands;
-    pen__envmap_sampler sampler;       /* ENVMAP lighting only */
+    pen__envmap_sampler sampler; /* ENVMAP lighting only */
 };
 
 /* ---- Small vector helpers ------------------------------------------------------------------- */
@@ -106,36 +108,25 @@ static void sh_radiance(const pen_reference *ref, const float w[3], float L[3]) 
     pen_sh_eval(ref->sh_bands, w, y);
     L[0] = L[1] = L[2] = 0;
     for (int k = 0; k < n; ++k)
-        for (int ch = 0; ch < 3; ++ch) L[ch] += ref->scene->lighting.sh[k][ch] * y[k];
+        for (int ch = 0; ch < 3; ++ch)
+            L[ch] += ref->scene->lighting.sh[k][ch] * y[k];
 }
 
-/* What a ray that leaves the scene shows: the envmap (bilinear, wrapping in azimuth), its SH
- * reconstruction when the scene has no map, or the constant background. */
+/* What a ray that leaves the scene shows: the envmap (pen_envmap_eval: bilinear, rotated,
+ * scaled, clamped at 0), its SH reconstruction when the scene has no map, or the constant. */
 static void background(const pen_reference *ref, const float dir[3], float out[3]) {
     const pen_scene *sc = ref->scene;
     if (!sc->background_envmap) {
-        for (int ch = 0; ch < 3; ++ch) out[ch] = sc->background[ch];
+        for (int ch = 0; ch < 3; ++ch)
+            out[ch] = sc->background[ch];
         return;
     }
-    const pen_image *env = &sc->lighting.envmap;
-    if (!env->data) {
+    const pen_lighting *lt = &sc->lighting;
+    if (!lt->envmap.data) {
         sh_radiance(ref, dir, out);
         return;
     }
-    float m[3], u, v;
-    world_to_map(ref, dir, m);
-    pen_envmap_uv(m, &u, &v);
-    float fx = u * (float)env->width - 0.5f, fy = v * (float)env->height - 0.5f;
-    int x0 = (int)floorf(fx), y0 = (int)floorf(fy);
-    float ax = fx - (float)x0, ay = fy - (float)y0;
-    int xs[2] = {(x0 % env->width + env->width) % env->width, 0};
-    xs[1] = (xs[0] + 1) % env->width;
-    int ys[2] = {y0 < 0 ? 0 : y0, y0 + 1 >= env->height ? env->height - 1 : y0 + 1};
-    for (int ch = 0; ch < 3; ++ch) {
-        float t0 = (1 - ax) * pen__texel(env, xs[0], ys[0], ch) + ax * pen__texel(env, xs[1], ys[0], ch);
-        float t1 = (1 - ax) * pen__texel(env, xs[0], ys[1], ch) + ax * pen__texel(env, xs[1], ys[1], ch);
-        out[ch] = sc->lighting.scale * fmaxf((1 - ay) * t0 + ay * t1, 0.0f);
-    }
+    pen_envmap_eval(&lt->envmap, lt->rotation_y_deg, lt->scale, dir, out);
 }
 
 /* ---- Rays ------------------------------------------------------------------------------------ */
@@ -166,7 +157,8 @@ static float sample_cosine(const float n[3], float r1, float r2, float w[3]) {
     float phi = 2.0f * PEN_PI_F * r1;
     float sin_t = sqrtf(r2), cos_t = sqrtf(1.0f - r2);
     float x = sin_t * cosf(phi), y = sin_t * sinf(phi);
-    for (int i = 0; i < 3; ++i) w[i] = x * t[i] + y * bt[i] + cos_t * n[i];
+    for (int i = 0; i < 3; ++i)
+        w[i] = x * t[i] + y * bt[i] + cos_t * n[i];
     return cos_t;
 }
 
@@ -180,7 +172,8 @@ static void irradiance_sample(const pen_reference *ref, const float org[3], cons
         float c = sample_cosine(n, r1, r2, w);
         if (!(c > 0) || occluded(ref, org, w)) return;
         sh_radiance(ref, w, L);
-        for (int ch = 0; ch < 3; ++ch) E[ch] += PEN_PI_F * L[ch];
+        for (int ch = 0; ch < 3; ++ch)
+            E[ch] += PEN_PI_F * L[ch];
         return;
     }
     const pen_image *env = &ref->scene->lighting.envmap;
@@ -189,7 +182,8 @@ static void irradiance_sample(const pen_reference *ref, const float org[3], cons
     if (ref->sampler.total > 0) { /* light strategy */
         double pick = pen__rng_next_double(rng);
         float r[3];
-        for (int i = 0; i < 3; ++i) r[i] = pen__rng_next(rng);
+        for (int i = 0; i < 3; ++i)
+            r[i] = pen__rng_next(rng);
         pen__envmap_sampler_sample(&ref->sampler, pick, r, &u, &v, &tx, &ty);
         pen_envmap_direction(u, v, m);
         map_to_world(ref, m, w);
@@ -198,7 +192,8 @@ static void irradiance_sample(const pen_reference *ref, const float org[3], cons
         if (c > 0 && pl > 0 && !occluded(ref, org, w)) {
             envmap_texel_radiance(ref, tx, ty, L);
             float k = c / (pl + c / PEN_PI_F);
-            for (int ch = 0; ch < 3; ++ch) E[ch] += L[ch] * k;
+            for (int ch = 0; ch < 3; ++ch)
+                E[ch] += L[ch] * k;
         }
     }
     { /* cosine strategy */
@@ -212,11 +207,13 @@ static void irradiance_sample(const pen_reference *ref, const float org[3], cons
         float pl = pen__envmap_sampler_pdf(&ref->sampler, tx, ty, sin_t);
         envmap_texel_radiance(ref, tx, ty, L);
         float k = c / (pl + c / PEN_PI_F);
-        for (int ch = 0; ch < 3; ++ch) E[ch] += L[ch] * k;
+        for (int ch = 0; ch < 3; ++ch)
+            E[ch] += L[ch] * k;
     }
 }
 
-/* ---- Surfaces --------------------------------------------------------------------------------- */
+/* ---- Surfaces ---------------------------------------------------------------------------------
+ */
 
 /* Bilinear albedo lookup, wrapping in both axes; v is up and image row 0 is v = 1. */
 static void texture_lookup(const pen_image *tex, float u, float v, float out[3]) {
@@ -256,11 +253,13 @@ static void mesh_surface(const pen_reference *ref, unsigned g, unsigned t, float
     }
     cross3(e1, e2, s->ng);
     if (!normalize3(s->ng)) { /* Embree does not report hits on degenerate triangles, but be safe */
-        for (int i = 0; i < 3; ++i) s->ng[i] = -dir[i];
+        for (int i = 0; i < 3; ++i)
+            s->ng[i] = -dir[i];
     }
     if (!normalize3(s->ns)) memcpy(s->ns, s->ng, sizeof s->ns);
     if (dot3(s->ng, dir) > 0) /* the camera sees the back: light that side */
-        for (int i = 0; i < 3; ++i) s->ng[i] = -s->ng[i], s->ns[i] = -s->ns[i];
+        for (int i = 0; i < 3; ++i)
+            s->ng[i] = -s->ng[i], s->ns[i] = -s->ns[i];
     if (dot3(s->ns, s->ng) <= 0) memcpy(s->ns, s->ng, sizeof s->ns);
 
     if (obj->texture.data) {
@@ -310,12 +309,15 @@ static void radiance(const pen_reference *ref, const float org[3], const float d
         mesh_surface(ref, rh.hit.geomID, rh.hit.primID, rh.hit.u, rh.hit.v, dir, &s);
     }
     float o[3], E[3] = {0, 0, 0};
-    for (int i = 0; i < 3; ++i) o[i] = s.p[i] + ref->eps * s.ng[i];
+    for (int i = 0; i < 3; ++i)
+        o[i] = s.p[i] + ref->eps * s.ng[i];
     irradiance_sample(ref, o, s.ns, rng, E);
-    for (int ch = 0; ch < 3; ++ch) out[ch] = s.albedo[ch] / PEN_PI_F * E[ch];
+    for (int ch = 0; ch < 3; ++ch)
+        out[ch] = s.albedo[ch] / PEN_PI_F * E[ch];
 }
 
-/* ---- Building the scene ------------------------------------------------------------------------ */
+/* ---- Building the scene ------------------------------------------------------------------------
+ */
 
 static const char *object_name(const pen_object *obj) {
     return obj->mesh_path ? obj->mesh_path : "(mesh)";
@@ -334,8 +336,8 @@ static pen_status check_scene(pen_context *ctx, const pen_scene *sc, int need_sh
     const pen_camera *cam = &sc->camera;
     if (cam->width <= 0 || cam->height <= 0 || cam->width > PEN_IMAGE_MAX_DIM ||
         cam->height > PEN_IMAGE_MAX_DIM)
-        return pen__error(ctx, PEN_ERROR_ARGUMENT, "reference: camera: bad size %dx%d",
-                          cam->width, cam->height);
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "reference: camera: bad size %dx%d", cam->width,
+                          cam->height);
     if (!(cam->fov_y_deg > 0 && cam->fov_y_deg < 180) || !pen__finite3(cam->eye))
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "reference: camera: bad fov or eye");
     if (need_sh) {
@@ -359,14 +361,15 @@ static pen_status check_scene(pen_context *ctx, const pen_scene *sc, int need_sh
         const pen_mesh *m = &obj->mesh;
         if (m->vertex_count < 0 || m->triangle_count < 0 ||
             (m->triangle_count > 0 && (!m->positions || !m->indices)))
-            return pen__error(ctx, PEN_ERROR_ARGUMENT, "reference: object %d (%s): empty mesh",
-                              o, object_name(obj));
+            return pen__error(ctx, PEN_ERROR_ARGUMENT, "reference: object %d (%s): empty mesh", o,
+                              object_name(obj));
         for (size_t i = 0; i < 3 * (size_t)m->triangle_count; ++i) {
             if (m->indices[i] >= (uint32_t)m->vertex_count)
                 return pen__error(ctx, PEN_ERROR_ARGUMENT,
                                   "reference: object %d (%s): triangle %zu: index %u out of "
-                                  "range [0, %d)", o, object_name(obj), i / 3,
-                                  (unsigned)m->indices[i], m->vertex_count);
+                                  "range [0, %d)",
+                                  o, object_name(obj), i / 3, (unsigned)m->indices[i],
+                                  m->vertex_count);
         }
         if (obj->texture.data) {
             if (check_image(ctx, &obj->texture, "texture of object", o)) return PEN_ERROR_ARGUMENT;
@@ -378,8 +381,9 @@ static pen_status check_scene(pen_context *ctx, const pen_scene *sc, int need_sh
                 if (m->uv_indices[i] >= (uint32_t)m->uv_count)
                     return pen__error(ctx, PEN_ERROR_ARGUMENT,
                                       "reference: object %d (%s): triangle %zu: uv index %u out "
-                                      "of range [0, %d)", o, object_name(obj), i / 3,
-                                      (unsigned)m->uv_indices[i], m->uv_count);
+                                      "of range [0, %d)",
+                                      o, object_name(obj), i / 3, (unsigned)m->uv_indices[i],
+                                      m->uv_count);
         } else if (!pen__finite3(obj->albedo)) {
             return pen__error(ctx, PEN_ERROR_ARGUMENT, "reference: object %d: albedo not finite",
                               o);
@@ -392,37 +396,28 @@ static pen_status check_scene(pen_context *ctx, const pen_scene *sc, int need_sh
     return PEN_OK;
 }
 
-/* Poses an object's vertices into world space and sums area-weighted face normals per vertex. */
+/* Poses an object's vertices into world space and computes its smooth normals there, with the
+ * rasterizer's functions so that both renderers shade the same normals. */
 static pen_status pose_object(pen_context *ctx, const pen_object *obj, int o, float **pos_out,
                               float **nrm_out, float *extent) {
     const pen_mesh *m = &obj->mesh;
     size_t n = (size_t)m->vertex_count;
     float *P = pen__malloc(ctx, n ? n : 1, 3 * sizeof(float), "reference positions");
-    float *N = pen__calloc(ctx, n ? n : 1, 3 * sizeof(float), "reference normals");
+    float *N = pen__malloc(ctx, n ? n : 1, 3 * sizeof(float), "reference normals");
     *pos_out = P;
     *nrm_out = N;
     if (!P || !N) return PEN_ERROR_MEMORY;
+    pen_pose_points_fwd(&obj->pose, m->vertex_count, m->positions, P);
     for (size_t v = 0; v < n; ++v) {
-        pen_pose_apply(&obj->pose, m->positions + 3 * v, P + 3 * v);
         if (!pen__finite3(P + 3 * v))
             return pen__error(ctx, PEN_ERROR_ARGUMENT,
                               "reference: object %d (%s): vertex %zu is not finite once posed", o,
                               object_name(obj), v);
-        for (int i = 0; i < 3; ++i) *extent = fmaxf(*extent, fabsf(P[3 * v + i]));
+        for (int i = 0; i < 3; ++i)
+            *extent = fmaxf(*extent, fabsf(P[3 * v + i]));
     }
-    for (size_t t = 0; t < (size_t)m->triangle_count; ++t) {
-        const uint32_t *idx = m->indices + 3 * t;
-        float e1[3], e2[3], fn[3];
-        for (int i = 0; i < 3; ++i) {
-            e1[i] = P[3 * idx[1] + i] - P[3 * idx[0] + i];
-            e2[i] = P[3 * idx[2] + i] - P[3 * idx[0] + i];
-        }
-        cross3(e1, e2, fn); /* length = twice the area: the area weighting */
-        for (int k = 0; k < 3; ++k)
-            for (int i = 0; i < 3; ++i) N[3 * idx[k] + i] += fn[i];
-    }
-    for (size_t v = 0; v < n; ++v) normalize3(N + 3 * v); /* isolated vertices stay zero */
-    return PEN_OK;
+    /* Vertices of no usable triangle get (0, 0, 0); mesh_surface then falls back to the face. */
+    return pen_vertex_normals_fwd(ctx, m->vertex_count, P, m->triangle_count, m->indices, N);
 }
 
 static pen_status embree_status(pen_context *ctx, RTCDevice device, const char *when) {
@@ -485,6 +480,30 @@ static pen_status build_embree(pen_context *ctx, pen_reference *ref) {
     return embree_status(ctx, ref->device, "building the scene");
 }
 
+/* Whether the scene's SH lighting is its envmap's projection. A scene may give "sh" next to an
+ * envmap (optimized lighting saved with PEN_SCENE_SAVE_SH_LIGHTING): then the SH is the lighting
+ * `render` uses and the map only the background, so AUTO must not light with the map. The
+ * projection is deterministic, so a scene loaded from an envmap matches it to rounding. */
+static int sh_is_projection(pen_context *ctx, const pen_scene *sc) {
+    const pen_lighting *lt = &sc->lighting;
+    if (sc->sh_bands < 1 || sc->sh_bands > PEN_SH_MAX_BANDS) return 1; /* check_scene reports */
+    float proj[PEN_SH_MAX_COEFFS][3];
+    pen_status st =
+        pen_envmap_to_sh(ctx, &lt->envmap, sc->sh_bands, lt->rotation_y_deg, lt->scale, proj);
+    if (st) {
+        pen_context_clear_error(ctx); /* a broken map is reported by the envmap checks */
+        return 1;
+    }
+    double diff = 0, norm = 0;
+    for (int k = 0; k < pen_sh_coeffs(sc->sh_bands); ++k)
+        for (int ch = 0; ch < 3; ++ch) {
+            double d = (double)lt->sh[k][ch] - (double)proj[k][ch];
+            diff += d * d;
+            norm += (double)proj[k][ch] * (double)proj[k][ch];
+        }
+    return diff <= 1e-10 * norm;
+}
+
 pen_status pen_reference_create(pen_context *ctx, const pen_scene *scene,
                                 pen_reference_lighting lighting, pen_reference **out) {
     if (!out) return pen__error(ctx, PEN_ERROR_ARGUMENT, "reference: no output");
@@ -492,7 +511,8 @@ pen_status pen_reference_create(pen_context *ctx, const pen_scene *scene,
     if (!scene) return pen__error(ctx, PEN_ERROR_ARGUMENT, "reference: no scene");
     const int has_env = scene->lighting.envmap.data != NULL;
     if (lighting == PEN_REFERENCE_LIGHTING_AUTO)
-        lighting = has_env ? PEN_REFERENCE_LIGHTING_ENVMAP : PEN_REFERENCE_LIGHTING_SH;
+        lighting = has_env && sh_is_projection(ctx, scene) ? PEN_REFERENCE_LIGHTING_ENVMAP
+                                                           : PEN_REFERENCE_LIGHTING_SH;
     if (lighting != PEN_REFERENCE_LIGHTING_ENVMAP && lighting != PEN_REFERENCE_LIGHTING_SH)
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "reference: unknown lighting mode %d",
                           (int)lighting);
@@ -554,10 +574,11 @@ pen_reference_lighting pen_reference_lighting_mode(const pen_reference *ref) {
     return ref->lighting;
 }
 
-/* ---- Rendering -------------------------------------------------------------------------------- */
+/* ---- Rendering --------------------------------------------------------------------------------
+ */
 
-static void render_pixel(const pen_reference *ref, int x, int y, int spp, int grid,
-                         uint64_t seed, float out[3]) {
+static void render_pixel(const pen_reference *ref, int x, int y, int spp, int grid, uint64_t seed,
+                         float out[3]) {
     const pen_camera *cam = &ref->scene->camera;
     uint64_t pixel = (uint64_t)y * (uint64_t)cam->width + (uint64_t)x;
     double acc[3] = {0, 0, 0};
@@ -571,13 +592,15 @@ static void render_pixel(const pen_reference *ref, int x, int y, int spp, int gr
         float dir[3], L[3];
         pen_camera_ray(cam, (float)x + jx, (float)y + jy, dir);
         radiance(ref, cam->eye, dir, &rng, L);
-        for (int ch = 0; ch < 3; ++ch) acc[ch] += (double)L[ch];
+        for (int ch = 0; ch < 3; ++ch)
+            acc[ch] += (double)L[ch];
     }
-    for (int ch = 0; ch < 3; ++ch) out[ch] = (float)(acc[ch] / spp);
+    for (int ch = 0; ch < 3; ++ch)
+        out[ch] = (float)(acc[ch] / spp);
 }
 
-pen_status pen_reference_render(pen_context *ctx, const pen_reference *ref, int spp,
-                                uint64_t seed, pen_image *out) {
+pen_status pen_reference_render(pen_context *ctx, const pen_reference *ref, int spp, uint64_t seed,
+                                pen_image *out) {
     if (!out) return pen__error(ctx, PEN_ERROR_ARGUMENT, "reference: no output image");
     memset(out, 0, sizeof *out);
     if (!ref) return pen__error(ctx, PEN_ERROR_ARGUMENT, "reference: no reference");
@@ -606,7 +629,8 @@ pen_status pen_reference_render(pen_context *ctx, const pen_reference *ref, int 
             pen_image_free(&img);
             return pen__error(ctx, PEN_ERROR_INTERNAL,
                               "reference: pixel (%zu, %zu) is not finite (lighting or scene "
-                              "values too large?)", p % (size_t)w, p / (size_t)w);
+                              "values too large?)",
+                              p % (size_t)w, p / (size_t)w);
         }
     *out = img;
     return PEN_OK;
@@ -616,22 +640,25 @@ pen_status pen_reference_irradiance(pen_context *ctx, const pen_reference *ref, 
                                     const float n[3], int samples, uint64_t seed, float E[3]) {
     if (!ref || !x || !n || !E) return pen__error(ctx, PEN_ERROR_ARGUMENT, "reference: NULL input");
     if (samples < 1 || samples > PEN_REFERENCE_MAX_SPP)
-        return pen__error(ctx, PEN_ERROR_ARGUMENT, "reference: samples %d out of [1, %d]",
-                          samples, PEN_REFERENCE_MAX_SPP);
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "reference: samples %d out of [1, %d]", samples,
+                          PEN_REFERENCE_MAX_SPP);
     float nn[3] = {n[0], n[1], n[2]};
     if (!pen__finite3(x) || !pen__finite3(n) || !normalize3(nn))
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "reference: bad point or normal");
     float org[3];
-    for (int i = 0; i < 3; ++i) org[i] = x[i] + ref->eps * nn[i];
+    for (int i = 0; i < 3; ++i)
+        org[i] = x[i] + ref->eps * nn[i];
     double acc[3] = {0, 0, 0};
     for (int s = 0; s < samples; ++s) {
         /* The stream key UINT64_MAX is outside the range of pixel indices used by render. */
         pen__rng rng = pen__rng_stream(seed, UINT64_MAX, (uint64_t)s);
         float e[3] = {0, 0, 0};
         irradiance_sample(ref, org, nn, &rng, e);
-        for (int ch = 0; ch < 3; ++ch) acc[ch] += (double)e[ch];
+        for (int ch = 0; ch < 3; ++ch)
+            acc[ch] += (double)e[ch];
     }
-    for (int ch = 0; ch < 3; ++ch) E[ch] = (float)(acc[ch] / samples);
+    for (int ch = 0; ch < 3; ++ch)
+        E[ch] = (float)(acc[ch] / samples);
     return PEN_OK;
 }
 
@@ -645,9 +672,12 @@ int pen_reference_lighting_parse(const char *name) {
 
 const char *pen_reference_lighting_name(pen_reference_lighting lighting) {
     switch (lighting) {
-    case PEN_REFERENCE_LIGHTING_AUTO: return "auto";
-    case PEN_REFERENCE_LIGHTING_ENVMAP: return "envmap";
-    case PEN_REFERENCE_LIGHTING_SH: return "sh";
+    case PEN_REFERENCE_LIGHTING_AUTO:
+        return "auto";
+    case PEN_REFERENCE_LIGHTING_ENVMAP:
+        return "envmap";
+    case PEN_REFERENCE_LIGHTING_SH:
+        return "sh";
     }
     return "unknown";
 }

@@ -27,8 +27,10 @@ static pen_image_error finish(const sums *s, int channels) {
     double mse = s->sq_diff / n;
     e.rmse = sqrt(mse);
     double rms_ref = sqrt(s->sq_ref / n);
-    if (rms_ref > 0) e.rel_rmse = e.rmse / rms_ref;
-    else e.rel_rmse = e.rmse > 0 ? HUGE_VAL : 0.0;
+    if (rms_ref > 0)
+        e.rel_rmse = e.rmse / rms_ref;
+    else
+        e.rel_rmse = e.rmse > 0 ? HUGE_VAL : 0.0;
     e.psnr_db = mse > 0 ? -10.0 * log10(mse) : HUGE_VAL;
     return e;
 }
@@ -40,8 +42,7 @@ static pen_status check_image(pen_context *ctx, const char *name, const pen_imag
 }
 
 pen_status pen_image_compare(pen_context *ctx, const pen_image *a, const pen_image *b,
-                             const pen_image *mask, pen_image_error *all,
-                             pen_image_error *masked) {
+                             const pen_image *mask, pen_image_error *all, pen_image_error *masked) {
     pen_status st;
     if ((st = check_image(ctx, "A", a)) || (st = check_image(ctx, "B", b))) return st;
     if (mask && (st = check_image(ctx, "mask", mask))) return st;
@@ -49,11 +50,12 @@ pen_status pen_image_compare(pen_context *ctx, const pen_image *a, const pen_ima
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "compare: no place for the result");
     if (a->width != b->width || a->height != b->height || a->channels != b->channels)
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                          "compare: A is %dx%d with %d channels but B is %dx%d with %d",
-                          a->width, a->height, a->channels, b->width, b->height, b->channels);
+                          "compare: A is %dx%d with %d channels but B is %dx%d with %d", a->width,
+                          a->height, a->channels, b->width, b->height, b->channels);
     if (mask && (mask->width != a->width || mask->height != a->height))
-        return pen__error(ctx, PEN_ERROR_ARGUMENT, "compare: mask is %dx%d but the images are %dx%d",
-                          mask->width, mask->height, a->width, a->height);
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "compare: mask is %dx%d but the images are %dx%d", mask->width,
+                          mask->height, a->width, a->height);
 
     sums s_all = {0, 0, 0}, s_mask = {0, 0, 0};
     const int c = a->channels;
