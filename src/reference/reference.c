@@ -9,9 +9,13 @@
  *     f(w) / (p_l(w) + p_c(w)), so both samples use the same expression. The cosine strategy
  *     covers every direction of the hemisphere, so the sum is unbiased even where the map is black
  *     and the light strategy has no density.
- *   - SH lighting: one cosine-distributed direction, f / p_c = pi L(w) V(w). L(w) may be negative
- *     (the band-limited reconstruction rings); it is used as is, like the SH renderer does, so
- *     that `--lighting sh` isolates the error of SH visibility.
+ *   - SH lighting: E = E_0(n) - integral L(w) (1 - V(x, w)) max(n . w, 0) dw, where the
+ *     unoccluded irradiance E_0(n) = sum_lm sqrt(4 pi / (2l+1)) c_l L_lm Y_lm(n) is exact (c_l the
+ *     clamped cosine's zonal coefficients) and the blocked part is estimated with one
+ *     cosine-distributed direction, pi L(w) (1 - V(w)). The closed form is a control variate:
+ *     unshadowed points are exact, shadowed ones carry only the noise of what is blocked.
+ *     L(w) may be negative (the band-limited reconstruction rings); it is used as is, like the
+ *     SH renderer does, so that `--lighting sh` isolates the error of SH visibility.
  * V is one occlusion ray against every posed mesh and the ground quad, leaving from x nudged off
  * the surface by eps (1e-5 of the scene's extent, at least 1e-5) along the geometric normal.
  *
@@ -54,7 +58,8 @@ struct pen_reference {
     float eps;              /* ray-origin offset */
     float rot_cos, rot_sin; /* the envmap's rotation about +Y */
     int sh_bands;
-    pen__envmap_sampler sampler; /* ENVMAP lighting only */
+    float cosine_zonal[PEN_SH_MAX_BANDS]; /* clamped cosine as a zonal function, SH lighting */
+    pen__envmap_sampler sampler;          /* ENVMAP lighting only */
 };
 
 /* ---- Small vector helpers ------------------------------------------------------------------- */
@@ -168,12 +173,20 @@ static void irradiance_sample(const pen_reference *ref, const float org[3], cons
                               pen__rng *rng, float E[3]) {
     float w[3], L[3];
     if (ref->lighting == PEN_REFERENCE_LIGHTING_SH) {
+        /* Control variate: the unoccluded irradiance is known in closed form, so only the light
+         * that blockers remove is estimated; unshadowed points get no noise at all. */
+        float a[PEN_SH_MAX_COEFFS];
+        const int nc = pen_sh_coeffs(ref->sh_bands);
+        pen_sh_rotate_zonal(ref->sh_bands, ref->cosine_zonal, n, a);
+        for (int k = 0; k < nc; ++k)
+            for (int ch = 0; ch < 3; ++ch)
+                E[ch] += ref->scene->lighting.sh[k][ch] * a[k];
         float r1 = pen__rng_next(rng), r2 = pen__rng_next(rng);
         float c = sample_cosine(n, r1, r2, w);
-        if (!(c > 0) || occluded(ref, org, w)) return;
+        if (!(c > 0) || !occluded(ref, org, w)) return;
         sh_radiance(ref, w, L);
         for (int ch = 0; ch < 3; ++ch)
-            E[ch] += PEN_PI_F * L[ch];
+            E[ch] -= PEN_PI_F * L[ch];
         return;
     }
     const pen_image *env = &ref->scene->lighting.envmap;
@@ -529,6 +542,8 @@ pen_status pen_reference_create(pen_context *ctx, const pen_scene *scene,
     ref->lighting = lighting;
     ref->ground_id = RTC_INVALID_GEOMETRY_ID;
     ref->sh_bands = scene->sh_bands;
+    if (lighting == PEN_REFERENCE_LIGHTING_SH)
+        pen_sh_zonal_clamped_cosine(ref->sh_bands, ref->cosine_zonal);
     double rot = (double)scene->lighting.rotation_y_deg * PEN_PI / 180.0;
     ref->rot_cos = (float)cos(rot);
     ref->rot_sin = (float)sin(rot);
