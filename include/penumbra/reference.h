@@ -12,14 +12,15 @@
  *                                  importance sampling (balance heuristic).
  *   PEN_REFERENCE_LIGHTING_SH      L(w) = sum_k sh[k] Y_k(w) with scene->sh_bands bands,
  *                                  unclamped (negative lobes stay negative, as in the SH
- *                                  renderer); sampled by the cosine.
+ *                                  renderer); the unoccluded irradiance in closed form minus a
+ *                                  cosine-sampled estimate of the light blockers remove.
  * Surfaces: meshes are shaded with smooth area-weighted vertex normals (interpolated, renormalised)
  * and lit from the side the camera sees (two-sided); the ground plane has normal +Y. Albedo is
  * the constant or a bilinear, wrapping texture lookup (v up; image row 0 is v = 1).
  * Pixels: `spp` jittered camera samples per pixel (stratified on the largest square grid that
  * fits), each with one light sample and one cosine sample (SH mode: one cosine sample).
- * Pixels that see nothing show the background: the environment map in the ray direction
- * (bilinear, scaled, rotated), or the constant colour.
+ * Pixels that see nothing show the background: pen_envmap_eval in the ray direction, the SH
+ * reconstruction for a scene without a map, or the constant colour.
  * Determinism: every random number is a hash of (seed, pixel, sample, dimension), so an image
  * depends only on the scene, spp and seed, never on the thread count or scheduling.
  * Threads: pen_context_threads (0 = all cores).
