@@ -21,27 +21,30 @@ SIZE=${4:-512}
 DATA=$(cd "$(dirname "$0")/../data" && pwd)
 mkdir -p "$OUT/scenes"
 
-scene() { # name mesh albedo-json-fragment lift env rotation target-y [exp]
+# The scenes follow examples/scenes/spot_*.json (camera, pose, map scale and rotation); Bob
+# stands in the same place. Spheres: 32 fitted at load time (`render` needs the fitter).
+scene() { # name mesh albedo-json-fragment lift env scale exp
     cat > "$OUT/scenes/$1.json" <<EOF
-{ "camera": {"width": $SIZE, "height": $SIZE, "fov_y_deg": 35, "eye": [2.3, 1.8, -2.6], "target": [0, $7, 0], "up": [0, 1, 0]},
-  "lighting": {"envmap": "$DATA/envmaps/$5.hdr", "scale": 1.0, "rotation_y_deg": $6},
+{ "camera": {"width": $SIZE, "height": $SIZE, "fov_y_deg": 35, "eye": [3.0, 1.9, 3.4], "target": [0, 0.5, 0.1], "up": [0, 1, 0]},
+  "lighting": {"envmap": "$DATA/envmaps/$5.hdr", "scale": $6, "rotation_y_deg": 0},
   "sh_bands": 4,
-  "shadow": {"epsilon": 4.0, "exp": "${8:-calibrated}"},
-  "objects": [ {"mesh": "$DATA/meshes/$2", $3 "spheres": {"fit": 32}, "pose": {"translation": [0, $4, 0]}} ],
+  "shadow": {"exp": "$7"},
+  "objects": [ {"mesh": "$DATA/meshes/$2", $3 "spheres": {"fit": 32},
+                "pose": {"rotation_axis_angle_deg": [0, 140, 0], "translation": [0, $4, 0], "scale": 1}} ],
   "ground": {"height": 0, "albedo": [0.8, 0.8, 0.8], "half_size": 4},
   "background": "envmap" }
 EOF
 }
 make_scene() { # name [exp]
     case $1 in
-    spot_*) mesh=spot_triangulated.obj alb="\"albedo_texture\": \"$DATA/meshes/spot_texture.png\"," lift=0.736784 ty=0.6 ;;
-    bob_*) mesh=bob_tri.obj alb="" lift=0.511281 ty=0.35 ;;
+    spot_*) mesh=spot_triangulated.obj alb="\"albedo_texture\": \"$DATA/meshes/spot_texture.png\"," lift=0.737 ;;
+    bob_*) mesh=bob_tri.obj alb="" lift=0.512 ;;
     esac
     case $1 in
-    *_city*) env=city rot=180 ;;
-    *_interior*) env=interior rot=0 ;;
+    *_city*) env=city scale=0.25 ;;
+    *_interior*) env=interior scale=0.22 ;;
     esac
-    scene "$1${2:+_$2}" $mesh "$alb" $lift $env $rot $ty "${2:-calibrated}"
+    scene "$1${2:+_$2}" $mesh "$alb" $lift $env $scale "${2:-calibrated}"
 }
 seconds() { sed -n 's/.*"seconds": \([0-9.]*\).*/\1/p'; }
 rel() { "$BIN" compare "$1" "$2" | sed -n 's/^{"rmse": [^,]*, "rel_rmse": \([^,]*\),.*/\1/p'; }
