@@ -17,6 +17,8 @@ typedef struct pen_command {
 int pen_cmd_sh_accuracy(int argc, char **argv);
 int pen_cmd_render(int argc, char **argv);
 int pen_cmd_fit_spheres(int argc, char **argv);
+int pen_cmd_reference(int argc, char **argv);
+int pen_cmd_compare(int argc, char **argv);
 
 /* ---- Helpers (cli/common.c) ---- */
 
