@@ -48,6 +48,7 @@ static void usage(FILE *f) {
             "  -o, --output DIR    output folder (created if missing; required)\n"
             "  --no-shadows        optimise without shadows (visibility 1: the baseline)\n"
             "  --iterations N      override the task's iteration limit\n"
+            "  --target IMAGE      override the task's target (.exr or .hdr)\n"
             "  --threads N         worker threads (default: all cores)\n"
             "  -q, --quiet         no summary line\n");
 }
@@ -57,7 +58,7 @@ static void print_metric(const char *name, double v) {
 }
 
 int pen_cmd_optimize(int argc, char **argv) {
-    const char *task_path = NULL, *outdir = NULL;
+    const char *task_path = NULL, *outdir = NULL, *target = NULL;
     int threads = 0, quiet = 0, iterations = 0;
     pen_optim_settings set = pen_optim_settings_default();
     for (int i = 1; i < argc; ++i) {
@@ -68,6 +69,9 @@ int pen_cmd_optimize(int argc, char **argv) {
         } else if (!strcmp(a, "-o") || !strcmp(a, "--output")) {
             if (++i >= argc) return pen_cli_usage_error(CMD, "%s needs a value", a);
             outdir = argv[i];
+        } else if (!strcmp(a, "--target")) {
+            if (++i >= argc) return pen_cli_usage_error(CMD, "%s needs a value", a);
+            target = argv[i];
         } else if (!strcmp(a, "--no-shadows")) {
             set.shadows = 0;
         } else if (!strcmp(a, "--iterations")) {
@@ -102,6 +106,10 @@ int pen_cmd_optimize(int argc, char **argv) {
         goto out_ctx;
     }
     if (iterations > 0) task.iterations = iterations;
+    if (target && pen_optim_task_set_target(ctx, &task, target)) {
+        rc = pen_cli_fail(CMD, "--target: %s", pen_context_error(ctx));
+        goto out_task;
+    }
     progress p = {isatty(fileno(stderr))};
     set.progress = on_progress;
     set.progress_user = &p;

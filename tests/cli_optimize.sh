@@ -118,7 +118,7 @@ expect_error 'bad.json: iteratoins: unknown key' \
     '{"scene": "truth.json", "target": "target.exr", "optimize": ["albedo"], "iteratoins": 3}'
 sed 's/"width": 32/"width": 16/' "$T/truth.json" > "$T/small.json"
 "$BIN" render "$T/small.json" -o "$T/small.exr" -q --no-shadows || fail "render small"
-expect_error 'bad.json: target: the image is 16x32 but the scene' \
+expect_error 'bad.json: target: .*small.exr: the image is 16x32 but the scene' \
     '{"scene": "truth.json", "target": "small.exr", "optimize": ["lighting"]}'
 expect_error 'bad.json: ground_truth: objects\[0\]: a texture albedo, but the scene' \
     '{"scene": "truth.json", "target": "target.exr", "optimize": ["albedo"], "ground_truth": "truth_tex.json"}'
@@ -129,6 +129,13 @@ if "$BIN" optimize "$T/task.json" -o "$T/afile" --iterations 2 2>"$T/err" >/dev/
     fail "no error for an output path that is a file"
 fi
 grep -q "afile: exists and is not a folder" "$T/err" || fail "outdir error: $(cat "$T/err")"
+# --target replaces the task's target, with the same checks.
+"$BIN" optimize "$T/task.json" -o "$T/retarget" --target "$T/target_tex.exr" --iterations 2 -q ||
+    fail "--target"
+"$BIN" optimize "$T/task.json" -o "$T/retarget2" --target "$T/small.exr" 2>"$T/err" >/dev/null &&
+    fail "--target of the wrong size accepted"
+grep -q -- "--target: .*small.exr: the image is 16x32" "$T/err" || fail "--target error: $(cat "$T/err")"
+[ -e "$T/retarget2" ] && fail "output folder left after a --target error"
 # Usage errors exit 2.
 "$BIN" optimize "$T/task.json" 2>/dev/null
 [ $? -eq 2 ] || fail "missing -o is not a usage error"

@@ -29,7 +29,9 @@
  * when the objective has stopped falling: the mean loss of the last `window` iterations is less
  * than `tolerance` (relative) below the mean of the `window` before them. This is the
  * supplement's rule (Theta_{n-1} - Theta_n) / Theta_n <= 0.001 applied to window means, because
- * Adam's single-step losses wobble by more than 0.1% long before the optimum.
+ * Adam's single-step losses wobble by more than 0.1% long before the optimum. The recovered
+ * parameters are those of the lowest loss seen (the best iterate), since with a constant step
+ * the last iterate wanders around the optimum by about one learning rate.
  *
  * Initial guesses (supplement section 5.2, `"init": "black"`, the default): optimised lighting
  * and albedos (texels or constant) start at 0; when both are optimised together the albedo starts
@@ -94,6 +96,9 @@ pen_status pen_optim_task_load(pen_context *ctx, const char *path, pen_optim_tas
 /* The same from JSON text; `path` names it and is the base of its relative paths. */
 pen_status pen_optim_task_parse(pen_context *ctx, const char *json_text, const char *path,
                                 pen_optim_task *out);
+/* Replaces the task's target by the image at `path` (.exr or .hdr, the scene camera's size). On
+ * failure the task is unchanged. */
+pen_status pen_optim_task_set_target(pen_context *ctx, pen_optim_task *task, const char *path);
 /* Frees everything the task owns and zeroes it; NULL is a no-op. */
 void pen_optim_task_free(pen_optim_task *task);
 
@@ -115,10 +120,14 @@ pen_optim_settings pen_optim_settings_default(void);
 typedef struct pen_optim_metrics {
     double image_rmse;          /* final render vs target, all pixels and channels */
     double lighting_rel_error;  /* |L - L_true| / |L_true| over all SH coefficients and channels */
-    double albedo_psnr_db;      /* 10 log10(1 / mse) over the observed texels (or the constant
-                                   albedos) of every object, peak 1 */
-    double albedo_observed;     /* fraction of texels the camera sees (at least half a pixel of
-                                   bilinear weight in the final view) */
+    double albedo_psnr_db;      /* 10 log10(1 / mse), peak 1, of the albedo the camera sees: the
+                                   recovered and the true objects rendered alone under unit
+                                   radiance without shadows (pixel = albedo), over the pixels
+                                   inside both (no outline blending) */
+    double albedo_texel_psnr_db; /* the same over the texture's texels the view resolves (at
+                                   least half a pixel of bilinear weight each), or over the
+                                   constant albedos */
+    double albedo_observed;     /* fraction of texels resolved in that sense (1 for constants) */
     double rotation_error_deg;  /* largest over objects of the angle of R R_true^T */
     double translation_error;   /* largest over objects of |t - t_true| (scene units) */
     double vertex_rmse;         /* posed vertices vs the truth's, all objects (scene units) */
@@ -138,8 +147,10 @@ typedef struct pen_optim_result {
 } pen_optim_result;
 
 /* Runs the task: fits sphere sets the scene asks for ({"fit": N}, cached beside the mesh; only
- * with shadows), applies the initial guesses, runs Adam until the stopping rule fires, leaves the
- * recovered parameters in task->scene and computes the metrics. On failure *out is zeroed. */
+ * with shadows), applies the initial guesses, runs Adam until the stopping rule fires or the
+ * iteration limit is reached, leaves the best iterate's parameters in task->scene and computes
+ * the metrics. Threads: pen_context_threads. On failure *out is zeroed (task->scene may then be
+ * partly updated). */
 pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim_settings *settings,
                          pen_optim_result *out);
 /* Frees the result's arrays and images and zeroes it; NULL is a no-op. */

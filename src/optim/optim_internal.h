@@ -48,12 +48,13 @@ int pen__optim_stalled(const double *losses, int n, int window, double tolerance
 
 /* ---- Metrics (src/optim/evaluate.c) ---------------------------------------------------------- */
 
-/* Fills every metric of `m` that applies (NaN otherwise) for the recovered scene against the
- * task's ground truth. `observed` (may be NULL) flags, per object, which texels received a
- * gradient (1 byte per texel; NULL entries for objects without texture). Fails when the ground
- * truth does not match the scene's structure (object count, texture size, vertex count). */
-pen_status pen__optim_metrics(pen_context *ctx, const pen_optim_task *task,
-                              unsigned char *const *observed, pen_optim_metrics *m);
+/* Fails when the task's ground truth does not match the scene's structure where the metrics of
+ * the optimised groups need it (object count, band count, texture size, vertex count). */
+pen_status pen__optim_check_truth(pen_context *ctx, const pen_optim_task *task);
+/* Fills every metric of `m` that applies (the others are left alone) for the recovered scene
+ * against the task's ground truth; image_rmse is the caller's. Renders (albedo views, texel
+ * coverage) with the context's threads. */
+pen_status pen__optim_metrics(pen_context *ctx, const pen_optim_task *task, pen_optim_metrics *m);
 /* The angle in degrees between two axis-angle rotations (given in degrees), in double. */
 double pen__optim_rotation_angle_deg(const float a_deg[3], const float b_deg[3]);
 

@@ -44,7 +44,6 @@ typedef struct run {
     int segment_count;
     size_t n;
     float *x, *g;
-    unsigned char **observed; /* per textured object whose albedo is optimised: texel seen */
     float *best;              /* the parameters of the lowest loss so far */
 } run;
 
@@ -74,9 +73,7 @@ static pen_status layout(pen_context *ctx, run *r, const pen_optim_task *t) {
     r->objects = pen__calloc(ctx, (size_t)sc->object_count + 1, sizeof *r->objects, "layout");
     r->segments = pen__calloc(ctx, 4 * (size_t)sc->object_count + 1, sizeof *r->segments,
                               "segments");
-    r->observed = pen__calloc(ctx, (size_t)sc->object_count + 1, sizeof *r->observed,
-                              "observed texels");
-    if (!r->objects || !r->segments || !r->observed) return PEN_ERROR_MEMORY;
+    if (!r->objects || !r->segments) return PEN_ERROR_MEMORY;
     r->lighting = SIZE_MAX;
     if (r->groups & PEN_OPTIM_LIGHTING)
         r->lighting = add_segment(r, 3 * (size_t)sc->sh_bands * (size_t)sc->sh_bands,
@@ -88,11 +85,6 @@ static pen_status layout(pen_context *ctx, run *r, const pen_optim_task *t) {
         if (r->groups & PEN_OPTIM_ALBEDO) {
             L->albedo_count = albedo_floats(ob);
             L->albedo = add_segment(r, L->albedo_count, t->lr.albedo, PEN__BOUND_UNIT);
-            if (ob->texture.data) {
-                size_t texels = (size_t)ob->texture.width * (size_t)ob->texture.height;
-                r->observed[o] = pen__calloc(ctx, texels, 1, "observed texels");
-                if (!r->observed[o]) return PEN_ERROR_MEMORY;
-            }
         }
         if (r->groups & PEN_OPTIM_POSE) {
             L->rotation = add_segment(r, 3, t->lr.rotation, PEN__BOUND_NONE);
@@ -109,10 +101,6 @@ static pen_status layout(pen_context *ctx, run *r, const pen_optim_task *t) {
 }
 
 static void run_free(run *r) {
-    if (r->observed)
-        for (int o = 0; o < r->sc->object_count; ++o)
-            free(r->observed[o]);
-    free(r->observed);
     free(r->objects);
     free(r->segments);
     free(r->x);
@@ -339,53 +327,10 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
     return s;
 }
 
-/* Which texels the camera sees: the texel's total bilinear weight over the pixels of the final
- * view, read off as the albedo gradient of the image sum under unit radiance without shadows
- * (then dI/drho = 1 at every unblended pixel). A texel counts as observed from half a pixel of
- * weight on; texels below that hardly move under any optimiser and say nothing about it. */
-static pen_status mark_observed(pen_context *ctx, run *r) {
-    pen_scene *sc = r->sc;
-    int any = 0;
-    for (int o = 0; o < sc->object_count; ++o)
-        any |= r->observed[o] != NULL;
-    if (!any) return PEN_OK;
-    float saved[PEN_SH_MAX_COEFFS][3];
-    memcpy(saved, sc->lighting.sh, sizeof saved);
-    memset(sc->lighting.sh, 0, sizeof sc->lighting.sh);
-    for (int ch = 0; ch < 3; ++ch)
-        sc->lighting.sh[0][ch] = (float)sqrt(4.0 * PEN_PI); /* radiance 1 from everywhere */
-    pen_render_options opt = pen_render_options_default();
-    opt.shadows = 0;
-    pen_render_state *state = NULL;
-    pen_render_grad grad;
-    memset(&grad, 0, sizeof grad);
-    pen_image img = {0, 0, 0, NULL}, ones = {0, 0, 0, NULL};
-    pen_status s = pen_render_state_create(ctx, &state);
-    if (!s) s = pen_render_grad_create(ctx, sc, &grad);
-    if (!s) s = pen_render_fwd(ctx, sc, &opt, state, &img);
-    if (!s) s = pen_image_create(ctx, img.width, img.height, 3, &ones);
-    if (!s) {
-        for (size_t i = 0; i < (size_t)img.width * (size_t)img.height; ++i)
-            ones.data[3 * i] = 1.0f; /* channel 0 suffices */
-        s = pen_render_bwd(ctx, sc, &opt, state, &ones, PEN_GRAD_ALBEDO, &grad);
-    }
-    for (int o = 0; !s && o < sc->object_count; ++o) {
-        if (!r->observed[o]) continue;
-        const pen_image *tex = &sc->objects[o].texture;
-        for (size_t i = 0; i < (size_t)tex->width * (size_t)tex->height; ++i)
-            r->observed[o][i] = grad.objects[o].texture[i * (size_t)tex->channels] >= 0.5f;
-    }
-    memcpy(sc->lighting.sh, saved, sizeof saved);
-    pen_image_free(&img);
-    pen_image_free(&ones);
-    pen_render_grad_free(&grad);
-    pen_render_state_free(state);
-    return s;
-}
-
 static void metrics_none(pen_optim_metrics *m) {
     const double none = (double)NAN;
     m->image_rmse = m->lighting_rel_error = m->albedo_psnr_db = m->albedo_observed = none;
+    m->albedo_texel_psnr_db = none;
     m->rotation_error_deg = m->translation_error = m->vertex_rmse = none;
 }
 
@@ -397,7 +342,7 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
     pen_status s = check_task(ctx, task);
     if (s) return s;
     if (task->has_ground_truth) {
-        s = pen__optim_metrics(ctx, task, NULL, &out->metrics); /* structure check only */
+        s = pen__optim_check_truth(ctx, task);
         metrics_none(&out->metrics);
         if (s) return s;
     }
@@ -421,9 +366,7 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
     if (!s) {
         pen_image_error e = {0.0, 0.0, 0.0, 0};
         s = pen_image_compare(ctx, &out->final, &task->target, NULL, &e, NULL);
-        if (!s && task->has_ground_truth) s = mark_observed(ctx, &r);
-        if (!s && task->has_ground_truth)
-            s = pen__optim_metrics(ctx, task, (unsigned char *const *)r.observed, &out->metrics);
+        if (!s && task->has_ground_truth) s = pen__optim_metrics(ctx, task, &out->metrics);
         out->metrics.image_rmse = s ? (double)NAN : e.rmse;
     }
     run_free(&r);

@@ -270,6 +270,7 @@ static cJSON *metrics_json(const pen_optim_metrics *mt) {
     int ok = m && add_metric(m, "image_rmse", mt->image_rmse) &&
              add_metric(m, "lighting_rel_error", mt->lighting_rel_error) &&
              add_metric(m, "albedo_psnr_db", mt->albedo_psnr_db) &&
+             add_metric(m, "albedo_texel_psnr_db", mt->albedo_texel_psnr_db) &&
              add_metric(m, "albedo_observed", mt->albedo_observed) &&
              add_metric(m, "rotation_error_deg", mt->rotation_error_deg) &&
              add_metric(m, "translation_error", mt->translation_error) &&

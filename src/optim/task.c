@@ -71,6 +71,29 @@ static pen_status parse_scene_ref(pen_context *ctx, const char *path, const wher
                            pen__json_type_name(item));
 }
 
+pen_status pen_optim_task_set_target(pen_context *ctx, pen_optim_task *task, const char *path) {
+    if (!pen__io_has_ext(path, "exr") && !pen__io_has_ext(path, "hdr"))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "\"%s\": expected a linear image (.exr or .hdr)",
+                          path);
+    pen_image img = {0, 0, 0, NULL};
+    char *name = pen__io_strdup(ctx, path);
+    pen_status s = name ? pen_image_load(ctx, path, &img) : PEN_ERROR_MEMORY;
+    const pen_camera *c = &task->scene.camera;
+    if (!s && (img.width != c->width || img.height != c->height))
+        s = pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: the image is %dx%d but the scene's camera is %dx%d",
+                       path, img.width, img.height, c->width, c->height);
+    if (s) {
+        pen_image_free(&img);
+        free(name);
+        return s;
+    }
+    pen_image_free(&task->target);
+    free(task->target_path);
+    task->target = img;
+    task->target_path = name;
+    return PEN_OK;
+}
+
 static pen_status parse_target(pen_context *ctx, const char *path, const where *top,
                                const cJSON *root, pen_optim_task *t) {
     where w = at(top, "target");
@@ -81,16 +104,11 @@ static pen_status parse_target(pen_context *ctx, const char *path, const where *
     if (!pen__io_has_ext(rel, "exr") && !pen__io_has_ext(rel, "hdr"))
         return pen__json_error(ctx, PEN_ERROR_PARSE, &w,
                                "\"%s\": expected a linear image (.exr or .hdr)", rel);
-    t->target_path = pen__io_path_resolve(ctx, path, rel);
-    if (!t->target_path) return PEN_ERROR_MEMORY;
-    s = pen_image_load(ctx, t->target_path, &t->target);
-    if (s) return wrap(ctx, &w, s);
-    const pen_camera *c = &t->scene.camera;
-    if (t->target.width != c->width || t->target.height != c->height)
-        return pen__json_error(ctx, PEN_ERROR_ARGUMENT, &w,
-                               "the image is %dx%d but the scene's camera is %dx%d",
-                               t->target.width, t->target.height, c->width, c->height);
-    return PEN_OK;
+    char *full = pen__io_path_resolve(ctx, path, rel);
+    if (!full) return PEN_ERROR_MEMORY;
+    s = pen_optim_task_set_target(ctx, t, full);
+    free(full);
+    return s ? wrap(ctx, &w, s) : PEN_OK;
 }
 
 static pen_status parse_groups(pen_context *ctx, const where *top, const cJSON *root,
