@@ -101,15 +101,11 @@ int pen_cmd_optimize(int argc, char **argv) {
     pen_optim_result res;
     memset(&res, 0, sizeof res);
     int rc = 1;
-    if (pen_optim_task_load(ctx, task_path, &task)) {
+    if (pen_optim_task_load_ex(ctx, task_path, target, &task)) {
         rc = pen_cli_fail_ctx(CMD, ctx);
         goto out_ctx;
     }
     if (iterations > 0) task.iterations = iterations;
-    if (target && pen_optim_task_set_target(ctx, &task, target)) {
-        rc = pen_cli_fail(CMD, "--target: %s", pen_context_error(ctx));
-        goto out_task;
-    }
     progress p = {isatty(fileno(stderr))};
     set.progress = on_progress;
     set.progress_user = &p;

@@ -93,6 +93,10 @@ typedef struct pen_optim_task {
  * (.exr or .hdr) of the scene camera's size. The scene's {"fit": N} sphere requests are left for
  * pen_optim_run. On failure *out is zeroed. */
 pen_status pen_optim_task_load(pen_context *ctx, const char *path, pen_optim_task *out);
+/* The same with the target image taken from `target` (a path as given, not relative to the task;
+ * NULL: the task's "target") instead of the task's "target" key, which is then not read at all. */
+pen_status pen_optim_task_load_ex(pen_context *ctx, const char *path, const char *target,
+                                  pen_optim_task *out);
 /* The same from JSON text; `path` names it and is the base of its relative paths. */
 pen_status pen_optim_task_parse(pen_context *ctx, const char *json_text, const char *path,
                                 pen_optim_task *out);

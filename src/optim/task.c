@@ -246,7 +246,7 @@ static pen_status parse_options(pen_context *ctx, const where *top, const cJSON 
 }
 
 static pen_status parse_task(pen_context *ctx, const char *path, const cJSON *root,
-                             pen_optim_task *t) {
+                             const char *target, pen_optim_task *t) {
     where top = {path, ""};
     if (!cJSON_IsObject(root))
         return pen__json_error(ctx, PEN_ERROR_PARSE, &top, "expected a JSON object, got %s",
@@ -258,7 +258,11 @@ static pen_status parse_task(pen_context *ctx, const char *path, const cJSON *ro
     if (!s) s = parse_groups(ctx, &top, root, &t->optimize);
     if (!s) s = parse_options(ctx, &top, root, t);
     if (!s) s = parse_scene_ref(ctx, path, &top, root, "scene", &t->scene);
-    if (!s) s = parse_target(ctx, path, &top, root, t);
+    if (!s && target) {
+        s = pen_optim_task_set_target(ctx, t, target);
+    } else if (!s) {
+        s = parse_target(ctx, path, &top, root, t);
+    }
     if (!s && cJSON_GetObjectItemCaseSensitive(root, "ground_truth")) {
         s = parse_scene_ref(ctx, path, &top, root, "ground_truth", &t->ground_truth);
         t->has_ground_truth = s == PEN_OK;
@@ -267,7 +271,7 @@ static pen_status parse_task(pen_context *ctx, const char *path, const cJSON *ro
 }
 
 static pen_status task_from_text(pen_context *ctx, const char *text, size_t size,
-                                 const char *path, pen_optim_task *out) {
+                                 const char *path, const char *target, pen_optim_task *out) {
     out->iterations = 500;
     out->lr = pen_optim_lr_default();
     out->loss = PEN_OPTIM_LOSS_L2;
@@ -278,7 +282,7 @@ static pen_status task_from_text(pen_context *ctx, const char *text, size_t size
     pen_status s = pen__json_parse(ctx, path, text, size, &root);
     if (s) return s;
     out->path = pen__io_strdup(ctx, path);
-    s = out->path ? parse_task(ctx, path, root, out) : PEN_ERROR_MEMORY;
+    s = out->path ? parse_task(ctx, path, root, target, out) : PEN_ERROR_MEMORY;
     cJSON_Delete(root);
     if (s) pen_optim_task_free(out);
     return s;
@@ -288,16 +292,21 @@ pen_status pen_optim_task_parse(pen_context *ctx, const char *json_text, const c
                                 pen_optim_task *out) {
     memset(out, 0, sizeof *out);
     if (!json_text) return pen__error(ctx, PEN_ERROR_ARGUMENT, "task: no JSON text");
-    return task_from_text(ctx, json_text, strlen(json_text), path ? path : "task", out);
+    return task_from_text(ctx, json_text, strlen(json_text), path ? path : "task", NULL, out);
 }
 
 pen_status pen_optim_task_load(pen_context *ctx, const char *path, pen_optim_task *out) {
+    return pen_optim_task_load_ex(ctx, path, NULL, out);
+}
+
+pen_status pen_optim_task_load_ex(pen_context *ctx, const char *path, const char *target,
+                                  pen_optim_task *out) {
     memset(out, 0, sizeof *out);
     char *text = NULL;
     size_t size = 0;
     pen_status s = pen__io_read_file(ctx, path, (size_t)64 << 20, &text, &size);
     if (s) return s;
-    s = task_from_text(ctx, text, size, path, out);
+    s = task_from_text(ctx, text, size, path, target, out);
     free(text);
     return s;
 }
