@@ -80,6 +80,19 @@ for key in '"albedo_psnr_db"' '"rotation_error_deg"' '"translation_error"' '"ver
 done
 "$BIN" render "$T/tex/scene.json" -o "$T/tex_again.exr" -q || fail "render recovered textured"
 
+# 4. Deformation: the deformed mesh is written beside the scene and referenced by it.
+cat > "$T/task_def.json" <<JSON
+{"scene": "truth.json", "target": "target.exr", "optimize": ["deformation"], "iterations": 4,
+ "deformation": {"k": 3, "w_rot": 0.001, "w_reg": 0.01}, "ground_truth": "truth.json"}
+JSON
+"$BIN" optimize "$T/task_def.json" -o "$T/def" -q || fail "optimize deformation"
+[ -s "$T/def/mesh_0.obj" ] || fail "no deformed mesh written"
+grep -q '"mesh":[[:space:]]*"mesh_0.obj"' "$T/def/scene.json" ||
+    fail "scene.json does not reference the deformed mesh"
+grep -q '"vertex_rmse"' "$T/def/result.json" || fail "result.json (deformation) lacks vertex_rmse"
+grep -q '"w_reg":[[:space:]]*0.01' "$T/def/result.json" || fail "result.json lacks the weights"
+"$BIN" render "$T/def/scene.json" -o "$T/def_again.exr" -q || fail "render the deformed scene"
+
 # Errors: exit 1, one line on stderr naming the file and key, no output folder.
 expect_error() { # expected-fragment task-text
     frag=$1
@@ -122,6 +135,10 @@ expect_error 'bad.json: target: .*small.exr: the image is 16x32 but the scene' \
     '{"scene": "truth.json", "target": "small.exr", "optimize": ["lighting"]}'
 expect_error 'bad.json: ground_truth: objects\[0\]: a texture albedo, but the scene' \
     '{"scene": "truth.json", "target": "target.exr", "optimize": ["albedo"], "ground_truth": "truth_tex.json"}'
+expect_error 'bad.json: optimize\[1\]: "deformation" and "spheres" both move the spheres' \
+    '{"scene": "truth.json", "target": "target.exr", "optimize": ["spheres", "deformation"]}'
+expect_error 'bad.json: deformation.k: expected an integer in \[1, 32\]' \
+    '{"scene": "truth.json", "target": "target.exr", "optimize": ["deformation"], "deformation": {"k": 0}}'
 expect_error 'bad.json:[0-9]*:[0-9]*: invalid JSON' '{"scene": '
 # An output path that is a file: the run fails before writing anything.
 echo x > "$T/afile"

@@ -8,11 +8,9 @@
  * 256 spp with SH lighting (so the lighting is exactly representable and the error left is that
  * of the proxies and of SH visibility). Tolerances were set from measured values with a margin,
  * each noted. */
-#include "render_scenes.h"
+#include "optim_scenes.h"
 
 #include "optim/optim_internal.h"
-
-static unsigned long long seed = 4242;
 
 #define SIZE 40
 
@@ -98,27 +96,8 @@ static void test_rotation_angle(void) {
 
 /* ---- Recovery from reference targets --------------------------------------------------------- */
 
-/* The ground truth: render_scenes.h's ellipsoid (semi-axes 0.5625, 0.36, 0.45), optionally
- * textured (6x5 random texels), hovering 0.55 over the ground under the strong overhead light,
- * with five proxy spheres inscribed along its long axis (fewer proxies leave its shadow too
- * faint: with the fixture's two the SH render is 0.031 RMSE off the reference, with these five
- * 0.019). `bands`: the lighting's band count. */
-static pen_scene truth_scene(int textured, int bands) {
-    unsigned long long s = seed;
-    pen_scene sc = rs_scene(SIZE, SIZE);
-    sc.sh_bands = bands;
-    const float spheres[20] = {0.0f,  0, 0, 0.36f, 0.2f,   0, 0, 0.32f, -0.2f, 0,
-                               0,     0.32f, 0.35f, 0, 0, 0.21f, -0.35f, 0, 0, 0.21f};
-    pen_mesh mesh = rs_octasphere(2, 0.45f, textured);
-    for (int i = 0; i < mesh.vertex_count; ++i)
-        mesh.positions[3 * i] *= 1.25f, mesh.positions[3 * i + 1] *= 0.8f;
-    pen_object *ob = rs_add_object(&sc, mesh, 5, spheres);
-    ob->pose.translation[1] = 0.55f;
-    ob->pose.rotation_axis_angle_deg[0] = 10.0f;
-    ob->pose.rotation_axis_angle_deg[1] = 25.0f;
-    if (textured) ob->texture = rs_texture(6, 5, &s);
-    return sc;
-}
+/* The ground truth: tests/optim_scenes.h's ellipsoid, 40x40. */
+static pen_scene truth_scene(int textured, int bands) { return os_egg(SIZE, textured, bands); }
 
 /* A task whose scene and ground truth are both the truth scene and whose target is the
  * reference render of it (SH lighting, 256 spp: pixel noise 0.007 RMSE). The caller perturbs
@@ -136,12 +115,7 @@ static pen_optim_task make_task(int textured, int bands, unsigned groups) {
     t.tolerance = 1e-3;
     t.window = 10;
     t.init_black = 1;
-    pen_context *ctx = pen_context_create();
-    pen_reference *ref = NULL;
-    CHECK(pen_reference_create(ctx, &t.ground_truth, PEN_REFERENCE_LIGHTING_SH, &ref) == PEN_OK);
-    CHECK(pen_reference_render(ctx, ref, 256, 1, &t.target) == PEN_OK);
-    pen_reference_destroy(ref);
-    pen_context_destroy(ctx);
+    t.target = os_reference(&t.ground_truth);
     return t;
 }
 

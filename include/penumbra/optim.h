@@ -54,7 +54,8 @@ extern "C" {
 #define PEN_OPTIM_LIGHTING 1u    /* "lighting": SH coefficients, every band and channel */
 #define PEN_OPTIM_ALBEDO 2u      /* "albedo": every object's texels, or its constant albedo */
 #define PEN_OPTIM_POSE 4u        /* "pose": every object's rotation and translation (not scale) */
-#define PEN_OPTIM_DEFORMATION 8u /* "deformation": not implemented yet (a task naming it fails) */
+#define PEN_OPTIM_DEFORMATION 8u /* "deformation": every object's embedded deformation graph on
+                                    its sphere centres (moves vertices and spheres) */
 #define PEN_OPTIM_SPHERES 16u    /* "spheres": every object's sphere centres and radii */
 
 typedef enum pen_optim_loss { PEN_OPTIM_LOSS_L2 = 0, PEN_OPTIM_LOSS_L1 = 1 } pen_optim_loss;
@@ -66,10 +67,26 @@ typedef struct pen_optim_lr {
     float rotation;    /* radians of the axis-angle vector */
     float translation; /* scene units */
     float spheres;     /* scene units (object space), centres and radii */
+    float deformation_rotation;    /* entries of the graph nodes' 3x3 matrices */
+    float deformation_translation; /* the graph nodes' translations (object space) */
 } pen_optim_lr;
 
-/* All 1e-2 (supplement section 5.1). */
+/* 1e-2, and 1e-3 for the deformation matrices (supplement section 5.1). */
 pen_optim_lr pen_optim_lr_default(void);
+
+/* The embedded deformation graph (supplement section 3; Sumner et al. 2007): nodes at each
+ * object's sphere centres, each carrying a 3x3 matrix A_j and a translation t_j; a vertex follows
+ * its k nearest nodes, v' = sum_j w_j (A_j (v - g_j) + g_j + t_j) with w_j = (1 - d_j / d_max)^2
+ * normalised (d_max: the distance to the (k+1)-th node); a sphere moves with its node. The
+ * objective adds w_rot E_rot (A_j's columns orthonormal) and w_reg E_reg (neighbouring nodes,
+ * the k nearest, agree on where each other's map puts them) to the image loss. */
+typedef struct pen_optim_deformation {
+    int k;        /* default 4 (the supplement uses 4 to 8) */
+    double w_rot; /* default 1e-4 */
+    double w_reg; /* default 1e-3 */
+} pen_optim_deformation;
+
+pen_optim_deformation pen_optim_deformation_default(void);
 
 typedef struct pen_optim_task {
     char *path;         /* the task file (messages, relative paths) */
@@ -83,6 +100,7 @@ typedef struct pen_optim_task {
     double tolerance;   /* stopping rule (default 1e-3) */
     int window;         /* stopping rule window (default 10; 1 is the supplement's plain rule) */
     int init_black;     /* 1: supplement 5.2 initial guesses (default); 0: the scene's values */
+    pen_optim_deformation deformation;
     int has_ground_truth;
     pen_scene ground_truth; /* zeroed when has_ground_truth == 0 */
 } pen_optim_task;

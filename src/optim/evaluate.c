@@ -67,7 +67,8 @@ pen_status pen__optim_check_truth(pen_context *ctx, const pen_optim_task *t) {
                               "scene's texture is %dx%d",
                               name, o, b->texture.width, b->texture.height, a->texture.width,
                               a->texture.height);
-        if ((t->optimize & PEN_OPTIM_POSE) && a->mesh.vertex_count != b->mesh.vertex_count)
+        if ((t->optimize & (PEN_OPTIM_POSE | PEN_OPTIM_DEFORMATION)) &&
+            a->mesh.vertex_count != b->mesh.vertex_count)
             return pen__error(ctx, PEN_ERROR_ARGUMENT,
                               "%s: ground_truth: objects[%d].mesh: %d vertices, but the scene's "
                               "mesh has %d",
@@ -238,8 +239,10 @@ static void pose_error(const pen_optim_task *t, pen_optim_metrics *m) {
             ++n;
         }
     }
-    m->rotation_error_deg = rot;
-    m->translation_error = trans;
+    if (t->optimize & PEN_OPTIM_POSE) {
+        m->rotation_error_deg = rot;
+        m->translation_error = trans;
+    }
     m->vertex_rmse = n ? sqrt(sq / (double)n) : (double)NAN;
 }
 
@@ -249,7 +252,7 @@ pen_status pen__optim_metrics(pen_context *ctx, const pen_optim_task *t, pen_opt
     if (s) return s;
     if (t->optimize & PEN_OPTIM_LIGHTING)
         m->lighting_rel_error = lighting_error(&t->scene, &t->ground_truth);
-    if (t->optimize & PEN_OPTIM_POSE) pose_error(t, m);
+    if (t->optimize & (PEN_OPTIM_POSE | PEN_OPTIM_DEFORMATION)) pose_error(t, m);
     if (t->optimize & PEN_OPTIM_ALBEDO) {
         s = albedo_view_psnr(ctx, t, &m->albedo_psnr_db);
         if (!s) s = albedo_texels(ctx, t, m);

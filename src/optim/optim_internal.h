@@ -5,6 +5,8 @@
 
 #include "core/internal.h"
 #include "penumbra/optim.h"
+#include "penumbra/mesh.h"
+#include "penumbra/spheres.h"
 
 /* ---- Adam (src/optim/adam.c) ----------------------------------------------------------------- */
 
@@ -45,6 +47,37 @@ void pen__optim_project(const pen__optim_segment *segments, int segment_count, f
  * `window` losses is less than tolerance (relative to that mean) below the mean of the window
  * before it (a rise counts as stalled too). */
 int pen__optim_stalled(const double *losses, int n, int window, double tolerance);
+
+/* ---- Embedded deformation (src/optim/deform.c) ----------------------------------------------- */
+
+/* The graph of one object: nodes at its sphere centres, each vertex tied to its k nearest nodes,
+ * each node to its k nearest other nodes (fewer when there are not enough). Doubles. */
+typedef struct pen__deform_graph {
+    int nodes, vertices;
+    int k;           /* nodes per vertex: min(k, nodes) */
+    int kn;          /* neighbours per node: min(k, nodes - 1) */
+    double *g;       /* 3 per node: rest position (the sphere centre) */
+    double *rest;    /* 3 per vertex: rest position */
+    int *vnode;      /* k per vertex: node indices, nearest first */
+    double *vweight; /* k per vertex: weights, summing to 1 */
+    int *nn;         /* kn per node: neighbouring nodes */
+} pen__deform_graph;
+
+/* Builds the graph of a mesh (object space) on its spheres' centres. */
+pen_status pen__optim_deform_build(pen_context *ctx, const pen_mesh *mesh,
+                                   const pen_spheres *spheres, int k, pen__deform_graph *out);
+void pen__optim_deform_free(pen__deform_graph *graph);
+/* 12 per node: A_j row-major (9 per node) for every node, then t_j (3 per node). */
+void pen__optim_deform_identity(const pen__deform_graph *graph, double *params);
+/* Deformed vertex positions (3 per vertex) and sphere centres (3 per node). */
+void pen__optim_deform_fwd(const pen__deform_graph *graph, const double *params, double *positions,
+                           double *centres);
+/* Adds the pull-back of d_positions and d_centres (either may be NULL) into d_params. */
+void pen__optim_deform_bwd(const pen__deform_graph *graph, const double *params,
+                           const double *d_positions, const double *d_centres, double *d_params);
+/* w_rot E_rot + w_reg E_reg; adds its gradient into d_params (may be NULL). */
+double pen__optim_deform_energy(const pen__deform_graph *graph, const double *params, double w_rot,
+                                double w_reg, double *d_params);
 
 /* ---- Metrics (src/optim/evaluate.c) ---------------------------------------------------------- */
 

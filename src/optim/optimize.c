@@ -31,9 +31,17 @@ static const double DEG_PER_RAD = 180.0 / PEN_PI;
 
 /* Where each object's parameters sit in x (SIZE_MAX: not optimised). */
 typedef struct object_layout {
-    size_t albedo, rotation, translation, spheres;
+    size_t albedo, rotation, translation, spheres, deform;
     size_t albedo_count; /* texel floats, or 3 */
 } object_layout;
+
+/* An object's deformation graph and its double-precision work buffers. */
+typedef struct object_deform {
+    pen__deform_graph graph;
+    double *params, *d_params; /* 12 per node */
+    double *pos, *d_pos;       /* 3 per vertex */
+    double *centres, *d_centres; /* 3 per node */
+} object_deform;
 
 typedef struct run {
     pen_scene *sc;
@@ -45,6 +53,8 @@ typedef struct run {
     size_t n;
     float *x, *g;
     float *best;              /* the parameters of the lowest loss so far */
+    object_deform *deform;    /* per object, when deformation is optimised */
+    double w_rot, w_reg;
 } run;
 
 pen_optim_settings pen_optim_settings_default(void) {
@@ -71,9 +81,12 @@ static size_t albedo_floats(const pen_object *ob) {
 static pen_status layout(pen_context *ctx, run *r, const pen_optim_task *t) {
     const pen_scene *sc = r->sc;
     r->objects = pen__calloc(ctx, (size_t)sc->object_count + 1, sizeof *r->objects, "layout");
-    r->segments = pen__calloc(ctx, 4 * (size_t)sc->object_count + 1, sizeof *r->segments,
+    r->segments = pen__calloc(ctx, 6 * (size_t)sc->object_count + 1, sizeof *r->segments,
                               "segments");
-    if (!r->objects || !r->segments) return PEN_ERROR_MEMORY;
+    r->deform = pen__calloc(ctx, (size_t)sc->object_count + 1, sizeof *r->deform, "graphs");
+    if (!r->objects || !r->segments || !r->deform) return PEN_ERROR_MEMORY;
+    r->w_rot = t->deformation.w_rot;
+    r->w_reg = t->deformation.w_reg;
     r->lighting = SIZE_MAX;
     if (r->groups & PEN_OPTIM_LIGHTING)
         r->lighting = add_segment(r, 3 * (size_t)sc->sh_bands * (size_t)sc->sh_bands,
@@ -81,7 +94,7 @@ static pen_status layout(pen_context *ctx, run *r, const pen_optim_task *t) {
     for (int o = 0; o < sc->object_count; ++o) {
         const pen_object *ob = &sc->objects[o];
         object_layout *L = &r->objects[o];
-        L->albedo = L->rotation = L->translation = L->spheres = SIZE_MAX;
+        L->albedo = L->rotation = L->translation = L->spheres = L->deform = SIZE_MAX;
         if (r->groups & PEN_OPTIM_ALBEDO) {
             L->albedo_count = albedo_floats(ob);
             L->albedo = add_segment(r, L->albedo_count, t->lr.albedo, PEN__BOUND_UNIT);
@@ -93,6 +106,23 @@ static pen_status layout(pen_context *ctx, run *r, const pen_optim_task *t) {
         if ((r->groups & PEN_OPTIM_SPHERES) && ob->spheres.count > 0)
             L->spheres = add_segment(r, 4 * (size_t)ob->spheres.count, t->lr.spheres,
                                      PEN__BOUND_SPHERES);
+        if (r->groups & PEN_OPTIM_DEFORMATION) {
+            object_deform *D = &r->deform[o];
+            pen_status s = pen__optim_deform_build(ctx, &ob->mesh, &ob->spheres, t->deformation.k,
+                                                   &D->graph);
+            if (s) return s;
+            const size_t M = (size_t)ob->spheres.count, nv = (size_t)ob->mesh.vertex_count;
+            D->params = pen__calloc(ctx, 12 * M, sizeof(double), "deformation");
+            D->d_params = pen__calloc(ctx, 12 * M, sizeof(double), "deformation");
+            D->centres = pen__calloc(ctx, 3 * M, sizeof(double), "deformation");
+            D->d_centres = pen__calloc(ctx, 3 * M, sizeof(double), "deformation");
+            D->pos = pen__calloc(ctx, 3 * nv + 1, sizeof(double), "deformation");
+            D->d_pos = pen__calloc(ctx, 3 * nv + 1, sizeof(double), "deformation");
+            if (!D->params || !D->d_params || !D->centres || !D->d_centres || !D->pos || !D->d_pos)
+                return PEN_ERROR_MEMORY;
+            L->deform = add_segment(r, 9 * M, t->lr.deformation_rotation, PEN__BOUND_NONE);
+            add_segment(r, 3 * M, t->lr.deformation_translation, PEN__BOUND_NONE);
+        }
     }
     r->x = pen__calloc(ctx, r->n + 1, sizeof(float), "parameters");
     r->g = pen__calloc(ctx, r->n + 1, sizeof(float), "parameter gradient");
@@ -106,6 +136,17 @@ static void run_free(run *r) {
     free(r->x);
     free(r->g);
     free(r->best);
+    for (int o = 0; r->deform && o < r->sc->object_count; ++o) {
+        object_deform *D = &r->deform[o];
+        pen__optim_deform_free(&D->graph);
+        free(D->params);
+        free(D->d_params);
+        free(D->pos);
+        free(D->d_pos);
+        free(D->centres);
+        free(D->d_centres);
+    }
+    free(r->deform);
 }
 
 /* ---- Scene <-> parameter vector -------------------------------------------------------------- */
@@ -149,6 +190,18 @@ static void transfer(run *r, int to_scene) {
                     r->x[L->translation + k] = ob->pose.translation[k];
                 }
             }
+        if (L->deform != SIZE_MAX && to_scene) {
+            object_deform *D = &r->deform[o];
+            const size_t M = (size_t)D->graph.nodes;
+            for (size_t i = 0; i < 12 * M; ++i)
+                D->params[i] = r->x[L->deform + i];
+            pen__optim_deform_fwd(&D->graph, D->params, D->pos, D->centres);
+            for (size_t i = 0; i < 3 * (size_t)D->graph.vertices; ++i)
+                ob->mesh.positions[i] = (float)D->pos[i];
+            for (size_t j = 0; j < M; ++j)
+                for (int k = 0; k < 3; ++k)
+                    ob->spheres.data[4 * j + (size_t)k] = (float)D->centres[3 * j + (size_t)k];
+        }
         if (L->spheres != SIZE_MAX) {
             size_t n = 4 * (size_t)ob->spheres.count;
             if (to_scene)
@@ -161,6 +214,30 @@ static void transfer(run *r, int to_scene) {
 
 /* Supplement 5.2: optimised lighting and albedo start black (albedo grey when both are
  * optimised, since their gradients vanish together at zero). */
+/* The deformation starts at rest (identity matrices, zero translations) whatever `init` says:
+ * the scene holds the rest shape. */
+static void deformation_rest(run *r) {
+    for (int o = 0; o < r->sc->object_count; ++o) {
+        const object_layout *L = &r->objects[o];
+        if (L->deform == SIZE_MAX) continue;
+        object_deform *D = &r->deform[o];
+        pen__optim_deform_identity(&D->graph, D->params);
+        for (size_t i = 0; i < 12 * (size_t)D->graph.nodes; ++i)
+            r->x[L->deform + i] = (float)D->params[i];
+    }
+}
+
+/* The regularisers of every deformed object at the current parameters (D->params, set by
+ * transfer), adding scale times their gradient into d_params when asked. */
+static double regularisers(run *r) {
+    double e = 0.0;
+    for (int o = 0; o < r->sc->object_count; ++o)
+        if (r->objects[o].deform != SIZE_MAX)
+            e += pen__optim_deform_energy(&r->deform[o].graph, r->deform[o].params, r->w_rot,
+                                          r->w_reg, NULL);
+    return e;
+}
+
 static void initial_guess(run *r) {
     const float albedo0 = (r->groups & PEN_OPTIM_LIGHTING) ? 0.5f : 0.0f;
     if (r->lighting != SIZE_MAX)
@@ -197,6 +274,23 @@ static void gather(run *r, const pen_render_grad *grad, float scale) {
         if (L->spheres != SIZE_MAX)
             for (size_t i = 0; i < 4 * (size_t)og->sphere_count; ++i)
                 r->g[L->spheres + i] = scale * og->spheres[i];
+        if (L->deform != SIZE_MAX) {
+            object_deform *D = &r->deform[o];
+            const size_t M = (size_t)D->graph.nodes;
+            for (size_t i = 0; i < 3 * (size_t)D->graph.vertices; ++i)
+                D->d_pos[i] = (double)og->positions[i] * (double)scale;
+            for (size_t j = 0; j < M; ++j)
+                for (int k = 0; k < 3; ++k)
+                    D->d_centres[3 * j + (size_t)k] =
+                        (double)og->spheres[4 * j + (size_t)k] * (double)scale;
+            memset(D->d_params, 0, sizeof(double) * 12 * M);
+            pen__optim_deform_bwd(&D->graph, D->params, D->d_pos, D->d_centres, D->d_params);
+            /* the regularisers are in the loss's units: scaled like its gradient */
+            pen__optim_deform_energy(&D->graph, D->params, (double)scale * r->w_rot,
+                                     (double)scale * r->w_reg, D->d_params);
+            for (size_t i = 0; i < 12 * M; ++i)
+                r->g[L->deform + i] = (float)D->d_params[i];
+        }
     }
 }
 
@@ -206,6 +300,7 @@ static unsigned grad_mask(unsigned groups) {
     if (groups & PEN_OPTIM_ALBEDO) wrt |= PEN_GRAD_ALBEDO;
     if (groups & PEN_OPTIM_POSE) wrt |= PEN_GRAD_POSE;
     if (groups & PEN_OPTIM_SPHERES) wrt |= PEN_GRAD_SPHERES;
+    if (groups & PEN_OPTIM_DEFORMATION) wrt |= PEN_GRAD_SPHERES | PEN_GRAD_VERTICES;
     return wrt;
 }
 
@@ -224,9 +319,17 @@ static pen_status evaluate(pen_context *ctx, const pen_optim_task *t, const pen_
 static pen_status check_task(pen_context *ctx, const pen_optim_task *t) {
     const char *name = t->path ? t->path : "task";
     if (!t->optimize || (t->optimize & ~(unsigned)(PEN_OPTIM_LIGHTING | PEN_OPTIM_ALBEDO |
-                                                   PEN_OPTIM_POSE | PEN_OPTIM_SPHERES)))
-        return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: optimize: no group, or an unsupported one",
+                                                   PEN_OPTIM_POSE | PEN_OPTIM_SPHERES |
+                                                   PEN_OPTIM_DEFORMATION)) ||
+        ((t->optimize & PEN_OPTIM_SPHERES) && (t->optimize & PEN_OPTIM_DEFORMATION)))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: optimize: no group, an unknown one, or both spheres and "
+                          "deformation",
                           name);
+    if ((t->optimize & PEN_OPTIM_DEFORMATION) &&
+        (t->deformation.k < 1 || !(t->deformation.w_rot >= 0.0) || !(t->deformation.w_reg >= 0.0)))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: deformation: k must be positive, the weights >= 0", name);
     if (!t->target.data || t->target.channels != 3 || t->target.width != t->scene.camera.width ||
         t->target.height != t->scene.camera.height)
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
@@ -235,9 +338,10 @@ static pen_status check_task(pen_context *ctx, const pen_optim_task *t) {
     if (t->iterations < 1 || t->window < 1 || !(t->tolerance >= 0.0))
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "%s: iterations and window must be positive, tolerance >= 0", name);
-    const float lr[5] = {t->lr.lighting, t->lr.albedo, t->lr.rotation, t->lr.translation,
-                         t->lr.spheres};
-    for (int k = 0; k < 5; ++k)
+    const float lr[7] = {t->lr.lighting, t->lr.albedo,  t->lr.rotation,
+                         t->lr.translation, t->lr.spheres, t->lr.deformation_rotation,
+                         t->lr.deformation_translation};
+    for (int k = 0; k < 7; ++k)
         if (!(lr[k] > 0.0f) || !isfinite(lr[k]))
             return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: lr: rates must be positive", name);
     return PEN_OK;
@@ -272,6 +376,7 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
         s = pen_render_fwd(ctx, &t->scene, &opt, state, &img);
         if (!s) s = evaluate(ctx, t, &img, &loss, &d_img);
         if (s) break;
+        loss += regularisers(r);
         shown = i;
         res->losses[i] = loss;
         if (loss < best) {
@@ -299,6 +404,7 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
     if (!s && shown < 0) { /* the iteration limit: the loss after the last step */
         s = pen_render_fwd(ctx, &t->scene, &opt, NULL, &img);
         if (!s) s = evaluate(ctx, t, &img, &res->losses[i], NULL);
+        if (!s) res->losses[i] += regularisers(r);
         if (!s && res->losses[i] < best) {
             best = res->losses[i];
             res->best_iteration = i;
@@ -314,6 +420,7 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
         s = pen_render_fwd(ctx, &t->scene, &opt, NULL, &img);
     }
     if (!s) s = evaluate(ctx, t, &img, &res->final_loss, NULL);
+    if (!s) res->final_loss += regularisers(r);
     res->seconds = omp_get_wtime() - t0;
     if (!s) {
         res->final = img;
@@ -347,7 +454,7 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
         if (s) return s;
     }
     /* Sphere sets asked for as {"fit": N}; without shadows no spheres are needed. */
-    if (set.shadows) {
+    if (set.shadows || (task->optimize & PEN_OPTIM_DEFORMATION)) { /* graph nodes too */
         s = pen_scene_fit_spheres(ctx, &task->scene);
         if (s) return s;
     }
@@ -359,6 +466,7 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
     if (!s) {
         transfer(&r, 0);
         if (task->init_black) initial_guess(&r);
+        deformation_rest(&r);
         pen__optim_project(r.segments, r.segment_count, r.x);
         transfer(&r, 1);
         s = optimise(ctx, task, &set, &r, out);

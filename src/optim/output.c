@@ -86,9 +86,24 @@ static pen_status save_scene(pen_context *ctx, outputs *o, const pen_optim_task 
     copy.objects = pen__calloc(ctx, (size_t)sc->object_count + 1, sizeof *copy.objects, "scene");
     char **textures = pen__calloc(ctx, (size_t)sc->object_count + 1, sizeof *textures, "names");
     pen_status s = copy.objects && textures ? PEN_OK : PEN_ERROR_MEMORY;
+    char **meshes = pen__calloc(ctx, (size_t)sc->object_count + 1, sizeof *meshes, "names");
+    if (!meshes) s = PEN_ERROR_MEMORY;
     for (int i = 0; !s && i < sc->object_count; ++i) {
         copy.objects[i] = sc->objects[i];
-        if (t->optimize & PEN_OPTIM_SPHERES) copy.objects[i].spheres_path = NULL;
+        if (t->optimize & (PEN_OPTIM_SPHERES | PEN_OPTIM_DEFORMATION))
+            copy.objects[i].spheres_path = NULL;
+        if (t->optimize & PEN_OPTIM_DEFORMATION) { /* the deformed mesh, beside the scene */
+            char name[64];
+            snprintf(name, sizeof name, "mesh_%d.obj", i);
+            char *path = join(ctx, o->dir, name);
+            s = path ? pen_mesh_save_obj(ctx, path, &sc->objects[i].mesh) : PEN_ERROR_MEMORY;
+            if (!s) s = remember(ctx, o, path);
+            else free(path);
+            if (!s) meshes[i] = pen__io_strdup(ctx, o->written[o->count - 1]);
+            if (!s && !meshes[i]) s = PEN_ERROR_MEMORY;
+            if (s) break;
+            copy.objects[i].mesh_path = meshes[i];
+        }
         if (!(t->optimize & PEN_OPTIM_ALBEDO) || !sc->objects[i].texture.data) continue;
         char name[64];
         snprintf(name, sizeof name, "texture_%d.png", i);
@@ -109,7 +124,10 @@ static pen_status save_scene(pen_context *ctx, outputs *o, const pen_optim_task 
     }
     for (int i = 0; textures && i < sc->object_count; ++i)
         free(textures[i]);
+    for (int i = 0; meshes && i < sc->object_count; ++i)
+        free(meshes[i]);
     free(textures);
+    free(meshes);
     free(copy.objects);
     return s;
 }
@@ -285,7 +303,18 @@ static cJSON *lr_json(const pen_optim_lr *lr) {
              add(o, "albedo", pen__json_float(lr->albedo)) &&
              add(o, "rotation", pen__json_float(lr->rotation)) &&
              add(o, "translation", pen__json_float(lr->translation)) &&
-             add(o, "spheres", pen__json_float(lr->spheres));
+             add(o, "spheres", pen__json_float(lr->spheres)) &&
+             add(o, "deformation_rotation", pen__json_float(lr->deformation_rotation)) &&
+             add(o, "deformation_translation", pen__json_float(lr->deformation_translation));
+    if (!ok) cJSON_Delete(o);
+    return ok ? o : NULL;
+}
+
+static cJSON *deformation_json(const pen_optim_deformation *d) {
+    cJSON *o = cJSON_CreateObject();
+    int ok = o && add(o, "k", cJSON_CreateNumber(d->k)) &&
+             add(o, "w_rot", cJSON_CreateNumber(d->w_rot)) &&
+             add(o, "w_reg", cJSON_CreateNumber(d->w_reg));
     if (!ok) cJSON_Delete(o);
     return ok ? o : NULL;
 }
@@ -312,6 +341,8 @@ pen_status pen_optim_result_json(pen_context *ctx, const pen_optim_task *t,
              add(root, "interrupted", cJSON_CreateBool(r->interrupted)) &&
              add(root, "metrics", metrics_json(&r->metrics)) &&
              add(root, "lr", lr_json(&t->lr)) &&
+             (!(t->optimize & PEN_OPTIM_DEFORMATION) ||
+              add(root, "deformation", deformation_json(&t->deformation))) &&
              add(root, "tolerance", cJSON_CreateNumber(t->tolerance)) &&
              add(root, "window", cJSON_CreateNumber(t->window)) &&
              add(root, "width", cJSON_CreateNumber(t->target.width)) &&

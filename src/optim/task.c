@@ -32,8 +32,13 @@ static pen_status wrap(pen_context *ctx, const where *w, pen_status s) {
 }
 
 pen_optim_lr pen_optim_lr_default(void) {
-    pen_optim_lr lr = {1e-2f, 1e-2f, 1e-2f, 1e-2f, 1e-2f};
+    pen_optim_lr lr = {1e-2f, 1e-2f, 1e-2f, 1e-2f, 1e-2f, 1e-3f, 1e-2f};
     return lr;
+}
+
+pen_optim_deformation pen_optim_deformation_default(void) {
+    pen_optim_deformation d = {4, 1e-4, 1e-3};
+    return d;
 }
 
 /* "scene" / "ground_truth": a path or an inline object. */
@@ -143,10 +148,11 @@ static pen_status parse_groups(pen_context *ctx, const where *top, const cJSON *
                                    name);
         if (*groups & bit)
             return pen__json_error(ctx, PEN_ERROR_PARSE, &wi, "\"%s\" is listed twice", name);
-        if (bit == PEN_OPTIM_DEFORMATION)
-            return pen__json_error(ctx, PEN_ERROR_UNSUPPORTED, &wi,
-                                   "\"deformation\" is not implemented yet");
         *groups |= bit;
+        if ((*groups & PEN_OPTIM_DEFORMATION) && (*groups & PEN_OPTIM_SPHERES))
+            return pen__json_error(ctx, PEN_ERROR_PARSE, &wi,
+                                   "\"deformation\" and \"spheres\" both move the spheres: "
+                                   "choose one");
     }
     return PEN_OK;
 }
@@ -163,18 +169,32 @@ static pen_status parse_lr(pen_context *ctx, const where *top, const cJSON *root
         if (!s && v <= 0.0) s = pen__json_error(ctx, PEN_ERROR_PARSE, &w, "expected %s", what);
         if (s) return s;
         lr->lighting = lr->albedo = lr->rotation = lr->translation = lr->spheres = (float)v;
+        lr->deformation_rotation = lr->deformation_translation = (float)v;
         return PEN_OK;
     }
     if (!cJSON_IsObject(item))
         return pen__json_error(ctx, PEN_ERROR_PARSE, &w,
                                "expected a number or an object of per-group rates, got %s",
                                pen__json_type_name(item));
-    static const char *const known[] = {"lighting", "albedo",  "rotation", "translation",
-                                        "spheres",  "pose",    NULL};
+    static const char *const known[] = {"lighting",
+                                        "albedo",
+                                        "rotation",
+                                        "translation",
+                                        "spheres",
+                                        "deformation_rotation",
+                                        "deformation_translation",
+                                        "pose",
+                                        NULL};
     pen_status s = pen__json_known_keys(ctx, &w, item, known);
     if (s) return s;
-    float *fields[] = {&lr->lighting,    &lr->albedo,  &lr->rotation,
-                       &lr->translation, &lr->spheres, NULL};
+    float *fields[] = {&lr->lighting,
+                       &lr->albedo,
+                       &lr->rotation,
+                       &lr->translation,
+                       &lr->spheres,
+                       &lr->deformation_rotation,
+                       &lr->deformation_translation,
+                       NULL};
     for (int k = 0; known[k]; ++k) {
         const cJSON *e = cJSON_GetObjectItemCaseSensitive(item, known[k]);
         if (!e) continue;
@@ -242,6 +262,29 @@ static pen_status parse_options(pen_context *ctx, const where *top, const cJSON 
                                    name);
         }
     }
+    if ((e = cJSON_GetObjectItemCaseSensitive(root, "deformation"))) {
+        w = at(top, "deformation");
+        static const char *const known[] = {"k", "w_rot", "w_reg", NULL};
+        if (!cJSON_IsObject(e))
+            return pen__json_error(ctx, PEN_ERROR_PARSE, &w, "expected an object, got %s",
+                                   pen__json_type_name(e));
+        s = pen__json_known_keys(ctx, &w, e, known);
+        const cJSON *f;
+        where wf;
+        if (!s && (f = cJSON_GetObjectItemCaseSensitive(e, "k"))) {
+            wf = at(&w, "k");
+            s = pen__json_int(ctx, &wf, f, 1, 32, "an integer in [1, 32]", &t->deformation.k);
+        }
+        if (!s && (f = cJSON_GetObjectItemCaseSensitive(e, "w_rot"))) {
+            wf = at(&w, "w_rot");
+            s = pen__json_number(ctx, &wf, f, 0.0, 1e9, "a weight >= 0", &t->deformation.w_rot);
+        }
+        if (!s && (f = cJSON_GetObjectItemCaseSensitive(e, "w_reg"))) {
+            wf = at(&w, "w_reg");
+            s = pen__json_number(ctx, &wf, f, 0.0, 1e9, "a weight >= 0", &t->deformation.w_reg);
+        }
+        if (s) return s;
+    }
     return parse_lr(ctx, top, root, &t->lr);
 }
 
@@ -251,9 +294,9 @@ static pen_status parse_task(pen_context *ctx, const char *path, const cJSON *ro
     if (!cJSON_IsObject(root))
         return pen__json_error(ctx, PEN_ERROR_PARSE, &top, "expected a JSON object, got %s",
                                pen__json_type_name(root));
-    static const char *const known[] = {"scene",     "target", "optimize", "iterations",
-                                        "lr",        "loss",   "tolerance", "window",
-                                        "init",      "ground_truth", NULL};
+    static const char *const known[] = {"scene", "target",    "optimize", "iterations",
+                                        "lr",    "loss",      "tolerance", "window",
+                                        "init",  "deformation", "ground_truth", NULL};
     pen_status s = pen__json_known_keys(ctx, &top, root, known);
     if (!s) s = parse_groups(ctx, &top, root, &t->optimize);
     if (!s) s = parse_options(ctx, &top, root, t);
@@ -278,6 +321,7 @@ static pen_status task_from_text(pen_context *ctx, const char *text, size_t size
     out->tolerance = 1e-3;
     out->window = 10;
     out->init_black = 1;
+    out->deformation = pen_optim_deformation_default();
     cJSON *root = NULL;
     pen_status s = pen__json_parse(ctx, path, text, size, &root);
     if (s) return s;
