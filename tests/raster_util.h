@@ -99,7 +99,7 @@ typedef struct ru_scene {
     pen_ground ground;
 } ru_scene;
 
-static inline void ru_scene_init(ru_scene *s) {
+static inline void ru_scene_init_size(ru_scene *s, int width, int height) {
     const float p0[12] = {-1.0f, -0.8f, 0.2f,  1.1f,  -0.9f, -0.3f,
                           0.9f,  1.0f,  -0.1f, -1.2f, 0.9f,  0.4f};
     const float p1[9] = {-0.3f, -0.5f, 1.2f, 0.8f, 0.1f, 1.0f, 0.0f, 0.7f, 1.3f};
@@ -115,11 +115,19 @@ static inline void ru_scene_init(ru_scene *s) {
     CHECK(pen_raster_adjacency(NULL, 3, 1, s->idx1, s->adj1) == PEN_OK);
     s->meshes[0] = ru_mesh(4, s->pos0, 2, s->idx0, s->adj0);
     s->meshes[1] = ru_mesh(3, s->pos1, 1, s->idx1, s->adj1);
-    s->cam = ru_camera(32, 28, 50.0f, 0.3f, 0.4f, 4.0f, 0, 0, 0);
+    s->cam = ru_camera(width, height, 50.0f, 0.3f, 0.4f, 4.0f, 0, 0, 0);
     s->view = ru_view(&s->cam);
     pen_ground g = {1, -1.1f, {1, 1, 1}, 3};
     s->ground = g;
 }
+
+static inline void ru_scene_init(ru_scene *s) {
+    ru_scene_init_size(s, 32, 28);
+}
+
+/* Thread-count tests need images above the size where loops go parallel (8192 pixels). */
+#define RU_PARALLEL_W 131
+#define RU_PARALLEL_H 97
 
 /* A G-buffer of the scene's size with the scene rasterized into it. */
 static inline pen_gbuffer ru_scene_gbuffer(const ru_scene *s) {

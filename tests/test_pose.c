@@ -9,7 +9,8 @@
 
 #define DEG (3.14159265358979323846 / 180.0)
 
-/* Independent reference: R = cos θ I + sin θ [k]x + (1 - cos θ) k k^T with a unit axis k. */
+/* Independent reference: R = cos theta I + sin theta [k]x + (1 - cos theta) k k^T with a unit axis
+ * k. */
 static void rotation_ref(const double w[3], double R[9]) {
     double th = sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
     double k[3] = {1, 0, 0};

@@ -349,15 +349,17 @@ static void test_thread_count_independent(void) {
     float *pos = malloc(sizeof(float) * 9 * n);
     uint32_t *idx = malloc(sizeof(uint32_t) * 3 * n);
     random_soup(&seed, n, pos, idx);
-    pen_camera cam = ru_camera(97, 61, 50.0f, 0.5f, 0.8f, 3.0f, 0, 0, 0);
+    pen_camera cam = ru_camera(RU_PARALLEL_W, RU_PARALLEL_H, 50.0f, 0.5f, 0.8f, 3.0f, 0, 0, 0);
     pen_view view = ru_view(&cam);
     pen_raster_mesh mesh = ru_mesh(3 * n, pos, n, idx, NULL);
     pen_ground ground = {1, -0.5f, {1, 1, 1}, 3};
-    pen_gbuffer g1 = ru_gbuffer(97, 61), g[2] = {ru_gbuffer(97, 61), ru_gbuffer(97, 61)};
+    pen_gbuffer g1 = ru_gbuffer(RU_PARALLEL_W, RU_PARALLEL_H);
+    pen_gbuffer g[2] = {ru_gbuffer(RU_PARALLEL_W, RU_PARALLEL_H),
+                        ru_gbuffer(RU_PARALLEL_W, RU_PARALLEL_H)};
     CHECK(ru_raster(&view, &mesh, 1, &ground, &g1, 1) == PEN_OK);
     for (int k = 0; k < 2; ++k) {
         CHECK(ru_raster(&view, &mesh, 1, &ground, &g[k], k + 2) == PEN_OK);
-        size_t n_px = 97 * 61;
+        size_t n_px = RU_PARALLEL_W * RU_PARALLEL_H;
         CHECK(memcmp(g1.surface, g[k].surface, n_px * 4) == 0);
         CHECK(memcmp(g1.triangle, g[k].triangle, n_px * 4) == 0);
         CHECK(memcmp(g1.bary, g[k].bary, n_px * 8) == 0);
@@ -367,6 +369,54 @@ static void test_thread_count_independent(void) {
     pen_gbuffer_free(&g1);
     free(pos);
     free(idx);
+}
+
+/* The bundled Spot mesh on the ground: the G-buffer matches the ray caster, its smooth normals
+ * are unit, and it is a closed mesh (every edge has one neighbour). */
+static void test_spot_mesh(void) {
+    pen_context *ctx = pen_context_create();
+    pen_mesh mesh;
+    pen_status st = pen_mesh_load(ctx, PEN_SOURCE_DIR "/data/meshes/spot_triangulated.obj", &mesh);
+    CHECK_MSG(st == PEN_OK, "%s", pen_context_error(ctx));
+    if (st) {
+        pen_context_destroy(ctx);
+        return;
+    }
+    int size = check_quick_() ? 20 : 40;
+    pen_camera cam = ru_camera(size, size, 35.0f, 0.5f, 1.2f, 3.0f, 0, 0.1f, 0);
+    pen_view view = ru_view(&cam);
+    int32_t *adj = malloc(sizeof(int32_t) * 3 * (size_t)mesh.triangle_count);
+    float *nrm = malloc(sizeof(float) * 3 * (size_t)mesh.vertex_count);
+    CHECK(pen_raster_adjacency(ctx, mesh.vertex_count, mesh.triangle_count, mesh.indices, adj) ==
+          PEN_OK);
+    int boundary = 0;
+    for (int i = 0; i < 3 * mesh.triangle_count; ++i)
+        boundary += adj[i] < 0;
+    CHECK(boundary == 0);
+    CHECK(pen_vertex_normals_fwd(ctx, mesh.vertex_count, mesh.positions, mesh.triangle_count,
+                                 mesh.indices, nrm) == PEN_OK);
+    for (int v = 0; v < mesh.vertex_count; ++v) {
+        const float *n = nrm + 3 * v;
+        CHECK_NEAR(n[0] * n[0] + n[1] * n[1] + n[2] * n[2], 1, 1e-5);
+    }
+    pen_raster_mesh rm =
+        ru_mesh(mesh.vertex_count, mesh.positions, mesh.triangle_count, mesh.indices, adj);
+    pen_ground ground = {1, -0.75f, {1, 1, 1}, 3};
+    pen_gbuffer gb = ru_gbuffer(size, size);
+    CHECK(ru_raster(&view, &rm, 1, &ground, &gb, 0) == PEN_OK);
+    CHECK(ru_gbuffer_sane(&gb));
+    int covered = 0;
+    for (int i = 0; i < size * size; ++i)
+        covered += gb.surface[i] == 0;
+    CHECK(covered > size * size / 10);
+    /* Without the ground, the mesh pixels agree with the ray caster. */
+    CHECK(ru_raster(&view, &rm, 1, NULL, &gb, 0) == PEN_OK);
+    CHECK(check_against_caster(&view, &rm, 1, &gb) > size * size * 9 / 10);
+    free(adj);
+    free(nrm);
+    pen_gbuffer_free(&gb);
+    pen_mesh_free(&mesh);
+    pen_context_destroy(ctx);
 }
 
 /* ---- Adjacency and validation -------------------------------------------------------------- */
@@ -432,5 +482,5 @@ static void test_validation(void) {
 RUN_TESTS(TEST(test_triangle_known_pixels), TEST(test_depth_order),
           TEST(test_random_scenes_match_ray_caster), TEST(test_near_plane_clipping),
           TEST(test_ground_plane_analytic), TEST(test_degenerate_and_grazing),
-          TEST(test_watertight_grid), TEST(test_thread_count_independent), TEST(test_adjacency),
-          TEST(test_validation))
+          TEST(test_watertight_grid), TEST(test_thread_count_independent), TEST(test_spot_mesh),
+          TEST(test_adjacency), TEST(test_validation))

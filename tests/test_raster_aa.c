@@ -66,20 +66,39 @@ static void flat_colors(const pen_gbuffer *gb, float *color) {
     }
 }
 
+/* One mesh (and optionally the ground) in flat colours: the loss W . antialias(colours) then
+ * depends on the vertices only through the silhouette blending. */
+typedef struct flat_scene {
+    pen_view view;
+    pen_raster_mesh mesh;
+    const pen_ground *ground;
+} flat_scene;
+
+static double flat_loss(const void *scene, const float *W, pen_gbuffer *gb) {
+    const flat_scene *s = scene;
+    size_t n = (size_t)s->view.width * s->view.height;
+    float *color = malloc(3 * n * sizeof(float)), *out = malloc(3 * n * sizeof(float));
+    CHECK(ru_raster(&s->view, &s->mesh, 1, s->ground, gb, 0) == PEN_OK);
+    flat_colors(gb, color);
+    CHECK(aa_fwd(gb, &s->view, &s->mesh, 1, color, 3, out, 0) == PEN_OK);
+    double l = dot_d(W, out, 3 * n);
+    free(color), free(out);
+    return l;
+}
+
 /* ---- A triangle over a background ---------------------------------------------------------- */
 
 typedef struct tri_scene {
-    pen_camera cam;
-    pen_view view;
+    flat_scene fs;
     float pos[9];
     uint32_t idx[3];
     int32_t adj[3];
-    pen_raster_mesh mesh;
 } tri_scene;
 
 static void tri_scene_init(tri_scene *s, unsigned long long *seed) {
-    s->cam = ru_camera(32, 32, 45.0f, 0.1f, 0.2f, 3.0f, 0, 0, 0);
-    s->view = ru_view(&s->cam);
+    pen_camera cam = ru_camera(32, 32, 45.0f, 0.1f, 0.2f, 3.0f, 0, 0, 0);
+    s->fs.view = ru_view(&cam);
+    s->fs.ground = NULL;
     for (int k = 0; k < 3; ++k) {
         double a = 2.1 * k + 0.5 * check_rand_(seed), r = 0.6 + 0.3 * check_rand_(seed);
         s->pos[3 * k] = (float)(r * cos(a));
@@ -88,20 +107,7 @@ static void tri_scene_init(tri_scene *s, unsigned long long *seed) {
         s->idx[k] = (uint32_t)k;
     }
     CHECK(pen_raster_adjacency(NULL, 3, 1, s->idx, s->adj) == PEN_OK);
-    s->mesh = ru_mesh(3, s->pos, 1, s->idx, s->adj);
-}
-
-/* loss = W . antialias(flat colours of the rasterized triangle). */
-static double tri_loss(const void *scene, const float *W, pen_gbuffer *gb) {
-    const tri_scene *s = scene;
-    size_t n = 32 * 32;
-    float *color = malloc(3 * n * sizeof(float)), *out = malloc(3 * n * sizeof(float));
-    CHECK(ru_raster(&s->view, &s->mesh, 1, NULL, gb, 0) == PEN_OK);
-    flat_colors(gb, color);
-    CHECK(aa_fwd(gb, &s->view, &s->mesh, 1, color, 3, out, 0) == PEN_OK);
-    double l = dot_d(W, out, 3 * n);
-    free(color), free(out);
-    return l;
+    s->fs.mesh = ru_mesh(3, s->pos, 1, s->idx, s->adj);
 }
 
 static void test_triangle_over_background_fd(void) {
@@ -116,14 +122,14 @@ static void test_triangle_over_background_fd(void) {
     for (int rep = 0; rep < 8; ++rep) {
         tri_scene s;
         tri_scene_init(&s, &seed);
-        double l0 = tri_loss(&s, W, &gb);
+        double l0 = flat_loss(&s.fs, W, &gb);
         flat_colors(&gb, color);
         float d_pos[9] = {0}, *d_positions[1] = {d_pos};
-        CHECK(aa_bwd(&gb, &s.view, &s.mesh, 1, color, 3, W, NULL, d_positions, 0) == PEN_OK);
+        CHECK(aa_bwd(&gb, &s.fs.view, &s.fs.mesh, 1, color, 3, W, NULL, d_positions, 0) == PEN_OK);
         for (int j = 0; j < 9; ++j) {
             double fd;
             ++total;
-            if (!fd_smooth(tri_loss, &s, W, s.pos + j, h, l0, &gb, &gp, &gm, &fd)) continue;
+            if (!fd_smooth(flat_loss, &s.fs, W, s.pos + j, h, l0, &gb, &gp, &gm, &fd)) continue;
             ++tested;
             /* Tolerance: 1% relative, floor 0.5. The image is float: rounding of the ~60
              * blended pixels puts ~1e-3 of noise on these differences at this step. */
@@ -208,7 +214,7 @@ static void test_full_chain_fd(void) {
     }
     pen_interpolate_bwd(&gb, 0, s.idx0, s.pos0, 3, d_x, d_pos0, d_bary);
     pen_interpolate_bwd(&gb, 1, s.idx1, s.pos1, 3, d_x, d_pos1, d_bary);
-    pen_raster_bary_bwd(&s.view, s.meshes, 2, &gb, d_bary, d_positions);
+    CHECK(pen_raster_bary_bwd(NULL, &s.view, s.meshes, 2, &gb, d_bary, d_positions) == PEN_OK);
     const float h = 1.0f / 4096;
     int tested = 0;
     for (int m = 0; m < 2; ++m) {
@@ -353,11 +359,65 @@ static void test_area_derivative(void) {
     pen_gbuffer_free(&gb);
 }
 
+/* ---- A real closed mesh ------------------------------------------------------------------- */
+
+static void test_spot_silhouette_fd(void) {
+    /* Spot over the ground: self-occlusion (ears, legs) and silhouettes against the ground and
+     * the background. The vertices with the largest gradients are checked. */
+    pen_context *ctx = pen_context_create();
+    pen_mesh mesh;
+    pen_status st = pen_mesh_load(ctx, PEN_SOURCE_DIR "/data/meshes/spot_triangulated.obj", &mesh);
+    CHECK_MSG(st == PEN_OK, "%s", pen_context_error(ctx));
+    pen_context_destroy(ctx);
+    if (st) return;
+    flat_scene s;
+    int size = check_quick_() ? 24 : 48;
+    pen_camera cam = ru_camera(size, size, 35.0f, 0.9f, 1.0f, 2.5f, 0, 0.0f, 0);
+    s.view = ru_view(&cam);
+    int32_t *adj = malloc(sizeof(int32_t) * 3 * (size_t)mesh.triangle_count);
+    CHECK(pen_raster_adjacency(NULL, mesh.vertex_count, mesh.triangle_count, mesh.indices, adj) ==
+          PEN_OK);
+    s.mesh = ru_mesh(mesh.vertex_count, mesh.positions, mesh.triangle_count, mesh.indices, adj);
+    pen_ground g = {1, -0.75f, {1, 1, 1}, 3};
+    s.ground = &g;
+    size_t n = (size_t)size * size, nv = 3 * (size_t)mesh.vertex_count;
+    unsigned long long seed = 64;
+    float *W = malloc(3 * n * sizeof(float)), *color = malloc(3 * n * sizeof(float));
+    float *d_pos = calloc(nv, sizeof(float)), *d_positions[1] = {d_pos};
+    for (size_t i = 0; i < 3 * n; ++i)
+        W[i] = (float)(2 * check_rand_(&seed) - 1);
+    pen_gbuffer gb = ru_gbuffer(size, size), gp = ru_gbuffer(size, size);
+    pen_gbuffer gm = ru_gbuffer(size, size);
+    double l0 = flat_loss(&s, W, &gb);
+    flat_colors(&gb, color);
+    CHECK(aa_bwd(&gb, &s.view, &s.mesh, 1, color, 3, W, NULL, d_positions, 0) == PEN_OK);
+    CHECK(ru_all_finite(d_pos, nv));
+    int tested = 0, nonzero = 0;
+    for (int round = 0; round < 12; ++round) {
+        size_t best = 0; /* the largest remaining gradient */
+        for (size_t j = 0; j < nv; ++j)
+            if (fabsf(d_pos[j]) > fabsf(d_pos[best])) best = j;
+        if (d_pos[best] == 0) break;
+        ++nonzero;
+        double fd;
+        if (fd_smooth(flat_loss, &s, W, mesh.positions + best, 1.0f / 4096, l0, &gb, &gp, &gm,
+                      &fd)) {
+            ++tested;
+            CHECK_REL(d_pos[best], fd, 1e-2, 0.5);
+        }
+        d_pos[best] = 0;
+    }
+    CHECK(nonzero == 12 && tested >= 8);
+    free(W), free(color), free(d_pos), free(adj);
+    pen_gbuffer_free(&gb), pen_gbuffer_free(&gp), pen_gbuffer_free(&gm);
+    pen_mesh_free(&mesh);
+}
+
 /* ---- Determinism, robustness, validation --------------------------------------------------- */
 
 static void test_threads_and_identity(void) {
     ru_scene s;
-    ru_scene_init(&s);
+    ru_scene_init_size(&s, RU_PARALLEL_W, RU_PARALLEL_H);
     size_t n = (size_t)s.cam.width * s.cam.height;
     pen_gbuffer gb = ru_scene_gbuffer(&s);
     float *c = malloc(3 * n * sizeof(float)), *o1 = malloc(3 * n * sizeof(float));
@@ -426,5 +486,5 @@ static void test_degenerate_and_errors(void) {
 
 RUN_TESTS(TEST(test_triangle_over_background_fd), TEST(test_full_chain_fd),
           TEST(test_color_adjoint), TEST(test_closed_mesh_silhouettes_only),
-          TEST(test_area_derivative), TEST(test_threads_and_identity),
-          TEST(test_degenerate_and_errors))
+          TEST(test_area_derivative), TEST(test_spot_silhouette_fd),
+          TEST(test_threads_and_identity), TEST(test_degenerate_and_errors))

@@ -89,7 +89,7 @@ static void test_interpolation_pipeline_fd(void) {
     pen_interpolate_bwd(&gb, 1, s.idx1, s.pos1, 3, W, d_pos1, d_bary);
     pen_interpolate_bwd(&gb, 0, s.cidx0, s.col0, 3, V, d_col0, d_bary);
     float *d_positions[2] = {d_pos0, d_pos1};
-    pen_raster_bary_bwd(&s.view, s.meshes, 2, &gb, d_bary, d_positions);
+    CHECK(pen_raster_bary_bwd(NULL, &s.view, s.meshes, 2, &gb, d_bary, d_positions) == PEN_OK);
     const float h = 1.0f / 2048;
     int tested = 0;
     for (int m = 0; m < 2; ++m) {
@@ -136,6 +136,30 @@ static void test_interpolation_pipeline_fd(void) {
     CHECK(ground > 10);
     free(pts), free(ip), free(d_bary), free(W), free(V);
     pen_gbuffer_free(&gb), pen_gbuffer_free(&gp), pen_gbuffer_free(&gm);
+}
+
+static void test_bary_backward_threads(void) {
+    /* The same sums with 1 and 3 threads: the vertex scatter runs in pixel order. */
+    ru_scene s;
+    ru_scene_init_size(&s, RU_PARALLEL_W, RU_PARALLEL_H);
+    size_t n = (size_t)s.cam.width * s.cam.height;
+    pen_gbuffer gb = ru_scene_gbuffer(&s);
+    float *d_bary = malloc(2 * n * sizeof(float));
+    unsigned long long seed = 56;
+    for (size_t i = 0; i < 2 * n; ++i)
+        d_bary[i] = (float)(2 * check_rand_(&seed) - 1);
+    float r0[2][12] = {{0}}, r1[2][9] = {{0}};
+    for (int k = 0; k < 2; ++k) {
+        float *d[2] = {r0[k], r1[k]};
+        pen_context *ctx = pen_context_create();
+        pen_context_set_threads(ctx, 1 + 2 * k);
+        CHECK(pen_raster_bary_bwd(ctx, &s.view, s.meshes, 2, &gb, d_bary, d) == PEN_OK);
+        pen_context_destroy(ctx);
+    }
+    CHECK(memcmp(r0[0], r0[1], sizeof r0[0]) == 0 && memcmp(r1[0], r1[1], sizeof r1[0]) == 0);
+    CHECK(r0[0][0] != 0 && r1[0][0] != 0);
+    free(d_bary);
+    pen_gbuffer_free(&gb);
 }
 
 static void test_interpolation_bary_fd(void) {
@@ -268,4 +292,5 @@ static void test_normalize(void) {
 }
 
 RUN_TESTS(TEST(test_ray_bary_backward_fd), TEST(test_interpolation_pipeline_fd),
-          TEST(test_interpolation_bary_fd), TEST(test_vertex_normals), TEST(test_normalize))
+          TEST(test_interpolation_bary_fd), TEST(test_bary_backward_threads),
+          TEST(test_vertex_normals), TEST(test_normalize))

@@ -9,11 +9,13 @@
 #define PENUMBRA_H
 
 #include "penumbra/core.h"
+#include "penumbra/fit.h"
 #include "penumbra/image.h"
 #include "penumbra/mesh.h"
 #include "penumbra/metrics.h"
 #include "penumbra/raster.h"
 #include "penumbra/reference.h"
+#include "penumbra/render.h"
 #include "penumbra/scene.h"
 #include "penumbra/sh.h"
 #include "penumbra/spheres.h"

@@ -141,9 +141,11 @@ pen_status pen_raster_gbuffer(pen_context *ctx, const pen_view *view, const pen_
 /* Backward of the barycentrics of the visible points: with d_bary (2 per pixel, d/du and d/dv),
  * adds into d_positions[m] (3 * vertex_count, or NULL to skip mesh m) the gradient through the
  * barycentrics of each pixel's point, which moves on its fixed pixel ray as the triangle moves.
- * Ground and background pixels are skipped. */
-void pen_raster_bary_bwd(const pen_view *view, const pen_raster_mesh *meshes, int mesh_count,
-                         const pen_gbuffer *gb, const float *d_bary, float *const *d_positions);
+ * Ground and background pixels are skipped. Parallel over pixels, with a fixed summation order.
+ * Fails only if its scratch buffer (9 floats per pixel) cannot be allocated. */
+pen_status pen_raster_bary_bwd(pen_context *ctx, const pen_view *view,
+                               const pen_raster_mesh *meshes, int mesh_count, const pen_gbuffer *gb,
+                               const float *d_bary, float *const *d_positions);
 
 /* World position of every non-background pixel's visible point, eye + depth * ray (3 floats per
  * pixel; background pixels get 0). For ground pixels this is the position to shade; mesh pixels

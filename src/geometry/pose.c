@@ -2,12 +2,12 @@
  *
  * The rotation comes from an axis-angle vector (degrees in the API, w in radians inside) by
  * Rodrigues' formula written without dividing by the angle:
- *     R = I + A W + B W^2,   W = [w]x,  A = sin(θ)/θ,  B = (1 - cos θ)/θ^2,  θ = |w|,
- * and W^2 = w w^T - θ^2 I. A and B are smooth functions of s = θ^2; below s = 1e-4 they and their
- * s-derivatives come from Taylor series (truncation < 1e-17), above from the closed forms
- * dA/ds = (cos θ - A) / (2 s), dB/ds = (A - 2 B) / (2 s), B = 2 sin^2(θ/2) / s. So
+ *     R = I + A W + B W^2,   W = [w]x,  A = sin(theta)/theta,  B = (1 - cos theta)/theta^2,  theta
+ * = |w|, and W^2 = w w^T - theta^2 I. A and B are smooth functions of s = theta^2; below s = 1e-4
+ * they and their s-derivatives come from Taylor series (truncation < 1e-17), above from the closed
+ * forms dA/ds = (cos theta - A) / (2 s), dB/ds = (A - 2 B) / (2 s), B = 2 sin^2(theta/2) / s. So
  *     dR/dw_j = A E_j + B (e_j w^T + w e_j^T - 2 w_j I) + 2 w_j (A' W + B' W^2),  E_j = [e_j]x,
- * holds at and near θ = 0 (where it is E_j), which matters because optimizations start from the
+ * holds at and near theta = 0 (where it is E_j), which matters because optimizations start from the
  * identity. The backward over many points first reduces G = sum_i d_out_i p_i^T in double, then
  * contracts G with dR/dw once, so its cost is one pass over the points.
  */
@@ -20,7 +20,7 @@
 
 /* ---- Forward --------------------------------------------------------------------------------- */
 
-/* A, B, dA/ds, dB/ds of Rodrigues' formula at s = θ^2. */
+/* A, B, dA/ds, dB/ds of Rodrigues' formula at s = theta^2. */
 static void rodrigues_coeffs(double s, double c[4]) {
     if (s < 1e-4) {
         c[0] = 1.0 - s / 6.0 * (1.0 - s / 20.0 * (1.0 - s / 42.0));

@@ -33,14 +33,15 @@
  * Derivative. With pair axis u and cross axis v (u = x for horizontal pairs), edge endpoints
  * P, Q on screen and the centres' common cross coordinate v_c: s = (v_c - P_v) / (Q_v - P_v),
  * u_c = P_u + s (Q_u - P_u), alpha = dir (u_c - u_A) with dir = +-1 pointing from A to B. So
- *     d alpha / d(P_u, P_v, Q_u, Q_v) = dir ((1-s), -k(1-s), s, -k s),   k = (Q_u - P_u)/(Q_v -
- * P_v), and the screen gradients go to the world vertices through the projection's Jacobian. The
+ *     d alpha / d(P_u, P_v, Q_u, Q_v) = dir ((1-s), -k(1-s), s, -k s),  k = du/dv of the edge,
+ * and the screen gradients go to the world vertices through the projection's Jacobian. The
  * colours get d c_R += (1 - w) d c'_R, d c_S += w d c'_R for receiver R, source S, weight w.
  *
  * Limits (documented in docs/rasterizer.md): the occluder is chosen by comparing the two pixels'
  * depths; interpenetrations and the ground square's own border give no gradient; a pair whose
- * triangle has a vertex behind the near plane is skipped; the switch between horizontal and
- * vertical pairs at 45 degrees is a small discontinuity in the edge's orientation.
+ * triangle has a vertex behind the near plane is skipped. The 45-degree rule leaves measure-zero
+ * jumps: when a silhouette vertex whose two edges lie on both sides of 45 degrees crosses a row
+ * (column) of pixel centres, the pair there changes exit edge and with it scheme.
  *
  * Passes: (1) in parallel over rows, each pair's receiver and weight; (2) in parallel over
  * pixels, each pixel gathers its up-to-four pairs. The backward mirrors this and scatters the
@@ -209,7 +210,8 @@ static pen_status aa_begin(pen_context *ctx, const pen_gbuffer *gb, const pen_vi
     memset(st, 0, sizeof *st);
     pen_status status = check_args(ctx, gb, view, meshes, mesh_count, channels);
     if (status) return status;
-    int W = gb->width, H = gb->height, threads = pen__raster_threads(ctx);
+    int W = gb->width, H = gb->height;
+    int threads = pen__raster_threads_for(ctx, (size_t)W * (size_t)H);
     size_t nh = (size_t)(W - 1) * (size_t)H, nv = (size_t)W * (size_t)(H - 1), total = 0;
     st->first_vertex = pen__malloc(ctx, (size_t)mesh_count + 1, sizeof(size_t), "antialias");
     if (!st->first_vertex) return PEN_ERROR_MEMORY;
@@ -226,7 +228,8 @@ static pen_status aa_begin(pen_context *ctx, const pen_gbuffer *gb, const pen_vi
     for (int m = 0; m < mesh_count; ++m) {
         double *out = st->screen + 3 * st->first_vertex[m];
         const float *pos = meshes[m].positions;
-#pragma omp parallel for num_threads(threads) schedule(static)
+        int vthreads = pen__raster_threads_for(ctx, (size_t)meshes[m].vertex_count);
+#pragma omp parallel for num_threads(vthreads) schedule(static)
         for (int v = 0; v < meshes[m].vertex_count; ++v) {
             double p[3];
             pen__load3_d(pos + 3 * (size_t)v, p);
@@ -293,7 +296,8 @@ pen_status pen_antialias_fwd(pen_context *ctx, const pen_gbuffer *gb, const pen_
     aa_state st;
     pen_status status = aa_begin(ctx, gb, view, meshes, mesh_count, channels, &st);
     if (status) return status;
-    apply_blend(pen__raster_threads(ctx), st.pairs, gb->width, gb->height, color, channels, 0, out);
+    apply_blend(pen__raster_threads_for(ctx, (size_t)gb->width * (size_t)gb->height), st.pairs,
+                gb->width, gb->height, color, channels, 0, out);
     aa_end(&st);
     return PEN_OK;
 }
@@ -309,7 +313,9 @@ pen_status pen_antialias_bwd(pen_context *ctx, const pen_gbuffer *gb, const pen_
     if (status) return status;
     const aa_pair *pairs = st.pairs;
     int W = gb->width, H = gb->height;
-    if (d_color) apply_blend(pen__raster_threads(ctx), pairs, W, H, d_out, channels, 1, d_color);
+    if (d_color)
+        apply_blend(pen__raster_threads_for(ctx, (size_t)W * (size_t)H), pairs, W, H, d_out,
+                    channels, 1, d_color);
     if (d_positions) {
         /* Serial, in pair order: few pairs blend, and vertices are shared between them. */
         size_t nh = (size_t)(W - 1) * (size_t)H, np = nh + (size_t)W * (size_t)(H - 1);

@@ -284,7 +284,6 @@ pen_status pen_raster_gbuffer(pen_context *ctx, const pen_view *view, const pen_
     pen_status st = pen__raster_check_meshes(ctx, meshes, mesh_count, &total);
     if (st) return st;
 
-    int threads = pen__raster_threads(ctx);
     int W = view->width, H = view->height;
     int tiles_x = (W + TILE - 1) / TILE, tiles_y = (H + TILE - 1) / TILE;
     size_t tiles = (size_t)tiles_x * (size_t)tiles_y;
@@ -314,10 +313,12 @@ pen_status pen_raster_gbuffer(pen_context *ctx, const pen_view *view, const pen_
     for (int m = 0; m < mesh_count; ++m) {
         const pen_raster_mesh *mesh = meshes + m;
         int nv = mesh->vertex_count, nt = mesh->triangle_count;
-#pragma omp parallel for num_threads(threads) schedule(static)
+        int vthreads = pen__raster_threads_for(ctx, (size_t)nv);
+        int tthreads = pen__raster_threads_for(ctx, (size_t)nt);
+#pragma omp parallel for num_threads(vthreads) schedule(static)
         for (int v = 0; v < nv; ++v)
             to_camera(view, mesh->positions + 3 * (size_t)v, cam + 3 * (size_t)v);
-#pragma omp parallel for num_threads(threads) schedule(static)
+#pragma omp parallel for num_threads(tthreads) schedule(static)
         for (int t = 0; t < nt; ++t) {
             tri_setup *s = setups + base + (size_t)t;
             tri_setup_one(view, cam, mesh->indices + 3 * (size_t)t, s);
@@ -368,6 +369,7 @@ pen_status pen_raster_gbuffer(pen_context *ctx, const pen_view *view, const pen_
 
     tile_ctx tc = {view, ground, setups, bin_start, bin_items, rx, ry, gb};
     int ntiles = (int)tiles;
+    int threads = pen__raster_threads_for(ctx, (size_t)W * (size_t)H);
 #pragma omp parallel for num_threads(threads) schedule(dynamic, 1)
     for (int t = 0; t < ntiles; ++t)
         raster_tile(&tc, t % tiles_x, t / tiles_x, tiles_x);
@@ -424,19 +426,26 @@ void pen__raster_ray_bary_bwd_d(const double eye[3], const double dir[3], const 
     }
 }
 
-void pen_raster_bary_bwd(const pen_view *view, const pen_raster_mesh *meshes, int mesh_count,
-                         const pen_gbuffer *gb, const float *d_bary, float *const *d_positions) {
-    if (!d_positions || !d_bary) return;
-    int W = gb->width, H = gb->height;
-    /* Serial: pixels of one object scatter into shared vertices; this pass is a small part of a
-     * frame, and a fixed order keeps the sums reproducible. */
+pen_status pen_raster_bary_bwd(pen_context *ctx, const pen_view *view,
+                               const pen_raster_mesh *meshes, int mesh_count, const pen_gbuffer *gb,
+                               const float *d_bary, float *const *d_positions) {
+    if (!d_positions || !d_bary) return PEN_OK;
+    size_t n = (size_t)gb->width * (size_t)gb->height;
+    /* Each pixel's three vertex gradients are solved in parallel into a scratch buffer, then
+     * added to the shared vertices serially in pixel order, so sums do not depend on threads. */
+    float *g = pen__malloc(ctx, 9 * n, sizeof(float), "barycentric backward");
+    if (!g) return PEN_ERROR_MEMORY;
+    int W = gb->width, H = gb->height, threads = pen__raster_threads_for(ctx, n);
+#pragma omp parallel for num_threads(threads) schedule(static)
     for (int y = 0; y < H; ++y)
         for (int x = 0; x < W; ++x) {
             size_t i = (size_t)y * (size_t)W + (size_t)x;
             int m = gb->surface[i];
+            float *gi = g + 9 * i;
+            gi[0] = NAN; /* marks "nothing to add" */
             if (m < 0 || m >= mesh_count || !d_positions[m]) continue;
-            double g[3] = {0.0, (double)d_bary[2 * i], (double)d_bary[2 * i + 1]};
-            if (g[1] == 0.0 && g[2] == 0.0) continue;
+            double dx[3] = {0.0, (double)d_bary[2 * i], (double)d_bary[2 * i + 1]};
+            if (dx[1] == 0.0 && dx[2] == 0.0) continue;
             const pen_raster_mesh *mesh = meshes + m;
             const uint32_t *idx = mesh->indices + 3 * (size_t)gb->triangle[i];
             double p[3][3], D[3], sol[3], dp[3][3] = {{0}};
@@ -444,11 +453,21 @@ void pen_raster_bary_bwd(const pen_view *view, const pen_raster_mesh *meshes, in
                 pen__load3_d(mesh->positions + 3 * (size_t)idx[k], p[k]);
             pen_view_ray(view, x + 0.5, y + 0.5, D);
             if (!pen__raster_ray_bary_d(view->eye, D, p[0], p[1], p[2], sol)) continue;
-            pen__raster_ray_bary_bwd_d(view->eye, D, p[0], p[1], p[2], sol, g, dp[0], dp[1], dp[2]);
-            for (int k = 0; k < 3; ++k)
-                for (int c = 0; c < 3; ++c)
-                    d_positions[m][3 * (size_t)idx[k] + c] += (float)dp[k][c];
+            pen__raster_ray_bary_bwd_d(view->eye, D, p[0], p[1], p[2], sol, dx, dp[0], dp[1],
+                                       dp[2]);
+            for (int k = 0; k < 9; ++k)
+                gi[k] = (float)dp[k / 3][k % 3];
         }
+    for (size_t i = 0; i < n; ++i) {
+        const float *gi = g + 9 * i;
+        if (isnan(gi[0])) continue;
+        int m = gb->surface[i];
+        const uint32_t *idx = meshes[m].indices + 3 * (size_t)gb->triangle[i];
+        for (int k = 0; k < 9; ++k)
+            d_positions[m][3 * (size_t)idx[k / 3] + k % 3] += gi[k];
+    }
+    free(g);
+    return PEN_OK;
 }
 
 void pen_gbuffer_points(const pen_view *view, const pen_gbuffer *gb, float *out) {

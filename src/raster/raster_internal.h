@@ -46,5 +46,10 @@ pen_status pen__raster_check_meshes(pen_context *ctx, const pen_raster_mesh *mes
 
 /* OpenMP thread count for a context: its setting, or the runtime's default when 0. */
 int pen__raster_threads(const pen_context *ctx);
+/* The same for a loop of `work` cheap items: one thread below a few thousand, where waking a
+ * team costs more than the loop (and a lot more on a loaded machine). */
+static inline int pen__raster_threads_for(const pen_context *ctx, size_t work) {
+    return work < 8192 ? 1 : pen__raster_threads(ctx);
+}
 
 #endif

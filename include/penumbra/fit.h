@@ -1,0 +1,123 @@
+/* penumbra/fit.h -- fitting a set of spheres to a closed triangle mesh (supplement sec. 2).
+ *
+ * The fit voxelizes the mesh's padded bounding box, classifies every voxel centre as inside or
+ * outside the mesh, samples points on the surface, places N spheres inside the mesh (k-means on
+ * the inside voxels, radius = distance to the surface) and then minimizes with Adam
+ *
+ *     E = E_SOV + w_s * E_surface                                   (supplement eq. 5)
+ *     E_SOV     = sum over outside voxels v   of 1 - prod_i phi(s_i(v))   (eq. 3, Og = 1 only)
+ *     E_surface = sum over surface samples p  of     prod_i phi(s_i(p))   (eq. 4)
+ *     phi(s) = tanh(relu(s / sigma^2)),  s_i(x) = |x - c_i|^2 - r_i^2      (eq. 2)
+ *
+ * sigma^2 is a length scale that makes the energy independent of the mesh's units and keeps tanh
+ * out of saturation; see docs/fit-spheres.md for its definition and the measured defaults.
+ *
+ * Usage:
+ *     pen_fit_settings s;
+ *     pen_fit_settings_default(&s);
+ *     pen_spheres spheres;
+ *     pen_fit_metrics m;
+ *     if (pen_spheres_fit(ctx, &mesh, 32, &s, &spheres, &m) != PEN_OK) ... pen_context_error(ctx)
+ *     ... pen_spheres_free(&spheres);
+ *
+ * Inside test: every voxel centre gets six votes, one per half-ray along +-x, +-y, +-z from the
+ * centre to outside the bounds; a vote says "inside" when the winding number counted along that
+ * half-ray (signed crossings: +1 entering, -1 leaving) is non-zero. The voxel is inside when at
+ * least four of the six votes say so. For a closed mesh (any orientation, overlapping closed
+ * components included) all votes agree; for a mesh with small holes only the half-rays that pass
+ * through a hole vote wrongly, and the majority stays right.
+ */
+#ifndef PENUMBRA_FIT_H
+#define PENUMBRA_FIT_H
+
+#include "penumbra/core.h"
+#include "penumbra/image.h"
+#include "penumbra/mesh.h"
+#include "penumbra/scene.h"
+#include "penumbra/spheres.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* Largest sphere count and voxel resolution the fitter accepts. */
+#define PEN_FIT_MAX_SPHERES 4096
+#define PEN_FIT_MAX_VOXELS 512
+
+/* Fit settings. A field left at 0 takes its default (pen_fit_settings_default fills them in). The
+ * result depends on the settings and, in its last bits, on the thread count (sums run per thread
+ * in a fixed order, so one thread count always gives the same spheres). */
+typedef struct pen_fit_settings {
+    int voxels;            /* voxels along the longest axis of the padded bounds (cubic voxels) */
+    double surface_weight; /* w_s of eq. 5 */
+    double margin_voxels;  /* kappa: soft margin, see sigma^2 in docs/fit-spheres.md */
+    double samples_per_voxel_area; /* surface samples per h^2 of surface (h = voxel edge) */
+    int iterations;                /* Adam iterations (the most; it stops early when E settles) */
+    double learning_rate;          /* Adam step in voxel edges (decays by a cosine to 5 % of it) */
+    unsigned long long seed;       /* k-means++ seeding and surface sampling */
+} pen_fit_settings;
+
+/* What the fit achieved, measured with hard sphere tests on its own voxel grid and samples. */
+typedef struct pen_fit_metrics {
+    double sov_fraction;     /* voxels inside some sphere and outside the mesh / voxels inside */
+    double surface_coverage; /* surface samples inside some sphere / surface samples */
+    double volume_coverage;  /* inside voxels inside some sphere / inside voxels */
+    int iterations;          /* Adam iterations run */
+    double seconds;          /* wall time of the whole fit (voxelization included) */
+    double energy;           /* final E (eq. 5) */
+    int grid[3];             /* voxel grid size */
+    long inside_voxels;
+    int surface_samples;
+    int from_cache; /* pen_spheres_fit_cached: 1 if read from the cache file */
+} pen_fit_metrics;
+
+/* The defaults (measured on the bundled meshes; docs/fit-spheres.md). */
+void pen_fit_settings_default(pen_fit_settings *settings);
+
+/* Fits `count` spheres (1 .. PEN_FIT_MAX_SPHERES) to a closed mesh. settings may be NULL
+ * (defaults); metrics may be NULL. Uses the context's thread count. On success *out owns a new
+ * array of `count` spheres (free with pen_spheres_free); on failure *out is zeroed. Errors: a
+ * mesh with no triangles, out-of-range indices, NaN/Inf positions, a degenerate (flat) bounding
+ * box, fewer inside voxels than spheres (mesh too thin for the grid, or not closed). */
+pen_status pen_spheres_fit(pen_context *ctx, const pen_mesh *mesh, int count,
+                           const pen_fit_settings *settings, pen_spheres *out,
+                           pen_fit_metrics *metrics);
+
+/* Like pen_spheres_fit, but first looks for a cached fit next to the mesh file:
+ *     <mesh_path>.fit-<count>-<key>.json
+ * where key is a 64-bit hash (16 hex digits) of the mesh's positions and indices, `count`, every
+ * setting and the fitter's version. A cache hit returns the stored spheres and metrics (with
+ * from_cache = 1) without fitting. After a fit the result is written there (atomically); failing
+ * to write the cache (read-only folder) is not an error. mesh_path may be NULL: no cache. */
+pen_status pen_spheres_fit_cached(pen_context *ctx, const pen_mesh *mesh, const char *mesh_path,
+                                  int count, const pen_fit_settings *settings, pen_spheres *out,
+                                  pen_fit_metrics *metrics);
+
+/* The cache file pen_spheres_fit_cached uses for these arguments (malloc'd into *path; the
+ * caller frees it), e.g. to remove a cached fit. */
+pen_status pen_spheres_fit_cache_path(pen_context *ctx, const pen_mesh *mesh, const char *mesh_path,
+                                      int count, const pen_fit_settings *settings, char **path);
+
+/* A picture of a sphere set over its mesh: three square orthographic panels of size x size
+ * pixels side by side (the mesh, the spheres, the spheres blended over the mesh), seen from
+ * azimuth_deg about +Y (0 looks from +Z towards -Z) and elevation_deg above the horizon.
+ * Flat shading with one fixed light; linear RGB in [0, 1], white background. On success *out owns
+ * a new (3 size) x size RGB image (free with pen_image_free). */
+pen_status pen_spheres_preview(pen_context *ctx, const pen_mesh *mesh, const pen_spheres *spheres,
+                               float azimuth_deg, float elevation_deg, int size, pen_image *out);
+
+/* Fits every object of a loaded scene that asks for it ("spheres": {"fit": N}, so fit_spheres > 0
+ * and no spheres yet) with pen_spheres_fit_cached and the default settings, next to the object's
+ * mesh file. Objects that have spheres are left alone. */
+pen_status pen_scene_fit_spheres(pen_context *ctx, pen_scene *scene);
+
+/* Writes {"metrics": {...}, "fit_settings": {...}} (the settings member only when settings is
+ * not NULL) into buf, NUL-terminated and cut at size; returns the length it needed, as snprintf
+ * does. The text is what pen_spheres_save takes as extra_json. */
+int pen_fit_json(const pen_fit_settings *settings, const pen_fit_metrics *metrics, char *buf,
+                 size_t size);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

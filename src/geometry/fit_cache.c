@@ -1,0 +1,171 @@
+/* Cached sphere fits: a fit is stored beside its mesh file under a name that carries a hash of
+ * everything the result depends on, so asking again for the same fit reads the file instead of
+ * fitting (a scene with "spheres": {"fit": N} loads instantly the second time).
+ *
+ * Key: FNV-1a 64 over the fitter's version, the sphere count, the resolved settings (as text, so
+ * defaults given explicitly or by zero fields hash alike) and the bytes of the mesh's positions
+ * and indices. The file repeats the key ("fit_key"); a file whose key, sphere count or format is
+ * wrong is ignored and overwritten, never trusted.
+ */
+#include "geometry/fit_internal.h"
+
+#include <cjson/cJSON.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* Bump when a change of the fitter changes its results, so old cache files are not reused. */
+#define FIT_VERSION "penumbra-fit-1"
+/* Cache files are small (a few kB per hundred spheres); anything larger is not ours. */
+#define FIT_CACHE_MAX_BYTES (16u << 20)
+
+static uint64_t fnv1a(uint64_t h, const void *data, size_t size) {
+    const unsigned char *p = data;
+    for (size_t i = 0; i < size; ++i)
+        h = (h ^ p[i]) * 0x100000001B3ull;
+    return h;
+}
+
+static uint64_t fit_key(const pen_mesh *mesh, int count, const pen_fit_settings *s) {
+    char text[512];
+    int n = snprintf(text, sizeof text, "%s %d %d %.17g %.17g %.17g %d %.17g %llu", FIT_VERSION,
+                     count, s->voxels, s->surface_weight, s->margin_voxels,
+                     s->samples_per_voxel_area, s->iterations, s->learning_rate, s->seed);
+    uint64_t h = fnv1a(0xCBF29CE484222325ull, text, (size_t)n);
+    h = fnv1a(h, mesh->positions, 3 * sizeof(float) * (size_t)mesh->vertex_count);
+    return fnv1a(h, mesh->indices, 3 * sizeof(uint32_t) * (size_t)mesh->triangle_count);
+}
+
+/* Reads a whole small file; NULL if it is missing, unreadable or too large. */
+static char *read_small_file(const char *path) {
+    FILE *f = fopen(path, "rb");
+    if (!f) return NULL;
+    char *buf = NULL;
+    if (fseek(f, 0, SEEK_END) == 0) {
+        long size = ftell(f);
+        if (size >= 0 && (unsigned long)size <= FIT_CACHE_MAX_BYTES && fseek(f, 0, SEEK_SET) == 0) {
+            buf = malloc((size_t)size + 1);
+            if (buf && fread(buf, 1, (size_t)size, f) == (size_t)size) {
+                buf[size] = '\0';
+            } else {
+                free(buf);
+                buf = NULL;
+            }
+        }
+    }
+    fclose(f);
+    return buf;
+}
+
+static double number_or(const cJSON *obj, const char *name, double fallback) {
+    const cJSON *v = cJSON_GetObjectItemCaseSensitive(obj, name);
+    return cJSON_IsNumber(v) && isfinite(v->valuedouble) ? v->valuedouble : fallback;
+}
+
+/* 1 when the file holds a fit with this key and count: *out then owns its spheres. */
+static int cache_read(const char *path, const char *key, int count, pen_spheres *out,
+                      pen_fit_metrics *metrics) {
+    char *text = read_small_file(path);
+    if (!text) return 0;
+    cJSON *root = cJSON_Parse(text);
+    free(text);
+    const cJSON *k = cJSON_GetObjectItemCaseSensitive(root, "fit_key");
+    int ok = cJSON_IsString(k) && strcmp(k->valuestring, key) == 0;
+    if (ok && metrics) {
+        const cJSON *m = cJSON_GetObjectItemCaseSensitive(root, "metrics");
+        metrics->sov_fraction = number_or(m, "sov_fraction", NAN);
+        metrics->surface_coverage = number_or(m, "surface_coverage", NAN);
+        metrics->volume_coverage = number_or(m, "volume_coverage", NAN);
+        metrics->iterations = (int)number_or(m, "iterations", 0);
+        metrics->seconds = number_or(m, "seconds", NAN);
+        metrics->energy = number_or(m, "energy", NAN);
+        metrics->inside_voxels = (long)number_or(m, "inside_voxels", 0);
+        metrics->surface_samples = (int)number_or(m, "surface_samples", 0);
+        const cJSON *g = cJSON_GetObjectItemCaseSensitive(m, "grid");
+        for (int a = 0; a < 3; ++a) {
+            const cJSON *e = cJSON_GetArrayItem(g, a);
+            metrics->grid[a] = cJSON_IsNumber(e) ? e->valueint : 0;
+        }
+        metrics->from_cache = 1;
+    }
+    cJSON_Delete(root);
+    if (!ok) return 0;
+    /* The spheres go through the library's validating reader; a context of our own keeps a
+     * broken cache file's error out of the caller's context. */
+    pen_context *tmp = pen_context_create();
+    ok = tmp && pen_spheres_load(tmp, path, out) == PEN_OK && out->count == count;
+    if (!ok) pen_spheres_free(out);
+    pen_context_destroy(tmp);
+    return ok;
+}
+
+/* The key as 16 hex digits and the cache file's path (malloc'd). */
+static pen_status cache_name(pen_context *ctx, const pen_mesh *mesh, const char *mesh_path,
+                             int count, const pen_fit_settings *s, char key[17], char **path) {
+    *path = NULL;
+    float lo[3], hi[3];
+    pen_status st = pen__fit_check_mesh(ctx, mesh, lo, hi);
+    if (st) return st;
+    if (!mesh_path) return pen__error(ctx, PEN_ERROR_ARGUMENT, "fit: no mesh path for the cache");
+    snprintf(key, 17, "%016llx", (unsigned long long)fit_key(mesh, count, s));
+    size_t len = strlen(mesh_path) + 64;
+    *path = pen__malloc(ctx, len, 1, "fit: cache path");
+    if (!*path) return PEN_ERROR_MEMORY;
+    snprintf(*path, len, "%s.fit-%d-%s.json", mesh_path, count, key);
+    return PEN_OK;
+}
+
+pen_status pen_spheres_fit_cache_path(pen_context *ctx, const pen_mesh *mesh, const char *mesh_path,
+                                      int count, const pen_fit_settings *settings, char **path) {
+    *path = NULL;
+    pen_fit_settings s;
+    char key[17];
+    pen_status st = pen__fit_resolve_settings(ctx, settings, &s);
+    return st ? st : cache_name(ctx, mesh, mesh_path, count, &s, key, path);
+}
+
+pen_status pen_spheres_fit_cached(pen_context *ctx, const pen_mesh *mesh, const char *mesh_path,
+                                  int count, const pen_fit_settings *settings, pen_spheres *out,
+                                  pen_fit_metrics *metrics) {
+    if (!mesh_path) return pen_spheres_fit(ctx, mesh, count, settings, out, metrics);
+    if (out) memset(out, 0, sizeof *out);
+    if (metrics) memset(metrics, 0, sizeof *metrics);
+    if (!out) return pen__error(ctx, PEN_ERROR_ARGUMENT, "fit: no output sphere set");
+    pen_fit_settings s;
+    pen_status st = pen__fit_resolve_settings(ctx, settings, &s);
+    char key[17], *path = NULL;
+    if (!st) st = cache_name(ctx, mesh, mesh_path, count, &s, key, &path);
+    if (st) return st;
+    if (cache_read(path, key, count, out, metrics)) {
+        free(path);
+        return PEN_OK;
+    }
+    pen_fit_metrics m;
+    st = pen_spheres_fit(ctx, mesh, count, &s, out, &m);
+    if (st) {
+        free(path);
+        return st;
+    }
+    if (metrics) *metrics = m;
+    char body[1024], extra[1100];
+    pen_fit_json(&s, &m, body, sizeof body);
+    snprintf(extra, sizeof extra, "{\"fit_key\": \"%s\", %s", key, body + 1);
+    /* The cache only saves time: a folder we cannot write to is not an error. */
+    pen_context *tmp = pen_context_create();
+    if (tmp) pen_spheres_save(tmp, path, out, extra);
+    pen_context_destroy(tmp);
+    free(path);
+    return PEN_OK;
+}
+
+pen_status pen_scene_fit_spheres(pen_context *ctx, pen_scene *scene) {
+    if (!scene) return pen__error(ctx, PEN_ERROR_ARGUMENT, "fit: no scene");
+    for (int i = 0; i < scene->object_count; ++i) {
+        pen_object *o = scene->objects + i;
+        if (o->fit_spheres <= 0 || o->spheres.count > 0) continue;
+        pen_status st = pen_spheres_fit_cached(ctx, &o->mesh, o->mesh_path, o->fit_spheres, NULL,
+                                               &o->spheres, NULL);
+        if (st) return st;
+    }
+    return PEN_OK;
+}

@@ -1,0 +1,83 @@
+/* Internal pieces of the sphere fit (src/geometry/fit.c, voxelize.c), shared with the tests. */
+#ifndef PEN_GEOMETRY_FIT_INTERNAL_H
+#define PEN_GEOMETRY_FIT_INTERNAL_H
+
+#include "core/internal.h"
+#include "penumbra/fit.h"
+
+#include <stdint.h>
+
+/* Copies the settings (defaults for NULL), fills zero fields with the defaults, checks ranges. */
+pen_status pen__fit_resolve_settings(pen_context *ctx, const pen_fit_settings *in,
+                                     pen_fit_settings *out);
+
+/* ---- Voxel grid and inside test (voxelize.c) ------------------------------------------------ */
+
+/* Cubic voxels of edge h; voxel (i, j, k) has its centre at origin + h * (i, j, k) (the origin is
+ * the first centre) and index i + n[0] * (j + n[1] * k). */
+typedef struct pen__fit_grid {
+    double origin[3];
+    double h;
+    int n[3];
+    uint8_t *inside; /* n[0] n[1] n[2] flags, 1 = inside the mesh */
+} pen__fit_grid;
+
+/* pen_mesh_validate, and a bounding box that is not a point; on success lo/hi are the bounds. */
+pen_status pen__fit_check_mesh(pen_context *ctx, const pen_mesh *mesh, float lo[3], float hi[3]);
+/* Builds the grid over the mesh bounds padded by `pad` of the longest extent on every side, with
+ * `voxels` voxels along the longest padded axis, and classifies every centre (six-vote winding
+ * number test, see fit.h). */
+pen_status pen__fit_voxelize(pen_context *ctx, const pen_mesh *mesh, int voxels, double pad,
+                             pen__fit_grid *out);
+void pen__fit_grid_free(pen__fit_grid *grid);
+
+/* Area-uniform random points on the surface: 3 * count floats. Also returns the total area. */
+pen_status pen__fit_sample_surface(pen_context *ctx, const pen_mesh *mesh, int count, uint64_t seed,
+                                   float *points, double *area);
+
+/* splitmix64: the fitter's only random source (seeded, reproducible). */
+static inline uint64_t pen__fit_rand_u64(uint64_t *state) {
+    uint64_t z = (*state += 0x9E3779B97F4A7C15ull);
+    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+    return z ^ (z >> 31);
+}
+/* Uniform in [0, 1). */
+static inline double pen__fit_rand(uint64_t *state) {
+    return (double)(pen__fit_rand_u64(state) >> 11) * (1.0 / 9007199254740992.0);
+}
+
+/* ---- Energy (fit.c) ------------------------------------------------------------------------ */
+
+/* tanh(u) rounds to 1 in double for u >= 20 (1 - tanh(20) < 1e-17), so skipping those terms is
+ * exact; PEN__FIT_U_FAST skips where 1 - tanh(u) < 3e-8 (float precision), 4x fewer tanh calls. */
+#define PEN__FIT_U_EXACT 20.0
+#define PEN__FIT_U_FAST 9.0
+
+/* A point set of the energy, grouped into cells (bricks of voxels) so that a sphere whose
+ * influence cannot reach a cell is skipped for all of its points. */
+typedef struct pen__fit_points {
+    long count;
+    const float *xyz;         /* 3 * count, cell by cell */
+    int cells;                /* 0: one cell with every point and no bound */
+    const long *cell_start;   /* cells + 1 offsets into the points */
+    const double *cell_bound; /* 4 per cell: centre x, y, z and a radius enclosing its points */
+} pen__fit_points;
+
+typedef struct pen__fit_problem {
+    pen__fit_points sov;   /* outside voxel centres (Og = 1) */
+    pen__fit_points surf;  /* surface samples */
+    double surface_weight; /* w_s */
+    double inv_sigma2;     /* 1 / sigma^2: phi(s) = tanh(relu(s * inv_sigma2)) */
+    double u_max;          /* phi = 1 for s * inv_sigma2 >= u_max (PEN__FIT_U_*) */
+    int threads;           /* 0: OpenMP default */
+    double serial_pairs;   /* one thread below this many point-sphere pairs (0: never) */
+} pen__fit_problem;
+
+/* E(C, R) of eq. 5 for `count` spheres given as x, y, z, r (4 doubles each). */
+double pen__fit_energy_fwd(const pen__fit_problem *p, int count, const double *spheres);
+/* d_spheres += dE/d(spheres) * d_E (4 * count). Returns E as a by-product of the same pass. */
+double pen__fit_energy_bwd(const pen__fit_problem *p, int count, const double *spheres, double d_E,
+                           double *d_spheres);
+
+#endif
