@@ -430,11 +430,30 @@ static void test_textured_quad(void) {
     o->texture = tex;
     pen_reference *ref = make_ref(ctx, &t.scene, PEN_REFERENCE_LIGHTING_SH);
     pen_image img;
-    CHECK(pen_reference_render(ctx, ref, 4, 1, &img) == PEN_OK);
+    pen_image cov;
+    CHECK(pen_reference_render_coverage(ctx, ref, 4, 1, &img, &cov) == PEN_OK);
     /* The quad fills the view; rows 2 and 13 are well inside the top and bottom halves. */
     CHECK_NEAR(img.data[3 * (2 * 16 + 8)], 0.9 * L, 1e-4);
     CHECK_NEAR(img.data[3 * (13 * 16 + 8)], 0.1 * L, 1e-4);
+    CHECK(cov.channels == 1 && cov.data[0] == 1.0f && cov.data[16 * 16 - 1] == 1.0f);
+    pen_image same;
+    CHECK(pen_reference_render(ctx, ref, 4, 1, &same) == PEN_OK);
+    CHECK(memcmp(same.data, img.data, sizeof(float) * 3 * 16 * 16) == 0);
+    pen_image_free(&same);
+    pen_image_free(&cov);
     pen_image_free(&img);
+    /* A wider view sees the quad's edges: coverage is the covered fraction of the pixel. */
+    t.scene.camera.fov_y_deg = 90.0f;
+    pen_reference_destroy(ref);
+    ref = make_ref(ctx, &t.scene, PEN_REFERENCE_LIGHTING_SH);
+    CHECK(pen_reference_render_coverage(ctx, ref, 64, 1, &img, &cov) == PEN_OK);
+    /* focal = 8 px at 90 degrees: x = 2 at depth 3 projects to 8 + 8 * 2 / 3 = 13.33 px, so
+     * column 13 is a third covered; columns 12 and 14 fully and not at all. */
+    CHECK_NEAR(cov.data[8 * 16 + 13], 1.0 / 3, 0.1);
+    CHECK(cov.data[8 * 16 + 12] == 1.0f && cov.data[8 * 16 + 14] == 0.0f);
+    pen_image_free(&cov);
+    pen_image_free(&img);
+    t.scene.camera.fov_y_deg = 30.0f;
     pen_reference_destroy(ref);
 
     /* From behind the quad faces away: lit two-sided, the same brightness (the texture mirrored
