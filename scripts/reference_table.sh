@@ -3,6 +3,10 @@
 # ground plane, city and interior maps, 512x512), and what the reference costs.
 # Usage: sh scripts/reference_table.sh PENUMBRA_BIN OUTDIR [SPP] [SIZE]
 #   SPP  samples per pixel of the ground truth (default 1024), SIZE the image side (default 512).
+#   REUSE=1 keeps the reference images (and their rows) of an earlier run into the same OUTDIR
+#   and redoes only the `render` rows.
+# Times: the reference's own "seconds" (Embree build + render) and render's own (pen_render_fwd),
+# neither counting process start, scene loading (meshes, textures, sphere fits) or saving.
 # Writes OUTDIR/scenes/*.json, the images, OUTDIR/results.tsv, and a markdown table on stdout.
 # Per scene:
 #   truth   reference --lighting sh at SPP (seed 1): the light `render` uses, exact visibility
@@ -54,28 +58,40 @@ rel() {
     "$BIN" compare "$1" "$2" --mask "$3" |
         sed -n 's/^{"rmse": [^,]*, "rel_rmse": \([^,]*\),.*"mask": {"rmse": [^,]*, "rel_rmse": \([^,]*\),.*/\1 \2/p'
 }
-now() { date +%s.%N; }
-since() { echo "$(now) $1" | awk '{printf "%.3f", $1 - $2}'; }
 has_render=0
 "$BIN" render --help > /dev/null 2>&1 && has_render=1
 
+old="$OUT/results.old"
+rm -f "$old"
+trap 'rm -f "$old"' EXIT
+[ "${REUSE:-0}" = 1 ] && [ -f "$OUT/results.tsv" ] && mv "$OUT/results.tsv" "$old"
 printf 'scene\tkind\tspp\tseconds\trel_rmse\trel_rmse_surfaces\n' > "$OUT/results.tsv"
 row() { printf '%s\t%s\t%s\t%s\t%s\t%s\n' "$1" "$2" "$3" "$4" "${5% *}" "${5#* }" >> "$OUT/results.tsv"; }
+# reused scene kind spp image: copies the earlier row when REUSE=1 and the image is still there
+reused() {
+    [ -f "$old" ] && [ -f "$4" ] || return 1
+    line=$(awk -F'\t' -v a="$1" -v b="$2" -v c="$3" '$1 == a && $2 == b && $3 == c' "$old")
+    [ -n "$line" ] && echo "$line" >> "$OUT/results.tsv"
+}
 
 for name in spot_city spot_interior bob_city bob_interior; do
     make_scene $name
     S="$OUT/scenes/$name.json"
     truth="$OUT/${name}_truth.exr"
     mask="$OUT/${name}_coverage.png"
-    t=$("$BIN" reference "$S" -o "$truth" --coverage "$mask" --spp "$SPP" --seed 1 --lighting sh | seconds)
-    row $name truth "$SPP" "$t" "0 0"
+    if ! reused $name truth "$SPP" "$truth"; then
+        t=$("$BIN" reference "$S" -o "$truth" --coverage "$mask" --spp "$SPP" --seed 1 --lighting sh | seconds)
+        row $name truth "$SPP" "$t" "0 0"
+    fi
     for n in $((SPP / 4)) $((SPP / 16)); do
         img="$OUT/${name}_envmap$n.exr"
+        reused $name envmap $n "$img" && continue
         t=$("$BIN" reference "$S" -o "$img" --spp $n --seed $((200 + n)) --lighting envmap | seconds)
         row $name envmap $n "$t" "$(rel "$img" "$truth" "$mask")"
     done
     for n in 1 4 16 64 256; do
         img="$OUT/${name}_ref$n.exr"
+        reused $name ladder $n "$img" && continue
         t=$("$BIN" reference "$S" -o "$img" --spp $n --seed $((100 + n)) --lighting sh | seconds)
         row $name ladder $n "$t" "$(rel "$img" "$truth" "$mask")"
     done
@@ -88,9 +104,8 @@ for name in spot_city spot_interior bob_city bob_interior; do
                 sc="$OUT/scenes/${name}_$exp.json" flag=
             fi
             img="$OUT/${name}_render_$exp.exr"
-            t0=$(now)
-            "$BIN" render "$sc" -o "$img" $flag > /dev/null
-            row $name "render_$exp" - "$(since $t0)" "$(rel "$img" "$truth" "$mask")"
+            t=$("$BIN" render "$sc" -o "$img" $flag | sed -n 's/.*, \([0-9.]*\) s$/\1/p' | tail -1)
+            row $name "render_$exp" - "$t" "$(rel "$img" "$truth" "$mask")"
         done
     fi
 done
@@ -137,7 +152,8 @@ END {
             k = rk[s, j]
             e5 = clean(err[s, k, "-", 5], sig[s, 5]); e6 = clean(err[s, k, "-", 6], sig[s, 6])
             spp = e6 > 0 ? sig[s, 6] * sig[s, 6] / (e6 * e6) : 0
-            need = (spp > 0) ? sprintf("%.1f (%.2f)", spp, spp * persec) : "below the truth noise"
+            need = (spp >= 1) ? sprintf("%.1f (%.2f)", spp, spp * persec) : \
+                   (spp > 0) ? sprintf("< 1 (1 spp: %.2f)", persec) : "below the truth noise"
             printf "| %s | %s | %.3f | %.3f | %.2f | %s |\n", s, substr(k, 8), e5, e6, sec[s, k, "-"], need
         }
     }
