@@ -145,7 +145,19 @@ class _Spec:
     """Everything of a scene that is not a differentiable input of the Function."""
 
     def __init__(self, scene, shadows, antialias, threads):
-        self.camera = scene.camera
+        cam = scene.camera
+        if not isinstance(cam, Camera):
+            raise TypeError("penumbra: scene.camera must be a penumbra.Camera, got %s"
+                            % type(cam).__name__)
+        for name in ("width", "height"):
+            value = getattr(cam, name)
+            if not isinstance(value, int) or not 1 <= value <= 16384:
+                raise ValueError("penumbra: camera %s must be an integer in [1, 16384], got %r"
+                                 % (name, value))
+        for name in ("eye", "target", "up"):
+            if len(getattr(cam, name)) != 3:
+                raise ValueError("penumbra: camera %s must have 3 coordinates" % name)
+        self.camera = cam
         self.ground = bool(scene.ground)
         self.ground_height = float(scene.ground_height)
         self.ground_half_size = float(scene.ground_half_size)
