@@ -24,9 +24,10 @@ sys.path.insert(0, os.path.join(HERE, "..", "..", "python"))
 import penumbra  # noqa: E402
 
 
-def fit_lighting(scene, target, iterations=200, lr=0.05, log=None):
+def fit_lighting(scene, target, iterations=200, lr=0.05, shadows=True, log=None):
     """Fits scene.sh to the target image (H, W, 3) from zero; returns the fitted SH (bands^2, 3)
-    and the loss per iteration. The scene is left as it was."""
+    and the loss per iteration. The scene is left as it was. shadows=False fits with the
+    unshadowed renderer (visibility 1), the baseline of shadow-free differentiable renderers."""
     truth = scene.sh
     # The whole fit, as in docs/python.md:
     scene.sh = torch.zeros_like(truth, requires_grad=True)
@@ -34,7 +35,7 @@ def fit_lighting(scene, target, iterations=200, lr=0.05, log=None):
     losses = []
     for it in range(iterations):
         opt.zero_grad()
-        loss = (penumbra.render_scene(scene) - target).square().mean()
+        loss = (penumbra.render_scene(scene, shadows=shadows) - target).square().mean()
         loss.backward()
         opt.step()
         losses.append(loss.item())
@@ -53,6 +54,7 @@ def main():
     ap.add_argument("--iterations", type=int, default=200)
     ap.add_argument("--lr", type=float, default=0.05)
     ap.add_argument("--target", help="observed linear image (EXR/HDR) of the scene at --size")
+    ap.add_argument("--no-shadows", action="store_true", help="fit without shadows")
     ap.add_argument("--out", help="folder for target.png, initial.png and fitted.png")
     args = ap.parse_args()
 
@@ -63,7 +65,8 @@ def main():
     else:
         target = penumbra.render_scene(scene)
     t0 = time.time()
-    sh, losses = fit_lighting(scene, target, args.iterations, args.lr, log=print)
+    shadows = not args.no_shadows
+    sh, losses = fit_lighting(scene, target, args.iterations, args.lr, shadows, log=print)
     seconds = time.time() - t0
     rel = float((sh - scene.sh).norm() / scene.sh.norm())
     print("%d iterations in %.1f s (%.0f ms each); loss %.3e -> %.3e; "
@@ -73,9 +76,11 @@ def main():
         os.makedirs(args.out, exist_ok=True)
         fitted = dataclasses.replace(scene, sh=sh)
         black = dataclasses.replace(scene, sh=torch.zeros_like(sh))
-        for name, img in (("target", target), ("initial", penumbra.render_scene(black)),
-                          ("fitted", penumbra.render_scene(fitted))):
+        for name, img in (("target", target),
+                          ("initial", penumbra.render_scene(black, shadows=shadows)),
+                          ("fitted", penumbra.render_scene(fitted, shadows=shadows))):
             penumbra.save_image(os.path.join(args.out, name + ".png"), img)
+        print("wrote %s/{target,initial,fitted}.png" % args.out)
 
 
 if __name__ == "__main__":

@@ -285,7 +285,7 @@ class RenderFunction(torch.autograd.Function):
         image = torch.empty(flat.height, flat.width, 3, dtype=torch.float32)
         with _lib.Context(spec.threads) as c:
             c.check(_lib.lib().pen_flat_render_fwd(c.ptr, ctypes.byref(flat), state.ptr,
-                                                   _lib.fptr(image)), "render")
+                                                   _lib.fptr(image)))
         ctx.spec, ctx.state = spec, state
         ctx.save_for_backward(sh, ground_albedo, *obj)
         return image
@@ -309,8 +309,7 @@ class RenderFunction(torch.autograd.Function):
         g = _lib.FlatGrad(_lib.fptr(d_sh), _lib.fptr(d_ground), grads)
         with _lib.Context(spec.threads) as c:
             c.check(_lib.lib().pen_flat_render_bwd(c.ptr, ctypes.byref(flat), ctx.state.ptr,
-                                                   _lib.fptr(d_image), ctypes.byref(g)),
-                    "render backward")
+                                                   _lib.fptr(d_image), ctypes.byref(g)))
         return (None, d_sh, d_ground, *d_obj)
 
 
