@@ -22,15 +22,20 @@ class PenumbraError(RuntimeError):
 # ---- Structs (field for field as in include/penumbra/*.h) --------------------------------------
 
 
+# pen_flat_object and pen_mesh begin alike.
+_GEOMETRY_FIELDS = [
+    ("vertex_count", ctypes.c_int),
+    ("triangle_count", ctypes.c_int),
+    ("positions", c_float_p),
+    ("indices", c_uint32_p),
+    ("uv_count", ctypes.c_int),
+    ("uvs", c_float_p),
+    ("uv_indices", c_uint32_p),
+]
+
+
 class FlatObject(ctypes.Structure):
-    _fields_ = [
-        ("vertex_count", ctypes.c_int),
-        ("triangle_count", ctypes.c_int),
-        ("positions", c_float_p),
-        ("indices", c_uint32_p),
-        ("uv_count", ctypes.c_int),
-        ("uvs", c_float_p),
-        ("uv_indices", c_uint32_p),
+    _fields_ = _GEOMETRY_FIELDS + [
         ("texture_width", ctypes.c_int),
         ("texture_height", ctypes.c_int),
         ("texture", c_float_p),
@@ -99,14 +104,7 @@ class Image(ctypes.Structure):
 
 
 class Mesh(ctypes.Structure):
-    _fields_ = [
-        ("vertex_count", ctypes.c_int),
-        ("triangle_count", ctypes.c_int),
-        ("positions", c_float_p),
-        ("indices", c_uint32_p),
-        ("uv_count", ctypes.c_int),
-        ("uvs", c_float_p),
-        ("uv_indices", c_uint32_p),
+    _fields_ = _GEOMETRY_FIELDS + [
         ("normal_count", ctypes.c_int),
         ("normals", c_float_p),
         ("normal_indices", c_uint32_p),

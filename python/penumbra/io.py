@@ -101,22 +101,33 @@ class Mesh:
     texture_path: Optional[str] = None
 
 
+def _owned(kind, free, make, read, threads=0):
+    """Fills a new C struct of type `kind` with make(ctx, out) (a pen_* call returning a status;
+    its failure raises PenumbraError), returns read(struct) and frees the struct with free."""
+    out = kind()
+    with _lib.Context(threads) as c:
+        c.check(make(c.ptr, ctypes.byref(out)))
+        try:
+            return read(out)
+        finally:
+            free(ctypes.byref(out))
+
+
+def _mesh_from_c(m):
+    out = Mesh(_copy(m.positions, (m.vertex_count, 3)), _indices(m.indices, m.triangle_count))
+    if m.uv_count > 0:
+        out.uvs = _copy(m.uvs, (m.uv_count, 2))
+        out.uv_faces = _indices(m.uv_indices, m.triangle_count)
+    if m.texture_path:
+        out.texture_path = os.fsdecode(m.texture_path)
+    return out
+
+
 def load_mesh(path):
     """Loads an OBJ or PLY mesh (polygons triangulated as fans)."""
     L = _lib.lib()
-    m = _lib.Mesh()
-    with _lib.Context() as c:
-        c.check(L.pen_mesh_load(c.ptr, _path(path), ctypes.byref(m)))
-        try:
-            out = Mesh(_copy(m.positions, (m.vertex_count, 3)), _indices(m.indices, m.triangle_count))
-            if m.uv_count > 0:
-                out.uvs = _copy(m.uvs, (m.uv_count, 2))
-                out.uv_faces = _indices(m.uv_indices, m.triangle_count)
-            if m.texture_path:
-                out.texture_path = os.fsdecode(m.texture_path)
-            return out
-        finally:
-            L.pen_mesh_free(ctypes.byref(m))
+    return _owned(_lib.Mesh, L.pen_mesh_free,
+                  lambda c, out: L.pen_mesh_load(c, _path(path), out), _mesh_from_c)
 
 
 def _c_mesh(vertices, faces):
@@ -132,13 +143,9 @@ def _c_mesh(vertices, faces):
 def load_image(path, raw=False):
     """Loads PNG (decoded from sRGB to linear unless raw), HDR or EXR as an (H, W, 3) tensor."""
     L = _lib.lib()
-    img = _lib.Image()
-    with _lib.Context() as c:
-        c.check(L.pen_image_load_ex(c.ptr, _path(path), 1 if raw else 0, ctypes.byref(img)))
-        try:
-            return _copy(img.data, (img.height, img.width, img.channels))
-        finally:
-            L.pen_image_free(ctypes.byref(img))
+    return _owned(_lib.Image, L.pen_image_free,
+                  lambda c, out: L.pen_image_load_ex(c, _path(path), 1 if raw else 0, out),
+                  lambda img: _copy(img.data, (img.height, img.width, img.channels)))
 
 
 def _c_image(image):
@@ -152,10 +159,9 @@ def _c_image(image):
 def save_image(path, image):
     """Saves an (H, W, C) tensor by extension: .png (clamped, sRGB 8-bit), .hdr, .exr (linear);
     atomically (no partial file on failure)."""
-    img, keep = _c_image(image)
+    img, keep = _c_image(image)  # keep: the tensor behind the borrowed pen_image
     with _lib.Context() as c:
         c.check(_lib.lib().pen_image_save(c.ptr, _path(path), ctypes.byref(img)))
-    del keep
 
 
 def envmap_to_sh(envmap, bands=4, rotation_y_deg=0.0, scale=1.0):
@@ -163,39 +169,29 @@ def envmap_to_sh(envmap, bands=4, rotation_y_deg=0.0, scale=1.0):
     rotated about +Y and scaled as in the scene JSON's lighting."""
     if not isinstance(envmap, torch.Tensor):
         envmap = load_image(envmap)
-    img, keep = _c_image(envmap)
+    img, keep = _c_image(envmap)  # keep: the tensor behind the borrowed pen_image
     if not 1 <= int(bands) <= 8:
         raise ValueError("penumbra: bands must be in 1..8, got %r" % (bands,))
     sh = torch.zeros(int(bands) * int(bands), 3, dtype=torch.float32)
     with _lib.Context() as c:
         c.check(_lib.lib().pen_envmap_to_sh(c.ptr, ctypes.byref(img), int(bands),
                                             float(rotation_y_deg), float(scale), _lib.fptr(sh)))
-    del keep
     return sh
 
 
 def load_spheres(path):
     """Loads a sphere set JSON as an (S, 4) tensor: x, y, z, r per sphere."""
     L = _lib.lib()
-    s = _lib.Spheres()
-    with _lib.Context() as c:
-        c.check(L.pen_spheres_load(c.ptr, _path(path), ctypes.byref(s)))
-        try:
-            return _copy(s.data, (s.count, 4))
-        finally:
-            L.pen_spheres_free(ctypes.byref(s))
+    return _owned(_lib.Spheres, L.pen_spheres_free,
+                  lambda c, out: L.pen_spheres_load(c, _path(path), out),
+                  lambda s: _copy(s.data, (s.count, 4)))
 
 
 def fit_spheres(vertices, faces, count, threads=0):
     """Fits `count` proxy spheres to a closed mesh (pen_spheres_fit, default settings); returns
-    an (count, 4) tensor. Not cached: use load_scene with {"fit": N} for the cached fit."""
-    m, keep = _c_mesh(vertices, faces)
-    s = _lib.Spheres()
+    a (count, 4) tensor. Not cached: use load_scene with {"fit": N} for the cached fit."""
+    m, keep = _c_mesh(vertices, faces)  # keep: the tensors behind the borrowed pen_mesh
     L = _lib.lib()
-    with _lib.Context(threads) as c:
-        c.check(L.pen_spheres_fit(c.ptr, ctypes.byref(m), int(count), None, ctypes.byref(s), None))
-        try:
-            return _copy(s.data, (s.count, 4))
-        finally:
-            L.pen_spheres_free(ctypes.byref(s))
-            del keep  # the tensors behind the borrowed pen_mesh lived until here
+    return _owned(_lib.Spheres, L.pen_spheres_free,
+                  lambda c, out: L.pen_spheres_fit(c, ctypes.byref(m), int(count), None, out, None),
+                  lambda s: _copy(s.data, (s.count, 4)), threads)
