@@ -23,7 +23,8 @@
  * spheres; a centre that falls outside the mesh moves to its cluster's member nearest to it; the
  * radius is the distance to the nearest surface sample (the sphere starts inscribed). Adam then
  * moves centres and radii with a step given in voxel edges that decays by a cosine; radii are
- * kept above a quarter voxel so that no sphere collapses to a point.
+ * kept above a quarter voxel so that no sphere collapses to a point. Spheres that no surface sample
+ * needs are moved a few times early in the run ("Relocating idle spheres" below).
  */
 #include "geometry/fit_internal.h"
 
@@ -40,12 +41,12 @@
  * thread: the energy runs once per Adam step, and waking a thread team that often cost more than
  * it saved (on a loaded 2-core machine, spinning barriers made the small test fits 15x slower). */
 #define FIT_SERIAL_PAIRS 4e6
+/* Cells of the energy's culling: bricks of FIT_BRICK^3 voxels. */
+#define FIT_BRICK 4
 
 static int parallel_worth(double pairs) {
     return pairs >= FIT_SERIAL_PAIRS;
 }
-/* Cells of the energy's culling: bricks of FIT_BRICK^3 voxels. */
-#define FIT_BRICK 4
 
 void pen_fit_settings_default(pen_fit_settings *s) {
     s->voxels = 64;
