@@ -22,7 +22,7 @@ demo: build
 test: build
 	@cd $(BUILD) && ctest --output-on-failure -j $(JOBS)
 
-# Same suite under AddressSanitizer + UndefinedBehaviorSanitizer (Debug, no -march=native).
+# Same suite under AddressSanitizer + UndefinedBehaviorSanitizer, smaller sizes (PEN_TEST_QUICK).
 test-asan: deps
 	@cmake -S . -B $(BUILD)-asan -DCMAKE_BUILD_TYPE=RelWithDebInfo -DPEN_SANITIZE=ON >/dev/null
 	@cmake --build $(BUILD)-asan -j $(JOBS)

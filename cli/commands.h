@@ -15,7 +15,10 @@ typedef struct pen_command {
 
 /* Every command. Add a line here and in cli/main.c's table. */
 int pen_cmd_sh_accuracy(int argc, char **argv);
+int pen_cmd_render(int argc, char **argv);
 int pen_cmd_fit_spheres(int argc, char **argv);
+int pen_cmd_reference(int argc, char **argv);
+int pen_cmd_compare(int argc, char **argv);
 
 /* ---- Helpers (cli/common.c) ---- */
 

@@ -5,8 +5,11 @@
 #include <string.h>
 
 static const pen_command commands[] = {
-    {"sh-accuracy", "irradiance error of SH visibility against ray-tested truth", pen_cmd_sh_accuracy},
+    {"render", "SH-shadow render of a scene JSON into .png/.exr/.hdr", pen_cmd_render},
+    {"reference", "ray-traced Monte-Carlo ground truth of a scene (Embree)", pen_cmd_reference},
     {"fit-spheres", "fit a sphere set to a closed mesh", pen_cmd_fit_spheres},
+    {"compare", "image error (rmse, rel_rmse, psnr) as JSON", pen_cmd_compare},
+    {"sh-accuracy", "irradiance error of SH visibility against ray-tested truth", pen_cmd_sh_accuracy},
 };
 static const int command_count = (int)(sizeof commands / sizeof commands[0]);
 

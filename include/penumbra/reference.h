@@ -1,0 +1,90 @@
+/* penumbra/reference.h -- the ground-truth renderer: Monte-Carlo shading on Embree.
+ *
+ * It integrates the same shading model as the SH renderer (DESIGN.md section 1),
+ *     L_o(x) = rho(x)/pi * integral L(w) V(x, w) max(n . w, 0) dw,
+ * with the same camera, albedo and lighting, but with the visibility V ray-traced against the
+ * real (posed) meshes and the ground plane: no spheres and no SH visibility. The lighting L is
+ * either the environment map itself or its SH reconstruction, so the error of SH visibility and
+ * the error of band-limiting the light can be told apart:
+ *   PEN_REFERENCE_LIGHTING_ENVMAP  L(w) = scale * max(envmap(R_y(-rotation) w), 0), each texel a
+ *                                  constant over its solid angle (nearest lookup); importance-
+ *                                  sampled by luminance and by the cosine, combined by multiple
+ *                                  importance sampling (balance heuristic).
+ *   PEN_REFERENCE_LIGHTING_SH      L(w) = sum_k sh[k] Y_k(w) with scene->sh_bands bands,
+ *                                  unclamped (negative lobes stay negative, as in the SH
+ *                                  renderer); the unoccluded irradiance in closed form minus a
+ *                                  cosine-sampled estimate of the light blockers remove.
+ * Surfaces: meshes are shaded with smooth area-weighted vertex normals (interpolated, renormalised)
+ * and lit from the side the camera sees (two-sided); the ground plane has normal +Y. Albedo is
+ * the constant or a bilinear, wrapping texture lookup (v up; image row 0 is v = 1).
+ * Pixels: `spp` jittered camera samples per pixel (stratified on the largest square grid that
+ * fits), each with one light sample and one cosine sample (SH mode: one cosine sample).
+ * Pixels that see nothing show the background: pen_envmap_eval in the ray direction, the SH
+ * reconstruction for a scene without a map, or the constant colour.
+ * Determinism: every random number is a hash of (seed, pixel, sample, dimension), so an image
+ * depends only on the scene, spp and seed, never on the thread count or scheduling.
+ * Threads: pen_context_threads (0 = all cores).
+ *
+ * Usage:
+ *     pen_reference *ref = NULL;
+ *     pen_reference_create(ctx, &scene, PEN_REFERENCE_LIGHTING_AUTO, &ref);
+ *     pen_image img;
+ *     pen_reference_render(ctx, ref, 256, 1, &img);
+ *     pen_reference_destroy(ref);
+ */
+#ifndef PENUMBRA_REFERENCE_H
+#define PENUMBRA_REFERENCE_H
+
+#include "penumbra/core.h"
+#include "penumbra/image.h"
+#include "penumbra/scene.h"
+
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+typedef enum pen_reference_lighting {
+    PEN_REFERENCE_LIGHTING_AUTO = 0, /* the envmap if the scene has one and its SH lighting is
+                                        the map's projection; else SH (a scene may give "sh"
+                                        next to a map that is only its background) */
+    PEN_REFERENCE_LIGHTING_ENVMAP = 1,
+    PEN_REFERENCE_LIGHTING_SH = 2
+} pen_reference_lighting;
+
+/* Largest samples per pixel (or per point) any call accepts. */
+#define PEN_REFERENCE_MAX_SPP (1 << 20)
+
+/* Opaque: the Embree scene of the posed meshes and the ground quad, world-space vertex normals,
+ * and the envmap's sampling tables. It borrows `scene` (textures, envmap, camera, SH), which
+ * must outlive it and stay unchanged. */
+typedef struct pen_reference pen_reference;
+
+/* Builds the ray-tracing scene. Validates the scene (indices, finite positions, sizes, texture
+ * and envmap shapes); ENVMAP lighting on a scene without an envmap is an error. */
+pen_status pen_reference_create(pen_context *ctx, const pen_scene *scene,
+                                pen_reference_lighting lighting, pen_reference **out);
+/* Frees the reference; NULL is a no-op. */
+void pen_reference_destroy(pen_reference *ref);
+/* The lighting mode in use (AUTO resolved). */
+pen_reference_lighting pen_reference_lighting_mode(const pen_reference *ref);
+
+/* Renders the camera's image: 3 channels, linear radiance, `spp` in [1, PEN_REFERENCE_MAX_SPP]
+ * samples per pixel. *out is allocated here (pen_image_free releases it); zeroed on failure. */
+pen_status pen_reference_render(pen_context *ctx, const pen_reference *ref, int spp, uint64_t seed,
+                                pen_image *out);
+
+/* Irradiance E = integral L(w) V(x, w) max(n . w, 0) dw at the surface point x with unit normal
+ * n (rays leave from x nudged along n), estimated with `samples` sample pairs. */
+pen_status pen_reference_irradiance(pen_context *ctx, const pen_reference *ref, const float x[3],
+                                    const float n[3], int samples, uint64_t seed, float E[3]);
+
+/* "envmap", "sh" or "auto" to the enum; -1 for anything else. */
+int pen_reference_lighting_parse(const char *name);
+const char *pen_reference_lighting_name(pen_reference_lighting lighting);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

@@ -1,0 +1,130 @@
+/* penumbra/render.h -- the differentiable soft-shadow renderer: forward image, image losses, and
+ * the backward pass into every scene parameter.
+ *
+ * Usage (one optimisation step):
+ *
+ *     pen_render_options opt = pen_render_options_default();
+ *     pen_render_state *st = NULL;   pen_render_state_create(ctx, &st);
+ *     pen_render_grad grad;          pen_render_grad_create(ctx, &scene, &grad);
+ *     pen_image img = {0}, d_img = {0};
+ *     pen_render_fwd(ctx, &scene, &opt, st, &img);             allocates img on first use
+ *     pen_image_create(ctx, img.width, img.height, 3, &d_img);
+ *     double loss; pen_loss_l2(ctx, &img, &target, &loss, &d_img);
+ *     pen_render_grad_zero(&grad);
+ *     pen_render_bwd(ctx, &scene, &opt, st, &d_img, PEN_GRAD_ALL, &grad);
+ *     ... update scene parameters from grad, repeat ...
+ *
+ * What is rendered (docs/renderer.md): per pixel, the visible surface point x of an object or the
+ * ground plane, its unit normal n and albedo rho; the visibility V = exp*(sum_i w_i f_i) over all
+ * spheres of all objects (posed), with the self-shadowing weight w_i (smoothstep of
+ * n . (c_i - x) / r_i from -1 to +1); the radiance rho / pi * sum_k L_k (V * H_n)_k. Background
+ * pixels show the constant background or the environment map in the ray direction. Silhouettes
+ * are antialiased analytically (pen_antialias_fwd) so that the image is continuous in the vertex
+ * positions. The image is linear RGB, 3 channels, the camera's size, row 0 at the top.
+ *
+ * Gradients: of a scalar loss, given d_image = dLoss/dimage; the backward ADDS into the gradient
+ * struct. Object-space quantities (vertices, sphere centres and radii) get object-space
+ * gradients; the pose gets gradients per field of pen_pose (rotation per degree). Determinism:
+ * every reduction runs in a fixed order (per-row buffers in double), so results do not depend
+ * on the thread count.
+ *
+ * The scene must not change between pen_render_fwd and the matching pen_render_bwd (the state
+ * keeps the G-buffer and per-pixel attributes of the forward).
+ */
+#ifndef PENUMBRA_RENDER_H
+#define PENUMBRA_RENDER_H
+
+#include "penumbra/core.h"
+#include "penumbra/image.h"
+#include "penumbra/raster.h"
+#include "penumbra/scene.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* ---- Options --------------------------------------------------------------------------------- */
+
+typedef struct pen_render_options {
+    int shadows;   /* 1: SH visibility from the sphere sets; 0: V == 1 (`--no-shadows`) */
+    int antialias; /* 1: analytic silhouette antialiasing (needed for silhouette gradients) */
+} pen_render_options;
+
+/* shadows = 1, antialias = 1. */
+pen_render_options pen_render_options_default(void);
+
+/* ---- Gradients ------------------------------------------------------------------------------- */
+
+/* What pen_render_bwd computes (bit mask). Skipping unwanted groups saves time; the fields of
+ * groups not asked for are left untouched. */
+#define PEN_GRAD_LIGHTING 1u  /* sh */
+#define PEN_GRAD_ALBEDO 2u    /* constant albedo, texture texels, ground albedo */
+#define PEN_GRAD_SPHERES 4u   /* sphere centres and radii (object space) */
+#define PEN_GRAD_POSE 8u      /* rigid pose of each object (moves vertices and spheres) */
+#define PEN_GRAD_VERTICES 16u /* vertex positions (object space), incl. silhouettes */
+#define PEN_GRAD_ALL 31u
+
+typedef struct pen_object_grad {
+    float albedo[3]; /* d constant albedo (objects without a texture) */
+    float *texture;  /* 3 per texel, the texture's layout; NULL if the object has none */
+    int texel_count;
+    float *spheres; /* 4 per sphere: d center (x, y, z), d radius; object space */
+    int sphere_count;
+    pen_pose_grad pose; /* d rotation_axis_angle_deg (per degree), d translation, d scale */
+    float *positions;   /* 3 per vertex, object space */
+    int vertex_count;
+} pen_object_grad;
+
+typedef struct pen_render_grad {
+    int bands;
+    float sh[PEN_SH_MAX_COEFFS][3]; /* d lighting coefficient [i][channel] */
+    float ground_albedo[3];
+    int object_count;
+    pen_object_grad *objects;
+} pen_render_grad;
+
+/* Allocates a zeroed gradient shaped like the scene. On failure *out is zeroed. */
+pen_status pen_render_grad_create(pen_context *ctx, const pen_scene *scene, pen_render_grad *out);
+/* Sets every gradient to 0. */
+void pen_render_grad_zero(pen_render_grad *grad);
+/* Frees the arrays and zeroes the struct; NULL is a no-op. */
+void pen_render_grad_free(pen_render_grad *grad);
+
+/* ---- Forward and backward -------------------------------------------------------------------- */
+
+/* Buffers kept between a forward and its backward, reused across frames of the same size. */
+typedef struct pen_render_state pen_render_state;
+
+pen_status pen_render_state_create(pen_context *ctx, pen_render_state **out);
+void pen_render_state_free(pen_render_state *state);
+
+/* Renders the scene into `image`: if image->data is NULL it is allocated (3 channels, camera
+ * size), otherwise it must already have that shape. `state` may be NULL when no backward
+ * follows. Fails on an invalid camera, mesh, sphere set or lighting (NaN/Inf, bad indices), or a
+ * scene whose objects need a sphere set they do not have while shadows are on. Threads:
+ * pen_context_threads. */
+pen_status pen_render_fwd(pen_context *ctx, const pen_scene *scene, const pen_render_options *opt,
+                          pen_render_state *state, pen_image *image);
+
+/* Backward of the last pen_render_fwd with this state: adds the gradient of the loss into
+ * `grad` for the groups in `wrt` (PEN_GRAD_*), given d_image (3 channels, image size). `opt`
+ * must equal the forward's (NULL: the defaults); the scene must be the forward's, unchanged. */
+pen_status pen_render_bwd(pen_context *ctx, const pen_scene *scene, const pen_render_options *opt,
+                          pen_render_state *state, const pen_image *d_image, unsigned wrt,
+                          pen_render_grad *grad);
+
+/* ---- Image losses ---------------------------------------------------------------------------- */
+
+/* Mean squared error over all pixels and channels, loss = (1/N) sum (image - target)^2;
+ * d_image (may be NULL; allocated if its data is NULL) += dLoss/dimage. Shapes must match. */
+pen_status pen_loss_l2(pen_context *ctx, const pen_image *image, const pen_image *target,
+                       double *loss, pen_image *d_image);
+/* Mean absolute error, loss = (1/N) sum |image - target|; the gradient is sign(image - target)/N
+ * (0 where equal). */
+pen_status pen_loss_l1(pen_context *ctx, const pen_image *image, const pen_image *target,
+                       double *loss, pen_image *d_image);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

@@ -1,0 +1,80 @@
+#!/bin/sh
+# Contract tests of `penumbra render` (DESIGN.md section 3): outputs in the three formats, the
+# --no-shadows and --threads flags, one-line errors with a non-zero exit, no partial files.
+# Usage: sh cli_render.sh PENUMBRA_BIN SRC_DIR
+set -u
+BIN=$1
+SRC=$2
+T=$(mktemp -d)
+trap 'rm -rf "$T"' EXIT
+fails=0
+fail() { echo "FAIL: $*"; fails=$((fails + 1)); }
+
+# A small scene: a textured Spot with three inline spheres on the ground, constant background.
+cat > "$T/scene.json" <<JSON
+{"camera": {"width": 48, "height": 40, "fov_y_deg": 40, "eye": [2.5, 1.8, 3.0], "target": [0, 0.5, 0]},
+ "lighting": {"sh": [[1.5,1.5,1.5],[-1,-1,-1],[0.2,0.2,0.2],[-0.3,-0.3,-0.3],
+                     [0,0,0],[0,0,0],[0,0,0],[0,0,0],[0,0,0],
+                     [0,0,0],[0,0,0],[0,0,0],[0,0,0],[0,0,0],[0,0,0],[0,0,0]]},
+ "objects": [{"mesh": "$SRC/data/meshes/spot_triangulated.obj",
+              "albedo_texture": "$SRC/data/meshes/spot_texture.png",
+              "spheres": [{"center": [0, -0.07, 0.3], "radius": 0.36},
+                          {"center": [0, 0.45, -0.4], "radius": 0.28},
+                          {"center": [0, -0.55, 0.35], "radius": 0.2}],
+              "pose": {"translation": [0, 0.737, 0]}}],
+ "ground": {"albedo": [0.7, 0.7, 0.7]},
+ "background": [0.1, 0.2, 0.3]}
+JSON
+
+for ext in png exr hdr; do
+    if ! "$BIN" render "$T/scene.json" -o "$T/out.$ext" -q; then fail "render to .$ext"; fi
+    [ -s "$T/out.$ext" ] || fail "no .$ext written"
+done
+"$BIN" render "$T/scene.json" -o "$T/plain.exr" --no-shadows --threads 1 -q || fail "--no-shadows"
+"$BIN" render "$T/scene.json" -o "$T/t3.exr" --threads 3 -q || fail "--threads 3"
+cmp -s "$T/out.exr" "$T/plain.exr" && fail "--no-shadows made no difference"
+cmp -s "$T/out.exr" "$T/t3.exr" || fail "the image depends on the thread count"
+out=$("$BIN" render "$T/scene.json" -o "$T/again.png")
+case "$out" in *"48x40"*"3 spheres"*) ;; *) fail "summary line: $out" ;; esac
+
+# Errors: exit non-zero, exactly one line on stderr (usage errors may add a hint line), no file.
+expect_error() { # expected-fragment args...
+    frag=$1
+    shift
+    rm -f "$T/bad.png"
+    if "$BIN" render "$@" 2>"$T/err" >/dev/null; then fail "no error for: $*"; fi
+    grep -q -- "$frag" "$T/err" || fail "stderr lacks '$frag' for: $* -> $(cat "$T/err")"
+    [ -e "$T/bad.png" ] && fail "partial output left for: $*"
+    ls "$T" | grep -q tmp- && fail "temporary file left for: $*"
+    return 0
+}
+expect_error "missing" "$T/scene.json"
+expect_error "must end in" "$T/scene.json" -o "$T/bad.jpg"
+expect_error "unknown option" "$T/scene.json" -o "$T/bad.png" --bogus
+expect_error "threads" "$T/scene.json" -o "$T/bad.png" --threads 0
+expect_error "nosuch.json" "$T/nosuch.json" -o "$T/bad.png"
+lines=$("$BIN" render "$T/nosuch.json" -o "$T/bad.png" 2>&1 >/dev/null | wc -l)
+[ "$lines" -eq 1 ] || fail "file error printed $lines lines"
+
+# A malformed scene: the key path is named.
+sed 's/"radius": 0.36/"radius": -1/' "$T/scene.json" > "$T/neg.json"
+expect_error "radius" "$T/neg.json" -o "$T/bad.png"
+# A scene asking for fitted spheres: fitted before rendering, cached beside the mesh (a copy
+# here, so that the source tree stays untouched) and reused; not needed with --no-shadows.
+cp "$SRC/data/meshes/spot_triangulated.obj" "$T/spot.obj"
+sed -e 's/"spheres": \[{"center": \[0, -0.07, 0.3\], "radius": 0.36},/"spheres": {"fit": 4}, "_s": [{"center": [0, -0.07, 0.3], "radius": 0.36},/' \
+    -e "s|$SRC/data/meshes/spot_triangulated.obj|spot.obj|" "$T/scene.json" > "$T/fit.json"
+out=$("$BIN" render "$T/fit.json" -o "$T/fit.png" --threads 2) || fail "render with a fitted sphere set"
+case "$out" in *"4 fitted spheres (fitted now"*"4 spheres, shadows"*) ;; *) fail "fit summary: $out" ;; esac
+out=$("$BIN" render "$T/fit.json" -o "$T/fit2.png") || fail "render with a cached fit"
+case "$out" in *"(from the cache"*) ;; *) fail "cached fit summary: $out" ;; esac
+cmp -s "$T/fit.png" "$T/fit2.png" || fail "the cached fit renders differently"
+"$BIN" render "$T/fit.json" -o "$T/fitplain.png" --no-shadows -q || fail "fit scene, --no-shadows"
+# The output folder does not exist: an i/o error, nothing written.
+expect_error "nodir" "$T/scene.json" -o "$T/nodir/bad.png"
+
+if [ "$fails" -ne 0 ]; then
+    echo "$fails failed"
+    exit 1
+fi
+echo "cli_render: all passed"

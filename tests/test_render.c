@@ -1,0 +1,350 @@
+/* Forward tests of the renderer (src/render/render.c) against references that are not our own
+ * output: closed-form irradiance of an unoccluded plane and of a tessellated sphere, the exact
+ * cosine-weighted occlusion of a sphere above a plane, the self-shadowing rule on a convex
+ * object, background colours; image losses; argument errors. */
+#include "render_scenes.h"
+
+static unsigned long long seed = 31337;
+
+/* Ramamoorthi-Hanrahan: E(n) = sum_l A_l sum_m L_lm Y_lm(n), A = (pi, 2 pi / 3, pi / 4, 0). */
+static double irradiance(const pen_scene *sc, int ch, const double n[3]) {
+    const double A[3] = {M_PI, 2 * M_PI / 3, M_PI / 4};
+    double y[9], e = 0.0;
+    rs_y_band2(n, y);
+    for (int l = 0; l < 3; ++l)
+        for (int m = -l; m <= l; ++m)
+            e += A[l] * (double)sc->lighting.sh[l * l + l + m][ch] * y[l * l + l + m];
+    return e;
+}
+
+/* Golden image 1: the unoccluded ground under 4-band lighting equals rho / pi * E(+Y) at every
+ * ground pixel; metric: max relative error, threshold 1e-5 (float rounding), with shadows on
+ * (no spheres: V = exp*(0) = 1) and off. */
+static void test_golden_plane(void) {
+    pen_scene sc = rs_scene(48, 32);
+    for (int shadows = 0; shadows < 2; ++shadows) {
+        pen_render_options opt = pen_render_options_default();
+        opt.shadows = shadows;
+        pen_image img;
+        CHECK(rs_render(&sc, &opt, 0, &img) == PEN_OK);
+        const double up[3] = {0, 1, 0};
+        double worst = 0.0;
+        int ground = 0;
+        for (int i = 0; i < 48 * 32; ++i) {
+            const float *p = img.data + 3 * i;
+            if (p[0] == sc.background[0] && p[1] == sc.background[1]) continue;
+            ++ground;
+            for (int ch = 0; ch < 3; ++ch) {
+                const double want = (double)sc.ground.albedo[ch] / M_PI * irradiance(&sc, ch, up);
+                worst = fmax(worst, fabs((double)p[ch] - want) / want);
+            }
+        }
+        CHECK(ground > 1000);
+        CHECK_MSG(worst < 1e-5, "shadows %d: max relative error %.3g", shadows, worst);
+        pen_image_free(&img);
+    }
+    pen_scene_free(&sc);
+}
+
+/* Golden image 2: a tessellated sphere (2048 triangles) without shadows against the closed form
+ * at the analytic sphere's normal where each pixel's ray meets it. Metric: RMSE over pixels
+ * whose 3x3 neighbourhood is all sphere (no silhouette blending), relative to the mean;
+ * threshold 1% (the tessellation: chords and interpolated vertex normals). */
+static void test_golden_sphere(void) {
+    pen_scene sc = rs_scene(64, 64);
+    sc.ground.enabled = 0;
+    const float eye[3] = {0.4f, 0.9f, 3.0f}, target[3] = {0, 0, 0};
+    memcpy(sc.camera.eye, eye, sizeof eye);
+    memcpy(sc.camera.target, target, sizeof target);
+    const float R = 0.8f;
+    pen_object *ob = rs_add_object(&sc, rs_octasphere(4, R, 0), 0, NULL);
+    ob->albedo[0] = 0.9f, ob->albedo[1] = 0.6f, ob->albedo[2] = 0.4f;
+    pen_render_options opt = pen_render_options_default();
+    opt.shadows = 0;
+    pen_image img;
+    CHECK(rs_render(&sc, &opt, 0, &img) == PEN_OK);
+    pen_context *ctx = pen_context_create();
+    pen_view view;
+    CHECK(pen_view_init(ctx, &sc.camera, &view) == PEN_OK);
+    double se = 0.0, sum = 0.0;
+    int count = 0;
+    for (int y = 1; y < 63; ++y)
+        for (int x = 1; x < 63; ++x) {
+            /* Interior test on the analytic sphere: all 9 neighbours' rays hit it with margin. */
+            int inside = 1;
+            double hit_n[3] = {0, 0, 0};
+            for (int dy = -1; dy <= 1 && inside; ++dy)
+                for (int dx = -1; dx <= 1 && inside; ++dx) {
+                    double d[3];
+                    pen_view_ray(&view, x + dx + 0.5, y + dy + 0.5, d);
+                    double dd = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+                    double b = 0, c = -(double)R * (double)R;
+                    for (int a = 0; a < 3; ++a)
+                        b += d[a] * view.eye[a], c += view.eye[a] * view.eye[a];
+                    double disc = b * b - dd * c;
+                    if (disc < 0.02 * dd) inside = 0;
+                    if (dx == 0 && dy == 0 && inside) {
+                        double t = (-b - sqrt(disc)) / dd;
+                        for (int a = 0; a < 3; ++a)
+                            hit_n[a] = (view.eye[a] + t * d[a]) / (double)R;
+                    }
+                }
+            if (!inside) continue;
+            for (int ch = 0; ch < 3; ++ch) {
+                const double want = (double)ob->albedo[ch] / M_PI * irradiance(&sc, ch, hit_n);
+                const double got = img.data[3 * (y * 64 + x) + ch];
+                se += (got - want) * (got - want);
+                sum += fabs(want);
+                ++count;
+            }
+        }
+    CHECK(count > 3 * 1000);
+    const double rel_rmse = sqrt(se / count) / (sum / count);
+    if (getenv("PEN_TEST_VERBOSE")) printf("  sphere: relative RMSE %.4g\n", rel_rmse);
+    CHECK_MSG(rel_rmse < 1e-2, "relative RMSE %.4g over %d values", rel_rmse, count);
+    pen_image_free(&img);
+    pen_context_destroy(ctx);
+    pen_scene_free(&sc);
+}
+
+/* A scene looking straight down at the ground's origin (33 x 33: the centre pixel's ray is the
+ * axis), DC-only lighting of radiance 1, and one occluding sphere (c, r) whose mesh is a small
+ * triangle far out of view. */
+static pen_scene occluder_scene(float height, float radius) {
+    pen_scene sc = rs_scene(33, 33);
+    const float eye[3] = {0, 4, 0}, target[3] = {0, 0, 0}, up[3] = {0, 0, -1};
+    memcpy(sc.camera.eye, eye, sizeof eye);
+    memcpy(sc.camera.target, target, sizeof target);
+    memcpy(sc.camera.up, up, sizeof up);
+    sc.camera.fov_y_deg = 10.0f;
+    memset(sc.lighting.sh, 0, sizeof sc.lighting.sh);
+    for (int ch = 0; ch < 3; ++ch)
+        sc.lighting.sh[0][ch] = (float)sqrt(4 * M_PI);
+    pen_mesh tri;
+    memset(&tri, 0, sizeof tri);
+    tri.vertex_count = 3, tri.triangle_count = 1;
+    tri.positions = calloc(9, sizeof(float));
+    tri.indices = malloc(3 * sizeof(uint32_t));
+    const float P[9] = {50, 0, 50, 51, 0, 50, 50, 1, 50};
+    memcpy(tri.positions, P, sizeof P);
+    tri.indices[0] = 0, tri.indices[1] = 1, tri.indices[2] = 2;
+    const float s[4] = {0, height, 0, radius};
+    rs_add_object(&sc, tri, 1, s);
+    return sc;
+}
+
+/* The shadow's depth: directly below a sphere of angular radius alpha, the true irradiance of a
+ * plane under uniform radiance 1 is pi (1 - sin^2 alpha) (the cap's cosine-weighted solid angle
+ * is pi sin^2 alpha). Metric: |E - E_true| / E_unoccluded (DESIGN.md section 4), threshold 0.1
+ * for spheres covering sin^2 alpha = 0.04 .. 0.36 of the hemisphere; the shadow must deepen with
+ * the sphere's size. */
+static void test_shadow_depth_against_exact_occlusion(void) {
+    const float radii[4] = {0.2f, 0.3f, 0.45f, 0.6f};
+    double prev = 1e9;
+    for (int k = 0; k < 4; ++k) {
+        pen_scene sc = occluder_scene(1.0f, radii[k]);
+        pen_image img;
+        CHECK(rs_render(&sc, NULL, 1, &img) == PEN_OK);
+        const float *p = img.data + 3 * (16 * 33 + 16);
+        const double E = (double)p[1] / (double)sc.ground.albedo[1] * M_PI; /* radiance -> E */
+        const double s2 = (double)radii[k] * (double)radii[k];
+        const double E_true = M_PI * (1.0 - s2), E_open = M_PI;
+        const double err = fabs(E - E_true) / E_open;
+        if (getenv("PEN_TEST_VERBOSE"))
+            printf("  r %.2f: E %.4f, exact %.4f, error %.4f of unoccluded\n", (double)radii[k], E,
+                   E_true, err);
+        CHECK_MSG(err < 0.1, "r %.2f: E %.4f, exact %.4f, error %.3f of unoccluded",
+                  (double)radii[k], E, E_true, err);
+        CHECK_MSG(E < prev, "shadow does not deepen: %.4f after %.4f", E, prev);
+        prev = E;
+        pen_image_free(&img);
+        pen_scene_free(&sc);
+    }
+}
+
+/* Self-shadowing rule on a convex object: a proxy sphere inside the tessellated sphere (radius
+ * 0.97 of the mesh's) lies wholly behind every surface point's tangent plane, so the object's
+ * pixels equal those of the unshadowed render (up to 1e-5: the float model's exp*(0)), while the
+ * ground under it darkens. */
+static void test_convex_object_does_not_shadow_itself(void) {
+    pen_scene sc = rs_scene(48, 48);
+    const float R = 0.45f, s[4] = {0, 0, 0, 0.97f * R};
+    pen_object *ob = rs_add_object(&sc, rs_octasphere(3, R, 0), 1, s);
+    ob->pose.translation[1] = 0.6f;
+    pen_render_options on = pen_render_options_default(), off = on;
+    off.shadows = 0;
+    pen_image a, b;
+    CHECK(rs_render(&sc, &on, 0, &a) == PEN_OK);
+    CHECK(rs_render(&sc, &off, 0, &b) == PEN_OK);
+    pen_context *ctx = pen_context_create();
+    pen_render_state *st = NULL;
+    pen_render_state_create(ctx, &st);
+    pen_image c = {0, 0, 0, NULL};
+    CHECK(pen_render_fwd(ctx, &sc, &on, st, &c) == PEN_OK);
+    /* Which pixels are object interior: from the G-buffer. */
+    int interior = 0, ground_darker = 0, ground = 0;
+    double worst = 0.0;
+    pen_view view;
+    pen_view_init(ctx, &sc.camera, &view);
+    pen_gbuffer gb;
+    pen_gbuffer_create(ctx, 48, 48, &gb);
+    float *world = malloc(sizeof(float) * 3 * (size_t)ob->mesh.vertex_count);
+    pen_pose_points_fwd(&ob->pose, ob->mesh.vertex_count, ob->mesh.positions, world);
+    pen_raster_mesh m = {ob->mesh.vertex_count, ob->mesh.triangle_count, world, ob->mesh.indices,
+                         NULL};
+    CHECK(pen_raster_gbuffer(ctx, &view, &m, 1, &sc.ground, &gb) == PEN_OK);
+    for (int y = 1; y < 47; ++y)
+        for (int x = 1; x < 47; ++x) {
+            const int i = y * 48 + x;
+            int all = 1;
+            for (int d = -1; d <= 1; ++d)
+                all &= gb.surface[i + d] == 0 && gb.surface[i + 48 * d] == 0;
+            if (gb.surface[i] == PEN_SURFACE_GROUND) {
+                ++ground;
+                ground_darker += a.data[3 * i] < b.data[3 * i] - 1e-3f;
+            }
+            if (!all) continue;
+            ++interior;
+            for (int ch = 0; ch < 3; ++ch)
+                worst = fmax(worst, fabs((double)a.data[3 * i + ch] - (double)b.data[3 * i + ch]));
+        }
+    CHECK(interior > 100);
+    /* V = exp*(0) is 1 up to the float model's rounding (about 1e-6). */
+    CHECK_MSG(worst < 1e-5, "object pixels differ by %.3g with shadows on", worst);
+    CHECK_MSG(ground_darker > 20, "only %d of %d ground pixels darkened", ground_darker, ground);
+    for (int i = 0; i < 3 * 48 * 48; ++i)
+        CHECK(c.data[i] == a.data[i]); /* with a state */
+    free(world);
+    pen_gbuffer_free(&gb);
+    pen_image_free(&a), pen_image_free(&b), pen_image_free(&c);
+    pen_render_state_free(st);
+    pen_context_destroy(ctx);
+    pen_scene_free(&sc);
+}
+
+/* Background pixels show the constant background exactly (no geometry there to blend). */
+static void test_background_constant(void) {
+    pen_scene sc = rs_scene(16, 16);
+    sc.ground.enabled = 0;
+    pen_image img;
+    CHECK(rs_render(&sc, NULL, 0, &img) == PEN_OK);
+    for (int i = 0; i < 16 * 16; ++i)
+        for (int ch = 0; ch < 3; ++ch)
+            CHECK(img.data[3 * i + ch] == sc.background[ch]);
+    pen_image_free(&img);
+    pen_scene_free(&sc);
+}
+
+/* ---- Losses ---------------------------------------------------------------------------------- */
+
+static void test_losses(void) {
+    pen_image a, b, d = {0, 0, 0, NULL};
+    pen_image_create(NULL, 5, 4, 3, &a);
+    pen_image_create(NULL, 5, 4, 3, &b);
+    double l2 = 0.0, l1 = 0.0;
+    for (int i = 0; i < 60; ++i) {
+        a.data[i] = (float)check_rand_(&seed);
+        b.data[i] = (float)check_rand_(&seed);
+        const double r = (double)a.data[i] - (double)b.data[i];
+        l2 += r * r / 60.0, l1 += fabs(r) / 60.0;
+    }
+    pen_context *ctx = pen_context_create();
+    double got;
+    CHECK(pen_loss_l2(ctx, &a, &b, &got, &d) == PEN_OK);
+    CHECK_NEAR(got, l2, 1e-12);
+    for (int i = 0; i < 60; ++i) {
+        const float h = 1e-3f, keep = a.data[i];
+        double lp, lm;
+        a.data[i] = keep + h;
+        pen_loss_l2(ctx, &a, &b, &lp, NULL);
+        a.data[i] = keep - h;
+        pen_loss_l2(ctx, &a, &b, &lm, NULL);
+        a.data[i] = keep;
+        CHECK_REL(d.data[i], (lp - lm) / (2.0 * (double)h), 1e-3, 1e-3);
+    }
+    memset(d.data, 0, sizeof(float) * 60);
+    CHECK(pen_loss_l1(ctx, &a, &b, &got, &d) == PEN_OK);
+    CHECK_NEAR(got, l1, 1e-12);
+    for (int i = 0; i < 60; ++i) {
+        const double want = a.data[i] > b.data[i] ? 1.0 / 60 : -1.0 / 60;
+        CHECK_NEAR(d.data[i], want, 1e-8);
+    }
+    /* Gradients accumulate. */
+    CHECK(pen_loss_l1(ctx, &a, &b, &got, &d) == PEN_OK);
+    CHECK_NEAR(fabs(d.data[0]), 2.0 / 60, 1e-8);
+    pen_image c;
+    pen_image_create(NULL, 4, 4, 3, &c);
+    CHECK(pen_loss_l2(ctx, &a, &c, &got, NULL) == PEN_ERROR_ARGUMENT);
+    CHECK(strstr(pen_context_error(ctx), "shape") != NULL);
+    pen_image_free(&a), pen_image_free(&b), pen_image_free(&c), pen_image_free(&d);
+    pen_context_destroy(ctx);
+}
+
+/* ---- Errors ---------------------------------------------------------------------------------- */
+
+static void expect_error(pen_scene *sc, const char *fragment) {
+    pen_context *ctx = pen_context_create();
+    pen_image img = {0, 0, 0, NULL};
+    pen_status s = pen_render_fwd(ctx, sc, NULL, NULL, &img);
+    CHECK_MSG(s != PEN_OK, "expected an error mentioning '%s'", fragment);
+    CHECK_MSG(strstr(pen_context_error(ctx), fragment) != NULL, "message '%s' lacks '%s'",
+              pen_context_error(ctx), fragment);
+    CHECK(img.data == NULL);
+    pen_context_destroy(ctx);
+}
+
+static void test_invalid_inputs(void) {
+    pen_scene sc = rs_ball_scene(16, 0, &seed);
+    float *r = &sc.objects[0].spheres.data[3];
+    *r = -1.0f;
+    expect_error(&sc, "sphere 0");
+    *r = NAN;
+    expect_error(&sc, "sphere 0");
+    *r = 0.3f;
+    sc.objects[0].pose.scale = 0.0f;
+    expect_error(&sc, "pose");
+    sc.objects[0].pose.scale = 1.0f;
+    sc.lighting.sh[3][1] = INFINITY;
+    expect_error(&sc, "lighting");
+    sc.lighting.sh[3][1] = 0.0f;
+    sc.sh_bands = 9;
+    expect_error(&sc, "sh_bands");
+    sc.sh_bands = 4;
+    sc.objects[0].mesh.indices[5] = 100000;
+    expect_error(&sc, "objects[0]");
+    sc.objects[0].mesh.indices[5] = 0;
+    sc.camera.width = 0;
+    expect_error(&sc, "");
+    sc.camera.width = 16;
+
+    /* Output image of the wrong shape; backward without forward; gradient of another scene. */
+    pen_context *ctx = pen_context_create();
+    pen_image img;
+    pen_image_create(ctx, 8, 8, 3, &img);
+    CHECK(pen_render_fwd(ctx, &sc, NULL, NULL, &img) == PEN_ERROR_ARGUMENT);
+    pen_render_state *st = NULL;
+    pen_render_state_create(ctx, &st);
+    pen_render_grad g;
+    pen_render_grad_create(ctx, &sc, &g);
+    CHECK(pen_render_bwd(ctx, &sc, NULL, st, &img, PEN_GRAD_ALL, &g) == PEN_ERROR_ARGUMENT);
+    pen_image_free(&img);
+    CHECK(pen_render_fwd(ctx, &sc, NULL, st, &img) == PEN_OK);
+    pen_render_grad other;
+    pen_scene sc2 = rs_ball_scene(16, 1, &seed);
+    pen_render_grad_create(ctx, &sc2, &other);
+    CHECK(pen_render_bwd(ctx, &sc, NULL, st, &img, PEN_GRAD_ALL, &other) == PEN_ERROR_ARGUMENT);
+    CHECK(pen_render_bwd(ctx, &sc, NULL, st, &img, PEN_GRAD_ALL, &g) == PEN_OK);
+    pen_render_grad_free(&g), pen_render_grad_free(&other);
+    pen_render_grad_free(NULL);
+    pen_render_state_free(st);
+    pen_render_state_free(NULL);
+    pen_image_free(&img);
+    pen_context_destroy(ctx);
+    pen_scene_free(&sc2);
+    pen_scene_free(&sc);
+}
+
+RUN_TESTS(TEST(test_golden_plane), TEST(test_golden_sphere),
+          TEST(test_shadow_depth_against_exact_occlusion),
+          TEST(test_convex_object_does_not_shadow_itself), TEST(test_background_constant),
+          TEST(test_losses), TEST(test_invalid_inputs))
