@@ -2,8 +2,8 @@
 # Installs the Debian packages penumbra builds and tests with, only those that are missing.
 # Called by `make`; safe to run again. Needs root (or sudo) only when something is missing.
 set -e
-PKGS="build-essential cmake pkg-config libembree-dev libcjson-dev libpng-dev libstb-dev \
-libopenexr-dev libsleef-dev"
+PKGS="build-essential cmake pkg-config libembree-dev libcjson-dev libstb-dev libopenexr-dev \
+zlib1g-dev libpng-dev"
 [ -n "$PEN_WITH_PYTHON" ] && PKGS="$PKGS python3 python3-numpy python3-torch"
 missing=""
 for p in $PKGS; do
