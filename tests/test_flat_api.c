@@ -82,7 +82,7 @@ static void test_flat_matches_render(void) {
 
     const int V = ob->mesh.vertex_count, nt = 3 * ob->texture.width * ob->texture.height;
     float d_sh[3 * 16] = {0}, d_ground[3] = {0}, d_albedo[3] = {0}, d_spheres[8] = {0},
-          d_pose[7] = {0};
+                   d_pose[7] = {0};
     float *d_pos = calloc(3 * (size_t)V, sizeof(float)), *d_tex = calloc((size_t)nt, sizeof(float));
     pen_flat_object_grad og = {d_pos, d_tex, d_albedo, d_spheres, d_pose};
     pen_flat_grad fg = {d_sh, d_ground, &og};
@@ -213,8 +213,8 @@ static void test_flat_scene_load(void) {
     }
     pen_flat_loaded_free(l);
 
-    CHECK_ERROR(ctx, pen_flat_scene_load(ctx, fixture_path("nosuch.json"), 0, &l),
-                PEN_ERROR_IO, "nosuch.json");
+    CHECK_ERROR(ctx, pen_flat_scene_load(ctx, fixture_path("nosuch.json"), 0, &l), PEN_ERROR_IO,
+                "nosuch.json");
     CHECK(l == NULL);
     pen_flat_loaded_free(NULL);
 }
@@ -243,8 +243,7 @@ static void test_flat_errors(void) {
     CHECK_ERROR(ctx, pen_flat_render_fwd(ctx, &f, NULL, img), PEN_ERROR_ARGUMENT, "envmap",
                 "no pixels");
     f = fgood, f.envmap_width = -1, f.envmap_height = 4;
-    CHECK_ERROR(ctx, pen_flat_render_fwd(ctx, &f, NULL, img), PEN_ERROR_ARGUMENT, "envmap",
-                "-1x4");
+    CHECK_ERROR(ctx, pen_flat_render_fwd(ctx, &f, NULL, img), PEN_ERROR_ARGUMENT, "envmap", "-1x4");
     f = fgood;
     fo.triangle_count = 0;
     CHECK_ERROR(ctx, pen_flat_render_fwd(ctx, &f, NULL, img), PEN_ERROR_ARGUMENT, "objects[0]",
@@ -271,8 +270,7 @@ static void test_flat_errors(void) {
     CHECK(pen_render_state_create(ctx, &st) == PEN_OK);
     float d_sh[3 * 16] = {0};
     pen_flat_grad g = {d_sh, NULL, NULL};
-    CHECK_ERROR(ctx, pen_flat_render_bwd(ctx, &f, st, d_img, &g), PEN_ERROR_ARGUMENT,
-                "no forward");
+    CHECK_ERROR(ctx, pen_flat_render_bwd(ctx, &f, st, d_img, &g), PEN_ERROR_ARGUMENT, "no forward");
     CHECK(pen_flat_render_fwd(ctx, &f, st, img) == PEN_OK);
     CHECK(pen_flat_render_bwd(ctx, &f, st, d_img, &g) == PEN_OK);
     CHECK_ERROR(ctx, pen_flat_render_bwd(ctx, &f, st, NULL, &g), PEN_ERROR_ARGUMENT, "NULL");

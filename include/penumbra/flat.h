@@ -45,42 +45,42 @@ extern "C" {
 typedef struct pen_flat_object {
     int vertex_count;
     int triangle_count;
-    const float *positions;    /* 3 * vertex_count, object space */
-    const uint32_t *indices;   /* 3 * triangle_count, into positions, counter-clockwise outside */
-    int uv_count;              /* 0: no texture coordinates */
-    const float *uvs;          /* 2 * uv_count, (u, v) with v up */
+    const float *positions;     /* 3 * vertex_count, object space */
+    const uint32_t *indices;    /* 3 * triangle_count, into positions, counter-clockwise outside */
+    int uv_count;               /* 0: no texture coordinates */
+    const float *uvs;           /* 2 * uv_count, (u, v) with v up */
     const uint32_t *uv_indices; /* 3 * triangle_count into uvs; NULL: `indices` (one uv per
                                    vertex, uv_count must then equal vertex_count) */
-    int texture_width;         /* 0: constant albedo */
+    int texture_width;          /* 0: constant albedo */
     int texture_height;
-    const float *texture;      /* 3 * width * height, linear RGB, row 0 at the top (v = 1) */
-    float albedo[3];           /* used when there is no texture */
+    const float *texture; /* 3 * width * height, linear RGB, row 0 at the top (v = 1) */
+    float albedo[3];      /* used when there is no texture */
     int sphere_count;
-    const float *spheres;      /* 4 * sphere_count: x, y, z, r (object space) */
-    float pose[7];             /* rotation axis-angle (degrees), translation, scale (> 0) */
+    const float *spheres; /* 4 * sphere_count: x, y, z, r (object space) */
+    float pose[7];        /* rotation axis-angle (degrees), translation, scale (> 0) */
 } pen_flat_object;
 
 /* A scene; the arrays are borrowed for the call. */
 typedef struct pen_flat_scene {
-    int width, height;         /* camera: pinhole, row 0 at the top */
+    int width, height; /* camera: pinhole, row 0 at the top */
     float fov_y_deg;
     float eye[3], target[3], up[3];
-    int sh_bands;              /* 1 .. PEN_SH_MAX_BANDS */
-    const float *sh;           /* 3 * sh_bands^2: sh[3 i + channel] */
-    float epsilon;             /* log-visibility depth; <= 0: the exponential model's */
-    int exp_method;            /* pen_sh_exp_method */
+    int sh_bands;    /* 1 .. PEN_SH_MAX_BANDS */
+    const float *sh; /* 3 * sh_bands^2: sh[3 i + channel] */
+    float epsilon;   /* log-visibility depth; <= 0: the exponential model's */
+    int exp_method;  /* pen_sh_exp_method */
     int ground_enabled;
     float ground_height;
     float ground_albedo[3];
     float ground_half_size;
-    int background_envmap;     /* 1: pixels that see nothing show the environment map */
-    float background[3];       /* the constant background otherwise */
-    int envmap_width;          /* 0: no map */
+    int background_envmap; /* 1: pixels that see nothing show the environment map */
+    float background[3];   /* the constant background otherwise */
+    int envmap_width;      /* 0: no map */
     int envmap_height;
-    const float *envmap;       /* 3 * width * height, equirectangular (scene.h), linear RGB */
+    const float *envmap; /* 3 * width * height, equirectangular (scene.h), linear RGB */
     float envmap_rotation_y_deg;
     float envmap_scale;
-    int shadows;               /* pen_render_options */
+    int shadows; /* pen_render_options */
     int antialias;
     int object_count;
     const pen_flat_object *objects;
@@ -103,9 +103,9 @@ typedef struct pen_flat_object_grad {
 } pen_flat_object_grad;
 
 typedef struct pen_flat_grad {
-    float *sh;                      /* 3 * sh_bands^2 */
-    float *ground_albedo;           /* 3 */
-    pen_flat_object_grad *objects;  /* object_count entries, or NULL for none */
+    float *sh;                     /* 3 * sh_bands^2 */
+    float *ground_albedo;          /* 3 */
+    pen_flat_object_grad *objects; /* object_count entries, or NULL for none */
 } pen_flat_grad;
 
 /* Renders into `image` (3 * width * height floats, caller-owned). `state` may be NULL when no

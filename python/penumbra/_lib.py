@@ -195,7 +195,8 @@ def lib():
 
 
 class Context:
-    """A pen_context for one call: `with Context(threads) as c: c.check(lib().pen_x(c.ptr, ...))`."""
+    """A pen_context for one call:
+    `with Context(threads) as c: c.check(lib().pen_x(c.ptr, ...))`."""
 
     def __init__(self, threads=0):
         self.ptr = lib().pen_context_create()

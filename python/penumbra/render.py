@@ -95,7 +95,8 @@ def _float_tensor(name, x, shape, allow_list=False):
         if allow_list and isinstance(x, (list, tuple)):
             x = torch.tensor(x, dtype=torch.float32)
         else:
-            raise TypeError("penumbra: %s must be a torch tensor, got %s" % (name, type(x).__name__))
+            raise TypeError("penumbra: %s must be a torch tensor, got %s"
+                            % (name, type(x).__name__))
     if x.dtype != torch.float32:
         raise TypeError("penumbra: %s must be float32, got %s" % (name, x.dtype))
     if x.device.type != "cpu":
@@ -116,7 +117,8 @@ def _index_tensor(name, x, rows, limit, limit_name):
         raise TypeError("penumbra: %s must be int32 or int64, got %s" % (name, x.dtype))
     if x.device.type != "cpu":
         raise ValueError("penumbra: %s must be a CPU tensor, got device %s" % (name, x.device))
-    if x.dim() != 2 or x.shape[1] != 3 or x.shape[0] < 1 or (rows is not None and x.shape[0] != rows):
+    if (x.dim() != 2 or x.shape[1] != 3 or x.shape[0] < 1
+            or (rows is not None and x.shape[0] != rows)):
         want = "(%s, 3)" % ("F" if rows is None else rows)
         raise ValueError("penumbra: %s must have shape %s, got %s" % (name, want, tuple(x.shape)))
     lo, hi = int(x.min()), int(x.max())
@@ -180,7 +182,8 @@ class _Spec:
             self.background_envmap, self.background = 0, tuple(float(v) for v in bg)
         self.envmap_rotation_y_deg = float(scene.envmap_rotation_y_deg)
         self.envmap_scale = float(scene.envmap_scale)
-        self.shadows, self.antialias, self.threads = int(bool(shadows)), int(bool(antialias)), threads
+        self.shadows, self.antialias = int(bool(shadows)), int(bool(antialias))
+        self.threads = threads
         self.objects = []
 
 
@@ -240,11 +243,13 @@ def _flat(spec, sh, ground_albedo, obj):
     s = _lib.FlatScene()
     cam = spec.camera
     s.width, s.height, s.fov_y_deg = int(cam.width), int(cam.height), float(cam.fov_y_deg)
-    s.eye[:], s.target[:], s.up[:] = (tuple(float(x) for x in v) for v in (cam.eye, cam.target, cam.up))
+    s.eye[:], s.target[:], s.up[:] = (tuple(float(x) for x in v)
+                                      for v in (cam.eye, cam.target, cam.up))
     s.sh_bands = _sh_bands(sh)
     s.sh = _lib.fptr(sh)
     s.epsilon, s.exp_method = spec.epsilon, spec.exp
-    s.ground_enabled, s.ground_height, s.ground_half_size = int(spec.ground), spec.ground_height, spec.ground_half_size
+    s.ground_enabled = int(spec.ground)
+    s.ground_height, s.ground_half_size = spec.ground_height, spec.ground_half_size
     s.ground_albedo[:] = tuple(float(x) for x in ground_albedo)
     s.background_envmap, s.background[:] = spec.background_envmap, spec.background
     if spec.envmap is not None:

@@ -162,7 +162,8 @@ class LoaderTest(Temp):
             v, f, _ = scenes.octasphere(1)
             penumbra.fit_spheres(v, f, 0)
         with self.assertRaises(penumbra.PenumbraError):
-            penumbra.save_image(os.path.join(self.dir, "x.exr"), torch.full((2, 2, 3), float("nan")))
+            penumbra.save_image(os.path.join(self.dir, "x.exr"),
+                                torch.full((2, 2, 3), float("nan")))
         self.assertFalse(os.path.exists(os.path.join(self.dir, "x.exr")))
 
     def test_library_not_found(self):

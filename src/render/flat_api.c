@@ -43,15 +43,17 @@ pen_flat_scene pen_flat_scene_default(void) {
     return s;
 }
 
-/* ---- Flat description -> pen_scene ------------------------------------------------------------ */
+/* ---- Flat description -> pen_scene ------------------------------------------------------------
+ */
 
 static pen_status image_view(pen_context *ctx, const char *what, int w, int h, const float *data,
                              pen_image *out) {
     memset(out, 0, sizeof *out);
     if (w == 0 && h == 0) return PEN_OK;
     if (w < 1 || h < 1 || w > PEN_IMAGE_MAX_DIM || h > PEN_IMAGE_MAX_DIM)
-        return pen__error(ctx, PEN_ERROR_ARGUMENT, "flat scene: %s: size %dx%d out of range [1, %d]",
-                          what, w, h, PEN_IMAGE_MAX_DIM);
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "flat scene: %s: size %dx%d out of range [1, %d]", what, w, h,
+                          PEN_IMAGE_MAX_DIM);
     if (!data) return pen__error(ctx, PEN_ERROR_ARGUMENT, "flat scene: %s: no pixels", what);
     out->width = w, out->height = h, out->channels = 3;
     out->data = (float *)data; /* borrowed; the renderer only reads it */
@@ -83,8 +85,8 @@ static pen_status object_view(pen_context *ctx, int o, const pen_flat_object *f,
     }
     char what[48];
     snprintf(what, sizeof what, "objects[%d].texture", o);
-    pen_status s = image_view(ctx, what, f->texture_width, f->texture_height, f->texture,
-                              &ob->texture);
+    pen_status s =
+        image_view(ctx, what, f->texture_width, f->texture_height, f->texture, &ob->texture);
     if (s) return s;
     memcpy(ob->albedo, f->albedo, sizeof ob->albedo);
     if (f->sphere_count < 0 || (f->sphere_count > 0 && !f->spheres))
@@ -244,7 +246,9 @@ void pen_flat_loaded_free(pen_flat_loaded *l) {
     free(l);
 }
 
-const pen_flat_scene *pen_flat_loaded_scene(const pen_flat_loaded *l) { return &l->flat; }
+const pen_flat_scene *pen_flat_loaded_scene(const pen_flat_loaded *l) {
+    return &l->flat;
+}
 
 int pen_flat_loaded_fit_request(const pen_flat_loaded *l, int o) {
     if (!l || o < 0 || o >= l->scene.object_count) return -1;
@@ -312,8 +316,7 @@ static pen_status flatten(pen_context *ctx, pen_flat_loaded *l) {
     f->envmap_scale = sc->lighting.scale;
     f->object_count = sc->object_count;
     if (sc->object_count > 0) {
-        l->objects =
-            pen__calloc(ctx, (size_t)sc->object_count, sizeof *l->objects, "flat objects");
+        l->objects = pen__calloc(ctx, (size_t)sc->object_count, sizeof *l->objects, "flat objects");
         if (!l->objects) return PEN_ERROR_MEMORY;
         for (int o = 0; o < sc->object_count; ++o) {
             pen_status s = flat_object(ctx, &sc->objects[o], o, &l->objects[o]);
