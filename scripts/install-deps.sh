@@ -4,7 +4,8 @@
 set -e
 PKGS="build-essential cmake pkg-config libembree-dev libcjson-dev libstb-dev libopenexr-dev \
 zlib1g-dev libpng-dev"
-[ -n "$PEN_WITH_PYTHON" ] && PKGS="$PKGS python3 python3-numpy python3-torch"
+# The Python binding and its tests run on Debian's own Python 3 (/usr/bin/python3).
+PKGS="$PKGS python3 python3-numpy python3-torch"
 missing=""
 for p in $PKGS; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing="$missing $p"
