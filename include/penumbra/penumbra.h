@@ -14,6 +14,7 @@
 #include "penumbra/image.h"
 #include "penumbra/mesh.h"
 #include "penumbra/metrics.h"
+#include "penumbra/optim.h"
 #include "penumbra/raster.h"
 #include "penumbra/render.h"
 #include "penumbra/reference.h"

@@ -1,0 +1,197 @@
+/* penumbra/optim.h -- inverse problems: recover lighting, albedo and pose from an image by
+ * gradient descent through the differentiable soft-shadow renderer (`penumbra optimize`).
+ *
+ * A task (DESIGN.md section 3, docs/optimize.md) names an initial scene, a target image (linear
+ * radiance, usually made by `penumbra reference` from a ground-truth scene), the parameter groups
+ * to optimise and optionally the ground-truth scene the metrics are computed from:
+ *
+ *     { "scene": "initial.json" or {...inline scene...},
+ *       "target": "target.exr",
+ *       "optimize": ["lighting", "albedo", "pose"],
+ *       "iterations": 500, "lr": 0.01 or {"lighting": 0.01, ...}, "loss": "l2",
+ *       "tolerance": 0.001, "window": 10, "init": "black",
+ *       "ground_truth": "truth.json" or {...} }
+ *
+ * Usage:
+ *
+ *     pen_optim_task task;
+ *     pen_optim_task_load(ctx, "task.json", &task);
+ *     pen_optim_settings set = pen_optim_settings_default();
+ *     pen_optim_result res;
+ *     pen_optim_run(ctx, &task, &set, &res);        task.scene now holds the recovered scene
+ *     pen_optim_write(ctx, "out", &task, &set, &res);
+ *     pen_optim_result_free(&res); pen_optim_task_free(&task);
+ *
+ * The optimiser is Adam with one learning rate per parameter group (supplement section 5.1:
+ * 1e-2 for lighting, texture and pose). Rotations are optimised as axis-angle vectors in radians
+ * (the scene stores degrees), so a learning rate of 1e-2 moves a rotation by about half a degree
+ * per step. Albedos are kept in [0, 1], sphere radii positive. It stops after `iterations` steps or
+ * when the objective has stopped falling: the mean loss of the last `window` iterations is less
+ * than `tolerance` (relative) below the mean of the `window` before them. This is the
+ * supplement's rule (Theta_{n-1} - Theta_n) / Theta_n <= 0.001 applied to window means, because
+ * Adam's single-step losses wobble by more than 0.1% long before the optimum. The recovered
+ * parameters are those of the lowest loss seen (the best iterate), since with a constant step
+ * the last iterate wanders around the optimum by about one learning rate.
+ *
+ * Initial guesses (supplement section 5.2, `"init": "black"`, the default): optimised lighting
+ * and albedos (texels or constant) start at 0; when both are optimised together the albedo starts
+ * at 0.5 instead, because at lighting = albedo = 0 both gradients vanish. The pose (and spheres)
+ * start where the task's scene puts them: give a pose near the truth. `"init": "scene"` starts
+ * every group from the task's scene.
+ */
+#ifndef PENUMBRA_OPTIM_H
+#define PENUMBRA_OPTIM_H
+
+#include "penumbra/core.h"
+#include "penumbra/image.h"
+#include "penumbra/scene.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* Parameter groups ("optimize" names in the task JSON). */
+#define PEN_OPTIM_LIGHTING 1u    /* "lighting": SH coefficients, every band and channel */
+#define PEN_OPTIM_ALBEDO 2u      /* "albedo": every object's texels, or its constant albedo */
+#define PEN_OPTIM_POSE 4u        /* "pose": every object's rotation and translation (not scale) */
+#define PEN_OPTIM_DEFORMATION 8u /* "deformation": every object's embedded deformation graph on
+                                    its sphere centres (moves vertices and spheres) */
+#define PEN_OPTIM_SPHERES 16u    /* "spheres": every object's sphere centres and radii */
+
+typedef enum pen_optim_loss { PEN_OPTIM_LOSS_L2 = 0, PEN_OPTIM_LOSS_L1 = 1 } pen_optim_loss;
+
+/* Learning rates per group (Adam step sizes, in the parameter's units). */
+typedef struct pen_optim_lr {
+    float lighting;    /* SH coefficient (radiance) */
+    float albedo;      /* texel or constant albedo */
+    float rotation;    /* radians of the axis-angle vector */
+    float translation; /* scene units */
+    float spheres;     /* scene units (object space), centres and radii */
+    float deformation_rotation;    /* entries of the graph nodes' 3x3 matrices */
+    float deformation_translation; /* the graph nodes' translations (object space) */
+} pen_optim_lr;
+
+/* 1e-2, and 1e-3 for the deformation matrices (supplement section 5.1). */
+pen_optim_lr pen_optim_lr_default(void);
+
+/* The embedded deformation graph (supplement section 3; Sumner et al. 2007): nodes at each
+ * object's sphere centres, each carrying a 3x3 matrix A_j and a translation t_j; a vertex follows
+ * its k nearest nodes, v' = sum_j w_j (A_j (v - g_j) + g_j + t_j) with w_j = (1 - d_j / d_max)^2
+ * normalised (d_max: the distance to the (k+1)-th node); a sphere moves with its node. The
+ * objective adds w_rot E_rot (A_j's columns orthonormal) and w_reg E_reg (neighbouring nodes,
+ * the k nearest, agree on where each other's map puts them) to the image loss. */
+typedef struct pen_optim_deformation {
+    int k;        /* default 4 (the supplement uses 4 to 8) */
+    double w_rot; /* default 1e-4 */
+    double w_reg; /* default 1e-3 */
+} pen_optim_deformation;
+
+pen_optim_deformation pen_optim_deformation_default(void);
+
+typedef struct pen_optim_task {
+    char *path;         /* the task file (messages, relative paths) */
+    pen_scene scene;    /* the initial guess; pen_optim_run leaves the recovered scene here */
+    pen_image target;   /* 3 channels, the camera's size */
+    char *target_path;
+    unsigned optimize;  /* PEN_OPTIM_* */
+    int iterations;     /* at most this many Adam steps (default 500) */
+    pen_optim_lr lr;
+    pen_optim_loss loss;
+    double tolerance;   /* stopping rule (default 1e-3) */
+    int window;         /* stopping rule window (default 10; 1 is the supplement's plain rule) */
+    int init_black;     /* 1: supplement 5.2 initial guesses (default); 0: the scene's values */
+    pen_optim_deformation deformation;
+    int has_ground_truth;
+    pen_scene ground_truth; /* zeroed when has_ground_truth == 0 */
+} pen_optim_task;
+
+/* Loads a task JSON; paths (scene, target, ground truth) are relative to the task file. Errors
+ * name the file and the key ("task.json: optimize[1]: unknown group \"colour\""); errors inside
+ * an inline scene read "task.json:scene: camera.width: ...". The target must be a linear image
+ * (.exr or .hdr) of the scene camera's size. The scene's {"fit": N} sphere requests are left for
+ * pen_optim_run. On failure *out is zeroed. */
+pen_status pen_optim_task_load(pen_context *ctx, const char *path, pen_optim_task *out);
+/* The same with the target image taken from `target` (a path as given, not relative to the task;
+ * NULL: the task's "target") instead of the task's "target" key, which is then not read at all. */
+pen_status pen_optim_task_load_ex(pen_context *ctx, const char *path, const char *target,
+                                  pen_optim_task *out);
+/* The same from JSON text; `path` names it and is the base of its relative paths. */
+pen_status pen_optim_task_parse(pen_context *ctx, const char *json_text, const char *path,
+                                pen_optim_task *out);
+/* Replaces the task's target by the image at `path` (.exr or .hdr, the scene camera's size). On
+ * failure the task is unchanged. */
+pen_status pen_optim_task_set_target(pen_context *ctx, pen_optim_task *task, const char *path);
+/* Frees everything the task owns and zeroes it; NULL is a no-op. */
+void pen_optim_task_free(pen_optim_task *task);
+
+/* Called after every iteration with the loss of that iteration's render; return non-zero to
+ * stop early (e.g. on Ctrl-C: the run then ends normally with converged = 0, interrupted = 1). */
+typedef int (*pen_optim_progress_fn)(void *user, int iteration, int iterations, double loss);
+
+typedef struct pen_optim_settings {
+    int shadows;                    /* 0: optimise with V == 1 (`--no-shadows`, the baseline) */
+    pen_optim_progress_fn progress; /* may be NULL */
+    void *progress_user;
+} pen_optim_settings;
+
+/* shadows = 1, no callback. */
+pen_optim_settings pen_optim_settings_default(void);
+
+/* Metrics against the ground truth; NaN where a metric does not apply (no ground truth, or the
+ * group was not optimised). */
+typedef struct pen_optim_metrics {
+    double image_rmse;          /* final render vs target, all pixels and channels */
+    double lighting_rel_error;  /* |L - L_true| / |L_true| over all SH coefficients and channels */
+    double albedo_psnr_db;      /* 10 log10(1 / mse), peak 1, of the albedo the camera sees: the
+                                   recovered and the true objects rendered alone under unit
+                                   radiance without shadows (pixel = albedo), over the pixels
+                                   inside both (no outline blending) */
+    double albedo_texel_psnr_db; /* the same over the texture's texels the view resolves (at
+                                   least half a pixel of bilinear weight each), or over the
+                                   constant albedos */
+    double albedo_observed;     /* fraction of texels resolved in that sense (1 for constants) */
+    double rotation_error_deg;  /* largest over objects of the angle of R R_true^T */
+    double translation_error;   /* largest over objects of |t - t_true| (scene units) */
+    double vertex_rmse;         /* posed vertices vs the truth's, all objects (scene units) */
+} pen_optim_metrics;
+
+typedef struct pen_optim_result {
+    int iterations;       /* Adam steps taken */
+    double seconds;       /* the optimisation loop (renders, backward passes, updates) */
+    double final_loss;    /* loss of the final render (the best iterate's) */
+    int best_iteration;   /* the iteration whose parameters were kept (lowest loss) */
+    int converged;        /* 1: the stopping rule fired; 0: iteration limit or interrupted */
+    int interrupted;      /* 1: the progress callback asked to stop */
+    double *losses;       /* iterations + 1 losses: losses[i] of the parameters after i steps */
+    pen_image initial;    /* render of the initial guess (after the init rule) */
+    pen_image final;      /* render of the recovered scene */
+    pen_optim_metrics metrics;
+} pen_optim_result;
+
+/* Runs the task: fits sphere sets the scene asks for ({"fit": N}, cached beside the mesh; only
+ * with shadows), applies the initial guesses, runs Adam until the stopping rule fires or the
+ * iteration limit is reached, leaves the best iterate's parameters in task->scene and computes
+ * the metrics. Threads: pen_context_threads. On failure *out is zeroed (task->scene may then be
+ * partly updated). */
+pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim_settings *settings,
+                         pen_optim_result *out);
+/* Frees the result's arrays and images and zeroes it; NULL is a no-op. */
+void pen_optim_result_free(pen_optim_result *result);
+
+/* Writes into folder `outdir` (created if missing): result.json, scene.json (the recovered scene,
+ * SH lighting inline, renderable by `penumbra render`; optimised textures beside it as
+ * texture_<object>.png), final.exr and final.png (the final render), compare.png (target |
+ * initial | result | 4x absolute error, side by side), loss.svg (the loss curve). Every file is
+ * written atomically; if any write fails the files already written by this call are removed. */
+pen_status pen_optim_write(pen_context *ctx, const char *outdir, const pen_optim_task *task,
+                           const pen_optim_settings *settings, const pen_optim_result *result);
+
+/* The result.json text (malloc'd; the caller frees it), as pen_optim_write writes it. */
+pen_status pen_optim_result_json(pen_context *ctx, const pen_optim_task *task,
+                                 const pen_optim_settings *settings,
+                                 const pen_optim_result *result, char **json);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

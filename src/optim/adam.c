@@ -1,0 +1,91 @@
+/* Adam (Kingma and Ba 2015) over segments of a flat parameter vector, the projection onto
+ * simple bounds, and the stopping rule.
+ *
+ * Each segment (a parameter group of one object: its texels, its pose translation, ...) has its
+ * own step size; Adam's per-coordinate normalisation makes the step about `lr` in the
+ * parameter's own units whatever the scale of the gradient, which is why one learning rate
+ * (1e-2, supplement section 5.1) serves textures, lighting and poses alike. Moments are kept in
+ * float; the bias corrections in double. Bounds are enforced by projecting after the step
+ * (projected gradient descent), which keeps albedos physical and radii positive without changing
+ * the objective.
+ *
+ * Stopping: the supplement stops when (Theta_{n-1} - Theta_n) / Theta_n <= 0.001. Applied to
+ * single iterations that fires at the first wobble of Adam's loss, so the same ratio is taken
+ * between means of consecutive windows of iterations (window 1 is the plain rule). */
+#include "optim/optim_internal.h"
+
+#include <math.h>
+#include <stdlib.h>
+
+pen_status pen__optim_adam_init(pen_context *ctx, pen__adam *adam, size_t n) {
+    adam->n = n;
+    adam->t = 0;
+    adam->beta1 = 0.9;
+    adam->beta2 = 0.999;
+    adam->eps = 1e-8;
+    adam->m = pen__calloc(ctx, n ? n : 1, sizeof(float), "Adam moments");
+    adam->v = pen__calloc(ctx, n ? n : 1, sizeof(float), "Adam moments");
+    if (!adam->m || !adam->v) {
+        pen__optim_adam_free(adam);
+        return PEN_ERROR_MEMORY;
+    }
+    return PEN_OK;
+}
+
+void pen__optim_adam_free(pen__adam *adam) {
+    free(adam->m);
+    free(adam->v);
+    adam->m = adam->v = NULL;
+    adam->n = 0;
+}
+
+static void project_segment(const pen__optim_segment *s, float *x) {
+    float *p = x + s->offset;
+    switch (s->bound) {
+    case PEN__BOUND_NONE:
+        break;
+    case PEN__BOUND_UNIT:
+        for (size_t i = 0; i < s->count; ++i)
+            p[i] = fminf(fmaxf(p[i], 0.0f), 1.0f);
+        break;
+    case PEN__BOUND_SPHERES:
+        for (size_t i = 3; i < s->count; i += 4)
+            p[i] = fmaxf(p[i], PEN__OPTIM_MIN_RADIUS);
+        break;
+    }
+}
+
+void pen__optim_project(const pen__optim_segment *segments, int segment_count, float *x) {
+    for (int k = 0; k < segment_count; ++k)
+        project_segment(&segments[k], x);
+}
+
+void pen__optim_adam_step(pen__adam *adam, const pen__optim_segment *segments, int segment_count,
+                          float *x, const float *g) {
+    adam->t++;
+    const double c1 = 1.0 - pow(adam->beta1, adam->t), c2 = 1.0 - pow(adam->beta2, adam->t);
+    const float b1 = (float)adam->beta1, b2 = (float)adam->beta2;
+    for (int k = 0; k < segment_count; ++k) {
+        const pen__optim_segment *s = &segments[k];
+        /* lr * mhat / (sqrt(vhat) + eps) = (lr / c1) m / (sqrt(v / c2) + eps) */
+        const float step = (float)((double)s->lr / c1), inv_c2 = (float)(1.0 / c2);
+        const float eps = (float)adam->eps;
+        for (size_t i = s->offset; i < s->offset + s->count; ++i) {
+            adam->m[i] = b1 * adam->m[i] + (1.0f - b1) * g[i];
+            adam->v[i] = b2 * adam->v[i] + (1.0f - b2) * g[i] * g[i];
+            x[i] -= step * adam->m[i] / (sqrtf(adam->v[i] * inv_c2) + eps);
+        }
+        project_segment(s, x);
+    }
+}
+
+int pen__optim_stalled(const double *losses, int n, int window, double tolerance) {
+    if (window < 1 || n < 2 * window) return 0;
+    double prev = 0.0, cur = 0.0;
+    for (int i = 0; i < window; ++i) {
+        prev += losses[n - 2 * window + i];
+        cur += losses[n - window + i];
+    }
+    if (!(cur > 0.0)) return 1; /* a zero loss cannot fall further */
+    return (prev - cur) / cur <= tolerance;
+}

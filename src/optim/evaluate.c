@@ -1,0 +1,261 @@
+/* Metrics of a recovered scene against the ground truth (result.json's "metrics").
+ *
+ * Lighting: ||L - L_true|| / ||L_true|| over every SH coefficient and channel (both scenes must
+ * use the same band count). Albedo: PSNR with peak 1 of the albedo the camera sees (each scene's
+ * objects rendered alone under unit radiance without shadows, so that a pixel shows its bilinear
+ * texture lookup; pixels inside both outlines), which is what one view can determine: a 1024^2
+ * texture seen at 256^2 has four texels per pixel, and no image says how a pixel's value splits
+ * among them. Texel-space PSNR is reported too, over the texels with at least half a pixel of
+ * bilinear weight in the view, and over constant albedos. Pose: the geodesic angle between the rotations, computed from unit
+ * quaternions in double as 2 atan2(|v|, |w|) of q q_true^-1, which stays accurate for small
+ * angles where acos((tr R - 1) / 2) loses half its digits; the translation's Euclidean error;
+ * the RMSE of the posed vertices, which weighs both by the object's extent. Multiple objects:
+ * the albedo PSNR pools all texels, the pose errors are the largest over objects. */
+#include "optim/optim_internal.h"
+
+#include "penumbra/render.h"
+
+#include <stdlib.h>
+#include <string.h>
+
+static void quaternion(const float a_deg[3], double q[4]) {
+    const double x = (double)a_deg[0] * PEN_PI / 180.0, y = (double)a_deg[1] * PEN_PI / 180.0,
+                 z = (double)a_deg[2] * PEN_PI / 180.0;
+    const double angle = sqrt(x * x + y * y + z * z);
+    const double half = 0.5 * angle;
+    /* sin(half) / angle -> 1/2 as angle -> 0 */
+    const double k = angle > 1e-12 ? sin(half) / angle : 0.5;
+    q[0] = cos(half), q[1] = k * x, q[2] = k * y, q[3] = k * z;
+}
+
+double pen__optim_rotation_angle_deg(const float a_deg[3], const float b_deg[3]) {
+    double p[4], q[4];
+    quaternion(a_deg, p);
+    quaternion(b_deg, q);
+    /* r = p * conj(q) */
+    const double w = p[0] * q[0] + p[1] * q[1] + p[2] * q[2] + p[3] * q[3];
+    const double v[3] = {-p[0] * q[1] + p[1] * q[0] - p[2] * q[3] + p[3] * q[2],
+                         -p[0] * q[2] + p[2] * q[0] - p[3] * q[1] + p[1] * q[3],
+                         -p[0] * q[3] + p[3] * q[0] - p[1] * q[2] + p[2] * q[1]};
+    const double vn = sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+    return 2.0 * atan2(vn, fabs(w)) * 180.0 / PEN_PI;
+}
+
+pen_status pen__optim_check_truth(pen_context *ctx, const pen_optim_task *t) {
+    const pen_scene *sc = &t->scene, *gt = &t->ground_truth;
+    const char *name = t->path ? t->path : "task";
+    if (sc->object_count != gt->object_count)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: ground_truth: %d objects, but the scene has %d", name,
+                          gt->object_count, sc->object_count);
+    if ((t->optimize & PEN_OPTIM_LIGHTING) && sc->sh_bands != gt->sh_bands)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: ground_truth: sh_bands: %d, but the scene has %d", name,
+                          gt->sh_bands, sc->sh_bands);
+    for (int o = 0; o < sc->object_count; ++o) {
+        const pen_object *a = &sc->objects[o], *b = &gt->objects[o];
+        if ((t->optimize & PEN_OPTIM_ALBEDO) && (!a->texture.data) != (!b->texture.data))
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "%s: ground_truth: objects[%d]: a %s albedo, but the scene's is %s",
+                              name, o, b->texture.data ? "texture" : "constant",
+                              a->texture.data ? "a texture" : "constant");
+        if ((t->optimize & PEN_OPTIM_ALBEDO) && a->texture.data &&
+            (a->texture.width != b->texture.width || a->texture.height != b->texture.height ||
+             a->texture.channels != b->texture.channels))
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "%s: ground_truth: objects[%d].albedo_texture: %dx%d, but the "
+                              "scene's texture is %dx%d",
+                              name, o, b->texture.width, b->texture.height, a->texture.width,
+                              a->texture.height);
+        if ((t->optimize & (PEN_OPTIM_POSE | PEN_OPTIM_DEFORMATION)) &&
+            a->mesh.vertex_count != b->mesh.vertex_count)
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "%s: ground_truth: objects[%d].mesh: %d vertices, but the scene's "
+                              "mesh has %d",
+                              name, o, b->mesh.vertex_count, a->mesh.vertex_count);
+    }
+    return PEN_OK;
+}
+
+static double lighting_error(const pen_scene *sc, const pen_scene *gt) {
+    double num = 0.0, den = 0.0;
+    for (int k = 0; k < sc->sh_bands * sc->sh_bands; ++k)
+        for (int ch = 0; ch < 3; ++ch) {
+            const double d = (double)sc->lighting.sh[k][ch] - (double)gt->lighting.sh[k][ch];
+            num += d * d;
+            den += (double)gt->lighting.sh[k][ch] * (double)gt->lighting.sh[k][ch];
+        }
+    return den > 0.0 ? sqrt(num / den) : (num > 0.0 ? (double)INFINITY : 0.0);
+}
+
+/* ---- Albedo ---------------------------------------------------------------------------------- */
+
+/* A shallow copy of the scene that renders each pixel's albedo: objects alone (no ground, black
+ * background) under radiance 1 from every direction without shadows, so that L_o = rho / pi * pi.
+ * With `white` the objects' albedo is 1: the image is the objects' coverage. The caller frees
+ * the returned objects array (NULL on exhaustion). */
+static pen_object *albedo_view(pen_context *ctx, const pen_scene *sc, int white, pen_scene *out) {
+    *out = *sc;
+    pen_object *objects = pen__calloc(ctx, (size_t)sc->object_count + 1, sizeof *objects, "view");
+    if (!objects) return NULL;
+    for (int o = 0; o < sc->object_count; ++o) {
+        objects[o] = sc->objects[o];
+        if (white) {
+            objects[o].texture.data = NULL;
+            objects[o].albedo[0] = objects[o].albedo[1] = objects[o].albedo[2] = 1.0f;
+        }
+    }
+    out->objects = objects;
+    out->ground.enabled = 0;
+    out->background_envmap = 0;
+    memset(out->background, 0, sizeof out->background);
+    memset(out->lighting.sh, 0, sizeof out->lighting.sh);
+    for (int ch = 0; ch < 3; ++ch)
+        out->lighting.sh[0][ch] = (float)sqrt(4.0 * PEN_PI); /* Y_00 = 1 / sqrt(4 pi) */
+    return objects;
+}
+
+static pen_status render_albedo(pen_context *ctx, const pen_scene *sc, int white, pen_image *img) {
+    pen_scene view;
+    pen_object *objects = albedo_view(ctx, sc, white, &view);
+    if (!objects) return PEN_ERROR_MEMORY;
+    pen_render_options opt = pen_render_options_default();
+    opt.shadows = 0;
+    pen_status s = pen_render_fwd(ctx, &view, &opt, NULL, img);
+    free(objects);
+    return s;
+}
+
+/* PSNR of the albedo images over the pixels that both scenes' objects cover fully. */
+static pen_status albedo_view_psnr(pen_context *ctx, const pen_optim_task *t, double *psnr) {
+    pen_image img[4];
+    memset(img, 0, sizeof img);
+    pen_status s = render_albedo(ctx, &t->scene, 0, &img[0]);
+    if (!s) s = render_albedo(ctx, &t->ground_truth, 0, &img[1]);
+    if (!s) s = render_albedo(ctx, &t->scene, 1, &img[2]);
+    if (!s) s = render_albedo(ctx, &t->ground_truth, 1, &img[3]);
+    if (!s) {
+        double sum = 0.0;
+        long long n = 0;
+        for (size_t i = 0; i < 3 * (size_t)img[0].width * (size_t)img[0].height; ++i) {
+            if (img[2].data[i] < 0.999f || img[3].data[i] < 0.999f) continue;
+            const double d = (double)img[0].data[i] - (double)img[1].data[i];
+            sum += d * d;
+            ++n;
+        }
+        *psnr = n ? 10.0 * log10((double)n / sum) : (double)NAN;
+    }
+    for (int k = 0; k < 4; ++k)
+        pen_image_free(&img[k]);
+    return s;
+}
+
+/* Per texel of object o's texture, its total bilinear weight over the pixels of the view: the
+ * albedo gradient of the image sum in the albedo view (dI/drho = 1 at every unblended pixel). */
+static pen_status texel_coverage(pen_context *ctx, const pen_scene *sc, pen_render_grad *grad) {
+    pen_scene view;
+    pen_object *objects = albedo_view(ctx, sc, 0, &view);
+    if (!objects) return PEN_ERROR_MEMORY;
+    pen_render_options opt = pen_render_options_default();
+    opt.shadows = 0;
+    pen_render_state *state = NULL;
+    pen_image img = {0, 0, 0, NULL}, ones = {0, 0, 0, NULL};
+    pen_status s = pen_render_state_create(ctx, &state);
+    if (!s) s = pen_render_grad_create(ctx, &view, grad);
+    if (!s) s = pen_render_fwd(ctx, &view, &opt, state, &img);
+    if (!s) s = pen_image_create(ctx, img.width, img.height, 3, &ones);
+    if (!s) {
+        for (size_t i = 0; i < (size_t)img.width * (size_t)img.height; ++i)
+            ones.data[3 * i] = 1.0f; /* channel 0 suffices */
+        s = pen_render_bwd(ctx, &view, &opt, state, &ones, PEN_GRAD_ALBEDO, grad);
+    }
+    pen_image_free(&img);
+    pen_image_free(&ones);
+    pen_render_state_free(state);
+    free(objects);
+    return s;
+}
+
+/* Texel-space PSNR over the resolved texels (coverage >= 1/2 pixel), constants counted whole. */
+static pen_status albedo_texels(pen_context *ctx, const pen_optim_task *t, pen_optim_metrics *m) {
+    pen_render_grad cov;
+    memset(&cov, 0, sizeof cov);
+    pen_status s = texel_coverage(ctx, &t->scene, &cov);
+    double sum = 0.0;
+    long long values = 0, seen = 0, texels = 0;
+    for (int o = 0; !s && o < t->scene.object_count; ++o) {
+        const pen_object *a = &t->scene.objects[o], *b = &t->ground_truth.objects[o];
+        if (!a->texture.data) {
+            for (int ch = 0; ch < 3; ++ch) {
+                const double d = (double)a->albedo[ch] - (double)b->albedo[ch];
+                sum += d * d;
+            }
+            values += 3, seen += 1, texels += 1;
+            continue;
+        }
+        const int ch = a->texture.channels;
+        const long long n = (long long)a->texture.width * a->texture.height;
+        texels += n;
+        for (long long i = 0; i < n; ++i) {
+            if (!(cov.objects[o].texture[i * ch] >= 0.5f)) continue;
+            ++seen;
+            for (int c = 0; c < ch; ++c) {
+                const double d = (double)a->texture.data[i * ch + c] -
+                                 (double)b->texture.data[i * ch + c];
+                sum += d * d;
+            }
+            values += ch;
+        }
+    }
+    if (!s) {
+        m->albedo_observed = texels ? (double)seen / (double)texels : (double)NAN;
+        m->albedo_texel_psnr_db = values ? 10.0 * log10((double)values / sum) : (double)NAN;
+    }
+    pen_render_grad_free(&cov);
+    return s;
+}
+
+/* ---- Pose ------------------------------------------------------------------------------------ */
+
+static void pose_error(const pen_optim_task *t, pen_optim_metrics *m) {
+    double rot = 0.0, trans = 0.0, sq = 0.0;
+    long long n = 0;
+    for (int o = 0; o < t->scene.object_count; ++o) {
+        const pen_object *a = &t->scene.objects[o], *b = &t->ground_truth.objects[o];
+        rot = fmax(rot, pen__optim_rotation_angle_deg(a->pose.rotation_axis_angle_deg,
+                                                      b->pose.rotation_axis_angle_deg));
+        double d2 = 0.0;
+        for (int k = 0; k < 3; ++k) {
+            const double d = (double)a->pose.translation[k] - (double)b->pose.translation[k];
+            d2 += d * d;
+        }
+        trans = fmax(trans, sqrt(d2));
+        for (int v = 0; v < a->mesh.vertex_count; ++v) {
+            float pa[3], pb[3];
+            pen_pose_apply(&a->pose, a->mesh.positions + 3 * v, pa);
+            pen_pose_apply(&b->pose, b->mesh.positions + 3 * v, pb);
+            for (int k = 0; k < 3; ++k)
+                sq += ((double)pa[k] - (double)pb[k]) * ((double)pa[k] - (double)pb[k]);
+            ++n;
+        }
+    }
+    if (t->optimize & PEN_OPTIM_POSE) {
+        m->rotation_error_deg = rot;
+        m->translation_error = trans;
+    }
+    m->vertex_rmse = n ? sqrt(sq / (double)n) : (double)NAN;
+}
+
+pen_status pen__optim_metrics(pen_context *ctx, const pen_optim_task *t, pen_optim_metrics *m) {
+    if (!t->has_ground_truth) return PEN_OK;
+    pen_status s = pen__optim_check_truth(ctx, t);
+    if (s) return s;
+    if (t->optimize & PEN_OPTIM_LIGHTING)
+        m->lighting_rel_error = lighting_error(&t->scene, &t->ground_truth);
+    if (t->optimize & (PEN_OPTIM_POSE | PEN_OPTIM_DEFORMATION)) pose_error(t, m);
+    if (t->optimize & PEN_OPTIM_ALBEDO) {
+        s = albedo_view_psnr(ctx, t, &m->albedo_psnr_db);
+        if (!s) s = albedo_texels(ctx, t, m);
+    }
+    return s;
+}

@@ -1,0 +1,94 @@
+/* Internal interface of the inverse-problem solver (src/optim/): Adam over a flat parameter
+ * vector cut into segments, the stopping rule, and the ground-truth metrics. Not installed. */
+#ifndef PEN_OPTIM_INTERNAL_H
+#define PEN_OPTIM_INTERNAL_H
+
+#include "core/internal.h"
+#include "penumbra/optim.h"
+#include "penumbra/mesh.h"
+#include "penumbra/spheres.h"
+
+/* ---- Adam (src/optim/adam.c) ----------------------------------------------------------------- */
+
+/* What a segment's values must satisfy after each step (a projection, applied in place). */
+typedef enum pen__optim_bound {
+    PEN__BOUND_NONE = 0,
+    PEN__BOUND_UNIT,   /* every value in [0, 1] (albedos) */
+    PEN__BOUND_SPHERES /* x, y, z, r per sphere: r >= PEN__OPTIM_MIN_RADIUS */
+} pen__optim_bound;
+
+#define PEN__OPTIM_MIN_RADIUS 1e-3f
+
+/* A run of parameters sharing a learning rate and a bound: x[offset .. offset + count). */
+typedef struct pen__optim_segment {
+    size_t offset, count;
+    float lr;
+    pen__optim_bound bound;
+} pen__optim_segment;
+
+typedef struct pen__adam {
+    size_t n;
+    float *m, *v; /* first and second moment estimates */
+    int t;        /* steps taken */
+    double beta1, beta2, eps;
+} pen__adam;
+
+/* Zeroed moments for n parameters; beta1 = 0.9, beta2 = 0.999, eps = 1e-8. */
+pen_status pen__optim_adam_init(pen_context *ctx, pen__adam *adam, size_t n);
+void pen__optim_adam_free(pen__adam *adam);
+/* One step: x -= lr * mhat / (sqrt(vhat) + eps) per segment (bias-corrected moments), then the
+ * segment's bound. Parameters outside every segment are left alone. */
+void pen__optim_adam_step(pen__adam *adam, const pen__optim_segment *segments, int segment_count,
+                          float *x, const float *g);
+/* Projects x onto the segments' bounds. */
+void pen__optim_project(const pen__optim_segment *segments, int segment_count, float *x);
+
+/* The stopping rule: with losses[0 .. n), 1 when n >= 2 window and the mean of the last
+ * `window` losses is less than tolerance (relative to that mean) below the mean of the window
+ * before it (a rise counts as stalled too). */
+int pen__optim_stalled(const double *losses, int n, int window, double tolerance);
+
+/* ---- Embedded deformation (src/optim/deform.c) ----------------------------------------------- */
+
+/* The graph of one object: nodes at its sphere centres, each vertex tied to its k nearest nodes,
+ * each node to its k nearest other nodes (fewer when there are not enough). Doubles. */
+typedef struct pen__deform_graph {
+    int nodes, vertices;
+    int k;           /* nodes per vertex: min(k, nodes) */
+    int kn;          /* neighbours per node: min(k, nodes - 1) */
+    double *g;       /* 3 per node: rest position (the sphere centre) */
+    double *rest;    /* 3 per vertex: rest position */
+    int *vnode;      /* k per vertex: node indices, nearest first */
+    double *vweight; /* k per vertex: weights, summing to 1 */
+    int *nn;         /* kn per node: neighbouring nodes */
+} pen__deform_graph;
+
+/* Builds the graph of a mesh (object space) on its spheres' centres. */
+pen_status pen__optim_deform_build(pen_context *ctx, const pen_mesh *mesh,
+                                   const pen_spheres *spheres, int k, pen__deform_graph *out);
+void pen__optim_deform_free(pen__deform_graph *graph);
+/* 12 per node: A_j row-major (9 per node) for every node, then t_j (3 per node). */
+void pen__optim_deform_identity(const pen__deform_graph *graph, double *params);
+/* Deformed vertex positions (3 per vertex) and sphere centres (3 per node). */
+void pen__optim_deform_fwd(const pen__deform_graph *graph, const double *params, double *positions,
+                           double *centres);
+/* Adds the pull-back of d_positions and d_centres (either may be NULL) into d_params. */
+void pen__optim_deform_bwd(const pen__deform_graph *graph, const double *params,
+                           const double *d_positions, const double *d_centres, double *d_params);
+/* w_rot E_rot + w_reg E_reg; adds its gradient into d_params (may be NULL). */
+double pen__optim_deform_energy(const pen__deform_graph *graph, const double *params, double w_rot,
+                                double w_reg, double *d_params);
+
+/* ---- Metrics (src/optim/evaluate.c) ---------------------------------------------------------- */
+
+/* Fails when the task's ground truth does not match the scene's structure where the metrics of
+ * the optimised groups need it (object count, band count, texture size, vertex count). */
+pen_status pen__optim_check_truth(pen_context *ctx, const pen_optim_task *task);
+/* Fills every metric of `m` that applies (the others are left alone) for the recovered scene
+ * against the task's ground truth; image_rmse is the caller's. Renders (albedo views, texel
+ * coverage) with the context's threads. */
+pen_status pen__optim_metrics(pen_context *ctx, const pen_optim_task *task, pen_optim_metrics *m);
+/* The angle in degrees between two axis-angle rotations (given in degrees), in double. */
+double pen__optim_rotation_angle_deg(const float a_deg[3], const float b_deg[3]);
+
+#endif

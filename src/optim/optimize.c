@@ -1,0 +1,492 @@
+/* The inverse-problem loop: render, compare with the target, back-propagate, take an Adam step.
+ *
+ * Every optimised quantity of the scene is copied into one flat float vector x, cut into
+ * segments (the lighting; per object its texels or constant albedo, its rotation, its
+ * translation, its spheres), each with its learning rate and bound. One iteration writes x into
+ * the scene, renders (pen_render_fwd), evaluates the loss against the target, runs
+ * pen_render_bwd for the groups being optimised only, gathers the gradient into the layout of x
+ * and steps. Rotations live in x as radians (the scene keeps degrees) so that the supplement's
+ * learning rate 1e-2 means about half a degree per step; their gradient is converted with the
+ * same factor.
+ *
+ * The loss is a mean over pixels and channels; its gradient is multiplied by that count before
+ * Adam sees it (the gradient of the sum). Adam is invariant to the scale of the gradient except
+ * through its epsilon (1e-8), which would otherwise dominate the tiny per-texel gradients of a
+ * large image and slow textures down.
+ *
+ * Record keeping: losses[i] is the loss of the render before step i; the stopping rule looks at
+ * them after each render, and when it fires no further step is taken, so the last render is the
+ * final one. */
+#include "optim/optim_internal.h"
+
+#include "penumbra/fit.h"
+#include "penumbra/metrics.h"
+#include "penumbra/render.h"
+
+#include <omp.h>
+#include <stdlib.h>
+#include <string.h>
+
+static const double DEG_PER_RAD = 180.0 / PEN_PI;
+
+/* Where each object's parameters sit in x (SIZE_MAX: not optimised). */
+typedef struct object_layout {
+    size_t albedo, rotation, translation, spheres, deform;
+    size_t albedo_count; /* texel floats, or 3 */
+} object_layout;
+
+/* An object's deformation graph and its double-precision work buffers. */
+typedef struct object_deform {
+    pen__deform_graph graph;
+    double *params, *d_params; /* 12 per node */
+    double *pos, *d_pos;       /* 3 per vertex */
+    double *centres, *d_centres; /* 3 per node */
+} object_deform;
+
+typedef struct run {
+    pen_scene *sc;
+    unsigned groups;
+    size_t lighting; /* offset of the SH block, SIZE_MAX if not optimised */
+    object_layout *objects;
+    pen__optim_segment *segments;
+    int segment_count;
+    size_t n;
+    float *x, *g;
+    float *best;              /* the parameters of the lowest loss so far */
+    object_deform *deform;    /* per object, when deformation is optimised */
+    double w_rot, w_reg;
+} run;
+
+pen_optim_settings pen_optim_settings_default(void) {
+    pen_optim_settings s = {1, NULL, NULL};
+    return s;
+}
+
+static size_t add_segment(run *r, size_t count, float lr, pen__optim_bound bound) {
+    pen__optim_segment *s = &r->segments[r->segment_count++];
+    s->offset = r->n;
+    s->count = count;
+    s->lr = lr;
+    s->bound = bound;
+    r->n += count;
+    return s->offset;
+}
+
+static size_t albedo_floats(const pen_object *ob) {
+    return ob->texture.data ? (size_t)ob->texture.width * (size_t)ob->texture.height *
+                                  (size_t)ob->texture.channels
+                            : 3;
+}
+
+static pen_status layout(pen_context *ctx, run *r, const pen_optim_task *t) {
+    const pen_scene *sc = r->sc;
+    r->objects = pen__calloc(ctx, (size_t)sc->object_count + 1, sizeof *r->objects, "layout");
+    r->segments = pen__calloc(ctx, 6 * (size_t)sc->object_count + 1, sizeof *r->segments,
+                              "segments");
+    r->deform = pen__calloc(ctx, (size_t)sc->object_count + 1, sizeof *r->deform, "graphs");
+    if (!r->objects || !r->segments || !r->deform) return PEN_ERROR_MEMORY;
+    r->w_rot = t->deformation.w_rot;
+    r->w_reg = t->deformation.w_reg;
+    r->lighting = SIZE_MAX;
+    if (r->groups & PEN_OPTIM_LIGHTING)
+        r->lighting = add_segment(r, 3 * (size_t)sc->sh_bands * (size_t)sc->sh_bands,
+                                  t->lr.lighting, PEN__BOUND_NONE);
+    for (int o = 0; o < sc->object_count; ++o) {
+        const pen_object *ob = &sc->objects[o];
+        object_layout *L = &r->objects[o];
+        L->albedo = L->rotation = L->translation = L->spheres = L->deform = SIZE_MAX;
+        if (r->groups & PEN_OPTIM_ALBEDO) {
+            L->albedo_count = albedo_floats(ob);
+            L->albedo = add_segment(r, L->albedo_count, t->lr.albedo, PEN__BOUND_UNIT);
+        }
+        if (r->groups & PEN_OPTIM_POSE) {
+            L->rotation = add_segment(r, 3, t->lr.rotation, PEN__BOUND_NONE);
+            L->translation = add_segment(r, 3, t->lr.translation, PEN__BOUND_NONE);
+        }
+        if ((r->groups & PEN_OPTIM_SPHERES) && ob->spheres.count > 0)
+            L->spheres = add_segment(r, 4 * (size_t)ob->spheres.count, t->lr.spheres,
+                                     PEN__BOUND_SPHERES);
+        if (r->groups & PEN_OPTIM_DEFORMATION) {
+            object_deform *D = &r->deform[o];
+            pen_status s = pen__optim_deform_build(ctx, &ob->mesh, &ob->spheres, t->deformation.k,
+                                                   &D->graph);
+            if (s) return s;
+            const size_t M = (size_t)ob->spheres.count, nv = (size_t)ob->mesh.vertex_count;
+            D->params = pen__calloc(ctx, 12 * M, sizeof(double), "deformation");
+            D->d_params = pen__calloc(ctx, 12 * M, sizeof(double), "deformation");
+            D->centres = pen__calloc(ctx, 3 * M, sizeof(double), "deformation");
+            D->d_centres = pen__calloc(ctx, 3 * M, sizeof(double), "deformation");
+            D->pos = pen__calloc(ctx, 3 * nv + 1, sizeof(double), "deformation");
+            D->d_pos = pen__calloc(ctx, 3 * nv + 1, sizeof(double), "deformation");
+            if (!D->params || !D->d_params || !D->centres || !D->d_centres || !D->pos || !D->d_pos)
+                return PEN_ERROR_MEMORY;
+            L->deform = add_segment(r, 9 * M, t->lr.deformation_rotation, PEN__BOUND_NONE);
+            add_segment(r, 3 * M, t->lr.deformation_translation, PEN__BOUND_NONE);
+        }
+    }
+    r->x = pen__calloc(ctx, r->n + 1, sizeof(float), "parameters");
+    r->g = pen__calloc(ctx, r->n + 1, sizeof(float), "parameter gradient");
+    r->best = pen__calloc(ctx, r->n + 1, sizeof(float), "best parameters");
+    return r->x && r->g && r->best ? PEN_OK : PEN_ERROR_MEMORY;
+}
+
+static void run_free(run *r) {
+    free(r->objects);
+    free(r->segments);
+    free(r->x);
+    free(r->g);
+    free(r->best);
+    for (int o = 0; r->deform && o < r->sc->object_count; ++o) {
+        object_deform *D = &r->deform[o];
+        pen__optim_deform_free(&D->graph);
+        free(D->params);
+        free(D->d_params);
+        free(D->pos);
+        free(D->d_pos);
+        free(D->centres);
+        free(D->d_centres);
+    }
+    free(r->deform);
+}
+
+/* ---- Scene <-> parameter vector -------------------------------------------------------------- */
+
+static float *albedo_data(pen_object *ob) {
+    return ob->texture.data ? ob->texture.data : ob->albedo;
+}
+
+/* dir 0: scene -> x; dir 1: x -> scene. */
+static void transfer(run *r, int to_scene) {
+    pen_scene *sc = r->sc;
+    if (r->lighting != SIZE_MAX) {
+        float *x = r->x + r->lighting;
+        for (int k = 0; k < sc->sh_bands * sc->sh_bands; ++k)
+            for (int ch = 0; ch < 3; ++ch) {
+                if (to_scene)
+                    sc->lighting.sh[k][ch] = x[3 * k + ch];
+                else
+                    x[3 * k + ch] = sc->lighting.sh[k][ch];
+            }
+    }
+    for (int o = 0; o < sc->object_count; ++o) {
+        pen_object *ob = &sc->objects[o];
+        const object_layout *L = &r->objects[o];
+        if (L->albedo != SIZE_MAX) {
+            float *a = albedo_data(ob);
+            if (to_scene)
+                memcpy(a, r->x + L->albedo, sizeof(float) * L->albedo_count);
+            else
+                memcpy(r->x + L->albedo, a, sizeof(float) * L->albedo_count);
+        }
+        if (L->rotation != SIZE_MAX)
+            for (int k = 0; k < 3; ++k) {
+                if (to_scene) {
+                    ob->pose.rotation_axis_angle_deg[k] =
+                        (float)((double)r->x[L->rotation + k] * DEG_PER_RAD);
+                    ob->pose.translation[k] = r->x[L->translation + k];
+                } else {
+                    r->x[L->rotation + k] =
+                        (float)((double)ob->pose.rotation_axis_angle_deg[k] / DEG_PER_RAD);
+                    r->x[L->translation + k] = ob->pose.translation[k];
+                }
+            }
+        if (L->deform != SIZE_MAX && to_scene) {
+            object_deform *D = &r->deform[o];
+            const size_t M = (size_t)D->graph.nodes;
+            for (size_t i = 0; i < 12 * M; ++i)
+                D->params[i] = r->x[L->deform + i];
+            pen__optim_deform_fwd(&D->graph, D->params, D->pos, D->centres);
+            for (size_t i = 0; i < 3 * (size_t)D->graph.vertices; ++i)
+                ob->mesh.positions[i] = (float)D->pos[i];
+            for (size_t j = 0; j < M; ++j)
+                for (int k = 0; k < 3; ++k)
+                    ob->spheres.data[4 * j + (size_t)k] = (float)D->centres[3 * j + (size_t)k];
+        }
+        if (L->spheres != SIZE_MAX) {
+            size_t n = 4 * (size_t)ob->spheres.count;
+            if (to_scene)
+                memcpy(ob->spheres.data, r->x + L->spheres, sizeof(float) * n);
+            else
+                memcpy(r->x + L->spheres, ob->spheres.data, sizeof(float) * n);
+        }
+    }
+}
+
+/* Supplement 5.2: optimised lighting and albedo start black (albedo grey when both are
+ * optimised, since their gradients vanish together at zero). */
+/* The deformation starts at rest (identity matrices, zero translations) whatever `init` says:
+ * the scene holds the rest shape. */
+static void deformation_rest(run *r) {
+    for (int o = 0; o < r->sc->object_count; ++o) {
+        const object_layout *L = &r->objects[o];
+        if (L->deform == SIZE_MAX) continue;
+        object_deform *D = &r->deform[o];
+        pen__optim_deform_identity(&D->graph, D->params);
+        for (size_t i = 0; i < 12 * (size_t)D->graph.nodes; ++i)
+            r->x[L->deform + i] = (float)D->params[i];
+    }
+}
+
+/* The regularisers of every deformed object at the current parameters (D->params, set by
+ * transfer), adding scale times their gradient into d_params when asked. */
+static double regularisers(run *r) {
+    double e = 0.0;
+    for (int o = 0; o < r->sc->object_count; ++o)
+        if (r->objects[o].deform != SIZE_MAX)
+            e += pen__optim_deform_energy(&r->deform[o].graph, r->deform[o].params, r->w_rot,
+                                          r->w_reg, NULL);
+    return e;
+}
+
+static void initial_guess(run *r) {
+    const float albedo0 = (r->groups & PEN_OPTIM_LIGHTING) ? 0.5f : 0.0f;
+    if (r->lighting != SIZE_MAX)
+        memset(r->x + r->lighting, 0,
+               sizeof(float) * 3 * (size_t)r->sc->sh_bands * (size_t)r->sc->sh_bands);
+    for (int o = 0; o < r->sc->object_count; ++o) {
+        const object_layout *L = &r->objects[o];
+        if (L->albedo == SIZE_MAX) continue;
+        for (size_t i = 0; i < L->albedo_count; ++i)
+            r->x[L->albedo + i] = albedo0;
+    }
+}
+
+static void gather(run *r, const pen_render_grad *grad, float scale) {
+    const pen_scene *sc = r->sc;
+    if (r->lighting != SIZE_MAX)
+        for (int k = 0; k < sc->sh_bands * sc->sh_bands; ++k)
+            for (int ch = 0; ch < 3; ++ch)
+                r->g[r->lighting + 3 * (size_t)k + ch] = scale * grad->sh[k][ch];
+    for (int o = 0; o < sc->object_count; ++o) {
+        const pen_object_grad *og = &grad->objects[o];
+        const object_layout *L = &r->objects[o];
+        if (L->albedo != SIZE_MAX) {
+            const float *src = og->texture ? og->texture : og->albedo;
+            for (size_t i = 0; i < L->albedo_count; ++i)
+                r->g[L->albedo + i] = scale * src[i];
+        }
+        if (L->rotation != SIZE_MAX)
+            for (int k = 0; k < 3; ++k) {
+                r->g[L->rotation + k] =
+                    (float)((double)(scale * og->pose.rotation_axis_angle_deg[k]) * DEG_PER_RAD);
+                r->g[L->translation + k] = scale * og->pose.translation[k];
+            }
+        if (L->spheres != SIZE_MAX)
+            for (size_t i = 0; i < 4 * (size_t)og->sphere_count; ++i)
+                r->g[L->spheres + i] = scale * og->spheres[i];
+        if (L->deform != SIZE_MAX) {
+            object_deform *D = &r->deform[o];
+            const size_t M = (size_t)D->graph.nodes;
+            for (size_t i = 0; i < 3 * (size_t)D->graph.vertices; ++i)
+                D->d_pos[i] = (double)og->positions[i] * (double)scale;
+            for (size_t j = 0; j < M; ++j)
+                for (int k = 0; k < 3; ++k)
+                    D->d_centres[3 * j + (size_t)k] =
+                        (double)og->spheres[4 * j + (size_t)k] * (double)scale;
+            memset(D->d_params, 0, sizeof(double) * 12 * M);
+            pen__optim_deform_bwd(&D->graph, D->params, D->d_pos, D->d_centres, D->d_params);
+            /* the regularisers are in the loss's units: scaled like its gradient */
+            pen__optim_deform_energy(&D->graph, D->params, (double)scale * r->w_rot,
+                                     (double)scale * r->w_reg, D->d_params);
+            for (size_t i = 0; i < 12 * M; ++i)
+                r->g[L->deform + i] = (float)D->d_params[i];
+        }
+    }
+}
+
+static unsigned grad_mask(unsigned groups) {
+    unsigned wrt = 0;
+    if (groups & PEN_OPTIM_LIGHTING) wrt |= PEN_GRAD_LIGHTING;
+    if (groups & PEN_OPTIM_ALBEDO) wrt |= PEN_GRAD_ALBEDO;
+    if (groups & PEN_OPTIM_POSE) wrt |= PEN_GRAD_POSE;
+    if (groups & PEN_OPTIM_SPHERES) wrt |= PEN_GRAD_SPHERES;
+    if (groups & PEN_OPTIM_DEFORMATION) wrt |= PEN_GRAD_SPHERES | PEN_GRAD_VERTICES;
+    return wrt;
+}
+
+/* ---- The loop -------------------------------------------------------------------------------- */
+
+static pen_status evaluate(pen_context *ctx, const pen_optim_task *t, const pen_image *img,
+                           double *loss, pen_image *d_img) {
+    if (d_img)
+        memset(d_img->data, 0,
+               sizeof(float) * (size_t)d_img->width * (size_t)d_img->height *
+                   (size_t)d_img->channels);
+    return t->loss == PEN_OPTIM_LOSS_L1 ? pen_loss_l1(ctx, img, &t->target, loss, d_img)
+                                        : pen_loss_l2(ctx, img, &t->target, loss, d_img);
+}
+
+static pen_status check_task(pen_context *ctx, const pen_optim_task *t) {
+    const char *name = t->path ? t->path : "task";
+    if (!t->optimize || (t->optimize & ~(unsigned)(PEN_OPTIM_LIGHTING | PEN_OPTIM_ALBEDO |
+                                                   PEN_OPTIM_POSE | PEN_OPTIM_SPHERES |
+                                                   PEN_OPTIM_DEFORMATION)) ||
+        ((t->optimize & PEN_OPTIM_SPHERES) && (t->optimize & PEN_OPTIM_DEFORMATION)))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: optimize: no group, an unknown one, or both spheres and "
+                          "deformation",
+                          name);
+    if ((t->optimize & PEN_OPTIM_DEFORMATION) &&
+        (t->deformation.k < 1 || !(t->deformation.w_rot >= 0.0) || !(t->deformation.w_reg >= 0.0)))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: deformation: k must be positive, the weights >= 0", name);
+    if (!t->target.data || t->target.channels != 3 || t->target.width != t->scene.camera.width ||
+        t->target.height != t->scene.camera.height)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: target: expected a 3-channel image of the camera's size %dx%d",
+                          name, t->scene.camera.width, t->scene.camera.height);
+    if (t->iterations < 1 || t->window < 1 || !(t->tolerance >= 0.0))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: iterations and window must be positive, tolerance >= 0", name);
+    const float lr[7] = {t->lr.lighting, t->lr.albedo,  t->lr.rotation,
+                         t->lr.translation, t->lr.spheres, t->lr.deformation_rotation,
+                         t->lr.deformation_translation};
+    for (int k = 0; k < 7; ++k)
+        if (!(lr[k] > 0.0f) || !isfinite(lr[k]))
+            return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: lr: rates must be positive", name);
+    return PEN_OK;
+}
+
+static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_settings *set,
+                           run *r, pen_optim_result *res) {
+    pen_render_options opt = pen_render_options_default();
+    opt.shadows = set->shadows;
+    pen_render_state *state = NULL;
+    pen_render_grad grad;
+    memset(&grad, 0, sizeof grad);
+    pen__adam adam = {0, NULL, NULL, 0, 0.0, 0.0, 0.0};
+    pen_image img = {0, 0, 0, NULL}, d_img = {0, 0, 0, NULL};
+    const int w = t->scene.camera.width, h = t->scene.camera.height;
+    pen_status s = pen_render_state_create(ctx, &state);
+    if (!s) s = pen_render_grad_create(ctx, &t->scene, &grad);
+    if (!s) s = pen__optim_adam_init(ctx, &adam, r->n);
+    if (!s) s = pen_image_create(ctx, w, h, 3, &d_img);
+    if (!s) {
+        res->losses = pen__calloc(ctx, (size_t)t->iterations + 1, sizeof(double), "loss curve");
+        if (!res->losses) s = PEN_ERROR_MEMORY;
+    }
+    if (!s) s = pen_render_fwd(ctx, &t->scene, &opt, NULL, &res->initial);
+    const float scale = 3.0f * (float)w * (float)h;
+    const unsigned wrt = grad_mask(r->groups);
+    const double t0 = omp_get_wtime();
+    int i = 0, shown = -1; /* the iteration whose parameters img shows, -1 after a step */
+    double best = INFINITY;
+    for (; !s && i < t->iterations; ++i) {
+        double loss = 0.0;
+        s = pen_render_fwd(ctx, &t->scene, &opt, state, &img);
+        if (!s) s = evaluate(ctx, t, &img, &loss, &d_img);
+        if (s) break;
+        loss += regularisers(r);
+        shown = i;
+        res->losses[i] = loss;
+        if (loss < best) {
+            best = loss;
+            res->best_iteration = i;
+            memcpy(r->best, r->x, sizeof(float) * r->n);
+        }
+        if (set->progress && set->progress(set->progress_user, i, t->iterations, loss)) {
+            res->interrupted = 1;
+            break;
+        }
+        if (pen__optim_stalled(res->losses, i + 1, t->window, t->tolerance)) {
+            res->converged = 1;
+            break;
+        }
+        pen_render_grad_zero(&grad);
+        s = pen_render_bwd(ctx, &t->scene, &opt, state, &d_img, wrt, &grad);
+        if (s) break;
+        gather(r, &grad, scale);
+        pen__optim_adam_step(&adam, r->segments, r->segment_count, r->x, r->g);
+        transfer(r, 1);
+        shown = -1;
+    }
+    res->iterations = i;
+    if (!s && shown < 0) { /* the iteration limit: the loss after the last step */
+        s = pen_render_fwd(ctx, &t->scene, &opt, NULL, &img);
+        if (!s) s = evaluate(ctx, t, &img, &res->losses[i], NULL);
+        if (!s) res->losses[i] += regularisers(r);
+        if (!s && res->losses[i] < best) {
+            best = res->losses[i];
+            res->best_iteration = i;
+            memcpy(r->best, r->x, sizeof(float) * r->n);
+        }
+        shown = i;
+    }
+    /* The recovered scene is the best iterate: Adam's constant step makes the last one wander
+     * around the optimum by about a learning rate. */
+    if (!s && shown != res->best_iteration) {
+        memcpy(r->x, r->best, sizeof(float) * r->n);
+        transfer(r, 1);
+        s = pen_render_fwd(ctx, &t->scene, &opt, NULL, &img);
+    }
+    if (!s) s = evaluate(ctx, t, &img, &res->final_loss, NULL);
+    if (!s) res->final_loss += regularisers(r);
+    res->seconds = omp_get_wtime() - t0;
+    if (!s) {
+        res->final = img;
+        img.data = NULL;
+    }
+    pen_image_free(&img);
+    pen_image_free(&d_img);
+    pen__optim_adam_free(&adam);
+    pen_render_grad_free(&grad);
+    pen_render_state_free(state);
+    return s;
+}
+
+static void metrics_none(pen_optim_metrics *m) {
+    const double none = (double)NAN;
+    m->image_rmse = m->lighting_rel_error = m->albedo_psnr_db = m->albedo_observed = none;
+    m->albedo_texel_psnr_db = none;
+    m->rotation_error_deg = m->translation_error = m->vertex_rmse = none;
+}
+
+pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim_settings *settings,
+                         pen_optim_result *out) {
+    memset(out, 0, sizeof *out);
+    metrics_none(&out->metrics);
+    pen_optim_settings set = settings ? *settings : pen_optim_settings_default();
+    pen_status s = check_task(ctx, task);
+    if (s) return s;
+    if (task->has_ground_truth) {
+        s = pen__optim_check_truth(ctx, task);
+        metrics_none(&out->metrics);
+        if (s) return s;
+    }
+    /* Sphere sets asked for as {"fit": N}; without shadows no spheres are needed. */
+    if (set.shadows || (task->optimize & PEN_OPTIM_DEFORMATION)) { /* graph nodes too */
+        s = pen_scene_fit_spheres(ctx, &task->scene);
+        if (s) return s;
+    }
+    run r;
+    memset(&r, 0, sizeof r);
+    r.sc = &task->scene;
+    r.groups = task->optimize;
+    s = layout(ctx, &r, task);
+    if (!s) {
+        transfer(&r, 0);
+        if (task->init_black) initial_guess(&r);
+        deformation_rest(&r);
+        pen__optim_project(r.segments, r.segment_count, r.x);
+        transfer(&r, 1);
+        s = optimise(ctx, task, &set, &r, out);
+    }
+    if (!s) {
+        pen_image_error e = {0.0, 0.0, 0.0, 0};
+        s = pen_image_compare(ctx, &out->final, &task->target, NULL, &e, NULL);
+        if (!s && task->has_ground_truth) s = pen__optim_metrics(ctx, task, &out->metrics);
+        out->metrics.image_rmse = s ? (double)NAN : e.rmse;
+    }
+    run_free(&r);
+    if (s) pen_optim_result_free(out);
+    return s;
+}
+
+void pen_optim_result_free(pen_optim_result *result) {
+    if (!result) return;
+    free(result->losses);
+    pen_image_free(&result->initial);
+    pen_image_free(&result->final);
+    memset(result, 0, sizeof *result);
+    metrics_none(&result->metrics);
+}

@@ -1,0 +1,405 @@
+/* The outputs of `penumbra optimize`: result.json, the recovered scene, the final render, a
+ * side-by-side picture and the loss curve.
+ *
+ * All or nothing: each file is written atomically (temporary file + rename) and the paths
+ * written so far are remembered; if a later write fails they are removed again. result.json is
+ * written last, so a folder holding a result.json holds the whole set of that run.
+ *
+ * Pictures: compare.png shows target | initial | result | error side by side, all with one
+ * exposure (1 / the 99th percentile of the target's largest channel when that exceeds 1, so HDR
+ * targets are not clipped flat), the error panel being 4x the mean absolute difference over the
+ * channels, in grey. loss.svg plots log10(loss) against the iteration. */
+#define _POSIX_C_SOURCE 200809L
+#include "io/io_internal.h"
+#include "optim/optim_internal.h"
+
+#include <errno.h>
+#include <stdarg.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+
+#define MAX_OUTPUTS 64
+
+typedef struct outputs {
+    const char *dir;
+    char *written[MAX_OUTPUTS];
+    int count;
+} outputs;
+
+/* dir/name, malloc'd. */
+static char *join(pen_context *ctx, const char *dir, const char *name) {
+    size_t n = strlen(dir) + strlen(name) + 2;
+    char *p = pen__malloc(ctx, n, 1, "output path");
+    if (p) snprintf(p, n, "%s/%s", dir, name);
+    return p;
+}
+
+/* Takes ownership of path (freed on failure). */
+static pen_status remember(pen_context *ctx, outputs *o, char *path) {
+    if (o->count == MAX_OUTPUTS) {
+        free(path);
+        return pen__error(ctx, PEN_ERROR_INTERNAL, "%s: too many output files", o->dir);
+    }
+    o->written[o->count++] = path;
+    return PEN_OK;
+}
+
+static void outputs_finish(outputs *o, int remove_files) {
+    for (int i = 0; i < o->count; ++i) {
+        if (remove_files) remove(o->written[i]);
+        free(o->written[i]);
+    }
+    o->count = 0;
+}
+
+static pen_status save_image(pen_context *ctx, outputs *o, const char *name,
+                             const pen_image *img) {
+    char *path = join(ctx, o->dir, name);
+    if (!path) return PEN_ERROR_MEMORY;
+    pen_status s = pen_image_save(ctx, path, img);
+    if (s) {
+        free(path);
+        return s;
+    }
+    return remember(ctx, o, path);
+}
+
+static pen_status save_text(pen_context *ctx, outputs *o, const char *name, const char *text) {
+    char *path = join(ctx, o->dir, name);
+    if (!path) return PEN_ERROR_MEMORY;
+    pen_status s = pen__io_write_file(ctx, path, text, strlen(text));
+    if (s) {
+        free(path);
+        return s;
+    }
+    return remember(ctx, o, path);
+}
+
+/* ---- The recovered scene --------------------------------------------------------------------- */
+
+/* Optimised textures are written beside the scene; the scene is saved from a shallow copy whose
+ * objects point at them, with SH lighting written inline and optimised spheres inline. */
+static pen_status save_scene(pen_context *ctx, outputs *o, const pen_optim_task *t) {
+    const pen_scene *sc = &t->scene;
+    pen_scene copy = *sc;
+    copy.objects = pen__calloc(ctx, (size_t)sc->object_count + 1, sizeof *copy.objects, "scene");
+    char **textures = pen__calloc(ctx, (size_t)sc->object_count + 1, sizeof *textures, "names");
+    pen_status s = copy.objects && textures ? PEN_OK : PEN_ERROR_MEMORY;
+    char **meshes = pen__calloc(ctx, (size_t)sc->object_count + 1, sizeof *meshes, "names");
+    if (!meshes) s = PEN_ERROR_MEMORY;
+    for (int i = 0; !s && i < sc->object_count; ++i) {
+        copy.objects[i] = sc->objects[i];
+        if (t->optimize & (PEN_OPTIM_SPHERES | PEN_OPTIM_DEFORMATION))
+            copy.objects[i].spheres_path = NULL;
+        if (t->optimize & PEN_OPTIM_DEFORMATION) { /* the deformed mesh, beside the scene */
+            char name[64];
+            snprintf(name, sizeof name, "mesh_%d.obj", i);
+            char *path = join(ctx, o->dir, name);
+            s = path ? pen_mesh_save_obj(ctx, path, &sc->objects[i].mesh) : PEN_ERROR_MEMORY;
+            if (!s) s = remember(ctx, o, path);
+            else free(path);
+            if (!s) meshes[i] = pen__io_strdup(ctx, o->written[o->count - 1]);
+            if (!s && !meshes[i]) s = PEN_ERROR_MEMORY;
+            if (s) break;
+            copy.objects[i].mesh_path = meshes[i];
+        }
+        if (!(t->optimize & PEN_OPTIM_ALBEDO) || !sc->objects[i].texture.data) continue;
+        char name[64];
+        snprintf(name, sizeof name, "texture_%d.png", i);
+        s = save_image(ctx, o, name, &sc->objects[i].texture);
+        if (!s) {
+            textures[i] = pen__io_strdup(ctx, o->written[o->count - 1]);
+            if (!textures[i]) s = PEN_ERROR_MEMORY;
+            copy.objects[i].texture_path = textures[i];
+        }
+    }
+    char *path = s ? NULL : join(ctx, o->dir, "scene.json");
+    if (!s && !path) s = PEN_ERROR_MEMORY;
+    if (!s) s = pen_scene_save_ex(ctx, path, &copy, PEN_SCENE_SAVE_SH_LIGHTING);
+    if (!s) {
+        s = remember(ctx, o, path);
+    } else {
+        free(path);
+    }
+    for (int i = 0; textures && i < sc->object_count; ++i)
+        free(textures[i]);
+    for (int i = 0; meshes && i < sc->object_count; ++i)
+        free(meshes[i]);
+    free(textures);
+    free(meshes);
+    free(copy.objects);
+    return s;
+}
+
+/* ---- compare.png ----------------------------------------------------------------------------- */
+
+static int cmp_float(const void *a, const void *b) {
+    const float x = *(const float *)a, y = *(const float *)b;
+    return (x > y) - (x < y);
+}
+
+static float exposure(pen_context *ctx, const pen_image *target) {
+    const size_t n = (size_t)target->width * (size_t)target->height;
+    float *v = pen__malloc(ctx, n, sizeof(float), "exposure");
+    if (!v) return 1.0f; /* a picture with clipped highlights is still a picture */
+    for (size_t i = 0; i < n; ++i) {
+        const float *p = target->data + 3 * i;
+        v[i] = fmaxf(p[0], fmaxf(p[1], p[2]));
+    }
+    qsort(v, n, sizeof(float), cmp_float);
+    const float p99 = v[(size_t)(0.99 * (double)(n - 1))];
+    free(v);
+    return p99 > 1.0f ? 1.0f / p99 : 1.0f;
+}
+
+static pen_status compare_picture(pen_context *ctx, const pen_optim_task *t,
+                                  const pen_optim_result *r, pen_image *out) {
+    const int w = t->target.width, h = t->target.height, gap = 4;
+    pen_status s = pen_image_create(ctx, 4 * w + 3 * gap, h, 3, out);
+    if (s) return s;
+    for (size_t i = 0; i < (size_t)out->width * (size_t)out->height * 3; ++i)
+        out->data[i] = 1.0f; /* white gaps */
+    const float e = exposure(ctx, &t->target);
+    const pen_image *panels[3] = {&t->target, &r->initial, &r->final};
+    for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x) {
+            const size_t src = 3 * ((size_t)y * (size_t)w + (size_t)x);
+            float err = 0.0f;
+            for (int ch = 0; ch < 3; ++ch)
+                err += fabsf(r->final.data[src + ch] - t->target.data[src + ch]) / 3.0f;
+            for (int p = 0; p < 4; ++p) {
+                float *dst = out->data + 3 * ((size_t)y * (size_t)out->width +
+                                              (size_t)(p * (w + gap) + x));
+                for (int ch = 0; ch < 3; ++ch)
+                    dst[ch] = p < 3 ? e * panels[p]->data[src + ch] : 4.0f * e * err;
+            }
+        }
+    return PEN_OK;
+}
+
+/* ---- loss.svg -------------------------------------------------------------------------------- */
+
+/* Appends printf output to a growing buffer; returns 0 on exhaustion. */
+typedef struct text_buf {
+    char *data;
+    size_t len, cap;
+} text_buf;
+
+static int put(text_buf *b, const char *fmt, ...) PEN_PRINTF(2, 3);
+static int put(text_buf *b, const char *fmt, ...) {
+    for (;;) {
+        va_list ap;
+        va_start(ap, fmt);
+        int n = vsnprintf(b->data ? b->data + b->len : NULL, b->data ? b->cap - b->len : 0, fmt,
+                          ap);
+        va_end(ap);
+        if (n < 0) return 0;
+        if (b->data && b->len + (size_t)n < b->cap) {
+            b->len += (size_t)n;
+            return 1;
+        }
+        size_t cap = (b->cap ? 2 * b->cap : 4096) + (size_t)n;
+        char *d = realloc(b->data, cap);
+        if (!d) return 0;
+        b->data = d;
+        b->cap = cap;
+    }
+}
+
+static pen_status loss_svg(pen_context *ctx, const pen_optim_result *r, int shadows, char **out) {
+    const int W = 640, H = 400, left = 70, right = 20, top = 30, bottom = 50;
+    const int n = r->iterations + 1;
+    double lo = INFINITY, hi = -INFINITY;
+    for (int i = 0; i < n; ++i)
+        if (r->losses[i] > 0.0) {
+            lo = fmin(lo, log10(r->losses[i]));
+            hi = fmax(hi, log10(r->losses[i]));
+        }
+    if (!(lo <= hi)) lo = -1.0, hi = 0.0; /* all zero */
+    lo = floor(lo), hi = ceil(hi);
+    if (hi <= lo) hi = lo + 1.0;
+    const double pw = W - left - right, ph = H - top - bottom;
+    text_buf b = {NULL, 0, 0};
+    int ok = put(&b,
+                 "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"%d\" height=\"%d\" "
+                 "viewBox=\"0 0 %d %d\" font-family=\"sans-serif\" font-size=\"12\">\n"
+                 "<rect width=\"%d\" height=\"%d\" fill=\"white\"/>\n"
+                 "<text x=\"%d\" y=\"18\">loss (%s), %d iterations</text>\n"
+                 "<rect x=\"%d\" y=\"%d\" width=\"%g\" height=\"%g\" fill=\"none\" "
+                 "stroke=\"#888\"/>\n",
+                 W, H, W, H, W, H, left, shadows ? "shadows" : "no shadows", r->iterations, left,
+                 top, pw, ph);
+    for (double d = lo; ok && d <= hi + 1e-9; d += 1.0) {
+        const double y = top + ph * (hi - d) / (hi - lo);
+        ok = put(&b,
+                 "<line x1=\"%d\" y1=\"%.1f\" x2=\"%.1f\" y2=\"%.1f\" stroke=\"#ddd\"/>"
+                 "<text x=\"%d\" y=\"%.1f\" text-anchor=\"end\">1e%d</text>\n",
+                 left, y, left + pw, y, left - 6, y + 4, (int)d);
+    }
+    ok = ok && put(&b,
+                   "<text x=\"%d\" y=\"%d\" text-anchor=\"start\">0</text>"
+                   "<text x=\"%.1f\" y=\"%d\" text-anchor=\"end\">%d</text>"
+                   "<text x=\"%.1f\" y=\"%d\" text-anchor=\"middle\">iteration</text>\n"
+                   "<polyline fill=\"none\" stroke=\"#c33\" stroke-width=\"1.5\" points=\"",
+                   left, H - bottom + 16, left + pw, H - bottom + 16, r->iterations,
+                   left + pw / 2, H - 12);
+    for (int i = 0; ok && i < n; ++i) {
+        const double v = r->losses[i] > 0.0 ? log10(r->losses[i]) : lo;
+        const double x = left + pw * (n > 1 ? (double)i / (double)(n - 1) : 0.0);
+        ok = put(&b, "%.1f,%.1f ", x, top + ph * (hi - v) / (hi - lo));
+    }
+    ok = ok && put(&b, "\"/>\n</svg>\n");
+    if (!ok) {
+        free(b.data);
+        return pen__error(ctx, PEN_ERROR_MEMORY, "loss curve: out of memory");
+    }
+    *out = b.data;
+    return PEN_OK;
+}
+
+/* ---- result.json ----------------------------------------------------------------------------- */
+
+static int add(cJSON *obj, const char *name, cJSON *item) {
+    if (item && cJSON_AddItemToObject(obj, name, item)) return 1;
+    cJSON_Delete(item);
+    return 0;
+}
+
+/* A metric if it applies (finite); infinite values (a perfect PSNR) are written as null. */
+static int add_metric(cJSON *m, const char *name, double v) {
+    if (isnan(v)) return 1;
+    return add(m, name, isfinite(v) ? cJSON_CreateNumber(v) : cJSON_CreateNull());
+}
+
+static cJSON *groups_json(unsigned groups) {
+    static const char *const names[] = {"lighting", "albedo", "pose", "deformation", "spheres"};
+    cJSON *a = cJSON_CreateArray();
+    for (int k = 0; a && k < 5; ++k)
+        if ((groups & (1u << k)) && !cJSON_AddItemToArray(a, cJSON_CreateString(names[k]))) {
+            cJSON_Delete(a);
+            return NULL;
+        }
+    return a;
+}
+
+static cJSON *metrics_json(const pen_optim_metrics *mt) {
+    cJSON *m = cJSON_CreateObject();
+    int ok = m && add_metric(m, "image_rmse", mt->image_rmse) &&
+             add_metric(m, "lighting_rel_error", mt->lighting_rel_error) &&
+             add_metric(m, "albedo_psnr_db", mt->albedo_psnr_db) &&
+             add_metric(m, "albedo_texel_psnr_db", mt->albedo_texel_psnr_db) &&
+             add_metric(m, "albedo_observed", mt->albedo_observed) &&
+             add_metric(m, "rotation_error_deg", mt->rotation_error_deg) &&
+             add_metric(m, "translation_error", mt->translation_error) &&
+             add_metric(m, "vertex_rmse", mt->vertex_rmse);
+    if (!ok) cJSON_Delete(m);
+    return ok ? m : NULL;
+}
+
+static cJSON *lr_json(const pen_optim_lr *lr) {
+    cJSON *o = cJSON_CreateObject();
+    int ok = o && add(o, "lighting", pen__json_float(lr->lighting)) &&
+             add(o, "albedo", pen__json_float(lr->albedo)) &&
+             add(o, "rotation", pen__json_float(lr->rotation)) &&
+             add(o, "translation", pen__json_float(lr->translation)) &&
+             add(o, "spheres", pen__json_float(lr->spheres)) &&
+             add(o, "deformation_rotation", pen__json_float(lr->deformation_rotation)) &&
+             add(o, "deformation_translation", pen__json_float(lr->deformation_translation));
+    if (!ok) cJSON_Delete(o);
+    return ok ? o : NULL;
+}
+
+static cJSON *deformation_json(const pen_optim_deformation *d) {
+    cJSON *o = cJSON_CreateObject();
+    int ok = o && add(o, "k", cJSON_CreateNumber(d->k)) &&
+             add(o, "w_rot", cJSON_CreateNumber(d->w_rot)) &&
+             add(o, "w_reg", cJSON_CreateNumber(d->w_reg));
+    if (!ok) cJSON_Delete(o);
+    return ok ? o : NULL;
+}
+
+pen_status pen_optim_result_json(pen_context *ctx, const pen_optim_task *t,
+                                 const pen_optim_settings *settings, const pen_optim_result *r,
+                                 char **json) {
+    *json = NULL;
+    const int shadows = settings ? settings->shadows : 1;
+    const int it = r->iterations;
+    cJSON *root = cJSON_CreateObject();
+    cJSON *losses = cJSON_CreateDoubleArray(r->losses, r->losses ? it + 1 : 0);
+    int ok = root && add(root, "task", cJSON_CreateString(t->path ? t->path : "")) &&
+             add(root, "optimize", groups_json(t->optimize)) &&
+             add(root, "shadows", cJSON_CreateBool(shadows)) &&
+             add(root, "loss", cJSON_CreateString(t->loss == PEN_OPTIM_LOSS_L1 ? "l1" : "l2")) &&
+             add(root, "iterations", cJSON_CreateNumber(it)) &&
+             add(root, "seconds", cJSON_CreateNumber(r->seconds)) &&
+             add(root, "seconds_per_iteration",
+                 cJSON_CreateNumber(it > 0 ? r->seconds / it : r->seconds)) &&
+             add(root, "initial_loss", cJSON_CreateNumber(r->losses ? r->losses[0] : (double)NAN)) &&
+             add(root, "final_loss", cJSON_CreateNumber(r->final_loss)) &&
+             add(root, "converged", cJSON_CreateBool(r->converged)) &&
+             add(root, "interrupted", cJSON_CreateBool(r->interrupted)) &&
+             add(root, "metrics", metrics_json(&r->metrics)) &&
+             add(root, "lr", lr_json(&t->lr)) &&
+             (!(t->optimize & PEN_OPTIM_DEFORMATION) ||
+              add(root, "deformation", deformation_json(&t->deformation))) &&
+             add(root, "tolerance", cJSON_CreateNumber(t->tolerance)) &&
+             add(root, "window", cJSON_CreateNumber(t->window)) &&
+             add(root, "width", cJSON_CreateNumber(t->target.width)) &&
+             add(root, "height", cJSON_CreateNumber(t->target.height)) &&
+             add(root, "losses", losses);
+    char *text = ok ? cJSON_Print(root) : NULL;
+    cJSON_Delete(root);
+    if (!text) return pen__error(ctx, PEN_ERROR_MEMORY, "result.json: out of memory");
+    size_t n = strlen(text);
+    char *out = pen__malloc(ctx, n + 2, 1, "result.json");
+    if (out) {
+        memcpy(out, text, n);
+        out[n] = '\n', out[n + 1] = '\0';
+    }
+    cJSON_free(text);
+    *json = out;
+    return out ? PEN_OK : PEN_ERROR_MEMORY;
+}
+
+/* ---- Everything ------------------------------------------------------------------------------ */
+
+static pen_status make_dir(pen_context *ctx, const char *dir) {
+    struct stat st;
+    if (stat(dir, &st) == 0) {
+        if (S_ISDIR(st.st_mode)) return PEN_OK;
+        return pen__error(ctx, PEN_ERROR_IO, "%s: exists and is not a folder", dir);
+    }
+    if (mkdir(dir, 0755) != 0)
+        return pen__error(ctx, PEN_ERROR_IO, "%s: cannot create the folder: %s", dir,
+                          strerror(errno));
+    return PEN_OK;
+}
+
+pen_status pen_optim_write(pen_context *ctx, const char *outdir, const pen_optim_task *task,
+                           const pen_optim_settings *settings, const pen_optim_result *result) {
+    if (!result->final.data || !result->initial.data || !result->losses)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: no result to write", outdir);
+    const int shadows = settings ? settings->shadows : 1;
+    pen_status s = make_dir(ctx, outdir);
+    if (s) return s;
+    outputs o;
+    memset(&o, 0, sizeof o);
+    o.dir = outdir;
+    pen_image side = {0, 0, 0, NULL};
+    char *svg = NULL, *json = NULL;
+    s = save_scene(ctx, &o, task);
+    if (!s) s = save_image(ctx, &o, "final.exr", &result->final);
+    if (!s) s = save_image(ctx, &o, "final.png", &result->final);
+    if (!s) s = compare_picture(ctx, task, result, &side);
+    if (!s) s = save_image(ctx, &o, "compare.png", &side);
+    if (!s) s = loss_svg(ctx, result, shadows, &svg);
+    if (!s) s = save_text(ctx, &o, "loss.svg", svg);
+    if (!s) s = pen_optim_result_json(ctx, task, settings, result, &json);
+    if (!s) s = save_text(ctx, &o, "result.json", json);
+    outputs_finish(&o, s != PEN_OK);
+    pen_image_free(&side);
+    free(svg);
+    free(json);
+    return s;
+}

@@ -1,0 +1,366 @@
+/* Task JSON of `penumbra optimize` (DESIGN.md section 3, docs/optimize.md): the initial scene,
+ * the target image, the groups to optimise, the optimiser's settings and the ground truth.
+ *
+ * Like the scene loader it walks the JSON key by key so that every error is one line naming the
+ * file and the key; unknown keys are errors (a misspelt "iteratoins" would otherwise silently
+ * run the default), keys starting with '_' are comments. Scenes may be given as a path (relative
+ * to the task file) or inline; an inline scene is parsed with the name "<task>:scene", so its
+ * errors read "task.json:scene: camera.width: ..." and its relative paths resolve against the
+ * task file's folder. */
+#include "io/io_internal.h"
+#include "optim/optim_internal.h"
+
+#include <stdlib.h>
+#include <string.h>
+
+#define TASK_MAX_ITERATIONS 1000000
+#define TASK_MAX_WINDOW 10000
+
+typedef pen__json_where where;
+
+static where at(const where *w, const char *name) {
+    where c;
+    pen__json_child(w, name, &c);
+    return c;
+}
+
+/* Re-records the current error (from a referenced file) behind the key that named it. */
+static pen_status wrap(pen_context *ctx, const where *w, pen_status s) {
+    char inner[1024];
+    snprintf(inner, sizeof inner, "%s", pen_context_error(ctx));
+    return pen__json_error(ctx, s, w, "%s", inner);
+}
+
+pen_optim_lr pen_optim_lr_default(void) {
+    pen_optim_lr lr = {1e-2f, 1e-2f, 1e-2f, 1e-2f, 1e-2f, 1e-3f, 1e-2f};
+    return lr;
+}
+
+pen_optim_deformation pen_optim_deformation_default(void) {
+    pen_optim_deformation d = {4, 1e-4, 1e-3};
+    return d;
+}
+
+/* "scene" / "ground_truth": a path or an inline object. */
+static pen_status parse_scene_ref(pen_context *ctx, const char *path, const where *top,
+                                  const cJSON *root, const char *name, pen_scene *out) {
+    where w = at(top, name);
+    const cJSON *item = cJSON_GetObjectItemCaseSensitive(root, name);
+    if (cJSON_IsString(item)) {
+        const char *rel = NULL;
+        pen_status s = pen__json_string(ctx, &w, item, &rel);
+        if (s) return s;
+        char *full = pen__io_path_resolve(ctx, path, rel);
+        if (!full) return PEN_ERROR_MEMORY;
+        s = pen_scene_load(ctx, full, out);
+        free(full);
+        return s ? wrap(ctx, &w, s) : PEN_OK;
+    }
+    if (cJSON_IsObject(item)) {
+        char *text = cJSON_PrintUnformatted(item);
+        if (!text) return pen__json_error(ctx, PEN_ERROR_MEMORY, &w, "cannot print the scene");
+        size_t n = strlen(path) + strlen(name) + 2;
+        char *inner = pen__malloc(ctx, n, 1, "scene name");
+        pen_status s = PEN_ERROR_MEMORY;
+        if (inner) {
+            snprintf(inner, n, "%s:%s", path, name);
+            s = pen_scene_parse(ctx, text, inner, out);
+        }
+        free(inner);
+        cJSON_free(text);
+        return s;
+    }
+    if (!item) return pen__json_error(ctx, PEN_ERROR_PARSE, &w, "missing (expected a scene)");
+    return pen__json_error(ctx, PEN_ERROR_PARSE, &w,
+                           "expected a scene JSON path or an inline scene object, got %s",
+                           pen__json_type_name(item));
+}
+
+pen_status pen_optim_task_set_target(pen_context *ctx, pen_optim_task *task, const char *path) {
+    if (!pen__io_has_ext(path, "exr") && !pen__io_has_ext(path, "hdr"))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "\"%s\": expected a linear image (.exr or .hdr)",
+                          path);
+    pen_image img = {0, 0, 0, NULL};
+    char *name = pen__io_strdup(ctx, path);
+    pen_status s = name ? pen_image_load(ctx, path, &img) : PEN_ERROR_MEMORY;
+    const pen_camera *c = &task->scene.camera;
+    if (!s && (img.width != c->width || img.height != c->height))
+        s = pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: the image is %dx%d but the scene's camera is %dx%d",
+                       path, img.width, img.height, c->width, c->height);
+    if (s) {
+        pen_image_free(&img);
+        free(name);
+        return s;
+    }
+    pen_image_free(&task->target);
+    free(task->target_path);
+    task->target = img;
+    task->target_path = name;
+    return PEN_OK;
+}
+
+static pen_status parse_target(pen_context *ctx, const char *path, const where *top,
+                               const cJSON *root, pen_optim_task *t) {
+    where w = at(top, "target");
+    const char *rel = NULL;
+    pen_status s = pen__json_string(ctx, &w, cJSON_GetObjectItemCaseSensitive(root, "target"),
+                                    &rel);
+    if (s) return s;
+    if (!pen__io_has_ext(rel, "exr") && !pen__io_has_ext(rel, "hdr"))
+        return pen__json_error(ctx, PEN_ERROR_PARSE, &w,
+                               "\"%s\": expected a linear image (.exr or .hdr)", rel);
+    char *full = pen__io_path_resolve(ctx, path, rel);
+    if (!full) return PEN_ERROR_MEMORY;
+    s = pen_optim_task_set_target(ctx, t, full);
+    free(full);
+    return s ? wrap(ctx, &w, s) : PEN_OK;
+}
+
+static pen_status parse_groups(pen_context *ctx, const where *top, const cJSON *root,
+                               unsigned *groups) {
+    static const char *const names[] = {"lighting", "albedo", "pose", "deformation", "spheres"};
+    static const unsigned bits[] = {PEN_OPTIM_LIGHTING, PEN_OPTIM_ALBEDO, PEN_OPTIM_POSE,
+                                    PEN_OPTIM_DEFORMATION, PEN_OPTIM_SPHERES};
+    where w = at(top, "optimize");
+    const cJSON *a = cJSON_GetObjectItemCaseSensitive(root, "optimize");
+    if (!cJSON_IsArray(a) || cJSON_GetArraySize(a) == 0)
+        return pen__json_error(ctx, PEN_ERROR_PARSE, &w,
+                               "expected a non-empty array of groups (\"lighting\", \"albedo\", "
+                               "\"pose\", \"deformation\", \"spheres\"), got %s",
+                               a ? (cJSON_IsArray(a) ? "an empty array" : pen__json_type_name(a))
+                                 : "nothing (missing key)");
+    *groups = 0;
+    int i = 0;
+    const cJSON *e;
+    cJSON_ArrayForEach(e, a) {
+        where wi;
+        pen__json_index(&w, i++, &wi);
+        const char *name = NULL;
+        pen_status s = pen__json_string(ctx, &wi, e, &name);
+        if (s) return s;
+        unsigned bit = 0;
+        for (int k = 0; k < 5 && !bit; ++k)
+            if (strcmp(name, names[k]) == 0) bit = bits[k];
+        if (!bit)
+            return pen__json_error(ctx, PEN_ERROR_PARSE, &wi,
+                                   "unknown group \"%s\" (expected \"lighting\", \"albedo\", "
+                                   "\"pose\", \"deformation\" or \"spheres\")",
+                                   name);
+        if (*groups & bit)
+            return pen__json_error(ctx, PEN_ERROR_PARSE, &wi, "\"%s\" is listed twice", name);
+        *groups |= bit;
+        if ((*groups & PEN_OPTIM_DEFORMATION) && (*groups & PEN_OPTIM_SPHERES))
+            return pen__json_error(ctx, PEN_ERROR_PARSE, &wi,
+                                   "\"deformation\" and \"spheres\" both move the spheres: "
+                                   "choose one");
+    }
+    return PEN_OK;
+}
+
+static pen_status parse_lr(pen_context *ctx, const where *top, const cJSON *root,
+                           pen_optim_lr *lr) {
+    where w = at(top, "lr");
+    const cJSON *item = cJSON_GetObjectItemCaseSensitive(root, "lr");
+    if (!item) return PEN_OK;
+    const char *what = "a positive learning rate (at most 10)";
+    double v;
+    if (cJSON_IsNumber(item)) {
+        pen_status s = pen__json_number(ctx, &w, item, 0.0, 10.0, what, &v);
+        if (!s && v <= 0.0) s = pen__json_error(ctx, PEN_ERROR_PARSE, &w, "expected %s", what);
+        if (s) return s;
+        lr->lighting = lr->albedo = lr->rotation = lr->translation = lr->spheres = (float)v;
+        lr->deformation_rotation = lr->deformation_translation = (float)v;
+        return PEN_OK;
+    }
+    if (!cJSON_IsObject(item))
+        return pen__json_error(ctx, PEN_ERROR_PARSE, &w,
+                               "expected a number or an object of per-group rates, got %s",
+                               pen__json_type_name(item));
+    static const char *const known[] = {"lighting",
+                                        "albedo",
+                                        "rotation",
+                                        "translation",
+                                        "spheres",
+                                        "deformation_rotation",
+                                        "deformation_translation",
+                                        "pose",
+                                        NULL};
+    pen_status s = pen__json_known_keys(ctx, &w, item, known);
+    if (s) return s;
+    float *fields[] = {&lr->lighting,
+                       &lr->albedo,
+                       &lr->rotation,
+                       &lr->translation,
+                       &lr->spheres,
+                       &lr->deformation_rotation,
+                       &lr->deformation_translation,
+                       NULL};
+    for (int k = 0; known[k]; ++k) {
+        const cJSON *e = cJSON_GetObjectItemCaseSensitive(item, known[k]);
+        if (!e) continue;
+        where wk = at(&w, known[k]);
+        s = pen__json_number(ctx, &wk, e, 0.0, 10.0, what, &v);
+        if (!s && v <= 0.0) s = pen__json_error(ctx, PEN_ERROR_PARSE, &wk, "expected %s", what);
+        if (s) return s;
+        if (fields[k]) {
+            *fields[k] = (float)v;
+        } else { /* "pose": rotation and translation together */
+            lr->rotation = lr->translation = (float)v;
+        }
+    }
+    return PEN_OK;
+}
+
+static pen_status parse_options(pen_context *ctx, const where *top, const cJSON *root,
+                                pen_optim_task *t) {
+    const cJSON *e;
+    pen_status s = PEN_OK;
+    where w;
+    if ((e = cJSON_GetObjectItemCaseSensitive(root, "iterations"))) {
+        w = at(top, "iterations");
+        s = pen__json_int(ctx, &w, e, 1, TASK_MAX_ITERATIONS, "an integer in [1, 1000000]",
+                          &t->iterations);
+        if (s) return s;
+    }
+    if ((e = cJSON_GetObjectItemCaseSensitive(root, "window"))) {
+        w = at(top, "window");
+        s = pen__json_int(ctx, &w, e, 1, TASK_MAX_WINDOW, "an integer in [1, 10000]", &t->window);
+        if (s) return s;
+    }
+    if ((e = cJSON_GetObjectItemCaseSensitive(root, "tolerance"))) {
+        w = at(top, "tolerance");
+        s = pen__json_number(ctx, &w, e, 0.0, 1.0, "a number in [0, 1]", &t->tolerance);
+        if (s) return s;
+    }
+    if ((e = cJSON_GetObjectItemCaseSensitive(root, "loss"))) {
+        w = at(top, "loss");
+        const char *name = NULL;
+        s = pen__json_string(ctx, &w, e, &name);
+        if (s) return s;
+        if (strcmp(name, "l2") == 0) {
+            t->loss = PEN_OPTIM_LOSS_L2;
+        } else if (strcmp(name, "l1") == 0) {
+            t->loss = PEN_OPTIM_LOSS_L1;
+        } else {
+            return pen__json_error(ctx, PEN_ERROR_PARSE, &w,
+                                   "unknown loss \"%s\" (expected \"l2\" or \"l1\")", name);
+        }
+    }
+    if ((e = cJSON_GetObjectItemCaseSensitive(root, "init"))) {
+        w = at(top, "init");
+        const char *name = NULL;
+        s = pen__json_string(ctx, &w, e, &name);
+        if (s) return s;
+        if (strcmp(name, "black") == 0) {
+            t->init_black = 1;
+        } else if (strcmp(name, "scene") == 0) {
+            t->init_black = 0;
+        } else {
+            return pen__json_error(ctx, PEN_ERROR_PARSE, &w,
+                                   "unknown initialisation \"%s\" (expected \"black\" or "
+                                   "\"scene\")",
+                                   name);
+        }
+    }
+    if ((e = cJSON_GetObjectItemCaseSensitive(root, "deformation"))) {
+        w = at(top, "deformation");
+        static const char *const known[] = {"k", "w_rot", "w_reg", NULL};
+        if (!cJSON_IsObject(e))
+            return pen__json_error(ctx, PEN_ERROR_PARSE, &w, "expected an object, got %s",
+                                   pen__json_type_name(e));
+        s = pen__json_known_keys(ctx, &w, e, known);
+        const cJSON *f;
+        where wf;
+        if (!s && (f = cJSON_GetObjectItemCaseSensitive(e, "k"))) {
+            wf = at(&w, "k");
+            s = pen__json_int(ctx, &wf, f, 1, 32, "an integer in [1, 32]", &t->deformation.k);
+        }
+        if (!s && (f = cJSON_GetObjectItemCaseSensitive(e, "w_rot"))) {
+            wf = at(&w, "w_rot");
+            s = pen__json_number(ctx, &wf, f, 0.0, 1e9, "a weight >= 0", &t->deformation.w_rot);
+        }
+        if (!s && (f = cJSON_GetObjectItemCaseSensitive(e, "w_reg"))) {
+            wf = at(&w, "w_reg");
+            s = pen__json_number(ctx, &wf, f, 0.0, 1e9, "a weight >= 0", &t->deformation.w_reg);
+        }
+        if (s) return s;
+    }
+    return parse_lr(ctx, top, root, &t->lr);
+}
+
+static pen_status parse_task(pen_context *ctx, const char *path, const cJSON *root,
+                             const char *target, pen_optim_task *t) {
+    where top = {path, ""};
+    if (!cJSON_IsObject(root))
+        return pen__json_error(ctx, PEN_ERROR_PARSE, &top, "expected a JSON object, got %s",
+                               pen__json_type_name(root));
+    static const char *const known[] = {"scene", "target",    "optimize", "iterations",
+                                        "lr",    "loss",      "tolerance", "window",
+                                        "init",  "deformation", "ground_truth", NULL};
+    pen_status s = pen__json_known_keys(ctx, &top, root, known);
+    if (!s) s = parse_groups(ctx, &top, root, &t->optimize);
+    if (!s) s = parse_options(ctx, &top, root, t);
+    if (!s) s = parse_scene_ref(ctx, path, &top, root, "scene", &t->scene);
+    if (!s && target) {
+        s = pen_optim_task_set_target(ctx, t, target);
+    } else if (!s) {
+        s = parse_target(ctx, path, &top, root, t);
+    }
+    if (!s && cJSON_GetObjectItemCaseSensitive(root, "ground_truth")) {
+        s = parse_scene_ref(ctx, path, &top, root, "ground_truth", &t->ground_truth);
+        t->has_ground_truth = s == PEN_OK;
+    }
+    return s;
+}
+
+static pen_status task_from_text(pen_context *ctx, const char *text, size_t size,
+                                 const char *path, const char *target, pen_optim_task *out) {
+    out->iterations = 500;
+    out->lr = pen_optim_lr_default();
+    out->loss = PEN_OPTIM_LOSS_L2;
+    out->tolerance = 1e-3;
+    out->window = 10;
+    out->init_black = 1;
+    out->deformation = pen_optim_deformation_default();
+    cJSON *root = NULL;
+    pen_status s = pen__json_parse(ctx, path, text, size, &root);
+    if (s) return s;
+    out->path = pen__io_strdup(ctx, path);
+    s = out->path ? parse_task(ctx, path, root, target, out) : PEN_ERROR_MEMORY;
+    cJSON_Delete(root);
+    if (s) pen_optim_task_free(out);
+    return s;
+}
+
+pen_status pen_optim_task_parse(pen_context *ctx, const char *json_text, const char *path,
+                                pen_optim_task *out) {
+    memset(out, 0, sizeof *out);
+    if (!json_text) return pen__error(ctx, PEN_ERROR_ARGUMENT, "task: no JSON text");
+    return task_from_text(ctx, json_text, strlen(json_text), path ? path : "task", NULL, out);
+}
+
+pen_status pen_optim_task_load(pen_context *ctx, const char *path, pen_optim_task *out) {
+    return pen_optim_task_load_ex(ctx, path, NULL, out);
+}
+
+pen_status pen_optim_task_load_ex(pen_context *ctx, const char *path, const char *target,
+                                  pen_optim_task *out) {
+    memset(out, 0, sizeof *out);
+    char *text = NULL;
+    size_t size = 0;
+    pen_status s = pen__io_read_file(ctx, path, (size_t)64 << 20, &text, &size);
+    if (s) return s;
+    s = task_from_text(ctx, text, size, path, target, out);
+    free(text);
+    return s;
+}
+
+void pen_optim_task_free(pen_optim_task *task) {
+    if (!task) return;
+    free(task->path);
+    pen_scene_free(&task->scene);
+    pen_image_free(&task->target);
+    free(task->target_path);
+    pen_scene_free(&task->ground_truth);
+    memset(task, 0, sizeof *task);
+}

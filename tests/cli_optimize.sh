@@ -1,0 +1,167 @@
+#!/bin/sh
+# Contract tests of `penumbra optimize` (DESIGN.md section 3): the output folder's files, the
+# result.json fields, a recovered scene that `penumbra render` reproduces, --no-shadows, and
+# one-line errors naming the file and the JSON key, with no output folder left behind.
+# Usage: sh cli_optimize.sh PENUMBRA_BIN SRC_DIR
+set -u
+BIN=$1
+SRC=$2
+T=$(mktemp -d)
+trap 'rm -rf "$T"' EXIT
+fails=0
+fail() { echo "FAIL: $*"; fails=$((fails + 1)); }
+
+# Ground truth: Spot (textured or not) with three inline spheres over the ground, 32x32, 2 bands.
+truth() { # albedo-member
+    cat <<JSON
+{"camera": {"width": 32, "height": 32, "fov_y_deg": 40, "eye": [2.5, 1.8, 3.0], "target": [0, 0.5, 0]},
+ "lighting": {"sh": [[1.5,1.4,1.3],[-1,-1,-1],[0.2,0.2,0.2],[-0.3,-0.3,-0.3]]},
+ "sh_bands": 2,
+ "objects": [{"mesh": "$SRC/data/meshes/spot_triangulated.obj",
+              $1,
+              "spheres": [{"center": [0, -0.07, 0.3], "radius": 0.36},
+                          {"center": [0, 0.45, -0.4], "radius": 0.28},
+                          {"center": [0, -0.55, 0.35], "radius": 0.2}],
+              "pose": {"rotation_axis_angle_deg": [0, 30, 0], "translation": [0, 0.737, 0]}}],
+ "ground": {"albedo": [0.7, 0.7, 0.7]},
+ "background": [0.1, 0.2, 0.3]}
+JSON
+}
+truth '"albedo": [0.8, 0.6, 0.4]' > "$T/truth.json"
+truth "\"albedo_texture\": \"$SRC/data/meshes/spot_texture.png\"" > "$T/truth_tex.json"
+"$BIN" reference "$T/truth.json" -o "$T/target.exr" --spp 16 > /dev/null || fail "reference"
+"$BIN" reference "$T/truth_tex.json" -o "$T/target_tex.exr" --spp 16 > /dev/null ||
+    fail "reference (textured)"
+
+# 1. Lighting from black, scene and ground truth by path.
+cat > "$T/task.json" <<JSON
+{"scene": "truth.json", "target": "target.exr", "optimize": ["lighting"],
+ "iterations": 60, "ground_truth": "truth.json"}
+JSON
+out=$("$BIN" optimize "$T/task.json" -o "$T/out") || fail "optimize lighting"
+case "$out" in *"$T/out: "*"iterations"*"lighting_rel_error"*) ;; *) fail "summary line: $out" ;; esac
+for f in result.json scene.json final.exr final.png compare.png loss.svg; do
+    [ -s "$T/out/$f" ] || fail "no $f written"
+done
+for key in '"iterations"' '"seconds"' '"seconds_per_iteration"' '"final_loss"' '"converged"' \
+    '"metrics"' '"image_rmse"' '"lighting_rel_error"' '"losses"' '"shadows":[[:space:]]*true'; do
+    grep -q "$key" "$T/out/result.json" || fail "result.json lacks $key"
+done
+grep -q '"rotation_error_deg"' "$T/out/result.json" && fail "result.json has a pose metric"
+grep -q '"sh"' "$T/out/scene.json" || fail "the recovered scene has no inline SH lighting"
+grep -q '<svg' "$T/out/loss.svg" || fail "loss.svg is not an SVG"
+# The recovered scene renders to the final image.
+"$BIN" render "$T/out/scene.json" -o "$T/again.exr" -q || fail "render the recovered scene"
+rmse=$("$BIN" compare "$T/again.exr" "$T/out/final.exr" | sed 's/.*"rmse": *\([^,]*\),.*/\1/')
+awk -v r="$rmse" 'BEGIN { exit !(r < 1e-6) }' || fail "recovered scene renders $rmse off final"
+ls "$T/out" | grep -q tmp- && fail "temporary file left in the output folder"
+
+# 2. --no-shadows writes "shadows": false; --iterations overrides the task.
+"$BIN" optimize "$T/task.json" -o "$T/flat" --no-shadows --iterations 5 -q || fail "--no-shadows"
+grep -q '"shadows":[[:space:]]*false' "$T/flat/result.json" || fail "--no-shadows not recorded"
+grep -q '"iterations":[[:space:]]*5,' "$T/flat/result.json" || fail "--iterations not applied"
+
+# 3. Texture and pose together, inline scene: the texture is written beside the scene.
+sed 's/"rotation_axis_angle_deg": \[0, 30, 0\]/"rotation_axis_angle_deg": [0, 34, 0]/' \
+    "$T/truth_tex.json" > "$T/start_tex.json"
+{
+    printf '{"scene": '
+    cat "$T/start_tex.json"
+    printf ', "target": "target_tex.exr", "optimize": ["albedo", "pose"], "iterations": 30,\n'
+    printf ' "lr": {"albedo": 0.02, "pose": 0.005}, "loss": "l1", "ground_truth": "truth_tex.json"}\n'
+} > "$T/task_tex.json"
+"$BIN" optimize "$T/task_tex.json" -o "$T/tex" -q || fail "optimize albedo + pose"
+[ -s "$T/tex/texture_0.png" ] || fail "no recovered texture written"
+grep -q '"albedo_texture":[[:space:]]*"texture_0.png"' "$T/tex/scene.json" ||
+    fail "scene.json does not reference the recovered texture"
+for key in '"albedo_psnr_db"' '"rotation_error_deg"' '"translation_error"' '"vertex_rmse"' \
+    '"loss":[[:space:]]*"l1"'; do
+    grep -q "$key" "$T/tex/result.json" || fail "result.json (texture) lacks $key"
+done
+"$BIN" render "$T/tex/scene.json" -o "$T/tex_again.exr" -q || fail "render recovered textured"
+
+# 4. Deformation: the deformed mesh is written beside the scene and referenced by it.
+cat > "$T/task_def.json" <<JSON
+{"scene": "truth.json", "target": "target.exr", "optimize": ["deformation"], "iterations": 4,
+ "deformation": {"k": 3, "w_rot": 0.001, "w_reg": 0.01}, "ground_truth": "truth.json"}
+JSON
+"$BIN" optimize "$T/task_def.json" -o "$T/def" -q || fail "optimize deformation"
+[ -s "$T/def/mesh_0.obj" ] || fail "no deformed mesh written"
+grep -q '"mesh":[[:space:]]*"mesh_0.obj"' "$T/def/scene.json" ||
+    fail "scene.json does not reference the deformed mesh"
+grep -q '"vertex_rmse"' "$T/def/result.json" || fail "result.json (deformation) lacks vertex_rmse"
+grep -q '"w_reg":[[:space:]]*0.01' "$T/def/result.json" || fail "result.json lacks the weights"
+"$BIN" render "$T/def/scene.json" -o "$T/def_again.exr" -q || fail "render the deformed scene"
+
+# Errors: exit 1, one line on stderr naming the file and key, no output folder.
+expect_error() { # expected-fragment task-text
+    frag=$1
+    printf '%s\n' "$2" > "$T/bad.json"
+    rm -rf "$T/badout"
+    if "$BIN" optimize "$T/bad.json" -o "$T/badout" 2>"$T/err" >/dev/null; then
+        fail "no error for: $2"
+    fi
+    grep -q -- "$frag" "$T/err" || fail "stderr lacks '$frag' for: $2 -> $(cat "$T/err")"
+    lines=$(wc -l < "$T/err")
+    [ "$lines" -eq 1 ] || fail "$lines lines on stderr for: $2"
+    [ -e "$T/badout" ] && fail "output folder left for: $2"
+    return 0
+}
+expect_error 'bad.json: optimize\[0\]: unknown group "colour"' \
+    '{"scene": "truth.json", "target": "target.exr", "optimize": ["colour"]}'
+expect_error 'bad.json: optimize: expected a non-empty array' \
+    '{"scene": "truth.json", "target": "target.exr", "optimize": []}'
+expect_error 'bad.json: optimize\[1\]: "lighting" is listed twice' \
+    '{"scene": "truth.json", "target": "target.exr", "optimize": ["lighting", "lighting"]}'
+expect_error 'bad.json: target: "target.png": expected a linear image' \
+    '{"scene": "truth.json", "target": "target.png", "optimize": ["lighting"]}'
+expect_error 'bad.json: target: ' \
+    '{"scene": "truth.json", "target": "nosuch.exr", "optimize": ["lighting"]}'
+expect_error 'bad.json: scene: ' \
+    '{"scene": "nosuch.json", "target": "target.exr", "optimize": ["lighting"]}'
+expect_error 'bad.json:scene: camera' \
+    '{"scene": {"objects": []}, "target": "target.exr", "optimize": ["lighting"]}'
+expect_error 'bad.json: iterations: expected an integer' \
+    '{"scene": "truth.json", "target": "target.exr", "optimize": ["lighting"], "iterations": 0}'
+expect_error 'bad.json: lr.albedo: expected a positive' \
+    '{"scene": "truth.json", "target": "target.exr", "optimize": ["albedo"], "lr": {"albedo": -1}}'
+expect_error 'bad.json: loss: unknown loss "l3"' \
+    '{"scene": "truth.json", "target": "target.exr", "optimize": ["albedo"], "loss": "l3"}'
+expect_error 'bad.json: iteratoins: unknown key' \
+    '{"scene": "truth.json", "target": "target.exr", "optimize": ["albedo"], "iteratoins": 3}'
+sed 's/"width": 32/"width": 16/' "$T/truth.json" > "$T/small.json"
+"$BIN" render "$T/small.json" -o "$T/small.exr" -q --no-shadows || fail "render small"
+expect_error 'bad.json: target: .*small.exr: the image is 16x32 but the scene' \
+    '{"scene": "truth.json", "target": "small.exr", "optimize": ["lighting"]}'
+expect_error 'bad.json: ground_truth: objects\[0\]: a texture albedo, but the scene' \
+    '{"scene": "truth.json", "target": "target.exr", "optimize": ["albedo"], "ground_truth": "truth_tex.json"}'
+expect_error 'bad.json: optimize\[1\]: "deformation" and "spheres" both move the spheres' \
+    '{"scene": "truth.json", "target": "target.exr", "optimize": ["spheres", "deformation"]}'
+expect_error 'bad.json: deformation.k: expected an integer in \[1, 32\]' \
+    '{"scene": "truth.json", "target": "target.exr", "optimize": ["deformation"], "deformation": {"k": 0}}'
+expect_error 'bad.json:[0-9]*:[0-9]*: invalid JSON' '{"scene": '
+# An output path that is a file: the run fails before writing anything.
+echo x > "$T/afile"
+if "$BIN" optimize "$T/task.json" -o "$T/afile" --iterations 2 2>"$T/err" >/dev/null; then
+    fail "no error for an output path that is a file"
+fi
+grep -q "afile: exists and is not a folder" "$T/err" || fail "outdir error: $(cat "$T/err")"
+# --target replaces the task's target, with the same checks.
+"$BIN" optimize "$T/task.json" -o "$T/retarget" --target "$T/target_tex.exr" --iterations 2 -q ||
+    fail "--target"
+"$BIN" optimize "$T/task.json" -o "$T/retarget2" --target "$T/small.exr" 2>"$T/err" >/dev/null &&
+    fail "--target of the wrong size accepted"
+grep -q -- "small.exr: the image is 16x32" "$T/err" || fail "--target error: $(cat "$T/err")"
+[ -e "$T/retarget2" ] && fail "output folder left after a --target error"
+printf '{"scene": "truth.json", "optimize": ["lighting"], "iterations": 2}\n' > "$T/notarget.json"
+"$BIN" optimize "$T/notarget.json" -o "$T/retarget3" --target "$T/target.exr" -q ||
+    fail "--target for a task without a target"
+# Usage errors exit 2.
+"$BIN" optimize "$T/task.json" 2>/dev/null
+[ $? -eq 2 ] || fail "missing -o is not a usage error"
+
+if [ "$fails" -ne 0 ]; then
+    echo "$fails failures"
+    exit 1
+fi
+echo "cli_optimize: all passed"
