@@ -109,7 +109,9 @@ int pen_cmd_optimize(int argc, char **argv) {
     progress p = {isatty(fileno(stderr))};
     set.progress = on_progress;
     set.progress_user = &p;
+    /* A SIGINT ignored on entry (a background job of a non-interactive shell) stays ignored. */
     void (*old)(int) = signal(SIGINT, on_sigint);
+    if (old == SIG_IGN) signal(SIGINT, SIG_IGN);
     pen_status s = pen_optim_run(ctx, &task, &set, &res);
     signal(SIGINT, old == SIG_ERR ? SIG_DFL : old);
     if (p.tty) fputc('\n', stderr);

@@ -93,6 +93,17 @@ grep -q '"vertex_rmse"' "$T/def/result.json" || fail "result.json (deformation) 
 grep -q '"w_reg":[[:space:]]*0.01' "$T/def/result.json" || fail "result.json lacks the weights"
 "$BIN" render "$T/def/scene.json" -o "$T/def_again.exr" -q || fail "render the deformed scene"
 
+# 5. Ctrl-C: the run stops after the current iteration, writes everything, exits 130.
+if command -v timeout > /dev/null; then
+    printf '{"scene": "truth.json", "target": "target.exr", "optimize": ["lighting"],\n' > "$T/long.json"
+    printf ' "iterations": 1000000, "window": 10000}\n' >> "$T/long.json"
+    timeout --preserve-status -s INT 3 "$BIN" optimize "$T/long.json" -o "$T/int" -q
+    st=$?
+    [ $st -eq 130 ] || fail "SIGINT: exit status $st, not 130"
+    grep -q '"interrupted":[[:space:]]*true' "$T/int/result.json" || fail "SIGINT: not recorded"
+    [ -s "$T/int/scene.json" ] || fail "SIGINT: no recovered scene"
+fi
+
 # Errors: exit 1, one line on stderr naming the file and key, no output folder.
 expect_error() { # expected-fragment task-text
     frag=$1

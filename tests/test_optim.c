@@ -7,7 +7,8 @@
  * Scene: an ellipsoid over the ground under a strong overhead light, 40x40 pixels, reference at
  * 256 spp with SH lighting (so the lighting is exactly representable and the error left is that
  * of the proxies and of SH visibility). Tolerances were set from measured values with a margin,
- * each noted. */
+ * each noted. Under PEN_TEST_QUICK (sanitizer builds) the solvers run 25 iterations and only
+ * the bookkeeping is checked. */
 #include "optim_scenes.h"
 
 #include "optim/optim_internal.h"
@@ -109,7 +110,7 @@ static pen_optim_task make_task(int textured, int bands, unsigned groups) {
     t.ground_truth = truth_scene(textured, bands);
     t.has_ground_truth = 1;
     t.optimize = groups;
-    t.iterations = 600;
+    t.iterations = check_quick_() ? 25 : 600; /* quick (sanitizer) runs: the paths, not the values */
     t.lr = pen_optim_lr_default();
     t.loss = PEN_OPTIM_LOSS_L2;
     t.tolerance = 1e-3;
@@ -151,6 +152,7 @@ static void check_result(const pen_optim_task *t, const pen_optim_result *r) {
         CHECK(r->final_loss <= r->losses[i] * (1 + 1e-12));
     CHECK(r->best_iteration >= 0 && r->best_iteration <= r->iterations);
     CHECK_REL(r->losses[r->best_iteration], r->final_loss, 1e-9, 0);
+    CHECK(r->final_loss < r->losses[0]);
 }
 
 /* Lighting, 2 bands (12 coefficients) from black. Measured: 0.185 relative error. */
@@ -158,8 +160,10 @@ static void test_lighting(void) {
     pen_optim_task t = make_task(0, 2, PEN_OPTIM_LIGHTING);
     pen_optim_result r = solve(&t, 1);
     check_result(&t, &r);
-    CHECK(r.final_loss < 0.02 * r.losses[0]);
-    CHECK(r.metrics.lighting_rel_error < 0.25);
+    if (!check_quick_()) {
+        CHECK(r.final_loss < 0.02 * r.losses[0]);
+        CHECK(r.metrics.lighting_rel_error < 0.25);
+    }
     CHECK(isnan(r.metrics.rotation_error_deg) && isnan(r.metrics.albedo_psnr_db));
     pen_optim_result_free(&r);
     pen_optim_task_free(&t);
@@ -177,7 +181,9 @@ static void test_shadows_beat_baseline(void) {
         pen_optim_result_free(&r);
         pen_optim_task_free(&t);
     }
-    CHECK_MSG(err[1] < 0.8 * err[0], "shadows %.4f, no shadows %.4f", err[1], err[0]);
+    if (!check_quick_()) {
+        CHECK_MSG(err[1] < 0.8 * err[0], "shadows %.4f, no shadows %.4f", err[1], err[0]);
+    }
 }
 
 /* Constant albedo from black, 4-band lighting known. Measured: 29.4 dB (the SH render shades
@@ -186,7 +192,9 @@ static void test_albedo_constant(void) {
     pen_optim_task t = make_task(0, 4, PEN_OPTIM_ALBEDO);
     pen_optim_result r = solve(&t, 1);
     check_result(&t, &r);
-    CHECK(r.metrics.albedo_psnr_db > 26.0);
+    if (!check_quick_()) {
+        CHECK(r.metrics.albedo_psnr_db > 26.0);
+    }
     CHECK(r.metrics.albedo_observed == 1.0);
     pen_optim_result_free(&r);
     pen_optim_task_free(&t);
@@ -199,8 +207,10 @@ static void test_albedo_texture(void) {
     pen_optim_task t = make_task(1, 4, PEN_OPTIM_ALBEDO);
     pen_optim_result r = solve(&t, 1);
     check_result(&t, &r);
-    CHECK(r.metrics.albedo_psnr_db > 23.0);
-    CHECK(r.metrics.albedo_texel_psnr_db > 17.0);
+    if (!check_quick_()) {
+        CHECK(r.metrics.albedo_psnr_db > 23.0);
+        CHECK(r.metrics.albedo_texel_psnr_db > 17.0);
+    }
     CHECK(r.metrics.albedo_observed > 0.8 && r.metrics.albedo_observed < 1.0);
     pen_optim_result_free(&r);
     pen_optim_task_free(&t);
@@ -241,9 +251,11 @@ static void test_pose(void) {
     p->translation[2] -= 0.04f;
     pen_optim_result r = solve(&t, 1);
     check_result(&t, &r);
-    CHECK(r.metrics.rotation_error_deg < 4.0);
-    CHECK(r.metrics.translation_error < 0.025);
-    CHECK(r.metrics.vertex_rmse < 0.035);
+    if (!check_quick_()) {
+        CHECK(r.metrics.rotation_error_deg < 4.0);
+        CHECK(r.metrics.translation_error < 0.025);
+        CHECK(r.metrics.vertex_rmse < 0.035);
+    }
     pen_optim_result_free(&r);
     pen_optim_task_free(&t);
 }

@@ -226,7 +226,7 @@ static void test_deformation_recovery(void) {
         bend(&t.ground_truth, lift);
         t.has_ground_truth = 1;
         t.optimize = PEN_OPTIM_DEFORMATION;
-        t.iterations = 300;
+        t.iterations = check_quick_() ? 20 : 300; /* quick: the paths, not the values */
         t.lr = pen_optim_lr_default();
         t.tolerance = 1e-3;
         t.window = 10;
@@ -249,8 +249,10 @@ static void test_deformation_recovery(void) {
         pen_optim_task_free(&t);
         pen_context_destroy(ctx);
     }
-    CHECK(err[1] < 0.85 * before);
-    CHECK(err[1] < err[0]);
+    if (!check_quick_()) {
+        CHECK(err[1] < 0.85 * before);
+        CHECK(err[1] < err[0]);
+    }
 }
 
 RUN_TESTS(TEST(test_graph_structure), TEST(test_rest_and_rigid), TEST(test_deform_bwd_fd),
