@@ -142,6 +142,9 @@ pen_optim_settings pen_optim_settings_default(void);
 typedef struct pen_optim_metrics {
     double image_rmse;          /* final render vs target, all pixels and channels */
     double lighting_rel_error;  /* |L - L_true| / |L_true| over all SH coefficients and channels */
+    double lighting_rel_error_b2; /* the same over bands 0..2 only, the bands an unshadowed
+                                     diffuse surface sees (band 3 reaches it only through
+                                     shadows); when there are more than 3 bands */
     double albedo_psnr_db;      /* 10 log10(1 / mse), peak 1, of the albedo the camera sees: the
                                    recovered and the true objects rendered alone under unit
                                    radiance without shadows (pixel = albedo), over the pixels

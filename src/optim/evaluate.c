@@ -77,9 +77,10 @@ pen_status pen__optim_check_truth(pen_context *ctx, const pen_optim_task *t) {
     return PEN_OK;
 }
 
-static double lighting_error(const pen_scene *sc, const pen_scene *gt) {
+/* Over the first `bands` bands. */
+static double lighting_error(const pen_scene *sc, const pen_scene *gt, int bands) {
     double num = 0.0, den = 0.0;
-    for (int k = 0; k < sc->sh_bands * sc->sh_bands; ++k)
+    for (int k = 0; k < bands * bands; ++k)
         for (int ch = 0; ch < 3; ++ch) {
             const double d = (double)sc->lighting.sh[k][ch] - (double)gt->lighting.sh[k][ch];
             num += d * d;
@@ -250,8 +251,11 @@ pen_status pen__optim_metrics(pen_context *ctx, const pen_optim_task *t, pen_opt
     if (!t->has_ground_truth) return PEN_OK;
     pen_status s = pen__optim_check_truth(ctx, t);
     if (s) return s;
-    if (t->optimize & PEN_OPTIM_LIGHTING)
-        m->lighting_rel_error = lighting_error(&t->scene, &t->ground_truth);
+    if (t->optimize & PEN_OPTIM_LIGHTING) {
+        m->lighting_rel_error = lighting_error(&t->scene, &t->ground_truth, t->scene.sh_bands);
+        if (t->scene.sh_bands > 3)
+            m->lighting_rel_error_b2 = lighting_error(&t->scene, &t->ground_truth, 3);
+    }
     if (t->optimize & (PEN_OPTIM_POSE | PEN_OPTIM_DEFORMATION)) pose_error(t, m);
     if (t->optimize & PEN_OPTIM_ALBEDO) {
         s = albedo_view_psnr(ctx, t, &m->albedo_psnr_db);

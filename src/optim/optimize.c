@@ -437,7 +437,7 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
 static void metrics_none(pen_optim_metrics *m) {
     const double none = (double)NAN;
     m->image_rmse = m->lighting_rel_error = m->albedo_psnr_db = m->albedo_observed = none;
-    m->albedo_texel_psnr_db = none;
+    m->albedo_texel_psnr_db = m->lighting_rel_error_b2 = none;
     m->rotation_error_deg = m->translation_error = m->vertex_rmse = none;
 }
 

@@ -287,6 +287,7 @@ static cJSON *metrics_json(const pen_optim_metrics *mt) {
     cJSON *m = cJSON_CreateObject();
     int ok = m && add_metric(m, "image_rmse", mt->image_rmse) &&
              add_metric(m, "lighting_rel_error", mt->lighting_rel_error) &&
+             add_metric(m, "lighting_rel_error_bands_0_2", mt->lighting_rel_error_b2) &&
              add_metric(m, "albedo_psnr_db", mt->albedo_psnr_db) &&
              add_metric(m, "albedo_texel_psnr_db", mt->albedo_texel_psnr_db) &&
              add_metric(m, "albedo_observed", mt->albedo_observed) &&
