@@ -11,7 +11,7 @@ static const char *const CMD = "reference";
 static void usage(FILE *f) {
     fprintf(f,
             "Usage: penumbra reference SCENE.json -o OUT [--spp N] [--seed S]\n"
-            "                          [--lighting envmap|sh|auto] [--threads N]\n\n"
+            "                          [--lighting envmap|sh|auto] [--threads N] [--coverage M]\n\n"
             "Ray-traced ground truth of the scene: the same camera, albedo and diffuse shading as\n"
             "`render`, with visibility traced against the real meshes and the ground plane.\n"
             "  -o OUT        output image: .exr or .hdr (linear) or .png (sRGB, 8-bit)\n"
@@ -21,6 +21,8 @@ static void usage(FILE *f) {
             "                sh: its SH reconstruction with the scene's sh_bands (unclamped);\n"
             "                auto (default): envmap when the scene has one, else sh\n"
             "  --threads N   threads (default 0: all cores)\n"
+            "  --coverage M  also write the fraction of each pixel's samples that hit a surface\n"
+            "                (1-channel image; `compare --mask M` then leaves the background out)\n"
             "Prints one JSON line: size, spp, lighting, threads and seconds.\n");
 }
 
@@ -31,7 +33,7 @@ static int known_extension(const char *path) {
 }
 
 int pen_cmd_reference(int argc, char **argv) {
-    const char *scene_path = NULL, *out_path = NULL;
+    const char *scene_path = NULL, *out_path = NULL, *cov_path = NULL;
     int spp = 64, seed = 1, threads = 0, lighting = PEN_REFERENCE_LIGHTING_AUTO;
     for (int i = 1; i < argc; ++i) {
         const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
@@ -41,6 +43,9 @@ int pen_cmd_reference(int argc, char **argv) {
         } else if (strcmp(a, "-o") == 0 || strcmp(a, "--output") == 0) {
             if (!v) return pen_cli_usage_error(CMD, "%s needs a value", a);
             out_path = v, ++i;
+        } else if (strcmp(a, "--coverage") == 0) {
+            if (!v) return pen_cli_usage_error(CMD, "%s needs a value", a);
+            cov_path = v, ++i;
         } else if (strcmp(a, "--spp") == 0) {
             if (!pen_cli_parse_int(CMD, a, v, 1, PEN_REFERENCE_MAX_SPP, &spp)) return 2;
             ++i;
@@ -69,13 +74,16 @@ int pen_cmd_reference(int argc, char **argv) {
     if (!out_path) return pen_cli_usage_error(CMD, "missing -o OUT");
     if (!known_extension(out_path))
         return pen_cli_usage_error(CMD, "%s: the output must end in .exr, .hdr or .png", out_path);
+    if (cov_path && !known_extension(cov_path))
+        return pen_cli_usage_error(CMD, "%s: the coverage must end in .exr, .hdr or .png",
+                                   cov_path);
 
     pen_context *ctx = pen_context_create();
     if (!ctx) return pen_cli_fail(CMD, "out of memory");
     pen_context_set_threads(ctx, threads);
     pen_scene scene;
     pen_reference *ref = NULL;
-    pen_image img = {0, 0, 0, NULL};
+    pen_image img = {0, 0, 0, NULL}, cov = img;
     int status = 0;
     if (pen_scene_load(ctx, scene_path, &scene)) {
         status = pen_cli_fail_ctx(CMD, ctx);
@@ -84,12 +92,18 @@ int pen_cmd_reference(int argc, char **argv) {
     }
     double t0 = omp_get_wtime();
     if (pen_reference_create(ctx, &scene, (pen_reference_lighting)lighting, &ref) ||
-        pen_reference_render(ctx, ref, spp, (uint64_t)seed, &img)) {
+        pen_reference_render_coverage(ctx, ref, spp, (uint64_t)seed, &img,
+                                      cov_path ? &cov : NULL)) {
         status = pen_cli_fail_ctx(CMD, ctx);
     } else {
         double seconds = omp_get_wtime() - t0;
-        if (pen_image_save(ctx, out_path, &img)) {
+        /* Coverage first: if the image then fails, the coverage is removed again, so a failed
+         * run leaves neither file. */
+        if (cov_path && pen_image_save(ctx, cov_path, &cov)) {
             status = pen_cli_fail_ctx(CMD, ctx);
+        } else if (pen_image_save(ctx, out_path, &img)) {
+            status = pen_cli_fail_ctx(CMD, ctx);
+            if (cov_path) remove(cov_path);
         } else {
             printf("{\"output\": \"%s\", \"width\": %d, \"height\": %d, \"spp\": %d, \"seed\": %d, "
                    "\"lighting\": \"%s\", \"threads\": %d, \"seconds\": %.3f}\n",
@@ -99,6 +113,7 @@ int pen_cmd_reference(int argc, char **argv) {
         }
     }
     pen_image_free(&img);
+    pen_image_free(&cov);
     pen_reference_destroy(ref);
     pen_scene_free(&scene);
     pen_context_destroy(ctx);

@@ -3,6 +3,10 @@
 # ground plane, city and interior maps, 512x512), and what the reference costs.
 # Usage: sh scripts/reference_table.sh PENUMBRA_BIN OUTDIR [SPP] [SIZE]
 #   SPP  samples per pixel of the ground truth (default 1024), SIZE the image side (default 512).
+#   REUSE=1 keeps the reference images (and their rows) of an earlier run into the same OUTDIR
+#   and redoes only the `render` rows.
+# Times: the reference's own "seconds" (Embree build + render) and render's own (pen_render_fwd),
+# neither counting process start, scene loading (meshes, textures, sphere fits) or saving.
 # Writes OUTDIR/scenes/*.json, the images, OUTDIR/results.tsv, and a markdown table on stdout.
 # Per scene:
 #   truth   reference --lighting sh at SPP (seed 1): the light `render` uses, exact visibility
@@ -13,6 +17,8 @@
 #           variance s^2 is fitted from the 64 and 256 points (e^2 = s^2/n + s^2/SPP), giving the
 #           truth's own noise floor s/sqrt(SPP) and the spp that reaches a given error, e: (s/e)^2
 #   render  (once `penumbra render` exists) each shadow.exp method and --no-shadows vs truth
+# Every error is given over the whole image and over the surfaces alone (compare --mask with the
+# truth's coverage): the background differs between renderers by texture detail only.
 set -eu
 BIN=$1
 OUT=$2
@@ -47,82 +53,108 @@ make_scene() { # name [exp]
     scene "$1${2:+_$2}" $mesh "$alb" $lift $env $scale "${2:-calibrated}"
 }
 seconds() { sed -n 's/.*"seconds": \([0-9.]*\).*/\1/p'; }
-rel() { "$BIN" compare "$1" "$2" | sed -n 's/^{"rmse": [^,]*, "rel_rmse": \([^,]*\),.*/\1/p'; }
+# "full masked" rel_rmse of $1 against $2, masked by $3
+rel() {
+    "$BIN" compare "$1" "$2" --mask "$3" |
+        sed -n 's/^{"rmse": [^,]*, "rel_rmse": \([^,]*\),.*"mask": {"rmse": [^,]*, "rel_rmse": \([^,]*\),.*/\1 \2/p'
+}
 has_render=0
 "$BIN" render --help > /dev/null 2>&1 && has_render=1
 
-printf 'scene\tkind\tspp\tseconds\trel_rmse\n' > "$OUT/results.tsv"
-row() { printf '%s\t%s\t%s\t%s\t%s\n' "$@" >> "$OUT/results.tsv"; }
+old="$OUT/results.old"
+rm -f "$old"
+trap 'rm -f "$old"' EXIT
+[ "${REUSE:-0}" = 1 ] && [ -f "$OUT/results.tsv" ] && mv "$OUT/results.tsv" "$old"
+printf 'scene\tkind\tspp\tseconds\trel_rmse\trel_rmse_surfaces\n' > "$OUT/results.tsv"
+row() { printf '%s\t%s\t%s\t%s\t%s\t%s\n' "$1" "$2" "$3" "$4" "${5% *}" "${5#* }" >> "$OUT/results.tsv"; }
+# reused scene kind spp image: copies the earlier row when REUSE=1 and the image is still there
+reused() {
+    [ -f "$old" ] && [ -f "$4" ] || return 1
+    line=$(awk -F'\t' -v a="$1" -v b="$2" -v c="$3" '$1 == a && $2 == b && $3 == c' "$old")
+    [ -n "$line" ] && echo "$line" >> "$OUT/results.tsv"
+}
 
 for name in spot_city spot_interior bob_city bob_interior; do
     make_scene $name
     S="$OUT/scenes/$name.json"
     truth="$OUT/${name}_truth.exr"
-    t=$("$BIN" reference "$S" -o "$truth" --spp "$SPP" --seed 1 --lighting sh | seconds)
-    row $name truth "$SPP" "$t" 0
+    mask="$OUT/${name}_coverage.png"
+    if ! reused $name truth "$SPP" "$truth"; then
+        t=$("$BIN" reference "$S" -o "$truth" --coverage "$mask" --spp "$SPP" --seed 1 --lighting sh | seconds)
+        row $name truth "$SPP" "$t" "0 0"
+    fi
     for n in $((SPP / 4)) $((SPP / 16)); do
         img="$OUT/${name}_envmap$n.exr"
+        reused $name envmap $n "$img" && continue
         t=$("$BIN" reference "$S" -o "$img" --spp $n --seed $((200 + n)) --lighting envmap | seconds)
-        row $name envmap $n "$t" "$(rel "$img" "$truth")"
+        row $name envmap $n "$t" "$(rel "$img" "$truth" "$mask")"
     done
     for n in 1 4 16 64 256; do
         img="$OUT/${name}_ref$n.exr"
+        reused $name ladder $n "$img" && continue
         t=$("$BIN" reference "$S" -o "$img" --spp $n --seed $((100 + n)) --lighting sh | seconds)
-        row $name ladder $n "$t" "$(rel "$img" "$truth")"
+        row $name ladder $n "$t" "$(rel "$img" "$truth" "$mask")"
     done
     if [ $has_render -eq 1 ]; then
-        for exp in paper exact calibrated; do
-            make_scene $name $exp
+        for exp in paper exact calibrated noshadows; do
+            if [ $exp = noshadows ]; then
+                sc="$S" flag=--no-shadows
+            else
+                make_scene $name $exp
+                sc="$OUT/scenes/${name}_$exp.json" flag=
+            fi
             img="$OUT/${name}_render_$exp.exr"
-            t0=$(date +%s.%N)
-            "$BIN" render "$OUT/scenes/${name}_$exp.json" -o "$img" > /dev/null
-            t=$(echo "$(date +%s.%N) $t0" | awk '{printf "%.3f", $1 - $2}')
-            row $name "render_$exp" - "$t" "$(rel "$img" "$truth")"
+            t=$("$BIN" render "$sc" -o "$img" $flag | sed -n 's/.*, \([0-9.]*\) s$/\1/p' | tail -1)
+            row $name "render_$exp" - "$t" "$(rel "$img" "$truth" "$mask")"
         done
-        img="$OUT/${name}_render_noshadows.exr"
-        t0=$(date +%s.%N)
-        "$BIN" render "$S" -o "$img" --no-shadows > /dev/null
-        t=$(echo "$(date +%s.%N) $t0" | awk '{printf "%.3f", $1 - $2}')
-        row $name render_noshadows - "$t" "$(rel "$img" "$truth")"
     fi
 done
 
-# Summary: per scene, the noise model from the ladder, then each render's error and the spp (and
-# time, scaled from the truth's seconds per spp) the reference needs to reach it.
+# Summary. Per scene and metric (c = 5 whole image, 6 surfaces) the ladder gives the per-spp
+# variance s^2 from its 64 and 256 points (e^2 = s^2/n + s^2/SPP); the truth's own noise is
+# s/sqrt(SPP), removed from every error below; a render error e needs (s/e)^2 reference spp.
 awk -F'\t' -v SPP="$SPP" '
+function noise(s, c,   e64, e256, v) {
+    e64 = err[s, "ladder", 64, c]; e256 = err[s, "ladder", 256, c]
+    v = (e64 * e64 - e256 * e256) / (1 / 64 - 1 / 256)
+    return v > 0 ? sqrt(v) : 0
+}
+function clean(e, sig) { e = e * e - sig * sig / SPP; return e > 0 ? sqrt(e) : 0 }
+function band(s, c,   n1, n2, m1, m2, v, b2) {
+    n1 = SPP / 4; n2 = SPP / 16; m1 = err[s, "envmap", n1, c]; m2 = err[s, "envmap", n2, c]
+    v = (m2 * m2 - m1 * m1) / (1 / n2 - 1 / n1)
+    b2 = m1 * m1 - v / n1 - sig[s, c] * sig[s, c] / SPP
+    return b2 > 0 ? sprintf("%.3f", sqrt(b2)) : "< noise"
+}
 NR == 1 { next }
-{ key = $1 SUBSEP $2 SUBSEP $3; sec[key] = $4; err[key] = $5; if (!($1 in seen)) { seen[$1] = 1; order[++n] = $1 } }
-$2 ~ /^render/ { rk[$1, ++nr[$1]] = $2 }
+{
+    err[$1, $2, $3, 5] = $5; err[$1, $2, $3, 6] = $6; sec[$1, $2, $3] = $4
+    if (!($1 in seen)) { seen[$1] = 1; order[++n] = $1 }
+    if ($2 ~ /^render/) rk[$1, ++nr[$1]] = $2
+}
 END {
-    printf "| scene | truth: %d spp, s | noise of truth (rel) | envmap vs SH light (rel) | ladder rel_rmse at 1 / 16 / 256 spp |\n", SPP
+    for (i = 1; i <= n; ++i) for (c = 5; c <= 6; ++c) sig[order[i], c] = noise(order[i], c)
+    printf "| scene | truth (%d spp) s | truth noise, image / surfaces | band-limited light vs the map, image / surfaces | reference at 1 / 16 / 256 spp (surfaces) |\n", SPP
     printf "|---|---|---|---|---|\n"
     for (i = 1; i <= n; ++i) {
         s = order[i]
-        e64 = err[s, "ladder", 64]; e256 = err[s, "ladder", 256]
-        var = (e64 * e64 - e256 * e256) / (1 / 64 - 1 / 256)
-        sigma[s] = var > 0 ? sqrt(var) : 0
-        persec[s] = sec[s, "truth", SPP] / SPP
-        n1 = SPP / 4; n2 = SPP / 16; m1 = err[s, "envmap", n1]; m2 = err[s, "envmap", n2]
-        v = (m2 * m2 - m1 * m1) / (1 / n2 - 1 / n1)
-        b2 = m1 * m1 - v / n1 - sigma[s] * sigma[s] / SPP
-        band = b2 > 0 ? sprintf("%.4f", sqrt(b2)) : "below noise"
-        printf "| %s | %.1f | %.4f | %s | %.4f / %.4f / %.4f |\n", s, sec[s, "truth", SPP], sigma[s] / sqrt(SPP),
-               band, err[s, "ladder", 1], err[s, "ladder", 16], err[s, "ladder", 256]
+        printf "| %s | %.0f | %.3f / %.3f | %s / %s | %.3f / %.3f / %.3f |\n", s, sec[s, "truth", SPP],
+               sig[s, 5] / sqrt(SPP), sig[s, 6] / sqrt(SPP), band(s, 5), band(s, 6),
+               err[s, "ladder", 1, 6], err[s, "ladder", 16, 6], err[s, "ladder", 256, 6]
     }
     any = 0
     for (i = 1; i <= n; ++i) if (nr[order[i]] > 0) any = 1
     if (!any) { print "\n(render rows pending: `penumbra render` is not available in this build)"; exit }
-    printf "\n| scene | method | rel_rmse | render s | reference spp for that error | reference s |\n|---|---|---|---|---|---|\n"
+    printf "\n| scene | render | rel_rmse image | rel_rmse surfaces | render s | reference spp (s) for the same error, surfaces |\n|---|---|---|---|---|---|\n"
     for (i = 1; i <= n; ++i) {
-        s = order[i]
+        s = order[i]; persec = sec[s, "truth", SPP] / SPP
         for (j = 1; j <= nr[s]; ++j) {
-            k = rk[s, j]; e = err[s, k, "-"]
-            floor2 = sigma[s] * sigma[s] / SPP
-            e2 = e * e - floor2
-            spp = e2 > 0 ? sigma[s] * sigma[s] / e2 : 0
-            need = (spp > 0) ? sprintf("%.1f", spp) : "below the truth noise"
-            cost = (spp > 0) ? sprintf("%.2f", spp * persec[s]) : "-"
-            printf "| %s | %s | %.4f | %.3f | %s | %s |\n", s, substr(k, 8), e, sec[s, k, "-"], need, cost
+            k = rk[s, j]
+            e5 = clean(err[s, k, "-", 5], sig[s, 5]); e6 = clean(err[s, k, "-", 6], sig[s, 6])
+            spp = e6 > 0 ? sig[s, 6] * sig[s, 6] / (e6 * e6) : 0
+            need = (spp >= 1) ? sprintf("%.1f (%.2f)", spp, spp * persec) : \
+                   (spp > 0) ? sprintf("< 1 (1 spp: %.2f)", persec) : "below the truth noise"
+            printf "| %s | %s | %.3f | %.3f | %.2f | %s |\n", s, substr(k, 8), e5, e6, sec[s, k, "-"], need
         }
     }
 }' "$OUT/results.tsv"

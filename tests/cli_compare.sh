@@ -4,7 +4,7 @@
 # Usage: sh cli_compare.sh PENUMBRA_BIN SOURCE_DIR
 set -u
 BIN=$1
-SRC=$2
+SRC=$(cd "$2" && pwd)
 T=$(mktemp -d)
 trap 'rm -rf "$T"' EXIT
 fails=0
@@ -90,14 +90,25 @@ grep -q '"lighting": "envmap"' "$T/j" || fail "reference JSON: $(cat "$T/j")"
 "$BIN" compare "$T/r1.exr" "$T/r3.exr" > "$T/j" || fail "compare r1 r3"
 awk -v r="$(field "$T/j" rel_rmse)" 'BEGIN { exit !(r > 0 && r < 1) }' || fail "envmap vs sh: $(cat "$T/j")"
 
+"$BIN" reference "$T/scene.json" -o "$T/r4.exr" --spp 4 --seed 3 --coverage "$T/cov.png" > /dev/null 2>&1 \
+    || fail "reference --coverage"
+"$BIN" compare "$T/r1.exr" "$T/r4.exr" > "$T/j" || fail "compare r1 r4"
+[ "$(field "$T/j" rmse)" = 0 ] || fail "--coverage changed the image: $(cat "$T/j")"
+"$BIN" compare "$T/r1.exr" "$T/r3.exr" --mask "$T/cov.png" > "$T/j" || fail "compare --mask coverage"
+pix=$(field "$T/j" mask.pixels)
+[ "$pix" -gt 0 ] && [ "$pix" -lt 384 ] || fail "coverage mask selects $pix of 384 pixels"
+
 expect_error "reference: missing scene" "$BIN" reference "$T/none.json" -o "$T/x.exr"
 [ ! -e "$T/x.exr" ] || fail "reference left an output for a missing scene"
 expect_error "reference: unwritable output" "$BIN" reference "$T/scene.json" -o "$T/no/dir/x.exr" --spp 1
+expect_error "reference: unwritable output with coverage" "$BIN" reference "$T/scene.json" \
+    -o "$T/no/dir/x.exr" --coverage "$T/x_cov.png" --spp 1
+[ ! -e "$T/x_cov.png" ] || fail "reference left the coverage of a failed run"
 ls "$T/no" > /dev/null 2>&1 && fail "reference created a folder"
 "$BIN" reference "$T/scene.json" -o "$T/x.exr" --lighting moon > /dev/null 2>&1 && fail "bad --lighting accepted"
 "$BIN" reference "$T/scene.json" -o "$T/x.exr" --spp 0 > /dev/null 2>&1 && fail "--spp 0 accepted"
 [ ! -e "$T/x.exr" ] || fail "reference left an output after a usage error"
-leftover=$(ls "$T" | grep -v -E '^(a|b|c|m)\.hdr$|^r[123]\.exr$|^(scene\.json|j|out|err)$')
+leftover=$(ls "$T" | grep -v -E '^(a|b|c|m)\.hdr$|^r[1234]\.exr$|^(scene\.json|cov\.png|j|out|err)$')
 [ -z "$leftover" ] || fail "stray files: $leftover"
 
 [ $fails -eq 0 ] && echo "cli_compare: all passed" || echo "cli_compare: $fails failed"

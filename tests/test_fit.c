@@ -421,6 +421,7 @@ static void test_fit_sphere(void) {
     CHECK(met.surface_coverage > 0.95);
     CHECK(met.volume_coverage > 0.98);
     CHECK(met.sov_fraction < 0.1);
+    CHECK(met.mean_overlap == 1.0);
     pen_spheres_free(&sp);
     free_mesh(&m);
 }
@@ -439,6 +440,7 @@ static void test_fit_capsule(void) {
     CHECK(met.surface_coverage > 0.9);
     CHECK(met.sov_fraction < 0.2);
     CHECK(met.volume_coverage > 0.95);
+    CHECK(met.mean_overlap > 1.0 && met.mean_overlap < 4.0); /* neighbours overlap, not all */
     pen_spheres_free(&sp);
     free_mesh(&m);
 }

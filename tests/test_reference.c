@@ -430,11 +430,30 @@ static void test_textured_quad(void) {
     o->texture = tex;
     pen_reference *ref = make_ref(ctx, &t.scene, PEN_REFERENCE_LIGHTING_SH);
     pen_image img;
-    CHECK(pen_reference_render(ctx, ref, 4, 1, &img) == PEN_OK);
+    pen_image cov;
+    CHECK(pen_reference_render_coverage(ctx, ref, 4, 1, &img, &cov) == PEN_OK);
     /* The quad fills the view; rows 2 and 13 are well inside the top and bottom halves. */
     CHECK_NEAR(img.data[3 * (2 * 16 + 8)], 0.9 * L, 1e-4);
     CHECK_NEAR(img.data[3 * (13 * 16 + 8)], 0.1 * L, 1e-4);
+    CHECK(cov.channels == 1 && cov.data[0] == 1.0f && cov.data[16 * 16 - 1] == 1.0f);
+    pen_image same;
+    CHECK(pen_reference_render(ctx, ref, 4, 1, &same) == PEN_OK);
+    CHECK(memcmp(same.data, img.data, sizeof(float) * 3 * 16 * 16) == 0);
+    pen_image_free(&same);
+    pen_image_free(&cov);
     pen_image_free(&img);
+    /* A wider view sees the quad's edges: coverage is the covered fraction of the pixel. */
+    t.scene.camera.fov_y_deg = 90.0f;
+    pen_reference_destroy(ref);
+    ref = make_ref(ctx, &t.scene, PEN_REFERENCE_LIGHTING_SH);
+    CHECK(pen_reference_render_coverage(ctx, ref, 64, 1, &img, &cov) == PEN_OK);
+    /* focal = 8 px at 90 degrees: x = 2 at depth 3 projects to 8 + 8 * 2 / 3 = 13.33 px, so
+     * column 13 is a third covered; columns 12 and 14 fully and not at all. */
+    CHECK_NEAR(cov.data[8 * 16 + 13], 1.0 / 3, 0.1);
+    CHECK(cov.data[8 * 16 + 12] == 1.0f && cov.data[8 * 16 + 14] == 0.0f);
+    pen_image_free(&cov);
+    pen_image_free(&img);
+    t.scene.camera.fov_y_deg = 30.0f;
     pen_reference_destroy(ref);
 
     /* From behind the quad faces away: lit two-sided, the same brightness (the texture mirrored
@@ -547,6 +566,56 @@ static void test_determinism(void) {
     pen_context_destroy(ctx);
 }
 
+/* ---- Agreement with `render` where both are exact ----------------------------------------------
+ */
+
+/* Unoccluded surfaces under SH light: the reference (closed form + a blocked-light estimate that is
+ * zero here) and the SH renderer without shadows both give rho/pi E_0(n) exactly. The ground, and
+ * a tilted quad that fills the view (so the band-1 and band-2 terms matter), pixel by pixel. */
+static void test_agrees_with_render(void) {
+    pen_context *ctx = pen_context_create();
+    test_scene t;
+    scene_ground(&t, 16, 12, 0.7f);
+    t.scene.sh_bands = 4;
+    random_sh(t.scene.lighting.sh, 4, 31);
+    pen_render_options opt = pen_render_options_default();
+    opt.shadows = 0;
+    for (int pass = 0; pass < 2; ++pass) {
+        if (pass == 1) { /* a quad tilted 30 degrees about X, facing the camera on +Z */
+            const float c = 0.8660254f, sn = 0.5f;
+            const float p[12] = {-3, -3 * c, 3 * sn,  3,  -3 * c, 3 * sn,
+                                 3,  3 * c,  -3 * sn, -3, 3 * c,  -3 * sn};
+            const uint32_t idx[6] = {0, 1, 2, 0, 2, 3};
+            memcpy(t.positions[0], p, sizeof p);
+            memcpy(t.indices[0], idx, sizeof idx);
+            pen_object *o = &t.objects[0];
+            o->mesh.vertex_count = 4;
+            o->mesh.triangle_count = 2;
+            o->mesh.positions = t.positions[0];
+            o->mesh.indices = t.indices[0];
+            o->albedo[0] = 0.3f, o->albedo[1] = 0.5f, o->albedo[2] = 0.9f;
+            o->pose.scale = 1.0f;
+            t.scene.object_count = 1;
+            t.scene.ground.enabled = 0;
+            t.scene.camera = (pen_camera){16, 12, 40.0f, {0, 0, 4}, {0, 0, 0}, {0, 1, 0}};
+        }
+        pen_reference *ref = make_ref(ctx, &t.scene, PEN_REFERENCE_LIGHTING_SH);
+        pen_image a, b = {0, 0, 0, NULL};
+        CHECK(pen_reference_render(ctx, ref, 4, 1, &a) == PEN_OK);
+        pen_status st = pen_render_fwd(ctx, &t.scene, &opt, NULL, &b);
+        CHECK_MSG(st == PEN_OK, "%s", pen_context_error(ctx));
+        double worst = 0;
+        for (int i = 0; st == PEN_OK && i < 16 * 12 * 3; ++i)
+            worst = fmax(worst, fabs((double)a.data[i] - (double)b.data[i]) /
+                                    fmax(fabs((double)b.data[i]), 1e-3));
+        CHECK_MSG(worst < 1e-4, "pass %d: worst relative difference %g", pass, worst);
+        pen_image_free(&a);
+        pen_image_free(&b);
+        pen_reference_destroy(ref);
+    }
+    pen_context_destroy(ctx);
+}
+
 /* ---- Errors ---------------------------------------------------------------------------------- */
 
 static void test_errors(void) {
@@ -592,4 +661,4 @@ static void test_errors(void) {
 RUN_TESTS(TEST(test_envmap_sampler), TEST(test_constant_sh_plane), TEST(test_constant_envmap_plane),
           TEST(test_sh_plane), TEST(test_envmap_sh_function), TEST(test_occluding_square),
           TEST(test_textured_quad), TEST(test_convergence), TEST(test_determinism),
-          TEST(test_errors))
+          TEST(test_agrees_with_render), TEST(test_errors))

@@ -62,6 +62,7 @@ typedef struct pen_fit_metrics {
     double sov_fraction;     /* voxels inside some sphere and outside the mesh / voxels inside */
     double surface_coverage; /* surface samples inside some sphere / surface samples */
     double volume_coverage;  /* inside voxels inside some sphere / inside voxels */
+    double mean_overlap;     /* spheres containing an inside voxel, averaged over covered ones */
     int iterations;          /* Adam iterations run */
     double seconds;          /* wall time of the whole fit (voxelization included) */
     double energy;           /* final E (eq. 5) */

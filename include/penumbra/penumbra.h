@@ -10,6 +10,7 @@
 
 #include "penumbra/core.h"
 #include "penumbra/fit.h"
+#include "penumbra/flat.h"
 #include "penumbra/image.h"
 #include "penumbra/mesh.h"
 #include "penumbra/metrics.h"

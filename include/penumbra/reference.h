@@ -74,6 +74,13 @@ pen_reference_lighting pen_reference_lighting_mode(const pen_reference *ref);
  * samples per pixel. *out is allocated here (pen_image_free releases it); zeroed on failure. */
 pen_status pen_reference_render(pen_context *ctx, const pen_reference *ref, int spp, uint64_t seed,
                                 pen_image *out);
+/* The same image (bit for bit), and, when `coverage` is not NULL, a 1-channel image of the
+ * fraction of each pixel's camera samples that hit a surface (mesh or ground): 0 where the pixel
+ * shows only background. Thresholded at 0.5 it is a mask for pen_image_compare that leaves out
+ * the background, whose box-filtered texture detail no rasterizer sampling at pixel centres
+ * reproduces. */
+pen_status pen_reference_render_coverage(pen_context *ctx, const pen_reference *ref, int spp,
+                                         uint64_t seed, pen_image *out, pen_image *coverage);
 
 /* Irradiance E = integral L(w) V(x, w) max(n . w, 0) dw at the surface point x with unit normal
  * n (rays leave from x nudged along n), estimated with `samples` sample pairs. */

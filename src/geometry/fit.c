@@ -23,7 +23,8 @@
  * spheres; a centre that falls outside the mesh moves to its cluster's member nearest to it; the
  * radius is the distance to the nearest surface sample (the sphere starts inscribed). Adam then
  * moves centres and radii with a step given in voxel edges that decays by a cosine; radii are
- * kept above a quarter voxel so that no sphere collapses to a point.
+ * kept above a quarter voxel so that no sphere collapses to a point. Spheres that no surface sample
+ * needs are moved a few times early in the run ("Relocating idle spheres" below).
  */
 #include "geometry/fit_internal.h"
 
@@ -40,12 +41,12 @@
  * thread: the energy runs once per Adam step, and waking a thread team that often cost more than
  * it saved (on a loaded 2-core machine, spinning barriers made the small test fits 15x slower). */
 #define FIT_SERIAL_PAIRS 4e6
+/* Cells of the energy's culling: bricks of FIT_BRICK^3 voxels. */
+#define FIT_BRICK 4
 
 static int parallel_worth(double pairs) {
     return pairs >= FIT_SERIAL_PAIRS;
 }
-/* Cells of the energy's culling: bricks of FIT_BRICK^3 voxels. */
-#define FIT_BRICK 4
 
 void pen_fit_settings_default(pen_fit_settings *s) {
     s->voxels = 64;
@@ -334,15 +335,21 @@ static void inscribe(const float *surf, int n_surf, int k, double r_min, int thr
 
 /* ---- Metrics ------------------------------------------------------------------------------ */
 
-static long count_covered(const float *pts, long n_pts, const double *sph, int k, int threads) {
-    long hits = 0;
-#pragma omp parallel for num_threads(threads) if (parallel_worth((double)n_pts * k)) schedule(static) reduction(+ : hits)
-    for (long j = 0; j < n_pts; ++j)
-        for (int i = 0; i < k; ++i)
-            if (dist2(pts + 3 * j, sph + 4 * i) <= sph[4 * i + 3] * sph[4 * i + 3]) {
-                ++hits;
-                break;
-            }
+/* Points inside at least one sphere; with depth != NULL also the sum over those points of the
+ * number of spheres that contain them. */
+static long count_covered(const float *pts, long n_pts, const double *sph, int k, int threads,
+                          long *depth) {
+    long hits = 0, sum = 0;
+    int team = parallel_worth((double)n_pts * k);
+#pragma omp parallel for num_threads(threads) if (team) schedule(static) reduction(+ : hits, sum)
+    for (long j = 0; j < n_pts; ++j) {
+        int c = 0;
+        for (int i = 0; i < k && (c == 0 || depth); ++i)
+            c += dist2(pts + 3 * j, sph + 4 * i) <= sph[4 * i + 3] * sph[4 * i + 3];
+        hits += c > 0;
+        sum += c;
+    }
+    if (depth) *depth = sum;
     return hits;
 }
 
@@ -357,12 +364,13 @@ int pen_fit_json(const pen_fit_settings *st, const pen_fit_metrics *m, char *buf
                  st->iterations, st->learning_rate, st->seed);
     return snprintf(buf, size,
                     "{\"metrics\": {\"sov_fraction\": %.6f, \"surface_coverage\": %.6f, "
-                    "\"volume_coverage\": %.6f, \"iterations\": %d, \"seconds\": %.3f, "
+                    "\"volume_coverage\": %.6f, \"mean_overlap\": %.4f, \"iterations\": %d, "
+                    "\"seconds\": %.3f, "
                     "\"energy\": %.9g, \"grid\": [%d, %d, %d], \"inside_voxels\": %ld, "
                     "\"surface_samples\": %d}%s}",
-                    m->sov_fraction, m->surface_coverage, m->volume_coverage, m->iterations,
-                    m->seconds, m->energy, m->grid[0], m->grid[1], m->grid[2], m->inside_voxels,
-                    m->surface_samples, settings);
+                    m->sov_fraction, m->surface_coverage, m->volume_coverage, m->mean_overlap,
+                    m->iterations, m->seconds, m->energy, m->grid[0], m->grid[1], m->grid[2],
+                    m->inside_voxels, m->surface_samples, settings);
 }
 
 /* ---- The fit ------------------------------------------------------------------------------ */
@@ -689,9 +697,11 @@ pen_status pen_spheres_fit(pen_context *ctx, const pen_mesh *mesh, int count,
         /* Hard tests on the float spheres that are returned. */
         for (size_t k = 0; k < n; ++k)
             d.sph[k] = (double)out->data[k];
-        long in_cov = count_covered(d.inside_pts, d.n_inside, d.sph, count, threads);
-        long out_cov = count_covered(d.outside_pts, d.n_outside, d.sph, count, threads);
-        long surf_cov = count_covered(d.surf_pts, d.n_surf, d.sph, count, threads);
+        long depth = 0;
+        long in_cov = count_covered(d.inside_pts, d.n_inside, d.sph, count, threads, &depth);
+        long out_cov = count_covered(d.outside_pts, d.n_outside, d.sph, count, threads, NULL);
+        long surf_cov = count_covered(d.surf_pts, d.n_surf, d.sph, count, threads, NULL);
+        metrics->mean_overlap = in_cov > 0 ? (double)depth / (double)in_cov : 0;
         metrics->sov_fraction = (double)out_cov / (double)d.n_inside;
         metrics->volume_coverage = (double)in_cov / (double)d.n_inside;
         metrics->surface_coverage = (double)surf_cov / d.n_surf;

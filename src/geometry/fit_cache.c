@@ -15,7 +15,7 @@
 #include <string.h>
 
 /* Bump when a change of the fitter changes its results, so old cache files are not reused. */
-#define FIT_VERSION "penumbra-fit-1"
+#define FIT_VERSION "penumbra-fit-2"
 /* Cache files are small (a few kB per hundred spheres); anything larger is not ours. */
 #define FIT_CACHE_MAX_BYTES (16u << 20)
 
@@ -76,6 +76,7 @@ static int cache_read(const char *path, const char *key, int count, pen_spheres 
         metrics->sov_fraction = number_or(m, "sov_fraction", NAN);
         metrics->surface_coverage = number_or(m, "surface_coverage", NAN);
         metrics->volume_coverage = number_or(m, "volume_coverage", NAN);
+        metrics->mean_overlap = number_or(m, "mean_overlap", NAN);
         metrics->iterations = (int)number_or(m, "iterations", 0);
         metrics->seconds = number_or(m, "seconds", NAN);
         metrics->energy = number_or(m, "energy", NAN);

@@ -287,9 +287,10 @@ static void mesh_surface(const pen_reference *ref, unsigned g, unsigned t, float
     }
 }
 
-/* The radiance arriving along the camera ray (org, dir): one sample. */
-static void radiance(const pen_reference *ref, const float org[3], const float dir[3],
-                     pen__rng *rng, float out[3]) {
+/* The radiance arriving along the camera ray (org, dir): one sample. Returns 1 if the ray hit a
+ * surface, 0 if it shows the background. */
+static int radiance(const pen_reference *ref, const float org[3], const float dir[3], pen__rng *rng,
+                    float out[3]) {
     struct RTCIntersectContext ictx;
     rtcInitIntersectContext(&ictx);
     struct RTCRayHit rh;
@@ -306,7 +307,7 @@ static void radiance(const pen_reference *ref, const float org[3], const float d
     rtcIntersect1(ref->rtc, &ictx, &rh);
     if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) {
         background(ref, dir, out);
-        return;
+        return 0;
     }
     surface s;
     if (rh.hit.geomID == ref->ground_id) {
@@ -327,6 +328,7 @@ static void radiance(const pen_reference *ref, const float org[3], const float d
     irradiance_sample(ref, o, s.ns, rng, E);
     for (int ch = 0; ch < 3; ++ch)
         out[ch] = s.albedo[ch] / PEN_PI_F * E[ch];
+    return 1;
 }
 
 /* ---- Building the scene ------------------------------------------------------------------------
@@ -593,10 +595,11 @@ pen_reference_lighting pen_reference_lighting_mode(const pen_reference *ref) {
  */
 
 static void render_pixel(const pen_reference *ref, int x, int y, int spp, int grid, uint64_t seed,
-                         float out[3]) {
+                         float out[3], float *coverage) {
     const pen_camera *cam = &ref->scene->camera;
     uint64_t pixel = (uint64_t)y * (uint64_t)cam->width + (uint64_t)x;
     double acc[3] = {0, 0, 0};
+    int hits = 0;
     for (int s = 0; s < spp; ++s) {
         pen__rng rng = pen__rng_stream(seed, pixel, (uint64_t)s);
         float jx = pen__rng_next(&rng), jy = pen__rng_next(&rng);
@@ -606,26 +609,37 @@ static void render_pixel(const pen_reference *ref, int x, int y, int spp, int gr
         }
         float dir[3], L[3];
         pen_camera_ray(cam, (float)x + jx, (float)y + jy, dir);
-        radiance(ref, cam->eye, dir, &rng, L);
+        hits += radiance(ref, cam->eye, dir, &rng, L);
         for (int ch = 0; ch < 3; ++ch)
             acc[ch] += (double)L[ch];
     }
     for (int ch = 0; ch < 3; ++ch)
         out[ch] = (float)(acc[ch] / spp);
+    if (coverage) *coverage = (float)((double)hits / spp);
 }
 
 pen_status pen_reference_render(pen_context *ctx, const pen_reference *ref, int spp, uint64_t seed,
                                 pen_image *out) {
+    return pen_reference_render_coverage(ctx, ref, spp, seed, out, NULL);
+}
+
+pen_status pen_reference_render_coverage(pen_context *ctx, const pen_reference *ref, int spp,
+                                         uint64_t seed, pen_image *out, pen_image *coverage) {
     if (!out) return pen__error(ctx, PEN_ERROR_ARGUMENT, "reference: no output image");
     memset(out, 0, sizeof *out);
+    if (coverage) memset(coverage, 0, sizeof *coverage);
     if (!ref) return pen__error(ctx, PEN_ERROR_ARGUMENT, "reference: no reference");
     if (spp < 1 || spp > PEN_REFERENCE_MAX_SPP)
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "reference: spp %d out of [1, %d]", spp,
                           PEN_REFERENCE_MAX_SPP);
     const int w = ref->scene->camera.width, h = ref->scene->camera.height;
-    pen_image img;
+    pen_image img, cov = {0, 0, 0, NULL};
     pen_status st = pen_image_create(ctx, w, h, 3, &img);
     if (st) return st;
+    if (coverage && (st = pen_image_create(ctx, w, h, 1, &cov))) {
+        pen_image_free(&img);
+        return st;
+    }
     int grid = (int)floor(sqrt((double)spp));
     const int tiles_x = (w + TILE - 1) / TILE, tiles = tiles_x * ((h + TILE - 1) / TILE);
     int threads = pen_context_threads(ctx);
@@ -634,20 +648,24 @@ pen_status pen_reference_render(pen_context *ctx, const pen_reference *ref, int 
     for (int t = 0; t < tiles; ++t) {
         int x0 = (t % tiles_x) * TILE, y0 = (t / tiles_x) * TILE;
         for (int y = y0; y < y0 + TILE && y < h; ++y)
-            for (int x = x0; x < x0 + TILE && x < w; ++x)
-                render_pixel(ref, x, y, spp, grid, seed,
-                             img.data + 3 * ((size_t)y * (size_t)w + (size_t)x));
+            for (int x = x0; x < x0 + TILE && x < w; ++x) {
+                size_t p = (size_t)y * (size_t)w + (size_t)x;
+                render_pixel(ref, x, y, spp, grid, seed, img.data + 3 * p,
+                             cov.data ? cov.data + p : NULL);
+            }
     }
     for (size_t i = 0; i < 3 * (size_t)w * (size_t)h; ++i)
         if (!isfinite(img.data[i])) {
             size_t p = i / 3;
             pen_image_free(&img);
+            pen_image_free(&cov);
             return pen__error(ctx, PEN_ERROR_INTERNAL,
                               "reference: pixel (%zu, %zu) is not finite (lighting or scene "
                               "values too large?)",
                               p % (size_t)w, p / (size_t)w);
         }
     *out = img;
+    if (coverage) *coverage = cov;
     return PEN_OK;
 }
 

@@ -160,7 +160,7 @@ static int finite_n(const float *v, size_t n) {
 }
 
 static const char *object_name(const pen_object *ob) {
-    return ob->mesh_path ? ob->mesh_path : "(in memory)";
+    return ob->mesh_path ? ob->mesh_path : "in memory";
 }
 
 static pen_status validate(pen_context *ctx, const pen_scene *sc) {

@@ -1,0 +1,145 @@
+/* penumbra/flat.h -- the differentiable renderer over plain arrays and flat structs, for callers
+ * through a foreign-function interface (the Python binding in python/penumbra uses ctypes).
+ *
+ * Every struct here holds only ints, floats, fixed float arrays and pointers, so that a binding
+ * can mirror it field by field; pen_scene (scene.h) is richer and owns its arrays, this one
+ * borrows them. A pen_flat_scene describes the same scene as pen_scene: pen_flat_render_fwd
+ * builds a pen_scene that points into the caller's arrays and runs pen_render_fwd on it, so the
+ * image is the one `penumbra render` makes of the equivalent scene JSON, bit for bit.
+ *
+ * Usage (one object, one step):
+ *
+ *     pen_flat_object ob = {0};
+ *     ob.vertex_count = V; ob.triangle_count = T; ob.positions = xyz; ob.indices = tri;
+ *     ob.albedo[0] = ob.albedo[1] = ob.albedo[2] = 0.7f;
+ *     ob.sphere_count = S; ob.spheres = xyzr;
+ *     ob.pose[6] = 1.0f;                                       scale 1, no rotation/translation
+ *     pen_flat_scene sc = pen_flat_scene_default();            fills camera, ground, options
+ *     sc.width = 64; sc.height = 64; sc.sh_bands = 4; sc.sh = sh16x3;
+ *     sc.object_count = 1; sc.objects = &ob;
+ *     pen_render_state *st; pen_render_state_create(ctx, &st);
+ *     pen_flat_render_fwd(ctx, &sc, st, image);                image: 3 * 64 * 64 floats
+ *     float d_sh[16 * 3] = {0};
+ *     pen_flat_grad g = {0}; g.sh = d_sh;                      NULL fields are not computed
+ *     pen_flat_render_bwd(ctx, &sc, st, d_image, &g);          d_sh += dLoss/dsh
+ *
+ * Layouts: images and textures are rows top to bottom, 3 interleaved linear RGB floats per pixel
+ * (as pen_image); SH lighting is sh[3 i + channel] for coefficient i < sh_bands^2 (index
+ * l*l + l + m); spheres are x, y, z, r per sphere (object space); triangles index vertices with
+ * three uint32 each; a pose is 7 floats: rotation axis * angle in degrees (3), translation (3),
+ * uniform scale (p_world = R (scale p) + t, as pen_pose).
+ */
+#ifndef PENUMBRA_FLAT_H
+#define PENUMBRA_FLAT_H
+
+#include "penumbra/core.h"
+#include "penumbra/render.h"
+
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* One object; every array is borrowed for the call. */
+typedef struct pen_flat_object {
+    int vertex_count;
+    int triangle_count;
+    const float *positions;     /* 3 * vertex_count, object space */
+    const uint32_t *indices;    /* 3 * triangle_count, into positions, counter-clockwise outside */
+    int uv_count;               /* 0: no texture coordinates */
+    const float *uvs;           /* 2 * uv_count, (u, v) with v up */
+    const uint32_t *uv_indices; /* 3 * triangle_count into uvs; NULL: `indices` (one uv per
+                                   vertex, uv_count must then equal vertex_count) */
+    int texture_width;          /* 0: constant albedo */
+    int texture_height;
+    const float *texture; /* 3 * width * height, linear RGB, row 0 at the top (v = 1) */
+    float albedo[3];      /* used when there is no texture */
+    int sphere_count;
+    const float *spheres; /* 4 * sphere_count: x, y, z, r (object space) */
+    float pose[7];        /* rotation axis-angle (degrees), translation, scale (> 0) */
+} pen_flat_object;
+
+/* A scene; the arrays are borrowed for the call. */
+typedef struct pen_flat_scene {
+    int width, height; /* camera: pinhole, row 0 at the top */
+    float fov_y_deg;
+    float eye[3], target[3], up[3];
+    int sh_bands;    /* 1 .. PEN_SH_MAX_BANDS */
+    const float *sh; /* 3 * sh_bands^2: sh[3 i + channel] */
+    float epsilon;   /* log-visibility depth; <= 0: the exponential model's */
+    int exp_method;  /* pen_sh_exp_method */
+    int ground_enabled;
+    float ground_height;
+    float ground_albedo[3];
+    float ground_half_size;
+    int background_envmap; /* 1: pixels that see nothing show the environment map */
+    float background[3];   /* the constant background otherwise */
+    int envmap_width;      /* 0: no map */
+    int envmap_height;
+    const float *envmap; /* 3 * width * height, equirectangular (scene.h), linear RGB */
+    float envmap_rotation_y_deg;
+    float envmap_scale;
+    int shadows; /* pen_render_options */
+    int antialias;
+    int object_count;
+    const pen_flat_object *objects;
+} pen_flat_scene;
+
+/* A 64 x 64 camera at (0, 1, 3) looking at (0, 0.5, 0) with 40 degrees vertical field of view,
+ * sh_bands 4 and no lighting array, the calibrated exponential with its own epsilon, the default
+ * ground (height 0, albedo 0.8, half size 4), black background, no map, shadows and
+ * antialiasing on, no objects. */
+pen_flat_scene pen_flat_scene_default(void);
+
+/* Where pen_flat_render_bwd writes; every pointer may be NULL (that gradient is not computed).
+ * The backward ADDS into the arrays. */
+typedef struct pen_flat_object_grad {
+    float *positions; /* 3 * vertex_count */
+    float *texture;   /* 3 * texture_width * texture_height */
+    float *albedo;    /* 3 */
+    float *spheres;   /* 4 * sphere_count */
+    float *pose;      /* 7: per degree of the rotation vector, translation, scale */
+} pen_flat_object_grad;
+
+typedef struct pen_flat_grad {
+    float *sh;                     /* 3 * sh_bands^2 */
+    float *ground_albedo;          /* 3 */
+    pen_flat_object_grad *objects; /* object_count entries, or NULL for none */
+} pen_flat_grad;
+
+/* Renders into `image` (3 * width * height floats, caller-owned). `state` may be NULL when no
+ * backward follows. Fails (PEN_ERROR_ARGUMENT, the message naming the field) on missing arrays,
+ * bad counts or sizes, and on whatever pen_render_fwd refuses. */
+pen_status pen_flat_render_fwd(pen_context *ctx, const pen_flat_scene *scene,
+                               pen_render_state *state, float *image);
+
+/* Backward of the last pen_flat_render_fwd with this state, whose scene (arrays included) must
+ * be unchanged: adds dLoss/dparameter into the non-NULL arrays of `grad`, given d_image
+ * (3 * width * height). The groups computed follow from which pointers are set (lighting:
+ * sh; albedo: texture, albedo, ground_albedo; spheres; pose; vertices: positions). */
+pen_status pen_flat_render_bwd(pen_context *ctx, const pen_flat_scene *scene,
+                               pen_render_state *state, const float *d_image,
+                               const pen_flat_grad *grad);
+
+/* ---- Scenes from JSON ------------------------------------------------------------------------ */
+
+/* A scene JSON loaded and seen as a pen_flat_scene (which points into the loaded arrays). */
+typedef struct pen_flat_loaded pen_flat_loaded;
+
+/* Loads a scene JSON (pen_scene_load). With fit_spheres != 0, objects whose spheres are
+ * {"fit": N} get them as `penumbra render` does (pen_scene_fit_spheres: cached beside the mesh);
+ * with 0 they are left without spheres. On failure *out is NULL. */
+pen_status pen_flat_scene_load(pen_context *ctx, const char *path, int fit_spheres,
+                               pen_flat_loaded **out);
+/* The flat view; valid until pen_flat_loaded_free. Its objects' uv_indices are always set. */
+const pen_flat_scene *pen_flat_loaded_scene(const pen_flat_loaded *loaded);
+/* The "fit" request of object o ({"fit": N} gives N, 0 otherwise; -1 if o is out of range). */
+int pen_flat_loaded_fit_request(const pen_flat_loaded *loaded, int o);
+/* NULL is a no-op. */
+void pen_flat_loaded_free(pen_flat_loaded *loaded);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

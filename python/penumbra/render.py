@@ -1,0 +1,357 @@
+"""penumbra.render: the differentiable soft-shadow renderer as a torch.autograd.Function.
+
+The forward calls pen_flat_render_fwd, the backward pen_flat_render_bwd (include/penumbra/flat.h):
+this module only checks the tensors and hands their memory to the C library. Differentiable
+inputs (float32 CPU tensors): SH lighting, ground albedo, and per object the vertex positions,
+texture or constant albedo, proxy spheres and pose. Not differentiated: faces, texture
+coordinates, camera, ground geometry, background and environment map (as in the C renderer).
+"""
+
+import ctypes
+import dataclasses
+import math
+from typing import List, Optional, Sequence
+
+import torch
+
+from . import _lib
+from ._lib import PenumbraError
+
+EXP_METHODS = {"calibrated": 0, "default": 0, "paper": 1, "exact": 2}
+
+
+@dataclasses.dataclass
+class Camera:
+    """Pinhole camera (Y up); the image is height x width, row 0 at the top."""
+
+    width: int = 64
+    height: int = 64
+    fov_y_deg: float = 40.0
+    eye: Sequence[float] = (0.0, 1.0, 3.0)
+    target: Sequence[float] = (0.0, 0.5, 0.0)
+    up: Sequence[float] = (0.0, 1.0, 0.0)
+
+
+@dataclasses.dataclass
+class Object:
+    """One mesh with its albedo, proxy spheres and pose.
+
+    vertices (V, 3) float32, object space; faces (F, 3) int32/int64 into vertices, counter-clockwise
+    seen from outside; uvs (U, 2) float32 with v up and uv_faces (F, 3) into uvs (None: one uv per
+    vertex, U == V); texture (H, W, 3) float32 linear RGB, row 0 at the top, or else albedo (3,);
+    spheres (S, 4) float32, x y z r in object space; pose (7,) float32: rotation axis * angle in
+    degrees, translation, uniform scale (p_world = R (scale p) + t).
+    """
+
+    vertices: torch.Tensor
+    faces: torch.Tensor
+    uvs: Optional[torch.Tensor] = None
+    uv_faces: Optional[torch.Tensor] = None
+    texture: Optional[torch.Tensor] = None
+    albedo: Optional[torch.Tensor] = None
+    spheres: Optional[torch.Tensor] = None
+    pose: Optional[torch.Tensor] = None
+
+
+@dataclasses.dataclass
+class Scene:
+    """Everything pen_render draws. sh is (bands^2, 3) float32, coefficient i = l*l + l + m per
+    row, one column per colour channel. background is an RGB triple or "envmap" (then envmap, an
+    (H, W, 3) float32 equirectangular map, is drawn where nothing is hit, rotated and scaled).
+    epsilon <= 0 takes the exponential model's; exp is "calibrated", "paper" or "exact"."""
+
+    camera: Camera
+    sh: torch.Tensor
+    objects: List[Object] = dataclasses.field(default_factory=list)
+    ground: bool = True
+    ground_albedo: object = (0.8, 0.8, 0.8)
+    ground_height: float = 0.0
+    ground_half_size: float = 4.0
+    background: object = (0.0, 0.0, 0.0)
+    envmap: Optional[torch.Tensor] = None
+    envmap_rotation_y_deg: float = 0.0
+    envmap_scale: float = 1.0
+    epsilon: float = 0.0
+    exp: str = "calibrated"
+
+
+def pose(rotation_axis_angle_deg=(0.0, 0.0, 0.0), translation=(0.0, 0.0, 0.0), scale=1.0):
+    """The (7,) float32 pose tensor of a rotation (axis * angle, degrees), translation, scale."""
+    return torch.tensor(list(rotation_axis_angle_deg) + list(translation) + [scale],
+                        dtype=torch.float32)
+
+
+# ---- Argument checks ----------------------------------------------------------------------------
+
+
+def _shape_text(shape):
+    return "(" + ", ".join("N" if d is None else str(d) for d in shape) + ")"
+
+
+def _float_tensor(name, x, shape, allow_list=False):
+    """x as a float32 CPU tensor of the given shape (None = any size >= 1); lists are converted
+    when allow_list, tensors must already be float32 on the CPU."""
+    if not isinstance(x, torch.Tensor):
+        if allow_list and isinstance(x, (list, tuple)):
+            x = torch.tensor(x, dtype=torch.float32)
+        else:
+            raise TypeError("penumbra: %s must be a torch tensor, got %s"
+                            % (name, type(x).__name__))
+    if x.dtype != torch.float32:
+        raise TypeError("penumbra: %s must be float32, got %s" % (name, x.dtype))
+    if x.device.type != "cpu":
+        raise ValueError("penumbra: %s must be a CPU tensor, got device %s" % (name, x.device))
+    ok = x.dim() == len(shape) and all(
+        (d is None and s >= 1) or s == d for s, d in zip(x.shape, shape))
+    if not ok:
+        raise ValueError("penumbra: %s must have shape %s, got %s"
+                         % (name, _shape_text(shape), tuple(x.shape)))
+    return x.contiguous()
+
+
+def _index_tensor(name, x, rows, limit, limit_name):
+    """An (rows, 3) integer tensor with values in [0, limit), as contiguous int32."""
+    if not isinstance(x, torch.Tensor):
+        raise TypeError("penumbra: %s must be a torch tensor, got %s" % (name, type(x).__name__))
+    if x.dtype not in (torch.int32, torch.int64):
+        raise TypeError("penumbra: %s must be int32 or int64, got %s" % (name, x.dtype))
+    if x.device.type != "cpu":
+        raise ValueError("penumbra: %s must be a CPU tensor, got device %s" % (name, x.device))
+    if (x.dim() != 2 or x.shape[1] != 3 or x.shape[0] < 1
+            or (rows is not None and x.shape[0] != rows)):
+        want = "(%s, 3)" % ("F" if rows is None else rows)
+        raise ValueError("penumbra: %s must have shape %s, got %s" % (name, want, tuple(x.shape)))
+    lo, hi = int(x.min()), int(x.max())
+    if lo < 0 or hi >= limit:
+        raise ValueError("penumbra: %s: index %d out of range [0, %d) (%s)"
+                         % (name, lo if lo < 0 else hi, limit, limit_name))
+    return x.to(torch.int32).contiguous()
+
+
+def _sh_bands(sh):
+    bands = int(round(math.sqrt(sh.shape[0])))
+    if bands * bands != sh.shape[0] or not 1 <= bands <= 8:
+        raise ValueError("penumbra: sh must have bands^2 rows for 1 to 8 bands, got %d rows"
+                         % sh.shape[0])
+    return bands
+
+
+class _ObjectSpec:
+    """The non-differentiable part of one object: int32 faces, uvs, uv faces."""
+
+    def __init__(self, faces, uvs, uv_faces):
+        self.faces, self.uvs, self.uv_faces = faces, uvs, uv_faces
+
+
+class _Spec:
+    """Everything of a scene that is not a differentiable input of the Function."""
+
+    def __init__(self, scene, shadows, antialias, threads):
+        cam = scene.camera
+        if not isinstance(cam, Camera):
+            raise TypeError("penumbra: scene.camera must be a penumbra.Camera, got %s"
+                            % type(cam).__name__)
+        for name in ("width", "height"):
+            value = getattr(cam, name)
+            if not isinstance(value, int) or not 1 <= value <= 16384:
+                raise ValueError("penumbra: camera %s must be an integer in [1, 16384], got %r"
+                                 % (name, value))
+        for name in ("eye", "target", "up"):
+            if len(getattr(cam, name)) != 3:
+                raise ValueError("penumbra: camera %s must have 3 coordinates" % name)
+        self.camera = cam
+        self.ground = bool(scene.ground)
+        self.ground_height = float(scene.ground_height)
+        self.ground_half_size = float(scene.ground_half_size)
+        self.epsilon = float(scene.epsilon)
+        if scene.exp not in EXP_METHODS:
+            raise ValueError("penumbra: exp must be one of calibrated, paper, exact; got %r"
+                             % (scene.exp,))
+        self.exp = EXP_METHODS[scene.exp]
+        self.envmap = None
+        if scene.envmap is not None:
+            self.envmap = _float_tensor("envmap", scene.envmap, (None, None, 3)).detach()
+        if isinstance(scene.background, str):
+            if scene.background != "envmap":
+                raise ValueError("penumbra: background must be an RGB triple or \"envmap\"")
+            if self.envmap is None:
+                raise ValueError("penumbra: background \"envmap\" needs scene.envmap")
+            self.background_envmap, self.background = 1, (0.0, 0.0, 0.0)
+        else:
+            bg = _float_tensor("background", scene.background, (3,), allow_list=True)
+            self.background_envmap, self.background = 0, tuple(float(v) for v in bg)
+        self.envmap_rotation_y_deg = float(scene.envmap_rotation_y_deg)
+        self.envmap_scale = float(scene.envmap_scale)
+        self.shadows, self.antialias = int(bool(shadows)), int(bool(antialias))
+        self.threads = threads
+        self.objects = []
+
+
+# Per object, the differentiable inputs in this order (pen_flat_object_grad's fields).
+_OBJ_FIELDS = ("vertices", "texture", "albedo", "spheres", "pose")
+
+
+def _check_object(i, ob):
+    """(_ObjectSpec, [vertices, texture, albedo, spheres, pose]) of a checked object."""
+    p = "objects[%d]." % i
+    v = _float_tensor(p + "vertices", ob.vertices, (None, 3))
+    faces = _index_tensor(p + "faces", ob.faces, None, v.shape[0], "vertices")
+    uvs = uv_faces = None
+    if ob.uvs is not None:
+        uvs = _float_tensor(p + "uvs", ob.uvs, (None, 2)).detach()
+        if ob.uv_faces is not None:
+            uv_faces = _index_tensor(p + "uv_faces", ob.uv_faces, faces.shape[0], uvs.shape[0],
+                                     "uvs")
+        elif uvs.shape[0] != v.shape[0]:
+            raise ValueError("penumbra: %suvs: %d uvs for %d vertices; per-vertex uvs need one "
+                             "per vertex, or give uv_faces" % (p, uvs.shape[0], v.shape[0]))
+    elif ob.uv_faces is not None:
+        raise ValueError("penumbra: %suv_faces given without uvs" % p)
+    tex = None
+    if ob.texture is not None:
+        tex = _float_tensor(p + "texture", ob.texture, (None, None, 3))
+        if uvs is None:
+            raise ValueError("penumbra: %stexture needs uvs" % p)
+    albedo = _float_tensor(p + "albedo", (0.8, 0.8, 0.8) if ob.albedo is None else ob.albedo,
+                           (3,), allow_list=True)
+    spheres = None
+    if ob.spheres is not None and (not isinstance(ob.spheres, torch.Tensor) or ob.spheres.numel()):
+        spheres = _float_tensor(p + "spheres", ob.spheres, (None, 4))
+    ps = _float_tensor(p + "pose", pose() if ob.pose is None else ob.pose, (7,), allow_list=True)
+    return _ObjectSpec(faces, uvs, uv_faces), [v, tex, albedo, spheres, ps]
+
+
+# ---- The Function -------------------------------------------------------------------------------
+
+
+class _State:
+    """A pen_render_state: the forward's buffers that its backward reads."""
+
+    def __init__(self):
+        self.ptr = ctypes.c_void_p()
+        with _lib.Context() as c:
+            c.check(_lib.lib().pen_render_state_create(c.ptr, ctypes.byref(self.ptr)))
+
+    def __del__(self):
+        if getattr(self, "ptr", None) and _lib._lib is not None:
+            _lib.lib().pen_render_state_free(self.ptr)
+            self.ptr = None
+
+
+def _flat(spec, sh, ground_albedo, obj):
+    """The pen_flat_scene over the tensors' memory (the tensors must outlive its use)."""
+    s = _lib.FlatScene()
+    cam = spec.camera
+    s.width, s.height, s.fov_y_deg = int(cam.width), int(cam.height), float(cam.fov_y_deg)
+    s.eye[:], s.target[:], s.up[:] = (tuple(float(x) for x in v)
+                                      for v in (cam.eye, cam.target, cam.up))
+    s.sh_bands = _sh_bands(sh)
+    s.sh = _lib.fptr(sh)
+    s.epsilon, s.exp_method = spec.epsilon, spec.exp
+    s.ground_enabled = int(spec.ground)
+    s.ground_height, s.ground_half_size = spec.ground_height, spec.ground_half_size
+    s.ground_albedo[:] = tuple(float(x) for x in ground_albedo)
+    s.background_envmap, s.background[:] = spec.background_envmap, spec.background
+    if spec.envmap is not None:
+        s.envmap_height, s.envmap_width = spec.envmap.shape[0], spec.envmap.shape[1]
+        s.envmap = _lib.fptr(spec.envmap)
+    s.envmap_rotation_y_deg, s.envmap_scale = spec.envmap_rotation_y_deg, spec.envmap_scale
+    s.shadows, s.antialias = spec.shadows, spec.antialias
+    n = len(spec.objects)
+    objs = (_lib.FlatObject * max(n, 1))()
+    for i, os_ in enumerate(spec.objects):
+        v, tex, albedo, spheres, ps = obj[5 * i:5 * i + 5]
+        o = objs[i]
+        o.vertex_count, o.triangle_count = v.shape[0], os_.faces.shape[0]
+        o.positions, o.indices = _lib.fptr(v), _lib.uptr(os_.faces)
+        if os_.uvs is not None:
+            o.uv_count, o.uvs = os_.uvs.shape[0], _lib.fptr(os_.uvs)
+            o.uv_indices = _lib.uptr(os_.uv_faces)
+        if tex is not None:
+            o.texture_height, o.texture_width = tex.shape[0], tex.shape[1]
+            o.texture = _lib.fptr(tex)
+        o.albedo[:] = tuple(float(x) for x in albedo)
+        if spheres is not None:
+            o.sphere_count, o.spheres = spheres.shape[0], _lib.fptr(spheres)
+        o.pose[:] = tuple(float(x) for x in ps)
+    s.object_count = n
+    s.objects = objs
+    return s
+
+
+class RenderFunction(torch.autograd.Function):
+    """apply(spec, sh, ground_albedo, *per-object (vertices, texture, albedo, spheres, pose));
+    use render() or render_scene(), which check the arguments and build spec."""
+
+    @staticmethod
+    def forward(ctx, spec, sh, ground_albedo, *obj):
+        state = _State()
+        flat = _flat(spec, sh, ground_albedo, obj)
+        image = torch.empty(flat.height, flat.width, 3, dtype=torch.float32)
+        with _lib.Context(spec.threads) as c:
+            c.check(_lib.lib().pen_flat_render_fwd(c.ptr, ctypes.byref(flat), state.ptr,
+                                                   _lib.fptr(image)))
+        ctx.spec, ctx.state = spec, state
+        ctx.save_for_backward(sh, ground_albedo, *obj)
+        return image
+
+    @staticmethod
+    def backward(ctx, d_image):
+        spec, need = ctx.spec, ctx.needs_input_grad
+        sh, ground_albedo, *obj = ctx.saved_tensors
+        flat = _flat(spec, sh, ground_albedo, obj)
+        d_image = d_image.to(torch.float32).contiguous()
+
+        def zeros_if(k, t):
+            return torch.zeros_like(t) if need[k] and t is not None else None
+
+        d_sh, d_ground = zeros_if(1, sh), zeros_if(2, ground_albedo)
+        d_obj = [zeros_if(3 + k, t) for k, t in enumerate(obj)]
+        grads = (_lib.FlatObjectGrad * max(len(spec.objects), 1))()
+        for i in range(len(spec.objects)):
+            for name, t in zip(("positions",) + _OBJ_FIELDS[1:], d_obj[5 * i:5 * i + 5]):
+                setattr(grads[i], name, _lib.fptr(t))
+        g = _lib.FlatGrad(_lib.fptr(d_sh), _lib.fptr(d_ground), grads)
+        with _lib.Context(spec.threads) as c:
+            c.check(_lib.lib().pen_flat_render_bwd(c.ptr, ctypes.byref(flat), ctx.state.ptr,
+                                                   _lib.fptr(d_image), ctypes.byref(g)))
+        return (None, d_sh, d_ground, *d_obj)
+
+
+def render_scene(scene, shadows=True, antialias=True, threads=0):
+    """Renders a Scene; returns the (height, width, 3) float32 linear RGB image, differentiable in
+    scene.sh, scene.ground_albedo and each object's vertices, texture, albedo, spheres and pose
+    (whichever are tensors with requires_grad)."""
+    if not isinstance(scene, Scene):
+        raise TypeError("penumbra: render_scene takes a penumbra.Scene, got %s"
+                        % type(scene).__name__)
+    spec = _Spec(scene, shadows, antialias, int(threads))
+    sh = _float_tensor("sh", scene.sh, (None, 3))
+    _sh_bands(sh)
+    ground_albedo = _float_tensor("ground_albedo", scene.ground_albedo, (3,), allow_list=True)
+    tensors = []
+    for i, ob in enumerate(scene.objects):
+        os_, ts = _check_object(i, ob)
+        spec.objects.append(os_)
+        tensors += ts
+    return RenderFunction.apply(spec, sh, ground_albedo, *tensors)
+
+
+def render(vertices, faces, sh, camera=None, *, uvs=None, uv_faces=None, texture=None,
+           albedo=None, spheres=None, pose=None, ground=True, ground_albedo=(0.8, 0.8, 0.8),
+           ground_height=0.0, ground_half_size=4.0, background=(0.0, 0.0, 0.0), envmap=None,
+           envmap_rotation_y_deg=0.0, envmap_scale=1.0, epsilon=0.0, exp="calibrated",
+           shadows=True, antialias=True, threads=0):
+    """Renders one object (see Object and Scene for the arguments); returns the (height, width, 3)
+    float32 image. camera: a Camera (None: the default 64 x 64 one)."""
+    scene = Scene(camera=camera or Camera(), sh=sh,
+                  objects=[Object(vertices, faces, uvs, uv_faces, texture, albedo, spheres, pose)],
+                  ground=ground, ground_albedo=ground_albedo, ground_height=ground_height,
+                  ground_half_size=ground_half_size, background=background, envmap=envmap,
+                  envmap_rotation_y_deg=envmap_rotation_y_deg, envmap_scale=envmap_scale,
+                  epsilon=epsilon, exp=exp)
+    return render_scene(scene, shadows=shadows, antialias=antialias, threads=threads)
+
+
+__all__ = ["Camera", "Object", "Scene", "pose", "render", "render_scene", "RenderFunction",
+           "PenumbraError"]

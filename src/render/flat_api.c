@@ -1,0 +1,344 @@
+/* The renderer over flat structs and borrowed arrays (include/penumbra/flat.h), for bindings.
+ *
+ * Design
+ * - No rendering logic of its own: a pen_flat_scene is turned into a pen_scene whose arrays point
+ *   into the caller's memory (never freed here), and pen_render_fwd / pen_render_bwd do the
+ *   work, so the binding and the CLI render the same scene identically.
+ * - Checks at this boundary are those pen_render's own validation cannot make because they are
+ *   about the flat description itself: NULL arrays behind positive counts, counts and sizes out
+ *   of range, per-vertex UVs whose count does not match the vertices. Everything else (indices in
+ *   range, NaN/Inf, radii, the camera) is left to the renderer, whose messages name the object.
+ * - The backward allocates a pen_render_grad shaped like the scene, asks only for the groups
+ *   whose output arrays are set, and adds the result into them.
+ */
+#include "penumbra/flat.h"
+
+#include "core/internal.h"
+#include "penumbra/fit.h"
+#include "penumbra/scene.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* More objects than any scene JSON holds; keeps the allocation below bounded. */
+#define MAX_OBJECTS 65536
+
+pen_flat_scene pen_flat_scene_default(void) {
+    pen_flat_scene s;
+    memset(&s, 0, sizeof s);
+    s.width = 64, s.height = 64;
+    s.fov_y_deg = 40.0f;
+    s.eye[1] = 1.0f, s.eye[2] = 3.0f;
+    s.target[1] = 0.5f;
+    s.up[1] = 1.0f;
+    s.sh_bands = 4;
+    s.exp_method = PEN_SH_EXP_CALIBRATED;
+    s.ground_enabled = 1;
+    s.ground_albedo[0] = s.ground_albedo[1] = s.ground_albedo[2] = 0.8f;
+    s.ground_half_size = 4.0f;
+    s.envmap_scale = 1.0f;
+    s.shadows = 1;
+    s.antialias = 1;
+    return s;
+}
+
+/* ---- Flat description -> pen_scene ------------------------------------------------------------
+ */
+
+static pen_status image_view(pen_context *ctx, const char *what, int w, int h, const float *data,
+                             pen_image *out) {
+    memset(out, 0, sizeof *out);
+    if (w == 0 && h == 0) return PEN_OK;
+    if (w < 1 || h < 1 || w > PEN_IMAGE_MAX_DIM || h > PEN_IMAGE_MAX_DIM)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "flat scene: %s: size %dx%d out of range [1, %d]", what, w, h,
+                          PEN_IMAGE_MAX_DIM);
+    if (!data) return pen__error(ctx, PEN_ERROR_ARGUMENT, "flat scene: %s: no pixels", what);
+    out->width = w, out->height = h, out->channels = 3;
+    out->data = (float *)data; /* borrowed; the renderer only reads it */
+    return PEN_OK;
+}
+
+static pen_status object_view(pen_context *ctx, int o, const pen_flat_object *f, pen_object *ob) {
+    memset(ob, 0, sizeof *ob);
+    if (f->vertex_count < 1 || f->triangle_count < 1 || !f->positions || !f->indices)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "flat scene: objects[%d]: needs vertices and triangles (%d, %d)", o,
+                          f->vertex_count, f->triangle_count);
+    pen_mesh *m = &ob->mesh;
+    m->vertex_count = f->vertex_count;
+    m->triangle_count = f->triangle_count;
+    m->positions = (float *)f->positions;
+    m->indices = (uint32_t *)f->indices;
+    if (f->uv_count < 0 || (f->uv_count > 0 && !f->uvs))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "flat scene: objects[%d]: bad uv array", o);
+    if (f->uv_count > 0) {
+        if (!f->uv_indices && f->uv_count != f->vertex_count)
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "flat scene: objects[%d]: %d uvs for %d vertices (per-vertex uvs "
+                              "need one per vertex, or give uv indices)",
+                              o, f->uv_count, f->vertex_count);
+        m->uv_count = f->uv_count;
+        m->uvs = (float *)f->uvs;
+        m->uv_indices = (uint32_t *)(f->uv_indices ? f->uv_indices : f->indices);
+    }
+    char what[48];
+    snprintf(what, sizeof what, "objects[%d].texture", o);
+    pen_status s =
+        image_view(ctx, what, f->texture_width, f->texture_height, f->texture, &ob->texture);
+    if (s) return s;
+    memcpy(ob->albedo, f->albedo, sizeof ob->albedo);
+    if (f->sphere_count < 0 || (f->sphere_count > 0 && !f->spheres))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "flat scene: objects[%d]: bad sphere array", o);
+    ob->spheres.count = f->sphere_count;
+    ob->spheres.data = (float *)f->spheres;
+    memcpy(ob->pose.rotation_axis_angle_deg, f->pose, 3 * sizeof(float));
+    memcpy(ob->pose.translation, f->pose + 3, 3 * sizeof(float));
+    ob->pose.scale = f->pose[6];
+    return PEN_OK;
+}
+
+/* Fills *sc from *f; sc->objects is allocated (free it, never the arrays it points to). */
+static pen_status scene_view(pen_context *ctx, const pen_flat_scene *f, pen_scene *sc) {
+    memset(sc, 0, sizeof *sc);
+    if (f->sh_bands < 1 || f->sh_bands > PEN_SH_MAX_BANDS)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "flat scene: sh_bands %d out of range [1, %d]",
+                          f->sh_bands, PEN_SH_MAX_BANDS);
+    if (!f->sh) return pen__error(ctx, PEN_ERROR_ARGUMENT, "flat scene: no SH lighting");
+    if (f->object_count < 0 || f->object_count > MAX_OBJECTS ||
+        (f->object_count > 0 && !f->objects))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "flat scene: bad object list (%d objects)",
+                          f->object_count);
+    pen_camera *c = &sc->camera;
+    c->width = f->width, c->height = f->height, c->fov_y_deg = f->fov_y_deg;
+    memcpy(c->eye, f->eye, sizeof c->eye);
+    memcpy(c->target, f->target, sizeof c->target);
+    memcpy(c->up, f->up, sizeof c->up);
+    sc->sh_bands = f->sh_bands;
+    memcpy(sc->lighting.sh, f->sh, 3 * sizeof(float) * (size_t)(f->sh_bands * f->sh_bands));
+    pen_status s = image_view(ctx, "envmap", f->envmap_width, f->envmap_height, f->envmap,
+                              &sc->lighting.envmap);
+    if (s) return s;
+    sc->lighting.scale = f->envmap_scale;
+    sc->lighting.rotation_y_deg = f->envmap_rotation_y_deg;
+    sc->shadow.epsilon = f->epsilon;
+    sc->shadow.exp = (pen_sh_exp_method)f->exp_method;
+    sc->ground.enabled = f->ground_enabled != 0;
+    sc->ground.height = f->ground_height;
+    memcpy(sc->ground.albedo, f->ground_albedo, sizeof sc->ground.albedo);
+    sc->ground.half_size = f->ground_half_size;
+    sc->background_envmap = f->background_envmap != 0;
+    memcpy(sc->background, f->background, sizeof sc->background);
+    if (f->object_count == 0) return PEN_OK;
+    sc->objects = pen__calloc(ctx, (size_t)f->object_count, sizeof *sc->objects, "flat objects");
+    if (!sc->objects) return PEN_ERROR_MEMORY;
+    sc->object_count = f->object_count;
+    for (int o = 0; o < f->object_count; ++o)
+        if ((s = object_view(ctx, o, &f->objects[o], &sc->objects[o]))) return s;
+    return PEN_OK;
+}
+
+static pen_render_options options_of(const pen_flat_scene *f) {
+    pen_render_options opt = pen_render_options_default();
+    opt.shadows = f->shadows != 0;
+    opt.antialias = f->antialias != 0;
+    return opt;
+}
+
+/* ---- Forward and backward -------------------------------------------------------------------- */
+
+pen_status pen_flat_render_fwd(pen_context *ctx, const pen_flat_scene *f, pen_render_state *state,
+                               float *image) {
+    if (!f || !image) return pen__error(ctx, PEN_ERROR_ARGUMENT, "flat render: NULL argument");
+    pen_scene sc;
+    pen_status s = scene_view(ctx, f, &sc);
+    if (!s) {
+        const pen_render_options opt = options_of(f);
+        /* The camera is checked by the renderer; the size must match before it writes. */
+        pen_image img = {f->width, f->height, 3, image};
+        if (f->width < 1 || f->height < 1 || f->width > PEN_IMAGE_MAX_DIM ||
+            f->height > PEN_IMAGE_MAX_DIM)
+            s = pen__error(ctx, PEN_ERROR_ARGUMENT, "flat render: image size %dx%d out of range",
+                           f->width, f->height);
+        else
+            s = pen_render_fwd(ctx, &sc, &opt, state, &img);
+    }
+    free(sc.objects);
+    return s;
+}
+
+static void add_n(float *dst, const float *src, size_t n) {
+    for (size_t i = 0; i < n; ++i)
+        dst[i] += src[i];
+}
+
+static unsigned wanted(const pen_flat_scene *f, const pen_flat_grad *g) {
+    unsigned wrt = 0;
+    if (g->sh) wrt |= PEN_GRAD_LIGHTING;
+    if (g->ground_albedo) wrt |= PEN_GRAD_ALBEDO;
+    for (int o = 0; g->objects && o < f->object_count; ++o) {
+        const pen_flat_object_grad *og = &g->objects[o];
+        if (og->texture || og->albedo) wrt |= PEN_GRAD_ALBEDO;
+        if (og->spheres) wrt |= PEN_GRAD_SPHERES;
+        if (og->pose) wrt |= PEN_GRAD_POSE;
+        if (og->positions) wrt |= PEN_GRAD_VERTICES;
+    }
+    return wrt;
+}
+
+/* Adds the render gradient of object o into the caller's arrays. */
+static void scatter_object(const pen_object_grad *src, const pen_object *ob,
+                           const pen_flat_object_grad *dst) {
+    if (dst->positions) add_n(dst->positions, src->positions, 3 * (size_t)src->vertex_count);
+    if (dst->texture && ob->texture.data)
+        add_n(dst->texture, src->texture, 3 * (size_t)src->texel_count);
+    if (dst->albedo) add_n(dst->albedo, src->albedo, 3);
+    if (dst->spheres && src->sphere_count > 0)
+        add_n(dst->spheres, src->spheres, 4 * (size_t)src->sphere_count);
+    if (dst->pose) {
+        add_n(dst->pose, src->pose.rotation_axis_angle_deg, 3);
+        add_n(dst->pose + 3, src->pose.translation, 3);
+        dst->pose[6] += src->pose.scale;
+    }
+}
+
+pen_status pen_flat_render_bwd(pen_context *ctx, const pen_flat_scene *f, pen_render_state *state,
+                               const float *d_image, const pen_flat_grad *grad) {
+    if (!f || !d_image || !grad)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "flat render backward: NULL argument");
+    pen_scene sc;
+    pen_render_grad g;
+    memset(&g, 0, sizeof g);
+    pen_status s = scene_view(ctx, f, &sc);
+    if (!s) s = pen_render_grad_create(ctx, &sc, &g);
+    if (!s) {
+        const pen_render_options opt = options_of(f);
+        const pen_image d_img = {f->width, f->height, 3, (float *)d_image};
+        s = pen_render_bwd(ctx, &sc, &opt, state, &d_img, wanted(f, grad), &g);
+    }
+    if (!s) {
+        const int nc = sc.sh_bands * sc.sh_bands;
+        for (int i = 0; grad->sh && i < nc; ++i)
+            add_n(grad->sh + 3 * i, g.sh[i], 3);
+        if (grad->ground_albedo) add_n(grad->ground_albedo, g.ground_albedo, 3);
+        for (int o = 0; grad->objects && o < sc.object_count; ++o)
+            scatter_object(&g.objects[o], &sc.objects[o], &grad->objects[o]);
+    }
+    pen_render_grad_free(&g);
+    free(sc.objects);
+    return s;
+}
+
+/* ---- Scenes from JSON ------------------------------------------------------------------------ */
+
+struct pen_flat_loaded {
+    pen_scene scene;
+    pen_flat_scene flat;
+    pen_flat_object *objects;
+    float sh[3 * PEN_SH_MAX_COEFFS];
+};
+
+void pen_flat_loaded_free(pen_flat_loaded *l) {
+    if (!l) return;
+    pen_scene_free(&l->scene);
+    free(l->objects);
+    free(l);
+}
+
+const pen_flat_scene *pen_flat_loaded_scene(const pen_flat_loaded *l) {
+    return &l->flat;
+}
+
+int pen_flat_loaded_fit_request(const pen_flat_loaded *l, int o) {
+    if (!l || o < 0 || o >= l->scene.object_count) return -1;
+    return l->scene.objects[o].fit_spheres;
+}
+
+/* The flat view of one loaded object (arrays owned by the scene). */
+static pen_status flat_object(pen_context *ctx, const pen_object *ob, int o, pen_flat_object *f) {
+    memset(f, 0, sizeof *f);
+    f->vertex_count = ob->mesh.vertex_count;
+    f->triangle_count = ob->mesh.triangle_count;
+    f->positions = ob->mesh.positions;
+    f->indices = ob->mesh.indices;
+    f->uv_count = ob->mesh.uv_count;
+    f->uvs = ob->mesh.uvs;
+    f->uv_indices = ob->mesh.uv_indices;
+    if (ob->texture.data) {
+        if (ob->texture.channels != 3)
+            return pen__error(ctx, PEN_ERROR_UNSUPPORTED,
+                              "flat scene: objects[%d]: texture has %d channels, not 3", o,
+                              ob->texture.channels);
+        f->texture_width = ob->texture.width;
+        f->texture_height = ob->texture.height;
+        f->texture = ob->texture.data;
+    }
+    memcpy(f->albedo, ob->albedo, sizeof f->albedo);
+    f->sphere_count = ob->spheres.count;
+    f->spheres = ob->spheres.data;
+    memcpy(f->pose, ob->pose.rotation_axis_angle_deg, 3 * sizeof(float));
+    memcpy(f->pose + 3, ob->pose.translation, 3 * sizeof(float));
+    f->pose[6] = ob->pose.scale;
+    return PEN_OK;
+}
+
+/* Fills l->flat (and l->objects, l->sh) from l->scene. */
+static pen_status flatten(pen_context *ctx, pen_flat_loaded *l) {
+    const pen_scene *sc = &l->scene;
+    pen_flat_scene *f = &l->flat;
+    *f = pen_flat_scene_default();
+    f->width = sc->camera.width, f->height = sc->camera.height;
+    f->fov_y_deg = sc->camera.fov_y_deg;
+    memcpy(f->eye, sc->camera.eye, sizeof f->eye);
+    memcpy(f->target, sc->camera.target, sizeof f->target);
+    memcpy(f->up, sc->camera.up, sizeof f->up);
+    f->sh_bands = sc->sh_bands;
+    memcpy(l->sh, sc->lighting.sh, sizeof l->sh);
+    f->sh = l->sh;
+    f->epsilon = sc->shadow.epsilon;
+    f->exp_method = (int)sc->shadow.exp;
+    f->ground_enabled = sc->ground.enabled;
+    f->ground_height = sc->ground.height;
+    memcpy(f->ground_albedo, sc->ground.albedo, sizeof f->ground_albedo);
+    f->ground_half_size = sc->ground.half_size;
+    f->background_envmap = sc->background_envmap;
+    memcpy(f->background, sc->background, sizeof f->background);
+    const pen_image *env = &sc->lighting.envmap;
+    if (env->data) {
+        if (env->channels != 3)
+            return pen__error(ctx, PEN_ERROR_UNSUPPORTED,
+                              "flat scene: environment map has %d channels, not 3", env->channels);
+        f->envmap_width = env->width, f->envmap_height = env->height;
+        f->envmap = env->data;
+    }
+    f->envmap_rotation_y_deg = sc->lighting.rotation_y_deg;
+    f->envmap_scale = sc->lighting.scale;
+    f->object_count = sc->object_count;
+    if (sc->object_count > 0) {
+        l->objects = pen__calloc(ctx, (size_t)sc->object_count, sizeof *l->objects, "flat objects");
+        if (!l->objects) return PEN_ERROR_MEMORY;
+        for (int o = 0; o < sc->object_count; ++o) {
+            pen_status s = flat_object(ctx, &sc->objects[o], o, &l->objects[o]);
+            if (s) return s;
+        }
+    }
+    f->objects = l->objects;
+    return PEN_OK;
+}
+
+pen_status pen_flat_scene_load(pen_context *ctx, const char *path, int fit_spheres,
+                               pen_flat_loaded **out) {
+    *out = NULL;
+    pen_flat_loaded *l = pen__calloc(ctx, 1, sizeof *l, "loaded scene");
+    if (!l) return PEN_ERROR_MEMORY;
+    pen_status s = pen_scene_load(ctx, path, &l->scene);
+    if (!s && fit_spheres) s = pen_scene_fit_spheres(ctx, &l->scene);
+    if (!s) s = flatten(ctx, l);
+    if (s) {
+        pen_flat_loaded_free(l);
+        return s;
+    }
+    *out = l;
+    return PEN_OK;
+}

@@ -1,0 +1,282 @@
+/* Tests of the flat renderer API (penumbra/flat.h) that the Python binding calls: it must render
+ * and differentiate exactly what pen_render does for the equivalent pen_scene (bitwise: it only
+ * rearranges pointers), ask only for the gradient groups whose arrays are set, add into them,
+ * load scene JSON the way `penumbra render` does, and refuse malformed flat descriptions with a
+ * message naming the field. The gradients themselves are checked against finite differences in
+ * test_render_grad.c (C) and python/tests (torch.autograd.gradcheck through this API). */
+#include "io_fixtures.h"
+#include "render_scenes.h"
+
+#include "penumbra/flat.h"
+
+/* A flat view of sc (objects must hold room for sc->object_count; sh for 3 * 64 floats). */
+static pen_flat_scene flat_of(const pen_scene *sc, pen_flat_object *objects, float *sh) {
+    pen_flat_scene f = pen_flat_scene_default();
+    f.width = sc->camera.width, f.height = sc->camera.height, f.fov_y_deg = sc->camera.fov_y_deg;
+    memcpy(f.eye, sc->camera.eye, sizeof f.eye);
+    memcpy(f.target, sc->camera.target, sizeof f.target);
+    memcpy(f.up, sc->camera.up, sizeof f.up);
+    f.sh_bands = sc->sh_bands;
+    memcpy(sh, sc->lighting.sh, sizeof sc->lighting.sh);
+    f.sh = sh;
+    f.epsilon = sc->shadow.epsilon;
+    f.exp_method = (int)sc->shadow.exp;
+    f.ground_enabled = sc->ground.enabled;
+    f.ground_height = sc->ground.height;
+    memcpy(f.ground_albedo, sc->ground.albedo, sizeof f.ground_albedo);
+    f.ground_half_size = sc->ground.half_size;
+    memcpy(f.background, sc->background, sizeof f.background);
+    f.object_count = sc->object_count;
+    f.objects = objects;
+    for (int o = 0; o < sc->object_count; ++o) {
+        const pen_object *ob = &sc->objects[o];
+        pen_flat_object *fo = &objects[o];
+        memset(fo, 0, sizeof *fo);
+        fo->vertex_count = ob->mesh.vertex_count, fo->triangle_count = ob->mesh.triangle_count;
+        fo->positions = ob->mesh.positions, fo->indices = ob->mesh.indices;
+        fo->uv_count = ob->mesh.uv_count, fo->uvs = ob->mesh.uvs;
+        fo->uv_indices = ob->mesh.uv_indices;
+        if (ob->texture.data) {
+            fo->texture_width = ob->texture.width, fo->texture_height = ob->texture.height;
+            fo->texture = ob->texture.data;
+        }
+        memcpy(fo->albedo, ob->albedo, sizeof fo->albedo);
+        fo->sphere_count = ob->spheres.count, fo->spheres = ob->spheres.data;
+        memcpy(fo->pose, ob->pose.rotation_axis_angle_deg, 3 * sizeof(float));
+        memcpy(fo->pose + 3, ob->pose.translation, 3 * sizeof(float));
+        fo->pose[6] = ob->pose.scale;
+    }
+    return f;
+}
+
+static int same_floats(const float *a, const float *b, size_t n) {
+    return memcmp(a, b, n * sizeof(float)) == 0;
+}
+
+/* The flat forward and backward are pen_render's, bit for bit, for every gradient group. */
+static void test_flat_matches_render(void) {
+    pen_context *ctx = fixture_ctx();
+    unsigned long long seed = 7;
+    pen_scene sc = rs_ball_scene(24, 1, &seed);
+    pen_object *ob = &sc.objects[0];
+    pen_flat_object fo;
+    float sh[3 * PEN_SH_MAX_COEFFS];
+    const pen_flat_scene f = flat_of(&sc, &fo, sh);
+    const size_t np = 3 * 24 * 24;
+
+    pen_render_state *st = NULL, *fst = NULL;
+    CHECK(pen_render_state_create(ctx, &st) == PEN_OK);
+    CHECK(pen_render_state_create(ctx, &fst) == PEN_OK);
+    pen_image img = {0, 0, 0, NULL};
+    float *fimg = calloc(np, sizeof(float)), *d_img = malloc(np * sizeof(float));
+    CHECK(pen_render_fwd(ctx, &sc, NULL, st, &img) == PEN_OK);
+    CHECK(pen_flat_render_fwd(ctx, &f, fst, fimg) == PEN_OK);
+    CHECK(same_floats(img.data, fimg, np));
+    for (size_t i = 0; i < np; ++i)
+        d_img[i] = (float)(check_rand_(&seed) - 0.5);
+
+    pen_render_grad g;
+    CHECK(pen_render_grad_create(ctx, &sc, &g) == PEN_OK);
+    const pen_image d = {24, 24, 3, d_img};
+    CHECK(pen_render_bwd(ctx, &sc, NULL, st, &d, PEN_GRAD_ALL, &g) == PEN_OK);
+
+    const int V = ob->mesh.vertex_count, nt = 3 * ob->texture.width * ob->texture.height;
+    float d_sh[3 * 16] = {0}, d_ground[3] = {0}, d_albedo[3] = {0}, d_spheres[8] = {0},
+                   d_pose[7] = {0};
+    float *d_pos = calloc(3 * (size_t)V, sizeof(float)), *d_tex = calloc((size_t)nt, sizeof(float));
+    pen_flat_object_grad og = {d_pos, d_tex, d_albedo, d_spheres, d_pose};
+    pen_flat_grad fg = {d_sh, d_ground, &og};
+    CHECK(pen_flat_render_bwd(ctx, &f, fst, d_img, &fg) == PEN_OK);
+    int same = 1;
+    for (int i = 0; i < 16; ++i)
+        same &= same_floats(d_sh + 3 * i, g.sh[i], 3);
+    CHECK(same);
+    CHECK(same_floats(d_ground, g.ground_albedo, 3));
+    CHECK(same_floats(d_pos, g.objects[0].positions, 3 * (size_t)V));
+    CHECK(same_floats(d_tex, g.objects[0].texture, (size_t)nt));
+    CHECK(same_floats(d_spheres, g.objects[0].spheres, 8));
+    const pen_pose_grad *pg = &g.objects[0].pose;
+    CHECK(same_floats(d_pose, pg->rotation_axis_angle_deg, 3));
+    CHECK(same_floats(d_pose + 3, pg->translation, 3));
+    CHECK(d_pose[6] == pg->scale);
+    float norm = 0.0f;
+    for (int i = 0; i < 8; ++i)
+        norm += fabsf(d_spheres[i]);
+    CHECK(norm > 0.0f); /* the spheres shadow the ground in view */
+
+    /* Only the lighting asked for: the other arrays stay as they are, and the result adds. */
+    float d_sh2[3 * 16], mark[8];
+    memcpy(d_sh2, d_sh, sizeof d_sh2);
+    for (int i = 0; i < 8; ++i)
+        mark[i] = 123.0f;
+    memcpy(d_spheres, mark, sizeof mark);
+    pen_flat_object_grad og2 = {NULL, NULL, NULL, NULL, NULL};
+    pen_flat_grad fg2 = {d_sh2, NULL, &og2};
+    CHECK(pen_flat_render_bwd(ctx, &f, fst, d_img, &fg2) == PEN_OK);
+    for (int i = 0; i < 48; ++i)
+        CHECK(d_sh2[i] == 2.0f * d_sh[i]);
+    CHECK(same_floats(d_spheres, mark, 8));
+
+    pen_render_grad_free(&g);
+    free(d_pos), free(d_tex), free(fimg), free(d_img);
+    pen_image_free(&img);
+    pen_render_state_free(st);
+    pen_render_state_free(fst);
+    pen_scene_free(&sc);
+}
+
+/* Per-vertex uvs (uv_indices NULL) are read through the position indices. */
+static void test_flat_per_vertex_uvs(void) {
+    pen_context *ctx = fixture_ctx();
+    unsigned long long seed = 3;
+    pen_scene sc = rs_ball_scene(20, 1, &seed);
+    pen_flat_object fo;
+    float sh[3 * PEN_SH_MAX_COEFFS];
+    const pen_flat_scene f = flat_of(&sc, &fo, sh);
+    const size_t np = 3 * 20 * 20;
+    float *a = malloc(np * sizeof(float)), *b = malloc(np * sizeof(float));
+    CHECK(pen_flat_render_fwd(ctx, &f, NULL, a) == PEN_OK);
+    fo.uv_indices = NULL; /* rs_octasphere's uv indices equal its indices */
+    CHECK(pen_flat_render_fwd(ctx, &f, NULL, b) == PEN_OK);
+    CHECK(same_floats(a, b, np));
+    fo.uv_count = fo.vertex_count - 1;
+    CHECK_ERROR(ctx, pen_flat_render_fwd(ctx, &f, NULL, b), PEN_ERROR_ARGUMENT, "objects[0]",
+                "uvs for");
+    free(a), free(b);
+    pen_scene_free(&sc);
+}
+
+static const char CUBE_OBJ[] = "v -0.3 0 -0.3\nv 0.3 0 -0.3\nv 0.3 0.6 -0.3\nv -0.3 0.6 -0.3\n"
+                               "v -0.3 0 0.3\nv 0.3 0 0.3\nv 0.3 0.6 0.3\nv -0.3 0.6 0.3\n"
+                               "f 1 4 3 2\nf 5 6 7 8\nf 1 2 6 5\nf 4 8 7 3\nf 1 5 8 4\nf 2 3 7 6\n";
+
+/* A scene JSON loaded through the flat API renders as pen_scene_load + pen_render_fwd does; a
+ * {"fit": N} request is left empty or fitted as asked. */
+static void test_flat_scene_load(void) {
+    pen_context *ctx = fixture_ctx();
+    fixture_text("cube.obj", CUBE_OBJ);
+    const char *json =
+        "{\"camera\": {\"width\": 20, \"height\": 16, \"fov_y_deg\": 40, \"eye\": [1.2, 1.3, 2],"
+        " \"target\": [0, 0.3, 0]},"
+        " \"lighting\": {\"sh\": [[1.2, 1.1, 1], [-0.8, -0.8, -0.8], [0.2, 0.2, 0.2], [0, 0, 0]]},"
+        " \"sh_bands\": 2,"
+        " \"objects\": [{\"mesh\": \"cube.obj\", \"albedo\": [0.6, 0.5, 0.4],"
+        "   \"spheres\": [{\"center\": [0, 0.3, 0], \"radius\": 0.3}],"
+        "   \"pose\": {\"rotation_axis_angle_deg\": [0, 30, 0], \"translation\": [0.1, 0, 0]}},"
+        "  {\"mesh\": \"cube.obj\", \"spheres\": {\"fit\": 2},"
+        "   \"pose\": {\"translation\": [-0.8, 0, -0.5], \"scale\": 0.5}}],"
+        " \"ground\": {\"albedo\": [0.7, 0.7, 0.7]}, \"background\": [0.1, 0.2, 0.3]}";
+    const char *path = fixture_text("scene.json", json);
+
+    pen_flat_loaded *l = NULL;
+    CHECK(pen_flat_scene_load(ctx, path, 0, &l) == PEN_OK);
+    if (!l) return;
+    const pen_flat_scene *f = pen_flat_loaded_scene(l);
+    CHECK(f->object_count == 2 && f->width == 20 && f->height == 16 && f->sh_bands == 2);
+    CHECK(f->objects[0].sphere_count == 1 && f->objects[1].sphere_count == 0);
+    CHECK(pen_flat_loaded_fit_request(l, 1) == 2 && pen_flat_loaded_fit_request(l, 0) == 0);
+    CHECK(pen_flat_loaded_fit_request(l, 2) == -1);
+    CHECK(f->objects[1].pose[6] == 0.5f && f->objects[0].triangle_count == 12);
+    CHECK(f->sh[3] == -0.8f);
+
+    pen_scene sc;
+    CHECK(pen_scene_load(ctx, path, &sc) == PEN_OK);
+    pen_image img = {0, 0, 0, NULL};
+    CHECK(pen_render_fwd(ctx, &sc, NULL, NULL, &img) == PEN_OK);
+    float fimg[3 * 20 * 16];
+    CHECK(pen_flat_render_fwd(ctx, f, NULL, fimg) == PEN_OK);
+    CHECK(img.data && same_floats(img.data, fimg, 3 * 20 * 16));
+    pen_image_free(&img);
+    pen_flat_loaded_free(l);
+
+    /* With fit_spheres the request goes to the fitter's cache; a cache file written here
+     * stands in for a fit (a real one takes seconds, and is tested in test_fit). */
+    char *cache = NULL;
+    CHECK(pen_spheres_fit_cache_path(ctx, &sc.objects[1].mesh, sc.objects[1].mesh_path, 2, NULL,
+                                     &cache) == PEN_OK);
+    const char *key = cache ? strrchr(cache, '-') : NULL;
+    if (key) {
+        char text[256];
+        snprintf(text, sizeof text,
+                 "{\"fit_key\": \"%.16s\", \"spheres\": [{\"center\": [0, 0.2, 0], "
+                 "\"radius\": 0.2}, {\"center\": [0, 0.4, 0], \"radius\": 0.25}]}",
+                 key + 1);
+        FILE *fc = fopen(cache, "w");
+        CHECK(fc && fputs(text, fc) >= 0 && fclose(fc) == 0);
+    }
+    free(cache);
+    pen_scene_free(&sc);
+    CHECK(pen_flat_scene_load(ctx, path, 1, &l) == PEN_OK);
+    if (l) {
+        const pen_flat_object *o1 = &pen_flat_loaded_scene(l)->objects[1];
+        CHECK(o1->sphere_count == 2 && o1->spheres[7] == 0.25f);
+    }
+    pen_flat_loaded_free(l);
+
+    CHECK_ERROR(ctx, pen_flat_scene_load(ctx, fixture_path("nosuch.json"), 0, &l), PEN_ERROR_IO,
+                "nosuch.json");
+    CHECK(l == NULL);
+    pen_flat_loaded_free(NULL);
+}
+
+/* Malformed flat descriptions: each refused with the field named, nothing rendered. */
+static void test_flat_errors(void) {
+    pen_context *ctx = fixture_ctx();
+    unsigned long long seed = 5;
+    pen_scene sc = rs_ball_scene(16, 1, &seed);
+    pen_flat_object fo, good;
+    float sh[3 * PEN_SH_MAX_COEFFS];
+    pen_flat_scene f = flat_of(&sc, &fo, sh);
+    good = fo;
+    float img[3 * 16 * 16], d_img[3 * 16 * 16] = {0};
+    const pen_flat_scene fgood = f;
+
+    f.sh = NULL;
+    CHECK_ERROR(ctx, pen_flat_render_fwd(ctx, &f, NULL, img), PEN_ERROR_ARGUMENT, "SH lighting");
+    f = fgood, f.sh_bands = 9;
+    CHECK_ERROR(ctx, pen_flat_render_fwd(ctx, &f, NULL, img), PEN_ERROR_ARGUMENT, "sh_bands 9");
+    f = fgood, f.object_count = 1, f.objects = NULL;
+    CHECK_ERROR(ctx, pen_flat_render_fwd(ctx, &f, NULL, img), PEN_ERROR_ARGUMENT, "object list");
+    f = fgood, f.width = 0;
+    CHECK_ERROR(ctx, pen_flat_render_fwd(ctx, &f, NULL, img), PEN_ERROR_ARGUMENT, "0x16");
+    f = fgood, f.envmap_width = 8, f.envmap_height = 4;
+    CHECK_ERROR(ctx, pen_flat_render_fwd(ctx, &f, NULL, img), PEN_ERROR_ARGUMENT, "envmap",
+                "no pixels");
+    f = fgood, f.envmap_width = -1, f.envmap_height = 4;
+    CHECK_ERROR(ctx, pen_flat_render_fwd(ctx, &f, NULL, img), PEN_ERROR_ARGUMENT, "envmap", "-1x4");
+    f = fgood;
+    fo.triangle_count = 0;
+    CHECK_ERROR(ctx, pen_flat_render_fwd(ctx, &f, NULL, img), PEN_ERROR_ARGUMENT, "objects[0]",
+                "triangles");
+    fo = good, fo.texture = NULL;
+    CHECK_ERROR(ctx, pen_flat_render_fwd(ctx, &f, NULL, img), PEN_ERROR_ARGUMENT,
+                "objects[0].texture", "no pixels");
+    fo = good, fo.sphere_count = 2, fo.spheres = NULL;
+    CHECK_ERROR(ctx, pen_flat_render_fwd(ctx, &f, NULL, img), PEN_ERROR_ARGUMENT, "objects[0]",
+                "sphere array");
+    fo = good, fo.uv_count = -2;
+    CHECK_ERROR(ctx, pen_flat_render_fwd(ctx, &f, NULL, img), PEN_ERROR_ARGUMENT, "uv array");
+    fo = good, fo.pose[6] = 0.0f; /* the renderer's own checks come through */
+    CHECK_ERROR(ctx, pen_flat_render_fwd(ctx, &f, NULL, img), PEN_ERROR_ARGUMENT, "pose");
+    uint32_t bad_idx[3] = {0, 1, 99999};
+    fo = good, fo.triangle_count = 1, fo.indices = bad_idx, fo.uv_indices = bad_idx;
+    CHECK_ERROR(ctx, pen_flat_render_fwd(ctx, &f, NULL, img), PEN_ERROR_ARGUMENT, "objects[0]",
+                "99999");
+    fo = good;
+    CHECK_ERROR(ctx, pen_flat_render_fwd(ctx, NULL, NULL, img), PEN_ERROR_ARGUMENT, "NULL");
+
+    /* Backward without a forward on this state. */
+    pen_render_state *st = NULL;
+    CHECK(pen_render_state_create(ctx, &st) == PEN_OK);
+    float d_sh[3 * 16] = {0};
+    pen_flat_grad g = {d_sh, NULL, NULL};
+    CHECK_ERROR(ctx, pen_flat_render_bwd(ctx, &f, st, d_img, &g), PEN_ERROR_ARGUMENT, "no forward");
+    CHECK(pen_flat_render_fwd(ctx, &f, st, img) == PEN_OK);
+    CHECK(pen_flat_render_bwd(ctx, &f, st, d_img, &g) == PEN_OK);
+    CHECK_ERROR(ctx, pen_flat_render_bwd(ctx, &f, st, NULL, &g), PEN_ERROR_ARGUMENT, "NULL");
+    pen_render_state_free(st);
+    pen_scene_free(&sc);
+}
+
+RUN_TESTS(TEST(test_flat_matches_render), TEST(test_flat_per_vertex_uvs),
+          TEST(test_flat_scene_load), TEST(test_flat_errors))
