@@ -2,7 +2,8 @@
  *
  * Every optimised quantity of the scene is copied into one flat float vector x, cut into
  * segments (the lighting; per object its texels or constant albedo, its rotation, its
- * translation, its spheres), each with its learning rate and bound. One iteration writes x into
+ * translation, its spheres, its deformation graph's matrices and translations), each with its
+ * learning rate and bound. One iteration writes x into
  * the scene, renders (pen_render_fwd), evaluates the loss against the target, runs
  * pen_render_bwd for the groups being optimised only, gathers the gradient into the layout of x
  * and steps. Rotations live in x as radians (the scene keeps degrees) so that the supplement's
@@ -14,9 +15,10 @@
  * through its epsilon (1e-8), which would otherwise dominate the tiny per-texel gradients of a
  * large image and slow textures down.
  *
- * Record keeping: losses[i] is the loss of the render before step i; the stopping rule looks at
- * them after each render, and when it fires no further step is taken, so the last render is the
- * final one. */
+ * Record keeping: losses[i] is the objective after i steps (the image loss, plus the deformation
+ * regularisers when deformation is optimised); the stopping rule looks at them after each
+ * render, and when it fires no further step is taken. The parameters of the lowest objective
+ * are kept (the best iterate) and rendered once more if they are not the last ones. */
 #include "optim/optim_internal.h"
 
 #include "penumbra/fit.h"
@@ -228,7 +230,7 @@ static void deformation_rest(run *r) {
 }
 
 /* The regularisers of every deformed object at the current parameters (D->params, set by
- * transfer), adding scale times their gradient into d_params when asked. */
+ * transfer); their gradient is added in gather(). */
 static double regularisers(run *r) {
     double e = 0.0;
     for (int o = 0; o < r->sc->object_count; ++o)
