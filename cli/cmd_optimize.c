@@ -49,8 +49,31 @@ static void usage(FILE *f) {
             "  --no-shadows        optimise without shadows (visibility 1: the baseline)\n"
             "  --iterations N      override the task's iteration limit\n"
             "  --target IMAGE      override the task's target (.exr or .hdr)\n"
+            "  --resume            start from OUTDIR/scene.json (an earlier run's result)\n"
             "  --threads N         worker threads (default: all cores)\n"
             "  -q, --quiet         no summary line\n");
+}
+
+/* --resume: the earlier run's recovered scene replaces the task's initial guess, taken as it
+ * is (no black initial guesses). Adam's moments and the loss history start afresh. Returns 0, or
+ * the exit status after printing the error. */
+static int resume_from(pen_context *ctx, const char *outdir, pen_optim_task *task) {
+    char path[4096];
+    if (snprintf(path, sizeof path, "%s/scene.json", outdir) >= (int)sizeof path)
+        return pen_cli_fail(CMD, "--resume: %s: path too long", outdir);
+    pen_scene scene;
+    if (pen_scene_load(ctx, path, &scene))
+        return pen_cli_fail(CMD, "--resume: %s", pen_context_error(ctx));
+    if (scene.camera.width != task->target.width || scene.camera.height != task->target.height) {
+        pen_scene_free(&scene);
+        return pen_cli_fail(CMD, "--resume: %s: the camera is %dx%d but the target is %dx%d", path,
+                            scene.camera.width, scene.camera.height, task->target.width,
+                            task->target.height);
+    }
+    pen_scene_free(&task->scene);
+    task->scene = scene;
+    task->init_black = 0;
+    return 0;
 }
 
 static void print_metric(const char *name, double v) {
@@ -59,7 +82,7 @@ static void print_metric(const char *name, double v) {
 
 int pen_cmd_optimize(int argc, char **argv) {
     const char *task_path = NULL, *outdir = NULL, *target = NULL;
-    int threads = 0, quiet = 0, iterations = 0;
+    int threads = 0, quiet = 0, iterations = 0, resume = 0;
     pen_optim_settings set = pen_optim_settings_default();
     for (int i = 1; i < argc; ++i) {
         const char *a = argv[i];
@@ -72,6 +95,8 @@ int pen_cmd_optimize(int argc, char **argv) {
         } else if (!strcmp(a, "--target")) {
             if (++i >= argc) return pen_cli_usage_error(CMD, "%s needs a value", a);
             target = argv[i];
+        } else if (!strcmp(a, "--resume")) {
+            resume = 1;
         } else if (!strcmp(a, "--no-shadows")) {
             set.shadows = 0;
         } else if (!strcmp(a, "--iterations")) {
@@ -106,6 +131,7 @@ int pen_cmd_optimize(int argc, char **argv) {
         goto out_ctx;
     }
     if (iterations > 0) task.iterations = iterations;
+    if (resume && (rc = resume_from(ctx, outdir, &task)) != 0) goto out_task;
     progress p = {isatty(fileno(stderr))};
     set.progress = on_progress;
     set.progress_user = &p;

@@ -93,7 +93,18 @@ grep -q '"vertex_rmse"' "$T/def/result.json" || fail "result.json (deformation) 
 grep -q '"w_reg":[[:space:]]*0.01' "$T/def/result.json" || fail "result.json lacks the weights"
 "$BIN" render "$T/def/scene.json" -o "$T/def_again.exr" -q || fail "render the deformed scene"
 
-# 5. Ctrl-C: the run stops after the current iteration, writes everything, exits 130.
+# 5. --resume continues from the folder's scene: its first loss is the earlier run's final loss.
+"$BIN" optimize "$T/task.json" -o "$T/res" --iterations 5 -q || fail "first leg"
+f1=$(sed -n 's/^[[:space:]]*"final_loss":[[:space:]]*\([^,]*\),/\1/p' "$T/res/result.json")
+"$BIN" optimize "$T/task.json" -o "$T/res" --iterations 5 --resume -q || fail "--resume"
+i2=$(sed -n 's/^[[:space:]]*"initial_loss":[[:space:]]*\([^,]*\),/\1/p' "$T/res/result.json")
+awk -v a="$f1" -v b="$i2" 'BEGIN { d = a - b; if (d < 0) d = -d; exit !(d <= 1e-6 * a) }' ||
+    fail "--resume started at loss $i2, the first leg ended at $f1"
+"$BIN" optimize "$T/task.json" -o "$T/nosuchdir" --resume 2>"$T/err" >/dev/null &&
+    fail "--resume without an earlier run"
+grep -q -- "--resume: .*nosuchdir/scene.json" "$T/err" || fail "--resume error: $(cat "$T/err")"
+
+# 6. Ctrl-C: the run stops after the current iteration, writes everything, exits 130.
 if command -v timeout > /dev/null; then
     printf '{"scene": "truth.json", "target": "target.exr", "optimize": ["lighting"],\n' > "$T/long.json"
     printf ' "iterations": 1000000, "window": 10000}\n' >> "$T/long.json"
