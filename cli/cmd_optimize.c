@@ -3,7 +3,8 @@
  *
  * On a terminal a progress line (iteration, loss) is redrawn on stderr; elsewhere (logs, tests)
  * nothing but the final summary is printed. Ctrl-C stops the optimisation after the current
- * iteration and still writes the results, marked "interrupted"; a second Ctrl-C kills. */
+ * iteration and still writes the results, marked "interrupted"; a second Ctrl-C kills; one
+ * pressed while the task loads ends the run before it starts, without output. */
 #define _POSIX_C_SOURCE 200809L
 #include "commands.h"
 
@@ -119,8 +120,16 @@ int pen_cmd_optimize(int argc, char **argv) {
     if (!task_path) return pen_cli_usage_error(CMD, "missing TASK.json");
     if (!outdir) return pen_cli_usage_error(CMD, "missing -o OUTDIR");
 
+    /* Ctrl-C is caught from here on, so that one pressed while the task loads is not lost: the
+     * run then stops before it starts. A SIGINT ignored on entry (a background job of a
+     * non-interactive shell) stays ignored. */
+    void (*old)(int) = signal(SIGINT, on_sigint);
+    if (old == SIG_IGN) signal(SIGINT, SIG_IGN);
     pen_context *ctx = pen_context_create();
-    if (!ctx) return pen_cli_fail(CMD, "out of memory");
+    if (!ctx) {
+        signal(SIGINT, old == SIG_ERR ? SIG_DFL : old);
+        return pen_cli_fail(CMD, "out of memory");
+    }
     pen_context_set_threads(ctx, threads);
     pen_optim_task task;
     pen_optim_result res;
@@ -132,14 +141,15 @@ int pen_cmd_optimize(int argc, char **argv) {
     }
     if (iterations > 0) task.iterations = iterations;
     if (resume && (rc = resume_from(ctx, outdir, &task)) != 0) goto out_task;
+    if (interrupted) {
+        pen_cli_fail(CMD, "interrupted before the optimisation started");
+        rc = 130;
+        goto out_task;
+    }
     progress p = {isatty(fileno(stderr))};
     set.progress = on_progress;
     set.progress_user = &p;
-    /* A SIGINT ignored on entry (a background job of a non-interactive shell) stays ignored. */
-    void (*old)(int) = signal(SIGINT, on_sigint);
-    if (old == SIG_IGN) signal(SIGINT, SIG_IGN);
     pen_status s = pen_optim_run(ctx, &task, &set, &res);
-    signal(SIGINT, old == SIG_ERR ? SIG_DFL : old);
     if (p.tty) fputc('\n', stderr);
     if (s) {
         rc = pen_cli_fail_ctx(CMD, ctx);
@@ -167,5 +177,6 @@ out_task:
     pen_optim_task_free(&task);
 out_ctx:
     pen_context_destroy(ctx);
+    signal(SIGINT, old == SIG_ERR ? SIG_DFL : old);
     return rc;
 }
