@@ -108,8 +108,10 @@ grep -q -- "--resume: .*nosuchdir/scene.json" "$T/err" || fail "--resume error: 
 if command -v timeout > /dev/null; then
     printf '{"scene": "truth.json", "target": "target.exr", "optimize": ["lighting"],\n' > "$T/long.json"
     printf ' "iterations": 1000000, "window": 10000}\n' >> "$T/long.json"
-    # 5 s: loading must be over when the signal comes (an earlier one aborts without output)
-    timeout --preserve-status -s INT 5 "$BIN" optimize "$T/long.json" -o "$T/int" -q
+    # 5 s: loading must be over when the signal comes (an earlier one aborts without output);
+    # --foreground: one signal, to the command only (without it timeout signals the process
+    # group too, and the second SIGINT kills, as a second Ctrl-C should)
+    timeout --foreground --preserve-status -s INT 5 "$BIN" optimize "$T/long.json" -o "$T/int" -q
     st=$?
     [ $st -eq 130 ] || fail "SIGINT: exit status $st, not 130"
     grep -q '"interrupted":[[:space:]]*true' "$T/int/result.json" || fail "SIGINT: not recorded"
