@@ -4,7 +4,6 @@
 #include <omp.h>
 #include <stdio.h>
 #include <string.h>
-#include <strings.h>
 
 static const char *const CMD = "reference";
 
@@ -24,12 +23,6 @@ static void usage(FILE *f) {
             "  --coverage M  also write the fraction of each pixel's samples that hit a surface\n"
             "                (1-channel image; `compare --mask M` then leaves the background out)\n"
             "Prints one JSON line: size, spp, lighting, threads and seconds.\n");
-}
-
-static int known_extension(const char *path) {
-    const char *dot = strrchr(path, '.');
-    return dot && (strcasecmp(dot, ".exr") == 0 || strcasecmp(dot, ".hdr") == 0 ||
-                   strcasecmp(dot, ".png") == 0);
 }
 
 int pen_cmd_reference(int argc, char **argv) {
@@ -72,9 +65,9 @@ int pen_cmd_reference(int argc, char **argv) {
     }
     if (!scene_path) return pen_cli_usage_error(CMD, "missing SCENE.json");
     if (!out_path) return pen_cli_usage_error(CMD, "missing -o OUT");
-    if (!known_extension(out_path))
+    if (!pen_image_path_supported(out_path))
         return pen_cli_usage_error(CMD, "%s: the output must end in .exr, .hdr or .png", out_path);
-    if (cov_path && !known_extension(cov_path))
+    if (cov_path && !pen_image_path_supported(cov_path))
         return pen_cli_usage_error(CMD, "%s: the coverage must end in .exr, .hdr or .png",
                                    cov_path);
 

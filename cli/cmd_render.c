@@ -27,16 +27,6 @@ static void usage(FILE *f) {
             "  -q, --quiet         do not print the summary line\n");
 }
 
-static int has_ext(const char *path, const char *ext) {
-    const char *dot = strrchr(path, '.');
-    if (!dot || strchr(dot, '/')) return 0;
-    for (const char *a = dot + 1, *b = ext;; ++a, ++b) {
-        char ca = *a >= 'A' && *a <= 'Z' ? (char)(*a - 'A' + 'a') : *a;
-        if (ca != *b) return 0;
-        if (!*a) return 1;
-    }
-}
-
 int pen_cmd_render(int argc, char **argv) {
     const char *scene_path = NULL, *out_path = NULL;
     int threads = 0, quiet = 0;
@@ -68,7 +58,7 @@ int pen_cmd_render(int argc, char **argv) {
     }
     if (!scene_path) return pen_cli_usage_error(CMD, "missing SCENE.json");
     if (!out_path) return pen_cli_usage_error(CMD, "missing -o OUT.(png|exr|hdr)");
-    if (!has_ext(out_path, "png") && !has_ext(out_path, "exr") && !has_ext(out_path, "hdr"))
+    if (!pen_image_path_supported(out_path))
         return pen_cli_usage_error(CMD, "%s: the output must end in .png, .exr or .hdr", out_path);
 
     pen_context *ctx = pen_context_create();

@@ -44,6 +44,8 @@ pen_status pen_image_load_ex(pen_context *ctx, const char *path, unsigned flags,
  * renames it, so a failure never leaves a partial file. NaN/Inf pixels are an error
  * (PEN_ERROR_ARGUMENT naming the pixel). */
 pen_status pen_image_save(pen_context *ctx, const char *path, const pen_image *image);
+/* 1 if path ends in an image extension pen_image_load/save handle (.png, .hdr, .exr; any case). */
+int pen_image_path_supported(const char *path);
 
 #ifdef __cplusplus
 }

@@ -240,3 +240,8 @@ pen_status pen_image_save(pen_context *ctx, const char *path, const pen_image *i
     }
     return pen__io_temp_commit(ctx, tmp, path);
 }
+
+int pen_image_path_supported(const char *path) {
+    return path && (pen__io_has_ext(path, "png") || pen__io_has_ext(path, "hdr") ||
+                    pen__io_has_ext(path, "exr"));
+}
