@@ -35,6 +35,7 @@
 
 #include "core/internal.h"
 #include "reference/internal.h"
+#include "render/render_internal.h"
 
 #include <embree3/rtcore.h>
 #include <omp.h>
@@ -228,23 +229,6 @@ static void irradiance_sample(const pen_reference *ref, const float org[3], cons
 /* ---- Surfaces ---------------------------------------------------------------------------------
  */
 
-/* Bilinear albedo lookup, wrapping in both axes; v is up and image row 0 is v = 1. */
-static void texture_lookup(const pen_image *tex, float u, float v, float out[3]) {
-    float fx = u * (float)tex->width - 0.5f, fy = (1.0f - v) * (float)tex->height - 0.5f;
-    float flx = floorf(fx), fly = floorf(fy);
-    float ax = fx - flx, ay = fy - fly;
-    /* fmod keeps huge UVs (tiling far from the origin) inside int range before wrapping. */
-    int x0 = (int)fmodf(flx, (float)tex->width), y0 = (int)fmodf(fly, (float)tex->height);
-    x0 = x0 < 0 ? x0 + tex->width : x0;
-    y0 = y0 < 0 ? y0 + tex->height : y0;
-    int x1 = x0 + 1 == tex->width ? 0 : x0 + 1, y1 = y0 + 1 == tex->height ? 0 : y0 + 1;
-    for (int ch = 0; ch < 3; ++ch) {
-        float t0 = (1 - ax) * pen__texel(tex, x0, y0, ch) + ax * pen__texel(tex, x1, y0, ch);
-        float t1 = (1 - ax) * pen__texel(tex, x0, y1, ch) + ax * pen__texel(tex, x1, y1, ch);
-        out[ch] = (1 - ay) * t0 + ay * t1;
-    }
-}
-
 typedef struct surface {
     float p[3], ng[3], ns[3], albedo[3];
 } surface;
@@ -281,7 +265,7 @@ static void mesh_surface(const pen_reference *ref, unsigned g, unsigned t, float
         for (int i = 0; i < 2; ++i)
             uv[i] = b[0] * mesh->uvs[2 * ti[0] + i] + b[1] * mesh->uvs[2 * ti[1] + i] +
                     b[2] * mesh->uvs[2 * ti[2] + i];
-        texture_lookup(&obj->texture, uv[0], uv[1], s->albedo);
+        pen__texture_fwd(&obj->texture, uv, s->albedo); /* the renderer's lookup, so both agree */
     } else {
         memcpy(s->albedo, obj->albedo, sizeof s->albedo);
     }
