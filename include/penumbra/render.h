@@ -113,6 +113,29 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *scene, const pen_re
                           pen_render_state *state, const pen_image *d_image, unsigned wrt,
                           pen_render_grad *grad);
 
+/* ---- Timings ------------------------------------------------------------------------------- */
+
+/* Wall-clock milliseconds of the last pen_render_fwd / pen_render_bwd with a state, by stage
+ * (what `penumbra bench` reports). Stages that run inside the parallel pixel loop (visibility,
+ * exp, shading) are measured per thread and reported as their share of the loop's wall time, so
+ * the stages of one pass add up to about its total. A stage the pass did not split out is 0 and
+ * its time is in the enclosing one (`*_shade_ms`). */
+typedef struct pen_render_timings {
+    double fwd_prepare_ms;    /* posing, rasterization, attribute interpolation */
+    double fwd_shade_ms;      /* the whole per-pixel loop */
+    double fwd_visibility_ms; /* of which: per-sphere log-visibility sums */
+    double fwd_exp_ms;        /* of which: the SH exponential */
+    double fwd_antialias_ms;  /* silhouette antialiasing */
+    double bwd_antialias_ms;
+    double bwd_shade_ms;      /* the whole per-pixel backward loop */
+    double bwd_visibility_ms; /* of which: log-visibility backward */
+    double bwd_exp_ms;        /* of which: the exponential's backward */
+    double bwd_scatter_ms;    /* reductions, texels, interpolation, normals, pose (serial) */
+} pen_render_timings;
+
+/* The stage times of the state's last forward and backward (zeros before any). */
+void pen_render_state_timings(const pen_render_state *state, pen_render_timings *out);
+
 /* ---- Image losses ---------------------------------------------------------------------------- */
 
 /* Mean squared error over all pixels and channels, loss = (1/N) sum (image - target)^2;

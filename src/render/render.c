@@ -68,7 +68,17 @@ struct pen_render_state {
     float *fv; /* per pixel F and V (2 bands^2) when shadows are on */
     int fv_valid;
     double *rows;
+    pen_render_timings timings;
 };
+
+void pen_render_state_timings(const pen_render_state *st, pen_render_timings *out) {
+    memset(out, 0, sizeof *out);
+    if (st) *out = st->timings;
+}
+
+static double ms_since(double t0) {
+    return 1e3 * (omp_get_wtime() - t0);
+}
 
 pen_status pen_render_state_create(pen_context *ctx, pen_render_state **out) {
     *out = pen__calloc(ctx, 1, sizeof **out, "render state");
@@ -373,7 +383,11 @@ pen_status pen_render_fwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     }
     pen_render_state *st = state;
     st->valid = 0;
+    pen_render_timings *tm = &st->timings;
+    memset(tm, 0, sizeof *tm);
+    double t0 = omp_get_wtime();
     if ((s = prepare(ctx, sc, opt, st))) goto done;
+    tm->fwd_prepare_ms = ms_since(t0);
     const int W = st->width, H = st->height;
     if (image->data) {
         if (image->width != W || image->height != H || image->channels != 3) {
@@ -398,6 +412,7 @@ pen_status pen_render_fwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     }
     st->fv_valid = fv_all != NULL;
     const int nt = thread_count(ctx);
+    t0 = omp_get_wtime();
 #pragma omp parallel for schedule(dynamic, 1) num_threads(nt) if (W * H >= PARALLEL_MIN_PIXELS)
     for (int py = 0; py < H; ++py) {
         for (int px = 0; px < W; ++px) {
@@ -430,7 +445,9 @@ pen_status pen_render_fwd(pen_context *ctx, const pen_scene *sc, const pen_rende
                            fv_all ? fv_all + nfv * i : NULL);
         }
     }
+    tm->fwd_shade_ms = ms_since(t0);
 
+    t0 = omp_get_wtime();
     if (opt->antialias && sc->object_count > 0) {
         if ((s = pen_antialias_fwd(ctx, &st->gb, &st->view, st->meshes, sc->object_count, st->color,
                                    3, image->data)))
@@ -438,6 +455,7 @@ pen_status pen_render_fwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     } else {
         memcpy(image->data, st->color, sizeof(float) * 3 * (size_t)W * (size_t)H);
     }
+    tm->fwd_antialias_ms = ms_since(t0);
     st->opt = *opt;
     st->valid = 1;
     s = PEN_OK;
@@ -585,6 +603,11 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
         }
     }
 
+    pen_render_timings *tm = &st->timings;
+    tm->bwd_antialias_ms = tm->bwd_shade_ms = tm->bwd_visibility_ms = tm->bwd_exp_ms = 0.0;
+    tm->bwd_scatter_ms = 0.0;
+    double t0 = omp_get_wtime();
+
     /* Antialiasing backward: d_image -> d_colour (+ silhouette vertex gradients). */
     if (opt->antialias && O > 0) {
         memset(st->d_color, 0, sizeof(float) * 3 * np);
@@ -597,6 +620,7 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     } else {
         memcpy(st->d_color, d_image->data, sizeof(float) * 3 * np);
     }
+    tm->bwd_antialias_ms = ms_since(t0);
 
     /* Per-pixel backward, rows in parallel, each row into its own accumulators. */
     const row_layout rl = rows_layout(sc->sh_bands, O, S);
@@ -609,6 +633,7 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     const int nt = thread_count(ctx);
     const size_t nfv = 2 * (size_t)nc;
     const float *fv_all = st->fv_valid && st->params.shadows ? st->fv : NULL;
+    t0 = omp_get_wtime();
 #pragma omp parallel for schedule(dynamic, 1) num_threads(nt) if (W * H >= PARALLEL_MIN_PIXELS)
     for (int py = 0; py < H; ++py) {
         double *row = st->rows + rl.stride * (size_t)py;
@@ -653,6 +678,9 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
             pen_normalize_bwd(1, st->nraw + 3 * i, d_n, d_nraw);
         }
     }
+
+    tm->bwd_shade_ms = ms_since(t0);
+    t0 = omp_get_wtime();
 
     /* Reduce the rows in order. */
     double *sum = pen__calloc(ctx, rl.stride + 1, sizeof(double), "gradient sums");
@@ -736,5 +764,6 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
         }
     }
     free(d_world);
+    tm->bwd_scatter_ms = ms_since(t0);
     return s;
 }
