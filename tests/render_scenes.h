@@ -27,6 +27,15 @@ static inline void rs_y_band2(const double n[3], double y[9]) {
     y[8] = 0.54627421529603959 * (x * x - yy * yy);
 }
 
+/* Random test inputs from a seed: uniform in [lo, hi), and a uniform unit vector. */
+static inline double rs_uniform(unsigned long long *seed, double lo, double hi) {
+    return lo + (hi - lo) * check_rand_(seed);
+}
+static inline void rs_unit_vector(unsigned long long *seed, double d[3]) {
+    double z = rs_uniform(seed, -1, 1), phi = rs_uniform(seed, 0, 2 * M_PI), s = sqrt(1 - z * z);
+    d[0] = s * cos(phi), d[1] = s * sin(phi), d[2] = z;
+}
+
 /* ---- Meshes ---------------------------------------------------------------------------------- */
 
 typedef struct rs_builder {

@@ -10,11 +10,7 @@
 
 static unsigned long long rng = 777;
 static double urand(double lo, double hi) {
-    return lo + (hi - lo) * check_rand_(&rng);
-}
-static void rand_unit(double d[3]) {
-    double z = urand(-1, 1), phi = urand(0, 2 * M_PI), s = sqrt(1 - z * z);
-    d[0] = s * cos(phi), d[1] = s * sin(phi), d[2] = z;
+    return rs_uniform(&rng, lo, hi);
 }
 
 static pen__shade_params params(int bands, pen_sh_exp_method method, int shadows) {
@@ -37,7 +33,7 @@ static void test_irradiance_closed_form(void) {
             for (int k = 0; k < 16; ++k)
                 for (int ch = 0; ch < 3; ++ch)
                     L[k][ch] = urand(-0.5, 0.5) + (k == 0 ? 2 : 0);
-            rand_unit(n);
+            rs_unit_vector(&rng, n);
             pen__shade_fwd_d(&p, (const double(*)[3])L, 0, NULL, x, n, rho, rgb, NULL);
             double y[9];
             rs_y_band2(n, y);
@@ -66,7 +62,7 @@ typedef struct {
 static setup make_setup(int count) {
     setup S;
     memset(&S, 0, sizeof S);
-    rand_unit(S.n);
+    rs_unit_vector(&rng, S.n);
     for (int a = 0; a < 3; ++a)
         S.x[a] = urand(-0.2, 0.2), S.rho[a] = urand(0.2, 0.9);
     for (int k = 0; k < 16; ++k)
@@ -75,7 +71,7 @@ static setup make_setup(int count) {
     S.count = count;
     for (int i = 0; i < count; ++i) {
         double d[3];
-        rand_unit(d);
+        rs_unit_vector(&rng, d);
         double r = urand(0.2, 0.6), dist = urand(0.8, 2.5);
         /* Height along n in [-0.8 r, 2 r]: partly behind the plane for some spheres. */
         double h = urand(-0.8, 2.0) * r;

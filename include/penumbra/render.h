@@ -25,8 +25,8 @@
  * Gradients: of a scalar loss, given d_image = dLoss/dimage; the backward ADDS into the gradient
  * struct. Object-space quantities (vertices, sphere centres and radii) get object-space
  * gradients; the pose gets gradients per field of pen_pose (rotation per degree). Determinism:
- * every reduction runs in a fixed order (per-row buffers in double), so results do not depend
- * on the thread count.
+ * every reduction runs in a fixed order (per-tile buffers in double, summed in tile order), so
+ * results do not depend on the thread count.
  *
  * The scene must not change between pen_render_fwd and the matching pen_render_bwd (the state
  * keeps the G-buffer and per-pixel attributes of the forward).
@@ -45,12 +45,20 @@ extern "C" {
 
 /* ---- Options --------------------------------------------------------------------------------- */
 
+/* Shading kernels (pen_render_options.kernel). FAST processes the pixels of a screen tile in
+ * batches of SIMD lanes (16 floats with AVX-512) with SH code generated per band count; it covers
+ * bands 3..6 with the calibrated and paper exponentials and falls back to SCALAR otherwise.
+ * SCALAR is the per-pixel reference kernel. Both compute in float and agree to float rounding. */
+#define PEN_RENDER_KERNEL_FAST 0
+#define PEN_RENDER_KERNEL_SCALAR 1
+
 typedef struct pen_render_options {
     int shadows;   /* 1: SH visibility from the sphere sets; 0: V == 1 (`--no-shadows`) */
     int antialias; /* 1: analytic silhouette antialiasing (needed for silhouette gradients) */
+    int kernel;    /* PEN_RENDER_KERNEL_* */
 } pen_render_options;
 
-/* shadows = 1, antialias = 1. */
+/* shadows = 1, antialias = 1, kernel = PEN_RENDER_KERNEL_FAST. */
 pen_render_options pen_render_options_default(void);
 
 /* ---- Gradients ------------------------------------------------------------------------------- */

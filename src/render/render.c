@@ -39,6 +39,11 @@
  * thousand pixels take, and optimisers render many small frames. */
 #define PARALLEL_MIN_PIXELS 4096
 
+/* Screen tiles: the unit of parallel work and of the fast kernel's calls (its batches are the
+ * tile's shaded pixels), and of the backward's double accumulators. */
+#define TILE 16
+#define TILE_PX (TILE * TILE)
+
 /* ---- State ----------------------------------------------------------------------------------- */
 
 typedef struct object_buf {
@@ -64,10 +69,12 @@ struct pen_render_state {
     size_t pixel_cap;
     float *x, *nraw, *n, *rho, *uv, *color, *nsign;
     float *d_color, *d_x, *d_nraw, *d_uv, *d_rho, *d_bary;
-    size_t fv_cap, rows_cap;
-    float *fv; /* per pixel F and V (2 bands^2) when shadows are on */
+    size_t fv_cap, rows_cap, ws_cap;
+    float *fv; /* scalar kernel: F and V per pixel (2 bands^2); fast: its store, per tile */
     int fv_valid;
-    double *rows;
+    int fast;        /* the forward used the fast kernel */
+    double *rows;    /* the backward's double accumulators, one block per tile */
+    unsigned char *ws; /* per-thread workspaces (tile_ws) */
     pen_render_timings timings;
 };
 
@@ -97,7 +104,7 @@ void pen_render_state_free(pen_render_state *st) {
                    st->d_color, st->d_x,  st->d_nraw, st->d_uv, st->d_rho, st->d_bary};
     for (size_t i = 0; i < sizeof px / sizeof px[0]; ++i)
         free(px[i]);
-    free(st->fv), free(st->rows);
+    free(st->fv), free(st->rows), free(st->ws);
     free(st);
 }
 
@@ -159,6 +166,102 @@ static pen_status ensure_pixels(pen_context *ctx, pen_render_state *st, size_t n
     }
     st->pixel_cap = n;
     return PEN_OK;
+}
+
+/* ---- Tiles ------------------------------------------------------------------------------------ */
+
+/* A thread's workspace for one tile: the tile's shaded pixels compacted (pixel index, x, n, rho,
+ * the kernel's output or d_colour, and the backward's per-pixel results), and the fast kernel's
+ * scratch. Allocated once per state and reused, so the pixel loops do not allocate. */
+typedef struct tile_ws {
+    int *idx;
+    float *x, *n, *rho, *out, *dx, *dn, *drho; /* 3 floats per compacted pixel */
+    void *kernel;
+} tile_ws;
+
+static size_t tile_ws_bytes(const pen__shade_params *p, int spheres) {
+    const size_t b = sizeof(int) * TILE_PX + 7 * 3 * sizeof(float) * TILE_PX +
+                     pen__shade_fast_scratch_bytes(p, spheres, TILE_PX);
+    return (b + 127) & ~(size_t)127; /* threads' blocks on separate cache lines */
+}
+
+static pen_status ensure_ws(pen_context *ctx, pen_render_state *st, int threads, size_t *bytes) {
+    *bytes = tile_ws_bytes(&st->params, st->sphere_count);
+    return ensure(ctx, (void **)&st->ws, &st->ws_cap, *bytes * (size_t)threads, 1,
+                  "render workspaces");
+}
+
+static tile_ws tile_ws_at(pen_render_state *st, size_t bytes) {
+    const int tid = omp_get_thread_num();
+    unsigned char *b = st->ws + bytes * (size_t)tid;
+    tile_ws w;
+    w.idx = (int *)b;
+    float *f = (float *)(b + sizeof(int) * TILE_PX);
+    w.x = f, w.n = f + 3 * TILE_PX, w.rho = f + 6 * TILE_PX, w.out = f + 9 * TILE_PX;
+    w.dx = f + 12 * TILE_PX, w.dn = f + 15 * TILE_PX, w.drho = f + 18 * TILE_PX;
+    w.kernel = f + 21 * TILE_PX;
+    return w;
+}
+
+/* Appends surface pixel i (index, x, n, rho) as the j-th compacted pixel. */
+static void ws_push(tile_ws *ws, int j, const pen_render_state *st, size_t i) {
+    ws->idx[j] = (int)i;
+    memcpy(ws->x + 3 * j, st->x + 3 * i, 3 * sizeof(float));
+    memcpy(ws->n + 3 * j, st->n + 3 * i, 3 * sizeof(float));
+    memcpy(ws->rho + 3 * j, st->rho + 3 * i, 3 * sizeof(float));
+}
+
+/* Pixel rectangle [x0, x1) x [y0, y1) of tile t. */
+static void tile_rect(const pen_render_state *st, int t, int *x0, int *y0, int *x1, int *y1) {
+    const int tiles_x = (st->width + TILE - 1) / TILE;
+    *x0 = (t % tiles_x) * TILE, *y0 = (t / tiles_x) * TILE;
+    *x1 = *x0 + TILE < st->width ? *x0 + TILE : st->width;
+    *y1 = *y0 + TILE < st->height ? *y0 + TILE : st->height;
+}
+
+static int tile_count(const pen_render_state *st) {
+    return ((st->width + TILE - 1) / TILE) * ((st->height + TILE - 1) / TILE);
+}
+
+/* Per-thread stage ticks of a pixel loop, summed over threads. */
+typedef struct loop_ticks {
+    unsigned long long visibility, exp, total;
+} loop_ticks;
+
+static void loop_ticks_add(loop_ticks *sum, const pen__shade_fast_ticks *tk,
+                           unsigned long long total) {
+#pragma omp critical(pen_render_ticks)
+    {
+        sum->visibility += tk->visibility;
+        sum->exp += tk->exp;
+        sum->total += total;
+    }
+}
+
+/* Runs fn on every tile, threads over tiles with dynamic scheduling (small frames on the calling
+ * thread), each thread with its own workspace; returns the threads' summed stage ticks. */
+typedef void (*tile_fn)(const void *job, int t, tile_ws *ws, pen__shade_fast_ticks *tk);
+
+static loop_ticks run_tiles(pen_render_state *st, int threads, size_t ws_bytes, tile_fn fn,
+                            const void *job) {
+    loop_ticks lt = {0, 0, 0};
+    const int ntiles = tile_count(st);
+#pragma omp parallel num_threads(threads) if (st->width * st->height >= PARALLEL_MIN_PIXELS)
+    {
+        tile_ws ws = tile_ws_at(st, ws_bytes);
+        pen__shade_fast_ticks tk = {0, 0};
+        const unsigned long long start = pen__shade_fast_now();
+#pragma omp for schedule(dynamic, 1) nowait
+        for (int t = 0; t < ntiles; ++t)
+            fn(job, t, &ws, &tk);
+        loop_ticks_add(&lt, &tk, pen__shade_fast_now() - start);
+    }
+    return lt;
+}
+
+/* A stage's share of a loop's wall time. */
+static double stage_ms(double loop_ms, unsigned long long stage, unsigned long long total) {
+    return total ? loop_ms * (double)stage / (double)total : 0.0;
 }
 
 /* ---- Validation ------------------------------------------------------------------------------ */
@@ -269,6 +372,7 @@ pen_render_options pen_render_options_default(void) {
     pen_render_options o;
     o.shadows = 1;
     o.antialias = 1;
+    o.kernel = PEN_RENDER_KERNEL_FAST;
     return o;
 }
 
@@ -371,6 +475,99 @@ static float facing_sign(const pen_render_state *st, const pen_object *ob, int o
     return g[0] * v[0] + g[1] * v[1] + g[2] * v[2] < 0.0 ? -1.0f : 1.0f;
 }
 
+/* Normal (facing the camera) and albedo of surface pixel i. */
+static void surface_attributes(const pen_scene *sc, pen_render_state *st, size_t i, int surf) {
+    float *n = st->n + 3 * i, *rho = st->rho + 3 * i;
+    if (surf == PEN_SURFACE_GROUND) {
+        n[0] = 0.0f, n[1] = 1.0f, n[2] = 0.0f;
+        for (int ch = 0; ch < 3; ++ch)
+            rho[ch] = sc->ground.albedo[ch];
+        return;
+    }
+    const pen_object *ob = &sc->objects[surf];
+    const float sign = facing_sign(st, ob, surf, i);
+    st->nsign[i] = sign;
+    pen_normalize_fwd(1, st->nraw + 3 * i, n);
+    for (int a = 0; a < 3; ++a)
+        n[a] *= sign;
+    if (ob->texture.data)
+        pen__texture_fwd(&ob->texture, st->uv + 2 * i, rho);
+    else
+        for (int ch = 0; ch < 3; ++ch)
+            rho[ch] = ob->albedo[ch];
+}
+
+/* Layout of one tile's double accumulators (the backward's small dense gradients). */
+typedef struct row_layout {
+    size_t sh, ground, albedo, spheres, stride;
+} row_layout;
+
+static row_layout rows_layout(int bands, int objects, int spheres) {
+    row_layout r;
+    r.sh = 0;
+    r.ground = r.sh + 3 * (size_t)bands * (size_t)bands;
+    r.albedo = r.ground + 3;
+    r.spheres = r.albedo + 3 * (size_t)objects;
+    r.stride = r.spheres + 4 * (size_t)spheres;
+    return r;
+}
+
+/* What the backward computes. */
+typedef struct bwd_want {
+    int geom, spheres, light, albedo;
+    row_layout rl;
+} bwd_want;
+
+/* A pass over the tiles: store is the fast kernel's store (tile t's part at tile_store * t) or
+ * the scalar kernel's per-pixel F and V (tile_store = 0), or NULL when nothing is kept; bw is
+ * the backward's request (NULL in the forward). */
+typedef struct tile_job {
+    const pen_scene *sc;
+    pen_render_state *st;
+    const bwd_want *bw;
+    float *store;
+    size_t tile_store;
+} tile_job;
+
+static float *tile_store_of(const tile_job *job, int t) {
+    return job->store ? job->store + job->tile_store * (size_t)t : NULL;
+}
+
+/* Shades tile t: background pixels directly, surface pixels through the fast kernel (compacted
+ * into ws) or the scalar kernel one by one. */
+static void shade_tile_fwd(const void *job_, int t, tile_ws *ws, pen__shade_fast_ticks *tk) {
+    const tile_job *job = job_;
+    const pen_scene *sc = job->sc;
+    pen_render_state *st = job->st;
+    float *store = tile_store_of(job, t);
+    const float(*sh)[3] = (const float(*)[3])sc->lighting.sh;
+    const size_t nfv = 2 * (size_t)sc->sh_bands * (size_t)sc->sh_bands;
+    int x0, y0, x1, y1, cnt = 0;
+    tile_rect(st, t, &x0, &y0, &x1, &y1);
+    for (int py = y0; py < y1; ++py)
+        for (int px = x0; px < x1; ++px) {
+            const size_t i = (size_t)py * (size_t)st->width + (size_t)px;
+            const int surf = st->gb.surface[i];
+            if (surf == PEN_SURFACE_BACKGROUND) {
+                background_fwd(sc, &st->view, px, py, st->color + 3 * i);
+                continue;
+            }
+            surface_attributes(sc, st, i, surf);
+            if (!st->fast) {
+                pen__shade_fwd(&st->params, sh, st->sphere_count, st->spheres, st->x + 3 * i,
+                               st->n + 3 * i, st->rho + 3 * i, st->color + 3 * i,
+                               store ? store + nfv * i : NULL);
+                continue;
+            }
+            ws_push(ws, cnt++, st, i);
+        }
+    if (!cnt) return;
+    pen__shade_fast_fwd(&st->params, sh, st->sphere_count, st->spheres, NULL, cnt, ws->x, ws->n,
+                        ws->rho, ws->out, store, ws->kernel, tk);
+    for (int j = 0; j < cnt; ++j)
+        memcpy(st->color + 3 * (size_t)ws->idx[j], ws->out + 3 * j, 3 * sizeof(float));
+}
+
 pen_status pen_render_fwd(pen_context *ctx, const pen_scene *sc, const pen_render_options *opt,
                           pen_render_state *state, pen_image *image) {
     pen_render_options def = pen_render_options_default();
@@ -380,6 +577,10 @@ pen_status pen_render_fwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     if (!state) {
         if ((s = pen_render_state_create(ctx, &own))) return s;
         state = own;
+    }
+    if (opt->kernel != PEN_RENDER_KERNEL_FAST && opt->kernel != PEN_RENDER_KERNEL_SCALAR) {
+        s = pen__error(ctx, PEN_ERROR_ARGUMENT, "render: unknown kernel %d", opt->kernel);
+        goto done;
     }
     pen_render_state *st = state;
     st->valid = 0;
@@ -400,52 +601,32 @@ pen_status pen_render_fwd(pen_context *ctx, const pen_scene *sc, const pen_rende
         goto done;
     }
 
-    /* Keep F and V per pixel for the backward (2 bands^2 floats: 32 MB at 512 x 512, 4 bands),
-     * which saves it the sphere sum and the exponential's squarings. */
+    /* Keep what the backward needs: the scalar kernel F and V per pixel (2 bands^2 floats:
+     * 32 MB at 512 x 512, 4 bands), the fast kernel F per pixel in its batch layout. */
+    const int fast =
+        opt->kernel == PEN_RENDER_KERNEL_FAST && pen__shade_fast_supported(&st->params);
+    const int ntiles = tile_count(st);
     const size_t nfv = 2 * (size_t)sc->sh_bands * (size_t)sc->sh_bands;
+    const size_t tile_store = pen__shade_fast_store_floats(&st->params, TILE_PX);
     float *fv_all = NULL;
     if (own == NULL && opt->shadows) {
-        if ((s = ensure(ctx, (void **)&st->fv, &st->fv_cap, nfv * (size_t)W * (size_t)H,
-                        sizeof(float), "visibility buffer")))
+        const size_t need = fast ? tile_store * (size_t)ntiles : nfv * (size_t)W * (size_t)H;
+        if ((s = ensure(ctx, (void **)&st->fv, &st->fv_cap, need, sizeof(float),
+                        "visibility buffer")))
             goto done;
         fv_all = st->fv;
     }
     st->fv_valid = fv_all != NULL;
+    st->fast = fast;
     const int nt = thread_count(ctx);
+    size_t wsb = 0;
+    if ((s = ensure_ws(ctx, st, nt, &wsb))) goto done;
+    const tile_job job = {sc, st, NULL, fv_all, fast ? tile_store : 0};
     t0 = omp_get_wtime();
-#pragma omp parallel for schedule(dynamic, 1) num_threads(nt) if (W * H >= PARALLEL_MIN_PIXELS)
-    for (int py = 0; py < H; ++py) {
-        for (int px = 0; px < W; ++px) {
-            const size_t i = (size_t)py * (size_t)W + (size_t)px;
-            const int surf = st->gb.surface[i];
-            float *n = st->n + 3 * i, *rho = st->rho + 3 * i, *col = st->color + 3 * i;
-            if (surf == PEN_SURFACE_BACKGROUND) {
-                background_fwd(sc, &st->view, px, py, col);
-                continue;
-            }
-            if (surf == PEN_SURFACE_GROUND) {
-                n[0] = 0.0f, n[1] = 1.0f, n[2] = 0.0f;
-                for (int ch = 0; ch < 3; ++ch)
-                    rho[ch] = sc->ground.albedo[ch];
-            } else {
-                const pen_object *ob = &sc->objects[surf];
-                const float sign = facing_sign(st, ob, surf, i);
-                st->nsign[i] = sign;
-                pen_normalize_fwd(1, st->nraw + 3 * i, n);
-                for (int a = 0; a < 3; ++a)
-                    n[a] *= sign;
-                if (ob->texture.data)
-                    pen__texture_fwd(&ob->texture, st->uv + 2 * i, rho);
-                else
-                    for (int ch = 0; ch < 3; ++ch)
-                        rho[ch] = ob->albedo[ch];
-            }
-            pen__shade_fwd(&st->params, (const float(*)[3])sc->lighting.sh, st->sphere_count,
-                           st->spheres, st->x + 3 * i, n, rho, col,
-                           fv_all ? fv_all + nfv * i : NULL);
-        }
-    }
+    const loop_ticks lt = run_tiles(st, nt, wsb, shade_tile_fwd, &job);
     tm->fwd_shade_ms = ms_since(t0);
+    tm->fwd_visibility_ms = stage_ms(tm->fwd_shade_ms, lt.visibility, lt.total);
+    tm->fwd_exp_ms = stage_ms(tm->fwd_shade_ms, lt.exp, lt.total);
 
     t0 = omp_get_wtime();
     if (opt->antialias && sc->object_count > 0) {
@@ -524,19 +705,89 @@ void pen_render_grad_free(pen_render_grad *g) {
 
 /* ---- Backward -------------------------------------------------------------------------------- */
 
-/* Layout of one row's double accumulators. */
-typedef struct row_layout {
-    size_t sh, ground, albedo, spheres, stride;
-} row_layout;
 
-static row_layout rows_layout(int bands, int objects, int spheres) {
-    row_layout r;
-    r.sh = 0;
-    r.ground = r.sh + 3 * (size_t)bands * (size_t)bands;
-    r.albedo = r.ground + 3;
-    r.spheres = r.albedo + 3 * (size_t)objects;
-    r.stride = r.spheres + 4 * (size_t)spheres;
-    return r;
+/* After the kernel's backward of surface pixel i: its albedo gradient into the tile's sums (ground,
+ * constant albedo) or through the texture lookup to uv, and d_n through the facing sign and the
+ * normalisation to the raw normal. d_rho is st->d_rho of the pixel. */
+static void pixel_bwd_tail(const pen_scene *sc, pen_render_state *st, const bwd_want *bw,
+                           double *row, size_t i, int surf, float d_n[3]) {
+    const float *d_rho = st->d_rho + 3 * i;
+    if (surf < 0) {
+        if (bw->albedo)
+            for (int ch = 0; ch < 3; ++ch)
+                row[bw->rl.ground + ch] += (double)d_rho[ch];
+        return;
+    }
+    const pen_object *ob = &sc->objects[surf];
+    if (!ob->texture.data && bw->albedo)
+        for (int ch = 0; ch < 3; ++ch)
+            row[bw->rl.albedo + 3 * (size_t)surf + ch] += (double)d_rho[ch];
+    if (!bw->geom) return;
+    if (ob->texture.data) pen__texture_bwd(&ob->texture, st->uv + 2 * i, d_rho, NULL, st->d_uv + 2 * i);
+    const float sign = st->nsign[i];
+    for (int a = 0; a < 3; ++a)
+        d_n[a] *= sign;
+    pen_normalize_bwd(1, st->nraw + 3 * i, d_n, st->d_nraw + 3 * i);
+}
+
+/* Backward of tile t into the tile's double accumulators and the per-pixel gradients d_x,
+ * d_nraw, d_uv, d_rho (zeroed here for every pixel of the tile). */
+static void shade_tile_bwd(const void *job_, int t, tile_ws *ws, pen__shade_fast_ticks *tk) {
+    const tile_job *job = job_;
+    const pen_scene *sc = job->sc;
+    pen_render_state *st = job->st;
+    const bwd_want *bw = job->bw;
+    const float *store = tile_store_of(job, t);
+    const float(*sh)[3] = (const float(*)[3])sc->lighting.sh;
+    const size_t nfv = 2 * (size_t)sc->sh_bands * (size_t)sc->sh_bands;
+    const int S = st->sphere_count;
+    double *row = st->rows + bw->rl.stride * (size_t)t;
+    double(*d_sh)[3] = bw->light ? (double(*)[3])(row + bw->rl.sh) : NULL;
+    double *d_sph = bw->spheres ? row + bw->rl.spheres : NULL;
+    int x0, y0, x1, y1, cnt = 0;
+    tile_rect(st, t, &x0, &y0, &x1, &y1);
+    for (int py = y0; py < y1; ++py)
+        for (int px = x0; px < x1; ++px) {
+            const size_t i = (size_t)py * (size_t)st->width + (size_t)px;
+            const int surf = st->gb.surface[i];
+            const float *dc = st->d_color + 3 * i;
+            float *d_x = st->d_x + 3 * i, *d_rho = st->d_rho + 3 * i;
+            memset(d_x, 0, 3 * sizeof(float));
+            memset(st->d_nraw + 3 * i, 0, 3 * sizeof(float));
+            memset(st->d_uv + 2 * i, 0, 2 * sizeof(float));
+            memset(d_rho, 0, 3 * sizeof(float));
+            if (surf == PEN_SURFACE_BACKGROUND) continue; /* no parameters */
+            if (st->fast) {
+                memcpy(ws->out + 3 * cnt, dc, 3 * sizeof(float));
+                ws_push(ws, cnt++, st, i);
+                continue;
+            }
+            if (dc[0] == 0.0f && dc[1] == 0.0f && dc[2] == 0.0f) continue;
+            const int geom = surf >= 0 && bw->geom;
+            const int need_rho =
+                bw->albedo || (geom && sc->objects[surf].texture.data != NULL);
+            float d_n[3] = {0.0f, 0.0f, 0.0f};
+            pen__shade_bwd(&st->params, sh, S, st->spheres, st->x + 3 * i, st->n + 3 * i,
+                           st->rho + 3 * i, dc, store ? store + nfv * i : NULL, d_sh, d_sph,
+                           geom ? d_x : NULL, geom ? d_n : NULL, need_rho ? d_rho : NULL);
+            pixel_bwd_tail(sc, st, bw, row, i, surf, d_n);
+        }
+    if (!cnt) return;
+    memset(ws->dx, 0, 3 * sizeof(float) * (size_t)cnt);
+    memset(ws->dn, 0, 3 * sizeof(float) * (size_t)cnt);
+    memset(ws->drho, 0, 3 * sizeof(float) * (size_t)cnt);
+    pen__shade_fast_bwd(&st->params, sh, S, st->spheres, NULL, cnt, ws->x, ws->n, ws->rho, ws->out,
+                        store, ws->kernel, d_sh, d_sph, bw->geom ? ws->dx : NULL,
+                        bw->geom ? ws->dn : NULL, ws->drho, tk);
+    for (int j = 0; j < cnt; ++j) {
+        const size_t i = (size_t)ws->idx[j];
+        const int surf = st->gb.surface[i];
+        const int geom = surf >= 0 && bw->geom;
+        if (bw->albedo || (geom && sc->objects[surf].texture.data))
+            memcpy(st->d_rho + 3 * i, ws->drho + 3 * j, 3 * sizeof(float));
+        if (geom) memcpy(st->d_x + 3 * i, ws->dx + 3 * j, 3 * sizeof(float));
+        pixel_bwd_tail(sc, st, bw, row, i, surf, ws->dn + 3 * j);
+    }
 }
 
 static pen_status check_grad_shape(pen_context *ctx, const pen_scene *sc,
@@ -564,7 +815,8 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     if (!opt) opt = &def;
     if (!st || !st->valid)
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "render backward: no forward pass to undo");
-    if (opt->shadows != st->opt.shadows || opt->antialias != st->opt.antialias)
+    if (opt->shadows != st->opt.shadows || opt->antialias != st->opt.antialias ||
+        opt->kernel != st->opt.kernel)
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "render backward: options differ from the forward pass");
     const int W = st->width, H = st->height;
@@ -622,74 +874,40 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     }
     tm->bwd_antialias_ms = ms_since(t0);
 
-    /* Per-pixel backward, rows in parallel, each row into its own accumulators. */
+    /* Per-pixel backward, tiles in parallel, each tile into its own accumulators. */
     const row_layout rl = rows_layout(sc->sh_bands, O, S);
-    if ((s = ensure(ctx, (void **)&st->rows, &st->rows_cap, rl.stride * (size_t)H, sizeof(double),
-                    "row gradient buffers"))) {
+    const int ntiles = tile_count(st);
+    if ((s = ensure(ctx, (void **)&st->rows, &st->rows_cap, rl.stride * (size_t)ntiles,
+                    sizeof(double), "tile gradient buffers"))) {
         free(d_world);
         return s;
     }
-    memset(st->rows, 0, sizeof(double) * rl.stride * (size_t)H);
+    memset(st->rows, 0, sizeof(double) * rl.stride * (size_t)ntiles);
     const int nt = thread_count(ctx);
-    const size_t nfv = 2 * (size_t)nc;
-    const float *fv_all = st->fv_valid && st->params.shadows ? st->fv : NULL;
-    t0 = omp_get_wtime();
-#pragma omp parallel for schedule(dynamic, 1) num_threads(nt) if (W * H >= PARALLEL_MIN_PIXELS)
-    for (int py = 0; py < H; ++py) {
-        double *row = st->rows + rl.stride * (size_t)py;
-        double(*d_sh)[3] = want_light ? (double(*)[3])(row + rl.sh) : NULL;
-        double *d_sph = want_sph ? row + rl.spheres : NULL;
-        for (int px = 0; px < W; ++px) {
-            const size_t i = (size_t)py * (size_t)W + (size_t)px;
-            const int surf = st->gb.surface[i];
-            const float *dc = st->d_color + 3 * i;
-            float *d_x = st->d_x + 3 * i, *d_nraw = st->d_nraw + 3 * i;
-            float *d_uv = st->d_uv + 2 * i, *d_rho = st->d_rho + 3 * i;
-            d_x[0] = d_x[1] = d_x[2] = 0.0f;
-            d_nraw[0] = d_nraw[1] = d_nraw[2] = 0.0f;
-            d_uv[0] = d_uv[1] = 0.0f;
-            d_rho[0] = d_rho[1] = d_rho[2] = 0.0f;
-            if (dc[0] == 0.0f && dc[1] == 0.0f && dc[2] == 0.0f) continue;
-            if (surf == PEN_SURFACE_BACKGROUND) continue; /* no parameters */
-            const int is_obj = surf >= 0;
-            const pen_object *ob = is_obj ? &sc->objects[surf] : NULL;
-            const int textured = is_obj && ob->texture.data;
-            float d_n[3] = {0.0f, 0.0f, 0.0f};
-            const int geom = is_obj && want_geom;
-            const int need_rho = want_albedo || (textured && geom);
-            pen__shade_bwd(&st->params, (const float(*)[3])sc->lighting.sh, S, st->spheres,
-                           st->x + 3 * i, st->n + 3 * i, st->rho + 3 * i, dc,
-                           fv_all ? fv_all + nfv * i : NULL, d_sh, d_sph, geom ? d_x : NULL,
-                           geom ? d_n : NULL, need_rho ? d_rho : NULL);
-            if (!is_obj) {
-                if (want_albedo)
-                    for (int ch = 0; ch < 3; ++ch)
-                        row[rl.ground + ch] += (double)d_rho[ch];
-                continue;
-            }
-            if (!textured && want_albedo)
-                for (int ch = 0; ch < 3; ++ch)
-                    row[rl.albedo + 3 * (size_t)surf + ch] += (double)d_rho[ch];
-            if (!geom) continue;
-            if (textured) pen__texture_bwd(&ob->texture, st->uv + 2 * i, d_rho, NULL, d_uv);
-            const float sign = st->nsign[i];
-            for (int a = 0; a < 3; ++a)
-                d_n[a] *= sign;
-            pen_normalize_bwd(1, st->nraw + 3 * i, d_n, d_nraw);
-        }
+    size_t wsb = 0;
+    if ((s = ensure_ws(ctx, st, nt, &wsb))) {
+        free(d_world);
+        return s;
     }
-
+    const bwd_want bw = {want_geom, want_sph, want_light, want_albedo, rl};
+    const size_t tile_store = pen__shade_fast_store_floats(&st->params, TILE_PX);
+    float *fv_all = st->fv_valid && st->params.shadows ? st->fv : NULL;
+    const tile_job job = {sc, st, &bw, fv_all, st->fast ? tile_store : 0};
+    t0 = omp_get_wtime();
+    const loop_ticks lt = run_tiles(st, nt, wsb, shade_tile_bwd, &job);
     tm->bwd_shade_ms = ms_since(t0);
+    tm->bwd_visibility_ms = stage_ms(tm->bwd_shade_ms, lt.visibility, lt.total);
+    tm->bwd_exp_ms = stage_ms(tm->bwd_shade_ms, lt.exp, lt.total);
     t0 = omp_get_wtime();
 
-    /* Reduce the rows in order. */
+    /* Reduce the tiles in order. */
     double *sum = pen__calloc(ctx, rl.stride + 1, sizeof(double), "gradient sums");
     if (!sum) {
         free(d_world);
         return PEN_ERROR_MEMORY;
     }
-    for (int py = 0; py < H; ++py) {
-        const double *row = st->rows + rl.stride * (size_t)py;
+    for (int t = 0; t < ntiles; ++t) {
+        const double *row = st->rows + rl.stride * (size_t)t;
         for (size_t k = 0; k < rl.stride; ++k)
             sum[k] += row[k];
     }

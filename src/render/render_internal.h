@@ -51,6 +51,49 @@ void pen__shade_bwd_d(const pen__shade_params *p, const double (*sh)[3], int sph
                       double (*d_sh)[3], double *d_spheres, double d_x[3], double d_n[3],
                       double d_rho[3]);
 
+/* ---- Fast kernel (shade_fast.c) ---------------------------------------------------------------
+ * The same shading as pen__shade_fwd / pen__shade_bwd, for many pixels at once: pixels go in
+ * batches of PEN_FAST_LANES through structure-of-arrays lane vectors (one AVX-512 register of
+ * floats), with straight-line SH products generated per band count (src/sh/sh_fast_product.inc).
+ * Supports bands 3..6 and the CALIBRATED and PAPER exponentials (pen__shade_fast_supported);
+ * the renderer uses the scalar kernel for anything else. kappa (may be NULL: all 1) scales
+ * sphere i's log-visibility, F = sum_i w_i kappa_i f_i; it is not differentiated. */
+#if defined(__AVX512F__)
+#define PEN_FAST_LANES 16
+#elif defined(__AVX__)
+#define PEN_FAST_LANES 8
+#else
+#define PEN_FAST_LANES 4
+#endif
+
+/* Clock ticks spent in the stages of a fast call, added to by each call (for the renderer's
+ * stage timings; only ratios of ticks are meaningful). */
+typedef struct pen__shade_fast_ticks {
+    unsigned long long visibility, exp;
+} pen__shade_fast_ticks;
+unsigned long long pen__shade_fast_now(void);
+
+int pen__shade_fast_supported(const pen__shade_params *p);
+/* Floats per pixel of the forward's store (F, for the backward), in whole batches: a call with
+ * `count` pixels needs pen__shade_fast_store_floats(p, count) floats. */
+size_t pen__shade_fast_store_floats(const pen__shade_params *p, int count);
+/* Bytes of per-thread scratch for calls of up to max_count pixels. */
+size_t pen__shade_fast_scratch_bytes(const pen__shade_params *p, int sphere_count, int max_count);
+/* count pixels, AoS: x, n, rho and rgb 3 floats per pixel. store (may be NULL) receives what the
+ * backward needs when shadows are on. ticks may be NULL. */
+void pen__shade_fast_fwd(const pen__shade_params *p, const float (*sh)[3], int sphere_count,
+                         const float *spheres, const float *kappa, int count, const float *x,
+                         const float *n, const float *rho, float *rgb, float *store, void *scratch,
+                         pen__shade_fast_ticks *ticks);
+/* Backward of the same call: ADDS into d_sh, d_spheres (double; summed over the call's pixels
+ * in a fixed order), and per pixel into d_x, d_n, d_rho (3 floats per pixel); any may be NULL.
+ * store: the forward's, or NULL to recompute. */
+void pen__shade_fast_bwd(const pen__shade_params *p, const float (*sh)[3], int sphere_count,
+                         const float *spheres, const float *kappa, int count, const float *x,
+                         const float *n, const float *rho, const float *d_rgb, const float *store,
+                         void *scratch, double (*d_sh)[3], double *d_spheres, float *d_x,
+                         float *d_n, float *d_rho, pen__shade_fast_ticks *ticks);
+
 /* Bilinear texture lookup (3 channels), repeat wrap, texel centres at ((i + 0.5) / W,
  * 1 - (j + 0.5) / H) in (u, v) with v up (row 0 is the top of the image). */
 void pen__texture_fwd(const pen_image *tex, const float uv[2], float rgb[3]);

@@ -1,0 +1,338 @@
+#!/usr/bin/env python3
+"""Generates src/sh/sh_fast_product.inc: straight-line SH products over lane vectors for the fast
+shading kernel (src/render/shade_fast.c), one set per band count 3..6.
+
+The product c = a * b, c_k = sum_ij Gamma_ijk a_i b_j, is sparse (353 ordered non-zero entries of
+16^3 at 4 bands). A loop over a table of entries spends most of its instructions on indices and
+loads; written out with the values as constants, each entry is one fused multiply-add on a lane
+vector, and the compiler keeps the partial sums in registers. Terms are grouped by output k, then
+by the index i of `a`: c_k = sum_i a_i (sum_j Gamma_ijk b_j), one multiply per (k, i) group and one
+FMA per entry.
+
+Variants (the fast kernel needs each):
+  fp_prod_L(a, b, c)    full product (the exponential's backward through a squaring)
+  fp_prod_h_L(a, h, c)  h is the clamped cosine rotated to the normal: its bands 3, 5 are exactly
+                        zero (the clamped cosine has no odd bands above 1), so they are skipped
+  fp_prod_oh_L(a, b, c) only the outputs in the clamped cosine's bands (the d_H of V * H; the other
+                        outputs are left unwritten)
+  fp_square_L(a, c)     c = a * a: Gamma is symmetric in i, j, so the pairs i < j are summed once
+                        with weight 2 (the squarings of the exponential)
+
+The Gaunt values are computed here in double by the same exact quadrature as src/sh/gaunt.c
+(Gauss-Legendre in cos theta x uniform phi, entries below 1e-12 dropped), with the same real SH
+(Condon-Shortley phase, index l^2 + l + m), and written as float literals.
+The includer defines FP_VF (the lane vector type), FP_MUL(a, b), FP_FMA(a, b, c) = a * b + c and
+FP_K(x) (a float constant broadcast to a lane vector).
+
+Usage: python3 scripts/gen_sh_fast.py > src/sh/sh_fast_product.inc
+"""
+import math
+import sys
+from fractions import Fraction
+
+BANDS = range(3, 7)
+
+
+def sh_K(l, m):
+    return math.sqrt((2 * l + 1) / (4 * math.pi) * math.factorial(l - m) / math.factorial(l + m))
+
+
+def sh_eval(L, d):
+    """Real SH of direction d (unit), the recurrence of src/sh/sh_ops.inc."""
+    x, y, z = d
+    C = [1.0] + [0.0] * L
+    S = [0.0] * (L + 1)
+    for m in range(1, L):
+        C[m] = x * C[m - 1] - y * S[m - 1]
+        S[m] = x * S[m - 1] + y * C[m - 1]
+    out = [0.0] * (L * L)
+    qmm = 1.0
+    for m in range(L):
+        if m > 0:
+            qmm *= -(2 * m - 1)
+        q_prev, q = 0.0, qmm
+        for l in range(m, L):
+            if l == m + 1:
+                q_prev, q = q, (2 * m + 1) * z * qmm
+            elif l > m + 1:
+                q_prev, q = q, ((2 * l - 1) * z * q - (l + m - 1) * q_prev) / (l - m)
+            k = sh_K(l, m)
+            if m == 0:
+                out[l * l + l] = k * q
+            else:
+                ks = k * math.sqrt(2.0)
+                out[l * l + l + m] = ks * q * C[m]
+                out[l * l + l - m] = ks * q * S[m]
+    return out
+
+
+def gauss_legendre(n):
+    xs, ws = [], []
+    for i in range(n):
+        t = math.cos(math.pi * (i + 0.75) / (n + 0.5))
+        for _ in range(100):
+            p0, p1 = 1.0, t
+            for l in range(1, n):
+                p0, p1 = p1, ((2 * l + 1) * t * p1 - l * p0) / (l + 1)
+            dp = n * (t * p1 - p0) / (t * t - 1)
+            dt = p1 / dp
+            t -= dt
+            if abs(dt) < 1e-16:
+                break
+        p0, p1 = 1.0, t
+        for l in range(1, n):
+            p0, p1 = p1, ((2 * l + 1) * t * p1 - l * p0) / (l + 1)
+        dp = n * (t * p1 - p0) / (t * t - 1)
+        xs.append(t)
+        ws.append(2 / ((1 - t * t) * dp * dp))
+    return xs, ws
+
+
+def gaunt(L):
+    """{(i, j, k): value} for all ordered non-zero entries."""
+    n, nt, nph = L * L, 2 * L, 4 * L
+    xs, ws = gauss_legendre(nt)
+    pts = []
+    for a in range(nt):
+        z = xs[a]
+        s = math.sqrt(max(0.0, 1 - z * z))
+        for b in range(nph):
+            phi = 2 * math.pi * (b + 0.5) / nph
+            pts.append((ws[a] * 2 * math.pi / nph, sh_eval(L, (s * math.cos(phi), s * math.sin(phi), z))))
+    G = {}
+    for i in range(n):
+        for j in range(i, n):
+            for k in range(j, n):
+                v = sum(w * y[i] * y[j] * y[k] for w, y in pts)
+                if abs(v) < 1e-12:
+                    continue
+                for p in {(i, j, k), (i, k, j), (j, i, k), (j, k, i), (k, i, j), (k, j, i)}:
+                    G[p] = v
+    return G
+
+
+def band(i):
+    return int(math.isqrt(i))
+
+
+def h_band(l):
+    """Bands in which the clamped cosine is non-zero: 0, 1 and the even ones."""
+    return l <= 1 or l % 2 == 0
+
+
+def lit(v):
+    return "FP_K(%sf)" % ("%.9g" % v if "e" in "%.9g" % v or "." in "%.9g" % v else "%.9g.0" % v)
+
+
+def emit_groups(name, groups, n, out_ok, stats):
+    """groups[k] = list of (i, [(j, value)]) -> c[k] = sum_i a_i sum_j value b_j."""
+    lines = []
+    entries = 0
+    ops = 0
+    for k in range(n):
+        if not out_ok(k):
+            continue
+        gs = groups.get(k, [])
+        if not gs:
+            lines.append("    c[%d] = FP_K(0.0f);" % k)
+            continue
+        acc = None
+        for i, terms in gs:
+            s = None
+            for j, v in terms:
+                s = "FP_MUL(%s, %s)" % (j, lit(v)) if s is None else "FP_FMA(%s, %s, %s)" % (j, lit(v), s)
+                entries += 1
+                ops += 1
+            acc = "FP_MUL(%s, %s)" % (i, s) if acc is None else "FP_FMA(%s, %s, %s)" % (i, s, acc)
+            ops += 1
+        lines.append("    c[%d] = %s;" % (k, acc))
+    stats[name] = (entries, ops)
+    return lines
+
+
+def product_groups(G, n, keep):
+    groups = {}
+    for k in range(n):
+        by_i = {}
+        for (i, j, kk), v in sorted(G.items()):
+            if kk != k or not keep(i, j, k):
+                continue
+            by_i.setdefault(i, []).append(("b[%d]" % j, v))
+        groups[k] = [("a[%d]" % i, t) for i, t in sorted(by_i.items())]
+    return groups
+
+
+def square_groups(G, n):
+    groups = {}
+    for k in range(n):
+        by_i = {}
+        for (i, j, kk), v in sorted(G.items()):
+            if kk != k or j < i:
+                continue
+            by_i.setdefault(i, []).append(("a[%d]" % j, v if i == j else 2 * v))
+        groups[k] = [("a[%d]" % i, t) for i, t in sorted(by_i.items())]
+    return groups
+
+
+def q_polys(L):
+    """Q_l^m(z) as coefficient lists (Fractions, lowest degree first): the associated Legendre
+    function without its (1 - z^2)^(m/2) factor, Condon-Shortley phase included (sh_ops.inc)."""
+    Q = {}
+    for m in range(L):
+        qmm = Fraction(1)
+        for i in range(1, m + 1):
+            qmm *= -(2 * i - 1)
+        Q[(m, m)] = [qmm]
+        if m + 1 < L:
+            Q[(m + 1, m)] = [Fraction(0), (2 * m + 1) * qmm]
+        for l in range(m + 2, L):
+            a, b = Q[(l - 1, m)], Q[(l - 2, m)]
+            c = [Fraction(0)] * (l - m + 1)
+            for p, v in enumerate(a):
+                c[p + 1] += Fraction(2 * l - 1, l - m) * v
+            for p, v in enumerate(b):
+                c[p] -= Fraction(l + m - 1, l - m) * v
+            Q[(l, m)] = c
+    return Q
+
+
+def horner(coef, scale, z, z2):
+    """Expression for scale * sum coef[p] z^p (one parity only), Horner in z^2."""
+    nz = [(p, float(v) * scale) for p, v in enumerate(coef) if v != 0]
+    if not nz:
+        return "FP_K(0.0f)"
+    odd = nz[0][0] % 2
+    terms = {p // 2: v for p, v in nz}
+    top = max(terms)
+    e = lit(terms[top])
+    for q in range(top - 1, -1, -1):
+        e = "FP_FMA(%s, %s, %s)" % (z2, e, lit(terms.get(q, 0.0)))
+    return "FP_MUL(%s, %s)" % (z, e) if odd else e
+
+
+def emit_cs(L, lines):
+    """C_m = Re (x + i y)^m, S_m = Im (x + i y)^m for 1 <= m < L."""
+    if L > 1:
+        lines.append("    const FP_VF C1 = x, S1 = y;")
+    for m in range(2, L):
+        lines.append("    const FP_VF C%d = FP_FMA(x, C%d, -FP_MUL(y, S%d)), S%d = FP_FMA(x, S%d, FP_MUL(y, C%d));"
+                     % (m, m - 1, m - 1, m, m - 1, m - 1))
+
+
+def emit_basis(L):
+    Q = q_polys(L)
+    lines = ["    const FP_VF z2 = FP_MUL(z, z);"]
+    emit_cs(L, lines)
+    for m in range(L):
+        for l in range(m, L):
+            ks = sh_K(l, m) * (math.sqrt(2.0) if m else 1.0)
+            p = horner(Q[(l, m)], ks, "z", "z2")
+            if m == 0:
+                lines.append("    Y[%d] = %s;" % (l * l + l, p))
+            else:
+                lines.append("    { const FP_VF p = %s; Y[%d] = FP_MUL(p, C%d); Y[%d] = FP_MUL(p, S%d); }"
+                             % (p, l * l + l + m, m, l * l + l - m, m))
+    return lines
+
+
+def emit_contract(L):
+    """A[l] = sum_{k in band l} w_k Y_k(x, y, z); g = gradient of sum_k u_l w_k Y_k."""
+    Q = q_polys(L)
+    lines = ["    const FP_VF z2 = FP_MUL(z, z);"]
+    emit_cs(L, lines)
+    lines.append("    FP_VF gz = FP_K(0.0f);")
+    for l in range(L):
+        lines.append("    FP_VF A%d = FP_K(0.0f);" % l)
+    for m in range(L):
+        if m:
+            lines.append("    FP_VF al%d = FP_K(0.0f), be%d = FP_K(0.0f);" % (m, m))
+            if m + 1 < L:  # Q_m^m is constant: band m alone has no z-derivative
+                lines.append("    FP_VF dal%d = FP_K(0.0f), dbe%d = FP_K(0.0f);" % (m, m))
+        for l in range(m, L):
+            ks = sh_K(l, m) * (math.sqrt(2.0) if m else 1.0)
+            q = Q[(l, m)]
+            dq = [p * v for p, v in enumerate(q)][1:]
+            p = horner(q, ks, "z", "z2")
+            dp = horner(dq, ks, "z", "z2") if any(v != 0 for v in dq) else None
+            i0 = l * l + l
+            if m == 0:
+                lines.append("    { const FP_VF p = %s; A%d = FP_FMA(w[%d], p, A%d);" % (p, l, i0, l))
+                if dp:
+                    lines.append("      gz = FP_FMA(FP_MUL(w[%d], u[%d]), %s, gz); }" % (i0, l, dp))
+                else:
+                    lines.append("    }")
+                continue
+            ip, im = i0 + m, i0 - m
+            lines.append("    { const FP_VF p = %s;" % p)
+            lines.append("      A%d = FP_FMA(w[%d], FP_MUL(p, C%d), A%d); A%d = FP_FMA(w[%d], FP_MUL(p, S%d), A%d);"
+                         % (l, ip, m, l, l, im, m, l))
+            lines.append("      const FP_VF pu = FP_MUL(p, u[%d]);" % l)
+            lines.append("      al%d = FP_FMA(pu, w[%d], al%d); be%d = FP_FMA(pu, w[%d], be%d);"
+                         % (m, ip, m, m, im, m))
+            if dp:
+                lines.append("      const FP_VF dpu = FP_MUL(%s, u[%d]);" % (dp, l))
+                lines.append("      dal%d = FP_FMA(dpu, w[%d], dal%d); dbe%d = FP_FMA(dpu, w[%d], dbe%d);"
+                             % (m, ip, m, m, im, m))
+            lines.append("    }")
+    # dC_m/dx = m C_{m-1}, dC_m/dy = -m S_{m-1}, dS_m/dx = m S_{m-1}, dS_m/dy = m C_{m-1}
+    gx, gy = [], []
+    for m in range(1, L):
+        cm1 = "C%d" % (m - 1) if m > 1 else "FP_K(1.0f)"
+        sm1 = "S%d" % (m - 1) if m > 1 else None
+        if m == 1:
+            gx.append("al1")
+            gy.append("be1")
+        else:
+            gx.append("FP_MUL(FP_K(%d.0f), FP_FMA(al%d, %s, FP_MUL(be%d, %s)))" % (m, m, cm1, m, sm1))
+            gy.append("FP_MUL(FP_K(%d.0f), FP_FMA(be%d, %s, -FP_MUL(al%d, %s)))" % (m, m, cm1, m, sm1))
+        if m + 1 < L:
+            lines.append("    gz = FP_FMA(dal%d, C%d, FP_FMA(dbe%d, S%d, gz));" % (m, m, m, m))
+    lines.append("    g[0] = %s;" % (" + ".join(gx) if gx else "FP_K(0.0f)"))
+    lines.append("    g[1] = %s;" % (" + ".join(gy) if gy else "FP_K(0.0f)"))
+    lines.append("    g[2] = gz;")
+    for l in range(L):
+        lines.append("    A[%d] = A%d;" % (l, l))
+    return lines
+
+
+def main():
+    out = sys.stdout
+    out.write("/* Generated by scripts/gen_sh_fast.py; do not edit. Straight-line SH products over lane\n"
+              " * vectors for src/render/shade_fast.c (see the script for the variants and the grouping).\n"
+              " * Gaunt values from the same quadrature as src/sh/gaunt.c, as float literals. */\n\n")
+    summary = []
+    for L in BANDS:
+        n = L * L
+        G = gaunt(L)
+        stats = {}
+        hk = lambda idx: h_band(band(idx))
+        bodies = [
+            ("fp_prod_%d" % L, "const FP_VF *a, const FP_VF *b, FP_VF *c",
+             emit_groups("prod", product_groups(G, n, lambda i, j, k: True), n, lambda k: True, stats)),
+            ("fp_prod_h_%d" % L, "const FP_VF *a, const FP_VF *b, FP_VF *c",
+             emit_groups("prod_h", product_groups(G, n, lambda i, j, k: hk(j)), n, lambda k: True, stats)),
+            ("fp_prod_oh_%d" % L, "const FP_VF *a, const FP_VF *b, FP_VF *c",
+             emit_groups("prod_oh", product_groups(G, n, lambda i, j, k: True), n, hk, stats)),
+            ("fp_square_%d" % L, "const FP_VF *a, FP_VF *c",
+             emit_groups("square", square_groups(G, n), n, lambda k: True, stats)),
+        ]
+        bodies += [
+            ("fp_basis_%d" % L, "FP_VF x, FP_VF y, FP_VF z, FP_VF *Y", emit_basis(L)),
+            ("fp_basis_contract_%d" % L,
+             "FP_VF x, FP_VF y, FP_VF z, const FP_VF *w, const FP_VF *u, FP_VF *A, FP_VF *g",
+             emit_contract(L)),
+        ]
+        out.write("/* ---- %d bands: %d ordered Gaunt entries ---- */\n\n" % (L, len(G)))
+        for name, args, lines in bodies:
+            out.write("static inline void %s(%s) {\n" % (name, args))
+            out.write("\n".join(lines) + "\n}\n\n")
+        summary.append((L, len(G), stats))
+    out.write("/* Vector operations per product (entries / multiply-adds incl. one per (k, i) group):\n")
+    for L, count, stats in summary:
+        out.write(" *   %d bands (%d entries): %s\n" % (
+            L, count, ", ".join("%s %d/%d" % (k, v[0], v[1]) for k, v in stats.items())))
+    out.write(" */\n")
+
+
+if __name__ == "__main__":
+    main()

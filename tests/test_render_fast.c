@@ -1,0 +1,175 @@
+/* Tests of the fast shading kernel (src/render/shade_fast.c) against the scalar double-precision
+ * reference (pen__shade_fwd_d / pen__shade_bwd_d): random pixels for every supported band count,
+ * both fast exponentials and no-shadows, sphere counts 0 .. 33 (not multiples of the lane count),
+ * pixel counts not multiples of the lane count, receivers inside spheres; then whole frames
+ * through pen_render_fwd / pen_render_bwd (fast vs scalar kernel option), and thread-count
+ * independence of the fast path.
+ *
+ * Tolerances. Both kernels compute in float; the reference is double. The error budget is float
+ * rounding through the chain: sums of up to 33 sphere terms, two or more squarings (each a sum of
+ * a few hundred products, which doubles the relative error of its input), and the shading sum.
+ * The scalar float kernel on the same inputs is measured alongside, and the fast kernel must be
+ * within 4x its error plus 2e-6 of the group's scale (values: max |reference| of the image or of
+ * the gradient group), i.e. no less accurate than the kernel it replaces, up to reordering. */
+#include "core/internal.h"
+#include "render/render_internal.h"
+#include "render_scenes.h"
+
+#include <stdlib.h>
+#include <string.h>
+
+static unsigned long long rng = 4242;
+static double urand(double lo, double hi) {
+    return rs_uniform(&rng, lo, hi);
+}
+
+static pen__shade_params params(int bands, pen_sh_exp_method method, int shadows) {
+    pen__shade_params p;
+    pen_sh_exp_model m = pen_sh_exp_model_default(method, bands);
+    pen__shade_params_init(&p, bands, &m, -1.0, shadows); /* the model's epsilon */
+    return p;
+}
+
+/* Largest |a - ref| and largest |ref| over n values. */
+typedef struct err_acc {
+    double err, scale;
+} err_acc;
+static void err_add(err_acc *e, double a, double ref) {
+    e->err = fmax(e->err, isfinite(a) ? fabs(a - ref) : HUGE_VAL);
+    e->scale = fmax(e->scale, fabs(ref));
+}
+
+enum { G_RGB, G_SH, G_SPH, G_X, G_N, G_RHO, G_COUNT };
+static const char *group_name[G_COUNT] = {"rgb", "d_sh", "d_spheres", "d_x", "d_n", "d_rho"};
+
+/* One random configuration: `count` pixels around a cluster of `S` spheres (some receivers
+ * inside spheres, some spheres behind tangent planes), checked group by group. */
+static void check_random_pixels(int bands, pen_sh_exp_method method, int shadows, int S,
+                                int count, int verbose) {
+    const int nc = bands * bands;
+    pen__shade_params p = params(bands, method, shadows);
+    CHECK(pen__shade_fast_supported(&p));
+    float (*Lf)[3] = calloc((size_t)nc, sizeof *Lf);
+    double (*Ld)[3] = calloc((size_t)nc, sizeof *Ld);
+    for (int k = 0; k < nc; ++k)
+        for (int ch = 0; ch < 3; ++ch) {
+            Lf[k][ch] = (float)(urand(-0.3, 0.3) + (k == 0 ? 1.5 : 0.0));
+            Ld[k][ch] = Lf[k][ch];
+        }
+    float *sf = malloc(sizeof(float) * (4 * (size_t)S + 1));
+    double *sd = malloc(sizeof(double) * (4 * (size_t)S + 1));
+    for (int i = 0; i < S; ++i) {
+        sf[4 * i] = (float)urand(-0.6, 0.6), sf[4 * i + 1] = (float)urand(0.1, 0.9);
+        sf[4 * i + 2] = (float)urand(-0.6, 0.6), sf[4 * i + 3] = (float)urand(0.05, 0.3);
+        for (int a = 0; a < 4; ++a)
+            sd[4 * i + a] = sf[4 * i + a];
+    }
+    const size_t n3 = 3 * (size_t)count;
+    float *x = malloc(sizeof(float) * n3), *n = malloc(sizeof(float) * n3);
+    float *rho = malloc(sizeof(float) * n3), *drgb = malloc(sizeof(float) * n3);
+    for (int i = 0; i < count; ++i) {
+        double nn[3];
+        rs_unit_vector(&rng, nn);
+        const int ground = i % 3 == 0;
+        for (int a = 0; a < 3; ++a) {
+            n[3 * i + a] = ground ? (a == 1 ? 1.0f : 0.0f) : (float)nn[a];
+            x[3 * i + a] = (float)(a == 1 ? (ground ? 0.0 : urand(0.0, 1.0)) : urand(-1, 1));
+            rho[3 * i + a] = (float)urand(0.1, 0.9);
+            drgb[3 * i + a] = (float)urand(-1, 1);
+        }
+        if (i % 7 == 5 && S > 0) /* inside a sphere */
+            for (int a = 0; a < 3; ++a)
+                x[3 * i + a] = sf[4 * (i % S) + a] + 0.3f * sf[4 * (i % S) + 3];
+    }
+    /* Fast kernel. */
+    void *scratch = malloc(pen__shade_fast_scratch_bytes(&p, S, count));
+    float *store = malloc(sizeof(float) * (pen__shade_fast_store_floats(&p, count) + 1));
+    float *rgb = malloc(sizeof(float) * n3), *d_x = calloc(n3, sizeof(float));
+    float *d_n = calloc(n3, sizeof(float)), *d_rho = calloc(n3, sizeof(float));
+    double (*d_sh)[3] = calloc((size_t)nc, sizeof *d_sh);
+    double *d_s = calloc(4 * (size_t)S + 1, sizeof(double));
+    pen__shade_fast_fwd(&p, (const float(*)[3])Lf, S, sf, NULL, count, x, n, rho, rgb, store,
+                        scratch, NULL);
+    pen__shade_fast_bwd(&p, (const float(*)[3])Lf, S, sf, NULL, count, x, n, rho, drgb, store,
+                        scratch, d_sh, d_s, d_x, d_n, d_rho, NULL);
+    /* Without the store the backward recomputes F: the same bits. */
+    float *e_x = calloc(n3, sizeof(float)), *e_n = calloc(n3, sizeof(float));
+    float *e_rho = calloc(n3, sizeof(float));
+    double (*e_sh)[3] = calloc((size_t)nc, sizeof *e_sh);
+    double *e_s = calloc(4 * (size_t)S + 1, sizeof(double));
+    pen__shade_fast_bwd(&p, (const float(*)[3])Lf, S, sf, NULL, count, x, n, rho, drgb, NULL,
+                        scratch, e_sh, e_s, e_x, e_n, e_rho, NULL);
+    CHECK(!memcmp(d_x, e_x, sizeof(float) * n3) && !memcmp(d_n, e_n, sizeof(float) * n3));
+    CHECK(!memcmp(d_rho, e_rho, sizeof(float) * n3));
+    CHECK(!memcmp(d_sh, e_sh, sizeof(double) * 3 * (size_t)nc));
+    CHECK(!memcmp(d_s, e_s, sizeof(double) * 4 * (size_t)S));
+
+    /* References: scalar double and scalar float, per pixel. */
+    err_acc ef[G_COUNT], es[G_COUNT];
+    memset(ef, 0, sizeof ef), memset(es, 0, sizeof es);
+    double (*r_sh)[3] = calloc((size_t)nc, sizeof *r_sh), (*f_sh)[3] = calloc((size_t)nc, sizeof *f_sh);
+    double *r_s = calloc(4 * (size_t)S + 1, sizeof(double));
+    double *f_s = calloc(4 * (size_t)S + 1, sizeof(double));
+    for (int i = 0; i < count; ++i) {
+        double xd[3], nd[3], rd[3], gd[3], rgbd[3], dxd[3] = {0}, dnd[3] = {0}, drd[3] = {0};
+        float rgbf[3], dxf[3] = {0}, dnf[3] = {0}, drf[3] = {0};
+        for (int a = 0; a < 3; ++a)
+            xd[a] = x[3 * i + a], nd[a] = n[3 * i + a], rd[a] = rho[3 * i + a],
+            gd[a] = drgb[3 * i + a];
+        pen__shade_fwd_d(&p, (const double(*)[3])Ld, S, sd, xd, nd, rd, rgbd, NULL);
+        pen__shade_bwd_d(&p, (const double(*)[3])Ld, S, sd, xd, nd, rd, gd, NULL, r_sh, r_s, dxd,
+                         dnd, drd);
+        pen__shade_fwd(&p, (const float(*)[3])Lf, S, sf, x + 3 * i, n + 3 * i, rho + 3 * i, rgbf,
+                       NULL);
+        pen__shade_bwd(&p, (const float(*)[3])Lf, S, sf, x + 3 * i, n + 3 * i, rho + 3 * i,
+                       drgb + 3 * i, NULL, f_sh, f_s, dxf, dnf, drf);
+        for (int a = 0; a < 3; ++a) {
+            err_add(&ef[G_RGB], rgb[3 * i + a], rgbd[a]), err_add(&es[G_RGB], rgbf[a], rgbd[a]);
+            err_add(&ef[G_X], d_x[3 * i + a], dxd[a]), err_add(&es[G_X], dxf[a], dxd[a]);
+            err_add(&ef[G_N], d_n[3 * i + a], dnd[a]), err_add(&es[G_N], dnf[a], dnd[a]);
+            err_add(&ef[G_RHO], d_rho[3 * i + a], drd[a]), err_add(&es[G_RHO], drf[a], drd[a]);
+        }
+    }
+    for (int k = 0; k < nc; ++k)
+        for (int ch = 0; ch < 3; ++ch)
+            err_add(&ef[G_SH], d_sh[k][ch], r_sh[k][ch]), err_add(&es[G_SH], f_sh[k][ch], r_sh[k][ch]);
+    for (int i = 0; i < 4 * S; ++i)
+        err_add(&ef[G_SPH], d_s[i], r_s[i]), err_add(&es[G_SPH], f_s[i], r_s[i]);
+    for (int g = 0; g < G_COUNT; ++g) {
+        const double scale = fmax(ef[g].scale, 1e-30);
+        const double tol = 4 * es[g].err + 2e-6 * scale;
+        if (verbose)
+            printf("  bands %d %s shadows %d S %2d: %-9s fast %.2e scalar %.2e (scale %.2e)\n",
+                   bands, pen_sh_exp_method_name(method), shadows, S, group_name[g],
+                   ef[g].err / scale, es[g].err / scale, scale);
+        CHECK_MSG(ef[g].err <= tol,
+                  "bands %d %s shadows %d spheres %d: %s error %.3g > tol %.3g (scalar %.3g, "
+                  "scale %.3g)",
+                  bands, pen_sh_exp_method_name(method), shadows, S, group_name[g], ef[g].err, tol,
+                  es[g].err, scale);
+    }
+    free(Lf), free(Ld), free(sf), free(sd), free(x), free(n), free(rho), free(drgb);
+    free(scratch), free(store), free(rgb), free(d_x), free(d_n), free(d_rho), free(d_sh), free(d_s);
+    free(e_x), free(e_n), free(e_rho), free(e_sh), free(e_s);
+    free(r_sh), free(f_sh), free(r_s), free(f_s);
+}
+
+static void test_random_pixels(void) {
+    const int verbose = getenv("PEN_TEST_VERBOSE") != NULL;
+    const int counts[] = {0, 1, 7, 19, 33};
+    const int pixels = check_quick_() ? 29 : 77;
+    for (int bands = 3; bands <= 6; ++bands)
+        for (int c = 0; c < 5; ++c) {
+            check_random_pixels(bands, PEN_SH_EXP_CALIBRATED, 1, counts[c], pixels, verbose);
+            if (c == 3) {
+                check_random_pixels(bands, PEN_SH_EXP_PAPER, 1, counts[c], pixels, verbose);
+                check_random_pixels(bands, PEN_SH_EXP_CALIBRATED, 0, counts[c], pixels, verbose);
+            }
+        }
+    /* A single pixel and a batch and a half. */
+    check_random_pixels(4, PEN_SH_EXP_CALIBRATED, 1, 5, 1, verbose);
+    check_random_pixels(4, PEN_SH_EXP_CALIBRATED, 1, 5, PEN_FAST_LANES + PEN_FAST_LANES / 2,
+                        verbose);
+}
+
+RUN_TESTS(TEST(test_random_pixels))
