@@ -172,4 +172,195 @@ static void test_random_pixels(void) {
                         verbose);
 }
 
-RUN_TESTS(TEST(test_random_pixels))
+/* ---- Whole frames ------------------------------------------------------------------------------ */
+
+typedef struct frame_out {
+    pen_image img;
+    pen_render_grad g;
+    pen_render_timings tm;
+} frame_out;
+
+/* Renders sc forward and backward (d_image = q, every gradient group). */
+static frame_out render_frame(const pen_scene *sc, int kernel, int shadows, int threads,
+                              const float *q) {
+    frame_out f;
+    memset(&f, 0, sizeof f);
+    pen_context *ctx = pen_context_create();
+    pen_context_set_threads(ctx, threads);
+    pen_render_options opt = pen_render_options_default();
+    opt.kernel = kernel;
+    opt.shadows = shadows;
+    pen_render_state *st = NULL;
+    CHECK(pen_render_state_create(ctx, &st) == PEN_OK);
+    pen_status s = pen_render_fwd(ctx, sc, &opt, st, &f.img);
+    CHECK_MSG(s == PEN_OK, "%s", pen_context_error(ctx));
+    CHECK(pen_render_grad_create(ctx, sc, &f.g) == PEN_OK);
+    pen_image d = {f.img.width, f.img.height, 3, (float *)q};
+    s = pen_render_bwd(ctx, sc, &opt, st, &d, PEN_GRAD_ALL, &f.g);
+    CHECK_MSG(s == PEN_OK, "%s", pen_context_error(ctx));
+    pen_render_state_timings(st, &f.tm);
+    pen_render_state_free(st);
+    pen_context_destroy(ctx);
+    return f;
+}
+
+static void frame_free(frame_out *f) {
+    pen_image_free(&f->img);
+    pen_render_grad_free(&f->g);
+}
+
+/* Groups of a frame's outputs as flat arrays: image, sh, ground albedo, object albedo, texture,
+ * spheres, pose, vertices (object 0). */
+#define FG_COUNT 8
+static const char *fg_name[FG_COUNT] = {"image",   "d_sh",     "d_ground", "d_albedo",
+                                        "d_texel", "d_sphere", "d_pose",   "d_vertex"};
+static const float *fg_data(const frame_out *f, int g, size_t *n) {
+    const pen_object_grad *og = &f->g.objects[0];
+    switch (g) {
+    case 0: *n = 3 * (size_t)f->img.width * (size_t)f->img.height; return f->img.data;
+    case 1: *n = 3 * (size_t)f->g.bands * (size_t)f->g.bands; return &f->g.sh[0][0];
+    case 2: *n = 3; return f->g.ground_albedo;
+    case 3: *n = 3; return og->albedo;
+    case 4: *n = og->texture ? 3 * (size_t)og->texel_count : 0; return og->texture;
+    case 5: *n = 4 * (size_t)og->sphere_count; return og->spheres;
+    case 6: *n = sizeof og->pose / sizeof(float); return (const float *)&og->pose;
+    default: *n = 3 * (size_t)og->vertex_count; return og->positions;
+    }
+}
+
+/* The ball scene with `bands` bands of lighting (random beyond the fixture's 16 coefficients)
+ * and `count` proxy spheres: the fixture's two, then random ones in and around the ball and above
+ * the ground. */
+static pen_scene frame_scene(int size_w, int size_h, int bands, int count, pen_sh_exp_method m) {
+    unsigned long long seed = 99;
+    pen_scene sc = rs_ball_scene(size_w, 1, &seed);
+    sc.camera.height = size_h;
+    sc.sh_bands = bands;
+    for (int k = 16; k < bands * bands; ++k)
+        for (int ch = 0; ch < 3; ++ch)
+            sc.lighting.sh[k][ch] = (float)rs_uniform(&seed, -0.05, 0.05);
+    sc.shadow.exp = m;
+    sc.shadow.epsilon = (float)pen_sh_exp_model_default(m, bands).epsilon;
+    pen_spheres *sp = &sc.objects[0].spheres;
+    pen_spheres grown;
+    CHECK(pen_spheres_create(NULL, count, &grown) == PEN_OK);
+    for (int i = 0; i < count; ++i) {
+        float *s4 = grown.data + 4 * i;
+        if (i < sp->count) {
+            memcpy(s4, sp->data + 4 * i, 4 * sizeof(float));
+            continue;
+        }
+        s4[0] = (float)rs_uniform(&seed, -0.5, 0.5), s4[1] = (float)rs_uniform(&seed, -0.3, 0.3);
+        s4[2] = (float)rs_uniform(&seed, -0.5, 0.5), s4[3] = (float)rs_uniform(&seed, 0.05, 0.2);
+    }
+    pen_spheres_free(sp);
+    *sp = grown;
+    return sc;
+}
+
+/* Fast against scalar on one frame: every group within tol of the group's largest scalar value.
+ * Both kernels are float and differ in summation order and the exponential's rounding only;
+ * tests/test_render_shade.c ties the scalar one to double precision. */
+static void check_frame(int w, int h, int bands, int count, pen_sh_exp_method m, int shadows,
+                        int verbose) {
+    pen_scene sc = frame_scene(w, h, bands, count, m);
+    const size_t n = 3 * (size_t)w * (size_t)h;
+    float *q = malloc(sizeof(float) * n);
+    unsigned long long seed = 5;
+    for (size_t i = 0; i < n; ++i)
+        q[i] = (float)rs_uniform(&seed, -1, 1);
+    frame_out a = render_frame(&sc, PEN_RENDER_KERNEL_FAST, shadows, 1, q);
+    frame_out b = render_frame(&sc, PEN_RENDER_KERNEL_SCALAR, shadows, 1, q);
+    for (int g = 0; g < FG_COUNT; ++g) {
+        size_t na, nb;
+        const float *va = fg_data(&a, g, &na), *vb = fg_data(&b, g, &nb);
+        CHECK(na == nb);
+        double err = 0, scale = 0;
+        for (size_t i = 0; i < na && na == nb; ++i) {
+            err = fmax(err, isfinite(va[i]) ? fabs((double)va[i] - (double)vb[i]) : HUGE_VAL);
+            scale = fmax(scale, fabs((double)vb[i]));
+        }
+        /* 2e-5: the random-pixel test's float budget (a few 1e-6 of the scale per pixel) with
+         * room for the sums over a frame's pixels; the vertex group is the sum of the
+         * silhouette and the (tiny) shading parts and gets its own floor. */
+        const double tol = 2e-5 * fmax(scale, 1e-3);
+        if (verbose)
+            printf("  %dx%d bands %d S %2d %s shadows %d: %-9s rel %.2e (scale %.2e)\n", w, h,
+                   bands, count, pen_sh_exp_method_name(m), shadows, fg_name[g],
+                   err / fmax(scale, 1e-30), scale);
+        CHECK_MSG(err <= tol, "%dx%d bands %d spheres %d %s shadows %d: %s differs by %.3g "
+                  "(scale %.3g)", w, h, bands, count, pen_sh_exp_method_name(m), shadows,
+                  fg_name[g], err, scale);
+    }
+    frame_free(&a), frame_free(&b);
+    free(q);
+    pen_scene_free(&sc);
+}
+
+static void test_frames_fast_vs_scalar(void) {
+    const int verbose = getenv("PEN_TEST_VERBOSE") != NULL;
+    const int w = check_quick_() ? 23 : 45, h = check_quick_() ? 19 : 37; /* not tile multiples */
+    for (int bands = 3; bands <= 6; ++bands)
+        check_frame(w, h, bands, 19, PEN_SH_EXP_CALIBRATED, 1, verbose);
+    check_frame(w, h, 4, 0, PEN_SH_EXP_CALIBRATED, 1, verbose);
+    check_frame(w, h, 4, 2, PEN_SH_EXP_PAPER, 1, verbose);
+    check_frame(w, h, 4, 33, PEN_SH_EXP_CALIBRATED, 0, verbose);
+    /* EXACT and 2 bands take the scalar kernel inside the fast option: identical. */
+    check_frame(w, h, 4, 2, PEN_SH_EXP_EXACT, 1, verbose);
+    check_frame(w, h, 2, 2, PEN_SH_EXP_CALIBRATED, 1, verbose);
+}
+
+/* Threads take tiles in any order; every sum runs in tile order: 1 and 2 threads give the same
+ * bits (the frame is above the renderer's size for threading). */
+static void test_threads_bitwise(void) {
+    for (int kernel = 0; kernel < 2; ++kernel) {
+        pen_scene sc = frame_scene(83, 61, 4, 19, PEN_SH_EXP_CALIBRATED);
+        const size_t n = 3 * 83 * 61;
+        float *q = malloc(sizeof(float) * n);
+        unsigned long long seed = 6;
+        for (size_t i = 0; i < n; ++i)
+            q[i] = (float)rs_uniform(&seed, -1, 1);
+        frame_out a = render_frame(&sc, kernel, 1, 1, q);
+        frame_out b = render_frame(&sc, kernel, 1, 2, q);
+        for (int g = 0; g < FG_COUNT; ++g) {
+            size_t na, nb;
+            const float *va = fg_data(&a, g, &na), *vb = fg_data(&b, g, &nb);
+            CHECK_MSG(na == nb && (!na || !memcmp(va, vb, sizeof(float) * na)),
+                      "kernel %d: %s differs between 1 and 2 threads", kernel, fg_name[g]);
+        }
+        if (kernel == PEN_RENDER_KERNEL_FAST) /* the fast kernel reports its stages */
+            CHECK(a.tm.fwd_visibility_ms > 0 && a.tm.fwd_visibility_ms < a.tm.fwd_shade_ms &&
+                  a.tm.bwd_visibility_ms > 0 && a.tm.bwd_exp_ms > 0 &&
+                  a.tm.bwd_visibility_ms + a.tm.bwd_exp_ms <= a.tm.bwd_shade_ms * 1.0001);
+        frame_free(&a), frame_free(&b);
+        free(q);
+        pen_scene_free(&sc);
+    }
+}
+
+/* An unknown kernel is an argument error; a backward with another kernel than its forward too. */
+static void test_kernel_option(void) {
+    pen_scene sc = frame_scene(20, 20, 4, 2, PEN_SH_EXP_CALIBRATED);
+    pen_context *ctx = pen_context_create();
+    pen_render_options opt = pen_render_options_default();
+    CHECK(opt.kernel == PEN_RENDER_KERNEL_FAST);
+    pen_render_state *st = NULL;
+    pen_render_state_create(ctx, &st);
+    pen_image img = {0};
+    opt.kernel = 7;
+    CHECK(pen_render_fwd(ctx, &sc, &opt, st, &img) == PEN_ERROR_ARGUMENT);
+    opt.kernel = PEN_RENDER_KERNEL_FAST;
+    CHECK(pen_render_fwd(ctx, &sc, &opt, st, &img) == PEN_OK);
+    pen_render_grad g;
+    pen_render_grad_create(ctx, &sc, &g);
+    opt.kernel = PEN_RENDER_KERNEL_SCALAR;
+    CHECK(pen_render_bwd(ctx, &sc, &opt, st, &img, PEN_GRAD_ALL, &g) == PEN_ERROR_ARGUMENT);
+    pen_render_grad_free(&g);
+    pen_image_free(&img);
+    pen_render_state_free(st);
+    pen_context_destroy(ctx);
+    pen_scene_free(&sc);
+}
+
+RUN_TESTS(TEST(test_random_pixels), TEST(test_frames_fast_vs_scalar), TEST(test_threads_bitwise),
+          TEST(test_kernel_option))
