@@ -266,9 +266,19 @@ static double stage_ms(double loop_ms, unsigned long long stage, unsigned long l
 
 /* ---- Validation ------------------------------------------------------------------------------ */
 
+/* Whether all n floats are finite. Textures make this a per-frame scan of millions of values, so
+ * it tests the exponent bits without branches (the compiler vectorises it) in blocks. */
 static int finite_n(const float *v, size_t n) {
-    for (size_t i = 0; i < n; ++i)
-        if (!isfinite(v[i])) return 0;
+    for (size_t i = 0; i < n; i += 4096) {
+        const size_t end = n - i < 4096 ? n : i + 4096;
+        uint32_t bad = 0;
+        for (size_t j = i; j < end; ++j) {
+            uint32_t bits;
+            memcpy(&bits, v + j, sizeof bits);
+            bad |= (bits & 0x7f800000u) == 0x7f800000u; /* Inf or NaN */
+        }
+        if (bad) return 0;
+    }
     return 1;
 }
 
@@ -921,13 +931,6 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
         for (int o = 0; o < O; ++o)
             for (int ch = 0; ch < 3; ++ch)
                 grad->objects[o].albedo[ch] += (float)sum[rl.albedo + 3 * (size_t)o + ch];
-        /* Texels: a serial scatter in pixel order. */
-        for (size_t i = 0; i < np; ++i) {
-            const int surf = st->gb.surface[i];
-            if (surf < 0 || !sc->objects[surf].texture.data) continue;
-            pen__texture_bwd(&sc->objects[surf].texture, st->uv + 2 * i, st->d_rho + 3 * i,
-                             grad->objects[surf].texture, NULL);
-        }
     }
 
     /* Spheres: world-space gradients -> object space and pose. */
@@ -952,23 +955,42 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
         }
     free(sum);
 
-    /* Geometry: interpolation, normals, barycentrics, pose. */
+    /* Two independent serial scatters, side by side on two threads: the texels (in pixel order,
+     * so every texel sums its pixels in the same order whatever the threads) and the geometry's
+     * interpolation and vertex-normal backward (into the vertex and barycentric buffers). */
+    pen_status s_geom = PEN_OK;
+    if (want_geom) memset(st->d_bary, 0, sizeof(float) * 2 * np);
+#pragma omp parallel sections num_threads(nt > 1 ? 2 : 1) if (np >= PARALLEL_MIN_PIXELS)
+    {
+#pragma omp section
+        if (want_albedo)
+            for (size_t i = 0; i < np; ++i) {
+                const int surf = st->gb.surface[i];
+                if (surf < 0 || !sc->objects[surf].texture.data) continue;
+                pen__texture_bwd(&sc->objects[surf].texture, st->uv + 2 * i, st->d_rho + 3 * i,
+                                 grad->objects[surf].texture, NULL);
+            }
+#pragma omp section
+        if (want_geom)
+            for (int o = 0; o < O && !s_geom; ++o) {
+                const pen_object *ob = &sc->objects[o];
+                object_buf *b = &st->obj[o];
+                pen_interpolate_bwd(&st->gb, o, ob->mesh.indices, b->world, 3, st->d_x,
+                                    b->d_world, st->d_bary);
+                pen_interpolate_bwd(&st->gb, o, ob->mesh.indices, b->vnormal, 3, st->d_nraw,
+                                    b->d_vnormal, st->d_bary);
+                if (ob->texture.data)
+                    pen_interpolate_bwd(&st->gb, o, ob->mesh.uv_indices, ob->mesh.uvs, 2, st->d_uv,
+                                        NULL, st->d_bary);
+                s_geom = pen_vertex_normals_bwd(ctx, ob->mesh.vertex_count, b->world,
+                                                ob->mesh.triangle_count, ob->mesh.indices,
+                                                b->d_vnormal, b->d_world);
+            }
+    }
+
+    /* Geometry: barycentrics, pose. */
     if (want_geom) {
-        memset(st->d_bary, 0, sizeof(float) * 2 * np);
-        for (int o = 0; o < O && !s; ++o) {
-            const pen_object *ob = &sc->objects[o];
-            object_buf *b = &st->obj[o];
-            pen_interpolate_bwd(&st->gb, o, ob->mesh.indices, b->world, 3, st->d_x, b->d_world,
-                                st->d_bary);
-            pen_interpolate_bwd(&st->gb, o, ob->mesh.indices, b->vnormal, 3, st->d_nraw,
-                                b->d_vnormal, st->d_bary);
-            if (ob->texture.data)
-                pen_interpolate_bwd(&st->gb, o, ob->mesh.uv_indices, ob->mesh.uvs, 2, st->d_uv,
-                                    NULL, st->d_bary);
-            s = pen_vertex_normals_bwd(ctx, ob->mesh.vertex_count, b->world,
-                                       ob->mesh.triangle_count, ob->mesh.indices, b->d_vnormal,
-                                       b->d_world);
-        }
+        s = s_geom;
         if (!s)
             s = pen_raster_bary_bwd(ctx, &st->view, st->meshes, O, &st->gb, st->d_bary, d_world);
         if (!s) {
