@@ -51,11 +51,12 @@ typedef int32_t vi __attribute__((vector_size(4 * LANES)));
 
 /* ---- Lane vector helpers ------------------------------------------------------------------------ */
 
+/* x in every lane (x - 0 is x exactly, so this is a plain broadcast; x + 0 is not, for x = -0). */
 INLINE vf vk(float x) {
-    return (vf){0} + x;
+    return x - (vf){0};
 }
 INLINE vi vk_i(int32_t x) {
-    return (vi){0} + x;
+    return x - (vi){0};
 }
 INLINE vf vfma(vf a, vf b, vf c) {
 #if LANES == 16
@@ -80,6 +81,25 @@ INLINE vf vsqrt(vf a) {
     for (int i = 0; i < LANES; ++i)
         r[i] = sqrtf(a[i]);
     return r;
+#endif
+}
+/* 1 / sqrt(x) and 1 / x for x > 0. With AVX-512: the 14-bit estimates and one Newton step
+ * (within about 2 ulp, no divider: the divider's throughput bounded the sphere loop); elsewhere
+ * the exact operations. */
+INLINE vf vrsqrt(vf x) {
+#if LANES == 16
+    const vf y = _mm512_rsqrt14_ps(x);
+    return y * vfma(vk(-0.5f) * x * y, y, vk(1.5f));
+#else
+    return vk(1.0f) / vsqrt(x);
+#endif
+}
+INLINE vf vrcp(vf x) {
+#if LANES == 16
+    const vf y = _mm512_rcp14_ps(x);
+    return vfma(y, vfma(-x, y, vk(1.0f)), y);
+#else
+    return vk(1.0f) / x;
 #endif
 }
 /* m ? a : b per lane (m: all bits set or clear). */
