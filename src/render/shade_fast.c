@@ -107,10 +107,26 @@ INLINE vf vsel(vi m, vf a, vf b) {
     return (vf)(((vi)a & m) | ((vi)b & ~m));
 }
 INLINE vf vmin(vf a, vf b) {
+#if LANES == 16
+    return _mm512_min_ps(a, b);
+#elif LANES == 8
+    return _mm256_min_ps(a, b);
+#elif HAVE_X86
+    return _mm_min_ps(a, b);
+#else
     return vsel(a < b, a, b);
+#endif
 }
 INLINE vf vmax(vf a, vf b) {
+#if LANES == 16
+    return _mm512_max_ps(a, b);
+#elif LANES == 8
+    return _mm256_max_ps(a, b);
+#elif HAVE_X86
+    return _mm_max_ps(a, b);
+#else
     return vsel(a > b, a, b);
+#endif
 }
 /* Whether any lane of a mask is set. */
 INLINE int vany(vi m) {
@@ -200,7 +216,7 @@ typedef struct frame {
     const float *kappa; /* per-sphere scale of the log-visibility, or NULL */
     int shadows;
     int squarings;                   /* fixed k (CALIBRATED), or -1: per lane (PAPER) */
-    float ce[PEN_SH_MAX_BANDS];      /* -eps 2 pi / (2l + 1) */
+    vf ce_v[PEN_SH_MAX_BANDS];       /* -eps 2 pi / (2l + 1), broadcast */
     float eps2pi;                    /* eps 2 pi */
     float win[PEN_SH_MAX_COEFFS];    /* window per coefficient */
     float a1, a2, b1, b2;            /* a(x) = exp(a1 x + a2 x^2), b likewise */
@@ -225,7 +241,7 @@ static void frame_init(frame *fr, const pen__shade_params *p, const float (*sh)[
     fr->shadows = p->shadows;
     const double eps = p->epsilon;
     for (int l = 0; l < p->bands; ++l) {
-        fr->ce[l] = (float)(-eps * 2.0 * PEN_PI / (2 * l + 1));
+        fr->ce_v[l] = vk((float)(-eps * 2.0 * PEN_PI / (2 * l + 1)));
         fr->hzs[l] = (float)(sqrt(4.0 * PEN_PI / (2 * l + 1)) * p->hz[l]);
         fr->hzs_v[l] = vk(fr->hzs[l]);
     }
