@@ -277,6 +277,26 @@ def emit_basis(L):
     return lines
 
 
+def emit_accumulate(L):
+    """F_k += su_l Y_k(x, y, z): the per-band scale goes into the z-polynomial before the
+    azimuthal factor, so a pair (l, +-m) costs one multiply and two FMAs."""
+    Q = q_polys(L)
+    lines = ["    const FP_VF z2 = FP_MUL(z, z);", "    (void)z2;"]
+    emit_cs(L, lines)
+    for m in range(L):
+        for l in range(m, L):
+            ks = sh_K(l, m) * (math.sqrt(2.0) if m else 1.0)
+            p = horner(Q[(l, m)], ks, "z", "z2")
+            i0 = l * l + l
+            if m == 0:
+                lines.append("    F[%d] = FP_FMA(su[%d], %s, F[%d]);" % (i0, l, p, i0))
+            else:
+                lines.append("    { const FP_VF ps = FP_MUL(su[%d], %s);" % (l, p))
+                lines.append("      F[%d] = FP_FMA(ps, C%d, F[%d]); F[%d] = FP_FMA(ps, S%d, F[%d]); }"
+                             % (i0 + m, m, i0 + m, i0 - m, m, i0 - m))
+    return lines
+
+
 def emit_contract(L):
     """A[l] = sum_{k in band l} w_k Y_k(x, y, z); g = gradient of sum_k u_l w_k Y_k."""
     Q = q_polys(L)
@@ -306,8 +326,8 @@ def emit_contract(L):
                 continue
             ip, im = i0 + m, i0 - m
             lines.append("    { const FP_VF p = %s;" % p)
-            lines.append("      A%d = FP_FMA(w[%d], FP_MUL(p, C%d), A%d); A%d = FP_FMA(w[%d], FP_MUL(p, S%d), A%d);"
-                         % (l, ip, m, l, l, im, m, l))
+            lines.append("      A%d = FP_FMA(p, FP_FMA(w[%d], C%d, FP_MUL(w[%d], S%d)), A%d);"
+                         % (l, ip, m, im, m, l))
             lines.append("      const FP_VF pu = FP_MUL(p, u[%d]);" % l)
             lines.append("      al%d = FP_FMA(pu, w[%d], al%d); be%d = FP_FMA(pu, w[%d], be%d);"
                          % (m, ip, m, m, im, m))
@@ -413,6 +433,8 @@ def main():
         ]
         bodies += [
             ("fp_basis_%d" % L, "FP_VF x, FP_VF y, FP_VF z, FP_VF *Y", emit_basis(L)),
+            ("fp_basis_acc_%d" % L, "FP_VF x, FP_VF y, FP_VF z, const FP_VF *su, FP_VF *F",
+             emit_accumulate(L)),
             ("fp_basis_contract_%d" % L,
              "FP_VF x, FP_VF y, FP_VF z, const FP_VF *w, const FP_VF *u, FP_VF *A, FP_VF *g",
              emit_contract(L)),

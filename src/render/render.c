@@ -762,10 +762,10 @@ static void shade_tile_bwd(const void *job_, int t, tile_ws *ws, pen__shade_fast
             const int surf = st->gb.surface[i];
             const float *dc = st->d_color + 3 * i;
             float *d_x = st->d_x + 3 * i, *d_rho = st->d_rho + 3 * i;
-            memset(d_x, 0, 3 * sizeof(float));
-            memset(st->d_nraw + 3 * i, 0, 3 * sizeof(float));
-            memset(st->d_uv + 2 * i, 0, 2 * sizeof(float));
-            memset(d_rho, 0, 3 * sizeof(float));
+            float *d_nraw = st->d_nraw + 3 * i, *d_uv = st->d_uv + 2 * i;
+            for (int a = 0; a < 3; ++a)
+                d_x[a] = d_nraw[a] = d_rho[a] = 0.0f;
+            d_uv[0] = d_uv[1] = 0.0f;
             if (surf == PEN_SURFACE_BACKGROUND) continue; /* no parameters */
             if (st->fast) {
                 memcpy(ws->out + 3 * cnt, dc, 3 * sizeof(float));
