@@ -341,6 +341,38 @@ static void test_threads_bitwise(void) {
     }
 }
 
+/* The environment-map background kept in the state between frames: a second frame is bitwise
+ * the first; a map edited in place, a rotated map or a moved camera are noticed (the state's
+ * image equals a fresh state's). */
+static void test_background_cache(void) {
+    pen_scene sc = frame_scene(40, 30, 4, 2, PEN_SH_EXP_CALIBRATED);
+    unsigned long long seed = 8;
+    sc.lighting.envmap = rs_texture(16, 8, &seed);
+    sc.lighting.scale = 1.0f;
+    sc.background_envmap = 1;
+    pen_context *ctx = pen_context_create();
+    pen_render_state *st = NULL;
+    pen_render_state_create(ctx, &st);
+    const pen_render_options opt = pen_render_options_default();
+    const size_t n = 3 * 40 * 30;
+    for (int step = 0; step < 4; ++step) {
+        if (step == 1) sc.lighting.envmap.data[5] += 0.25f; /* one texel, in place */
+        if (step == 2) sc.lighting.rotation_y_deg = 30.0f;
+        if (step == 3) sc.camera.eye[0] += 0.1f;
+        pen_image a = {0}, b = {0}, c = {0};
+        CHECK(pen_render_fwd(ctx, &sc, &opt, st, &a) == PEN_OK); /* after a change: refilled */
+        CHECK(pen_render_fwd(ctx, &sc, &opt, st, &b) == PEN_OK); /* from the cache */
+        CHECK(pen_render_fwd(ctx, &sc, &opt, NULL, &c) == PEN_OK); /* no state, no cache */
+        CHECK_MSG(!memcmp(a.data, c.data, sizeof(float) * n) &&
+                      !memcmp(b.data, c.data, sizeof(float) * n),
+                  "step %d: cached background differs", step);
+        pen_image_free(&a), pen_image_free(&b), pen_image_free(&c);
+    }
+    pen_render_state_free(st);
+    pen_context_destroy(ctx);
+    pen_scene_free(&sc);
+}
+
 /* An unknown kernel is an argument error; a backward with another kernel than its forward too. */
 static void test_kernel_option(void) {
     pen_scene sc = frame_scene(20, 20, 4, 2, PEN_SH_EXP_CALIBRATED);
@@ -366,4 +398,4 @@ static void test_kernel_option(void) {
 }
 
 RUN_TESTS(TEST(test_random_pixels), TEST(test_frames_fast_vs_scalar), TEST(test_threads_bitwise),
-          TEST(test_kernel_option))
+          TEST(test_kernel_option), TEST(test_background_cache))
