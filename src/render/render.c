@@ -9,20 +9,25 @@
  *   positions so that they move with the vertices) and the UV are interpolated; n = +/- raw/|raw|
  *   with the sign chosen so that n faces the camera's side of the triangle's geometric normal
  *   (closed meshes seen from outside never flip; open meshes seen from behind do). Ground pixels:
- *   x on the plane, n = +Y, the ground albedo. The shading kernel (shade_ops.inc) runs per pixel
- *   in parallel over rows; background pixels show the constant background or the environment map
- *   in the ray direction (pen_envmap_eval: the full-resolution map, not its SH projection, and
- *   not differentiated). Antialiasing blends colours across silhouettes last.
+ *   x on the plane, n = +Y, the ground albedo. Shading runs over 16 x 16 tiles in parallel
+ *   (dynamic scheduling, a workspace per thread): the tile's surface pixels go compacted to the
+ *   fast kernel (shade_fast.c, batches of SIMD lanes) or one by one to the scalar reference
+ *   kernel (shade_ops.inc), as pen_render_options.kernel and the kernel's coverage decide;
+ *   background pixels show the constant background or the environment map in the ray direction
+ *   (pen_envmap_eval: the full-resolution map, not its SH projection, and not differentiated;
+ *   kept between frames, see background_prepare). Antialiasing blends colours across
+ *   silhouettes last.
  * - What the state keeps. The G-buffer and per-pixel x, raw normal, n, rho, uv and the
- *   pre-antialiasing colour; visibility is recomputed in the backward (it is cheaper to redo the
- *   sphere sum than to store bands^2 x spheres floats per pixel).
+ *   pre-antialiasing colour, and the kernel's store: F per pixel (fast kernel, in its batch
+ *   layout per tile) or F and V per pixel (scalar kernel). The per-sphere terms are recomputed
+ *   in the backward (cheaper than storing bands^2 x spheres floats per pixel).
  * - Backward. Antialiasing backward gives d_colour (and silhouette vertex gradients); a parallel
- *   pass over rows runs the kernel's backward per pixel, writing per-pixel d_x, d_raw-normal,
- *   d_uv, d_rho, and per-row double buffers for the small dense gradients (lighting, constant
- *   albedos, ground albedo, world-space spheres). Rows are reduced in order, so the result does
- *   not depend on the thread count. Then, serially per object: interpolation backward (to
- *   vertices and barycentrics), vertex-normal backward, the barycentric backward (the pixel's
- *   point slides on its ray as the triangle moves), the texel scatter, and the pose backward,
+ *   pass over tiles runs the kernel's backward, writing per-pixel d_x, d_raw-normal, d_uv, d_rho,
+ *   and per-tile double buffers for the small dense gradients (lighting, constant albedos,
+ *   ground albedo, world-space spheres). Tiles are reduced in order, so the result does not
+ *   depend on the thread count. Then the texel scatter (in pixel order) beside the per-object
+ *   interpolation and vertex-normal backward (two threads, disjoint outputs), the barycentric
+ *   backward (the pixel's point slides on its ray as the triangle moves), and the pose backward,
  *   which splits world-space gradients of vertices and spheres into object-space and pose parts.
  */
 #include "penumbra/render.h"
