@@ -44,6 +44,8 @@ typedef struct bilinear {
 } bilinear;
 
 static int wrap(long i, int n) {
+    if (i >= 0 && i < n) return (int)i; /* the common case, without a division */
+    if (i == n) return 0;
     long r = i % n;
     return (int)(r < 0 ? r + n : r);
 }
