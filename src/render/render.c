@@ -643,28 +643,33 @@ static void shade_tile_fwd(const void *job_, int t, tile_ws *ws, pen__shade_fast
     float *store = tile_store_of(job, t);
     const float(*sh)[3] = (const float(*)[3])sc->lighting.sh;
     const size_t nfv = 2 * (size_t)sc->sh_bands * (size_t)sc->sh_bands;
-    int x0, y0, x1, y1, cnt = 0;
+    int x0, y0, x1, y1, cnt = 0, ground = 0;
     tile_rect(st, t, &x0, &y0, &x1, &y1);
-    for (int py = y0; py < y1; ++py)
-        for (int px = x0; px < x1; ++px) {
-            const size_t i = (size_t)py * (size_t)st->width + (size_t)px;
-            const int surf = st->gb.surface[i];
-            if (surf == PEN_SURFACE_BACKGROUND) {
-                background_pixel(sc, st, px, py, i);
-                continue;
+    /* Two passes: ground pixels first (the fast kernel shades whole batches of them with the
+     * ground's precomputed product), then the objects'. */
+    for (int pass = 0; pass < 2; ++pass)
+        for (int py = y0; py < y1; ++py)
+            for (int px = x0; px < x1; ++px) {
+                const size_t i = (size_t)py * (size_t)st->width + (size_t)px;
+                const int surf = st->gb.surface[i];
+                if ((surf == PEN_SURFACE_GROUND) != (pass == 0)) continue;
+                if (surf == PEN_SURFACE_BACKGROUND) {
+                    background_pixel(sc, st, px, py, i);
+                    continue;
+                }
+                surface_attributes(sc, st, i, surf);
+                if (!st->fast) {
+                    pen__shade_fwd(&st->params, sh, st->sphere_count, st->spheres, st->x + 3 * i,
+                                   st->n + 3 * i, st->rho + 3 * i, st->color + 3 * i,
+                                   store ? store + nfv * i : NULL);
+                    continue;
+                }
+                ws_push(ws, cnt++, st, i);
+                ground += pass == 0;
             }
-            surface_attributes(sc, st, i, surf);
-            if (!st->fast) {
-                pen__shade_fwd(&st->params, sh, st->sphere_count, st->spheres, st->x + 3 * i,
-                               st->n + 3 * i, st->rho + 3 * i, st->color + 3 * i,
-                               store ? store + nfv * i : NULL);
-                continue;
-            }
-            ws_push(ws, cnt++, st, i);
-        }
     if (!cnt) return;
-    pen__shade_fast_fwd(&st->params, sh, st->sphere_count, st->spheres, NULL, cnt, ws->x, ws->n,
-                        ws->rho, ws->out, store, ws->kernel, tk);
+    pen__shade_fast_fwd(&st->params, sh, st->sphere_count, st->spheres, NULL, cnt, ground, ws->x,
+                        ws->n, ws->rho, ws->out, store, ws->kernel, tk);
     for (int j = 0; j < cnt; ++j)
         memcpy(st->color + 3 * (size_t)ws->idx[j], ws->out + 3 * j, 3 * sizeof(float));
 }
@@ -847,40 +852,45 @@ static void shade_tile_bwd(const void *job_, int t, tile_ws *ws, pen__shade_fast
     double *row = st->rows + bw->rl.stride * (size_t)t;
     double(*d_sh)[3] = bw->light ? (double(*)[3])(row + bw->rl.sh) : NULL;
     double *d_sph = bw->spheres ? row + bw->rl.spheres : NULL;
-    int x0, y0, x1, y1, cnt = 0;
+    int x0, y0, x1, y1, cnt = 0, ground = 0;
     tile_rect(st, t, &x0, &y0, &x1, &y1);
-    for (int py = y0; py < y1; ++py)
-        for (int px = x0; px < x1; ++px) {
-            const size_t i = (size_t)py * (size_t)st->width + (size_t)px;
-            const int surf = st->gb.surface[i];
-            const float *dc = st->d_color + 3 * i;
-            float *d_x = st->d_x + 3 * i, *d_rho = st->d_rho + 3 * i;
-            float *d_nraw = st->d_nraw + 3 * i, *d_uv = st->d_uv + 2 * i;
-            for (int a = 0; a < 3; ++a)
-                d_x[a] = d_nraw[a] = d_rho[a] = 0.0f;
-            d_uv[0] = d_uv[1] = 0.0f;
-            if (surf == PEN_SURFACE_BACKGROUND) continue; /* no parameters */
-            if (st->fast) {
-                memcpy(ws->out + 3 * cnt, dc, 3 * sizeof(float));
-                ws_push(ws, cnt++, st, i);
-                continue;
+    for (int pass = 0; pass < 2; ++pass) /* ground pixels first, as in the forward */
+        for (int py = y0; py < y1; ++py)
+            for (int px = x0; px < x1; ++px) {
+                const size_t i = (size_t)py * (size_t)st->width + (size_t)px;
+                const int surf = st->gb.surface[i];
+                const float *dc = st->d_color + 3 * i;
+                float *d_x = st->d_x + 3 * i, *d_rho = st->d_rho + 3 * i;
+                if (pass == 0) {
+                    float *d_nraw = st->d_nraw + 3 * i, *d_uv = st->d_uv + 2 * i;
+                    for (int a = 0; a < 3; ++a)
+                        d_x[a] = d_nraw[a] = d_rho[a] = 0.0f;
+                    d_uv[0] = d_uv[1] = 0.0f;
+                }
+                if (surf == PEN_SURFACE_BACKGROUND) continue; /* no parameters */
+                if ((surf == PEN_SURFACE_GROUND) != (pass == 0)) continue;
+                if (st->fast) {
+                    memcpy(ws->out + 3 * cnt, dc, 3 * sizeof(float));
+                    ws_push(ws, cnt++, st, i);
+                    ground += pass == 0;
+                    continue;
+                }
+                if (dc[0] == 0.0f && dc[1] == 0.0f && dc[2] == 0.0f) continue;
+                const int geom = surf >= 0 && bw->geom;
+                const int need_rho =
+                    bw->albedo || (geom && sc->objects[surf].texture.data != NULL);
+                float d_n[3] = {0.0f, 0.0f, 0.0f};
+                pen__shade_bwd(&st->params, sh, S, st->spheres, st->x + 3 * i, st->n + 3 * i,
+                               st->rho + 3 * i, dc, store ? store + nfv * i : NULL, d_sh, d_sph,
+                               geom ? d_x : NULL, geom ? d_n : NULL, need_rho ? d_rho : NULL);
+                pixel_bwd_tail(sc, st, bw, row, i, surf, d_n);
             }
-            if (dc[0] == 0.0f && dc[1] == 0.0f && dc[2] == 0.0f) continue;
-            const int geom = surf >= 0 && bw->geom;
-            const int need_rho =
-                bw->albedo || (geom && sc->objects[surf].texture.data != NULL);
-            float d_n[3] = {0.0f, 0.0f, 0.0f};
-            pen__shade_bwd(&st->params, sh, S, st->spheres, st->x + 3 * i, st->n + 3 * i,
-                           st->rho + 3 * i, dc, store ? store + nfv * i : NULL, d_sh, d_sph,
-                           geom ? d_x : NULL, geom ? d_n : NULL, need_rho ? d_rho : NULL);
-            pixel_bwd_tail(sc, st, bw, row, i, surf, d_n);
-        }
     if (!cnt) return;
     memset(ws->dx, 0, 3 * sizeof(float) * (size_t)cnt);
     memset(ws->dn, 0, 3 * sizeof(float) * (size_t)cnt);
     memset(ws->drho, 0, 3 * sizeof(float) * (size_t)cnt);
-    pen__shade_fast_bwd(&st->params, sh, S, st->spheres, NULL, cnt, ws->x, ws->n, ws->rho, ws->out,
-                        store, ws->kernel, d_sh, d_sph, bw->geom ? ws->dx : NULL,
+    pen__shade_fast_bwd(&st->params, sh, S, st->spheres, NULL, cnt, ground, ws->x, ws->n, ws->rho,
+                        ws->out, store, ws->kernel, d_sh, d_sph, bw->geom ? ws->dx : NULL,
                         bw->geom ? ws->dn : NULL, ws->drho, tk);
     for (int j = 0; j < cnt; ++j) {
         const size_t i = (size_t)ws->idx[j];

@@ -79,20 +79,23 @@ int pen__shade_fast_supported(const pen__shade_params *p);
 size_t pen__shade_fast_store_floats(const pen__shade_params *p, int count);
 /* Bytes of per-thread scratch for calls of up to max_count pixels. */
 size_t pen__shade_fast_scratch_bytes(const pen__shade_params *p, int sphere_count, int max_count);
-/* count pixels, AoS: x, n, rho and rgb 3 floats per pixel. store (may be NULL) receives what the
- * backward needs when shadows are on. ticks may be NULL. */
+/* count pixels, AoS: x, n, rho and rgb 3 floats per pixel; the first `ground` of them lie on the
+ * ground plane (n = +Y; their d_x and d_n are not wanted), which saves batches of them the
+ * per-pixel product. store (may be NULL) receives what the backward needs when shadows are on. ticks may
+ * be NULL. */
 void pen__shade_fast_fwd(const pen__shade_params *p, const float (*sh)[3], int sphere_count,
-                         const float *spheres, const float *kappa, int count, const float *x,
-                         const float *n, const float *rho, float *rgb, float *store, void *scratch,
-                         pen__shade_fast_ticks *ticks);
+                         const float *spheres, const float *kappa, int count, int ground,
+                         const float *x, const float *n, const float *rho, float *rgb,
+                         float *store, void *scratch, pen__shade_fast_ticks *ticks);
 /* Backward of the same call: ADDS into d_sh, d_spheres (double; summed over the call's pixels
- * in a fixed order), and per pixel into d_x, d_n, d_rho (3 floats per pixel); any may be NULL.
- * store: the forward's, or NULL to recompute. */
+ * in a fixed order), and per pixel into d_x, d_n, d_rho (3 floats per pixel; for the ground
+ * pixels d_x and d_n are unspecified); any may be NULL. store: the forward's, or NULL to
+ * recompute. */
 void pen__shade_fast_bwd(const pen__shade_params *p, const float (*sh)[3], int sphere_count,
-                         const float *spheres, const float *kappa, int count, const float *x,
-                         const float *n, const float *rho, const float *d_rgb, const float *store,
-                         void *scratch, double (*d_sh)[3], double *d_spheres, float *d_x,
-                         float *d_n, float *d_rho, pen__shade_fast_ticks *ticks);
+                         const float *spheres, const float *kappa, int count, int ground,
+                         const float *x, const float *n, const float *rho, const float *d_rgb,
+                         const float *store, void *scratch, double (*d_sh)[3], double *d_spheres,
+                         float *d_x, float *d_n, float *d_rho, pen__shade_fast_ticks *ticks);
 
 /* Bilinear texture lookup (3 channels), repeat wrap, texel centres at ((i + 0.5) / W,
  * 1 - (j + 0.5) / H) in (u, v) with v up (row 0 is the top of the image). */

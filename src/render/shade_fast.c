@@ -292,11 +292,11 @@ size_t pen__shade_fast_store_floats(const pen__shade_params *p, int count) {
 }
 
 /* Scratch: 1/r per sphere, then (aligned) the lane arrays: forward F and V of every batch;
- * backward the lane accumulators of d_sh and d_spheres. */
+ * backward the lane accumulators of d_sh (two sets: see bwd_FB) and d_spheres. */
 size_t pen__shade_fast_scratch_bytes(const pen__shade_params *p, int sphere_count, int max_count) {
     const size_t nc = (size_t)p->bands * (size_t)p->bands;
     const size_t nb = ((size_t)max_count + LANES - 1) / LANES;
-    size_t fwd = 2 * nb * nc, bwd = 3 * nc + 4 * (size_t)sphere_count;
+    size_t fwd = 2 * nb * nc, bwd = 6 * nc + 4 * (size_t)sphere_count;
     return sizeof(float) * ((size_t)sphere_count + 1) + sizeof(vf) * (fwd > bwd ? fwd : bwd) +
            2 * sizeof(vf);
 }
@@ -320,41 +320,45 @@ static unsigned char *frame_setup(frame *fr, const pen__shade_params *p, const f
 }
 
 void pen__shade_fast_fwd(const pen__shade_params *p, const float (*sh)[3], int sphere_count,
-                         const float *spheres, const float *kappa, int count, const float *x,
-                         const float *n, const float *rho, float *rgb, float *store, void *scratch,
-                         pen__shade_fast_ticks *ticks) {
+                         const float *spheres, const float *kappa, int count, int ground,
+                         const float *x, const float *n, const float *rho, float *rgb,
+                         float *store, void *scratch, pen__shade_fast_ticks *ticks) {
     if (count <= 0) return;
     frame fr;
     unsigned char *lanes = frame_setup(&fr, p, sh, sphere_count, spheres, kappa, scratch);
     switch (p->bands) {
-    case 3: fwd_3(&fr, count, x, n, rho, rgb, store, lanes, ticks); break;
-    case 4: fwd_4(&fr, count, x, n, rho, rgb, store, lanes, ticks); break;
-    case 5: fwd_5(&fr, count, x, n, rho, rgb, store, lanes, ticks); break;
-    case 6: fwd_6(&fr, count, x, n, rho, rgb, store, lanes, ticks); break;
+    case 3: fwd_3(&fr, count, ground, x, n, rho, rgb, store, lanes, ticks); break;
+    case 4: fwd_4(&fr, count, ground, x, n, rho, rgb, store, lanes, ticks); break;
+    case 5: fwd_5(&fr, count, ground, x, n, rho, rgb, store, lanes, ticks); break;
+    case 6: fwd_6(&fr, count, ground, x, n, rho, rgb, store, lanes, ticks); break;
     default: break; /* not supported: the caller checks pen__shade_fast_supported */
     }
 }
 
 void pen__shade_fast_bwd(const pen__shade_params *p, const float (*sh)[3], int sphere_count,
-                         const float *spheres, const float *kappa, int count, const float *x,
-                         const float *n, const float *rho, const float *d_rgb, const float *store,
-                         void *scratch, double (*d_sh)[3], double *d_spheres, float *d_x,
-                         float *d_n, float *d_rho, pen__shade_fast_ticks *ticks) {
+                         const float *spheres, const float *kappa, int count, int ground,
+                         const float *x, const float *n, const float *rho, const float *d_rgb,
+                         const float *store, void *scratch, double (*d_sh)[3], double *d_spheres,
+                         float *d_x, float *d_n, float *d_rho, pen__shade_fast_ticks *ticks) {
     if (count <= 0) return;
     frame fr;
     unsigned char *lanes = frame_setup(&fr, p, sh, sphere_count, spheres, kappa, scratch);
     switch (p->bands) {
     case 3:
-        bwd_3(&fr, count, x, n, rho, d_rgb, store, lanes, d_sh, d_spheres, d_x, d_n, d_rho, ticks);
+        bwd_3(&fr, count, ground, x, n, rho, d_rgb, store, lanes, d_sh, d_spheres, d_x, d_n, d_rho,
+              ticks);
         break;
     case 4:
-        bwd_4(&fr, count, x, n, rho, d_rgb, store, lanes, d_sh, d_spheres, d_x, d_n, d_rho, ticks);
+        bwd_4(&fr, count, ground, x, n, rho, d_rgb, store, lanes, d_sh, d_spheres, d_x, d_n, d_rho,
+              ticks);
         break;
     case 5:
-        bwd_5(&fr, count, x, n, rho, d_rgb, store, lanes, d_sh, d_spheres, d_x, d_n, d_rho, ticks);
+        bwd_5(&fr, count, ground, x, n, rho, d_rgb, store, lanes, d_sh, d_spheres, d_x, d_n, d_rho,
+              ticks);
         break;
     case 6:
-        bwd_6(&fr, count, x, n, rho, d_rgb, store, lanes, d_sh, d_spheres, d_x, d_n, d_rho, ticks);
+        bwd_6(&fr, count, ground, x, n, rho, d_rgb, store, lanes, d_sh, d_spheres, d_x, d_n, d_rho,
+              ticks);
         break;
     default: break;
     }
