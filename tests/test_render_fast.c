@@ -160,6 +160,64 @@ static void check_random_pixels(int bands, pen_sh_exp_method method, int shadows
     free(r_sh), free(f_sh), free(r_s), free(f_s);
 }
 
+/* kappa scales each sphere's log-visibility: kappa = 0 removes a sphere (image and every gradient
+ * as without it, and no gradient for it), kappa = 2 everywhere doubles epsilon. */
+static void test_kappa(void) {
+    enum { S = 6, N = 40, nc = 16 };
+    pen__shade_params p = params(4, PEN_SH_EXP_CALIBRATED, 1);
+    pen__shade_params p2 = p;
+    p2.epsilon = 2.0 * p.epsilon;
+    float L[16][3], sph[24], kap0[6], kap2[6], x[3 * N], n[3 * N], rho[3 * N], drgb[3 * N];
+    for (int k = 0; k < nc; ++k)
+        for (int ch = 0; ch < 3; ++ch)
+            L[k][ch] = (float)(urand(-0.3, 0.3) + (k == 0 ? 1.5 : 0.0));
+    for (int i = 0; i < S; ++i) {
+        sph[4 * i] = (float)urand(-0.5, 0.5), sph[4 * i + 1] = (float)urand(0.2, 0.8);
+        sph[4 * i + 2] = (float)urand(-0.5, 0.5), sph[4 * i + 3] = (float)urand(0.1, 0.3);
+        kap0[i] = i % 2 ? 0.0f : 1.0f, kap2[i] = 2.0f;
+    }
+    for (int i = 0; i < N; ++i) {
+        double d[3];
+        rs_unit_vector(&rng, d);
+        for (int a = 0; a < 3; ++a) {
+            x[3 * i + a] = (float)(a == 1 ? urand(0, 0.5) : urand(-1, 1));
+            n[3 * i + a] = (float)d[a], rho[3 * i + a] = 0.5f, drgb[3 * i + a] = (float)urand(-1, 1);
+        }
+    }
+    float even[12]; /* the spheres kap0 keeps */
+    for (int i = 0; i < 3; ++i)
+        memcpy(even + 4 * i, sph + 8 * i, 4 * sizeof(float));
+    void *scr = malloc(pen__shade_fast_scratch_bytes(&p, S, N));
+    float rgb[4][3 * N], dx[4][3 * N] = {{0}};
+    double dsh[4][16][3] = {{{0}}}, ds[4][24] = {{0}};
+    /* 0: kappa 0/1, 1: the kept spheres alone, 2: kappa 2, 3: 2 epsilon. */
+    const pen__shade_params *pp[4] = {&p, &p, &p, &p2};
+    const float *sp[4] = {sph, even, sph, sph}, *kp[4] = {kap0, NULL, kap2, NULL};
+    const int cnt[4] = {S, 3, S, S};
+    for (int v = 0; v < 4; ++v) {
+        float dn[3 * N] = {0}, dr[3 * N] = {0};
+        pen__shade_fast_fwd(pp[v], (const float(*)[3])L, cnt[v], sp[v], kp[v], N, 0, x, n, rho,
+                            rgb[v], NULL, scr, NULL);
+        pen__shade_fast_bwd(pp[v], (const float(*)[3])L, cnt[v], sp[v], kp[v], N, 0, x, n, rho,
+                            drgb, NULL, scr, dsh[v], ds[v], dx[v], dn, dr, NULL);
+    }
+    for (int i = 0; i < 3 * N; ++i) {
+        CHECK_NEAR(rgb[0][i], rgb[1][i], 1e-6);
+        CHECK_NEAR(dx[0][i], dx[1][i], 1e-5);
+        CHECK_NEAR(rgb[2][i], rgb[3][i], 1e-5);
+        CHECK_NEAR(dx[2][i], dx[3][i], 1e-4);
+    }
+    for (int k = 0; k < 16; ++k)
+        CHECK_NEAR(dsh[0][k][0], dsh[1][k][0], 1e-5);
+    for (int i = 0; i < S; ++i)
+        for (int c = 0; c < 4; ++c) {
+            if (i % 2) CHECK(ds[0][4 * i + c] == 0.0);
+            else CHECK_NEAR(ds[0][4 * i + c], ds[1][4 * (i / 2) + c], 1e-5);
+            CHECK_NEAR(ds[2][4 * i + c], ds[3][4 * i + c], 1e-4);
+        }
+    free(scr);
+}
+
 static void test_random_pixels(void) {
     const int verbose = getenv("PEN_TEST_VERBOSE") != NULL;
     const int counts[] = {0, 1, 7, 19, 33};
@@ -400,5 +458,5 @@ static void test_kernel_option(void) {
     pen_scene_free(&sc);
 }
 
-RUN_TESTS(TEST(test_random_pixels), TEST(test_frames_fast_vs_scalar), TEST(test_threads_bitwise),
+RUN_TESTS(TEST(test_random_pixels), TEST(test_kappa), TEST(test_frames_fast_vs_scalar), TEST(test_threads_bitwise),
           TEST(test_kernel_option), TEST(test_background_cache))
