@@ -96,7 +96,7 @@ int pen_cmd_fit_spheres(int argc, char **argv) {
     if (!ctx) return pen_cli_fail(CMD, "out of memory");
     pen_context_set_threads(ctx, threads);
     pen_mesh mesh;
-    pen_spheres spheres = {0, NULL};
+    pen_spheres spheres = {0, NULL, NULL};
     pen_image picture = {0, 0, 0, NULL};
     pen_fit_metrics m;
     memset(&m, 0, sizeof m);

@@ -243,6 +243,11 @@ class ArgumentErrorTest(unittest.TestCase):
         self.ob.vertices = v
         self.expect(penumbra.PenumbraError, "not finite")
         self.ob.vertices = scenes.octasphere(1)[0]
+        self.ob.sphere_weights = torch.tensor([1.0, 1.0, 1.0])
+        self.expect(ValueError, r"objects\[0\]\.sphere_weights must have shape \(2\), got \(3,\)")
+        self.ob.sphere_weights = torch.tensor([1.0, -1.0])
+        self.expect(penumbra.PenumbraError, r"objects\[0\].*sphere 1: overlap weight -1 is not")
+        self.ob.sphere_weights = None
         self.ob.spheres = torch.tensor([[0.0, 0.0, 0.0, -1.0]])
         self.expect(penumbra.PenumbraError, r"objects\[0\].*sphere 0.*radius > 0")
         self.ob.spheres = None
