@@ -18,9 +18,9 @@ extern "C" {
 /* The weighted count of spheres along a line through a set (see pen_spheres_overlap_weights): a
  * shadow ray through an object gets this many times the blocker depth epsilon. 2, not 1: the
  * calibrated epsilon was fitted on small isolated caps, and proxied objects near a receiver
- * subtend large ones, which band-limited visibility darkens less; 2 was the best value, within a
- * few percent, for Spot and Bob at 1 to 64 spheres under both bundled maps
- * (docs/fit-spheres.md, "Overlap weights"). */
+ * subtend large ones, which band-limited visibility darkens less; 2 had the lowest mean render
+ * error for Spot and Bob at 1 to 64 spheres under both bundled maps, never more than 9 % above
+ * each case's best (docs/fit-spheres.md, "Overlap weights"). */
 #define PEN_SPHERES_OVERLAP_TARGET 2.0
 
 typedef struct pen_spheres {

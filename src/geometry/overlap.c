@@ -2,10 +2,11 @@
  * the set, the weights of the spheres it crosses add up to about T = PEN_SPHERES_OVERLAP_TARGET.
  *
  * Why. The renderer sums per-sphere log-visibilities, F = sum_i w_i kappa_i f_i: without weights
- * a shadow ray that crosses k spheres of a fitted set (a line through Spot crosses 4 to 8 of 32)
- * gets k times the blocker depth eps, and shadows darken as the set gets denser, although the
- * true visibility of a solid is blocked-or-not. With kappa the depth along every ray through the
- * object is about T eps, whatever the sphere count. T = 2 rather than 1 is measured (spheres.h).
+ * a shadow ray that crosses k spheres of a fitted set gets k times the blocker depth eps (a line
+ * through Spot's 32 crosses 4.4 on average, a quarter of the lines 6 or more), and shadows darken
+ * as the set gets denser, although the true visibility of a solid is blocked-or-not. With kappa
+ * the depth along every ray through the object is about T eps, whatever the sphere count. T = 2
+ * rather than 1 is measured (spheres.h, docs/fit-spheres.md).
  *
  * Method. The objective is over the isotropic uniform measure on lines (the one for which a set
  * of lines hitting a ball of radius r has measure proportional to r^2), restricted to lines that
@@ -15,7 +16,7 @@
  * minimised over kappa >= 0 (a non-negative least squares), then scaled by T (the objective is
  * quadratic: the solution for target T is T times the one for 1). kappa0_i is the line average of
  * 1 / (spheres crossed), over the lines that cross sphere i; it is the answer when no line can
- * tell two spheres apart (two coincident spheres get 1/2 each instead of any split) and a light
+ * tell two spheres apart (two coincident spheres get T/2 each instead of any split) and a light
  * pull elsewhere.
  * - Sampling. Every sphere gets the same number of lines (uniform direction, uniform point in
  *   the disk it shows along that direction), so that small spheres are as well determined as
