@@ -79,12 +79,8 @@ int pen_cmd_fit_spheres(int argc, char **argv) {
             az = x;
             ok = ok &&
                  pen_cli_parse_float(CMD, "--view elevation", value(argc, argv, &i), -90, 90, &el);
-        } else if (a[0] == '-') {
-            return pen_cli_usage_error(CMD, "unknown option '%s'", a);
-        } else if (!mesh_path) {
-            mesh_path = a;
-        } else {
-            return pen_cli_usage_error(CMD, "unexpected argument '%s'", a);
+        } else if (pen_cli_positional(CMD, a, &mesh_path, 1)) {
+            return 2;
         }
         if (!ok) return 2;
     }
