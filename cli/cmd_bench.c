@@ -14,9 +14,14 @@
  * the SH render's error is its relative RMSE against the truth over the pixels the truth sees a
  * surface in (coverage > 0.5: the background is the envmap in both, differing only by texture
  * detail, which would charge the rasterizer's point sampling to the shadows). The reference
- * (another seed) is then rendered at 1, 2, 4, ... spp until its error against the truth is no
- * larger; its time at that spp (scene build + render, median of 3) over the SH forward time is the
- * ratio. Truths depend only on size and bands, so cases that share them share one render.
+ * (another seed) is then rendered at 1, 2, 4, ... spp, up to the truth's own spp, until its error
+ * against the truth is no larger; its time at that spp (scene build + render, median of 3) over
+ * the SH forward time is the ratio. The truth's noise does not bias this test: with an unbiased
+ * estimator of variance b per sample, E|ref_s - truth|^2 = b/s + b/T and E|SH - truth|^2 =
+ * |SH - exact|^2 + b/T, so both sides carry the same b/T and the comparison is b/s against the
+ * SH render's exact error. T only sets how precisely the errors are measured, and the highest spp
+ * the search can reach. Truths depend only on size and bands, so cases that share them share one
+ * render.
  *
  * Timing: omp_get_wtime around the library calls; medians, since the machine may be shared. The
  * 1-minute load average (from /proc/loadavg) is reported next to each case for that reason.
@@ -189,7 +194,7 @@ typedef struct bench_result {
     double forward_ms, backward_ms, total_ms, loss;
     double stages[STAGE_COUNT];
     /* Reference comparison; NaN / 0 when skipped or not reached. */
-    int truth_spp, reference_spp, reference_spp_max;
+    int truth_spp, reference_spp;
     double sh_rel_rmse, reference_rel_rmse, reference_ms;
 } bench_result;
 
@@ -335,7 +340,7 @@ static void truth_cache_free(truth_cache *cache) {
 }
 
 /* The SH render's error against the truth, then the smallest power-of-two spp at which the
- * reference's error is no larger (up to truth_spp / 4), and that spp's time. */
+ * reference's error is no larger (up to truth_spp), and that spp's time. */
 static pen_status compare_reference(pen_context *ctx, const bench_config *cfg, truth_cache *cache,
                                     const pen_scene *sc, const pen_image *image, bench_result *r) {
     pen_reference *ref = NULL;
@@ -349,10 +354,9 @@ static pen_status compare_reference(pen_context *ctx, const bench_config *cfg, t
         goto done;
     r->truth_spp = cfg->truth_spp;
     r->sh_rel_rmse = masked.rel_rmse;
-    r->reference_spp_max = cfg->truth_spp / 4 > 1 ? cfg->truth_spp / 4 : 1;
     double times[REF_TIMINGS];
     int found = 0;
-    for (int spp = 1; spp <= r->reference_spp_max && !found; spp *= 2) {
+    for (int spp = 1; spp <= cfg->truth_spp && !found; spp *= 2) {
         pen_image_free(&trial);
         /* Time what `penumbra reference` times: the scene build and the render. */
         pen_reference_destroy(ref);
