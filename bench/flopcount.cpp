@@ -37,8 +37,11 @@ extern "C" {
 
 // ---- The counting float -------------------------------------------------------------------------
 
-enum Op { OP_ADD, OP_MUL, OP_DIV, OP_SQRT, OP_EXP, OP_CMP, OP_CONST, OP_COUNT };
-static const char *const op_names[OP_COUNT] = {"add", "mul", "div", "sqrt", "exp", "cmp", "hoist"};
+// OP_DIVC: a division by a per-frame constant (a multiplication by a precomputed reciprocal in a
+// tuned kernel); OP_DIV: by a value.
+enum Op { OP_ADD, OP_MUL, OP_DIV, OP_DIVC, OP_SQRT, OP_EXP, OP_CMP, OP_CONST, OP_COUNT };
+static const char *const op_names[OP_COUNT] = {"add",  "mul", "div",  "div/k",
+                                               "sqrt", "exp", "cmp", "hoist"};
 
 enum Stage {
     ST_GLUE,        // the kernel's own loops: weights, sums over spheres, shading dot products
@@ -94,7 +97,14 @@ static inline R mk(float v, bool k) {
 BINOP(+, OP_ADD)
 BINOP(-, OP_ADD)
 BINOP(*, OP_MUL)
-BINOP(/, OP_DIV)
+static inline R operator/(R a, R b) {
+    tally(b.k ? OP_DIVC : OP_DIV, a.k && b.k);
+    return mk(a.v / b.v, a.k && b.k);
+}
+static inline R &operator/=(R &a, R b) {
+    a = a / b;
+    return a;
+}
 static inline R operator-(R a) { return mk(-a.v, a.k); } // a sign flip, not an operation
 #define CMPOP(sym)                                                                                \
     static inline bool operator sym(R a, R b) {                                                   \
@@ -304,8 +314,8 @@ int main(int argc, char **argv) {
                 px_obj * scale, px_ground * scale, px_bg * scale, active / shaded, ramp / shaded);
     std::printf("Gaunt entries by bands:");
     for (int b = 1; b <= PEN_SH_MAX_BANDS; ++b) std::printf(" %d:%d", b, pen_sh_gaunt_table(b)->count);
-    std::printf("\n\nper shaded pixel (flops = add + mul + div + sqrt; exp and cmp apart; "
-                "hoist = operations between per-frame constants)\n");
+    std::printf("\n\nper shaded pixel (flops = add + mul + div + div/k + sqrt; exp and cmp "
+                "apart; hoist = operations between per-frame constants)\n");
     std::printf("%-6s %-13s %9s", "pass", "stage", "flops");
     for (int op = 0; op < OP_COUNT; ++op) std::printf(" %8s", op_names[op]);
     std::printf("\n");
@@ -313,7 +323,7 @@ int main(int argc, char **argv) {
         double tot[OP_COUNT] = {0};
         for (int st = 0; st < ST_COUNT; ++st) {
             const double *c = g_count[pass][st];
-            const double fl = c[OP_ADD] + c[OP_MUL] + c[OP_DIV] + c[OP_SQRT];
+            const double fl = c[OP_ADD] + c[OP_MUL] + c[OP_DIV] + c[OP_DIVC] + c[OP_SQRT];
             if (fl == 0 && c[OP_CONST] == 0 && c[OP_CMP] == 0) continue;
             std::printf("%-6s %-13s %9.1f", pass ? "bwd" : "fwd", stage_names[st], fl / shaded);
             for (int op = 0; op < OP_COUNT; ++op) {
@@ -322,7 +332,7 @@ int main(int argc, char **argv) {
             }
             std::printf("\n");
         }
-        const double fl = tot[OP_ADD] + tot[OP_MUL] + tot[OP_DIV] + tot[OP_SQRT];
+        const double fl = tot[OP_ADD] + tot[OP_MUL] + tot[OP_DIV] + tot[OP_DIVC] + tot[OP_SQRT];
         std::printf("%-6s %-13s %9.1f", pass ? "bwd" : "fwd", "TOTAL", fl / shaded);
         for (int op = 0; op < OP_COUNT; ++op) std::printf(" %8.1f", tot[op] / shaded);
         std::printf("   -> %.3f GFLOP per frame\n", fl * scale * 1e-9);
