@@ -163,6 +163,14 @@ static int cmp_double(const void *a, const void *b) {
     return (x > y) - (x < y);
 }
 
+/* Smallest of v[0], v[stride], ... (n >= 1 values). */
+static double minimum(const double *v, int n, int stride) {
+    double m = v[0];
+    for (int i = 1; i < n; ++i)
+        if (v[(size_t)i * (size_t)stride] < m) m = v[(size_t)i * (size_t)stride];
+    return m;
+}
+
 /* Median of v[0], v[stride], ... (n values); v is not changed. */
 static double median(const double *v, int n, int stride, double *scratch) {
     for (int i = 0; i < n; ++i)
@@ -192,6 +200,7 @@ typedef struct bench_result {
     int threads;
     double load;
     double forward_ms, backward_ms, total_ms, loss;
+    double forward_min_ms, backward_min_ms, total_min_ms; /* least affected by a shared machine */
     double stages[STAGE_COUNT];
     /* Reference comparison; NaN / 0 when skipped or not reached. */
     int truth_spp, reference_spp;
@@ -298,6 +307,9 @@ static pen_status time_steps(pen_context *ctx, const bench_config *cfg, const pe
     r->forward_ms = median(samples + 0, n, per, scratch);
     r->backward_ms = median(samples + 1, n, per, scratch);
     r->total_ms = median(samples + 2, n, per, scratch);
+    r->forward_min_ms = minimum(samples + 0, n, per);
+    r->backward_min_ms = minimum(samples + 1, n, per);
+    r->total_min_ms = minimum(samples + 2, n, per);
     for (int k = 0; k < STAGE_COUNT; ++k)
         r->stages[k] = median(samples + 3 + k, n, per, scratch);
     s = PEN_OK;
@@ -437,6 +449,9 @@ static void print_json(const bench_config *cfg, const bench_case *c, const bench
     json_num("forward_ms", r->forward_ms, "%.3f");
     json_num("backward_ms", r->backward_ms, "%.3f");
     json_num("total_ms", r->total_ms, "%.3f");
+    json_num("forward_min_ms", r->forward_min_ms, "%.3f");
+    json_num("backward_min_ms", r->backward_min_ms, "%.3f");
+    json_num("total_min_ms", r->total_min_ms, "%.3f");
     for (int k = 0; k < STAGE_COUNT; ++k)
         json_num(stage_names[k], r->stages[k], "%.3f");
     json_num("loss", r->loss, "%.6g");

@@ -29,7 +29,8 @@ need = ["name", "width", "height", "spheres", "bands", "threads", "forward_ms", 
         "total_ms", "fwd_prepare_ms", "fwd_shade_ms", "fwd_visibility_ms", "fwd_exp_ms",
         "fwd_antialias_ms", "bwd_antialias_ms", "bwd_shade_ms", "bwd_visibility_ms", "bwd_exp_ms",
         "bwd_scatter_ms", "sh_rel_rmse", "truth_spp", "reference_spp", "reference_ms",
-        "reference_vs_forward", "reference_vs_total", "repeat", "load_avg_1min"]
+        "reference_vs_forward", "reference_vs_total", "repeat", "load_avg_1min", "forward_min_ms",
+        "backward_min_ms", "total_min_ms", "reference_rel_rmse", "quick", "loss"]
 bad = []
 names = []
 lines = open(path).read().splitlines()
@@ -52,7 +53,8 @@ for n, line in enumerate(lines, 1):
     for k in ("width", "height", "spheres", "bands", "threads"):
         if not isinstance(o[k], int) or o[k] < 1:
             bad.append("%s: %s = %r" % (o["name"], k, o[k]))
-    for k in ("forward_ms", "backward_ms", "total_ms", "fwd_shade_ms", "bwd_shade_ms"):
+    for k in ("forward_ms", "backward_ms", "total_ms", "forward_min_ms", "backward_min_ms",
+              "total_min_ms", "fwd_shade_ms", "bwd_shade_ms"):
         v = o[k]
         if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
             bad.append("%s: %s = %r is not a finite positive time" % (o["name"], k, v))
@@ -78,6 +80,10 @@ for n, line in enumerate(lines, 1):
             bad.append("%s: reference_vs_forward is not reference_ms / forward_ms" % o["name"])
         if o["reference_rel_rmse"] is None or o["reference_rel_rmse"] > o["sh_rel_rmse"]:
             bad.append("%s: the reference's error does not reach the SH render's" % o["name"])
+    for k in ("forward", "backward", "total"):
+        mn, md = o.get(k + "_min_ms"), o[k + "_ms"]
+        if isinstance(mn, (int, float)) and isinstance(md, (int, float)) and mn > md:
+            bad.append("%s: %s_min_ms %r above the median %r" % (o["name"], k, mn, md))
 if len(set(names)) != len(names):
     bad.append("duplicate case names: %s" % names)
 for b in bad:
