@@ -71,13 +71,14 @@ static void usage(FILE *f) {
             "                   iterations, 1 warm-up, truth at 64 spp; case names follow the\n"
             "                   sizes (res32, res128). For tests, not for figures\n"
             "  --threads N      worker threads (default 0: all cores)\n"
-            "  --repeat N       timed iterations per case, medians reported (default 10)\n"
+            "  --repeat N       timed iterations per case; medians and minima (default 10)\n"
             "  --warmup N       untimed iterations first (default 2)\n"
             "  --case NAME      run only this case (repeatable), e.g. --case headline\n"
             "  --no-reference   skip the Embree reference comparison (its fields are null)\n"
             "  --truth-spp N    samples per pixel of the reference taken as truth (default 256)\n"
-            "  --scene PATH     another scene (default: %s under the source tree or\n"
-            "                   beside the executable's folder); its objects get fitted spheres\n",
+            "  --scene PATH     another scene; its objects get the case's fitted spheres\n"
+            "                   (default: %s in the source tree, else\n"
+            "                   ../ of the executable's folder)\n",
             SCENE_REL);
 }
 
