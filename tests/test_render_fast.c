@@ -1,7 +1,8 @@
 /* Tests of the fast shading kernel (src/render/shade_fast.c) against the scalar double-precision
  * reference (pen__shade_fwd_d / pen__shade_bwd_d): random pixels for every supported band count,
  * both fast exponentials and no-shadows, sphere counts 0 .. 33 (not multiples of the lane count),
- * pixel counts not multiples of the lane count, receivers inside spheres; then whole frames
+ * pixel counts not multiples of the lane count, receivers inside spheres, overlap weights kappa
+ * (some 0); then whole frames
  * through pen_render_fwd / pen_render_bwd (fast vs scalar kernel option), and thread-count
  * independence of the fast path.
  *
@@ -62,11 +63,16 @@ static void check_random_pixels(int bands, pen_sh_exp_method method, int shadows
         }
     float *sf = malloc(sizeof(float) * (4 * (size_t)S + 1));
     double *sd = malloc(sizeof(double) * (4 * (size_t)S + 1));
+    /* Overlap weights kappa: random in [0.3, 1.2], every fifth sphere 0. */
+    float *kf = malloc(sizeof(float) * ((size_t)S + 1));
+    double *kd = malloc(sizeof(double) * ((size_t)S + 1));
     for (int i = 0; i < S; ++i) {
         sf[4 * i] = (float)urand(-0.6, 0.6), sf[4 * i + 1] = (float)urand(0.1, 0.9);
         sf[4 * i + 2] = (float)urand(-0.6, 0.6), sf[4 * i + 3] = (float)urand(0.05, 0.3);
         for (int a = 0; a < 4; ++a)
             sd[4 * i + a] = sf[4 * i + a];
+        kf[i] = i % 5 == 4 ? 0.0f : (float)urand(0.3, 1.2);
+        kd[i] = kf[i];
     }
     const size_t n3 = 3 * (size_t)count;
     float *x = malloc(sizeof(float) * n3), *n = malloc(sizeof(float) * n3);
@@ -92,16 +98,16 @@ static void check_random_pixels(int bands, pen_sh_exp_method method, int shadows
     float *d_n = calloc(n3, sizeof(float)), *d_rho = calloc(n3, sizeof(float));
     double (*d_sh)[3] = calloc((size_t)nc, sizeof *d_sh);
     double *d_s = calloc(4 * (size_t)S + 1, sizeof(double));
-    pen__shade_fast_fwd(&p, (const float(*)[3])Lf, S, sf, NULL, count, nground, x, n, rho, rgb,
+    pen__shade_fast_fwd(&p, (const float(*)[3])Lf, S, sf, kf, count, nground, x, n, rho, rgb,
                         store, scratch, NULL);
-    pen__shade_fast_bwd(&p, (const float(*)[3])Lf, S, sf, NULL, count, nground, x, n, rho, drgb,
+    pen__shade_fast_bwd(&p, (const float(*)[3])Lf, S, sf, kf, count, nground, x, n, rho, drgb,
                         store, scratch, d_sh, d_s, d_x, d_n, d_rho, NULL);
     /* Without the store the backward recomputes F: the same bits. */
     float *e_x = calloc(n3, sizeof(float)), *e_n = calloc(n3, sizeof(float));
     float *e_rho = calloc(n3, sizeof(float));
     double (*e_sh)[3] = calloc((size_t)nc, sizeof *e_sh);
     double *e_s = calloc(4 * (size_t)S + 1, sizeof(double));
-    pen__shade_fast_bwd(&p, (const float(*)[3])Lf, S, sf, NULL, count, nground, x, n, rho, drgb,
+    pen__shade_fast_bwd(&p, (const float(*)[3])Lf, S, sf, kf, count, nground, x, n, rho, drgb,
                         NULL, scratch, e_sh, e_s, e_x, e_n, e_rho, NULL);
     CHECK(!memcmp(d_x, e_x, sizeof(float) * n3) && !memcmp(d_n, e_n, sizeof(float) * n3));
     CHECK(!memcmp(d_rho, e_rho, sizeof(float) * n3));
@@ -120,12 +126,12 @@ static void check_random_pixels(int bands, pen_sh_exp_method method, int shadows
         for (int a = 0; a < 3; ++a)
             xd[a] = x[3 * i + a], nd[a] = n[3 * i + a], rd[a] = rho[3 * i + a],
             gd[a] = drgb[3 * i + a];
-        pen__shade_fwd_d(&p, (const double(*)[3])Ld, S, sd, xd, nd, rd, rgbd, NULL);
-        pen__shade_bwd_d(&p, (const double(*)[3])Ld, S, sd, xd, nd, rd, gd, NULL, r_sh, r_s, dxd,
+        pen__shade_fwd_d(&p, (const double(*)[3])Ld, S, sd, kd, xd, nd, rd, rgbd, NULL);
+        pen__shade_bwd_d(&p, (const double(*)[3])Ld, S, sd, kd, xd, nd, rd, gd, NULL, r_sh, r_s, dxd,
                          dnd, drd);
-        pen__shade_fwd(&p, (const float(*)[3])Lf, S, sf, x + 3 * i, n + 3 * i, rho + 3 * i, rgbf,
+        pen__shade_fwd(&p, (const float(*)[3])Lf, S, sf, kf, x + 3 * i, n + 3 * i, rho + 3 * i, rgbf,
                        NULL);
-        pen__shade_bwd(&p, (const float(*)[3])Lf, S, sf, x + 3 * i, n + 3 * i, rho + 3 * i,
+        pen__shade_bwd(&p, (const float(*)[3])Lf, S, sf, kf, x + 3 * i, n + 3 * i, rho + 3 * i,
                        drgb + 3 * i, NULL, f_sh, f_s, dxf, dnf, drf);
         for (int a = 0; a < 3; ++a) {
             err_add(&ef[G_RGB], rgb[3 * i + a], rgbd[a]), err_add(&es[G_RGB], rgbf[a], rgbd[a]);
@@ -154,7 +160,7 @@ static void check_random_pixels(int bands, pen_sh_exp_method method, int shadows
                   bands, pen_sh_exp_method_name(method), shadows, S, group_name[g], ef[g].err, tol,
                   es[g].err, scale);
     }
-    free(Lf), free(Ld), free(sf), free(sd), free(x), free(n), free(rho), free(drgb);
+    free(Lf), free(Ld), free(sf), free(sd), free(kf), free(kd), free(x), free(n), free(rho), free(drgb);
     free(scratch), free(store), free(rgb), free(d_x), free(d_n), free(d_rho), free(d_sh), free(d_s);
     free(e_x), free(e_n), free(e_rho), free(e_sh), free(e_s);
     free(r_sh), free(f_sh), free(r_s), free(f_s);

@@ -81,6 +81,8 @@ struct pen_render_state {
     size_t sphere_cap;
     float *spheres;    /* world space, all objects */
     int *sphere_first; /* object o owns spheres [first[o], first[o+1]) */
+    float *kappa;      /* overlap weight per world-space sphere (all 1 with overlap "none") */
+    size_t kappa_cap;
     size_t pixel_cap;
     float *x, *nraw, *n, *rho, *uv, *color, *nsign;
     float *d_color, *d_x, *d_nraw, *d_uv, *d_rho, *d_bary;
@@ -119,7 +121,7 @@ void pen_render_state_free(pen_render_state *st) {
         object_buf *b = &st->obj[o];
         free(b->world), free(b->vnormal), free(b->d_world), free(b->d_vnormal), free(b->adjacency);
     }
-    free(st->obj), free(st->meshes), free(st->spheres), free(st->sphere_first);
+    free(st->obj), free(st->meshes), free(st->spheres), free(st->sphere_first), free(st->kappa);
     float *px[] = {st->x,       st->nraw, st->n,      st->rho,  st->uv,    st->color, st->nsign,
                    st->d_color, st->d_x,  st->d_nraw, st->d_uv, st->d_rho, st->d_bary};
     for (size_t i = 0; i < sizeof px / sizeof px[0]; ++i)
@@ -317,6 +319,9 @@ static pen_status validate(pen_context *ctx, const pen_scene *sc) {
         sc->shadow.exp != PEN_SH_EXP_EXACT)
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "render: shadow.exp: unknown method %d",
                           (int)sc->shadow.exp);
+    if (sc->shadow.overlap != PEN_OVERLAP_WEIGHTS && sc->shadow.overlap != PEN_OVERLAP_NONE)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "render: shadow.overlap: unknown mode %d",
+                          (int)sc->shadow.overlap);
     if (sc->object_count < 0 || (sc->object_count > 0 && !sc->objects))
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "render: bad object list");
     if (!finite_n(sc->background, 3) ||
@@ -368,6 +373,12 @@ static pen_status validate(pen_context *ctx, const pen_scene *sc) {
                                   "render: objects[%d] (%s): sphere %d: needs a finite center and "
                                   "a radius > 0",
                                   o, name, i);
+            const float *k = ob->spheres.weight;
+            if (k && !(isfinite(k[i]) && k[i] >= 0.0f))
+                return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                                  "render: objects[%d] (%s): sphere %d: overlap weight %g is not a "
+                                  "finite number >= 0",
+                                  o, name, i, (double)k[i]);
         }
     }
     return PEN_OK;
@@ -536,6 +547,22 @@ static pen_status prepare(pen_context *ctx, const pen_scene *sc, const pen_rende
             dst[3] = src[3] * ob->pose.scale;
         }
     }
+    /* Overlap weights: the object's own, computed from its spheres when it has none (so that an
+     * in-memory set renders as the same set loaded from a file), or 1 with overlap "none". */
+    if ((s = ensure(ctx, (void **)&st->kappa, &st->kappa_cap, (size_t)spheres, sizeof(float),
+                    "overlap weights")))
+        return s;
+    for (int o = 0; o < sc->object_count; ++o) {
+        const pen_spheres *sp = &sc->objects[o].spheres;
+        float *k = st->kappa + st->sphere_first[o];
+        if (sc->shadow.overlap == PEN_OVERLAP_NONE)
+            for (int i = 0; i < sp->count; ++i)
+                k[i] = 1.0f;
+        else if (sp->weight)
+            memcpy(k, sp->weight, sizeof(float) * (size_t)sp->count);
+        else if ((s = pen_spheres_overlap_weights(ctx, sp, k)))
+            return s;
+    }
 
     if ((s = pen_raster_gbuffer(ctx, &st->view, st->meshes, sc->object_count, &sc->ground,
                                 &st->gb)))
@@ -659,17 +686,17 @@ static void shade_tile_fwd(const void *job_, int t, tile_ws *ws, pen__shade_fast
                 }
                 surface_attributes(sc, st, i, surf);
                 if (!st->fast) {
-                    pen__shade_fwd(&st->params, sh, st->sphere_count, st->spheres, st->x + 3 * i,
-                                   st->n + 3 * i, st->rho + 3 * i, st->color + 3 * i,
-                                   store ? store + nfv * i : NULL);
+                    pen__shade_fwd(&st->params, sh, st->sphere_count, st->spheres, st->kappa,
+                                   st->x + 3 * i, st->n + 3 * i, st->rho + 3 * i,
+                                   st->color + 3 * i, store ? store + nfv * i : NULL);
                     continue;
                 }
                 ws_push(ws, cnt++, st, i);
                 ground += pass == 0;
             }
     if (!cnt) return;
-    pen__shade_fast_fwd(&st->params, sh, st->sphere_count, st->spheres, NULL, cnt, ground, ws->x,
-                        ws->n, ws->rho, ws->out, store, ws->kernel, tk);
+    pen__shade_fast_fwd(&st->params, sh, st->sphere_count, st->spheres, st->kappa, cnt, ground,
+                        ws->x, ws->n, ws->rho, ws->out, store, ws->kernel, tk);
     for (int j = 0; j < cnt; ++j)
         memcpy(st->color + 3 * (size_t)ws->idx[j], ws->out + 3 * j, 3 * sizeof(float));
 }
@@ -880,17 +907,18 @@ static void shade_tile_bwd(const void *job_, int t, tile_ws *ws, pen__shade_fast
                 const int need_rho =
                     bw->albedo || (geom && sc->objects[surf].texture.data != NULL);
                 float d_n[3] = {0.0f, 0.0f, 0.0f};
-                pen__shade_bwd(&st->params, sh, S, st->spheres, st->x + 3 * i, st->n + 3 * i,
-                               st->rho + 3 * i, dc, store ? store + nfv * i : NULL, d_sh, d_sph,
-                               geom ? d_x : NULL, geom ? d_n : NULL, need_rho ? d_rho : NULL);
+                pen__shade_bwd(&st->params, sh, S, st->spheres, st->kappa, st->x + 3 * i,
+                               st->n + 3 * i, st->rho + 3 * i, dc,
+                               store ? store + nfv * i : NULL, d_sh, d_sph, geom ? d_x : NULL,
+                               geom ? d_n : NULL, need_rho ? d_rho : NULL);
                 pixel_bwd_tail(sc, st, bw, row, i, surf, d_n);
             }
     if (!cnt) return;
     memset(ws->dx, 0, 3 * sizeof(float) * (size_t)cnt);
     memset(ws->dn, 0, 3 * sizeof(float) * (size_t)cnt);
     memset(ws->drho, 0, 3 * sizeof(float) * (size_t)cnt);
-    pen__shade_fast_bwd(&st->params, sh, S, st->spheres, NULL, cnt, ground, ws->x, ws->n, ws->rho,
-                        ws->out, store, ws->kernel, d_sh, d_sph, bw->geom ? ws->dx : NULL,
+    pen__shade_fast_bwd(&st->params, sh, S, st->spheres, st->kappa, cnt, ground, ws->x, ws->n,
+                        ws->rho, ws->out, store, ws->kernel, d_sh, d_sph, bw->geom ? ws->dx : NULL,
                         bw->geom ? ws->dn : NULL, ws->drho, tk);
     for (int j = 0; j < cnt; ++j) {
         const size_t i = (size_t)ws->idx[j];
