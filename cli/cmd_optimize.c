@@ -186,6 +186,7 @@ int pen_cmd_optimize(int argc, char **argv) {
         if (task.optimize & PEN_OPTIM_DEFORMATION) print_metric("vertex_rmse", m->vertex_rmse);
         print_metric("sphere_iou", m->sphere_iou);
         print_metric("sphere_chamfer", m->sphere_chamfer);
+        print_metric("shadow_iou", m->shadow_iou);
         printf("\n");
     }
     rc = res.interrupted ? 130 : 0;

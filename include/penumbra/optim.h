@@ -37,7 +37,10 @@
  * and albedos (texels or constant) start at 0; when both are optimised together the albedo starts
  * at 0.5 instead, because at lighting = albedo = 0 both gradients vanish. The pose (and spheres)
  * start where the task's scene puts them: give a pose near the truth. `"init": "scene"` starts
- * every group from the task's scene.
+ * every group from the task's scene. `"init": "fit"` is "black" except that optimised lighting
+ * starts at the SH lighting that best explains the target without shadows (a linear least-
+ * squares fit, one unshadowed render per coefficient): from black lighting the pose gradient of
+ * a joint lighting + pose problem is noise that Adam's normalised step turns into full steps.
  */
 #ifndef PENUMBRA_OPTIM_H
 #define PENUMBRA_OPTIM_H
@@ -111,6 +114,8 @@ typedef struct pen_optim_task {
     double tolerance;   /* stopping rule (default 1e-3) */
     int window;         /* stopping rule window (default 10; 1 is the supplement's plain rule) */
     int init_black;     /* 1: supplement 5.2 initial guesses (default); 0: the scene's values */
+    int init_fit;       /* 1 ("init": "fit"): as init_black, but optimised lighting starts at the
+                           least-squares fit of the unshadowed render to the target */
     pen_optim_deformation deformation;
     double shadow_weight; /* >= 0 (default 0): stresses the target's shadows in the loss,
                              below */
@@ -189,6 +194,10 @@ typedef struct pen_optim_metrics {
     double sphere_chamfer;      /* symmetric Chamfer distance of the sphere centres (world
                                    space): the mean over both sets of each centre's distance to
                                    the nearest centre of the other set, averaged */
+    double shadow_iou;          /* IoU of the two unions of spheres seen from the light: their
+                                   projections onto the ground along the truth's dominant light
+                                   direction (the dipole of its SH lighting; straight down
+                                   without one), on a 256^2 grid; what a shadow determines */
 } pen_optim_metrics;
 
 typedef struct pen_optim_result {

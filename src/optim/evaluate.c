@@ -13,7 +13,10 @@
  * the albedo PSNR pools all texels, the pose errors are the largest over objects. Spheres (shape
  * from shadow): the volume IoU of the two unions of spheres in world space, counted on a 96^3
  * grid of cell centres over both bounding boxes (what the shadows constrain: the occluding
- * volume, not which sphere is which), and the symmetric Chamfer distance of the centres. */
+ * volume, not which sphere is which), the symmetric Chamfer distance of the centres, and the
+ * IoU of the two sets' silhouettes seen from the light (projected along the truth's dominant
+ * light direction onto the ground): one shadow fixes that silhouette but not where along the
+ * light the occluder is, nor, with a soft light, much of its size. */
 #include "optim/optim_internal.h"
 
 #include "penumbra/render.h"
@@ -299,9 +302,68 @@ static double mean_nearest(const double *a, int na, const double *b, int nb) {
 }
 
 #define IOU_GRID 96
+#define SHADOW_GRID 256
 
-/* Volume IoU of the two unions of spheres (cell centres of a grid over both bounding boxes) and
- * the symmetric Chamfer distance of their centres. */
+/* The direction the light mostly comes from: the dipole of the truth's SH lighting (band 1,
+ * luminance), Y_1,-1 = -c y, Y_1,0 = c z, Y_1,1 = -c x; straight down when it has no dipole or
+ * the dipole points below the horizon. */
+static void light_direction(const pen_scene *gt, double d[3]) {
+    d[0] = d[1] = d[2] = 0.0;
+    if (gt->sh_bands >= 2)
+        for (int ch = 0; ch < 3; ++ch) {
+            d[0] -= (double)gt->lighting.sh[3][ch];
+            d[1] -= (double)gt->lighting.sh[1][ch];
+            d[2] += (double)gt->lighting.sh[2][ch];
+        }
+    const double n = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+    if (!(n > 0.0) || d[1] <= 0.05 * n) {
+        d[0] = d[2] = 0.0, d[1] = 1.0;
+        return;
+    }
+    d[0] /= n, d[1] /= n, d[2] /= n;
+}
+
+/* 1 if the line through ground point g along d meets one of the n spheres. */
+static int shades(const double *sp, int n, const double g[3], const double d[3]) {
+    for (int j = 0; j < n; ++j) {
+        const double *q = sp + 4 * j;
+        const double v[3] = {q[0] - g[0], q[1] - g[1], q[2] - g[2]};
+        const double along = v[0] * d[0] + v[1] * d[1] + v[2] * d[2];
+        if (v[0] * v[0] + v[1] * v[1] + v[2] * v[2] - along * along <= q[3] * q[3]) return 1;
+    }
+    return 0;
+}
+
+/* IoU of the two sphere sets' silhouettes seen from the light: their projections along the
+ * light direction onto the ground plane (what a sharp shadow of them would cover). */
+static double shadow_iou(const double *a, int na, const double *b, int nb, const pen_scene *gt) {
+    double d[3];
+    light_direction(gt, d);
+    const double h = gt->ground.enabled ? (double)gt->ground.height : 0.0;
+    double lo[2] = {INFINITY, INFINITY}, hi[2] = {-INFINITY, -INFINITY};
+    for (int k = 0; k < na + nb; ++k) {
+        const double *q = k < na ? a + 4 * k : b + 4 * (k - na);
+        const double t = (q[1] - h) / d[1], reach = q[3] / d[1]; /* the ellipse's half axes */
+        const double g[2] = {q[0] - t * d[0], q[2] - t * d[2]};
+        for (int c = 0; c < 2; ++c) {
+            lo[c] = fmin(lo[c], g[c] - reach);
+            hi[c] = fmax(hi[c], g[c] + reach);
+        }
+    }
+    long long both = 0, either = 0;
+    for (int z = 0; z < SHADOW_GRID; ++z)
+        for (int x = 0; x < SHADOW_GRID; ++x) {
+            const double g[3] = {lo[0] + (hi[0] - lo[0]) * (x + 0.5) / SHADOW_GRID, h,
+                                 lo[1] + (hi[1] - lo[1]) * (z + 0.5) / SHADOW_GRID};
+            const int ia = shades(a, na, g, d), ib = shades(b, nb, g, d);
+            both += ia && ib;
+            either += ia || ib;
+        }
+    return either ? (double)both / (double)either : (double)NAN;
+}
+
+/* Volume IoU of the two unions of spheres (cell centres of a grid over both bounding boxes), the
+ * symmetric Chamfer distance of their centres and the IoU of their silhouettes from the light. */
 static pen_status sphere_error(pen_context *ctx, const pen_optim_task *t, pen_optim_metrics *m) {
     int na = 0, nb = 0;
     double *a = world_spheres(ctx, &t->scene, &na), *b = world_spheres(ctx, &t->ground_truth, &nb);
@@ -333,6 +395,7 @@ static pen_status sphere_error(pen_context *ctx, const pen_optim_task *t, pen_op
                 }
         m->sphere_iou = either ? (double)both / (double)either : (double)NAN;
         m->sphere_chamfer = 0.5 * (mean_nearest(a, na, b, nb) + mean_nearest(b, nb, a, na));
+        m->shadow_iou = shadow_iou(a, na, b, nb, &t->ground_truth);
     }
     free(a);
     free(b);

@@ -132,11 +132,12 @@ static int solve_spd(double *A, double *b, int n) {
     return 1;
 }
 
-/* The least-squares lighting of the unshadowed model over the pixels with use[p] != 0 (all when
- * use is NULL), per channel, and the model image it gives (into `model`). base: the render with
- * zero lighting; cols[k]: the render with coefficient k = 1 minus base. */
-static pen_status fit_model(pen_context *ctx, const pen_image *target, const pen_image *base,
-                            const pen_image *cols, int nb, const float *mask, float *model) {
+/* The least-squares lighting of the unshadowed model over the pixels with mask[p] < 0.1 (all
+ * when mask is NULL), per channel, into sh (nb rows). base: the render with zero lighting;
+ * cols[k]: the render with coefficient k = 1 minus base. */
+static pen_status fit_coefficients(pen_context *ctx, const pen_image *target,
+                                   const pen_image *base, const pen_image *cols, int nb,
+                                   const float *mask, float (*sh)[3]) {
     const size_t pixels = (size_t)target->width * (size_t)target->height;
     double *G = pen__malloc(ctx, (size_t)nb * (size_t)nb, sizeof(double), "lighting fit");
     double *b = pen__malloc(ctx, (size_t)nb, sizeof(double), "lighting fit");
@@ -145,7 +146,6 @@ static pen_status fit_model(pen_context *ctx, const pen_image *target, const pen
         free(b);
         return PEN_ERROR_MEMORY;
     }
-    memcpy(model, base->data, sizeof(float) * 3 * pixels);
     for (int c = 0; c < 3; ++c) {
         memset(G, 0, sizeof(double) * (size_t)nb * (size_t)nb);
         memset(b, 0, sizeof(double) * (size_t)nb);
@@ -169,37 +169,38 @@ static pen_status fit_model(pen_context *ctx, const pen_image *target, const pen
                 G[k * nb + j] = G[j * nb + k];
             G[j * nb + j] += 1e-9 * scale + 1e-30; /* ridge: band 3's columns are zero */
         }
-        if (!solve_spd(G, b, nb)) continue; /* no lit pixel at all: U = the background */
-        for (size_t p = 0; p < pixels; ++p) {
-            const size_t i = 3 * p + (size_t)c;
-            double v = (double)model[i];
-            for (int k = 0; k < nb; ++k)
-                v += b[k] * (double)cols[k].data[i];
-            model[i] = (float)v;
-        }
+        const int ok = solve_spd(G, b, nb); /* not ok: no lit pixel at all, lighting 0 */
+        for (int k = 0; k < nb; ++k)
+            sh[k][c] = ok ? (float)b[k] : 0.0f;
     }
     free(G);
     free(b);
     return PEN_OK;
 }
 
-pen_status pen__optim_shadow_mask(pen_context *ctx, const pen_scene *sc, const pen_image *target,
-                                  int fit_lighting, float *mask) {
+/* base + sum_k sh[k] cols[k], per channel. */
+static void model_image(const pen_image *base, const pen_image *cols, int nb,
+                        const float (*sh)[3], float *model) {
+    const size_t n = 3 * (size_t)base->width * (size_t)base->height;
+    for (size_t i = 0; i < n; ++i) {
+        double v = (double)base->data[i];
+        for (int k = 0; k < nb; ++k)
+            v += (double)sh[k][i % 3] * (double)cols[k].data[i];
+        model[i] = (float)v;
+    }
+}
+
+pen_status pen__optim_fit_lighting(pen_context *ctx, const pen_scene *sc, const pen_image *target,
+                                   float (*sh)[3]) {
     pen_render_options opt = pen_render_options_default();
     opt.shadows = 0;
-    if (!fit_lighting) {
-        pen_image u = {0, 0, 0, NULL};
-        pen_status s = pen_render_fwd(ctx, sc, &opt, NULL, &u);
-        if (!s) mask_from(target, u.data, mask);
-        pen_image_free(&u);
-        return s;
-    }
     const int nb = sc->sh_bands * sc->sh_bands;
     const size_t pixels = (size_t)target->width * (size_t)target->height;
     pen_image base = {0, 0, 0, NULL};
     pen_image *cols = pen__calloc(ctx, (size_t)nb, sizeof *cols, "lighting fit");
     float *model = pen__malloc(ctx, 3 * pixels, sizeof(float), "lighting fit");
-    pen_status s = cols && model ? PEN_OK : PEN_ERROR_MEMORY;
+    float *mask = pen__malloc(ctx, pixels, sizeof(float), "lighting fit");
+    pen_status s = cols && model && mask ? PEN_OK : PEN_ERROR_MEMORY;
     pen_scene v = *sc; /* shallow: only the lighting differs */
     memset(v.lighting.sh, 0, sizeof v.lighting.sh);
     if (!s) s = pen_render_fwd(ctx, &v, &opt, NULL, &base);
@@ -210,14 +211,30 @@ pen_status pen__optim_shadow_mask(pen_context *ctx, const pen_scene *sc, const p
         for (size_t i = 0; !s && i < 3 * pixels; ++i)
             cols[k].data[i] -= base.data[i];
     }
-    if (!s) s = fit_model(ctx, target, &base, cols, nb, NULL, model);
-    if (!s) mask_from(target, model, mask);
-    if (!s) s = fit_model(ctx, target, &base, cols, nb, mask, model);
-    if (!s) mask_from(target, model, mask);
+    if (!s) s = fit_coefficients(ctx, target, &base, cols, nb, NULL, sh);
+    if (!s) {
+        model_image(&base, cols, nb, (const float(*)[3])sh, model);
+        mask_from(target, model, mask);
+        s = fit_coefficients(ctx, target, &base, cols, nb, mask, sh);
+    }
     for (int k = 0; cols && k < nb; ++k)
         pen_image_free(&cols[k]);
     free(cols);
     free(model);
+    free(mask);
     pen_image_free(&base);
+    return s;
+}
+
+pen_status pen__optim_shadow_mask(pen_context *ctx, const pen_scene *sc, const pen_image *target,
+                                  int fit_lighting, float *mask) {
+    pen_render_options opt = pen_render_options_default();
+    opt.shadows = 0;
+    pen_scene v = *sc; /* shallow: only the lighting may differ */
+    pen_status s = fit_lighting ? pen__optim_fit_lighting(ctx, sc, target, v.lighting.sh) : PEN_OK;
+    pen_image u = {0, 0, 0, NULL};
+    if (!s) s = pen_render_fwd(ctx, &v, &opt, NULL, &u);
+    if (!s) mask_from(target, u.data, mask);
+    pen_image_free(&u);
     return s;
 }

@@ -92,6 +92,12 @@ pen_status pen__optim_loss_fwd(pen_context *ctx, pen_optim_loss kind, const pen_
 /* Adds d_loss * dloss/dimage into d_image (the image's shape). */
 void pen__optim_loss_bwd(pen_optim_loss kind, const pen_image *image, const pen_image *target,
                          const float *weight, double d_loss, pen_image *d_image);
+/* The SH lighting (sh_bands^2 rows) that best explains `target` by the scene `sc` rendered
+ * without shadows (least squares per channel; refitted once over the pixels the first fit's
+ * shadow mask calls lit, m < 0.1). Band 3's coefficients stay 0: no unshadowed diffuse surface
+ * sees them. */
+pen_status pen__optim_fit_lighting(pen_context *ctx, const pen_scene *sc, const pen_image *target,
+                                   float (*sh)[3]);
 /* The shadow mask of optim.h ("shadow_weight") for the scene `sc` (the initial guess) against
  * `target`: mask[p] in [0, 1] per pixel. fit_lighting: U's lighting is the least-squares fit to
  * the target instead of the scene's. Renders with the context's threads. */

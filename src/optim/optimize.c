@@ -540,7 +540,7 @@ static void metrics_none(pen_optim_metrics *m) {
     m->image_rmse = m->lighting_rel_error = m->albedo_psnr_db = m->albedo_observed = none;
     m->albedo_texel_psnr_db = m->lighting_rel_error_b2 = none;
     m->rotation_error_deg = m->translation_error = m->vertex_rmse = none;
-    m->sphere_iou = m->sphere_chamfer = none;
+    m->sphere_iou = m->sphere_chamfer = m->shadow_iou = none;
 }
 
 /* The loss weights 1 + shadow_weight * mask of the initial guess (loss.c). */
@@ -552,6 +552,13 @@ static pen_status shadow_weights(pen_context *ctx, const pen_optim_task *t, run 
                                           (t->optimize & PEN_OPTIM_LIGHTING) != 0, r->weight);
     for (size_t p = 0; !s && p < pixels; ++p)
         r->weight[p] = 1.0f + (float)t->shadow_weight * r->weight[p];
+    return s;
+}
+
+/* "init": "fit": the lighting starts at the unshadowed least-squares fit to the target. */
+static pen_status fitted_lighting(pen_context *ctx, const pen_optim_task *t, run *r) {
+    pen_status s = pen__optim_fit_lighting(ctx, &t->scene, &t->target, r->sc->lighting.sh);
+    if (!s) transfer(r, 0);
     return s;
 }
 
@@ -600,7 +607,8 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
         deformation_rest(&r);
         pen__optim_project(r.segments, r.segment_count, r.x);
         transfer(&r, 1);
-        if (task->shadow_weight > 0.0) s = shadow_weights(ctx, task, &r);
+        if (task->init_fit && r.lighting != SIZE_MAX) s = fitted_lighting(ctx, task, &r);
+        if (!s && task->shadow_weight > 0.0) s = shadow_weights(ctx, task, &r);
     }
     if (!s) s = optimise(ctx, task, &set, &r, out);
     if (!s) {

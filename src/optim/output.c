@@ -294,7 +294,8 @@ static cJSON *metrics_json(const pen_optim_metrics *mt) {
              add_metric(m, "translation_error", mt->translation_error) &&
              add_metric(m, "vertex_rmse", mt->vertex_rmse) &&
              add_metric(m, "sphere_iou", mt->sphere_iou) &&
-             add_metric(m, "sphere_chamfer", mt->sphere_chamfer);
+             add_metric(m, "sphere_chamfer", mt->sphere_chamfer) &&
+             add_metric(m, "shadow_iou", mt->shadow_iou);
     if (!ok) cJSON_Delete(m);
     return ok ? m : NULL;
 }

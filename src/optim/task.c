@@ -260,10 +260,12 @@ static pen_status parse_options(pen_context *ctx, const where *top, const cJSON 
             t->init_black = 1;
         } else if (strcmp(name, "scene") == 0) {
             t->init_black = 0;
+        } else if (strcmp(name, "fit") == 0) {
+            t->init_black = t->init_fit = 1;
         } else {
             return pen__json_error(ctx, PEN_ERROR_PARSE, &w,
-                                   "unknown initialisation \"%s\" (expected \"black\" or "
-                                   "\"scene\")",
+                                   "unknown initialisation \"%s\" (expected \"black\", "
+                                   "\"scene\" or \"fit\")",
                                    name);
         }
     }
