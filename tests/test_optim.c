@@ -104,20 +104,9 @@ static pen_scene truth_scene(int textured, int bands) { return os_egg(SIZE, text
  * reference render of it (SH lighting, 256 spp: pixel noise 0.007 RMSE). The caller perturbs
  * task->scene. */
 static pen_optim_task make_task(int textured, int bands, unsigned groups) {
-    pen_optim_task t;
-    memset(&t, 0, sizeof t);
-    t.scene = truth_scene(textured, bands);
-    t.ground_truth = truth_scene(textured, bands);
-    t.has_ground_truth = 1;
-    t.optimize = groups;
-    t.iterations = check_quick_() ? 25 : 600; /* quick (sanitizer) runs: the paths, not the values */
-    t.lr = pen_optim_lr_default();
-    t.loss = PEN_OPTIM_LOSS_L2;
-    t.tolerance = 1e-3;
-    t.window = 10;
-    t.init_black = 1;
-    t.target = os_reference(&t.ground_truth);
-    return t;
+    /* quick (sanitizer) runs: the paths, not the values */
+    return os_task(truth_scene(textured, bands), truth_scene(textured, bands), groups,
+                   check_quick_() ? 25 : 600);
 }
 
 static pen_optim_result solve(pen_optim_task *t, int shadows) {
@@ -293,19 +282,10 @@ static void test_pose(void) {
  * Adam's first full-size steps from throwing that good start away. Measured: rotation 3.6
  * degrees, translation 0.038, lighting 0.207 (from 0.23 after the fit). */
 static void test_lighting_pose(void) {
-    pen_optim_task t;
-    memset(&t, 0, sizeof t);
-    t.scene = os_egg(64, 1, 2);
-    t.ground_truth = os_egg(64, 1, 2);
-    t.has_ground_truth = 1;
-    t.optimize = PEN_OPTIM_LIGHTING | PEN_OPTIM_POSE;
-    t.iterations = check_quick_() ? 20 : 400;
-    t.lr = pen_optim_lr_default();
+    pen_optim_task t = os_task(os_egg(64, 1, 2), os_egg(64, 1, 2),
+                               PEN_OPTIM_LIGHTING | PEN_OPTIM_POSE, check_quick_() ? 20 : 400);
     t.lr.lighting = 3e-3f;
-    t.tolerance = 1e-3;
-    t.window = 10;
-    t.init_black = t.init_fit = 1;
-    t.target = os_reference(&t.ground_truth);
+    t.init_fit = 1;
     pen_pose *p = &t.scene.objects[0].pose;
     p->rotation_axis_angle_deg[1] += 8.0f;
     p->rotation_axis_angle_deg[0] -= 4.0f;
@@ -333,19 +313,8 @@ static void test_spheres_from_shadow(void) {
     double iou[2] = {0, 0}, chamfer[2] = {0, 0}, shadow_iou[2] = {0, 0}, start_iou = 0.0, start_chamfer = 0.0;
     double start_shadow = 0.0;
     for (int shadows = 1; shadows >= 0; --shadows) {
-        pen_optim_task t;
-        memset(&t, 0, sizeof t);
-        t.scene = os_shadow_view(64);
-        t.ground_truth = os_shadow_view(64);
-        t.has_ground_truth = 1;
-        t.optimize = PEN_OPTIM_SPHERES;
-        t.iterations = check_quick_() ? 20 : 400;
-        t.lr = pen_optim_lr_default();
-        t.loss = PEN_OPTIM_LOSS_L2;
-        t.tolerance = 1e-3;
-        t.window = 10;
-        t.init_black = 1;
-        t.target = os_reference(&t.ground_truth);
+        pen_optim_task t = os_task(os_shadow_view(64), os_shadow_view(64), PEN_OPTIM_SPHERES,
+                                   check_quick_() ? 20 : 400);
         pen_spheres *sp = &t.scene.objects[0].spheres;
         for (int j = 0; j < sp->count; ++j) {
             sp->data[4 * j] += 0.12f;

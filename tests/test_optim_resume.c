@@ -18,24 +18,12 @@
 #define SIZE 32
 
 static pen_optim_task make_task(unsigned groups) {
-    pen_optim_task t;
-    memset(&t, 0, sizeof t);
-    t.scene = os_egg(SIZE, 1, 3);
-    t.ground_truth = os_egg(SIZE, 1, 3);
-    t.has_ground_truth = 1;
-    t.optimize = groups;
-    t.iterations = check_quick_() ? 12 : 30;
-    t.lr = pen_optim_lr_default();
-    t.loss = PEN_OPTIM_LOSS_L2;
-    t.tolerance = 1e-3;
-    t.window = 10;
-    t.init_black = 1;
-    t.deformation = pen_optim_deformation_default();
+    pen_optim_task t = os_task(os_egg(SIZE, 1, 3), os_egg(SIZE, 1, 3), groups,
+                               check_quick_() ? 12 : 30);
     t.shadow_weight = 2.0; /* the weights are recomputed on resume: they must match too */
     pen_pose *p = &t.scene.objects[0].pose;
     p->rotation_axis_angle_deg[1] += 5.0f;
     p->translation[0] += 0.04f;
-    t.target = os_reference(&t.ground_truth);
     return t;
 }
 
