@@ -278,9 +278,9 @@ static void test_pose(void) {
  * Fig. 1 problem, textured ellipsoid, 64x64. From black lighting the pose gradient is noise
  * that Adam's normalised step turns into full steps, and the pose runs away (measured: 101
  * degrees and 2.0 off after 282 iterations); "init": "fit" starts the lighting at the
- * unshadowed least-squares fit to the target instead, and a smaller lighting rate (3e-3) keeps
- * Adam's first full-size steps from throwing that good start away. Measured: rotation 3.6
- * degrees, translation 0.038, lighting 0.207 (from 0.23 after the fit). */
+ * unshadowed least-squares fit to the target instead (ridge 1e-2), and a smaller lighting rate
+ * (3e-3) keeps Adam's first full-size steps from throwing that start away. Measured: rotation
+ * 3.8 degrees, translation 0.041, lighting 0.147. */
 static void test_lighting_pose(void) {
     pen_optim_task t = os_task(os_egg(64, 1, 2), os_egg(64, 1, 2),
                                PEN_OPTIM_LIGHTING | PEN_OPTIM_POSE, check_quick_() ? 20 : 400);
@@ -294,9 +294,9 @@ static void test_lighting_pose(void) {
     pen_optim_result r = solve(&t, 1);
     check_result(&t, &r);
     if (!check_quick_()) {
-        CHECK(r.metrics.rotation_error_deg < 5.5);
-        CHECK(r.metrics.translation_error < 0.055);
-        CHECK(r.metrics.lighting_rel_error < 0.3);
+        CHECK(r.metrics.rotation_error_deg < 6.0);   /* from 8.9 */
+        CHECK(r.metrics.translation_error < 0.06);   /* from 0.072 */
+        CHECK(r.metrics.lighting_rel_error < 0.25);
     }
     pen_optim_result_free(&r);
     pen_optim_task_free(&t);

@@ -95,9 +95,13 @@ void pen__optim_loss_bwd(pen_optim_loss kind, const pen_image *image, const pen_
 /* The SH lighting (sh_bands^2 rows) that best explains `target` by the scene `sc` rendered
  * without shadows (least squares per channel; refitted once over the pixels the first fit's
  * shadow mask calls lit, m < 0.1). Band 3's coefficients stay 0: no unshadowed diffuse surface
- * sees them. */
+ * sees them. ridge: Tikhonov weight relative to the normal equations' largest diagonal entry. */
 pen_status pen__optim_fit_lighting(pen_context *ctx, const pen_scene *sc, const pen_image *target,
-                                   float (*sh)[3]);
+                                   double ridge, float (*sh)[3]);
+/* Ridges (relative to the largest diagonal entry of the normal equations): the shadow mask
+ * needs an unbiased fitted image, the "fit" initial guess well-conditioned coefficients. */
+#define PEN__OPTIM_RIDGE_MASK 1e-9
+#define PEN__OPTIM_RIDGE_INIT 1e-2
 /* The shadow mask of optim.h ("shadow_weight") for the scene `sc` (the initial guess) against
  * `target`: mask[p] in [0, 1] per pixel. fit_lighting: U's lighting is the least-squares fit to
  * the target instead of the scene's. Renders with the context's threads. */

@@ -557,7 +557,8 @@ static pen_status shadow_weights(pen_context *ctx, const pen_optim_task *t, run 
 
 /* "init": "fit": the lighting starts at the unshadowed least-squares fit to the target. */
 static pen_status fitted_lighting(pen_context *ctx, const pen_optim_task *t, run *r) {
-    pen_status s = pen__optim_fit_lighting(ctx, &t->scene, &t->target, r->sc->lighting.sh);
+    pen_status s = pen__optim_fit_lighting(ctx, &t->scene, &t->target, PEN__OPTIM_RIDGE_INIT,
+                                          r->sc->lighting.sh);
     if (!s) transfer(r, 0);
     return s;
 }
