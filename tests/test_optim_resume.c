@@ -118,7 +118,7 @@ static void check_resume(unsigned groups, const char *name) {
     snprintf(cut, sizeof cut, "%s/cut", base);
     snprintf(crash, sizeof crash, "%s/crash", base);
     CHECK(mkdir(crash, 0755) == 0);
-    const int K = 5, j = check_quick_() ? 8 : 17;
+    const int K = check_quick_() ? 3 : 5, j = check_quick_() ? 8 : 17; /* 2 K < j */
     pen_optim_task ta, tb, tc;
     pen_optim_result a = run(groups, once, 0, 0, NULL, &ta);
     /* Interrupted at j; the checkpoint of iteration 2K is copied away when it is written (the
