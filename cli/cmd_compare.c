@@ -39,7 +39,6 @@ static int load(pen_context *ctx, const char *path, pen_image *img) {
 
 int pen_cmd_compare(int argc, char **argv) {
     const char *paths[2] = {NULL, NULL}, *mask_path = NULL;
-    int n = 0;
     for (int i = 1; i < argc; ++i) {
         const char *a = argv[i];
         if (pen_cli_is_help(a)) {
@@ -48,15 +47,11 @@ int pen_cmd_compare(int argc, char **argv) {
         } else if (strcmp(a, "--mask") == 0) {
             if (i + 1 >= argc) return pen_cli_usage_error(CMD, "--mask needs a value");
             mask_path = argv[++i];
-        } else if (a[0] == '-' && a[1] != '\0') {
-            return pen_cli_usage_error(CMD, "unknown option '%s'", a);
-        } else if (n < 2) {
-            paths[n++] = a;
-        } else {
-            return pen_cli_usage_error(CMD, "unexpected argument '%s'", a);
+        } else if (pen_cli_positional(CMD, a, paths, 2)) {
+            return 2;
         }
     }
-    if (n < 2) return pen_cli_usage_error(CMD, "expected two images A and B");
+    if (!paths[1]) return pen_cli_usage_error(CMD, "expected two images A and B");
 
     pen_context *ctx = pen_context_create();
     if (!ctx) return pen_cli_fail(CMD, "out of memory");

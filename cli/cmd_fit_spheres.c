@@ -79,12 +79,8 @@ int pen_cmd_fit_spheres(int argc, char **argv) {
             az = x;
             ok = ok &&
                  pen_cli_parse_float(CMD, "--view elevation", value(argc, argv, &i), -90, 90, &el);
-        } else if (a[0] == '-') {
-            return pen_cli_usage_error(CMD, "unknown option '%s'", a);
-        } else if (!mesh_path) {
-            mesh_path = a;
-        } else {
-            return pen_cli_usage_error(CMD, "unexpected argument '%s'", a);
+        } else if (pen_cli_positional(CMD, a, &mesh_path, 1)) {
+            return 2;
         }
         if (!ok) return 2;
     }
@@ -96,7 +92,7 @@ int pen_cmd_fit_spheres(int argc, char **argv) {
     if (!ctx) return pen_cli_fail(CMD, "out of memory");
     pen_context_set_threads(ctx, threads);
     pen_mesh mesh;
-    pen_spheres spheres = {0, NULL};
+    pen_spheres spheres = {0, NULL, NULL};
     pen_image picture = {0, 0, 0, NULL};
     pen_fit_metrics m;
     memset(&m, 0, sizeof m);

@@ -122,12 +122,8 @@ int pen_cmd_optimize(int argc, char **argv) {
                 return 2;
         } else if (!strcmp(a, "-q") || !strcmp(a, "--quiet")) {
             quiet = 1;
-        } else if (a[0] == '-' && a[1]) {
-            return pen_cli_usage_error(CMD, "unknown option '%s'", a);
-        } else if (!task_path) {
-            task_path = a;
-        } else {
-            return pen_cli_usage_error(CMD, "unexpected argument '%s'", a);
+        } else if (pen_cli_positional(CMD, a, &task_path, 1)) {
+            return 2;
         }
     }
     if (!task_path) return pen_cli_usage_error(CMD, "missing TASK.json");

@@ -55,12 +55,8 @@ int pen_cmd_reference(int argc, char **argv) {
                 return pen_cli_usage_error(CMD, "--lighting: expected envmap, sh or auto, got '%s'",
                                            v);
             ++i;
-        } else if (a[0] == '-' && a[1] != '\0') {
-            return pen_cli_usage_error(CMD, "unknown option '%s'", a);
-        } else if (!scene_path) {
-            scene_path = a;
-        } else {
-            return pen_cli_usage_error(CMD, "unexpected argument '%s'", a);
+        } else if (pen_cli_positional(CMD, a, &scene_path, 1)) {
+            return 2;
         }
     }
     if (!scene_path) return pen_cli_usage_error(CMD, "missing SCENE.json");

@@ -48,12 +48,8 @@ int pen_cmd_render(int argc, char **argv) {
                 return 2;
         } else if (!strcmp(a, "-q") || !strcmp(a, "--quiet")) {
             quiet = 1;
-        } else if (a[0] == '-' && a[1]) {
-            return pen_cli_usage_error(CMD, "unknown option '%s'", a);
-        } else if (!scene_path) {
-            scene_path = a;
-        } else {
-            return pen_cli_usage_error(CMD, "unexpected argument '%s'", a);
+        } else if (pen_cli_positional(CMD, a, &scene_path, 1)) {
+            return 2;
         }
     }
     if (!scene_path) return pen_cli_usage_error(CMD, "missing SCENE.json");

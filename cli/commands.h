@@ -20,6 +20,7 @@ int pen_cmd_fit_spheres(int argc, char **argv);
 int pen_cmd_reference(int argc, char **argv);
 int pen_cmd_compare(int argc, char **argv);
 int pen_cmd_optimize(int argc, char **argv);
+int pen_cmd_bench(int argc, char **argv);
 
 /* ---- Helpers (cli/common.c) ---- */
 
@@ -33,6 +34,10 @@ int pen_cli_parse_int(const char *cmd, const char *flag, const char *text, long 
                       int *out);
 int pen_cli_parse_float(const char *cmd, const char *flag, const char *text, double lo, double hi,
                         double *out);
+/* A command-line word that matched no option: an unknown option ("-x") or the next of `count`
+ * positional arguments, stored in the first empty slot. Returns 0, or 2 after printing the usage
+ * error (unknown option, or one argument too many). */
+int pen_cli_positional(const char *cmd, const char *arg, const char **slots, int count);
 /* 1 if arg is -h or --help. */
 int pen_cli_is_help(const char *arg);
 

@@ -36,6 +36,16 @@ int pen_cli_fail_ctx(const char *cmd, const pen_context *ctx) {
     return pen_cli_fail(cmd, "%s", pen_context_error(ctx));
 }
 
+int pen_cli_positional(const char *cmd, const char *arg, const char **slots, int count) {
+    if (arg[0] == '-' && arg[1]) return pen_cli_usage_error(cmd, "unknown option '%s'", arg);
+    for (int i = 0; i < count; ++i)
+        if (!slots[i]) {
+            slots[i] = arg;
+            return 0;
+        }
+    return pen_cli_usage_error(cmd, "unexpected argument '%s'", arg);
+}
+
 int pen_cli_parse_int(const char *cmd, const char *flag, const char *text, long lo, long hi,
                       int *out) {
     if (!text) {

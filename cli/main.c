@@ -10,6 +10,7 @@ static const pen_command commands[] = {
     {"fit-spheres", "fit a sphere set to a closed mesh", pen_cmd_fit_spheres},
     {"compare", "image error (rmse, rel_rmse, psnr) as JSON", pen_cmd_compare},
     {"optimize", "recover lighting, albedo or pose from an image (inverse problem)", pen_cmd_optimize},
+    {"bench", "performance suite: forward/backward timings and the reference ratio", pen_cmd_bench},
     {"sh-accuracy", "irradiance error of SH visibility against ray-tested truth", pen_cmd_sh_accuracy},
 };
 static const int command_count = (int)(sizeof commands / sizeof commands[0]);

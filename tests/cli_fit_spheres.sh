@@ -15,6 +15,7 @@ grep -q '"spheres"' "$T/s.json" || fail "no spheres member"
 grep -q '"surface_coverage"' "$T/s.json" || fail "no metrics in the file"
 grep -q '"sov_fraction"' "$T/out" || fail "metrics not printed"
 [ "$(grep -c '"radius"' "$T/s.json")" -eq 6 ] || fail "not 6 spheres"
+[ "$(grep -c '"weight"' "$T/s.json")" -eq 6 ] || fail "not 6 overlap weights"
 
 # Usage errors: exit 2, nothing written.
 "$BIN" fit-spheres "$SRC/data/meshes/blub.obj" -o "$T/a.json" 2> "$T/err"

@@ -34,6 +34,18 @@ done
 "$BIN" render "$T/scene.json" -o "$T/t3.exr" --threads 3 -q || fail "--threads 3"
 cmp -s "$T/out.exr" "$T/plain.exr" && fail "--no-shadows made no difference"
 cmp -s "$T/out.exr" "$T/t3.exr" || fail "the image depends on the thread count"
+# Overlap weights: "none" is the plain sum, the same image as weights of exactly 1, and differs
+# from the default (weights computed at load for these overlapping spheres).
+sed 's/"lighting"/"shadow": {"overlap": "none"}, "lighting"/' "$T/scene.json" > "$T/none.json"
+sed 's/"radius": \([0-9.]*\)}/"radius": \1, "weight": 1}/g' "$T/scene.json" > "$T/ones.json"
+"$BIN" render "$T/none.json" -o "$T/none.exr" -q || fail "overlap none"
+"$BIN" render "$T/ones.json" -o "$T/ones.exr" -q || fail "weights of 1"
+cmp -s "$T/none.exr" "$T/ones.exr" || fail "overlap none differs from weights of 1"
+cmp -s "$T/none.exr" "$T/out.exr" && fail "overlap weights made no difference"
+sed 's/"lighting"/"shadow": {"overlap": "half"}, "lighting"/' "$T/scene.json" > "$T/bad.json"
+"$BIN" render "$T/bad.json" -o "$T/bad.exr" -q 2> "$T/err" && fail "overlap half accepted"
+grep -q "shadow.overlap" "$T/err" || fail "overlap error: $(cat "$T/err")"
+[ ! -e "$T/bad.exr" ] || fail "failed render left a file"
 out=$("$BIN" render "$T/scene.json" -o "$T/again.png")
 case "$out" in *"48x40"*"3 spheres"*) ;; *) fail "summary line: $out" ;; esac
 

@@ -160,6 +160,10 @@ static inline pen_object *rs_add_object(pen_scene *sc, pen_mesh mesh, int count,
         pen_status s = pen_spheres_create(NULL, count, &ob->spheres);
         CHECK(s == PEN_OK);
         memcpy(ob->spheres.data, spheres, sizeof(float) * 4 * (size_t)count);
+        /* The overlap weights a scene loader would give these spheres, fixed from here on (the
+         * renderer would otherwise recompute them from the current spheres at every forward,
+         * which finite differences of the sphere parameters would see). */
+        CHECK(pen_spheres_ensure_weights(NULL, &ob->spheres) == PEN_OK);
     }
     return ob;
 }

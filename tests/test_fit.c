@@ -606,7 +606,7 @@ static void test_preview(void) {
     pen_context *ctx = pen_context_create();
     pen_mesh m = make_sphere(1.0, 12);
     float one[4] = {0, 0, 0, 1};
-    pen_spheres sp = {1, one};
+    pen_spheres sp = {1, one, NULL};
     pen_image img;
     CHECK(pen_spheres_preview(ctx, &m, &sp, 30, 20, 64, &img) == PEN_OK);
     CHECK(img.width == 192 && img.height == 64 && img.channels == 3);
@@ -623,7 +623,7 @@ static void test_preview(void) {
     CHECK(abs(mesh_px - sphere_px) < 0.1 * sphere_px);
     pen_image_free(&img);
     float bad[4] = {0, 0, NAN, 1};
-    pen_spheres nan_sp = {1, bad};
+    pen_spheres nan_sp = {1, bad, NULL};
     CHECK(pen_spheres_preview(ctx, &m, &nan_sp, 30, 20, 64, &img) == PEN_ERROR_ARGUMENT);
     free_mesh(&m);
     pen_context_destroy(ctx);

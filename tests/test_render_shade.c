@@ -38,7 +38,7 @@ static void test_irradiance_closed_form(void) {
                 for (int ch = 0; ch < 3; ++ch)
                     L[k][ch] = urand(-0.5, 0.5) + (k == 0 ? 2 : 0);
             rand_unit(n);
-            pen__shade_fwd_d(&p, (const double(*)[3])L, 0, NULL, x, n, rho, rgb, NULL);
+            pen__shade_fwd_d(&p, (const double(*)[3])L, 0, NULL, NULL, x, n, rho, rgb, NULL);
             double y[9];
             rs_y_band2(n, y);
             for (int ch = 0; ch < 3; ++ch) {
@@ -61,6 +61,8 @@ typedef struct {
     double x[3], n[3], rho[3], L[16][3];
     int count;
     double s[4 * 8];
+    double kappa[8]; /* overlap weights, random in [0.2, 1.5] */
+    const double *k; /* kappa or NULL (all 1) */
 } setup;
 
 static setup make_setup(int count) {
@@ -85,27 +87,33 @@ static setup make_setup(int count) {
             S.s[4 * i + a] = S.x[a] + dist * t + h * S.n[a];
         }
         S.s[4 * i + 3] = r;
+        /* From a stream of their own, so the other tests draw the same values as before. */
+        static unsigned long long krng = 4242;
+        S.kappa[i] = 0.2 + 1.3 * check_rand_(&krng);
     }
     return S;
 }
 
 static double loss_of(const pen__shade_params *p, const setup *S, const double q[3]) {
     double rgb[3];
-    pen__shade_fwd_d(p, (const double(*)[3])S->L, S->count, S->s, S->x, S->n, S->rho, rgb, NULL);
+    pen__shade_fwd_d(p, (const double(*)[3])S->L, S->count, S->s, S->k, S->x, S->n, S->rho, rgb,
+                     NULL);
     return q[0] * rgb[0] + q[1] * rgb[1] + q[2] * rgb[2];
 }
 
 /* Central differences in double, step 1e-6: every analytic derivative within `tol` relative
  * (floor 1e-6) of the FD: 1e-6 for the smooth calibrated model, 1e-5 for the exact one, whose
- * series is accurate to about 1e-12 only (so its FD carries noise of 1e-12 / h). */
-static void check_fd(pen_sh_exp_method method, int shadows, double tol) {
+ * series is accurate to about 1e-12 only (so its FD carries noise of 1e-12 / h). With
+ * `weighted`, the spheres carry overlap weights kappa != 1 (constants of the backward). */
+static void check_fd(pen_sh_exp_method method, int shadows, double tol, int weighted) {
     pen__shade_params p = params(4, method, shadows);
     for (int trial = 0; trial < 4; ++trial) {
         setup S = make_setup(6);
+        S.k = weighted ? S.kappa : NULL;
         double q[3] = {urand(0.5, 1.5), urand(0.5, 1.5), urand(0.5, 1.5)};
         double d_sh[16][3] = {{0}}, d_s[32] = {0}, d_x[3] = {0}, d_n[3] = {0}, d_rho[3] = {0};
-        pen__shade_bwd_d(&p, (const double(*)[3])S.L, S.count, S.s, S.x, S.n, S.rho, q, NULL, d_sh,
-                         d_s, d_x, d_n, d_rho);
+        pen__shade_bwd_d(&p, (const double(*)[3])S.L, S.count, S.s, S.k, S.x, S.n, S.rho, q, NULL,
+                         d_sh, d_s, d_x, d_n, d_rho);
         const double h = 1e-6;
         double *params_[5] = {&S.L[0][0], S.s, S.x, S.n, S.rho};
         double *grads[5] = {&d_sh[0][0], d_s, d_x, d_n, d_rho};
@@ -130,13 +138,44 @@ static void check_fd(pen_sh_exp_method method, int shadows, double tol) {
 }
 
 static void test_bwd_fd_calibrated(void) {
-    check_fd(PEN_SH_EXP_CALIBRATED, 1, 1e-6);
+    check_fd(PEN_SH_EXP_CALIBRATED, 1, 1e-6, 0);
 }
 static void test_bwd_fd_exact(void) {
-    check_fd(PEN_SH_EXP_EXACT, 1, 1e-5);
+    check_fd(PEN_SH_EXP_EXACT, 1, 1e-5, 0);
 }
 static void test_bwd_fd_no_shadows(void) {
-    check_fd(PEN_SH_EXP_CALIBRATED, 0, 1e-6);
+    check_fd(PEN_SH_EXP_CALIBRATED, 0, 1e-6, 0);
+}
+static void test_bwd_fd_overlap_weights(void) {
+    check_fd(PEN_SH_EXP_CALIBRATED, 1, 1e-6, 1);
+    check_fd(PEN_SH_EXP_PAPER, 1, 1e-6, 1);
+}
+
+/* F is linear in the weights: kappa = 1 is the unweighted sum bit for bit, two coincident copies
+ * at 1/2 each shade like one sphere at 1, and kappa = 0 removes a sphere. */
+static void test_overlap_weights_linear(void) {
+    pen__shade_params p = params(4, PEN_SH_EXP_CALIBRATED, 1);
+    for (int trial = 0; trial < 10; ++trial) {
+        setup S = make_setup(3);
+        double a[3], b[3], ones[3] = {1, 1, 1};
+        pen__shade_fwd_d(&p, (const double(*)[3])S.L, 3, S.s, NULL, S.x, S.n, S.rho, a, NULL);
+        pen__shade_fwd_d(&p, (const double(*)[3])S.L, 3, S.s, ones, S.x, S.n, S.rho, b, NULL);
+        CHECK(memcmp(a, b, sizeof a) == 0);
+        /* Sphere 1 doubled: (0, 1, 1, 2) with weights (1, 1/2, 1/2, 1) == (0, 1, 2) plain. */
+        double s4[16], k4[4] = {1, 0.5, 0.5, 1};
+        memcpy(s4, S.s, sizeof(double) * 8);
+        memcpy(s4 + 8, S.s + 4, sizeof(double) * 4);
+        memcpy(s4 + 12, S.s + 8, sizeof(double) * 4);
+        pen__shade_fwd_d(&p, (const double(*)[3])S.L, 4, s4, k4, S.x, S.n, S.rho, b, NULL);
+        for (int ch = 0; ch < 3; ++ch)
+            CHECK_NEAR(b[ch], a[ch], 1e-12);
+        /* kappa = 0 on sphere 2 == spheres 0 and 1 alone. */
+        double k3[3] = {1, 1, 0};
+        pen__shade_fwd_d(&p, (const double(*)[3])S.L, 3, S.s, k3, S.x, S.n, S.rho, b, NULL);
+        pen__shade_fwd_d(&p, (const double(*)[3])S.L, 2, S.s, NULL, S.x, S.n, S.rho, a, NULL);
+        for (int ch = 0; ch < 3; ++ch)
+            CHECK_NEAR(b[ch], a[ch], 1e-12);
+    }
 }
 
 /* The float kernel against the double one, forward and backward. */
@@ -144,7 +183,13 @@ static void test_float_matches_double(void) {
     pen__shade_params p = params(4, PEN_SH_EXP_CALIBRATED, 1);
     for (int trial = 0; trial < 10; ++trial) {
         setup S = make_setup(5);
-        float L[16][3], s[20], x[3], n[3], rho[3], rgb[3], q[3] = {1, 0.5f, 0.25f};
+        float L[16][3], s[20], x[3], n[3], rho[3], rgb[3], q[3] = {1, 0.5f, 0.25f}, kf[5];
+        /* Odd trials with overlap weights. */
+        const int weighted = trial & 1;
+        for (int i = 0; i < 5; ++i)
+            kf[i] = (float)S.kappa[i];
+        const float *kp = weighted ? kf : NULL;
+        S.k = weighted ? S.kappa : NULL;
         for (int k = 0; k < 16; ++k)
             for (int ch = 0; ch < 3; ++ch)
                 L[k][ch] = (float)S.L[k][ch];
@@ -152,24 +197,24 @@ static void test_float_matches_double(void) {
             s[i] = (float)S.s[i];
         for (int a = 0; a < 3; ++a)
             x[a] = (float)S.x[a], n[a] = (float)S.n[a], rho[a] = (float)S.rho[a];
-        pen__shade_fwd(&p, (const float(*)[3])L, 5, s, x, n, rho, rgb, NULL);
+        pen__shade_fwd(&p, (const float(*)[3])L, 5, s, kp, x, n, rho, rgb, NULL);
         double rgbd[3], qd[3] = {1, 0.5, 0.25};
-        pen__shade_fwd_d(&p, (const double(*)[3])S.L, 5, S.s, S.x, S.n, S.rho, rgbd, NULL);
+        pen__shade_fwd_d(&p, (const double(*)[3])S.L, 5, S.s, S.k, S.x, S.n, S.rho, rgbd, NULL);
         for (int ch = 0; ch < 3; ++ch)
             CHECK_REL(rgb[ch], rgbd[ch], 1e-4, 1e-3);
         float d_x[3] = {0}, d_n[3] = {0}, d_rho[3] = {0};
         double d_sh[16][3] = {{0}}, d_s[20] = {0};
         double d_xd[3] = {0}, d_nd[3] = {0}, d_rhod[3] = {0};
         double d_shd[16][3] = {{0}}, d_sd[20] = {0};
-        pen__shade_bwd(&p, (const float(*)[3])L, 5, s, x, n, rho, q, NULL, d_sh, d_s, d_x, d_n,
+        pen__shade_bwd(&p, (const float(*)[3])L, 5, s, kp, x, n, rho, q, NULL, d_sh, d_s, d_x, d_n,
                        d_rho);
-        pen__shade_bwd_d(&p, (const double(*)[3])S.L, 5, S.s, S.x, S.n, S.rho, qd, NULL, d_shd,
+        pen__shade_bwd_d(&p, (const double(*)[3])S.L, 5, S.s, S.k, S.x, S.n, S.rho, qd, NULL, d_shd,
                          d_sd, d_xd, d_nd, d_rhod);
         /* With the forward's F and V kept, the backward gives the same bits. */
         float fv[32], rgb2[3], e_x[3] = {0}, e_n[3] = {0}, e_rho[3] = {0};
         double e_sh[16][3] = {{0}}, e_s[20] = {0};
-        pen__shade_fwd(&p, (const float(*)[3])L, 5, s, x, n, rho, rgb2, fv);
-        pen__shade_bwd(&p, (const float(*)[3])L, 5, s, x, n, rho, q, fv, e_sh, e_s, e_x, e_n,
+        pen__shade_fwd(&p, (const float(*)[3])L, 5, s, kp, x, n, rho, rgb2, fv);
+        pen__shade_bwd(&p, (const float(*)[3])L, 5, s, kp, x, n, rho, q, fv, e_sh, e_s, e_x, e_n,
                        e_rho);
         CHECK(memcmp(rgb, rgb2, sizeof rgb) == 0);
         CHECK(memcmp(d_x, e_x, sizeof d_x) == 0 && memcmp(d_n, e_n, sizeof d_n) == 0);
@@ -196,13 +241,13 @@ static void test_self_shadowing_rule(void) {
     L[0][0] = L[0][1] = L[0][2] = 1.0;
     L[2][0] = L[2][1] = L[2][2] = 0.8; /* brighter from +z */
     double x[3] = {0, 0, 0}, n[3] = {0, 0, 1}, rho[3] = {0.5, 0.5, 0.5}, a[3], b[3];
-    pen__shade_fwd_d(&off, (const double(*)[3])L, 0, NULL, x, n, rho, a, NULL);
+    pen__shade_fwd_d(&off, (const double(*)[3])L, 0, NULL, NULL, x, n, rho, a, NULL);
     /* Below the plane, even touching the receiver and containing nearly half its hemisphere. */
     double below[8] = {0.3, 0.1, -0.5, 0.5, -1, 0, -2.0, 1.0};
-    pen__shade_fwd_d(&on, (const double(*)[3])L, 2, below, x, n, rho, b, NULL);
+    pen__shade_fwd_d(&on, (const double(*)[3])L, 2, below, NULL, x, n, rho, b, NULL);
     CHECK_NEAR(b[0], a[0], 1e-12);
     double above[4] = {0, 0, 1.5, 1.0};
-    pen__shade_fwd_d(&on, (const double(*)[3])L, 1, above, x, n, rho, b, NULL);
+    pen__shade_fwd_d(&on, (const double(*)[3])L, 1, above, NULL, x, n, rho, b, NULL);
     CHECK_MSG(b[0] < 0.7 * a[0], "shadowed %.4g vs open %.4g", b[0], a[0]);
     /* Sweep a sphere through the plane: consecutive steps of 1e-4 r change the result by a
      * bounded slope (no jump), and the ends match the rule. */
@@ -210,7 +255,7 @@ static void test_self_shadowing_rule(void) {
     for (int i = 0; i <= 30000; ++i) {
         double h = -1.5 + 3.0 * i / 30000.0;
         double s[4] = {0.8, 0.0, h * 0.4, 0.4};
-        pen__shade_fwd_d(&on, (const double(*)[3])L, 1, s, x, n, rho, b, NULL);
+        pen__shade_fwd_d(&on, (const double(*)[3])L, 1, s, NULL, x, n, rho, b, NULL);
         if (i) worst = fmax(worst, fabs(b[0] - prev));
         prev = b[0];
     }
@@ -233,9 +278,9 @@ static void test_singular_inputs_finite(void) {
             float rgb[3], d_x[3] = {0}, d_n[3] = {0}, d_rho[3] = {0};
             double d_sh[16][3] = {{0}}, d_s[4] = {0};
             const float *nn = zn ? nz : n;
-            pen__shade_fwd(&p, (const float(*)[3])L, 1, s[i], x, nn, rho, rgb, NULL);
-            pen__shade_bwd(&p, (const float(*)[3])L, 1, s[i], x, nn, rho, q, NULL, d_sh, d_s, d_x,
-                           d_n, d_rho);
+            pen__shade_fwd(&p, (const float(*)[3])L, 1, s[i], NULL, x, nn, rho, rgb, NULL);
+            pen__shade_bwd(&p, (const float(*)[3])L, 1, s[i], NULL, x, nn, rho, q, NULL, d_sh, d_s,
+                           d_x, d_n, d_rho);
             int ok = 1;
             for (int a = 0; a < 3; ++a)
                 ok &=
@@ -299,5 +344,6 @@ static void test_texture(void) {
 }
 
 RUN_TESTS(TEST(test_irradiance_closed_form), TEST(test_bwd_fd_calibrated), TEST(test_bwd_fd_exact),
-          TEST(test_bwd_fd_no_shadows), TEST(test_float_matches_double),
+          TEST(test_bwd_fd_no_shadows), TEST(test_bwd_fd_overlap_weights),
+          TEST(test_overlap_weights_linear), TEST(test_float_matches_double),
           TEST(test_self_shadowing_rule), TEST(test_singular_inputs_finite), TEST(test_texture))

@@ -56,8 +56,12 @@ typedef struct pen_flat_object {
     const float *texture; /* 3 * width * height, linear RGB, row 0 at the top (v = 1) */
     float albedo[3];      /* used when there is no texture */
     int sphere_count;
-    const float *spheres; /* 4 * sphere_count: x, y, z, r (object space) */
-    float pose[7];        /* rotation axis-angle (degrees), translation, scale (> 0) */
+    const float *spheres;        /* 4 * sphere_count: x, y, z, r (object space) */
+    float pose[7];               /* rotation axis-angle (degrees), translation, scale (> 0) */
+    const float *sphere_weights; /* sphere_count overlap weights (>= 0), or NULL: computed from
+                                    the spheres by the renderer (pen_spheres_overlap_weights) at
+                                    every forward; give them to hold them fixed while the
+                                    spheres change (they are constants of the gradient) */
 } pen_flat_object;
 
 /* A scene; the arrays are borrowed for the call. */
@@ -84,12 +88,13 @@ typedef struct pen_flat_scene {
     int antialias;
     int object_count;
     const pen_flat_object *objects;
+    int overlap; /* pen_shadow_overlap: 0 overlap weights, 1 none (the plain sum) */
 } pen_flat_scene;
 
 /* A 64 x 64 camera at (0, 1, 3) looking at (0, 0.5, 0) with 40 degrees vertical field of view,
- * sh_bands 4 and no lighting array, the calibrated exponential with its own epsilon, the default
- * ground (height 0, albedo 0.8, half size 4), black background, no map, shadows and
- * antialiasing on, no objects. */
+ * sh_bands 4 and no lighting array, the calibrated exponential with its own epsilon, overlap
+ * weights on, the default ground (height 0, albedo 0.8, half size 4), black background, no map,
+ * shadows and antialiasing on, no objects. */
 pen_flat_scene pen_flat_scene_default(void);
 
 /* Where pen_flat_render_bwd writes; every pointer may be NULL (that gradient is not computed).

@@ -75,9 +75,17 @@ typedef struct pen_lighting {
     float rotation_y_deg;   /* applied to the map; 0 without a map */
 } pen_lighting;
 
+/* How the spheres of one object add up ("shadow": {"overlap": ...}, docs/file-formats.md). */
+typedef enum pen_shadow_overlap {
+    PEN_OVERLAP_WEIGHTS = 0, /* sphere i's log-visibility times its overlap weight kappa_i
+                                (pen_spheres.weight; computed from the spheres when NULL) */
+    PEN_OVERLAP_NONE = 1     /* the plain sum: every kappa_i = 1 */
+} pen_shadow_overlap;
+
 typedef struct pen_shadow {
     float epsilon;                  /* log-visibility depth (supplement eq. 6) */
     pen_sh_exp_method exp;
+    pen_shadow_overlap overlap;
 } pen_shadow;
 
 typedef struct pen_scene {

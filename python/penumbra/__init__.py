@@ -12,7 +12,7 @@ repository's build/ folder). See docs/python.md.
 
 from ._lib import PenumbraError
 from .io import (Mesh, envmap_to_sh, fit_spheres, load_image, load_mesh, load_scene,
-                 load_spheres, save_image)
+                 load_spheres, overlap_weights, save_image)
 from .render import Camera, Object, RenderFunction, Scene, pose, render, render_scene
 
 
@@ -24,4 +24,5 @@ def version():
 
 __all__ = ["Camera", "Mesh", "Object", "PenumbraError", "RenderFunction", "Scene",
            "envmap_to_sh", "fit_spheres", "load_image", "load_mesh", "load_scene",
-           "load_spheres", "pose", "render", "render_scene", "save_image", "version"]
+           "load_spheres", "overlap_weights", "pose", "render", "render_scene", "save_image",
+           "version"]

@@ -43,6 +43,7 @@ class FlatObject(ctypes.Structure):
         ("sphere_count", ctypes.c_int),
         ("spheres", c_float_p),
         ("pose", ctypes.c_float * 7),
+        ("sphere_weights", c_float_p),
     ]
 
 
@@ -73,6 +74,7 @@ class FlatScene(ctypes.Structure):
         ("antialias", ctypes.c_int),
         ("object_count", ctypes.c_int),
         ("objects", ctypes.POINTER(FlatObject)),
+        ("overlap", ctypes.c_int),
     ]
 
 
@@ -113,7 +115,7 @@ class Mesh(ctypes.Structure):
 
 
 class Spheres(ctypes.Structure):
-    _fields_ = [("count", ctypes.c_int), ("data", c_float_p)]
+    _fields_ = [("count", ctypes.c_int), ("data", c_float_p), ("weight", c_float_p)]
 
 
 # ---- Loading ------------------------------------------------------------------------------------
@@ -159,6 +161,7 @@ def _declare(lib):
         "pen_spheres_load": (I, [P, S, ctypes.POINTER(Spheres)]),
         "pen_spheres_free": (None, [ctypes.POINTER(Spheres)]),
         "pen_spheres_fit": (I, [P, ctypes.POINTER(Mesh), I, P, ctypes.POINTER(Spheres), P]),
+        "pen_spheres_overlap_weights": (I, [P, ctypes.POINTER(Spheres), c_float_p]),
         "pen_sh_exp_method_parse": (I, [S]),
     }
     for name, (res, args) in sigs.items():

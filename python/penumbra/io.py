@@ -72,6 +72,8 @@ def _scene_from_flat(f):
             ob.texture = _copy(o.texture, (o.texture_height, o.texture_width, 3))
         if o.sphere_count > 0:
             ob.spheres = _copy(o.spheres, (o.sphere_count, 4))
+            if o.sphere_weights:
+                ob.sphere_weights = _copy(o.sphere_weights, (o.sphere_count,))
         objects.append(ob)
     envmap = None
     if f.envmap_width > 0:
@@ -83,7 +85,8 @@ def _scene_from_flat(f):
                  ground_height=f.ground_height, ground_half_size=f.ground_half_size,
                  background="envmap" if f.background_envmap else tuple(f.background),
                  envmap=envmap, envmap_rotation_y_deg=f.envmap_rotation_y_deg,
-                 envmap_scale=f.envmap_scale, epsilon=f.epsilon, exp=exp)
+                 envmap_scale=f.envmap_scale, epsilon=f.epsilon, exp=exp,
+                 overlap={0: "weights", 1: "none"}[f.overlap])
 
 
 # ---- Meshes, images, spheres --------------------------------------------------------------------
@@ -179,8 +182,23 @@ def envmap_to_sh(envmap, bands=4, rotation_y_deg=0.0, scale=1.0):
     return sh
 
 
+def overlap_weights(spheres):
+    """The overlap weights of an (S, 4) sphere set (pen_spheres_overlap_weights): an (S,) float32
+    tensor, deterministic, that Object.sphere_weights takes. Not differentiable."""
+    s = spheres.detach().to(torch.float32).contiguous() if isinstance(spheres, torch.Tensor) \
+        else torch.tensor(spheres, dtype=torch.float32)
+    if s.dim() != 2 or s.shape[1] != 4:
+        raise ValueError("penumbra: spheres must have shape (N, 4), got %s" % (tuple(s.shape),))
+    out = torch.zeros(s.shape[0], dtype=torch.float32)
+    c = _lib.Spheres(int(s.shape[0]), _lib.fptr(s), None)
+    with _lib.Context() as ctx:
+        ctx.check(_lib.lib().pen_spheres_overlap_weights(ctx.ptr, ctypes.byref(c), _lib.fptr(out)))
+    return out
+
+
 def load_spheres(path):
-    """Loads a sphere set JSON as an (S, 4) tensor: x, y, z, r per sphere."""
+    """Loads a sphere set JSON as an (S, 4) tensor: x, y, z, r per sphere (overlap_weights()
+    gives their weights; a file's own "weight" entries are what load_scene uses)."""
     L = _lib.lib()
     return _owned(_lib.Spheres, L.pen_spheres_free,
                   lambda c, out: L.pen_spheres_load(c, _path(path), out),

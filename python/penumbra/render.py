@@ -18,6 +18,7 @@ from . import _lib
 from ._lib import PenumbraError
 
 EXP_METHODS = {"calibrated": 0, "default": 0, "paper": 1, "exact": 2}
+OVERLAP_MODES = {"weights": 0, "none": 1}
 
 
 @dataclasses.dataclass
@@ -40,7 +41,10 @@ class Object:
     seen from outside; uvs (U, 2) float32 with v up and uv_faces (F, 3) into uvs (None: one uv per
     vertex, U == V); texture (H, W, 3) float32 linear RGB, row 0 at the top, or else albedo (3,);
     spheres (S, 4) float32, x y z r in object space; pose (7,) float32: rotation axis * angle in
-    degrees, translation, uniform scale (p_world = R (scale p) + t).
+    degrees, translation, uniform scale (p_world = R (scale p) + t). sphere_weights (S,) float32:
+    the spheres' overlap weights (overlap_weights(); not differentiated); None: computed from the
+    current spheres at every render, so give them (e.g. those load_scene returns, or
+    overlap_weights() of the initial spheres) to hold them fixed while optimising the spheres.
     """
 
     vertices: torch.Tensor
@@ -51,6 +55,7 @@ class Object:
     albedo: Optional[torch.Tensor] = None
     spheres: Optional[torch.Tensor] = None
     pose: Optional[torch.Tensor] = None
+    sphere_weights: Optional[torch.Tensor] = None
 
 
 @dataclasses.dataclass
@@ -58,7 +63,8 @@ class Scene:
     """Everything pen_render draws. sh is (bands^2, 3) float32, coefficient i = l*l + l + m per
     row, one column per colour channel. background is an RGB triple or "envmap" (then envmap, an
     (H, W, 3) float32 equirectangular map, is drawn where nothing is hit, rotated and scaled).
-    epsilon <= 0 takes the exponential model's; exp is "calibrated", "paper" or "exact"."""
+    epsilon <= 0 takes the exponential model's; exp is "calibrated", "paper" or "exact"; overlap is
+    "weights" (each sphere's log-visibility times its overlap weight) or "none" (the plain sum)."""
 
     camera: Camera
     sh: torch.Tensor
@@ -73,6 +79,7 @@ class Scene:
     envmap_scale: float = 1.0
     epsilon: float = 0.0
     exp: str = "calibrated"
+    overlap: str = "weights"
 
 
 def pose(rotation_axis_angle_deg=(0.0, 0.0, 0.0), translation=(0.0, 0.0, 0.0), scale=1.0):
@@ -137,10 +144,11 @@ def _sh_bands(sh):
 
 
 class _ObjectSpec:
-    """The non-differentiable part of one object: int32 faces, uvs, uv faces."""
+    """The non-differentiable part of one object: int32 faces, uvs, uv faces, sphere weights."""
 
-    def __init__(self, faces, uvs, uv_faces):
+    def __init__(self, faces, uvs, uv_faces, sphere_weights=None):
         self.faces, self.uvs, self.uv_faces = faces, uvs, uv_faces
+        self.sphere_weights = sphere_weights
 
 
 class _Spec:
@@ -168,6 +176,10 @@ class _Spec:
             raise ValueError("penumbra: exp must be one of calibrated, paper, exact; got %r"
                              % (scene.exp,))
         self.exp = EXP_METHODS[scene.exp]
+        if scene.overlap not in OVERLAP_MODES:
+            raise ValueError("penumbra: overlap must be \"weights\" or \"none\"; got %r"
+                             % (scene.overlap,))
+        self.overlap = OVERLAP_MODES[scene.overlap]
         self.envmap = None
         if scene.envmap is not None:
             self.envmap = _float_tensor("envmap", scene.envmap, (None, None, 3)).detach()
@@ -214,11 +226,16 @@ def _check_object(i, ob):
             raise ValueError("penumbra: %stexture needs uvs" % p)
     albedo = _float_tensor(p + "albedo", (0.8, 0.8, 0.8) if ob.albedo is None else ob.albedo,
                            (3,), allow_list=True)
-    spheres = None
+    spheres = weights = None
     if ob.spheres is not None and (not isinstance(ob.spheres, torch.Tensor) or ob.spheres.numel()):
         spheres = _float_tensor(p + "spheres", ob.spheres, (None, 4))
+        if ob.sphere_weights is not None:
+            weights = _float_tensor(p + "sphere_weights", ob.sphere_weights, (spheres.shape[0],),
+                                    allow_list=True).detach()
+    elif ob.sphere_weights is not None:
+        raise ValueError("penumbra: %ssphere_weights given without spheres" % p)
     ps = _float_tensor(p + "pose", pose() if ob.pose is None else ob.pose, (7,), allow_list=True)
-    return _ObjectSpec(faces, uvs, uv_faces), [v, tex, albedo, spheres, ps]
+    return _ObjectSpec(faces, uvs, uv_faces, weights), [v, tex, albedo, spheres, ps]
 
 
 # ---- The Function -------------------------------------------------------------------------------
@@ -257,6 +274,7 @@ def _flat(spec, sh, ground_albedo, obj):
         s.envmap = _lib.fptr(spec.envmap)
     s.envmap_rotation_y_deg, s.envmap_scale = spec.envmap_rotation_y_deg, spec.envmap_scale
     s.shadows, s.antialias = spec.shadows, spec.antialias
+    s.overlap = spec.overlap
     n = len(spec.objects)
     objs = (_lib.FlatObject * max(n, 1))()
     for i, os_ in enumerate(spec.objects):
@@ -273,6 +291,7 @@ def _flat(spec, sh, ground_albedo, obj):
         o.albedo[:] = tuple(float(x) for x in albedo)
         if spheres is not None:
             o.sphere_count, o.spheres = spheres.shape[0], _lib.fptr(spheres)
+            o.sphere_weights = _lib.fptr(os_.sphere_weights)
         o.pose[:] = tuple(float(x) for x in ps)
     s.object_count = n
     s.objects = objs
@@ -341,15 +360,16 @@ def render(vertices, faces, sh, camera=None, *, uvs=None, uv_faces=None, texture
            albedo=None, spheres=None, pose=None, ground=True, ground_albedo=(0.8, 0.8, 0.8),
            ground_height=0.0, ground_half_size=4.0, background=(0.0, 0.0, 0.0), envmap=None,
            envmap_rotation_y_deg=0.0, envmap_scale=1.0, epsilon=0.0, exp="calibrated",
-           shadows=True, antialias=True, threads=0):
+           shadows=True, antialias=True, threads=0, sphere_weights=None, overlap="weights"):
     """Renders one object (see Object and Scene for the arguments); returns the (height, width, 3)
     float32 image. camera: a Camera (None: the default 64 x 64 one)."""
     scene = Scene(camera=camera or Camera(), sh=sh,
-                  objects=[Object(vertices, faces, uvs, uv_faces, texture, albedo, spheres, pose)],
+                  objects=[Object(vertices, faces, uvs, uv_faces, texture, albedo, spheres, pose,
+                                  sphere_weights)],
                   ground=ground, ground_albedo=ground_albedo, ground_height=ground_height,
                   ground_half_size=ground_half_size, background=background, envmap=envmap,
                   envmap_rotation_y_deg=envmap_rotation_y_deg, envmap_scale=envmap_scale,
-                  epsilon=epsilon, exp=exp)
+                  epsilon=epsilon, exp=exp, overlap=overlap)
     return render_scene(scene, shadows=shadows, antialias=antialias, threads=threads)
 
 

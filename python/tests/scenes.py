@@ -50,13 +50,15 @@ def octasphere(level=1, radius=0.45):
 
 def ball_scene(size=16, textured=False, level=1):
     """An ellipsoid (an octasphere stretched 1.25 in x, 0.8 in y) hovering over the ground
-    (translation y = 0.55, a small rotation), two proxy spheres inside it, 4-band lighting."""
+    (translation y = 0.55, a small rotation), two proxy spheres inside it with their overlap
+    weights held fixed (as load_scene gives them; gradcheck moves the spheres), 4-band lighting."""
     v, f, uvs = octasphere(level)
     v = v * torch.tensor([1.25, 0.8, 1.0])
+    spheres = torch.tensor([[-0.15, 0.0, 0.02, 0.32], [0.17, 0.02, -0.03, 0.3]])
     ob = penumbra.Object(
-        vertices=v, faces=f, albedo=torch.tensor([0.8, 0.5, 0.3]),
-        spheres=torch.tensor([[-0.15, 0.0, 0.02, 0.32], [0.17, 0.02, -0.03, 0.3]]),
-        pose=penumbra.pose((10.0, 25.0, 0.0), (0.0, 0.55, 0.0), 1.0))
+        vertices=v, faces=f, albedo=torch.tensor([0.8, 0.5, 0.3]), spheres=spheres,
+        pose=penumbra.pose((10.0, 25.0, 0.0), (0.0, 0.55, 0.0), 1.0),
+        sphere_weights=penumbra.overlap_weights(spheres))
     if textured:
         g = torch.Generator().manual_seed(5)
         ob.uvs = uvs

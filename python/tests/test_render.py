@@ -243,6 +243,11 @@ class ArgumentErrorTest(unittest.TestCase):
         self.ob.vertices = v
         self.expect(penumbra.PenumbraError, "not finite")
         self.ob.vertices = scenes.octasphere(1)[0]
+        self.ob.sphere_weights = torch.tensor([1.0, 1.0, 1.0])
+        self.expect(ValueError, r"objects\[0\]\.sphere_weights must have shape \(2\), got \(3,\)")
+        self.ob.sphere_weights = torch.tensor([1.0, -1.0])
+        self.expect(penumbra.PenumbraError, r"objects\[0\].*sphere 1: overlap weight -1 is not")
+        self.ob.sphere_weights = None
         self.ob.spheres = torch.tensor([[0.0, 0.0, 0.0, -1.0]])
         self.expect(penumbra.PenumbraError, r"objects\[0\].*sphere 0.*radius > 0")
         self.ob.spheres = None
@@ -329,6 +334,30 @@ class AutogradTest(unittest.TestCase):
                               ground_albedo=scene.ground_albedo, ground_half_size=3.0,
                               background=(0.2, 0.3, 0.4))
         self.assertTrue(torch.equal(img, penumbra.render_scene(scene)))
+
+
+class OverlapTest(unittest.TestCase):
+    def test_weights(self):
+        one = penumbra.overlap_weights(torch.tensor([[0.0, 1.0, 0.0, 0.5]]))
+        self.assertEqual(one.tolist(), [2.0])  # a lone sphere gets the target
+        two = penumbra.overlap_weights([[0.0, 1.0, 0.0, 0.5], [0.0, 1.0, 0.0, 0.5]])
+        self.assertTrue(torch.allclose(two, torch.tensor([1.0, 1.0]), rtol=1e-3))
+        with self.assertRaisesRegex(penumbra.PenumbraError, "radius > 0"):
+            penumbra.overlap_weights([[0.0, 0.0, 0.0, -1.0]])
+
+    def test_none_is_weights_of_one(self):
+        """overlap "none" renders bitwise as weights of 1; the fixture's weights differ."""
+        scene = scenes.ball_scene(12)
+        weighted = penumbra.render_scene(scene)
+        scene.overlap = "none"
+        plain = penumbra.render_scene(scene)
+        scene.overlap = "weights"
+        scene.objects[0].sphere_weights = torch.ones(2)
+        self.assertTrue(torch.equal(plain, penumbra.render_scene(scene)))
+        self.assertFalse(torch.equal(plain, weighted))
+        scene.overlap = "half"
+        with self.assertRaisesRegex(ValueError, "overlap must be"):
+            penumbra.render_scene(scene)
 
 
 if __name__ == "__main__":

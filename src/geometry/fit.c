@@ -693,6 +693,13 @@ pen_status pen_spheres_fit(pen_context *ctx, const pen_mesh *mesh, int count,
     }
     for (size_t k = 0; k < n; ++k)
         out->data[k] = (float)d.sph[k];
+    /* Overlap weights of the spheres as returned (pen_spheres.weight, overlap.c). */
+    st = pen_spheres_ensure_weights(ctx, out);
+    if (st) {
+        pen_spheres_free(out);
+        fit_data_free(&d);
+        return st;
+    }
     if (metrics) {
         /* Hard tests on the float spheres that are returned. */
         for (size_t k = 0; k < n; ++k)

@@ -139,7 +139,10 @@ pen_status pen_spheres_fit_cached(pen_context *ctx, const pen_mesh *mesh, const 
     if (st) return st;
     if (cache_read(path, key, count, out, metrics)) {
         free(path);
-        return PEN_OK;
+        /* A cache written before overlap weights existed has none: compute them. */
+        st = pen_spheres_ensure_weights(ctx, out);
+        if (st) pen_spheres_free(out);
+        return st;
     }
     pen_fit_metrics m;
     st = pen_spheres_fit(ctx, mesh, count, &s, out, &m);

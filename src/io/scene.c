@@ -174,7 +174,7 @@ static pen_status parse_shadow(pen_context *ctx, const where *top, const cJSON *
     sh->exp = PEN_SH_EXP_CALIBRATED;
     pen_status s = PEN_OK;
     if (o) {
-        static const char *const known[] = {"epsilon", "exp", NULL};
+        static const char *const known[] = {"epsilon", "exp", "overlap", NULL};
         s = need_object(ctx, &w, o);
         if (!s) s = pen__json_known_keys(ctx, &w, o, known);
         const cJSON *e = member(o, "exp");
@@ -189,6 +189,19 @@ static pen_status parse_shadow(pen_context *ctx, const where *top, const cJSON *
                                     "exact)",
                                     name);
             if (!s) sh->exp = (pen_sh_exp_method)m;
+        }
+        const cJSON *v = member(o, "overlap");
+        if (!s && v) {
+            where wv = at(&w, "overlap");
+            const char *name;
+            s = pen__json_string(ctx, &wv, v, &name);
+            if (!s && strcmp(name, "weights") == 0)
+                sh->overlap = PEN_OVERLAP_WEIGHTS;
+            else if (!s && strcmp(name, "none") == 0)
+                sh->overlap = PEN_OVERLAP_NONE;
+            else if (!s)
+                s = pen__json_error(ctx, PEN_ERROR_PARSE, &wv,
+                                    "unknown mode '%s' (expected weights or none)", name);
         }
     }
     /* The epsilon the exponential model was fitted with, unless given. */
@@ -225,9 +238,15 @@ static pen_status parse_spheres(pen_context *ctx, const char *path, const where 
         obj->spheres_path = pen__io_path_resolve(ctx, path, rel);
         if (!obj->spheres_path) return PEN_ERROR_MEMORY;
         s = pen_spheres_load(ctx, obj->spheres_path, &obj->spheres);
+        /* Files written before overlap weights existed get them now (pen_spheres.weight). */
+        if (!s) s = pen_spheres_ensure_weights(ctx, &obj->spheres);
         return s ? wrap(ctx, w, s) : PEN_OK;
     }
-    if (cJSON_IsArray(item)) return pen__spheres_from_json(ctx, w, item, &obj->spheres);
+    if (cJSON_IsArray(item)) {
+        pen_status s = pen__spheres_from_json(ctx, w, item, &obj->spheres);
+        if (!s && (s = pen_spheres_ensure_weights(ctx, &obj->spheres))) s = wrap(ctx, w, s);
+        return s;
+    }
     if (cJSON_IsObject(item)) {
         static const char *const known[] = {"fit", NULL};
         where wf = at(w, "fit");
@@ -536,8 +555,10 @@ static pen_status check_saveable(pen_context *ctx, const char *path, const pen_s
 
 static cJSON *shadow_json(const pen_shadow *sh) {
     cJSON *o = cJSON_CreateObject();
-    int ok = o && add(o, "epsilon", pen__json_float(sh->epsilon)) &&
-             add(o, "exp", cJSON_CreateString(pen_sh_exp_method_name(sh->exp)));
+    int ok =
+        o && add(o, "epsilon", pen__json_float(sh->epsilon)) &&
+        add(o, "exp", cJSON_CreateString(pen_sh_exp_method_name(sh->exp))) &&
+        add(o, "overlap", cJSON_CreateString(sh->overlap == PEN_OVERLAP_NONE ? "none" : "weights"));
     if (!ok) cJSON_Delete(o);
     return ok ? o : NULL;
 }

@@ -1,7 +1,8 @@
 /* Sphere sets: allocation and their JSON files
- *     {"spheres": [{"center": [x, y, z], "radius": r}, ...], "metrics": {...}, ...}
+ *     {"spheres": [{"center": [x, y, z], "radius": r, "weight": k}, ...], "metrics": {...}, ...}
  * (or a bare array of sphere objects). Other top-level members are kept by writers and ignored
- * by the reader; inside a sphere object only "center" and "radius" (and "_comments") may appear. */
+ * by the reader; inside a sphere object only "center", "radius", the optional overlap "weight"
+ * (finite, >= 0; given for every sphere or for none) and "_comments" may appear. */
 #include "penumbra/spheres.h"
 #include "io/io_internal.h"
 #include "io/spheres_json.h"
@@ -25,6 +26,7 @@ pen_status pen_spheres_create(pen_context *ctx, int count, pen_spheres *out) {
 void pen_spheres_free(pen_spheres *spheres) {
     if (!spheres) return;
     free(spheres->data);
+    free(spheres->weight);
     memset(spheres, 0, sizeof *spheres);
 }
 
@@ -36,15 +38,16 @@ pen_status pen__spheres_from_json(pen_context *ctx, const pen__json_where *w, co
                                pen__json_type_name(list));
     pen_status s = pen_spheres_create(ctx, cJSON_GetArraySize(list), out);
     if (s) return s;
-    static const char *const known[] = {"center", "radius", NULL};
+    static const char *const known[] = {"center", "radius", "weight", NULL};
     int i = 0;
     const cJSON *e;
     cJSON_ArrayForEach(e, list) {
-        pen__json_where wi, wc, wr;
+        pen__json_where wi, wc, wr, ww;
         pen__json_index(w, i, &wi);
         pen__json_child(&wi, "center", &wc);
         pen__json_child(&wi, "radius", &wr);
-        double r = 0;
+        pen__json_child(&wi, "weight", &ww);
+        double r = 0, k = 0;
         if (!cJSON_IsObject(e))
             s = pen__json_error(ctx, PEN_ERROR_PARSE, &wi, "expected a sphere object, got %s",
                                 pen__json_type_name(e));
@@ -56,11 +59,22 @@ pen_status pen__spheres_from_json(pen_context *ctx, const pen__json_where *w, co
         if (!s)
             s = pen__json_number(ctx, &wr, cJSON_GetObjectItemCaseSensitive(e, "radius"),
                                  (double)FLT_TRUE_MIN, (double)FLT_MAX, "a positive number", &r);
+        /* Weights: all spheres or none, so that a partly weighted set is not silently mixed. */
+        const cJSON *wt = cJSON_IsObject(e) ? cJSON_GetObjectItemCaseSensitive(e, "weight") : NULL;
+        if (!s && i > 0 && (wt != NULL) != (out->weight != NULL))
+            s = pen__json_error(ctx, PEN_ERROR_PARSE, wt ? &ww : &wi,
+                                wt ? "a weight, but sphere 0 has none (give all or none)"
+                                   : "missing weight (sphere 0 has one: give all or none)");
+        if (!s && wt && !out->weight &&
+            !(out->weight = pen__calloc(ctx, (size_t)out->count, sizeof(float), "weights")))
+            s = PEN_ERROR_MEMORY;
+        if (!s && wt) s = pen__json_number(ctx, &ww, wt, 0.0, (double)FLT_MAX, "a number >= 0", &k);
         if (s) {
             pen_spheres_free(out);
             return s;
         }
         out->data[4 * (size_t)i + 3] = (float)r;
+        if (out->weight) out->weight[i] = (float)k;
         ++i;
     }
     return PEN_OK;
@@ -83,21 +97,22 @@ pen_status pen_spheres_load(pen_context *ctx, const char *path, pen_spheres *out
     return s;
 }
 
+/* Adds item to o under name; on failure deletes item. */
+static int add_member(cJSON *o, const char *name, cJSON *item) {
+    if (item && cJSON_AddItemToObject(o, name, item)) return 1;
+    cJSON_Delete(item);
+    return 0;
+}
+
 cJSON *pen__spheres_to_json(const pen_spheres *spheres) {
     cJSON *list = cJSON_CreateArray();
     for (int i = 0; list && i < spheres->count; ++i) {
         const float *d = spheres->data + 4 * (size_t)i;
         cJSON *o = cJSON_CreateObject();
-        cJSON *c = pen__json_float_array(d, 3), *r = pen__json_float(d[3]);
-        if (!o || !c || !r || !cJSON_AddItemToObject(o, "center", c)) {
-            cJSON_Delete(c);
-            cJSON_Delete(r);
-            cJSON_Delete(o);
-            cJSON_Delete(list);
-            return NULL;
-        }
-        if (!cJSON_AddItemToObject(o, "radius", r) || !cJSON_AddItemToArray(list, o)) {
-            cJSON_Delete(r);
+        int ok = o && add_member(o, "center", pen__json_float_array(d, 3)) &&
+                 add_member(o, "radius", pen__json_float(d[3])) &&
+                 (!spheres->weight || add_member(o, "weight", pen__json_float(spheres->weight[i])));
+        if (!ok || !cJSON_AddItemToArray(list, o)) {
             cJSON_Delete(o);
             cJSON_Delete(list);
             return NULL;
@@ -116,6 +131,10 @@ pen_status pen__spheres_check(pen_context *ctx, const char *what, const pen_sphe
                               "%s: sphere %d has a non-finite center or a radius that is not a "
                               "positive number",
                               what, i);
+        if (spheres->weight && !(isfinite(spheres->weight[i]) && spheres->weight[i] >= 0.0f))
+            return pen__error(
+                ctx, PEN_ERROR_ARGUMENT,
+                "%s: sphere %d has an overlap weight that is not a finite number >= 0", what, i);
     }
     return PEN_OK;
 }

@@ -597,6 +597,11 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
         s = pen_scene_fit_spheres(ctx, &task->ground_truth);
         if (s) return s;
     }
+    /* Overlap weights of the initial spheres, held fixed while spheres, deformation or pose move
+     * (an in-memory set without them would otherwise get them recomputed every frame). */
+    for (int o = 0; o < task->scene.object_count && !s; ++o)
+        s = pen_spheres_ensure_weights(ctx, &task->scene.objects[o].spheres);
+    if (s) return s;
     run r;
     memset(&r, 0, sizeof r);
     r.sc = &task->scene;

@@ -93,6 +93,7 @@ static pen_status object_view(pen_context *ctx, int o, const pen_flat_object *f,
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "flat scene: objects[%d]: bad sphere array", o);
     ob->spheres.count = f->sphere_count;
     ob->spheres.data = (float *)f->spheres;
+    ob->spheres.weight = f->sphere_count > 0 ? (float *)f->sphere_weights : NULL;
     memcpy(ob->pose.rotation_axis_angle_deg, f->pose, 3 * sizeof(float));
     memcpy(ob->pose.translation, f->pose + 3, 3 * sizeof(float));
     ob->pose.scale = f->pose[6];
@@ -124,6 +125,7 @@ static pen_status scene_view(pen_context *ctx, const pen_flat_scene *f, pen_scen
     sc->lighting.rotation_y_deg = f->envmap_rotation_y_deg;
     sc->shadow.epsilon = f->epsilon;
     sc->shadow.exp = (pen_sh_exp_method)f->exp_method;
+    sc->shadow.overlap = (pen_shadow_overlap)f->overlap;
     sc->ground.enabled = f->ground_enabled != 0;
     sc->ground.height = f->ground_height;
     memcpy(sc->ground.albedo, f->ground_albedo, sizeof sc->ground.albedo);
@@ -277,6 +279,7 @@ static pen_status flat_object(pen_context *ctx, const pen_object *ob, int o, pen
     memcpy(f->albedo, ob->albedo, sizeof f->albedo);
     f->sphere_count = ob->spheres.count;
     f->spheres = ob->spheres.data;
+    f->sphere_weights = ob->spheres.weight;
     memcpy(f->pose, ob->pose.rotation_axis_angle_deg, 3 * sizeof(float));
     memcpy(f->pose + 3, ob->pose.translation, 3 * sizeof(float));
     f->pose[6] = ob->pose.scale;
@@ -298,6 +301,7 @@ static pen_status flatten(pen_context *ctx, pen_flat_loaded *l) {
     f->sh = l->sh;
     f->epsilon = sc->shadow.epsilon;
     f->exp_method = (int)sc->shadow.exp;
+    f->overlap = (int)sc->shadow.overlap;
     f->ground_enabled = sc->ground.enabled;
     f->ground_height = sc->ground.height;
     memcpy(f->ground_albedo, sc->ground.albedo, sizeof f->ground_albedo);

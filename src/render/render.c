@@ -61,6 +61,8 @@ struct pen_render_state {
     size_t sphere_cap;
     float *spheres;    /* world space, all objects */
     int *sphere_first; /* object o owns spheres [first[o], first[o+1]) */
+    float *kappa;      /* overlap weight per world-space sphere (all 1 with overlap "none") */
+    size_t kappa_cap;
     size_t pixel_cap;
     float *x, *nraw, *n, *rho, *uv, *color, *nsign;
     float *d_color, *d_x, *d_nraw, *d_uv, *d_rho, *d_bary;
@@ -92,7 +94,7 @@ void pen_render_state_free(pen_render_state *st) {
         object_buf *b = &st->obj[o];
         free(b->world), free(b->vnormal), free(b->d_world), free(b->d_vnormal), free(b->adjacency);
     }
-    free(st->obj), free(st->meshes), free(st->spheres), free(st->sphere_first);
+    free(st->obj), free(st->meshes), free(st->spheres), free(st->sphere_first), free(st->kappa);
     float *px[] = {st->x,       st->nraw, st->n,      st->rho,  st->uv,    st->color, st->nsign,
                    st->d_color, st->d_x,  st->d_nraw, st->d_uv, st->d_rho, st->d_bary};
     for (size_t i = 0; i < sizeof px / sizeof px[0]; ++i)
@@ -184,6 +186,9 @@ static pen_status validate(pen_context *ctx, const pen_scene *sc) {
         sc->shadow.exp != PEN_SH_EXP_EXACT)
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "render: shadow.exp: unknown method %d",
                           (int)sc->shadow.exp);
+    if (sc->shadow.overlap != PEN_OVERLAP_WEIGHTS && sc->shadow.overlap != PEN_OVERLAP_NONE)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "render: shadow.overlap: unknown mode %d",
+                          (int)sc->shadow.overlap);
     if (sc->object_count < 0 || (sc->object_count > 0 && !sc->objects))
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "render: bad object list");
     if (!finite_n(sc->background, 3) ||
@@ -235,6 +240,12 @@ static pen_status validate(pen_context *ctx, const pen_scene *sc) {
                                   "render: objects[%d] (%s): sphere %d: needs a finite center and "
                                   "a radius > 0",
                                   o, name, i);
+            const float *k = ob->spheres.weight;
+            if (k && !(isfinite(k[i]) && k[i] >= 0.0f))
+                return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                                  "render: objects[%d] (%s): sphere %d: overlap weight %g is not a "
+                                  "finite number >= 0",
+                                  o, name, i, (double)k[i]);
         }
     }
     return PEN_OK;
@@ -330,6 +341,22 @@ static pen_status prepare(pen_context *ctx, const pen_scene *sc, const pen_rende
             pen_pose_apply(&ob->pose, src, dst);
             dst[3] = src[3] * ob->pose.scale;
         }
+    }
+    /* Overlap weights: the object's own, computed from its spheres when it has none (so that an
+     * in-memory set renders as the same set loaded from a file), or 1 with overlap "none". */
+    if ((s = ensure(ctx, (void **)&st->kappa, &st->kappa_cap, (size_t)spheres, sizeof(float),
+                    "overlap weights")))
+        return s;
+    for (int o = 0; o < sc->object_count; ++o) {
+        const pen_spheres *sp = &sc->objects[o].spheres;
+        float *k = st->kappa + st->sphere_first[o];
+        if (sc->shadow.overlap == PEN_OVERLAP_NONE)
+            for (int i = 0; i < sp->count; ++i)
+                k[i] = 1.0f;
+        else if (sp->weight)
+            memcpy(k, sp->weight, sizeof(float) * (size_t)sp->count);
+        else if ((s = pen_spheres_overlap_weights(ctx, sp, k)))
+            return s;
     }
 
     if ((s = pen_raster_gbuffer(ctx, &st->view, st->meshes, sc->object_count, &sc->ground,
@@ -441,7 +468,7 @@ pen_status pen_render_fwd(pen_context *ctx, const pen_scene *sc, const pen_rende
                         rho[ch] = ob->albedo[ch];
             }
             pen__shade_fwd(&st->params, (const float(*)[3])sc->lighting.sh, st->sphere_count,
-                           st->spheres, st->x + 3 * i, n, rho, col,
+                           st->spheres, st->kappa, st->x + 3 * i, n, rho, col,
                            fv_all ? fv_all + nfv * i : NULL);
         }
     }
@@ -658,7 +685,7 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
             const int geom = is_obj && want_geom;
             const int need_rho = want_albedo || (textured && geom);
             pen__shade_bwd(&st->params, (const float(*)[3])sc->lighting.sh, S, st->spheres,
-                           st->x + 3 * i, st->n + 3 * i, st->rho + 3 * i, dc,
+                           st->kappa, st->x + 3 * i, st->n + 3 * i, st->rho + 3 * i, dc,
                            fv_all ? fv_all + nfv * i : NULL, d_sh, d_sph, geom ? d_x : NULL,
                            geom ? d_n : NULL, need_rho ? d_rho : NULL);
             if (!is_obj) {

@@ -29,27 +29,28 @@ void pen__shade_params_init(pen__shade_params *p, int bands, const pen_sh_exp_mo
 
 /* Outgoing radiance of a diffuse receiver at x with unit normal n and albedo rho:
  *   rgb[ch] = rho[ch] / pi * sum_k sh[k][ch] (V * H_n)_k,
- *   V = exp*(sum_i w_i logvis_i(x)), H_n = clamped cosine rotated to n.
- * spheres: sphere_count world-space spheres (x, y, z, r). fv (may be NULL) receives F and V
- * (2 bands^2 values) for the backward when shadows are on. */
+ *   V = exp*(sum_i w_i kappa_i logvis_i(x)), H_n = clamped cosine rotated to n.
+ * spheres: sphere_count world-space spheres (x, y, z, r); kappa: their overlap weights (NULL: all
+ * 1), constants of the backward. fv (may be NULL) receives F and V (2 bands^2 values) for the
+ * backward when shadows are on. */
 void pen__shade_fwd(const pen__shade_params *p, const float (*sh)[3], int sphere_count,
-                    const float *spheres, const float x[3], const float n[3], const float rho[3],
-                    float rgb[3], float *fv);
+                    const float *spheres, const float *kappa, const float x[3], const float n[3],
+                    const float rho[3], float rgb[3], float *fv);
 void pen__shade_fwd_d(const pen__shade_params *p, const double (*sh)[3], int sphere_count,
-                      const double *spheres, const double x[3], const double n[3],
-                      const double rho[3], double rgb[3], double *fv);
+                      const double *spheres, const double *kappa, const double x[3],
+                      const double n[3], const double rho[3], double rgb[3], double *fv);
 /* Backward: adds into d_sh (bands^2 x 3, double), d_spheres (4 per sphere, double), d_x, d_n
  * (the gradient of the polynomial extension in n: normalise's backward removes the radial part)
  * and d_rho; any may be NULL. fv: the forward's F and V for this pixel, or NULL to recompute. */
 void pen__shade_bwd(const pen__shade_params *p, const float (*sh)[3], int sphere_count,
-                    const float *spheres, const float x[3], const float n[3], const float rho[3],
-                    const float d_rgb[3], const float *fv, double (*d_sh)[3], double *d_spheres,
-                    float d_x[3], float d_n[3], float d_rho[3]);
+                    const float *spheres, const float *kappa, const float x[3], const float n[3],
+                    const float rho[3], const float d_rgb[3], const float *fv, double (*d_sh)[3],
+                    double *d_spheres, float d_x[3], float d_n[3], float d_rho[3]);
 void pen__shade_bwd_d(const pen__shade_params *p, const double (*sh)[3], int sphere_count,
-                      const double *spheres, const double x[3], const double n[3],
-                      const double rho[3], const double d_rgb[3], const double *fv,
-                      double (*d_sh)[3], double *d_spheres, double d_x[3], double d_n[3],
-                      double d_rho[3]);
+                      const double *spheres, const double *kappa, const double x[3],
+                      const double n[3], const double rho[3], const double d_rgb[3],
+                      const double *fv, double (*d_sh)[3], double *d_spheres, double d_x[3],
+                      double d_n[3], double d_rho[3]);
 
 /* Bilinear texture lookup (3 channels), repeat wrap, texel centres at ((i + 0.5) / W,
  * 1 - (j + 0.5) / H) in (u, v) with v up (row 0 is the top of the image). */
