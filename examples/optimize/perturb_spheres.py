@@ -3,7 +3,8 @@
 the initial guesses of the shape-from-shadow experiments.
 
 Every radius is multiplied by --scale and every centre moved by --shift (object space, scene
-units); other members of the file are dropped. Standard library only. Example:
+units); other members of the file are dropped, the overlap weights too: the renderer computes
+those of the perturbed set when it loads it. Standard library only. Example:
 
     python3 perturb_spheres.py spheres.json start.json --scale 0.75 --shift 0.1 0 -0.12
 """
