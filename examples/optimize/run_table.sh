@@ -14,7 +14,10 @@
 #             represents exactly: what is left is the error of the proxies and SH visibility).
 #             The shape-from-shadow targets are lit by their scene's SH sun either way.
 #   MESH      spot, bob (default both)
-# Environment: PEN_TABLE_TASKS (default "lighting albedo pose lighting_pose deformation
+# Environment: PEN_TABLE_ENVMAP (city, default, or interior) picks the bundled map of the
+#   scenes and targets: for interior every JSON of this folder is copied to out/tasks_interior/
+#   with city.hdr replaced by interior.hdr (same scale and rotation), and the results go to
+#   out/optimize/interior_LIGHTING/; PEN_TABLE_TASKS (default "lighting albedo pose lighting_pose deformation
 #   shape_from_shadow") picks rows; PEN_TABLE_ITERATIONS caps every run's iterations (a quick
 #   smoke run of the whole table: PEN_TABLE_ITERATIONS=5).
 # Writes out/optimize/ (ignored by git): meshes/<mesh>_bent.obj, spheres/<mesh>_start.json,
@@ -35,7 +38,18 @@ HERE=$(cd "$(dirname "$0")" && pwd)
 ROOT=$HERE/../..
 GEN=$ROOT/out/optimize
 TARGETS=$GEN/targets
-OUT=$GEN/$LIGHTING
+ENVMAP=${PEN_TABLE_ENVMAP:-city}
+case $ENVMAP in
+city) TASKS_DIR=$HERE env="" OUT=$GEN/$LIGHTING ;;
+interior)
+    # two folders below the root, like this one, so the copies' relative paths still hold
+    TASKS_DIR=$ROOT/out/tasks_interior env=_interior OUT=$GEN/interior_$LIGHTING
+    mkdir -p "$TASKS_DIR"
+    for f in "$HERE"/*.json; do
+        sed 's#/city\.hdr#/interior.hdr#g' "$f" > "$TASKS_DIR/$(basename "$f")"
+    done ;;
+*) echo "unknown envmap $ENVMAP (expected city or interior)" >&2 && exit 2 ;;
+esac
 case $LIGHTING in
 envmap) suffix="" ;;
 sh) suffix=_sh ;;
@@ -80,21 +94,21 @@ for mesh in $MESHES; do
     for task in $TASKS; do
         case $task in
         deformation)
-            target="$TARGETS/${mesh}_bent$suffix.exr"
-            reference "$HERE/${mesh}_bent_truth.json" "$target" --lighting $LIGHTING ;;
+            target="$TARGETS/${mesh}_bent$env$suffix.exr"
+            reference "$TASKS_DIR/${mesh}_bent_truth.json" "$target" --lighting $LIGHTING ;;
         shape_from_shadow)
             target="$TARGETS/${mesh}_shadow.exr"
-            reference "$HERE/${mesh}_shadow_truth.json" "$target" ;;
+            reference "$TASKS_DIR/${mesh}_shadow_truth.json" "$target" ;;
         *)
-            target="$TARGETS/$mesh$suffix.exr"
-            reference "$HERE/${mesh}_truth.json" "$target" --lighting $LIGHTING ;;
+            target="$TARGETS/$mesh$env$suffix.exr"
+            reference "$TASKS_DIR/${mesh}_truth.json" "$target" --lighting $LIGHTING ;;
         esac
         for mode in shadows no-shadows; do
             dir="$OUT/${mesh}_${task}_$mode"
             set -- --target "$target" -q
             [ $mode = no-shadows ] && set -- "$@" --no-shadows
             [ -n "${PEN_TABLE_ITERATIONS:-}" ] && set -- "$@" --iterations "$PEN_TABLE_ITERATIONS"
-            "$BIN" optimize "$HERE/${mesh}_$task.json" -o "$dir" "$@"
+            "$BIN" optimize "$TASKS_DIR/${mesh}_$task.json" -o "$dir" "$@"
             r="$dir/result.json"
             printf '%s\t%s\t%s' $mesh $task $mode >> "$OUT/results.tsv"
             for f in iterations converged seconds_per_iteration final_loss image_rmse \
