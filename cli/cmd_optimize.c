@@ -1,10 +1,12 @@
-/* penumbra optimize: solve an inverse problem (lighting, albedo, pose) described by a task JSON
- * and write the results into a folder (pen_optim_run, pen_optim_write).
+/* penumbra optimize: solve an inverse problem (lighting, albedo, pose, deformation, spheres)
+ * described by a task JSON and write the results into a folder (pen_optim_run, pen_optim_write).
  *
- * On a terminal a progress line (iteration, loss) is redrawn on stderr; elsewhere (logs, tests)
- * nothing but the final summary is printed. Ctrl-C stops the optimisation after the current
- * iteration and still writes the results, marked "interrupted"; a second Ctrl-C kills; one
- * pressed while the task loads ends the run before it starts, without output. */
+ * On a terminal a progress line (iteration, loss, iterations per second, time left at most) is
+ * redrawn on stderr; elsewhere (logs, tests) nothing but the final summary is printed. The run
+ * checkpoints into the output folder every K iterations and at its end; --resume continues from
+ * there. Ctrl-C stops the optimisation after the current iteration and still writes the results
+ * and the checkpoint, marked "interrupted"; a second Ctrl-C kills; one pressed while the task
+ * loads ends the run before it starts, without output. */
 #define _POSIX_C_SOURCE 200809L
 #include "commands.h"
 
@@ -12,6 +14,7 @@
 #include <signal.h>
 #include <stdio.h>
 #include <string.h>
+#include <time.h>
 #include <unistd.h>
 
 static const char *const CMD = "optimize";
@@ -26,12 +29,32 @@ static void on_sigint(int sig) {
 
 typedef struct progress {
     int tty;
+    int first;     /* the first iteration reported (-1: none yet) */
+    double t0;     /* when it was reported (seconds, monotonic) */
 } progress;
 
+static double now_seconds(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+/* "iteration 120/500  loss 0.00123  8.3 it/s  left <= 0:45": the time left is that of the
+ * iteration limit, an upper bound since the stopping rule may end the run earlier. The rate is
+ * measured from the first iteration this run reported (a resumed run starts late). */
 static int on_progress(void *user, int iteration, int iterations, double loss) {
-    const progress *p = user;
+    progress *p = user;
     if (p->tty) {
-        fprintf(stderr, "\riteration %d/%d  loss %.6g   ", iteration + 1, iterations, loss);
+        const double t = now_seconds();
+        if (p->first < 0) p->first = iteration, p->t0 = t;
+        fprintf(stderr, "\riteration %d/%d  loss %.6g", iteration + 1, iterations, loss);
+        const int done = iteration - p->first;
+        if (done > 0 && t > p->t0) {
+            const double rate = done / (t - p->t0);
+            const long left = lround((iterations - 1 - iteration) / rate);
+            fprintf(stderr, "  %.3g it/s  left <= %ld:%02ld", rate, left / 60, left % 60);
+        }
+        fprintf(stderr, "   ");
         fflush(stderr);
     }
     return interrupted != 0;
@@ -40,41 +63,21 @@ static int on_progress(void *user, int iteration, int iterations, double loss) {
 static void usage(FILE *f) {
     fprintf(f,
             "Usage: penumbra optimize TASK.json -o OUTDIR [options]\n\n"
-            "Recovers the task's parameter groups (lighting, albedo, pose, spheres) from its\n"
-            "target image by Adam through the differentiable renderer, and writes OUTDIR/\n"
-            "result.json (iterations, timing, losses, metrics against the ground truth),\n"
-            "scene.json (the recovered scene), final.exr/.png, compare.png and loss.svg.\n"
-            "See docs/optimize.md for the task JSON.\n\n"
+            "Recovers the task's parameter groups (lighting, albedo, pose, deformation,\n"
+            "spheres) from its target image by Adam through the differentiable renderer, and\n"
+            "writes OUTDIR/result.json (iterations, timing, losses, metrics against the ground\n"
+            "truth), scene.json (the recovered scene), final.exr/.png, compare.png, loss.svg,\n"
+            "checkpoint.bin and snapshots/iter_NNNNN.png. See docs/optimize.md.\n\n"
             "Options:\n"
             "  -o, --output DIR    output folder (created if missing; required)\n"
             "  --no-shadows        optimise without shadows (visibility 1: the baseline)\n"
             "  --iterations N      override the task's iteration limit\n"
             "  --target IMAGE      override the task's target (.exr or .hdr)\n"
-            "  --resume            start from OUTDIR/scene.json (an earlier run's result)\n"
+            "  --resume            continue from OUTDIR/checkpoint.bin (same result as one run)\n"
+            "  --checkpoint-every K  checkpoint every K iterations (default 50; 0: at the end)\n"
+            "  --snapshot-every K  render snapshot every K iterations (default 50; 0: none)\n"
             "  --threads N         worker threads (default: all cores)\n"
             "  -q, --quiet         no summary line\n");
-}
-
-/* --resume: the earlier run's recovered scene replaces the task's initial guess, taken as it
- * is (no black initial guesses). Adam's moments and the loss history start afresh. Returns 0, or
- * the exit status after printing the error. */
-static int resume_from(pen_context *ctx, const char *outdir, pen_optim_task *task) {
-    char path[4096];
-    if (snprintf(path, sizeof path, "%s/scene.json", outdir) >= (int)sizeof path)
-        return pen_cli_fail(CMD, "--resume: %s: path too long", outdir);
-    pen_scene scene;
-    if (pen_scene_load(ctx, path, &scene))
-        return pen_cli_fail(CMD, "--resume: %s", pen_context_error(ctx));
-    if (scene.camera.width != task->target.width || scene.camera.height != task->target.height) {
-        pen_scene_free(&scene);
-        return pen_cli_fail(CMD, "--resume: %s: the camera is %dx%d but the target is %dx%d", path,
-                            scene.camera.width, scene.camera.height, task->target.width,
-                            task->target.height);
-    }
-    pen_scene_free(&task->scene);
-    task->scene = scene;
-    task->init_black = 0;
-    return 0;
 }
 
 static void print_metric(const char *name, double v) {
@@ -83,8 +86,10 @@ static void print_metric(const char *name, double v) {
 
 int pen_cmd_optimize(int argc, char **argv) {
     const char *task_path = NULL, *outdir = NULL, *target = NULL;
-    int threads = 0, quiet = 0, iterations = 0, resume = 0;
+    int threads = 0, quiet = 0, iterations = 0;
     pen_optim_settings set = pen_optim_settings_default();
+    set.checkpoint_every = 50;
+    set.snapshot_every = 50;
     for (int i = 1; i < argc; ++i) {
         const char *a = argv[i];
         if (pen_cli_is_help(a)) {
@@ -97,7 +102,15 @@ int pen_cmd_optimize(int argc, char **argv) {
             if (++i >= argc) return pen_cli_usage_error(CMD, "%s needs a value", a);
             target = argv[i];
         } else if (!strcmp(a, "--resume")) {
-            resume = 1;
+            set.resume = 1;
+        } else if (!strcmp(a, "--checkpoint-every")) {
+            if (!pen_cli_parse_int(CMD, a, i + 1 < argc ? argv[++i] : NULL, 0, 1000000,
+                                   &set.checkpoint_every))
+                return 2;
+        } else if (!strcmp(a, "--snapshot-every")) {
+            if (!pen_cli_parse_int(CMD, a, i + 1 < argc ? argv[++i] : NULL, 0, 1000000,
+                                   &set.snapshot_every))
+                return 2;
         } else if (!strcmp(a, "--no-shadows")) {
             set.shadows = 0;
         } else if (!strcmp(a, "--iterations")) {
@@ -136,13 +149,13 @@ int pen_cmd_optimize(int argc, char **argv) {
         goto out_ctx;
     }
     if (iterations > 0) task.iterations = iterations;
-    if (resume && (rc = resume_from(ctx, outdir, &task)) != 0) goto out_task;
     if (interrupted) {
         pen_cli_fail(CMD, "interrupted before the optimisation started");
         rc = 130;
         goto out_task;
     }
-    progress p = {isatty(fileno(stderr))};
+    progress p = {isatty(fileno(stderr)), -1, 0.0};
+    set.outdir = outdir;
     set.progress = on_progress;
     set.progress_user = &p;
     pen_status s = pen_optim_run(ctx, &task, &set, &res);
@@ -160,11 +173,16 @@ int pen_cmd_optimize(int argc, char **argv) {
                res.interrupted ? "interrupted"
                                : (res.converged ? "converged" : "iteration limit"),
                res.seconds, res.losses[0], res.final_loss);
+        if (res.resumed_from > 0) printf(", resumed at %d", res.resumed_from);
         const pen_optim_metrics *m = &res.metrics;
         print_metric("lighting_rel_error", m->lighting_rel_error);
         print_metric("albedo_psnr_db", m->albedo_psnr_db);
         print_metric("rotation_error_deg", m->rotation_error_deg);
         print_metric("translation_error", m->translation_error);
+        if (task.optimize & PEN_OPTIM_DEFORMATION) print_metric("vertex_rmse", m->vertex_rmse);
+        print_metric("sphere_iou", m->sphere_iou);
+        print_metric("sphere_chamfer", m->sphere_chamfer);
+        print_metric("shadow_iou", m->shadow_iou);
         printf("\n");
     }
     rc = res.interrupted ? 130 : 0;

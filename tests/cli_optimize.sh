@@ -93,16 +93,60 @@ grep -q '"vertex_rmse"' "$T/def/result.json" || fail "result.json (deformation) 
 grep -q '"w_reg":[[:space:]]*0.01' "$T/def/result.json" || fail "result.json lacks the weights"
 "$BIN" render "$T/def/scene.json" -o "$T/def_again.exr" -q || fail "render the deformed scene"
 
-# 5. --resume continues from the folder's scene: its first loss is the earlier run's final loss.
-"$BIN" optimize "$T/task.json" -o "$T/res" --iterations 5 -q || fail "first leg"
-f1=$(sed -n 's/^[[:space:]]*"final_loss":[[:space:]]*\([^,]*\),/\1/p' "$T/res/result.json")
-"$BIN" optimize "$T/task.json" -o "$T/res" --iterations 5 --resume -q || fail "--resume"
-i2=$(sed -n 's/^[[:space:]]*"initial_loss":[[:space:]]*\([^,]*\),/\1/p' "$T/res/result.json")
-awk -v a="$f1" -v b="$i2" 'BEGIN { d = a - b; if (d < 0) d = -d; exit !(d <= 1e-6 * a) }' ||
-    fail "--resume started at loss $i2, the first leg ended at $f1"
-"$BIN" optimize "$T/task.json" -o "$T/nosuchdir" --resume 2>"$T/err" >/dev/null &&
-    fail "--resume without an earlier run"
-grep -q -- "--resume: .*nosuchdir/scene.json" "$T/err" || fail "--resume error: $(cat "$T/err")"
+# 5. Checkpoints: 40 iterations in one go equal 23, then --resume to 40, bit for bit (the
+# renderer reduces in a fixed order, so this holds with any thread count); snapshots every K.
+same_run() { # dir-a dir-b what
+    for f in final.exr scene.json; do
+        cmp -s "$1/$f" "$2/$f" || fail "$3: $f differs"
+    done
+    grep -v -e '"seconds' -e '"resumed_from"' "$1/result.json" > "$T/ra"
+    grep -v -e '"seconds' -e '"resumed_from"' "$2/result.json" > "$T/rb"
+    cmp -s "$T/ra" "$T/rb" || fail "$3: result.json differs: $(diff "$T/ra" "$T/rb" | head -4)"
+}
+"$BIN" optimize "$T/task.json" -o "$T/once" --iterations 40 --checkpoint-every 7 \
+    --snapshot-every 10 -q || fail "uninterrupted run"
+for k in 00000 00010 00020 00030; do
+    [ -s "$T/once/snapshots/iter_$k.png" ] || fail "no snapshot iter_$k.png"
+done
+[ -e "$T/once/snapshots/iter_00040.png" ] && fail "a snapshot beyond the last iteration"
+[ -s "$T/once/checkpoint.bin" ] || fail "no checkpoint written"
+"$BIN" optimize "$T/task.json" -o "$T/res" --iterations 23 --checkpoint-every 7 -q ||
+    fail "first leg"
+out=$("$BIN" optimize "$T/task.json" -o "$T/res" --iterations 40 --resume) || fail "--resume"
+case "$out" in *"resumed at 23"*) ;; *) fail "resume summary: $out" ;; esac
+grep -q '"resumed_from":[[:space:]]*23' "$T/res/result.json" || fail "resumed_from not recorded"
+same_run "$T/once" "$T/res" "23 + resume to 40"
+# Resuming a finished run to the same limit changes nothing.
+"$BIN" optimize "$T/task.json" -o "$T/res" --iterations 40 --resume -q || fail "resume at the end"
+same_run "$T/once" "$T/res" "resume at the limit"
+# Refused checkpoints: one line naming the file and what is wrong.
+expect_resume_error() { # dir fragment [options]
+    d=$1 frag=$2
+    shift 2
+    if "$BIN" optimize "$T/task.json" -o "$d" --resume "$@" 2>"$T/err" >/dev/null; then
+        fail "--resume accepted for '$frag'"
+    fi
+    grep -q -- "$frag" "$T/err" || fail "--resume error lacks '$frag': $(cat "$T/err")"
+    [ "$(wc -l < "$T/err")" -eq 1 ] || fail "--resume error for '$frag' is not one line"
+}
+expect_resume_error "$T/nosuchdir" "nosuchdir/checkpoint.bin: cannot open the checkpoint"
+expect_resume_error "$T/res" "checkpoint.bin: the checkpoint is at iteration 40, beyond the iteration limit 30" --iterations 30
+expect_resume_error "$T/res" "checkpoint.bin: made with shadows, this run is with --no-shadows" --no-shadows
+expect_resume_error "$T/res" "checkpoint.bin: made for another target image" --target "$T/target_tex.exr"
+cp -r "$T/res" "$T/bad"
+size=$(wc -c < "$T/bad/checkpoint.bin")
+printf 'X' | dd of="$T/bad/checkpoint.bin" bs=1 seek=$((size - 20)) conv=notrunc 2>/dev/null
+expect_resume_error "$T/bad" "checkpoint.bin: damaged checkpoint (checksum mismatch)" --iterations 50
+head -c $((size - 9)) "$T/res/checkpoint.bin" > "$T/bad/checkpoint.bin"
+expect_resume_error "$T/bad" "checkpoint.bin: truncated checkpoint" --iterations 50
+echo "not a checkpoint" > "$T/bad/checkpoint.bin"
+expect_resume_error "$T/bad" "checkpoint.bin: not a penumbra optimize checkpoint"
+printf '{"scene": "truth.json", "target": "target.exr", "optimize": ["lighting", "pose"]}\n' \
+    > "$T/task_lp.json"
+"$BIN" optimize "$T/task_lp.json" -o "$T/res" --resume 2>"$T/err" >/dev/null &&
+    fail "--resume of another task accepted"
+grep -q "checkpoint.bin: made for another task: 12 parameters in 1 segments, this task has 18 in 3" \
+    "$T/err" || fail "--resume of another task: $(cat "$T/err")"
 
 # 6. Ctrl-C: the run stops after the current iteration, writes everything, exits 130.
 if command -v timeout > /dev/null; then
@@ -116,6 +160,12 @@ if command -v timeout > /dev/null; then
     [ $st -eq 130 ] || fail "SIGINT: exit status $st, not 130"
     grep -q '"interrupted":[[:space:]]*true' "$T/int/result.json" || fail "SIGINT: not recorded"
     [ -s "$T/int/scene.json" ] || fail "SIGINT: no recovered scene"
+    # Resumed from where Ctrl-C stopped it, the run ends as one that was never stopped.
+    n=$(sed -n 's/^[[:space:]]*"iterations":[[:space:]]*\([0-9]*\),/\1/p' "$T/int/result.json")
+    n=$((n + 25))
+    "$BIN" optimize "$T/long.json" -o "$T/int" --resume --iterations $n -q || fail "resume after SIGINT"
+    "$BIN" optimize "$T/long.json" -o "$T/int_once" --iterations $n -q || fail "run to $n"
+    same_run "$T/int_once" "$T/int" "SIGINT + resume to $n"
 fi
 
 # Errors: exit 1, one line on stderr naming the file and key, no output folder.

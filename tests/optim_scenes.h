@@ -27,6 +27,41 @@ static inline pen_scene os_egg(int size, int textured, int bands) {
     return sc;
 }
 
+/* A low sun (elevation 35 degrees, from +x and a little +z) over an ambient sky, 4 bands: the
+ * sun's SH projection with a Hann window (1, 0.85, 0.5, 0.15 per band) against ringing. */
+static inline void os_sun(pen_scene *sc, float sun, float sky) {
+    const float el = 35.0f * (float)M_PI / 180.0f;
+    float d[3] = {cosf(el) * 0.95f, sinf(el), cosf(el) * 0.31f}, y[16];
+    const float n = sqrtf(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+    d[0] /= n, d[1] /= n, d[2] /= n;
+    pen_sh_eval(4, d, y);
+    memset(sc->lighting.sh, 0, sizeof sc->lighting.sh);
+    for (int l = 0; l < 4; ++l) {
+        const float c = cosf((float)M_PI * (float)l / 8.0f), window = c * c;
+        for (int m = -l; m <= l; ++m)
+            for (int ch = 0; ch < 3; ++ch)
+                sc->lighting.sh[l * l + l + m][ch] = sun * window * y[l * l + l + m];
+    }
+    for (int ch = 0; ch < 3; ++ch)
+        sc->lighting.sh[0][ch] += sky * sqrtf(4.0f * (float)M_PI);
+    sc->sh_bands = 4;
+}
+
+/* Shape from shadow: the ellipsoid under os_sun, seen from straight above over its shadow, which
+ * falls towards -x; the frame (ground x in [-1.55, -0.45]) leaves the object outside: only its
+ * shadow on the ground is seen. */
+static inline pen_scene os_shadow_view(int size) {
+    pen_scene sc = os_egg(size, 0, 4);
+    os_sun(&sc, 6.0f, 0.5f);
+    const float eye[3] = {-1.0f, 4.0f, -0.3f}, target[3] = {-1.0f, 0.0f, -0.3f},
+                up[3] = {0.0f, 0.0f, -1.0f};
+    memcpy(sc.camera.eye, eye, sizeof eye);
+    memcpy(sc.camera.target, target, sizeof target);
+    memcpy(sc.camera.up, up, sizeof up);
+    sc.camera.fov_y_deg = 16.0f;
+    return sc;
+}
+
 /* The SH-lit reference render of a scene (256 spp, seed 1: pixel noise about 0.007 RMSE). */
 static inline pen_image os_reference(const pen_scene *sc) {
     pen_image img = {0, 0, 0, NULL};
@@ -37,6 +72,28 @@ static inline pen_image os_reference(const pen_scene *sc) {
     pen_reference_destroy(ref);
     pen_context_destroy(ctx);
     return img;
+}
+
+/* A task with the library's defaults (lr, l2, tolerance 1e-3, window 10, black initial guesses,
+ * deformation settings) on scene `scene` (the initial guess) with ground truth `truth`, whose
+ * reference render is the target; both scenes are taken over. */
+static inline pen_optim_task os_task(pen_scene scene, pen_scene truth, unsigned groups,
+                                     int iterations) {
+    pen_optim_task t;
+    memset(&t, 0, sizeof t);
+    t.scene = scene;
+    t.ground_truth = truth;
+    t.has_ground_truth = 1;
+    t.optimize = groups;
+    t.iterations = iterations;
+    t.lr = pen_optim_lr_default();
+    t.loss = PEN_OPTIM_LOSS_L2;
+    t.tolerance = 1e-3;
+    t.window = 10;
+    t.init_black = 1;
+    t.deformation = pen_optim_deformation_default();
+    t.target = os_reference(&t.ground_truth);
+    return t;
 }
 
 #endif

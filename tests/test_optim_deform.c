@@ -218,21 +218,12 @@ static void test_deformation_recovery(void) {
     const double lift[2][3] = {{0.0, 0.18, 0.06}, {0.0, -0.12, -0.08}};
     double err[2], before = 0.0;
     for (int shadows = 0; shadows < 2; ++shadows) {
-        pen_optim_task t;
-        memset(&t, 0, sizeof t);
         /* 64x64: at 40x40 the bend is two pixels and barely seen */
-        t.scene = os_egg(64, 1, 4);
-        t.ground_truth = os_egg(64, 1, 4);
-        bend(&t.ground_truth, lift);
-        t.has_ground_truth = 1;
-        t.optimize = PEN_OPTIM_DEFORMATION;
-        t.iterations = check_quick_() ? 20 : 300; /* quick: the paths, not the values */
-        t.lr = pen_optim_lr_default();
-        t.tolerance = 1e-3;
-        t.window = 10;
-        t.init_black = 1;
-        t.deformation = pen_optim_deformation_default();
-        t.target = os_reference(&t.ground_truth);
+        pen_scene truth = os_egg(64, 1, 4);
+        bend(&truth, lift);
+        /* quick: the paths, not the values */
+        pen_optim_task t = os_task(os_egg(64, 1, 4), truth, PEN_OPTIM_DEFORMATION,
+                                   check_quick_() ? 20 : 300);
         pen_context *ctx = pen_context_create();
         before = vertex_rmse(&t.scene, &t.ground_truth);
         pen_optim_settings set = pen_optim_settings_default();

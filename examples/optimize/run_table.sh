@@ -1,25 +1,61 @@
 #!/bin/sh
-# The inverse-problem experiment table of docs/optimize.md: every task of this folder (lighting,
-# albedo, pose, lighting + pose; Spot and Bob) solved with shadows and with --no-shadows, against
-# targets ray-traced by `penumbra reference` from the ground-truth scenes.
+# The inverse-problem experiment table of docs/optimize.md: every task of this folder solved with
+# shadows and with --no-shadows, against targets ray-traced by `penumbra reference` from the
+# ground-truth scenes. Tasks (per mesh, Spot and Bob):
+#   lighting, albedo, pose, lighting_pose   the scene of <mesh>_truth.json (256x256, city map)
+#   deformation          the mesh bent sideways (bend_obj.py) recovered through the embedded
+#                        deformation graph from the unbent mesh
+#   shape_from_shadow    the proxy spheres recovered from the shadow alone (the camera looks
+#                        at the ground where the shadow falls), from a perturbed start
+#                        (perturb_spheres.py); own lighting, a 4-band sun (sun_sh.py)
 # Usage: sh examples/optimize/run_table.sh PENUMBRA_BIN [LIGHTING [MESH ...]]
 #   LIGHTING  the targets' light: envmap (default; the map itself, so sharp shadows the 4-band
 #             model cannot reproduce) or sh (the map's 4-band projection, which the model
-#             represents exactly: what is left is the error of the proxies and SH visibility)
+#             represents exactly: what is left is the error of the proxies and SH visibility).
+#             The shape-from-shadow targets are lit by their scene's SH sun either way.
 #   MESH      spot, bob (default both)
-# Writes out/optimize/ (ignored by git): targets/<mesh>.exr (envmap) and <mesh>_sh.exr, one folder
-# per run (LIGHTING/<mesh>_<task>_<shadows|no-shadows>/ with result.json, scene.json,
-# final.png, compare.png, loss.svg), LIGHTING/results.tsv, and a markdown table on stdout.
-# Cost on the 2-core development machine: about 0.35 s per shadowed iteration at 256x256.
+# Environment: PEN_TABLE_ENVMAP (city, default, or interior) picks the bundled map of the
+#   scenes and targets: for interior every JSON of this folder is copied to out/tasks_interior/
+#   with city.hdr replaced by interior.hdr (same scale and rotation), and the results go to
+#   out/optimize/interior_LIGHTING/; PEN_TABLE_TASKS (default "lighting albedo pose lighting_pose deformation
+#   shape_from_shadow") picks rows; PEN_TABLE_ITERATIONS caps every run's iterations (a quick
+#   smoke run of the whole table: PEN_TABLE_ITERATIONS=5).
+# Writes out/optimize/ (ignored by git): meshes/<mesh>_bent.obj, spheres/<mesh>_start.json,
+# targets/<mesh>.exr (envmap), <mesh>_sh.exr, <mesh>_bent[_sh].exr, <mesh>_shadow.exr, one folder
+# per run (LIGHTING/<mesh>_<task>_<shadows|no-shadows>/ with result.json, scene.json, final.png,
+# compare.png, loss.svg, snapshots/, checkpoint.bin), LIGHTING/results.tsv, and a markdown
+# table on stdout.
+# Cost on the 2-core development machine (shared): about 0.1-0.3 s per shadowed iteration at
+# 256x256 and 0.01-0.2 s unshadowed; the whole table for one LIGHTING and both meshes takes
+# about an hour (docs/optimize.md lists the measured iterations and s/it of every row).
 set -eu
 BIN=$1
 LIGHTING=${2:-envmap}
 [ $# -ge 2 ] && shift 2 || shift $#
 MESHES=${*:-spot bob}
+TASKS=${PEN_TABLE_TASKS:-lighting albedo pose lighting_pose deformation shape_from_shadow}
 HERE=$(cd "$(dirname "$0")" && pwd)
-TARGETS=$HERE/../../out/optimize/targets
-OUT=$HERE/../../out/optimize/$LIGHTING
-mkdir -p "$TARGETS" "$OUT"
+ROOT=$HERE/../..
+GEN=$ROOT/out/optimize
+TARGETS=$GEN/targets
+ENVMAP=${PEN_TABLE_ENVMAP:-city}
+case $ENVMAP in
+city) TASKS_DIR=$HERE env="" OUT=$GEN/$LIGHTING ;;
+interior)
+    # two folders below the root, like this one, so the copies' relative paths still hold
+    TASKS_DIR=$ROOT/out/tasks_interior env=_interior OUT=$GEN/interior_$LIGHTING
+    mkdir -p "$TASKS_DIR"
+    for f in "$HERE"/*.json; do
+        sed 's#/city\.hdr#/interior.hdr#g' "$f" > "$TASKS_DIR/$(basename "$f")"
+    done ;;
+*) echo "unknown envmap $ENVMAP (expected city or interior)" >&2 && exit 2 ;;
+esac
+case $LIGHTING in
+envmap) suffix="" ;;
+sh) suffix=_sh ;;
+*) echo "unknown lighting $LIGHTING (expected envmap or sh)" >&2 && exit 2 ;;
+esac
+mkdir -p "$TARGETS" "$OUT" "$GEN/meshes" "$GEN/spheres"
 
 # The value of a top-level or metrics member of a result.json ("-" when absent).
 field() { # file name
@@ -29,41 +65,72 @@ field() { # file name
 fmt() { # printf-format value
     case $2 in -|null) echo "-" ;; *) printf "$1" "$2" ;; esac
 }
+reference() { # truth.json target.exr [--lighting L]
+    [ -s "$2" ] || "$BIN" reference "$1" -o "$2" --spp 256 ${3:-} ${4:-} > /dev/null
+}
 
-printf 'mesh\ttask\tshadows\titerations\tconverged\ts_per_it\tfinal_loss\timage_rmse\tlighting_rel_error\talbedo_psnr_db\talbedo_texel_psnr_db\talbedo_observed\trotation_error_deg\ttranslation_error\tvertex_rmse\n' > "$OUT/results.tsv"
-echo "| mesh | task | shadows | iterations | s/it | image RMSE | lighting rel. error | albedo PSNR (dB) | rotation error (°) | translation error |"
-echo "|---|---|---|---|---|---|---|---|---|---|"
-for mesh in $MESHES; do
-    case $LIGHTING in
-    envmap) target="$TARGETS/$mesh.exr" ;;
-    sh) target="$TARGETS/${mesh}_sh.exr" ;;
-    *) echo "unknown lighting $LIGHTING" >&2 && exit 2 ;;
+# Generated inputs: the bent meshes (deformation) and the perturbed spheres (shape from shadow).
+prepare() { # mesh
+    case $1 in
+    spot) obj=spot_triangulated.obj along=z toward=x ;;
+    bob) obj=bob_tri.obj along=x toward=z ;;
+    *) echo "unknown mesh $1" >&2 && exit 2 ;;
     esac
-    [ -s "$target" ] || "$BIN" reference "$HERE/${mesh}_truth.json" -o "$target" --spp 256 \
-        --lighting $LIGHTING > /dev/null
-    for task in lighting albedo pose lighting_pose; do
+    [ -s "$GEN/meshes/$1_bent.obj" ] ||
+        python3 "$HERE/bend_obj.py" "$ROOT/data/meshes/$obj" "$GEN/meshes/$1_bent.obj" \
+            --along $along --toward $toward --curvature 0.4
+    if [ ! -s "$GEN/spheres/$1_start.json" ]; then
+        "$BIN" fit-spheres "$ROOT/data/meshes/$obj" -n 32 -o "$GEN/spheres/$1_fit32.json" > /dev/null
+        python3 "$HERE/perturb_spheres.py" "$GEN/spheres/$1_fit32.json" \
+            "$GEN/spheres/$1_start.json" --scale 0.75 --shift 0.1 0 -0.12
+    fi
+}
+
+printf 'mesh\ttask\tshadows\titerations\tconverged\ts_per_it\tfinal_loss\timage_rmse\tlighting_rel_error\talbedo_psnr_db\talbedo_texel_psnr_db\talbedo_observed\trotation_error_deg\ttranslation_error\tvertex_rmse\tsphere_iou\tsphere_chamfer\tshadow_iou\n' > "$OUT/results.tsv"
+echo "| mesh | task | shadows | iterations | s/it | image RMSE | lighting rel. error (bands 0–2) | albedo PSNR (dB) | rotation error (°) | translation error | vertex RMSE | shadow IoU (sphere IoU) |"
+echo "|---|---|---|---|---|---|---|---|---|---|---|---|"
+for mesh in $MESHES; do
+    prepare $mesh
+    for task in $TASKS; do
+        case $task in
+        deformation)
+            target="$TARGETS/${mesh}_bent$env$suffix.exr"
+            reference "$TASKS_DIR/${mesh}_bent_truth.json" "$target" --lighting $LIGHTING ;;
+        shape_from_shadow)
+            target="$TARGETS/${mesh}_shadow.exr"
+            reference "$TASKS_DIR/${mesh}_shadow_truth.json" "$target" ;;
+        *)
+            target="$TARGETS/$mesh$env$suffix.exr"
+            reference "$TASKS_DIR/${mesh}_truth.json" "$target" --lighting $LIGHTING ;;
+        esac
         for mode in shadows no-shadows; do
             dir="$OUT/${mesh}_${task}_$mode"
-            flag=""
-            [ $mode = no-shadows ] && flag=--no-shadows
-            "$BIN" optimize "$HERE/${mesh}_$task.json" -o "$dir" --target "$target" $flag -q
+            set -- --target "$target" -q
+            [ $mode = no-shadows ] && set -- "$@" --no-shadows
+            [ -n "${PEN_TABLE_ITERATIONS:-}" ] && set -- "$@" --iterations "$PEN_TABLE_ITERATIONS"
+            "$BIN" optimize "$TASKS_DIR/${mesh}_$task.json" -o "$dir" "$@"
             r="$dir/result.json"
             printf '%s\t%s\t%s' $mesh $task $mode >> "$OUT/results.tsv"
             for f in iterations converged seconds_per_iteration final_loss image_rmse \
-                lighting_rel_error albedo_psnr_db albedo_texel_psnr_db albedo_observed rotation_error_deg \
-                translation_error vertex_rmse; do
+                lighting_rel_error albedo_psnr_db albedo_texel_psnr_db albedo_observed \
+                rotation_error_deg translation_error vertex_rmse sphere_iou sphere_chamfer \
+                shadow_iou; do
                 printf '\t%s' "$(field "$r" $f)" >> "$OUT/results.tsv"
             done
             printf '\n' >> "$OUT/results.tsv"
             conv=""
             [ "$(field "$r" converged)" = true ] || conv=" (limit)"
+            light="$(fmt %.3f "$(field "$r" lighting_rel_error)")"
+            [ "$light" = - ] || light="$light ($(fmt %.3f "$(field "$r" lighting_rel_error_bands_0_2)"))"
+            shadow="$(fmt %.3f "$(field "$r" shadow_iou)")"
+            [ "$shadow" = - ] || shadow="$shadow ($(fmt %.3f "$(field "$r" sphere_iou)"))"
             echo "| $mesh | $task | $mode | $(field "$r" iterations)$conv |" \
                 "$(fmt %.2f "$(field "$r" seconds_per_iteration)") |" \
-                "$(fmt %.4f "$(field "$r" image_rmse)") |" \
-                "$(fmt %.3f "$(field "$r" lighting_rel_error)") |" \
+                "$(fmt %.4f "$(field "$r" image_rmse)") | $light |" \
                 "$(fmt %.1f "$(field "$r" albedo_psnr_db)") |" \
                 "$(fmt %.2f "$(field "$r" rotation_error_deg)") |" \
-                "$(fmt %.4f "$(field "$r" translation_error)") |"
+                "$(fmt %.4f "$(field "$r" translation_error)") |" \
+                "$(fmt %.4f "$(field "$r" vertex_rmse)") | $shadow |"
         done
     done
 done

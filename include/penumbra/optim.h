@@ -37,7 +37,10 @@
  * and albedos (texels or constant) start at 0; when both are optimised together the albedo starts
  * at 0.5 instead, because at lighting = albedo = 0 both gradients vanish. The pose (and spheres)
  * start where the task's scene puts them: give a pose near the truth. `"init": "scene"` starts
- * every group from the task's scene.
+ * every group from the task's scene. `"init": "fit"` is "black" except that optimised lighting
+ * starts at the SH lighting that best explains the target without shadows (a linear least-
+ * squares fit, one unshadowed render per coefficient): from black lighting the pose gradient of
+ * a joint lighting + pose problem is noise that Adam's normalised step turns into full steps.
  */
 #ifndef PENUMBRA_OPTIM_H
 #define PENUMBRA_OPTIM_H
@@ -88,6 +91,17 @@ typedef struct pen_optim_deformation {
 
 pen_optim_deformation pen_optim_deformation_default(void);
 
+/* The shadow-weighted loss (task key "shadow_weight" = s >= 0). Per pixel p of the target T,
+ *     m_p = clamp(1 - Y(T_p) / Y(U_p), 0, 1),   Y = the mean of the three channels,
+ * the fraction of the light an unshadowed model predicts that the target lacks (0 where
+ * Y(U_p) <= 1e-6). U is the initial scene (after the initial guesses) rendered without shadows.
+ * When the lighting is optimised its initial value is a guess (black by default), so U's
+ * lighting is instead fitted to the target: the least-squares SH lighting of the unshadowed
+ * render (the image is affine in it), refitted once over the pixels with m < 0.1 so that the
+ * shadows do not darken it. The loss is
+ *     sum_p w_p sum_c rho(I_pc - T_pc) / (3 sum_p w_p),   w_p = 1 + s m_p,
+ * rho = r^2 (l2) or |r| (l1); with s = 0 the plain mean. The mask is computed once, before the
+ * first iteration, and held fixed: the weights are constants of the objective. */
 typedef struct pen_optim_task {
     char *path;         /* the task file (messages, relative paths) */
     pen_scene scene;    /* the initial guess; pen_optim_run leaves the recovered scene here */
@@ -100,7 +114,11 @@ typedef struct pen_optim_task {
     double tolerance;   /* stopping rule (default 1e-3) */
     int window;         /* stopping rule window (default 10; 1 is the supplement's plain rule) */
     int init_black;     /* 1: supplement 5.2 initial guesses (default); 0: the scene's values */
+    int init_fit;       /* 1 ("init": "fit"): as init_black, but optimised lighting starts at the
+                           least-squares fit of the unshadowed render to the target */
     pen_optim_deformation deformation;
+    double shadow_weight; /* >= 0 (default 0): stresses the target's shadows in the loss,
+                             below */
     int has_ground_truth;
     pen_scene ground_truth; /* zeroed when has_ground_truth == 0 */
 } pen_optim_task;
@@ -128,13 +146,28 @@ void pen_optim_task_free(pen_optim_task *task);
  * stop early (e.g. on Ctrl-C: the run then ends normally with converged = 0, interrupted = 1). */
 typedef int (*pen_optim_progress_fn)(void *user, int iteration, int iterations, double loss);
 
+/* Checkpoints and snapshots. With `outdir` set, pen_optim_run writes OUTDIR/checkpoint.bin
+ * every `checkpoint_every` iterations and when the run ends (limit, convergence, interrupt):
+ * the parameter vector, Adam's moments and step count, the best iterate and its loss, the loss
+ * history (the stopping rule's whole state) and the seconds spent, each write atomic (temporary
+ * file, fsync, rename). With `resume` it first loads that checkpoint and continues from it: the
+ * task run to N iterations in one go and run to K, then resumed to N, give the same parameters,
+ * losses and outputs bit for bit (same task, target, shadows and thread count; the renderer
+ * reduces in a fixed order). A checkpoint of another task (parameter layout, target, initial
+ * guess, loss, shadows) or a damaged one is refused with one line naming the file and what
+ * differs. `snapshot_every` > 0 writes the render of every K-th iterate to
+ * OUTDIR/snapshots/iter_NNNNN.png. The folder is created when first written to. */
 typedef struct pen_optim_settings {
     int shadows;                    /* 0: optimise with V == 1 (`--no-shadows`, the baseline) */
     pen_optim_progress_fn progress; /* may be NULL */
     void *progress_user;
+    const char *outdir;   /* NULL: no checkpoints, no snapshots, no resume */
+    int checkpoint_every; /* > 0: also every K iterations; 0: only at the end */
+    int snapshot_every;   /* > 0: a snapshot every K iterations; 0: none */
+    int resume;           /* 1: continue from OUTDIR/checkpoint.bin (it must exist) */
 } pen_optim_settings;
 
-/* shadows = 1, no callback. */
+/* shadows = 1, no callback, no output folder. */
 pen_optim_settings pen_optim_settings_default(void);
 
 /* Metrics against the ground truth; NaN where a metric does not apply (no ground truth, or the
@@ -156,6 +189,15 @@ typedef struct pen_optim_metrics {
     double rotation_error_deg;  /* largest over objects of the angle of R R_true^T */
     double translation_error;   /* largest over objects of |t - t_true| (scene units) */
     double vertex_rmse;         /* posed vertices vs the truth's, all objects (scene units) */
+    double sphere_iou;          /* volume IoU of the recovered and the true objects' unions of
+                                   spheres (world space, on a 96^3 grid over both) */
+    double sphere_chamfer;      /* symmetric Chamfer distance of the sphere centres (world
+                                   space): the mean over both sets of each centre's distance to
+                                   the nearest centre of the other set, averaged */
+    double shadow_iou;          /* IoU of the two unions of spheres seen from the light: their
+                                   projections onto the ground along the truth's dominant light
+                                   direction (the dipole of its SH lighting; straight down
+                                   without one), on a 256^2 grid; what a shadow determines */
 } pen_optim_metrics;
 
 typedef struct pen_optim_result {
@@ -165,6 +207,7 @@ typedef struct pen_optim_result {
     int best_iteration;   /* the iteration whose parameters were kept (lowest loss) */
     int converged;        /* 1: the stopping rule fired; 0: iteration limit or interrupted */
     int interrupted;      /* 1: the progress callback asked to stop */
+    int resumed_from;     /* the iteration the run continued from a checkpoint (0: none) */
     double *losses;       /* iterations + 1 losses: losses[i] of the parameters after i steps */
     pen_image initial;    /* render of the initial guess (after the init rule) */
     pen_image final;      /* render of the recovered scene */

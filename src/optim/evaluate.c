@@ -10,7 +10,13 @@
  * quaternions in double as 2 atan2(|v|, |w|) of q q_true^-1, which stays accurate for small
  * angles where acos((tr R - 1) / 2) loses half its digits; the translation's Euclidean error;
  * the RMSE of the posed vertices, which weighs both by the object's extent. Multiple objects:
- * the albedo PSNR pools all texels, the pose errors are the largest over objects. */
+ * the albedo PSNR pools all texels, the pose errors are the largest over objects. Spheres (shape
+ * from shadow): the volume IoU of the two unions of spheres in world space, counted on a 96^3
+ * grid of cell centres over both bounding boxes (what the shadows constrain: the occluding
+ * volume, not which sphere is which), the symmetric Chamfer distance of the centres, and the
+ * IoU of the two sets' silhouettes seen from the light (projected along the truth's dominant
+ * light direction onto the ground): one shadow fixes that silhouette but not where along the
+ * light the occluder is, nor, with a soft light, much of its size. */
 #include "optim/optim_internal.h"
 
 #include "penumbra/render.h"
@@ -247,6 +253,155 @@ static void pose_error(const pen_optim_task *t, pen_optim_metrics *m) {
     m->vertex_rmse = n ? sqrt(sq / (double)n) : (double)NAN;
 }
 
+/* ---- Spheres --------------------------------------------------------------------------------- */
+
+/* Every object's spheres in world space (x, y, z, r), malloc'd; *count receives their number. */
+static double *world_spheres(pen_context *ctx, const pen_scene *sc, int *count) {
+    int n = 0;
+    for (int o = 0; o < sc->object_count; ++o)
+        n += sc->objects[o].spheres.count;
+    double *out = pen__malloc(ctx, 4 * (size_t)n + 1, sizeof(double), "sphere metrics");
+    if (!out) return NULL;
+    int k = 0;
+    for (int o = 0; o < sc->object_count; ++o) {
+        const pen_object *ob = &sc->objects[o];
+        for (int j = 0; j < ob->spheres.count; ++j, ++k) {
+            float c[3];
+            pen_pose_apply(&ob->pose, ob->spheres.data + 4 * j, c);
+            for (int a = 0; a < 3; ++a)
+                out[4 * k + a] = c[a];
+            out[4 * k + 3] = (double)ob->pose.scale * (double)ob->spheres.data[4 * j + 3];
+        }
+    }
+    *count = n;
+    return out;
+}
+
+static int inside(const double *sp, int n, const double p[3]) {
+    for (int j = 0; j < n; ++j) {
+        const double *q = sp + 4 * j;
+        const double x = p[0] - q[0], y = p[1] - q[1], z = p[2] - q[2];
+        if (x * x + y * y + z * z <= q[3] * q[3]) return 1;
+    }
+    return 0;
+}
+
+/* Mean over a's centres of the distance to the nearest centre of b. */
+static double mean_nearest(const double *a, int na, const double *b, int nb) {
+    double sum = 0.0;
+    for (int i = 0; i < na; ++i) {
+        double best = (double)INFINITY;
+        for (int j = 0; j < nb; ++j) {
+            const double x = a[4 * i] - b[4 * j], y = a[4 * i + 1] - b[4 * j + 1],
+                         z = a[4 * i + 2] - b[4 * j + 2];
+            best = fmin(best, x * x + y * y + z * z);
+        }
+        sum += sqrt(best);
+    }
+    return sum / na;
+}
+
+#define IOU_GRID 96
+#define SHADOW_GRID 256
+
+/* The direction the light mostly comes from: the dipole of the truth's SH lighting (band 1,
+ * luminance), Y_1,-1 = -c y, Y_1,0 = c z, Y_1,1 = -c x; straight down when it has no dipole or
+ * the dipole points below the horizon. */
+static void light_direction(const pen_scene *gt, double d[3]) {
+    d[0] = d[1] = d[2] = 0.0;
+    if (gt->sh_bands >= 2)
+        for (int ch = 0; ch < 3; ++ch) {
+            d[0] -= (double)gt->lighting.sh[3][ch];
+            d[1] -= (double)gt->lighting.sh[1][ch];
+            d[2] += (double)gt->lighting.sh[2][ch];
+        }
+    const double n = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+    if (!(n > 0.0) || d[1] <= 0.05 * n) {
+        d[0] = d[2] = 0.0, d[1] = 1.0;
+        return;
+    }
+    d[0] /= n, d[1] /= n, d[2] /= n;
+}
+
+/* 1 if the line through ground point g along d meets one of the n spheres. */
+static int shades(const double *sp, int n, const double g[3], const double d[3]) {
+    for (int j = 0; j < n; ++j) {
+        const double *q = sp + 4 * j;
+        const double v[3] = {q[0] - g[0], q[1] - g[1], q[2] - g[2]};
+        const double along = v[0] * d[0] + v[1] * d[1] + v[2] * d[2];
+        if (v[0] * v[0] + v[1] * v[1] + v[2] * v[2] - along * along <= q[3] * q[3]) return 1;
+    }
+    return 0;
+}
+
+/* IoU of the two sphere sets' silhouettes seen from the light: their projections along the
+ * light direction onto the ground plane (what a sharp shadow of them would cover). */
+static double shadow_iou(const double *a, int na, const double *b, int nb, const pen_scene *gt) {
+    double d[3];
+    light_direction(gt, d);
+    const double h = gt->ground.enabled ? (double)gt->ground.height : 0.0;
+    double lo[2] = {INFINITY, INFINITY}, hi[2] = {-INFINITY, -INFINITY};
+    for (int k = 0; k < na + nb; ++k) {
+        const double *q = k < na ? a + 4 * k : b + 4 * (k - na);
+        const double t = (q[1] - h) / d[1], reach = q[3] / d[1]; /* the ellipse's half axes */
+        const double g[2] = {q[0] - t * d[0], q[2] - t * d[2]};
+        for (int c = 0; c < 2; ++c) {
+            lo[c] = fmin(lo[c], g[c] - reach);
+            hi[c] = fmax(hi[c], g[c] + reach);
+        }
+    }
+    long long both = 0, either = 0;
+    for (int z = 0; z < SHADOW_GRID; ++z)
+        for (int x = 0; x < SHADOW_GRID; ++x) {
+            const double g[3] = {lo[0] + (hi[0] - lo[0]) * (x + 0.5) / SHADOW_GRID, h,
+                                 lo[1] + (hi[1] - lo[1]) * (z + 0.5) / SHADOW_GRID};
+            const int ia = shades(a, na, g, d), ib = shades(b, nb, g, d);
+            both += ia && ib;
+            either += ia || ib;
+        }
+    return either ? (double)both / (double)either : (double)NAN;
+}
+
+/* Volume IoU of the two unions of spheres (cell centres of a grid over both bounding boxes), the
+ * symmetric Chamfer distance of their centres and the IoU of their silhouettes from the light. */
+static pen_status sphere_error(pen_context *ctx, const pen_optim_task *t, pen_optim_metrics *m) {
+    int na = 0, nb = 0;
+    double *a = world_spheres(ctx, &t->scene, &na), *b = world_spheres(ctx, &t->ground_truth, &nb);
+    if (!a || !b) {
+        free(a);
+        free(b);
+        return PEN_ERROR_MEMORY;
+    }
+    if (na > 0 && nb > 0) {
+        double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+        for (int k = 0; k < na + nb; ++k) {
+            const double *q = k < na ? a + 4 * k : b + 4 * (k - na);
+            for (int c = 0; c < 3; ++c) {
+                lo[c] = fmin(lo[c], q[c] - q[3]);
+                hi[c] = fmax(hi[c], q[c] + q[3]);
+            }
+        }
+        long long both = 0, either = 0;
+        for (int z = 0; z < IOU_GRID; ++z)
+            for (int y = 0; y < IOU_GRID; ++y)
+                for (int x = 0; x < IOU_GRID; ++x) {
+                    const int g[3] = {x, y, z};
+                    double p[3];
+                    for (int c = 0; c < 3; ++c)
+                        p[c] = lo[c] + (hi[c] - lo[c]) * (g[c] + 0.5) / IOU_GRID;
+                    const int ia = inside(a, na, p), ib = inside(b, nb, p);
+                    both += ia && ib;
+                    either += ia || ib;
+                }
+        m->sphere_iou = either ? (double)both / (double)either : (double)NAN;
+        m->sphere_chamfer = 0.5 * (mean_nearest(a, na, b, nb) + mean_nearest(b, nb, a, na));
+        m->shadow_iou = shadow_iou(a, na, b, nb, &t->ground_truth);
+    }
+    free(a);
+    free(b);
+    return PEN_OK;
+}
+
 pen_status pen__optim_metrics(pen_context *ctx, const pen_optim_task *t, pen_optim_metrics *m) {
     if (!t->has_ground_truth) return PEN_OK;
     pen_status s = pen__optim_check_truth(ctx, t);
@@ -257,6 +412,8 @@ pen_status pen__optim_metrics(pen_context *ctx, const pen_optim_task *t, pen_opt
             m->lighting_rel_error_b2 = lighting_error(&t->scene, &t->ground_truth, 3);
     }
     if (t->optimize & (PEN_OPTIM_POSE | PEN_OPTIM_DEFORMATION)) pose_error(t, m);
+    if (t->optimize & PEN_OPTIM_SPHERES) s = sphere_error(ctx, t, m);
+    if (s) return s;
     if (t->optimize & PEN_OPTIM_ALBEDO) {
         s = albedo_view_psnr(ctx, t, &m->albedo_psnr_db);
         if (!s) s = albedo_texels(ctx, t, m);

@@ -8,6 +8,8 @@
 #include "penumbra/mesh.h"
 #include "penumbra/spheres.h"
 
+#include <stdint.h>
+
 /* ---- Adam (src/optim/adam.c) ----------------------------------------------------------------- */
 
 /* What a segment's values must satisfy after each step (a projection, applied in place). */
@@ -78,6 +80,80 @@ void pen__optim_deform_bwd(const pen__deform_graph *graph, const double *params,
 /* w_rot E_rot + w_reg E_reg; adds its gradient into d_params (may be NULL). */
 double pen__optim_deform_energy(const pen__deform_graph *graph, const double *params, double w_rot,
                                 double w_reg, double *d_params);
+
+/* ---- Weighted loss and shadow mask (src/optim/loss.c) --------------------------------------- */
+
+/* loss = sum_p w_p sum_c rho(image_pc - target_pc) / (C sum_p w_p) over the pixels p and the C
+ * channels, rho = r^2 (l2) or |r| (l1); `weight` (one per pixel) NULL means w = 1, the plain
+ * mean. Summed in double in pixel order. Shapes must match; the weights must be >= 0 with a
+ * positive sum. */
+pen_status pen__optim_loss_fwd(pen_context *ctx, pen_optim_loss kind, const pen_image *image,
+                               const pen_image *target, const float *weight, double *loss);
+/* Adds d_loss * dloss/dimage into d_image (the image's shape). */
+void pen__optim_loss_bwd(pen_optim_loss kind, const pen_image *image, const pen_image *target,
+                         const float *weight, double d_loss, pen_image *d_image);
+/* The SH lighting (sh_bands^2 rows) that best explains `target` by the scene `sc` rendered
+ * without shadows (least squares per channel; refitted once over the pixels the first fit's
+ * shadow mask calls lit, m < 0.1). Band 3's coefficients stay 0: no unshadowed diffuse surface
+ * sees them. ridge: Tikhonov weight relative to the normal equations' largest diagonal entry. */
+pen_status pen__optim_fit_lighting(pen_context *ctx, const pen_scene *sc, const pen_image *target,
+                                   double ridge, float (*sh)[3]);
+/* Ridges (relative to the largest diagonal entry of the normal equations): the shadow mask
+ * needs an unbiased fitted image, the "fit" initial guess well-conditioned coefficients. */
+#define PEN__OPTIM_RIDGE_MASK 1e-9
+#define PEN__OPTIM_RIDGE_INIT 1e-2
+/* The shadow mask of optim.h ("shadow_weight") for the scene `sc` (the initial guess) against
+ * `target`: mask[p] in [0, 1] per pixel. fit_lighting: U's lighting is the least-squares fit to
+ * the target instead of the scene's. Renders with the context's threads. */
+pen_status pen__optim_shadow_mask(pen_context *ctx, const pen_scene *sc, const pen_image *target,
+                                  int fit_lighting, float *mask);
+
+/* ---- Checkpoints (src/optim/checkpoint.c) ---------------------------------------------------- */
+
+/* What a checkpoint belongs to; a resumed run must match all of it. */
+typedef struct pen__optim_identity {
+    size_t n; /* parameters */
+    const pen__optim_segment *segments;
+    int segment_count;
+    unsigned groups;
+    int loss, shadows, width, height;
+    double shadow_weight;
+    uint64_t target_hash; /* of the target's pixels */
+    uint64_t init_hash;   /* of the parameter vector of the initial guess */
+} pen__optim_identity;
+
+/* The loop's state after `iteration` Adam steps; the arrays are the loop's own buffers. */
+typedef struct pen__optim_state {
+    int iteration;      /* Adam steps taken; x holds the parameters after them */
+    int recorded;       /* losses[0 .. recorded) are known: iteration or iteration + 1 */
+    int best_iteration; /* of the lowest loss among them (-1: none yet) */
+    double best_loss, seconds;
+    float *x, *best;    /* n each */
+    pen__adam *adam;    /* moments (n each) and step count */
+    double *losses;
+} pen__optim_state;
+
+/* FNV-1a 64 of `size` bytes, continuing from h (start: PEN__OPTIM_HASH_SEED). */
+#define PEN__OPTIM_HASH_SEED 0xCBF29CE484222325ull
+uint64_t pen__optim_hash(uint64_t h, const void *data, size_t size);
+/* Writes the state atomically: a temporary file beside `path`, fsync, rename, fsync of the
+ * folder. */
+pen_status pen__optim_checkpoint_save(pen_context *ctx, const char *path,
+                                      const pen__optim_identity *id, const pen__optim_state *st);
+/* Reads a checkpoint into st's buffers (x, best, adam->m, adam->v: id->n each; losses: room for
+ * max_losses values). Refuses, with one line naming the file, a file that is not a checkpoint,
+ * is truncated or damaged (checksum), belongs to another problem (id), or is beyond the
+ * iteration limit (recorded > max_losses). */
+pen_status pen__optim_checkpoint_load(pen_context *ctx, const char *path,
+                                      const pen__optim_identity *id, int max_losses,
+                                      pen__optim_state *st);
+
+/* ---- Output folder (src/optim/output.c) ------------------------------------------------------ */
+
+/* dir/name, malloc'd (NULL on exhaustion, recorded in ctx). */
+char *pen__optim_join(pen_context *ctx, const char *dir, const char *name);
+/* Creates the folder `dir` if it does not exist (its parent must). */
+pen_status pen__optim_make_dir(pen_context *ctx, const char *dir);
 
 /* ---- Metrics (src/optim/evaluate.c) ---------------------------------------------------------- */
 

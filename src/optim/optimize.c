@@ -26,6 +26,7 @@
 #include "penumbra/render.h"
 
 #include <omp.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -57,10 +58,11 @@ typedef struct run {
     float *best;              /* the parameters of the lowest loss so far */
     object_deform *deform;    /* per object, when deformation is optimised */
     double w_rot, w_reg;
+    float *weight;            /* per pixel loss weights (shadow_weight > 0), else NULL */
 } run;
 
 pen_optim_settings pen_optim_settings_default(void) {
-    pen_optim_settings s = {1, NULL, NULL};
+    pen_optim_settings s = {1, NULL, NULL, NULL, 0, 0, 0};
     return s;
 }
 
@@ -138,6 +140,7 @@ static void run_free(run *r) {
     free(r->x);
     free(r->g);
     free(r->best);
+    free(r->weight);
     for (int o = 0; r->deform && o < r->sc->object_count; ++o) {
         object_deform *D = &r->deform[o];
         pen__optim_deform_free(&D->graph);
@@ -308,12 +311,19 @@ static unsigned grad_mask(unsigned groups) {
 
 /* ---- The loop -------------------------------------------------------------------------------- */
 
-static pen_status evaluate(pen_context *ctx, const pen_optim_task *t, const pen_image *img,
-                           double *loss, pen_image *d_img) {
+/* The objective's image term and (with d_img) its gradient image. Without shadow weights the
+ * plain means of render.h, with them the weighted mean of loss.c. */
+static pen_status evaluate(pen_context *ctx, const pen_optim_task *t, const float *weight,
+                           const pen_image *img, double *loss, pen_image *d_img) {
     if (d_img)
         memset(d_img->data, 0,
                sizeof(float) * (size_t)d_img->width * (size_t)d_img->height *
                    (size_t)d_img->channels);
+    if (weight) {
+        pen_status s = pen__optim_loss_fwd(ctx, t->loss, img, &t->target, weight, loss);
+        if (!s && d_img) pen__optim_loss_bwd(t->loss, img, &t->target, weight, 1.0, d_img);
+        return s;
+    }
     return t->loss == PEN_OPTIM_LOSS_L1 ? pen_loss_l1(ctx, img, &t->target, loss, d_img)
                                         : pen_loss_l2(ctx, img, &t->target, loss, d_img);
 }
@@ -340,6 +350,9 @@ static pen_status check_task(pen_context *ctx, const pen_optim_task *t) {
     if (t->iterations < 1 || t->window < 1 || !(t->tolerance >= 0.0))
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "%s: iterations and window must be positive, tolerance >= 0", name);
+    if (!(t->shadow_weight >= 0.0) || !isfinite(t->shadow_weight))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: shadow_weight must be a finite number >= 0",
+                          name);
     const float lr[7] = {t->lr.lighting, t->lr.albedo,  t->lr.rotation,
                          t->lr.translation, t->lr.spheres, t->lr.deformation_rotation,
                          t->lr.deformation_translation};
@@ -347,6 +360,66 @@ static pen_status check_task(pen_context *ctx, const pen_optim_task *t) {
         if (!(lr[k] > 0.0f) || !isfinite(lr[k]))
             return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: lr: rates must be positive", name);
     return PEN_OK;
+}
+
+/* ---- Checkpoints and snapshots --------------------------------------------------------------- */
+
+/* What the checkpoints of this run belong to (see checkpoint.c). */
+static pen__optim_identity identity(const pen_optim_task *t, const pen_optim_settings *set,
+                                    const run *r) {
+    pen__optim_identity id;
+    memset(&id, 0, sizeof id);
+    id.n = r->n;
+    id.segments = r->segments;
+    id.segment_count = r->segment_count;
+    id.groups = r->groups;
+    id.loss = (int)t->loss;
+    id.shadows = set->shadows ? 1 : 0;
+    id.width = t->target.width;
+    id.height = t->target.height;
+    id.shadow_weight = t->shadow_weight;
+    id.target_hash = pen__optim_hash(PEN__OPTIM_HASH_SEED, t->target.data,
+                                     sizeof(float) * 3 * (size_t)id.width * (size_t)id.height);
+    id.init_hash = pen__optim_hash(PEN__OPTIM_HASH_SEED, r->x, sizeof(float) * r->n);
+    return id;
+}
+
+static pen_status save_checkpoint(pen_context *ctx, const pen_optim_settings *set,
+                                  const pen__optim_identity *id, const pen__optim_state *st) {
+    pen_status s = pen__optim_make_dir(ctx, set->outdir);
+    char *path = s ? NULL : pen__optim_join(ctx, set->outdir, "checkpoint.bin");
+    if (!s && !path) s = PEN_ERROR_MEMORY;
+    if (!s) s = pen__optim_checkpoint_save(ctx, path, id, st);
+    free(path);
+    return s;
+}
+
+/* OUTDIR/snapshots/iter_NNNNN.png: the render of the parameters after `iteration` steps. */
+static pen_status save_snapshot(pen_context *ctx, const pen_optim_settings *set, int iteration,
+                                const pen_image *img) {
+    char name[64];
+    snprintf(name, sizeof name, "snapshots/iter_%05d.png", iteration);
+    char *dir = pen__optim_join(ctx, set->outdir, "snapshots"), *path = pen__optim_join(ctx, set->outdir, name);
+    pen_status s = dir && path ? pen__optim_make_dir(ctx, set->outdir) : PEN_ERROR_MEMORY;
+    if (!s) s = pen__optim_make_dir(ctx, dir);
+    if (!s) s = pen_image_save(ctx, path, img);
+    free(dir);
+    free(path);
+    return s;
+}
+
+/* ---- The loop -------------------------------------------------------------------------------- */
+
+/* Resuming: the state after st->iteration steps replaces the initial guess. */
+static pen_status resume(pen_context *ctx, const pen_optim_task *t, const pen_optim_settings *set,
+                         const pen__optim_identity *id, run *r, pen__optim_state *st) {
+    if (!set->outdir) return pen__error(ctx, PEN_ERROR_ARGUMENT, "resume: no output folder");
+    char *path = pen__optim_join(ctx, set->outdir, "checkpoint.bin");
+    if (!path) return PEN_ERROR_MEMORY;
+    pen_status s = pen__optim_checkpoint_load(ctx, path, id, t->iterations + 1, st);
+    free(path);
+    if (!s) transfer(r, 1);
+    return s;
 }
 
 static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_settings *set,
@@ -368,15 +441,33 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
         if (!res->losses) s = PEN_ERROR_MEMORY;
     }
     if (!s) s = pen_render_fwd(ctx, &t->scene, &opt, NULL, &res->initial);
+    const pen__optim_identity id = identity(t, set, r);
+    pen__optim_state st = {0, 0, -1, (double)INFINITY, 0.0, r->x, r->best, &adam, res->losses};
+    if (!s && set->resume) s = resume(ctx, t, set, &id, r, &st);
+    const int start = st.iteration;
+    res->resumed_from = start;
+    res->best_iteration = st.best_iteration;
+    double best = st.best_loss;
+    const double before = st.seconds; /* spent by the runs this one continues */
     const float scale = 3.0f * (float)w * (float)h;
     const unsigned wrt = grad_mask(r->groups);
+    const int K = set->outdir ? set->checkpoint_every : 0;
+    const int S = set->outdir ? set->snapshot_every : 0;
     const double t0 = omp_get_wtime();
-    int i = 0, shown = -1; /* the iteration whose parameters img shows, -1 after a step */
-    double best = INFINITY;
+    int i = start, shown = -1; /* the iteration whose parameters img shows, -1 after a step */
     for (; !s && i < t->iterations; ++i) {
+        if (K > 0 && i > start && i % K == 0) { /* the state after i steps, before its render */
+            st.iteration = st.recorded = i;
+            st.best_iteration = res->best_iteration;
+            st.best_loss = best;
+            st.seconds = before + (omp_get_wtime() - t0);
+            s = save_checkpoint(ctx, set, &id, &st);
+            if (s) break;
+        }
         double loss = 0.0;
         s = pen_render_fwd(ctx, &t->scene, &opt, state, &img);
-        if (!s) s = evaluate(ctx, t, &img, &loss, &d_img);
+        if (!s) s = evaluate(ctx, t, r->weight, &img, &loss, &d_img);
+        if (!s && S > 0 && i % S == 0) s = save_snapshot(ctx, set, i, &img);
         if (s) break;
         loss += regularisers(r);
         shown = i;
@@ -405,7 +496,7 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
     res->iterations = i;
     if (!s && shown < 0) { /* the iteration limit: the loss after the last step */
         s = pen_render_fwd(ctx, &t->scene, &opt, NULL, &img);
-        if (!s) s = evaluate(ctx, t, &img, &res->losses[i], NULL);
+        if (!s) s = evaluate(ctx, t, r->weight, &img, &res->losses[i], NULL);
         if (!s) res->losses[i] += regularisers(r);
         if (!s && res->losses[i] < best) {
             best = res->losses[i];
@@ -414,6 +505,15 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
         }
         shown = i;
     }
+    res->seconds = before + (omp_get_wtime() - t0);
+    if (!s && set->outdir) { /* the final state, so that a later run can continue it */
+        st.iteration = i;
+        st.recorded = i + 1;
+        st.best_iteration = res->best_iteration;
+        st.best_loss = best;
+        st.seconds = res->seconds;
+        s = save_checkpoint(ctx, set, &id, &st);
+    }
     /* The recovered scene is the best iterate: Adam's constant step makes the last one wander
      * around the optimum by about a learning rate. */
     if (!s && shown != res->best_iteration) {
@@ -421,9 +521,8 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
         transfer(r, 1);
         s = pen_render_fwd(ctx, &t->scene, &opt, NULL, &img);
     }
-    if (!s) s = evaluate(ctx, t, &img, &res->final_loss, NULL);
+    if (!s) s = evaluate(ctx, t, r->weight, &img, &res->final_loss, NULL);
     if (!s) res->final_loss += regularisers(r);
-    res->seconds = omp_get_wtime() - t0;
     if (!s) {
         res->final = img;
         img.data = NULL;
@@ -441,6 +540,37 @@ static void metrics_none(pen_optim_metrics *m) {
     m->image_rmse = m->lighting_rel_error = m->albedo_psnr_db = m->albedo_observed = none;
     m->albedo_texel_psnr_db = m->lighting_rel_error_b2 = none;
     m->rotation_error_deg = m->translation_error = m->vertex_rmse = none;
+    m->sphere_iou = m->sphere_chamfer = m->shadow_iou = none;
+}
+
+/* The loss weights 1 + shadow_weight * mask of the initial guess (loss.c). */
+static pen_status shadow_weights(pen_context *ctx, const pen_optim_task *t, run *r) {
+    const size_t pixels = (size_t)t->target.width * (size_t)t->target.height;
+    r->weight = pen__malloc(ctx, pixels, sizeof(float), "shadow weights");
+    if (!r->weight) return PEN_ERROR_MEMORY;
+    pen_status s = pen__optim_shadow_mask(ctx, &t->scene, &t->target,
+                                          (t->optimize & PEN_OPTIM_LIGHTING) != 0, r->weight);
+    for (size_t p = 0; !s && p < pixels; ++p)
+        r->weight[p] = 1.0f + (float)t->shadow_weight * r->weight[p];
+    return s;
+}
+
+/* "init": "fit": the lighting starts at the unshadowed least-squares fit to the target. */
+static pen_status fitted_lighting(pen_context *ctx, const pen_optim_task *t, run *r) {
+    pen_status s = pen__optim_fit_lighting(ctx, &t->scene, &t->target, PEN__OPTIM_RIDGE_INIT,
+                                          r->sc->lighting.sh);
+    if (!s) transfer(r, 0);
+    return s;
+}
+
+static pen_status check_settings(pen_context *ctx, const pen_optim_settings *set) {
+    if (set->checkpoint_every < 0 || set->snapshot_every < 0)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "optimize: checkpoint and snapshot intervals must be >= 0");
+    if (set->resume && !set->outdir)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "optimize: resuming needs the output folder of the earlier run");
+    return PEN_OK;
 }
 
 pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim_settings *settings,
@@ -449,15 +579,22 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
     metrics_none(&out->metrics);
     pen_optim_settings set = settings ? *settings : pen_optim_settings_default();
     pen_status s = check_task(ctx, task);
+    if (!s) s = check_settings(ctx, &set);
     if (s) return s;
     if (task->has_ground_truth) {
         s = pen__optim_check_truth(ctx, task);
         metrics_none(&out->metrics);
         if (s) return s;
     }
-    /* Sphere sets asked for as {"fit": N}; without shadows no spheres are needed. */
-    if (set.shadows || (task->optimize & PEN_OPTIM_DEFORMATION)) { /* graph nodes too */
+    /* Sphere sets asked for as {"fit": N}: the shadows need them, so do the deformation graph's
+     * nodes and the spheres group; without shadows and those no spheres are needed. */
+    const unsigned needs = PEN_OPTIM_DEFORMATION | PEN_OPTIM_SPHERES;
+    if (set.shadows || (task->optimize & needs)) {
         s = pen_scene_fit_spheres(ctx, &task->scene);
+        if (s) return s;
+    }
+    if (task->has_ground_truth && (task->optimize & PEN_OPTIM_SPHERES)) { /* sphere metrics */
+        s = pen_scene_fit_spheres(ctx, &task->ground_truth);
         if (s) return s;
     }
     /* Overlap weights of the initial spheres, held fixed while spheres, deformation or pose move
@@ -476,8 +613,10 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
         deformation_rest(&r);
         pen__optim_project(r.segments, r.segment_count, r.x);
         transfer(&r, 1);
-        s = optimise(ctx, task, &set, &r, out);
+        if (task->init_fit && r.lighting != SIZE_MAX) s = fitted_lighting(ctx, task, &r);
+        if (!s && task->shadow_weight > 0.0) s = shadow_weights(ctx, task, &r);
     }
+    if (!s) s = optimise(ctx, task, &set, &r, out);
     if (!s) {
         pen_image_error e = {0.0, 0.0, 0.0, 0};
         s = pen_image_compare(ctx, &out->final, &task->target, NULL, &e, NULL);

@@ -27,8 +27,7 @@ typedef struct outputs {
     int count;
 } outputs;
 
-/* dir/name, malloc'd. */
-static char *join(pen_context *ctx, const char *dir, const char *name) {
+char *pen__optim_join(pen_context *ctx, const char *dir, const char *name) {
     size_t n = strlen(dir) + strlen(name) + 2;
     char *p = pen__malloc(ctx, n, 1, "output path");
     if (p) snprintf(p, n, "%s/%s", dir, name);
@@ -55,7 +54,7 @@ static void outputs_finish(outputs *o, int remove_files) {
 
 static pen_status save_image(pen_context *ctx, outputs *o, const char *name,
                              const pen_image *img) {
-    char *path = join(ctx, o->dir, name);
+    char *path = pen__optim_join(ctx, o->dir, name);
     if (!path) return PEN_ERROR_MEMORY;
     pen_status s = pen_image_save(ctx, path, img);
     if (s) {
@@ -66,7 +65,7 @@ static pen_status save_image(pen_context *ctx, outputs *o, const char *name,
 }
 
 static pen_status save_text(pen_context *ctx, outputs *o, const char *name, const char *text) {
-    char *path = join(ctx, o->dir, name);
+    char *path = pen__optim_join(ctx, o->dir, name);
     if (!path) return PEN_ERROR_MEMORY;
     pen_status s = pen__io_write_file(ctx, path, text, strlen(text));
     if (s) {
@@ -95,7 +94,7 @@ static pen_status save_scene(pen_context *ctx, outputs *o, const pen_optim_task 
         if (t->optimize & PEN_OPTIM_DEFORMATION) { /* the deformed mesh, beside the scene */
             char name[64];
             snprintf(name, sizeof name, "mesh_%d.obj", i);
-            char *path = join(ctx, o->dir, name);
+            char *path = pen__optim_join(ctx, o->dir, name);
             s = path ? pen_mesh_save_obj(ctx, path, &sc->objects[i].mesh) : PEN_ERROR_MEMORY;
             if (!s) s = remember(ctx, o, path);
             else free(path);
@@ -114,7 +113,7 @@ static pen_status save_scene(pen_context *ctx, outputs *o, const pen_optim_task 
             copy.objects[i].texture_path = textures[i];
         }
     }
-    char *path = s ? NULL : join(ctx, o->dir, "scene.json");
+    char *path = s ? NULL : pen__optim_join(ctx, o->dir, "scene.json");
     if (!s && !path) s = PEN_ERROR_MEMORY;
     if (!s) s = pen_scene_save_ex(ctx, path, &copy, PEN_SCENE_SAVE_SH_LIGHTING);
     if (!s) {
@@ -293,7 +292,10 @@ static cJSON *metrics_json(const pen_optim_metrics *mt) {
              add_metric(m, "albedo_observed", mt->albedo_observed) &&
              add_metric(m, "rotation_error_deg", mt->rotation_error_deg) &&
              add_metric(m, "translation_error", mt->translation_error) &&
-             add_metric(m, "vertex_rmse", mt->vertex_rmse);
+             add_metric(m, "vertex_rmse", mt->vertex_rmse) &&
+             add_metric(m, "sphere_iou", mt->sphere_iou) &&
+             add_metric(m, "sphere_chamfer", mt->sphere_chamfer) &&
+             add_metric(m, "shadow_iou", mt->shadow_iou);
     if (!ok) cJSON_Delete(m);
     return ok ? m : NULL;
 }
@@ -332,6 +334,7 @@ pen_status pen_optim_result_json(pen_context *ctx, const pen_optim_task *t,
              add(root, "optimize", groups_json(t->optimize)) &&
              add(root, "shadows", cJSON_CreateBool(shadows)) &&
              add(root, "loss", cJSON_CreateString(t->loss == PEN_OPTIM_LOSS_L1 ? "l1" : "l2")) &&
+             add(root, "shadow_weight", cJSON_CreateNumber(t->shadow_weight)) &&
              add(root, "iterations", cJSON_CreateNumber(it)) &&
              add(root, "seconds", cJSON_CreateNumber(r->seconds)) &&
              add(root, "seconds_per_iteration",
@@ -340,6 +343,7 @@ pen_status pen_optim_result_json(pen_context *ctx, const pen_optim_task *t,
              add(root, "final_loss", cJSON_CreateNumber(r->final_loss)) &&
              add(root, "converged", cJSON_CreateBool(r->converged)) &&
              add(root, "interrupted", cJSON_CreateBool(r->interrupted)) &&
+             add(root, "resumed_from", cJSON_CreateNumber(r->resumed_from)) &&
              add(root, "metrics", metrics_json(&r->metrics)) &&
              add(root, "lr", lr_json(&t->lr)) &&
              (!(t->optimize & PEN_OPTIM_DEFORMATION) ||
@@ -365,7 +369,7 @@ pen_status pen_optim_result_json(pen_context *ctx, const pen_optim_task *t,
 
 /* ---- Everything ------------------------------------------------------------------------------ */
 
-static pen_status make_dir(pen_context *ctx, const char *dir) {
+pen_status pen__optim_make_dir(pen_context *ctx, const char *dir) {
     struct stat st;
     if (stat(dir, &st) == 0) {
         if (S_ISDIR(st.st_mode)) return PEN_OK;
@@ -382,7 +386,7 @@ pen_status pen_optim_write(pen_context *ctx, const char *outdir, const pen_optim
     if (!result->final.data || !result->initial.data || !result->losses)
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: no result to write", outdir);
     const int shadows = settings ? settings->shadows : 1;
-    pen_status s = make_dir(ctx, outdir);
+    pen_status s = pen__optim_make_dir(ctx, outdir);
     if (s) return s;
     outputs o;
     memset(&o, 0, sizeof o);

@@ -232,6 +232,11 @@ static pen_status parse_options(pen_context *ctx, const where *top, const cJSON 
         s = pen__json_number(ctx, &w, e, 0.0, 1.0, "a number in [0, 1]", &t->tolerance);
         if (s) return s;
     }
+    if ((e = cJSON_GetObjectItemCaseSensitive(root, "shadow_weight"))) {
+        w = at(top, "shadow_weight");
+        s = pen__json_number(ctx, &w, e, 0.0, 1e6, "a weight in [0, 1e6]", &t->shadow_weight);
+        if (s) return s;
+    }
     if ((e = cJSON_GetObjectItemCaseSensitive(root, "loss"))) {
         w = at(top, "loss");
         const char *name = NULL;
@@ -255,10 +260,12 @@ static pen_status parse_options(pen_context *ctx, const where *top, const cJSON 
             t->init_black = 1;
         } else if (strcmp(name, "scene") == 0) {
             t->init_black = 0;
+        } else if (strcmp(name, "fit") == 0) {
+            t->init_black = t->init_fit = 1;
         } else {
             return pen__json_error(ctx, PEN_ERROR_PARSE, &w,
-                                   "unknown initialisation \"%s\" (expected \"black\" or "
-                                   "\"scene\")",
+                                   "unknown initialisation \"%s\" (expected \"black\", "
+                                   "\"scene\" or \"fit\")",
                                    name);
         }
     }
@@ -296,7 +303,8 @@ static pen_status parse_task(pen_context *ctx, const char *path, const cJSON *ro
                                pen__json_type_name(root));
     static const char *const known[] = {"scene", "target",    "optimize", "iterations",
                                         "lr",    "loss",      "tolerance", "window",
-                                        "init",  "deformation", "ground_truth", NULL};
+                                        "init",  "deformation", "ground_truth",
+                                        "shadow_weight", NULL};
     pen_status s = pen__json_known_keys(ctx, &top, root, known);
     if (!s) s = parse_groups(ctx, &top, root, &t->optimize);
     if (!s) s = parse_options(ctx, &top, root, t);

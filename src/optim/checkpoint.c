@@ -1,0 +1,312 @@
+/* Checkpoints of `penumbra optimize`: the optimiser's whole state, so that a run stopped at any
+ * iteration (Ctrl-C, a crash after the last checkpoint, an iteration limit) can be continued
+ * with the same result as a run that was never stopped.
+ *
+ * The state after i Adam steps is the parameter vector x_i, Adam's moments m, v and step count,
+ * the best iterate and its loss, and the loss history (which is all the stopping rule looks
+ * at), plus the seconds spent so far. Everything else the loop uses is recomputed from the task
+ * (the layout, the initial guess and its render, the shadow mask) and is checked against the
+ * checkpoint through an identity (parameter layout, groups, loss, shadows, image size, shadow
+ * weight, hashes of the target's pixels and of the initial parameter vector), so a checkpoint
+ * is never applied to another problem.
+ *
+ * File layout (native byte order; an order marker refuses files from another kind of machine):
+ *     "PENOPTCK" u32 version u32 0x01020304
+ *     u64 n  u32 segments  {u64 offset, u64 count, u32 bound} per segment
+ *     u32 groups  i32 loss  i32 shadows  i32 width  i32 height  f64 shadow_weight
+ *     u64 target_hash  u64 init_hash
+ *     i32 iteration  i32 recorded  i32 best_iteration  i32 adam_t  f64 best_loss  f64 seconds
+ *     f32 x[n]  f32 best[n]  f32 m[n]  f32 v[n]  f64 losses[recorded]
+ *     u64 FNV-1a 64 of every byte before it
+ * Written to a temporary file beside the target, flushed to the disk (fsync), renamed over the
+ * old checkpoint and the folder synced, so that a crash leaves either the old or the new one. */
+#define _POSIX_C_SOURCE 200809L
+#include "io/io_internal.h"
+#include "optim/optim_internal.h"
+
+#include <errno.h>
+#include <fcntl.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#define CHECKPOINT_MAGIC "PENOPTCK"
+#define CHECKPOINT_VERSION 1u
+#define CHECKPOINT_ORDER 0x01020304u
+
+uint64_t pen__optim_hash(uint64_t h, const void *data, size_t size) {
+    const unsigned char *p = data;
+    for (size_t i = 0; i < size; ++i)
+        h = (h ^ p[i]) * 0x100000001B3ull;
+    return h;
+}
+
+/* ---- Writing --------------------------------------------------------------------------------- */
+
+typedef struct writer {
+    FILE *f;
+    uint64_t hash;
+    int ok;
+} writer;
+
+static void put(writer *w, const void *data, size_t size) {
+    if (!w->ok || size == 0) return;
+    w->hash = pen__optim_hash(w->hash, data, size);
+    w->ok = fwrite(data, 1, size, w->f) == size;
+}
+
+static void put_u32(writer *w, uint32_t v) { put(w, &v, sizeof v); }
+static void put_i32(writer *w, int32_t v) { put(w, &v, sizeof v); }
+static void put_u64(writer *w, uint64_t v) { put(w, &v, sizeof v); }
+static void put_f64(writer *w, double v) { put(w, &v, sizeof v); }
+
+static void put_identity(writer *w, const pen__optim_identity *id) {
+    put_u64(w, (uint64_t)id->n);
+    put_u32(w, (uint32_t)id->segment_count);
+    for (int k = 0; k < id->segment_count; ++k) {
+        put_u64(w, (uint64_t)id->segments[k].offset);
+        put_u64(w, (uint64_t)id->segments[k].count);
+        put_u32(w, (uint32_t)id->segments[k].bound);
+    }
+    put_u32(w, id->groups);
+    put_i32(w, id->loss);
+    put_i32(w, id->shadows);
+    put_i32(w, id->width);
+    put_i32(w, id->height);
+    put_f64(w, id->shadow_weight);
+    put_u64(w, id->target_hash);
+    put_u64(w, id->init_hash);
+}
+
+/* fsync of the folder holding `path`, so that the rename itself survives a crash. Best effort:
+ * some file systems refuse to sync a folder, and the file's own data is already on the disk. */
+static void sync_folder(const char *path) {
+    const char *slash = strrchr(path, '/');
+    char dir[4096];
+    if (!slash) {
+        strcpy(dir, ".");
+    } else if ((size_t)(slash - path) + 1 < sizeof dir) {
+        memcpy(dir, path, (size_t)(slash - path) + 1);
+        dir[slash - path + 1] = '\0';
+    } else {
+        return;
+    }
+    int fd = open(dir, O_RDONLY);
+    if (fd < 0) return;
+    (void)fsync(fd);
+    close(fd);
+}
+
+pen_status pen__optim_checkpoint_save(pen_context *ctx, const char *path,
+                                      const pen__optim_identity *id, const pen__optim_state *st) {
+    char *tmp = NULL;
+    pen_status s = pen__io_temp_create(ctx, path, &tmp);
+    if (s) return s;
+    writer w = {fopen(tmp, "wb"), PEN__OPTIM_HASH_SEED, 1};
+    w.ok = w.f != NULL;
+    const size_t n = id->n;
+    put(&w, CHECKPOINT_MAGIC, 8);
+    put_u32(&w, CHECKPOINT_VERSION);
+    put_u32(&w, CHECKPOINT_ORDER);
+    put_identity(&w, id);
+    put_i32(&w, st->iteration);
+    put_i32(&w, st->recorded);
+    put_i32(&w, st->best_iteration);
+    put_i32(&w, st->adam->t);
+    put_f64(&w, st->best_loss);
+    put_f64(&w, st->seconds);
+    put(&w, st->x, sizeof(float) * n);
+    put(&w, st->best, sizeof(float) * n);
+    put(&w, st->adam->m, sizeof(float) * n);
+    put(&w, st->adam->v, sizeof(float) * n);
+    put(&w, st->losses, sizeof(double) * (size_t)st->recorded);
+    const uint64_t sum = w.hash;
+    put_u64(&w, sum);
+    /* on the disk before the rename: a crash must not leave a renamed, empty checkpoint */
+    if (w.f && (fflush(w.f) != 0 || fsync(fileno(w.f)) != 0)) w.ok = 0;
+    if (w.f && fclose(w.f) != 0) w.ok = 0;
+    if (!w.ok) {
+        s = pen__error(ctx, PEN_ERROR_IO, "%s: cannot write the checkpoint: %s", path,
+                       strerror(errno));
+        pen__io_temp_discard(tmp);
+        return s;
+    }
+    s = pen__io_temp_commit(ctx, tmp, path);
+    if (!s) sync_folder(path);
+    return s;
+}
+
+/* ---- Reading --------------------------------------------------------------------------------- */
+
+typedef struct reader {
+    FILE *f;
+    uint64_t hash;
+    int ok; /* 0: the file ended early */
+} reader;
+
+static void get(reader *r, void *data, size_t size) {
+    if (!r->ok) {
+        memset(data, 0, size);
+        return;
+    }
+    r->ok = fread(data, 1, size, r->f) == size;
+    if (r->ok) {
+        r->hash = pen__optim_hash(r->hash, data, size);
+    } else {
+        memset(data, 0, size);
+    }
+}
+
+/* Typed reads: the value, or 0 once the file has ended. */
+#define READER_GET(name, type)                                                                 \
+    static type name(reader *r) {                                                              \
+        type v;                                                                                \
+        get(r, &v, sizeof v);                                                                  \
+        return v;                                                                              \
+    }
+READER_GET(get_u32, uint32_t)
+READER_GET(get_i32, int32_t)
+READER_GET(get_u64, uint64_t)
+READER_GET(get_f64, double)
+
+static const char *bound_name(unsigned b) {
+    return b == PEN__BOUND_UNIT ? "unit" : b == PEN__BOUND_SPHERES ? "spheres" : "none";
+}
+
+/* Compares the file's identity with the run's; one line on the first difference. */
+static pen_status check_identity(pen_context *ctx, const char *path, reader *r,
+                                 const pen__optim_identity *id) {
+    const uint64_t n = get_u64(r);
+    const uint32_t segs = get_u32(r);
+    if (!r->ok) return pen__error(ctx, PEN_ERROR_PARSE, "%s: truncated checkpoint", path);
+    if (n != (uint64_t)id->n || segs != (uint32_t)id->segment_count)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: made for another task: %llu parameters in %u segments, this task "
+                          "has %zu in %d",
+                          path, (unsigned long long)n, segs, id->n, id->segment_count);
+    for (int k = 0; k < id->segment_count; ++k) {
+        const uint64_t off = get_u64(r), count = get_u64(r);
+        const uint32_t bound = get_u32(r);
+        const pen__optim_segment *g = &id->segments[k];
+        if (r->ok && (off != (uint64_t)g->offset || count != (uint64_t)g->count ||
+                      bound != (uint32_t)g->bound))
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "%s: made for another task: segment %d holds %llu parameters at "
+                              "%llu (bound %s), this task's %zu at %zu (bound %s)",
+                              path, k, (unsigned long long)count, (unsigned long long)off,
+                              bound_name(bound), g->count, g->offset, bound_name(g->bound));
+    }
+    const uint32_t groups = get_u32(r);
+    const int32_t loss = get_i32(r), shadows = get_i32(r), w = get_i32(r), h = get_i32(r);
+    const double weight = get_f64(r);
+    const uint64_t target = get_u64(r), init = get_u64(r);
+    if (!r->ok) return pen__error(ctx, PEN_ERROR_PARSE, "%s: truncated checkpoint", path);
+    if (groups != id->groups)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: made for another task: optimised groups 0x%x, this task's 0x%x",
+                          path, groups, id->groups);
+    if (shadows != id->shadows)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: made %s, this run is %s", path,
+                          shadows ? "with shadows" : "with --no-shadows",
+                          id->shadows ? "with shadows" : "with --no-shadows");
+    if (loss != id->loss || weight != id->shadow_weight)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: made with another loss (%s, shadow_weight %g), this task's is %s, "
+                          "shadow_weight %g",
+                          path, loss == PEN_OPTIM_LOSS_L1 ? "l1" : "l2", weight,
+                          id->loss == PEN_OPTIM_LOSS_L1 ? "l1" : "l2", id->shadow_weight);
+    if (w != id->width || h != id->height || target != id->target_hash)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: made for another target image (%dx%d, or other pixels)", path, w, h);
+    if (init != id->init_hash)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: made for another initial guess (the task's scene differs)", path);
+    return PEN_OK;
+}
+
+static int all_finite_f(const float *v, size_t n) {
+    for (size_t i = 0; i < n; ++i)
+        if (!isfinite(v[i])) return 0;
+    return 1;
+}
+
+pen_status pen__optim_checkpoint_load(pen_context *ctx, const char *path,
+                                      const pen__optim_identity *id, int max_losses,
+                                      pen__optim_state *st) {
+    reader r = {fopen(path, "rb"), PEN__OPTIM_HASH_SEED, 1};
+    if (!r.f)
+        return pen__error(ctx, PEN_ERROR_IO, "%s: cannot open the checkpoint: %s", path,
+                          strerror(errno));
+    char magic[8];
+    get(&r, magic, 8);
+    const uint32_t version = get_u32(&r), order = get_u32(&r);
+    pen_status s = PEN_OK;
+    if (!r.ok || memcmp(magic, CHECKPOINT_MAGIC, 8) != 0) {
+        s = pen__error(ctx, PEN_ERROR_PARSE, "%s: not a penumbra optimize checkpoint", path);
+    } else if (order != CHECKPOINT_ORDER) {
+        s = pen__error(ctx, PEN_ERROR_PARSE, "%s: written on a machine of another byte order",
+                       path);
+    } else if (version != CHECKPOINT_VERSION) {
+        s = pen__error(ctx, PEN_ERROR_PARSE, "%s: checkpoint version %u, this build reads %u",
+                       path, version, CHECKPOINT_VERSION);
+    }
+    if (!s) s = check_identity(ctx, path, &r, id);
+    int32_t iteration = 0, recorded = 0, best_it = 0, t = 0;
+    double best_loss = 0.0, seconds = 0.0;
+    if (!s) {
+        iteration = get_i32(&r), recorded = get_i32(&r), best_it = get_i32(&r), t = get_i32(&r);
+        best_loss = get_f64(&r), seconds = get_f64(&r);
+        if (!r.ok) {
+            s = pen__error(ctx, PEN_ERROR_PARSE, "%s: truncated checkpoint", path);
+        } else if (iteration < 0 || t != iteration ||
+                   (recorded != iteration && recorded != iteration + 1) || best_it < -1 ||
+                   best_it >= recorded || (best_it < 0 && recorded > 0) ||
+                   !(seconds >= 0.0) || !isfinite(seconds)) {
+            s = pen__error(ctx, PEN_ERROR_PARSE,
+                           "%s: damaged checkpoint (iteration %d, %d losses, best %d, Adam step "
+                           "%d)",
+                           path, iteration, recorded, best_it, t);
+        } else if (recorded > max_losses) {
+            s = pen__error(ctx, PEN_ERROR_ARGUMENT,
+                           "%s: the checkpoint is at iteration %d, beyond the iteration limit %d",
+                           path, iteration, max_losses - 1);
+        }
+    }
+    if (!s) {
+        const size_t n = id->n;
+        get(&r, st->x, sizeof(float) * n);
+        get(&r, st->best, sizeof(float) * n);
+        get(&r, st->adam->m, sizeof(float) * n);
+        get(&r, st->adam->v, sizeof(float) * n);
+        get(&r, st->losses, sizeof(double) * (size_t)recorded);
+        const uint64_t want = r.hash;
+        const uint64_t sum = get_u64(&r);
+        char extra;
+        if (!r.ok) {
+            s = pen__error(ctx, PEN_ERROR_PARSE, "%s: truncated checkpoint", path);
+        } else if (sum != want || fread(&extra, 1, 1, r.f) != 0) {
+            s = pen__error(ctx, PEN_ERROR_PARSE, "%s: damaged checkpoint (checksum mismatch)",
+                           path);
+        } else if (!all_finite_f(st->x, n) || !all_finite_f(st->best, n) ||
+                   !all_finite_f(st->adam->m, n) || !all_finite_f(st->adam->v, n)) {
+            s = pen__error(ctx, PEN_ERROR_PARSE, "%s: damaged checkpoint (NaN or Inf values)",
+                           path);
+        }
+        for (int i = 0; !s && i < recorded; ++i)
+            if (!isfinite(st->losses[i]))
+                s = pen__error(ctx, PEN_ERROR_PARSE, "%s: damaged checkpoint (loss %d is %g)",
+                               path, i, st->losses[i]);
+        if (!s && best_it >= 0 && !(best_loss == st->losses[best_it]))
+            s = pen__error(ctx, PEN_ERROR_PARSE,
+                           "%s: damaged checkpoint (the best loss is not loss %d)", path, best_it);
+    }
+    fclose(r.f);
+    if (s) return s;
+    st->iteration = iteration;
+    st->recorded = recorded;
+    st->best_iteration = best_it;
+    st->best_loss = best_loss;
+    st->seconds = seconds;
+    st->adam->t = t;
+    return PEN_OK;
+}

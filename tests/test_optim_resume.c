@@ -1,0 +1,200 @@
+/* Checkpoints and resuming (src/optim/checkpoint.c, the loop in src/optim/optimize.c): a run of
+ * N iterations in one go and the same run stopped (interrupted at iteration j, or "crashed" with
+ * only the periodic checkpoint of iteration K left) and resumed to N end with the same losses,
+ * parameters and final render, bit for bit; and refused checkpoints (damaged, another problem).
+ *
+ * Bitwise equality holds because the state written is all the loop carries from one iteration
+ * to the next (parameters, Adam's moments and step, best iterate, loss history) and the renderer
+ * reduces its gradients in a fixed order whatever the thread count. */
+#define _POSIX_C_SOURCE 200809L
+#include "optim_scenes.h"
+
+#include "optim/optim_internal.h"
+
+#include <stdio.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#define SIZE 32
+
+static pen_optim_task make_task(unsigned groups) {
+    pen_optim_task t = os_task(os_egg(SIZE, 1, 3), os_egg(SIZE, 1, 3), groups,
+                               check_quick_() ? 12 : 30);
+    t.shadow_weight = 2.0; /* the weights are recomputed on resume: they must match too */
+    pen_pose *p = &t.scene.objects[0].pose;
+    p->rotation_axis_angle_deg[1] += 5.0f;
+    p->translation[0] += 0.04f;
+    return t;
+}
+
+typedef struct stopper {
+    int stop_at;           /* interrupt after this iteration's loss (-1: never) */
+    int copy_at;           /* copy the checkpoint away at this iteration (-1: never) */
+    const char *from, *to; /* checkpoint paths */
+} stopper;
+
+static void copy_file(const char *from, const char *to) {
+    FILE *a = fopen(from, "rb"), *b = fopen(to, "wb");
+    CHECK(a && b);
+    char buf[4096];
+    size_t n;
+    while (a && b && (n = fread(buf, 1, sizeof buf, a)) > 0)
+        CHECK(fwrite(buf, 1, n, b) == n);
+    if (a) fclose(a);
+    if (b) fclose(b);
+}
+
+static int on_progress(void *user, int iteration, int iterations, double loss) {
+    (void)iterations, (void)loss;
+    const stopper *s = user;
+    if (iteration == s->copy_at) copy_file(s->from, s->to);
+    return iteration == s->stop_at;
+}
+
+static pen_optim_result run(unsigned groups, const char *outdir, int every, int resume,
+                            stopper *stop, pen_optim_task *task) {
+    *task = make_task(groups);
+    pen_context *ctx = pen_context_create();
+    pen_optim_settings set = pen_optim_settings_default();
+    set.outdir = outdir;
+    set.checkpoint_every = every;
+    set.resume = resume;
+    set.progress = stop ? on_progress : NULL;
+    set.progress_user = stop;
+    pen_optim_result r;
+    pen_status s = pen_optim_run(ctx, task, &set, &r);
+    CHECK_MSG(s == PEN_OK, "%s", pen_context_error(ctx));
+    pen_context_destroy(ctx);
+    return r;
+}
+
+/* Everything but the timing. */
+static void check_same(const pen_optim_result *a, const pen_optim_task *ta,
+                       const pen_optim_result *b, const pen_optim_task *tb, const char *what) {
+    CHECK_MSG(a->iterations == b->iterations && a->converged == b->converged &&
+                  a->best_iteration == b->best_iteration && a->final_loss == b->final_loss,
+              "%s: %d vs %d iterations, best %d vs %d, loss %.17g vs %.17g", what, a->iterations,
+              b->iterations, a->best_iteration, b->best_iteration, a->final_loss, b->final_loss);
+    if (a->iterations != b->iterations || !a->losses || !b->losses) return;
+    CHECK_MSG(memcmp(a->losses, b->losses, sizeof(double) * (size_t)(a->iterations + 1)) == 0,
+              "%s: loss curves differ", what);
+    const size_t px = 3 * (size_t)a->final.width * (size_t)a->final.height;
+    CHECK_MSG(memcmp(a->final.data, b->final.data, sizeof(float) * px) == 0,
+              "%s: final renders differ", what);
+    CHECK_MSG(memcmp(a->initial.data, b->initial.data, sizeof(float) * px) == 0,
+              "%s: initial renders differ", what);
+    const pen_object *oa = &ta->scene.objects[0], *ob = &tb->scene.objects[0];
+    CHECK_MSG(memcmp(ta->scene.lighting.sh, tb->scene.lighting.sh, sizeof ta->scene.lighting.sh) ==
+                      0 &&
+                  memcmp(&oa->pose, &ob->pose, sizeof oa->pose) == 0 &&
+                  memcmp(oa->mesh.positions, ob->mesh.positions,
+                         sizeof(float) * 3 * (size_t)oa->mesh.vertex_count) == 0 &&
+                  memcmp(oa->spheres.data, ob->spheres.data,
+                         sizeof(float) * 4 * (size_t)oa->spheres.count) == 0,
+              "%s: recovered scenes differ", what);
+    CHECK(a->metrics.vertex_rmse == b->metrics.vertex_rmse ||
+          (isnan(a->metrics.vertex_rmse) && isnan(b->metrics.vertex_rmse)));
+}
+
+static char *path_in(const char *dir, const char *name) {
+    static char buf[4][96];
+    static int k = 0;
+    k = (k + 1) % 4;
+    snprintf(buf[k], sizeof buf[k], "%s/%s", dir, name);
+    return buf[k];
+}
+
+static void cleanup(const char *dir) {
+    remove(path_in(dir, "checkpoint.bin"));
+    rmdir(dir);
+}
+
+/* One task: once, interrupted at j and resumed, crashed after the checkpoint at K and resumed. */
+static void check_resume(unsigned groups, const char *name) {
+    char base[] = "/tmp/pen_resume_XXXXXX";
+    CHECK(mkdtemp(base) != NULL);
+    char once[64], cut[64], crash[64];
+    snprintf(once, sizeof once, "%s/once", base);
+    snprintf(cut, sizeof cut, "%s/cut", base);
+    snprintf(crash, sizeof crash, "%s/crash", base);
+    CHECK(mkdir(crash, 0755) == 0);
+    const int K = check_quick_() ? 3 : 5, j = check_quick_() ? 8 : 17; /* 2 K < j */
+    pen_optim_task ta, tb, tc;
+    pen_optim_result a = run(groups, once, 0, 0, NULL, &ta);
+    /* Interrupted at j; the checkpoint of iteration 2K is copied away when it is written (the
+     * loop writes it before that iteration's render, so the callback sees it). */
+    stopper stop = {j, 2 * K, NULL, NULL};
+    char from[96], to[96];
+    snprintf(from, sizeof from, "%s/checkpoint.bin", cut);
+    snprintf(to, sizeof to, "%s/checkpoint.bin", crash);
+    stop.from = from, stop.to = to;
+    pen_optim_result b = run(groups, cut, K, 0, &stop, &tb);
+    CHECK(b.interrupted && b.iterations == j);
+    pen_optim_result_free(&b);
+    pen_optim_task_free(&tb);
+    b = run(groups, cut, K, 1, NULL, &tb);
+    CHECK(b.resumed_from == j && !b.interrupted);
+    pen_optim_result c = run(groups, crash, K, 1, NULL, &tc);
+    CHECK(c.resumed_from == 2 * K);
+    printf("  %-12s %d iterations, loss %.5g -> %.5g; resumed at %d and at %d\n", name,
+           a.iterations, a.losses ? a.losses[0] : 0.0, a.final_loss, b.resumed_from,
+           c.resumed_from);
+    check_same(&a, &ta, &b, &tb, "interrupted + resumed");
+    check_same(&a, &ta, &c, &tc, "crashed + resumed");
+    pen_optim_result_free(&a);
+    pen_optim_result_free(&b);
+    pen_optim_result_free(&c);
+    pen_optim_task_free(&ta);
+    pen_optim_task_free(&tb);
+    pen_optim_task_free(&tc);
+    cleanup(once);
+    cleanup(cut);
+    cleanup(crash);
+    rmdir(base);
+}
+
+static void test_resume_lighting_pose(void) {
+    check_resume(PEN_OPTIM_LIGHTING | PEN_OPTIM_POSE, "lighting+pose");
+}
+
+static void test_resume_deformation(void) { check_resume(PEN_OPTIM_DEFORMATION, "deformation"); }
+
+/* A checkpoint is refused by a task with another initial guess, and when damaged. */
+static void test_resume_refused(void) {
+    char dir[] = "/tmp/pen_resume_XXXXXX";
+    CHECK(mkdtemp(dir) != NULL);
+    pen_optim_task t;
+    pen_optim_result r = run(PEN_OPTIM_POSE, dir, 0, 0, NULL, &t);
+    pen_optim_result_free(&r);
+    pen_optim_task_free(&t);
+    t = make_task(PEN_OPTIM_POSE);
+    t.scene.objects[0].pose.translation[2] += 0.01f;
+    pen_context *ctx = pen_context_create();
+    pen_optim_settings set = pen_optim_settings_default();
+    set.outdir = dir;
+    set.resume = 1;
+    CHECK(pen_optim_run(ctx, &t, &set, &r) == PEN_ERROR_ARGUMENT);
+    CHECK(strstr(pen_context_error(ctx), "checkpoint.bin: made for another initial guess"));
+    CHECK(r.losses == NULL && r.final.data == NULL);
+    pen_optim_task_free(&t);
+    /* one flipped bit anywhere is caught: here in Adam's moments */
+    const char *path = path_in(dir, "checkpoint.bin");
+    FILE *f = fopen(path, "r+b");
+    CHECK(f != NULL);
+    if (f) {
+        CHECK(fseek(f, -40, SEEK_END) == 0);
+        const int c = fgetc(f);
+        CHECK(fseek(f, -40, SEEK_END) == 0);
+        fputc(c ^ 4, f);
+        fclose(f);
+    }
+    t = make_task(PEN_OPTIM_POSE);
+    CHECK(pen_optim_run(ctx, &t, &set, &r) == PEN_ERROR_PARSE);
+    CHECK(strstr(pen_context_error(ctx), "checkpoint.bin: damaged checkpoint (checksum mismatch)"));
+    pen_optim_task_free(&t);
+    pen_context_destroy(ctx);
+    cleanup(dir);
+}
+
+RUN_TESTS(TEST(test_resume_lighting_pose), TEST(test_resume_deformation),
+          TEST(test_resume_refused))
