@@ -83,6 +83,11 @@ struct pen_render_state {
     int *sphere_first; /* object o owns spheres [first[o], first[o+1]) */
     float *kappa;      /* overlap weight per world-space sphere (all 1 with overlap "none") */
     size_t kappa_cap;
+    float *kappa_key;  /* per sphere (4 floats): the object-space set kappa was computed from,
+                        * NaN where it was not computed (weights given, or overlap "none") */
+    size_t kappa_key_cap;
+    int *kappa_first; /* the object -> sphere offsets the keys were laid out with */
+    size_t kappa_first_cap;
     size_t pixel_cap;
     float *x, *nraw, *n, *rho, *uv, *color, *nsign;
     float *d_color, *d_x, *d_nraw, *d_uv, *d_rho, *d_bary;
@@ -122,6 +127,7 @@ void pen_render_state_free(pen_render_state *st) {
         free(b->world), free(b->vnormal), free(b->d_world), free(b->d_vnormal), free(b->adjacency);
     }
     free(st->obj), free(st->meshes), free(st->spheres), free(st->sphere_first), free(st->kappa);
+    free(st->kappa_key), free(st->kappa_first);
     float *px[] = {st->x,       st->nraw, st->n,      st->rho,  st->uv,    st->color, st->nsign,
                    st->d_color, st->d_x,  st->d_nraw, st->d_uv, st->d_rho, st->d_bary};
     for (size_t i = 0; i < sizeof px / sizeof px[0]; ++i)
@@ -548,20 +554,44 @@ static pen_status prepare(pen_context *ctx, const pen_scene *sc, const pen_rende
         }
     }
     /* Overlap weights: the object's own, computed from its spheres when it has none (so that an
-     * in-memory set renders as the same set loaded from a file), or 1 with overlap "none". */
+     * in-memory set renders as the same set loaded from a file), or 1 with overlap "none".
+     * Computed weights are kept with the set they came from: an optimiser that renders the
+     * same in-memory set every frame computes them once (they cost more than a forward). */
+    const size_t nfirst = (size_t)sc->object_count + 1;
+    const int kept = st->kappa && st->kappa_key && st->kappa_first &&
+                     st->kappa_cap >= (size_t)spheres &&
+                     st->kappa_key_cap >= 4 * (size_t)spheres && st->kappa_first_cap >= nfirst &&
+                     !memcmp(st->kappa_first, st->sphere_first, sizeof(int) * nfirst);
     if ((s = ensure(ctx, (void **)&st->kappa, &st->kappa_cap, (size_t)spheres, sizeof(float),
-                    "overlap weights")))
+                    "overlap weights")) ||
+        (s = ensure(ctx, (void **)&st->kappa_key, &st->kappa_key_cap, 4 * (size_t)spheres,
+                    sizeof(float), "overlap weight keys")) ||
+        (s = ensure(ctx, (void **)&st->kappa_first, &st->kappa_first_cap, nfirst, sizeof(int),
+                    "overlap weight layout")))
         return s;
+    if (!kept) {
+        for (size_t i = 0; i < 4 * (size_t)spheres; ++i)
+            st->kappa_key[i] = NAN;
+        memcpy(st->kappa_first, st->sphere_first, sizeof(int) * nfirst);
+    }
     for (int o = 0; o < sc->object_count; ++o) {
         const pen_spheres *sp = &sc->objects[o].spheres;
         float *k = st->kappa + st->sphere_first[o];
-        if (sc->shadow.overlap == PEN_OVERLAP_NONE)
+        float *key = st->kappa_key + 4 * (size_t)st->sphere_first[o];
+        const size_t nkey = 4 * (size_t)sp->count;
+        const int computed = sc->shadow.overlap != PEN_OVERLAP_NONE && !sp->weight;
+        if (computed && !memcmp(key, sp->data, sizeof(float) * nkey)) continue; /* as before */
+        for (size_t i = 0; i < nkey; ++i)
+            key[i] = NAN;
+        if (sc->shadow.overlap == PEN_OVERLAP_NONE) {
             for (int i = 0; i < sp->count; ++i)
                 k[i] = 1.0f;
-        else if (sp->weight)
+        } else if (sp->weight) {
             memcpy(k, sp->weight, sizeof(float) * (size_t)sp->count);
-        else if ((s = pen_spheres_overlap_weights(ctx, sp, k)))
-            return s;
+        } else {
+            if ((s = pen_spheres_overlap_weights(ctx, sp, k))) return s;
+            memcpy(key, sp->data, sizeof(float) * nkey);
+        }
     }
 
     if ((s = pen_raster_gbuffer(ctx, &st->view, st->meshes, sc->object_count, &sc->ground,
