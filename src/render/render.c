@@ -580,6 +580,7 @@ static pen_status prepare(pen_context *ctx, const pen_scene *sc, const pen_rende
         float *key = st->kappa_key + 4 * (size_t)st->sphere_first[o];
         const size_t nkey = 4 * (size_t)sp->count;
         const int computed = sc->shadow.overlap != PEN_OVERLAP_NONE && !sp->weight;
+        if (nkey == 0) continue; /* no spheres, no weights (and sp->data may be NULL) */
         if (computed && !memcmp(key, sp->data, sizeof(float) * nkey)) continue; /* as before */
         for (size_t i = 0; i < nkey; ++i)
             key[i] = NAN;
