@@ -214,6 +214,12 @@ expect_error 'bad.json: optimize\[1\]: "deformation" and "spheres" both move the
     '{"scene": "truth.json", "target": "target.exr", "optimize": ["spheres", "deformation"]}'
 expect_error 'bad.json: deformation.k: expected an integer in \[1, 32\]' \
     '{"scene": "truth.json", "target": "target.exr", "optimize": ["deformation"], "deformation": {"k": 0}}'
+expect_error 'bad.json: lighting_solver: unknown lighting solver "newton"' \
+    '{"scene": "truth.json", "target": "target.exr", "optimize": ["lighting"], "lighting_solver": "newton"}'
+expect_error 'bad.json: lighting_solver: "least_squares" needs "lighting" in optimize and the l2 loss' \
+    '{"scene": "truth.json", "target": "target.exr", "optimize": ["lighting"], "lighting_solver": "least_squares", "loss": "l1"}'
+expect_error 'bad.json: lighting_ridge: expected a ridge in \[0, 1e6\]' \
+    '{"scene": "truth.json", "target": "target.exr", "optimize": ["lighting"], "lighting_ridge": -1}'
 expect_error 'bad.json:[0-9]*:[0-9]*: invalid JSON' '{"scene": '
 # An output path that is a file: the run fails before writing anything.
 echo x > "$T/afile"

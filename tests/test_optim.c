@@ -287,11 +287,7 @@ static void test_lighting_pose(void) {
                                PEN_OPTIM_LIGHTING | PEN_OPTIM_POSE, check_quick_() ? 20 : 400);
     t.lr.lighting = 3e-3f;
     t.init_fit = 1;
-    pen_pose *p = &t.scene.objects[0].pose;
-    p->rotation_axis_angle_deg[1] += 8.0f;
-    p->rotation_axis_angle_deg[0] -= 4.0f;
-    p->translation[0] += 0.06f;
-    p->translation[2] -= 0.04f;
+    os_perturb_pose(&t.scene);
     pen_optim_result r = solve(&t, 1);
     check_result(&t, &r);
     if (!check_quick_()) {

@@ -102,6 +102,24 @@ pen_optim_deformation pen_optim_deformation_default(void);
  *     sum_p w_p sum_c rho(I_pc - T_pc) / (3 sum_p w_p),   w_p = 1 + s m_p,
  * rho = r^2 (l2) or |r| (l1); with s = 0 the plain mean. The mask is computed once, before the
  * first iteration, and held fixed: the weights are constants of the objective. */
+/* How optimised lighting is updated (task key "lighting_solver").
+ * ADAM ("adam", the default): Adam steps on the SH coefficients like every other group
+ * (supplement 5.1).
+ * LEAST_SQUARES ("least_squares"): the render is affine in the lighting, so for the current
+ * values of every other group the best lighting is a linear least-squares problem per channel
+ * (one render per coefficient; the l2 loss, weighted by "shadow_weight"). It is solved exactly
+ * before each render whenever the other parameters have changed, and Adam moves only the other
+ * groups, along the loss's gradient at the solved lighting (which is the gradient of the loss
+ * minimised over the lighting: variable projection). One view determines some combinations of the
+ * coefficients badly, so the objective carries a ridge mu_c |L_c|^2 per channel: mu_c is
+ * "lighting_ridge" (default 1e-2) times the largest diagonal entry of channel c's normal
+ * equations at the initial guess, then held fixed; the recorded losses include it (in the loss's
+ * units, mu_c |L_c|^2 / (3 sum_p w_p)). Needs the l2 loss. */
+typedef enum pen_optim_lighting_solver {
+    PEN_OPTIM_LIGHTING_ADAM = 0,
+    PEN_OPTIM_LIGHTING_LEAST_SQUARES = 1
+} pen_optim_lighting_solver;
+
 typedef struct pen_optim_task {
     char *path;         /* the task file (messages, relative paths) */
     pen_scene scene;    /* the initial guess; pen_optim_run leaves the recovered scene here */
@@ -119,6 +137,8 @@ typedef struct pen_optim_task {
     pen_optim_deformation deformation;
     double shadow_weight; /* >= 0 (default 0): stresses the target's shadows in the loss,
                              below */
+    pen_optim_lighting_solver lighting_solver; /* default PEN_OPTIM_LIGHTING_ADAM */
+    double lighting_ridge; /* least squares: the ridge, relative (default 1e-2), below */
     int has_ground_truth;
     pen_scene ground_truth; /* zeroed when has_ground_truth == 0 */
 } pen_optim_task;

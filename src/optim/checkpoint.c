@@ -14,6 +14,7 @@
  *     "PENOPTCK" u32 version u32 0x01020304
  *     u64 n  u32 segments  {u64 offset, u64 count, u32 bound} per segment
  *     u32 groups  i32 loss  i32 shadows  i32 width  i32 height  f64 shadow_weight
+ *     i32 lighting_solver  f64 lighting_ridge
  *     u64 target_hash  u64 init_hash
  *     i32 iteration  i32 recorded  i32 best_iteration  i32 adam_t  f64 best_loss  f64 seconds
  *     f32 x[n]  f32 best[n]  f32 m[n]  f32 v[n]  f64 losses[recorded]
@@ -31,7 +32,7 @@
 #include <unistd.h>
 
 #define CHECKPOINT_MAGIC "PENOPTCK"
-#define CHECKPOINT_VERSION 1u
+#define CHECKPOINT_VERSION 2u
 #define CHECKPOINT_ORDER 0x01020304u
 
 uint64_t pen__optim_hash(uint64_t h, const void *data, size_t size) {
@@ -74,6 +75,8 @@ static void put_identity(writer *w, const pen__optim_identity *id) {
     put_i32(w, id->width);
     put_i32(w, id->height);
     put_f64(w, id->shadow_weight);
+    put_i32(w, id->lighting_solver);
+    put_f64(w, id->lighting_ridge);
     put_u64(w, id->target_hash);
     put_u64(w, id->init_hash);
 }
@@ -199,6 +202,8 @@ static pen_status check_identity(pen_context *ctx, const char *path, reader *r,
     const uint32_t groups = get_u32(r);
     const int32_t loss = get_i32(r), shadows = get_i32(r), w = get_i32(r), h = get_i32(r);
     const double weight = get_f64(r);
+    const int32_t solver = get_i32(r);
+    const double ridge = get_f64(r);
     const uint64_t target = get_u64(r), init = get_u64(r);
     if (!r->ok) return pen__error(ctx, PEN_ERROR_PARSE, "%s: truncated checkpoint", path);
     if (groups != id->groups)
@@ -215,6 +220,12 @@ static pen_status check_identity(pen_context *ctx, const char *path, reader *r,
                           "shadow_weight %g",
                           path, loss == PEN_OPTIM_LOSS_L1 ? "l1" : "l2", weight,
                           id->loss == PEN_OPTIM_LOSS_L1 ? "l1" : "l2", id->shadow_weight);
+    if (solver != id->lighting_solver || ridge != id->lighting_ridge)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: made with another lighting solver (%s, ridge %g), this task's is "
+                          "%s, ridge %g",
+                          path, solver ? "least_squares" : "adam", ridge,
+                          id->lighting_solver ? "least_squares" : "adam", id->lighting_ridge);
     if (w != id->width || h != id->height || target != id->target_hash)
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "%s: made for another target image (%dx%d, or other pixels)", path, w, h);

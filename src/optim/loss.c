@@ -137,50 +137,61 @@ static int solve_spd(double *A, double *b, int n) {
     return 1;
 }
 
-/* The least-squares lighting of the unshadowed model over the pixels with mask[p] < 0.1 (all
- * when mask is NULL), per channel, into sh (nb rows), with the ridge ridge * (the largest
- * diagonal entry of the normal equations). base: the render with zero lighting; cols[k]: the
- * render with coefficient k = 1 minus base. */
+/* Per channel c, the coefficients L_c (nb of them, into sh) minimising
+ *     sum_p w_p (base_pc + sum_k L_kc cols[k]_pc - target_pc)^2 + mu_c |L_c|^2,
+ * w_p = weight[p] (NULL: 1). mu[c] < 0 on entry: mu_c = ridge * (the largest diagonal entry of
+ * channel c's normal equations), written back to mu[c]; mu[c] >= 0: taken as it is (a fixed
+ * objective across calls). base: the render with zero lighting; cols[k]: the render with
+ * coefficient k = 1 in every channel, minus base. Summed in double in pixel order. */
 static pen_status fit_coefficients(pen_context *ctx, const pen_image *target,
                                    const pen_image *base, const pen_image *cols, int nb,
-                                   const float *mask, double ridge, float (*sh)[3]) {
+                                   const float *weight, double ridge, double mu[3],
+                                   float (*sh)[3]) {
     const size_t pixels = (size_t)target->width * (size_t)target->height;
     double *G = pen__malloc(ctx, (size_t)nb * (size_t)nb, sizeof(double), "lighting fit");
     double *b = pen__malloc(ctx, (size_t)nb, sizeof(double), "lighting fit");
-    if (!G || !b) {
+    double *a = pen__malloc(ctx, (size_t)nb, sizeof(double), "lighting fit");
+    if (!G || !b || !a) {
         free(G);
         free(b);
+        free(a);
         return PEN_ERROR_MEMORY;
     }
     for (int c = 0; c < 3; ++c) {
         memset(G, 0, sizeof(double) * (size_t)nb * (size_t)nb);
         memset(b, 0, sizeof(double) * (size_t)nb);
         for (size_t p = 0; p < pixels; ++p) {
-            if (mask && !(mask[p] < 0.1f)) continue; /* refit over the lit pixels */
+            const double wp = weight ? (double)weight[p] : 1.0;
+            if (wp == 0.0) continue;
             const size_t i = 3 * p + (size_t)c;
             const double r = (double)target->data[i] - (double)base->data[i];
+            for (int j = 0; j < nb; ++j)
+                a[j] = (double)cols[j].data[i];
             for (int j = 0; j < nb; ++j) {
-                const double aj = (double)cols[j].data[i];
-                if (aj == 0.0) continue;
-                b[j] += aj * r;
+                if (a[j] == 0.0) continue; /* background, or band 3 without shadows */
+                const double wa = wp * a[j];
+                b[j] += wa * r;
                 for (int k = 0; k <= j; ++k)
-                    G[j * nb + k] += aj * (double)cols[k].data[i];
+                    G[j * nb + k] += wa * a[k];
             }
         }
         double scale = 0.0;
         for (int j = 0; j < nb; ++j)
             scale = fmax(scale, G[j * nb + j]);
+        const double m = mu && mu[c] >= 0.0 ? mu[c] : ridge * scale;
+        if (mu) mu[c] = m;
         for (int j = 0; j < nb; ++j) {
             for (int k = 0; k < j; ++k)
                 G[k * nb + j] = G[j * nb + k];
-            G[j * nb + j] += ridge * scale + 1e-30; /* band 3's columns are zero */
+            G[j * nb + j] += m + 1e-30; /* band 3's columns are zero without shadows */
         }
-        const int ok = solve_spd(G, b, nb); /* not ok: no lit pixel at all, lighting 0 */
+        const int ok = solve_spd(G, b, nb); /* not ok: no pixel sees the light at all: 0 */
         for (int k = 0; k < nb; ++k)
             sh[k][c] = ok ? (float)b[k] : 0.0f;
     }
     free(G);
     free(b);
+    free(a);
     return PEN_OK;
 }
 
@@ -196,6 +207,32 @@ static void model_image(const pen_image *base, const pen_image *cols, int nb,
     }
 }
 
+/* The render is affine in the lighting: base (zero lighting) and, per coefficient k, cols[k] =
+ * the render with coefficient k = 1 in every channel, minus base (cols: nb zeroed images). */
+static pen_status lighting_basis(pen_context *ctx, const pen_scene *sc,
+                                 const pen_render_options *opt, pen_image *base, pen_image *cols) {
+    const int nb = sc->sh_bands * sc->sh_bands;
+    pen_scene v = *sc; /* shallow: only the lighting differs */
+    memset(v.lighting.sh, 0, sizeof v.lighting.sh);
+    pen_status s = pen_render_fwd(ctx, &v, opt, NULL, base);
+    const size_t n = 3 * (size_t)sc->camera.width * (size_t)sc->camera.height;
+    for (int k = 0; !s && k < nb; ++k) {
+        v.lighting.sh[k][0] = v.lighting.sh[k][1] = v.lighting.sh[k][2] = 1.0f;
+        s = pen_render_fwd(ctx, &v, opt, NULL, &cols[k]);
+        v.lighting.sh[k][0] = v.lighting.sh[k][1] = v.lighting.sh[k][2] = 0.0f;
+        for (size_t i = 0; !s && i < n; ++i)
+            cols[k].data[i] -= base->data[i];
+    }
+    return s;
+}
+
+static void basis_free(pen_image *base, pen_image *cols, int nb) {
+    for (int k = 0; cols && k < nb; ++k)
+        pen_image_free(&cols[k]);
+    free(cols);
+    pen_image_free(base);
+}
+
 pen_status pen__optim_fit_lighting(pen_context *ctx, const pen_scene *sc, const pen_image *target,
                                    double ridge, float (*sh)[3]) {
     pen_render_options opt = pen_render_options_default();
@@ -207,28 +244,31 @@ pen_status pen__optim_fit_lighting(pen_context *ctx, const pen_scene *sc, const 
     float *model = pen__malloc(ctx, 3 * pixels, sizeof(float), "lighting fit");
     float *mask = pen__malloc(ctx, pixels, sizeof(float), "lighting fit");
     pen_status s = cols && model && mask ? PEN_OK : PEN_ERROR_MEMORY;
-    pen_scene v = *sc; /* shallow: only the lighting differs */
-    memset(v.lighting.sh, 0, sizeof v.lighting.sh);
-    if (!s) s = pen_render_fwd(ctx, &v, &opt, NULL, &base);
-    for (int k = 0; !s && k < nb; ++k) {
-        v.lighting.sh[k][0] = v.lighting.sh[k][1] = v.lighting.sh[k][2] = 1.0f;
-        s = pen_render_fwd(ctx, &v, &opt, NULL, &cols[k]);
-        v.lighting.sh[k][0] = v.lighting.sh[k][1] = v.lighting.sh[k][2] = 0.0f;
-        for (size_t i = 0; !s && i < 3 * pixels; ++i)
-            cols[k].data[i] -= base.data[i];
-    }
-    if (!s) s = fit_coefficients(ctx, target, &base, cols, nb, NULL, ridge, sh);
+    if (!s) s = lighting_basis(ctx, sc, &opt, &base, cols);
+    if (!s) s = fit_coefficients(ctx, target, &base, cols, nb, NULL, ridge, NULL, sh);
     if (!s) {
         model_image(&base, cols, nb, (const float(*)[3])sh, model);
         mask_from(target, model, mask);
-        s = fit_coefficients(ctx, target, &base, cols, nb, mask, ridge, sh);
+        for (size_t p = 0; p < pixels; ++p) /* refit over the lit pixels */
+            mask[p] = mask[p] < 0.1f ? 1.0f : 0.0f;
+        s = fit_coefficients(ctx, target, &base, cols, nb, mask, ridge, NULL, sh);
     }
-    for (int k = 0; cols && k < nb; ++k)
-        pen_image_free(&cols[k]);
-    free(cols);
+    basis_free(&base, cols, nb);
     free(model);
     free(mask);
-    pen_image_free(&base);
+    return s;
+}
+
+pen_status pen__optim_solve_lighting(pen_context *ctx, const pen_scene *sc,
+                                     const pen_render_options *opt, const pen_image *target,
+                                     const float *weight, double ridge, double mu[3],
+                                     float (*sh)[3]) {
+    const int nb = sc->sh_bands * sc->sh_bands;
+    pen_image base = {0, 0, 0, NULL};
+    pen_image *cols = pen__calloc(ctx, (size_t)nb, sizeof *cols, "lighting solve");
+    pen_status s = cols ? lighting_basis(ctx, sc, opt, &base, cols) : PEN_ERROR_MEMORY;
+    if (!s) s = fit_coefficients(ctx, target, &base, cols, nb, weight, ridge, mu, sh);
+    basis_free(&base, cols, nb);
     return s;
 }
 

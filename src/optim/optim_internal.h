@@ -6,6 +6,7 @@
 #include "core/internal.h"
 #include "penumbra/optim.h"
 #include "penumbra/mesh.h"
+#include "penumbra/render.h"
 #include "penumbra/spheres.h"
 
 #include <stdint.h>
@@ -98,6 +99,16 @@ void pen__optim_loss_bwd(pen_optim_loss kind, const pen_image *image, const pen_
  * sees them. ridge: Tikhonov weight relative to the normal equations' largest diagonal entry. */
 pen_status pen__optim_fit_lighting(pen_context *ctx, const pen_scene *sc, const pen_image *target,
                                    double ridge, float (*sh)[3]);
+/* The lighting-only least-squares problem of "lighting_solver": "least_squares" (optim.h): per
+ * channel c the SH coefficients minimising sum_p w_p sum_c (I_pc(L) - T_pc)^2 + mu_c |L_c|^2,
+ * I the scene rendered with `opt` (shadows or not) and lighting L, w = weight (NULL: 1), from one
+ * render per coefficient (the render is affine in L). mu[c] < 0 on entry: set to ridge * the
+ * largest diagonal entry of channel c's normal equations and written back; mu[c] >= 0: used as
+ * it is, so repeated solves minimise one fixed objective. The result goes into sh (bands^2). */
+pen_status pen__optim_solve_lighting(pen_context *ctx, const pen_scene *sc,
+                                     const pen_render_options *opt, const pen_image *target,
+                                     const float *weight, double ridge, double mu[3],
+                                     float (*sh)[3]);
 /* Ridges (relative to the largest diagonal entry of the normal equations): the shadow mask
  * needs an unbiased fitted image, the "fit" initial guess well-conditioned coefficients. */
 #define PEN__OPTIM_RIDGE_MASK 1e-9
@@ -118,6 +129,8 @@ typedef struct pen__optim_identity {
     unsigned groups;
     int loss, shadows, width, height;
     double shadow_weight;
+    int lighting_solver;   /* pen_optim_lighting_solver */
+    double lighting_ridge;
     uint64_t target_hash; /* of the target's pixels */
     uint64_t init_hash;   /* of the parameter vector of the initial guess */
 } pen__optim_identity;

@@ -59,6 +59,12 @@ typedef struct run {
     object_deform *deform;    /* per object, when deformation is optimised */
     double w_rot, w_reg;
     float *weight;            /* per pixel loss weights (shadow_weight > 0), else NULL */
+    /* "lighting_solver": "least_squares": the lighting is solved, not stepped */
+    int solve;
+    double mu[3];             /* the ridge per channel, fixed at the initial guess */
+    double weight_sum;        /* of the loss weights (the pixel count without them) */
+    float *solved_for;        /* the parameters the lighting in x was solved for */
+    int solved;               /* solved_for is valid */
 } run;
 
 pen_optim_settings pen_optim_settings_default(void) {
@@ -141,6 +147,7 @@ static void run_free(run *r) {
     free(r->g);
     free(r->best);
     free(r->weight);
+    free(r->solved_for);
     for (int o = 0; r->deform && o < r->sc->object_count; ++o) {
         object_deform *D = &r->deform[o];
         pen__optim_deform_free(&D->graph);
@@ -232,10 +239,20 @@ static void deformation_rest(run *r) {
     }
 }
 
-/* The regularisers of every deformed object at the current parameters (D->params, set by
- * transfer); their gradient is added in gather(). */
-static double regularisers(run *r) {
+/* The ridge term of the least-squares lighting in the loss's units (0 otherwise). */
+static double ridge_penalty(const run *r) {
+    if (!r->solve) return 0.0;
     double e = 0.0;
+    for (int k = 0; k < r->sc->sh_bands * r->sc->sh_bands; ++k)
+        for (int c = 0; c < 3; ++c)
+            e += r->mu[c] * (double)r->sc->lighting.sh[k][c] * (double)r->sc->lighting.sh[k][c];
+    return e / (3.0 * r->weight_sum);
+}
+
+/* The regularisers at the current parameters: every deformed object's (D->params, set by
+ * transfer; their gradient is added in gather()) and the least-squares lighting's ridge. */
+static double regularisers(run *r) {
+    double e = ridge_penalty(r);
     for (int o = 0; o < r->sc->object_count; ++o)
         if (r->objects[o].deform != SIZE_MAX)
             e += pen__optim_deform_energy(&r->deform[o].graph, r->deform[o].params, r->w_rot,
@@ -299,14 +316,36 @@ static void gather(run *r, const pen_render_grad *grad, float scale) {
     }
 }
 
-static unsigned grad_mask(unsigned groups) {
+static unsigned grad_mask(unsigned groups, int solve) {
     unsigned wrt = 0;
-    if (groups & PEN_OPTIM_LIGHTING) wrt |= PEN_GRAD_LIGHTING;
+    if ((groups & PEN_OPTIM_LIGHTING) && !solve) wrt |= PEN_GRAD_LIGHTING;
     if (groups & PEN_OPTIM_ALBEDO) wrt |= PEN_GRAD_ALBEDO;
     if (groups & PEN_OPTIM_POSE) wrt |= PEN_GRAD_POSE;
     if (groups & PEN_OPTIM_SPHERES) wrt |= PEN_GRAD_SPHERES;
     if (groups & PEN_OPTIM_DEFORMATION) wrt |= PEN_GRAD_SPHERES | PEN_GRAD_VERTICES;
     return wrt;
+}
+
+/* ---- Least-squares lighting ----------------------------------------------------------------- */
+
+/* With "lighting_solver": "least_squares", makes the lighting in x and the scene the solution for
+ * the current values of every other parameter, unless it already is (a lighting-only task solves
+ * once). Adam never moves the lighting segment (its gradient is not computed, so it stays 0 and
+ * so do Adam's steps there). */
+static pen_status solve_lighting(pen_context *ctx, const pen_optim_task *t,
+                                 const pen_render_options *opt, run *r) {
+    if (!r->solve) return PEN_OK;
+    const size_t nl = 3 * (size_t)r->sc->sh_bands * (size_t)r->sc->sh_bands;
+    const size_t rest = r->n - nl; /* the lighting segment comes first (layout) */
+    if (r->solved && memcmp(r->solved_for, r->x + nl, sizeof(float) * rest) == 0) return PEN_OK;
+    pen_status s = pen__optim_solve_lighting(ctx, r->sc, opt, &t->target, r->weight,
+                                             t->lighting_ridge, r->mu, r->sc->lighting.sh);
+    if (s) return s;
+    for (size_t k = 0; k < nl; ++k)
+        r->x[r->lighting + k] = r->sc->lighting.sh[k / 3][k % 3];
+    memcpy(r->solved_for, r->x + nl, sizeof(float) * rest);
+    r->solved = 1;
+    return PEN_OK;
 }
 
 /* ---- The loop -------------------------------------------------------------------------------- */
@@ -353,6 +392,15 @@ static pen_status check_task(pen_context *ctx, const pen_optim_task *t) {
     if (!(t->shadow_weight >= 0.0) || !isfinite(t->shadow_weight))
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: shadow_weight must be a finite number >= 0",
                           name);
+    if (t->lighting_solver == PEN_OPTIM_LIGHTING_LEAST_SQUARES &&
+        (!(t->optimize & PEN_OPTIM_LIGHTING) || t->loss != PEN_OPTIM_LOSS_L2))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: lighting_solver: \"least_squares\" needs \"lighting\" in optimize "
+                          "and the l2 loss",
+                          name);
+    if (!(t->lighting_ridge >= 0.0) || !isfinite(t->lighting_ridge))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: lighting_ridge must be a finite number >= 0",
+                          name);
     const float lr[7] = {t->lr.lighting, t->lr.albedo,  t->lr.rotation,
                          t->lr.translation, t->lr.spheres, t->lr.deformation_rotation,
                          t->lr.deformation_translation};
@@ -378,6 +426,8 @@ static pen__optim_identity identity(const pen_optim_task *t, const pen_optim_set
     id.width = t->target.width;
     id.height = t->target.height;
     id.shadow_weight = t->shadow_weight;
+    id.lighting_solver = (int)t->lighting_solver;
+    id.lighting_ridge = t->lighting_ridge;
     id.target_hash = pen__optim_hash(PEN__OPTIM_HASH_SEED, t->target.data,
                                      sizeof(float) * 3 * (size_t)id.width * (size_t)id.height);
     id.init_hash = pen__optim_hash(PEN__OPTIM_HASH_SEED, r->x, sizeof(float) * r->n);
@@ -450,7 +500,7 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
     double best = st.best_loss;
     const double before = st.seconds; /* spent by the runs this one continues */
     const float scale = 3.0f * (float)w * (float)h;
-    const unsigned wrt = grad_mask(r->groups);
+    const unsigned wrt = grad_mask(r->groups, r->solve);
     const int K = set->outdir ? set->checkpoint_every : 0;
     const int S = set->outdir ? set->snapshot_every : 0;
     const double t0 = omp_get_wtime();
@@ -465,7 +515,8 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
             if (s) break;
         }
         double loss = 0.0;
-        s = pen_render_fwd(ctx, &t->scene, &opt, state, &img);
+        s = solve_lighting(ctx, t, &opt, r);
+        if (!s) s = pen_render_fwd(ctx, &t->scene, &opt, state, &img);
         if (!s) s = evaluate(ctx, t, r->weight, &img, &loss, &d_img);
         if (!s && S > 0 && i % S == 0) s = save_snapshot(ctx, set, i, &img);
         if (s) break;
@@ -481,7 +532,9 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
             res->interrupted = 1;
             break;
         }
-        if (pen__optim_stalled(res->losses, i + 1, t->window, t->tolerance)) {
+        if (pen__optim_stalled(res->losses, i + 1, t->window, t->tolerance) ||
+            (r->solve && r->n == 3 * (size_t)r->sc->sh_bands * (size_t)r->sc->sh_bands)) {
+            /* (solved lighting alone: nothing for Adam to move, the solve is the answer) */
             res->converged = 1;
             break;
         }
@@ -495,7 +548,8 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
     }
     res->iterations = i;
     if (!s && shown < 0) { /* the iteration limit: the loss after the last step */
-        s = pen_render_fwd(ctx, &t->scene, &opt, NULL, &img);
+        s = solve_lighting(ctx, t, &opt, r);
+        if (!s) s = pen_render_fwd(ctx, &t->scene, &opt, NULL, &img);
         if (!s) s = evaluate(ctx, t, r->weight, &img, &res->losses[i], NULL);
         if (!s) res->losses[i] += regularisers(r);
         if (!s && res->losses[i] < best) {
@@ -563,6 +617,25 @@ static pen_status fitted_lighting(pen_context *ctx, const pen_optim_task *t, run
     return s;
 }
 
+/* Least-squares lighting: the ridge is fixed at the initial guess, whose lighting is then solved
+ * for (so the first render, the loss curve's start, shows the solved lighting). */
+static pen_status lighting_solver_init(pen_context *ctx, const pen_optim_task *t,
+                                       const pen_optim_settings *set, run *r) {
+    const size_t pixels = (size_t)t->target.width * (size_t)t->target.height;
+    r->weight_sum = (double)pixels;
+    if (r->weight) {
+        r->weight_sum = 0.0;
+        for (size_t p = 0; p < pixels; ++p)
+            r->weight_sum += (double)r->weight[p];
+    }
+    r->mu[0] = r->mu[1] = r->mu[2] = -1.0;
+    r->solved_for = pen__calloc(ctx, r->n + 1, sizeof(float), "lighting solve");
+    if (!r->solved_for) return PEN_ERROR_MEMORY;
+    pen_render_options opt = pen_render_options_default();
+    opt.shadows = set->shadows;
+    return solve_lighting(ctx, t, &opt, r);
+}
+
 static pen_status check_settings(pen_context *ctx, const pen_optim_settings *set) {
     if (set->checkpoint_every < 0 || set->snapshot_every < 0)
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
@@ -606,6 +679,7 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
     memset(&r, 0, sizeof r);
     r.sc = &task->scene;
     r.groups = task->optimize;
+    r.solve = task->lighting_solver == PEN_OPTIM_LIGHTING_LEAST_SQUARES;
     s = layout(ctx, &r, task);
     if (!s) {
         transfer(&r, 0);
@@ -615,6 +689,7 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
         transfer(&r, 1);
         if (task->init_fit && r.lighting != SIZE_MAX) s = fitted_lighting(ctx, task, &r);
         if (!s && task->shadow_weight > 0.0) s = shadow_weights(ctx, task, &r);
+        if (!s && r.solve) s = lighting_solver_init(ctx, task, &set, &r);
     }
     if (!s) s = optimise(ctx, task, &set, &r, out);
     if (!s) {

@@ -335,6 +335,11 @@ pen_status pen_optim_result_json(pen_context *ctx, const pen_optim_task *t,
              add(root, "shadows", cJSON_CreateBool(shadows)) &&
              add(root, "loss", cJSON_CreateString(t->loss == PEN_OPTIM_LOSS_L1 ? "l1" : "l2")) &&
              add(root, "shadow_weight", cJSON_CreateNumber(t->shadow_weight)) &&
+             add(root, "lighting_solver",
+                 cJSON_CreateString(t->lighting_solver == PEN_OPTIM_LIGHTING_LEAST_SQUARES
+                                        ? "least_squares"
+                                        : "adam")) &&
+             add(root, "lighting_ridge", cJSON_CreateNumber(t->lighting_ridge)) &&
              add(root, "iterations", cJSON_CreateNumber(it)) &&
              add(root, "seconds", cJSON_CreateNumber(r->seconds)) &&
              add(root, "seconds_per_iteration",

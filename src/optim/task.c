@@ -211,6 +211,28 @@ static pen_status parse_lr(pen_context *ctx, const where *top, const cJSON *root
     return PEN_OK;
 }
 
+/* A string member that must be one of `names` (NULL-terminated): its index into *index, or one
+ * error naming the key and listing the choices. */
+static pen_status parse_choice(pen_context *ctx, const where *w, const cJSON *e, const char *what,
+                               const char *const names[], int *index) {
+    const char *name = NULL;
+    pen_status s = pen__json_string(ctx, w, e, &name);
+    if (s) return s;
+    char expected[160] = "";
+    size_t used = 0;
+    for (int k = 0; names[k]; ++k) {
+        if (strcmp(name, names[k]) == 0) {
+            *index = k;
+            return PEN_OK;
+        }
+        const char *sep = k == 0 ? "" : names[k + 1] ? ", " : " or ";
+        int n = snprintf(expected + used, sizeof expected - used, "%s\"%s\"", sep, names[k]);
+        if (n > 0 && (size_t)n < sizeof expected - used) used += (size_t)n;
+    }
+    return pen__json_error(ctx, PEN_ERROR_PARSE, w, "unknown %s \"%s\" (expected %s)", what, name,
+                           expected);
+}
+
 static pen_status parse_options(pen_context *ctx, const where *top, const cJSON *root,
                                 pen_optim_task *t) {
     const cJSON *e;
@@ -237,37 +259,33 @@ static pen_status parse_options(pen_context *ctx, const where *top, const cJSON 
         s = pen__json_number(ctx, &w, e, 0.0, 1e6, "a weight in [0, 1e6]", &t->shadow_weight);
         if (s) return s;
     }
+    if ((e = cJSON_GetObjectItemCaseSensitive(root, "lighting_ridge"))) {
+        w = at(top, "lighting_ridge");
+        s = pen__json_number(ctx, &w, e, 0.0, 1e6, "a ridge in [0, 1e6]", &t->lighting_ridge);
+        if (s) return s;
+    }
+    static const char *const solvers[] = {"adam", "least_squares", NULL};
+    static const char *const losses[] = {"l2", "l1", NULL};
+    static const char *const inits[] = {"black", "scene", "fit", NULL};
+    int k = -1;
+    if ((e = cJSON_GetObjectItemCaseSensitive(root, "lighting_solver"))) {
+        w = at(top, "lighting_solver");
+        s = parse_choice(ctx, &w, e, "lighting solver", solvers, &k);
+        if (s) return s;
+        t->lighting_solver = k == 1 ? PEN_OPTIM_LIGHTING_LEAST_SQUARES : PEN_OPTIM_LIGHTING_ADAM;
+    }
     if ((e = cJSON_GetObjectItemCaseSensitive(root, "loss"))) {
         w = at(top, "loss");
-        const char *name = NULL;
-        s = pen__json_string(ctx, &w, e, &name);
+        s = parse_choice(ctx, &w, e, "loss", losses, &k);
         if (s) return s;
-        if (strcmp(name, "l2") == 0) {
-            t->loss = PEN_OPTIM_LOSS_L2;
-        } else if (strcmp(name, "l1") == 0) {
-            t->loss = PEN_OPTIM_LOSS_L1;
-        } else {
-            return pen__json_error(ctx, PEN_ERROR_PARSE, &w,
-                                   "unknown loss \"%s\" (expected \"l2\" or \"l1\")", name);
-        }
+        t->loss = k == 1 ? PEN_OPTIM_LOSS_L1 : PEN_OPTIM_LOSS_L2;
     }
     if ((e = cJSON_GetObjectItemCaseSensitive(root, "init"))) {
         w = at(top, "init");
-        const char *name = NULL;
-        s = pen__json_string(ctx, &w, e, &name);
+        s = parse_choice(ctx, &w, e, "initialisation", inits, &k);
         if (s) return s;
-        if (strcmp(name, "black") == 0) {
-            t->init_black = 1;
-        } else if (strcmp(name, "scene") == 0) {
-            t->init_black = 0;
-        } else if (strcmp(name, "fit") == 0) {
-            t->init_black = t->init_fit = 1;
-        } else {
-            return pen__json_error(ctx, PEN_ERROR_PARSE, &w,
-                                   "unknown initialisation \"%s\" (expected \"black\", "
-                                   "\"scene\" or \"fit\")",
-                                   name);
-        }
+        t->init_black = k != 1;
+        t->init_fit = k == 2;
     }
     if ((e = cJSON_GetObjectItemCaseSensitive(root, "deformation"))) {
         w = at(top, "deformation");
@@ -304,7 +322,8 @@ static pen_status parse_task(pen_context *ctx, const char *path, const cJSON *ro
     static const char *const known[] = {"scene", "target",    "optimize", "iterations",
                                         "lr",    "loss",      "tolerance", "window",
                                         "init",  "deformation", "ground_truth",
-                                        "shadow_weight", NULL};
+                                        "shadow_weight", "lighting_solver",
+                                        "lighting_ridge", NULL};
     pen_status s = pen__json_known_keys(ctx, &top, root, known);
     if (!s) s = parse_groups(ctx, &top, root, &t->optimize);
     if (!s) s = parse_options(ctx, &top, root, t);
@@ -329,6 +348,8 @@ static pen_status task_from_text(pen_context *ctx, const char *text, size_t size
     out->tolerance = 1e-3;
     out->window = 10;
     out->init_black = 1;
+    out->lighting_solver = PEN_OPTIM_LIGHTING_ADAM;
+    out->lighting_ridge = 1e-2;
     out->deformation = pen_optim_deformation_default();
     cJSON *root = NULL;
     pen_status s = pen__json_parse(ctx, path, text, size, &root);
