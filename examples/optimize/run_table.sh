@@ -86,8 +86,8 @@ prepare() { # mesh
     fi
 }
 
-printf 'mesh\ttask\tshadows\titerations\tconverged\ts_per_it\tfinal_loss\timage_rmse\tlighting_rel_error\talbedo_psnr_db\talbedo_texel_psnr_db\talbedo_observed\trotation_error_deg\ttranslation_error\tvertex_rmse\tsphere_iou\tsphere_chamfer\tshadow_iou\n' > "$OUT/results.tsv"
-echo "| mesh | task | shadows | iterations | s/it | image RMSE | lighting rel. error (bands 0–2) | albedo PSNR (dB) | rotation error (°) | translation error | vertex RMSE | shadow IoU (sphere IoU) |"
+printf 'mesh\ttask\tshadows\titerations\tconverged\ts_per_it\tfinal_loss\timage_rmse\tlighting_rel_error\talbedo_psnr_db\talbedo_shadow_psnr_db\talbedo_shadow_fraction\talbedo_texel_psnr_db\talbedo_observed\trotation_error_deg\ttranslation_error\tvertex_rmse\tsphere_iou\tsphere_chamfer\tshadow_iou\n' > "$OUT/results.tsv"
+echo "| mesh | task | shadows | iterations | s/it | image RMSE | lighting rel. error (bands 0–2) | albedo PSNR, view (in shadow) (dB) | rotation error (°) | translation error | vertex RMSE | shadow IoU (sphere IoU) |"
 echo "|---|---|---|---|---|---|---|---|---|---|---|---|"
 for mesh in $MESHES; do
     prepare $mesh
@@ -112,7 +112,8 @@ for mesh in $MESHES; do
             r="$dir/result.json"
             printf '%s\t%s\t%s' $mesh $task $mode >> "$OUT/results.tsv"
             for f in iterations converged seconds_per_iteration final_loss image_rmse \
-                lighting_rel_error albedo_psnr_db albedo_texel_psnr_db albedo_observed \
+                lighting_rel_error albedo_psnr_db albedo_shadow_psnr_db albedo_shadow_fraction \
+                albedo_texel_psnr_db albedo_observed \
                 rotation_error_deg translation_error vertex_rmse sphere_iou sphere_chamfer \
                 shadow_iou; do
                 printf '\t%s' "$(field "$r" $f)" >> "$OUT/results.tsv"
@@ -122,12 +123,17 @@ for mesh in $MESHES; do
             [ "$(field "$r" converged)" = true ] || conv=" (limit)"
             light="$(fmt %.3f "$(field "$r" lighting_rel_error)")"
             [ "$light" = - ] || light="$light ($(fmt %.3f "$(field "$r" lighting_rel_error_bands_0_2)"))"
+            albedo="$(fmt %.1f "$(field "$r" albedo_psnr_db)")"
+            # in shadow: "-" when the view has no shadowed pixel, "inf" for a perfect match
+            in_shadow="$(field "$r" albedo_shadow_psnr_db)"
+            [ "$in_shadow" = null ] && in_shadow=inf || in_shadow="$(fmt %.1f "$in_shadow")"
+            [ "$albedo" = - ] || albedo="$albedo ($in_shadow)"
             shadow="$(fmt %.3f "$(field "$r" shadow_iou)")"
             [ "$shadow" = - ] || shadow="$shadow ($(fmt %.3f "$(field "$r" sphere_iou)"))"
             echo "| $mesh | $task | $mode | $(field "$r" iterations)$conv |" \
                 "$(fmt %.2f "$(field "$r" seconds_per_iteration)") |" \
                 "$(fmt %.4f "$(field "$r" image_rmse)") | $light |" \
-                "$(fmt %.1f "$(field "$r" albedo_psnr_db)") |" \
+                "$albedo |" \
                 "$(fmt %.2f "$(field "$r" rotation_error_deg)") |" \
                 "$(fmt %.4f "$(field "$r" translation_error)") |" \
                 "$(fmt %.4f "$(field "$r" vertex_rmse)") | $shadow |"

@@ -206,6 +206,12 @@ typedef struct pen_optim_metrics {
                                    least half a pixel of bilinear weight each), or over the
                                    constant albedos */
     double albedo_observed;     /* fraction of texels resolved in that sense (1 for constants) */
+    double albedo_shadow_psnr_db; /* albedo_psnr_db over those of its pixels that the target shows
+                                   in shadow: m_p >= 0.25 with m_p as for "shadow_weight" below
+                                   but U the ground truth rendered without shadows (its own
+                                   lighting); the pixels whose darkness an unshadowed model must
+                                   explain by a darker albedo. NaN when there are none */
+    double albedo_shadow_fraction; /* the fraction of albedo_psnr_db's pixels in that set */
     double rotation_error_deg;  /* largest over objects of the angle of R R_true^T */
     double translation_error;   /* largest over objects of |t - t_true| (scene units) */
     double vertex_rmse;         /* posed vertices vs the truth's, all objects (scene units) */

@@ -6,7 +6,15 @@
  * texture lookup; pixels inside both outlines), which is what one view can determine: a 1024^2
  * texture seen at 256^2 has four texels per pixel, and no image says how a pixel's value splits
  * among them. Texel-space PSNR is reported too, over the texels with at least half a pixel of
- * bilinear weight in the view, and over constant albedos. Pose: the geodesic angle between the rotations, computed from unit
+ * bilinear weight in the view, and over constant albedos. The albedo PSNR is also reported over
+ * the compared pixels that the target shows in shadow: m_p >= 0.25 with loss.c's shadow mask
+ * m_p = clamp(1 - Y(T_p) / Y(U_p), 0, 1) of the run's target T against the ground truth rendered
+ * without shadows U (its own lighting, albedo and pose), i.e. at least a quarter of the
+ * unoccluded light missing. Those are the pixels whose darkness a model without shadows can only
+ * explain by a darker albedo, so this is where a shadow-aware solver should gain; over the whole
+ * view the lit pixels, which both solvers fit alike, dilute the difference. The threshold is
+ * fixed up front (a quarter is well above the few percent by which the SH model and a ray-traced
+ * target disagree on lit pixels). Pose: the geodesic angle between the rotations, computed from unit
  * quaternions in double as 2 atan2(|v|, |w|) of q q_true^-1, which stays accurate for small
  * angles where acos((tr R - 1) / 2) loses half its digits; the translation's Euclidean error;
  * the RMSE of the posed vertices, which weighs both by the object's extent. Multiple objects:
@@ -73,6 +81,13 @@ pen_status pen__optim_check_truth(pen_context *ctx, const pen_optim_task *t) {
                               "scene's texture is %dx%d",
                               name, o, b->texture.width, b->texture.height, a->texture.width,
                               a->texture.height);
+        if ((t->optimize & PEN_OPTIM_ALBEDO) && o == 0 &&
+            (sc->camera.width != gt->camera.width || sc->camera.height != gt->camera.height))
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "%s: ground_truth: camera: %dx%d, but the scene's is %dx%d (the "
+                              "albedo metrics compare the two views pixel by pixel)",
+                              name, gt->camera.width, gt->camera.height, sc->camera.width,
+                              sc->camera.height);
         if ((t->optimize & (PEN_OPTIM_POSE | PEN_OPTIM_DEFORMATION)) &&
             a->mesh.vertex_count != b->mesh.vertex_count)
             return pen__error(ctx, PEN_ERROR_ARGUMENT,
@@ -133,8 +148,18 @@ static pen_status render_albedo(pen_context *ctx, const pen_scene *sc, int white
     return s;
 }
 
-/* PSNR of the albedo images over the pixels that both scenes' objects cover fully. */
-static pen_status albedo_view_psnr(pen_context *ctx, const pen_optim_task *t, double *psnr) {
+/* A pixel is in shadow in the target when at least this fraction of the light the unshadowed
+ * truth predicts is missing from it. */
+#define SHADOWED 0.25f
+
+static double psnr(double sum, long long n) {
+    return n ? 10.0 * log10((double)n / sum) : (double)NAN; /* sum 0: +inf, written as null */
+}
+
+/* PSNR of the albedo images over the pixels that both scenes' objects cover fully; with a shadow
+ * mask (one per pixel), also over those of them with mask >= SHADOWED, and their fraction. */
+static pen_status albedo_view_psnr(pen_context *ctx, const pen_optim_task *t, const float *mask,
+                                   pen_optim_metrics *m) {
     pen_image img[4];
     memset(img, 0, sizeof img);
     pen_status s = render_albedo(ctx, &t->scene, 0, &img[0]);
@@ -142,15 +167,20 @@ static pen_status albedo_view_psnr(pen_context *ctx, const pen_optim_task *t, do
     if (!s) s = render_albedo(ctx, &t->scene, 1, &img[2]);
     if (!s) s = render_albedo(ctx, &t->ground_truth, 1, &img[3]);
     if (!s) {
-        double sum = 0.0;
-        long long n = 0;
+        double sum = 0.0, shadow_sum = 0.0;
+        long long n = 0, shadow_n = 0;
         for (size_t i = 0; i < 3 * (size_t)img[0].width * (size_t)img[0].height; ++i) {
             if (img[2].data[i] < 0.999f || img[3].data[i] < 0.999f) continue;
             const double d = (double)img[0].data[i] - (double)img[1].data[i];
             sum += d * d;
             ++n;
+            if (mask && mask[i / 3] >= SHADOWED) shadow_sum += d * d, ++shadow_n;
         }
-        *psnr = n ? 10.0 * log10((double)n / sum) : (double)NAN;
+        m->albedo_psnr_db = psnr(sum, n);
+        if (mask) {
+            m->albedo_shadow_psnr_db = psnr(shadow_sum, shadow_n);
+            m->albedo_shadow_fraction = n ? (double)shadow_n / (double)n : (double)NAN;
+        }
     }
     for (int k = 0; k < 4; ++k)
         pen_image_free(&img[k]);
@@ -216,7 +246,7 @@ static pen_status albedo_texels(pen_context *ctx, const pen_optim_task *t, pen_o
     }
     if (!s) {
         m->albedo_observed = texels ? (double)seen / (double)texels : (double)NAN;
-        m->albedo_texel_psnr_db = values ? 10.0 * log10((double)values / sum) : (double)NAN;
+        m->albedo_texel_psnr_db = psnr(sum, values);
     }
     pen_render_grad_free(&cov);
     return s;
@@ -415,8 +445,20 @@ pen_status pen__optim_metrics(pen_context *ctx, const pen_optim_task *t, pen_opt
     if (t->optimize & PEN_OPTIM_SPHERES) s = sphere_error(ctx, t, m);
     if (s) return s;
     if (t->optimize & PEN_OPTIM_ALBEDO) {
-        s = albedo_view_psnr(ctx, t, &m->albedo_psnr_db);
+        /* The shadow mask of the target against the unshadowed truth, when there is a target of
+         * the view's size (the run's always is; a caller may evaluate a scene without one). */
+        const pen_image *tg = &t->target;
+        const int has_target = tg->data && tg->channels == 3 &&
+                               tg->width == t->ground_truth.camera.width &&
+                               tg->height == t->ground_truth.camera.height;
+        float *mask = has_target ? pen__malloc(ctx, (size_t)tg->width * (size_t)tg->height,
+                                               sizeof(float), "shadow mask")
+                                 : NULL;
+        if (has_target && !mask) return PEN_ERROR_MEMORY;
+        if (mask) s = pen__optim_shadow_mask(ctx, &t->ground_truth, tg, 0, mask);
+        if (!s) s = albedo_view_psnr(ctx, t, mask, m);
         if (!s) s = albedo_texels(ctx, t, m);
+        free(mask);
     }
     return s;
 }

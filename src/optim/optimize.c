@@ -593,6 +593,7 @@ static void metrics_none(pen_optim_metrics *m) {
     const double none = (double)NAN;
     m->image_rmse = m->lighting_rel_error = m->albedo_psnr_db = m->albedo_observed = none;
     m->albedo_texel_psnr_db = m->lighting_rel_error_b2 = none;
+    m->albedo_shadow_psnr_db = m->albedo_shadow_fraction = none;
     m->rotation_error_deg = m->translation_error = m->vertex_rmse = none;
     m->sphere_iou = m->sphere_chamfer = m->shadow_iou = none;
 }

@@ -288,6 +288,8 @@ static cJSON *metrics_json(const pen_optim_metrics *mt) {
              add_metric(m, "lighting_rel_error", mt->lighting_rel_error) &&
              add_metric(m, "lighting_rel_error_bands_0_2", mt->lighting_rel_error_b2) &&
              add_metric(m, "albedo_psnr_db", mt->albedo_psnr_db) &&
+             add_metric(m, "albedo_shadow_psnr_db", mt->albedo_shadow_psnr_db) &&
+             add_metric(m, "albedo_shadow_fraction", mt->albedo_shadow_fraction) &&
              add_metric(m, "albedo_texel_psnr_db", mt->albedo_texel_psnr_db) &&
              add_metric(m, "albedo_observed", mt->albedo_observed) &&
              add_metric(m, "rotation_error_deg", mt->rotation_error_deg) &&
