@@ -316,9 +316,19 @@ static void test_scene_option_and_load(void) {
     CHECK(scene_text("", "[{\"center\": [0, 1, 0], \"radius\": 0.5}]", &sc) == PEN_OK);
     CHECK(sc.objects[0].spheres.weight && sc.objects[0].spheres.weight[0] == (float)T);
     pen_scene_free(&sc);
+    /* The ground mode beside it (render.c, ground occlusion): occludes by default. */
+    CHECK(scene_text("\"shadow\": {\"ground\": \"receiver\"},", "\"old.json\"", &sc) == PEN_OK);
+    CHECK(sc.shadow.ground == PEN_GROUND_RECEIVER);
+    pen_scene_free(&sc);
+    CHECK(scene_text("", "\"old.json\"", &sc) == PEN_OK);
+    CHECK(sc.shadow.ground == PEN_GROUND_OCCLUDES);
+    pen_scene_free(&sc);
+    CHECK_ERROR(ctx, scene_text("\"shadow\": {\"ground\": \"floor\"},", "\"old.json\"", &sc),
+                PEN_ERROR_PARSE, "scene.json", "shadow.ground",
+                "unknown ground mode \"floor\" (expected \"occludes\" or \"receiver\")");
     /* Errors name the file and key path. */
     CHECK_ERROR(ctx, scene_text("\"shadow\": {\"overlap\": \"half\"},", "\"old.json\"", &sc),
-                PEN_ERROR_PARSE, "scene.json", "shadow.overlap", "unknown mode 'half'");
+                PEN_ERROR_PARSE, "scene.json", "shadow.overlap", "unknown overlap mode \"half\"");
     CHECK_ERROR(ctx, scene_text("\"shadow\": {\"overlap\": 1},", "\"old.json\"", &sc),
                 PEN_ERROR_PARSE, "shadow.overlap");
     CHECK_ERROR(ctx,

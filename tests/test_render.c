@@ -168,6 +168,7 @@ static void test_shadow_depth_against_exact_occlusion(void) {
  * ground under it darkens. */
 static void test_convex_object_does_not_shadow_itself(void) {
     pen_scene sc = rs_scene(48, 48);
+    sc.shadow.ground = PEN_GROUND_RECEIVER; /* the ground's own occlusion: test_ground_occlusion */
     const float R = 0.45f, s[4] = {0, 0, 0, 0.97f * R};
     pen_object *ob = rs_add_object(&sc, rs_octasphere(3, R, 0), 1, s);
     ob->pose.translation[1] = 0.6f;

@@ -82,10 +82,18 @@ typedef enum pen_shadow_overlap {
     PEN_OVERLAP_NONE = 1     /* the plain sum: every kappa_i = 1 */
 } pen_shadow_overlap;
 
+/* What the ground plane does to the objects' light ("shadow": {"ground": ...}). */
+typedef enum pen_shadow_ground {
+    PEN_GROUND_OCCLUDES = 0, /* it hides the lower hemisphere from the objects: they shade with
+                                the lighting times the indicator of y > 0 (docs/renderer.md) */
+    PEN_GROUND_RECEIVER = 1  /* it only receives shadows; the objects see the whole sphere */
+} pen_shadow_ground;
+
 typedef struct pen_shadow {
     float epsilon;                  /* log-visibility depth (supplement eq. 6) */
     pen_sh_exp_method exp;
     pen_shadow_overlap overlap;
+    pen_shadow_ground ground;
 } pen_shadow;
 
 typedef struct pen_scene {

@@ -77,6 +77,10 @@ pen_status pen__json_floats(pen_context *ctx, const pen__json_where *w, const cJ
 /* A non-empty string. */
 pen_status pen__json_string(pen_context *ctx, const pen__json_where *w, const cJSON *item,
                             const char **out);
+/* A string that must be one of `names` (NULL-terminated): its index into *index, or one error
+ * naming the place and listing the choices ('unknown <what> "x" (expected "a", "b" or "c")'). */
+pen_status pen__json_choice(pen_context *ctx, const pen__json_where *w, const cJSON *item,
+                            const char *what, const char *const names[], int *index);
 /* Fails on any member of object `obj` whose name is not in the NULL-terminated list `known`
  * (members whose names start with '_' are comments and allowed). */
 pen_status pen__json_known_keys(pen_context *ctx, const pen__json_where *w, const cJSON *obj,

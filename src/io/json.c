@@ -156,6 +156,26 @@ pen_status pen__json_string(pen_context *ctx, const pen__json_where *w, const cJ
     return PEN_OK;
 }
 
+pen_status pen__json_choice(pen_context *ctx, const pen__json_where *w, const cJSON *item,
+                            const char *what, const char *const names[], int *index) {
+    const char *name = NULL;
+    pen_status s = pen__json_string(ctx, w, item, &name);
+    if (s) return s;
+    char list[160] = "";
+    size_t used = 0;
+    for (int k = 0; names[k]; ++k) {
+        if (strcmp(name, names[k]) == 0) {
+            *index = k;
+            return PEN_OK;
+        }
+        const char *sep = k == 0 ? "" : names[k + 1] ? ", " : " or ";
+        const int n = snprintf(list + used, sizeof list - used, "%s\"%s\"", sep, names[k]);
+        if (n > 0 && (size_t)n < sizeof list - used) used += (size_t)n;
+    }
+    return pen__json_error(ctx, PEN_ERROR_PARSE, w, "unknown %s \"%s\" (expected %s)", what, name,
+                           list);
+}
+
 pen_status pen__json_known_keys(pen_context *ctx, const pen__json_where *w, const cJSON *obj,
                                 const char *const *known) {
     const cJSON *e;

@@ -174,7 +174,7 @@ static pen_status parse_shadow(pen_context *ctx, const where *top, const cJSON *
     sh->exp = PEN_SH_EXP_CALIBRATED;
     pen_status s = PEN_OK;
     if (o) {
-        static const char *const known[] = {"epsilon", "exp", "overlap", NULL};
+        static const char *const known[] = {"epsilon", "exp", "overlap", "ground", NULL};
         s = need_object(ctx, &w, o);
         if (!s) s = pen__json_known_keys(ctx, &w, o, known);
         const cJSON *e = member(o, "exp");
@@ -190,18 +190,20 @@ static pen_status parse_shadow(pen_context *ctx, const where *top, const cJSON *
                                     name);
             if (!s) sh->exp = (pen_sh_exp_method)m;
         }
+        static const char *const overlaps[] = {"weights", "none", NULL};
+        static const char *const grounds[] = {"occludes", "receiver", NULL};
+        int k = 0;
         const cJSON *v = member(o, "overlap");
         if (!s && v) {
             where wv = at(&w, "overlap");
-            const char *name;
-            s = pen__json_string(ctx, &wv, v, &name);
-            if (!s && strcmp(name, "weights") == 0)
-                sh->overlap = PEN_OVERLAP_WEIGHTS;
-            else if (!s && strcmp(name, "none") == 0)
-                sh->overlap = PEN_OVERLAP_NONE;
-            else if (!s)
-                s = pen__json_error(ctx, PEN_ERROR_PARSE, &wv,
-                                    "unknown mode '%s' (expected weights or none)", name);
+            s = pen__json_choice(ctx, &wv, v, "overlap mode", overlaps, &k);
+            sh->overlap = k == 1 ? PEN_OVERLAP_NONE : PEN_OVERLAP_WEIGHTS;
+        }
+        const cJSON *g = member(o, "ground");
+        if (!s && g) {
+            where wg = at(&w, "ground");
+            s = pen__json_choice(ctx, &wg, g, "ground mode", grounds, &k);
+            sh->ground = k == 1 ? PEN_GROUND_RECEIVER : PEN_GROUND_OCCLUDES;
         }
     }
     /* The epsilon the exponential model was fitted with, unless given. */
@@ -558,7 +560,9 @@ static cJSON *shadow_json(const pen_shadow *sh) {
     int ok =
         o && add(o, "epsilon", pen__json_float(sh->epsilon)) &&
         add(o, "exp", cJSON_CreateString(pen_sh_exp_method_name(sh->exp))) &&
-        add(o, "overlap", cJSON_CreateString(sh->overlap == PEN_OVERLAP_NONE ? "none" : "weights"));
+        add(o, "overlap", cJSON_CreateString(sh->overlap == PEN_OVERLAP_NONE ? "none" : "weights")) &&
+        add(o, "ground",
+            cJSON_CreateString(sh->ground == PEN_GROUND_RECEIVER ? "receiver" : "occludes"));
     if (!ok) cJSON_Delete(o);
     return ok ? o : NULL;
 }

@@ -211,28 +211,6 @@ static pen_status parse_lr(pen_context *ctx, const where *top, const cJSON *root
     return PEN_OK;
 }
 
-/* A string member that must be one of `names` (NULL-terminated): its index into *index, or one
- * error naming the key and listing the choices. */
-static pen_status parse_choice(pen_context *ctx, const where *w, const cJSON *e, const char *what,
-                               const char *const names[], int *index) {
-    const char *name = NULL;
-    pen_status s = pen__json_string(ctx, w, e, &name);
-    if (s) return s;
-    char expected[160] = "";
-    size_t used = 0;
-    for (int k = 0; names[k]; ++k) {
-        if (strcmp(name, names[k]) == 0) {
-            *index = k;
-            return PEN_OK;
-        }
-        const char *sep = k == 0 ? "" : names[k + 1] ? ", " : " or ";
-        int n = snprintf(expected + used, sizeof expected - used, "%s\"%s\"", sep, names[k]);
-        if (n > 0 && (size_t)n < sizeof expected - used) used += (size_t)n;
-    }
-    return pen__json_error(ctx, PEN_ERROR_PARSE, w, "unknown %s \"%s\" (expected %s)", what, name,
-                           expected);
-}
-
 static pen_status parse_options(pen_context *ctx, const where *top, const cJSON *root,
                                 pen_optim_task *t) {
     const cJSON *e;
@@ -270,19 +248,19 @@ static pen_status parse_options(pen_context *ctx, const where *top, const cJSON 
     int k = -1;
     if ((e = cJSON_GetObjectItemCaseSensitive(root, "lighting_solver"))) {
         w = at(top, "lighting_solver");
-        s = parse_choice(ctx, &w, e, "lighting solver", solvers, &k);
+        s = pen__json_choice(ctx, &w, e, "lighting solver", solvers, &k);
         if (s) return s;
         t->lighting_solver = k == 1 ? PEN_OPTIM_LIGHTING_LEAST_SQUARES : PEN_OPTIM_LIGHTING_ADAM;
     }
     if ((e = cJSON_GetObjectItemCaseSensitive(root, "loss"))) {
         w = at(top, "loss");
-        s = parse_choice(ctx, &w, e, "loss", losses, &k);
+        s = pen__json_choice(ctx, &w, e, "loss", losses, &k);
         if (s) return s;
         t->loss = k == 1 ? PEN_OPTIM_LOSS_L1 : PEN_OPTIM_LOSS_L2;
     }
     if ((e = cJSON_GetObjectItemCaseSensitive(root, "init"))) {
         w = at(top, "init");
-        s = parse_choice(ctx, &w, e, "initialisation", inits, &k);
+        s = pen__json_choice(ctx, &w, e, "initialisation", inits, &k);
         if (s) return s;
         t->init_black = k != 1;
         t->init_fit = k == 2;

@@ -34,6 +34,7 @@
 
 #include "core/internal.h"
 #include "render/render_internal.h"
+#include "sh/sh_internal.h"
 
 #include <omp.h>
 #include <stdio.h>
@@ -65,6 +66,11 @@ typedef struct object_buf {
     float *world, *vnormal, *d_world, *d_vnormal; /* 3 per vertex */
     int32_t *adjacency;                           /* 3 per triangle */
     size_t cap_v, cap_t;
+    /* Ground occlusion (ground_occlusion_prepare): the lighting the object's surfaces see,
+     * seen = M sh, M = pen__sh_above(t) (symmetric), and d seen / d h for the backward. */
+    double horizon[PEN_SH_MAX_COEFFS * PEN_SH_MAX_COEFFS];
+    float seen[PEN_SH_MAX_COEFFS][3];
+    double d_seen_dh[PEN_SH_MAX_COEFFS][3];
 } object_buf;
 
 struct pen_render_state {
@@ -103,6 +109,7 @@ struct pen_render_state {
     bg_key bg_key;     /* what bg was computed from (bg_valid) */
     int bg_valid;
     pen_render_timings timings;
+    int ground_occludes; /* shadow.ground "occludes", shadows on, a ground: see below */
 };
 
 void pen_render_state_timings(const pen_render_state *st, pen_render_timings *out) {
@@ -500,6 +507,50 @@ static int thread_count(const pen_context *ctx) {
 }
 
 /* Poses the geometry, rasterizes, and interpolates the per-pixel attributes into st. */
+/* The ground plane as an occluder of the objects. The reference ray-traces the ground, so a
+ * surface facing down or sideways loses the light from below the horizon; spheres cannot say
+ * that (a plane is no sphere), and without it the model lights the undersides of objects with
+ * the lower half of the environment. Seen from a point at height h over a disc of radius s (the
+ * ground's half size), the ground covers the directions within atan(s / h) of straight down,
+ * i.e. the point sees the directions with y > -t, t = h / sqrt(h^2 + s^2). The product of the
+ * lighting with that indicator, projected back to the bands, is a linear map of the lighting,
+ * seen = M(t) sh (pen__sh_above), so it costs nothing per pixel when t is one per object: h is
+ * taken at the object's origin (the pose's translation; the bundled meshes are centred), and the
+ * object's pixels shade with `seen`, the ground's own pixels with sh. The backward maps the
+ * gradient of `seen` back through M^T = M into the lighting, and through dM/dt dt/dh into the
+ * pose's vertical translation. With shadows off (V = 1 everywhere) nothing is occluded. */
+static void ground_occlusion_prepare(const pen_scene *sc, const pen_render_options *opt,
+                                     pen_render_state *st) {
+    st->ground_occludes = opt->shadows && sc->ground.enabled && sc->object_count > 0 &&
+                          sc->shadow.ground == PEN_GROUND_OCCLUDES;
+    if (!st->ground_occludes) return;
+    const int n = sc->sh_bands * sc->sh_bands;
+    double dM[PEN_SH_MAX_COEFFS * PEN_SH_MAX_COEFFS]; /* 32 KB */
+    for (int o = 0; o < sc->object_count; ++o) {
+        object_buf *b = &st->obj[o];
+        const double h = (double)sc->objects[o].pose.translation[1] - (double)sc->ground.height;
+        const double s = (double)sc->ground.half_size, r = sqrt(h * h + s * s);
+        const double t = r > 0.0 ? h / r : 0.0, dt_dh = r > 0.0 ? s * s / (r * r * r) : 0.0;
+        pen__sh_above(sc->sh_bands, t, b->horizon, dM);
+        for (int j = 0; j < n; ++j)
+            for (int ch = 0; ch < 3; ++ch) {
+                double v = 0.0, dv = 0.0;
+                for (int k = 0; k < n; ++k) {
+                    v += b->horizon[j * n + k] * (double)sc->lighting.sh[k][ch];
+                    dv += dM[j * n + k] * (double)sc->lighting.sh[k][ch];
+                }
+                b->seen[j][ch] = (float)v;
+                b->d_seen_dh[j][ch] = dv * dt_dh;
+            }
+    }
+}
+
+/* The lighting surface `surf` shades with. */
+static const float (*lighting_of(const pen_scene *sc, const pen_render_state *st, int surf))[3] {
+    return st->ground_occludes && surf >= 0 ? (const float(*)[3])st->obj[surf].seen
+                                            : (const float(*)[3])sc->lighting.sh;
+}
+
 static pen_status prepare(pen_context *ctx, const pen_scene *sc, const pen_render_options *opt,
                           pen_render_state *st) {
     pen_status s = validate(ctx, sc);
@@ -613,6 +664,7 @@ static pen_status prepare(pen_context *ctx, const pen_scene *sc, const pen_rende
     if (!st->params.gaunt)
         return pen__error(ctx, PEN_ERROR_INTERNAL, "render: no product table for %d bands",
                           sc->sh_bands);
+    ground_occlusion_prepare(sc, opt, st);
     return PEN_OK;
 }
 
@@ -658,13 +710,17 @@ static void surface_attributes(const pen_scene *sc, pen_render_state *st, size_t
 
 /* Layout of one tile's double accumulators (the backward's small dense gradients). */
 typedef struct row_layout {
-    size_t sh, ground, albedo, spheres, stride;
+    size_t sh, sh_obj, ground, albedo, spheres, stride;
 } row_layout;
 
-static row_layout rows_layout(int bands, int objects, int spheres) {
+/* sh: the lighting gradient of pixels shaded with the scene's lighting; sh_obj (with ground
+ * occlusion, `seen` objects, else none): per object, of its pixels shaded with its `seen`, mapped
+ * back after the reduction. */
+static row_layout rows_layout(int bands, int objects, int seen, int spheres) {
     row_layout r;
     r.sh = 0;
-    r.ground = r.sh + 3 * (size_t)bands * (size_t)bands;
+    r.sh_obj = r.sh + 3 * (size_t)bands * (size_t)bands;
+    r.ground = r.sh_obj + 3 * (size_t)bands * (size_t)bands * (size_t)seen;
     r.albedo = r.ground + 3;
     r.spheres = r.albedo + 3 * (size_t)objects;
     r.stride = r.spheres + 4 * (size_t)spheres;
@@ -674,6 +730,7 @@ static row_layout rows_layout(int bands, int objects, int spheres) {
 /* What the backward computes. */
 typedef struct bwd_want {
     int geom, spheres, light, albedo;
+    int seen; /* the gradient of each object's `seen` lighting (for the lighting or the pose) */
     row_layout rl;
 } bwd_want;
 
@@ -692,44 +749,71 @@ static float *tile_store_of(const tile_job *job, int t) {
     return job->store ? job->store + job->tile_store * (size_t)t : NULL;
 }
 
+/* The fast kernel shades a tile's pixels in groups of one lighting each: pass 0 the ground's,
+ * then the objects' (one pass per object with ground occlusion, whose objects see their own
+ * lighting; otherwise all in one). Background pixels are done in pass 0. */
+static int tile_passes(const pen_scene *sc, const pen_render_state *st) {
+    return st->ground_occludes ? 1 + sc->object_count : 2;
+}
+
+static int in_pass(const pen_render_state *st, int surf, int pass) {
+    if (pass == 0) return surf == PEN_SURFACE_GROUND || surf == PEN_SURFACE_BACKGROUND;
+    return st->ground_occludes ? surf == pass - 1 : surf >= 0;
+}
+
+/* The lighting of pass `pass`. */
+static const float (*pass_lighting(const pen_scene *sc, const pen_render_state *st,
+                                   int pass))[3] {
+    return lighting_of(sc, st, pass == 0 ? PEN_SURFACE_GROUND : st->ground_occludes ? pass - 1 : 0);
+}
+
+/* Floats of the fast kernel's store per tile: its pixels in whole batches, plus one batch for
+ * each further pass (each call ends in a partial batch), at most one per batch of pixels. */
+static size_t tile_store_floats(const pen_scene *sc, const pen_render_state *st) {
+    int extra = tile_passes(sc, st);
+    if (extra > TILE_PX / PEN_FAST_LANES) extra = TILE_PX / PEN_FAST_LANES;
+    return pen__shade_fast_store_floats(&st->params, TILE_PX + extra * PEN_FAST_LANES);
+}
+
 /* Shades tile t: background pixels directly, surface pixels through the fast kernel (compacted
- * into ws) or the scalar kernel one by one. */
+ * into ws, one call per pass) or the scalar kernel one by one. */
 static void shade_tile_fwd(const void *job_, int t, tile_ws *ws, pen__shade_fast_ticks *tk) {
     const tile_job *job = job_;
     const pen_scene *sc = job->sc;
     pen_render_state *st = job->st;
     float *store = tile_store_of(job, t);
-    const float(*sh)[3] = (const float(*)[3])sc->lighting.sh;
     const size_t nfv = 2 * (size_t)sc->sh_bands * (size_t)sc->sh_bands;
-    int x0, y0, x1, y1, cnt = 0, ground = 0;
+    int x0, y0, x1, y1;
     tile_rect(st, t, &x0, &y0, &x1, &y1);
-    /* Two passes: ground pixels first (the fast kernel shades whole batches of them with the
-     * ground's precomputed product), then the objects'. */
-    for (int pass = 0; pass < 2; ++pass)
+    for (int pass = 0; pass < tile_passes(sc, st); ++pass) {
+        int cnt = 0;
         for (int py = y0; py < y1; ++py)
             for (int px = x0; px < x1; ++px) {
                 const size_t i = (size_t)py * (size_t)st->width + (size_t)px;
                 const int surf = st->gb.surface[i];
-                if ((surf == PEN_SURFACE_GROUND) != (pass == 0)) continue;
+                if (!in_pass(st, surf, pass)) continue;
                 if (surf == PEN_SURFACE_BACKGROUND) {
                     background_pixel(sc, st, px, py, i);
                     continue;
                 }
                 surface_attributes(sc, st, i, surf);
                 if (!st->fast) {
-                    pen__shade_fwd(&st->params, sh, st->sphere_count, st->spheres, st->kappa,
-                                   st->x + 3 * i, st->n + 3 * i, st->rho + 3 * i,
-                                   st->color + 3 * i, store ? store + nfv * i : NULL);
+                    pen__shade_fwd(&st->params, lighting_of(sc, st, surf), st->sphere_count,
+                                   st->spheres, st->kappa, st->x + 3 * i, st->n + 3 * i,
+                                   st->rho + 3 * i, st->color + 3 * i,
+                                   store ? store + nfv * i : NULL);
                     continue;
                 }
                 ws_push(ws, cnt++, st, i);
-                ground += pass == 0;
             }
-    if (!cnt) return;
-    pen__shade_fast_fwd(&st->params, sh, st->sphere_count, st->spheres, st->kappa, cnt, ground,
-                        ws->x, ws->n, ws->rho, ws->out, store, ws->kernel, tk);
-    for (int j = 0; j < cnt; ++j)
-        memcpy(st->color + 3 * (size_t)ws->idx[j], ws->out + 3 * j, 3 * sizeof(float));
+        if (!cnt) continue;
+        pen__shade_fast_fwd(&st->params, pass_lighting(sc, st, pass), st->sphere_count,
+                            st->spheres, st->kappa, cnt, pass == 0 ? cnt : 0, ws->x, ws->n,
+                            ws->rho, ws->out, store, ws->kernel, tk);
+        if (store) store += pen__shade_fast_store_floats(&st->params, cnt);
+        for (int j = 0; j < cnt; ++j)
+            memcpy(st->color + 3 * (size_t)ws->idx[j], ws->out + 3 * j, 3 * sizeof(float));
+    }
 }
 
 pen_status pen_render_fwd(pen_context *ctx, const pen_scene *sc, const pen_render_options *opt,
@@ -771,7 +855,7 @@ pen_status pen_render_fwd(pen_context *ctx, const pen_scene *sc, const pen_rende
         opt->kernel == PEN_RENDER_KERNEL_FAST && pen__shade_fast_supported(&st->params);
     const int ntiles = tile_count(st);
     const size_t nfv = 2 * (size_t)sc->sh_bands * (size_t)sc->sh_bands;
-    const size_t tile_store = pen__shade_fast_store_floats(&st->params, TILE_PX);
+    const size_t tile_store = tile_store_floats(sc, st);
     float *fv_all = NULL;
     if (own == NULL && opt->shadows) {
         const size_t need = fast ? tile_store * (size_t)ntiles : nfv * (size_t)W * (size_t)H;
@@ -897,40 +981,46 @@ static void pixel_bwd_tail(const pen_scene *sc, pen_render_state *st, const bwd_
 }
 
 /* Backward of tile t into the tile's double accumulators and the per-pixel gradients d_x,
- * d_nraw, d_uv, d_rho (zeroed here for every pixel of the tile). */
+ * d_nraw, d_uv, d_rho (zeroed here for every pixel of the tile), in the forward's passes. */
 static void shade_tile_bwd(const void *job_, int t, tile_ws *ws, pen__shade_fast_ticks *tk) {
     const tile_job *job = job_;
     const pen_scene *sc = job->sc;
     pen_render_state *st = job->st;
     const bwd_want *bw = job->bw;
     const float *store = tile_store_of(job, t);
-    const float(*sh)[3] = (const float(*)[3])sc->lighting.sh;
     const size_t nfv = 2 * (size_t)sc->sh_bands * (size_t)sc->sh_bands;
+    const size_t nsh = 3 * (size_t)sc->sh_bands * (size_t)sc->sh_bands;
     const int S = st->sphere_count;
     double *row = st->rows + bw->rl.stride * (size_t)t;
-    double(*d_sh)[3] = bw->light ? (double(*)[3])(row + bw->rl.sh) : NULL;
     double *d_sph = bw->spheres ? row + bw->rl.spheres : NULL;
-    int x0, y0, x1, y1, cnt = 0, ground = 0;
+    int x0, y0, x1, y1;
     tile_rect(st, t, &x0, &y0, &x1, &y1);
-    for (int pass = 0; pass < 2; ++pass) /* ground pixels first, as in the forward */
+    for (int py = y0; py < y1; ++py)
+        for (int px = x0; px < x1; ++px) {
+            const size_t i = (size_t)py * (size_t)st->width + (size_t)px;
+            float *d_x = st->d_x + 3 * i, *d_rho = st->d_rho + 3 * i;
+            float *d_nraw = st->d_nraw + 3 * i, *d_uv = st->d_uv + 2 * i;
+            for (int a = 0; a < 3; ++a)
+                d_x[a] = d_nraw[a] = d_rho[a] = 0.0f;
+            d_uv[0] = d_uv[1] = 0.0f;
+        }
+    for (int pass = 0; pass < tile_passes(sc, st); ++pass) {
+        /* where this pass's lighting gradient goes: an object's own `seen`, or the lighting */
+        const int own = st->ground_occludes && pass > 0;
+        double(*d_sh)[3] =
+            own ? (bw->seen ? (double(*)[3])(row + bw->rl.sh_obj + nsh * (size_t)(pass - 1))
+                            : NULL)
+                : (bw->light ? (double(*)[3])(row + bw->rl.sh) : NULL);
+        int cnt = 0;
         for (int py = y0; py < y1; ++py)
             for (int px = x0; px < x1; ++px) {
                 const size_t i = (size_t)py * (size_t)st->width + (size_t)px;
                 const int surf = st->gb.surface[i];
+                if (surf == PEN_SURFACE_BACKGROUND || !in_pass(st, surf, pass)) continue;
                 const float *dc = st->d_color + 3 * i;
-                float *d_x = st->d_x + 3 * i, *d_rho = st->d_rho + 3 * i;
-                if (pass == 0) {
-                    float *d_nraw = st->d_nraw + 3 * i, *d_uv = st->d_uv + 2 * i;
-                    for (int a = 0; a < 3; ++a)
-                        d_x[a] = d_nraw[a] = d_rho[a] = 0.0f;
-                    d_uv[0] = d_uv[1] = 0.0f;
-                }
-                if (surf == PEN_SURFACE_BACKGROUND) continue; /* no parameters */
-                if ((surf == PEN_SURFACE_GROUND) != (pass == 0)) continue;
                 if (st->fast) {
                     memcpy(ws->out + 3 * cnt, dc, 3 * sizeof(float));
                     ws_push(ws, cnt++, st, i);
-                    ground += pass == 0;
                     continue;
                 }
                 if (dc[0] == 0.0f && dc[1] == 0.0f && dc[2] == 0.0f) continue;
@@ -938,27 +1028,31 @@ static void shade_tile_bwd(const void *job_, int t, tile_ws *ws, pen__shade_fast
                 const int need_rho =
                     bw->albedo || (geom && sc->objects[surf].texture.data != NULL);
                 float d_n[3] = {0.0f, 0.0f, 0.0f};
-                pen__shade_bwd(&st->params, sh, S, st->spheres, st->kappa, st->x + 3 * i,
-                               st->n + 3 * i, st->rho + 3 * i, dc,
-                               store ? store + nfv * i : NULL, d_sh, d_sph, geom ? d_x : NULL,
-                               geom ? d_n : NULL, need_rho ? d_rho : NULL);
+                pen__shade_bwd(&st->params, lighting_of(sc, st, surf), S, st->spheres, st->kappa,
+                               st->x + 3 * i, st->n + 3 * i, st->rho + 3 * i, dc,
+                               store ? store + nfv * i : NULL, d_sh, d_sph,
+                               geom ? st->d_x + 3 * i : NULL, geom ? d_n : NULL,
+                               need_rho ? st->d_rho + 3 * i : NULL);
                 pixel_bwd_tail(sc, st, bw, row, i, surf, d_n);
             }
-    if (!cnt) return;
-    memset(ws->dx, 0, 3 * sizeof(float) * (size_t)cnt);
-    memset(ws->dn, 0, 3 * sizeof(float) * (size_t)cnt);
-    memset(ws->drho, 0, 3 * sizeof(float) * (size_t)cnt);
-    pen__shade_fast_bwd(&st->params, sh, S, st->spheres, st->kappa, cnt, ground, ws->x, ws->n,
-                        ws->rho, ws->out, store, ws->kernel, d_sh, d_sph, bw->geom ? ws->dx : NULL,
-                        bw->geom ? ws->dn : NULL, ws->drho, tk);
-    for (int j = 0; j < cnt; ++j) {
-        const size_t i = (size_t)ws->idx[j];
-        const int surf = st->gb.surface[i];
-        const int geom = surf >= 0 && bw->geom;
-        if (bw->albedo || (geom && sc->objects[surf].texture.data))
-            memcpy(st->d_rho + 3 * i, ws->drho + 3 * j, 3 * sizeof(float));
-        if (geom) memcpy(st->d_x + 3 * i, ws->dx + 3 * j, 3 * sizeof(float));
-        pixel_bwd_tail(sc, st, bw, row, i, surf, ws->dn + 3 * j);
+        if (!cnt) continue;
+        memset(ws->dx, 0, 3 * sizeof(float) * (size_t)cnt);
+        memset(ws->dn, 0, 3 * sizeof(float) * (size_t)cnt);
+        memset(ws->drho, 0, 3 * sizeof(float) * (size_t)cnt);
+        pen__shade_fast_bwd(&st->params, pass_lighting(sc, st, pass), S, st->spheres, st->kappa,
+                            cnt, pass == 0 ? cnt : 0, ws->x, ws->n, ws->rho, ws->out, store,
+                            ws->kernel, d_sh, d_sph, bw->geom ? ws->dx : NULL,
+                            bw->geom ? ws->dn : NULL, ws->drho, tk);
+        if (store) store += pen__shade_fast_store_floats(&st->params, cnt);
+        for (int j = 0; j < cnt; ++j) {
+            const size_t i = (size_t)ws->idx[j];
+            const int surf = st->gb.surface[i];
+            const int geom = surf >= 0 && bw->geom;
+            if (bw->albedo || (geom && sc->objects[surf].texture.data))
+                memcpy(st->d_rho + 3 * i, ws->drho + 3 * j, 3 * sizeof(float));
+            if (geom) memcpy(st->d_x + 3 * i, ws->dx + 3 * j, 3 * sizeof(float));
+            pixel_bwd_tail(sc, st, bw, row, i, surf, ws->dn + 3 * j);
+        }
     }
 }
 
@@ -1047,7 +1141,8 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     tm->bwd_antialias_ms = ms_since(t0);
 
     /* Per-pixel backward, tiles in parallel, each tile into its own accumulators. */
-    const row_layout rl = rows_layout(sc->sh_bands, O, S);
+    const int seen = st->ground_occludes ? O : 0;
+    const row_layout rl = rows_layout(sc->sh_bands, O, seen, S);
     const int ntiles = tile_count(st);
     if ((s = ensure(ctx, (void **)&st->rows, &st->rows_cap, rl.stride * (size_t)ntiles,
                     sizeof(double), "tile gradient buffers"))) {
@@ -1061,8 +1156,10 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
         free(d_world);
         return s;
     }
-    const bwd_want bw = {want_geom, want_sph, want_light, want_albedo, rl};
-    const size_t tile_store = pen__shade_fast_store_floats(&st->params, TILE_PX);
+    const int want_height = (wrt & PEN_GRAD_POSE) != 0 && st->ground_occludes;
+    const bwd_want bw = {want_geom, want_sph,    want_light, want_albedo,
+                         seen > 0 && (want_light || want_height), rl};
+    const size_t tile_store = tile_store_floats(sc, st);
     float *fv_all = st->fv_valid && st->params.shadows ? st->fv : NULL;
     const tile_job job = {sc, st, &bw, fv_all, st->fast ? tile_store : 0};
     t0 = omp_get_wtime();
@@ -1083,10 +1180,27 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
         for (size_t k = 0; k < rl.stride; ++k)
             sum[k] += row[k];
     }
+    const size_t nsh = 3 * (size_t)nc;
     if (want_light)
         for (int k = 0; k < nc; ++k)
-            for (int ch = 0; ch < 3; ++ch)
-                grad->sh[k][ch] += (float)sum[rl.sh + 3 * (size_t)k + ch];
+            for (int ch = 0; ch < 3; ++ch) {
+                double d = sum[rl.sh + 3 * (size_t)k + ch];
+                for (int o = 0; o < seen; ++o) { /* seen = M sh: d sh += M^T d seen, M = M^T */
+                    const double *ds = sum + rl.sh_obj + nsh * (size_t)o, *M = st->obj[o].horizon;
+                    for (int j = 0; j < nc; ++j)
+                        d += M[k * nc + j] * ds[3 * (size_t)j + ch];
+                }
+                grad->sh[k][ch] += (float)d;
+            }
+    if (want_height) /* seen depends on the object's height through M(t(h)) */
+        for (int o = 0; o < O; ++o) {
+            const double *ds = sum + rl.sh_obj + nsh * (size_t)o;
+            double d = 0.0;
+            for (int j = 0; j < nc; ++j)
+                for (int ch = 0; ch < 3; ++ch)
+                    d += ds[3 * (size_t)j + ch] * st->obj[o].d_seen_dh[j][ch];
+            grad->objects[o].pose.translation[1] += (float)d;
+        }
     if (want_albedo) {
         for (int ch = 0; ch < 3; ++ch)
             grad->ground_albedo[ch] += (float)sum[rl.ground + ch];

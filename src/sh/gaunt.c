@@ -41,6 +41,38 @@ static void gauss_legendre(int n, double *x, double *w) {
     }
 }
 
+/* Adds w Y_j Y_k over a ring of np directions at height y (uniform in phi) into M. */
+static void add_ring(int L, double y, double w, int np, double *M) {
+    const int n = L * L;
+    const double s = sqrt(fmax(0.0, 1.0 - y * y));
+    double Y[PEN_SH_MAX_COEFFS];
+    for (int b = 0; b < np; ++b) {
+        const double phi = 2.0 * PEN_PI * (b + 0.5) / np;
+        const double d[3] = {s * cos(phi), y, s * sin(phi)};
+        pen_sh_eval_d(L, d, Y);
+        for (int j = 0; j < n; ++j)
+            for (int k = 0; k < n; ++k)
+                M[j * n + k] += w * 2.0 * PEN_PI / np * Y[j] * Y[k];
+    }
+}
+
+void pen__sh_above(int bands, double t, double *M, double *dM) {
+    /* Over a ring, Y_j Y_k integrates to a polynomial of degree <= 2(L-1) in y (the odd powers
+     * of sqrt(1 - y^2) average out in phi): Gauss-Legendre in y over [-t, 1] with L nodes and
+     * a uniform phi grid with 2L points integrate it exactly. */
+    const int L = bands, n = L * L, np = 2 * L;
+    double xs[PEN_SH_MAX_BANDS], ws[PEN_SH_MAX_BANDS];
+    gauss_legendre(L, xs, ws);
+    memset(M, 0, sizeof(double) * (size_t)n * (size_t)n);
+    const double half = 0.5 * (1.0 + t); /* [-1, 1] -> [-t, 1] */
+    for (int a = 0; a < L; ++a)
+        add_ring(L, -t + half * (xs[a] + 1.0), half * ws[a], np, M);
+    if (dM) {
+        memset(dM, 0, sizeof(double) * (size_t)n * (size_t)n);
+        add_ring(L, -t, 1.0, np, dM);
+    }
+}
+
 static int cmp_entry(const void *pa, const void *pb) {
     const pen_sh_gaunt_entry *a = pa, *b = pb;
     if (a->k != b->k) return a->k - b->k;

@@ -6,6 +6,13 @@
 
 extern const double pen__sh_K[PEN_SH_MAX_BANDS][PEN_SH_MAX_BANDS];
 
+/* M[j * n + k] = the integral of Y_j Y_k over the directions with y > -t (t in [-1, 1]),
+ * n = bands^2: the matrix that multiplies an SH function by the indicator of y > -t and projects
+ * the product back to `bands` (symmetric; t = 0: the upper hemisphere). dM (may be NULL)
+ * receives its derivative in t, the integral of Y_j Y_k over the circle y = -t. Exact
+ * quadrature in double. */
+void pen__sh_above(int bands, double t, double *M, double *dM);
+
 /* sqrt(4 pi): the DC coefficient of the constant function 1. */
 #define PEN_SH_SQRT_4PI 3.5449077018110320546
 
