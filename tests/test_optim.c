@@ -145,7 +145,9 @@ static void check_result(const pen_optim_task *t, const pen_optim_result *r) {
     CHECK(r->final_loss < r->losses[0]);
 }
 
-/* Lighting, 2 bands (12 coefficients) from black. Measured: 0.185 relative error. */
+/* Lighting, 2 bands (12 coefficients) from black. Measured: 0.210 relative error (0.185 before
+ * the ground occluded the objects: the light from below the horizon, which no pixel of the
+ * reference sees, is now left to Adam's wandering too). */
 static void test_lighting(void) {
     pen_optim_task t = make_task(0, 2, PEN_OPTIM_LIGHTING);
     pen_optim_result r = solve(&t, 1);
@@ -160,7 +162,7 @@ static void test_lighting(void) {
 }
 
 /* The shadow on the ground tells where the light comes from; without shadows the solver must
- * explain the dark patch by dimming the lighting it sees everywhere. Measured: 0.185 against
+ * explain the dark patch by dimming the lighting it sees everywhere. Measured: 0.210 against
  * 0.274. */
 static void test_shadows_beat_baseline(void) {
     double err[2];
@@ -176,30 +178,31 @@ static void test_shadows_beat_baseline(void) {
     }
 }
 
-/* Constant albedo from black, 4-band lighting known. Measured: 29.4 dB (the SH render shades
- * the ellipsoid a few percent brighter than the reference, and the albedo absorbs it). */
+/* Constant albedo from black, 4-band lighting known. Measured: 51.7 dB (29.4 dB before the
+ * ground occluded the objects: the SH render shaded the ellipsoid's underside brighter than the
+ * reference, and the albedo absorbed it). */
 static void test_albedo_constant(void) {
     pen_optim_task t = make_task(0, 4, PEN_OPTIM_ALBEDO);
     pen_optim_result r = solve(&t, 1);
     check_result(&t, &r);
     if (!check_quick_()) {
-        CHECK(r.metrics.albedo_psnr_db > 26.0);
+        CHECK(r.metrics.albedo_psnr_db > 40.0);
     }
     CHECK(r.metrics.albedo_observed == 1.0);
     pen_optim_result_free(&r);
     pen_optim_task_free(&t);
 }
 
-/* A 6x5 texture from black. Measured: 25.6 dB as seen by the camera, 19.5 dB over the 90% of
- * texels the view resolves (32.8 dB against a target rendered by the SH renderer itself: the rest
- * is the model's error, largest at the grazing texels near the outline). */
+/* A 6x5 texture from black. Measured: 36.6 dB as seen by the camera, 23.0 dB over the 90% of
+ * texels the view resolves (25.6 and 19.5 dB before the ground occlusion; 32.8 dB texels against
+ * a target rendered by the SH renderer itself). */
 static void test_albedo_texture(void) {
     pen_optim_task t = make_task(1, 4, PEN_OPTIM_ALBEDO);
     pen_optim_result r = solve(&t, 1);
     check_result(&t, &r);
     if (!check_quick_()) {
-        CHECK(r.metrics.albedo_psnr_db > 23.0);
-        CHECK(r.metrics.albedo_texel_psnr_db > 17.0);
+        CHECK(r.metrics.albedo_psnr_db > 32.0);
+        CHECK(r.metrics.albedo_texel_psnr_db > 20.0);
     }
     CHECK(r.metrics.albedo_observed > 0.8 && r.metrics.albedo_observed < 1.0);
     pen_optim_result_free(&r);
@@ -343,6 +346,31 @@ static void test_lighting_metrics(void) {
     pen_optim_task_free(&t);
 }
 
+/* translation_error and its share of the object's size (the diagonal of the true posed mesh's
+ * bounding box, recomputed here from the vertices). */
+static void test_translation_metrics(void) {
+    pen_optim_task t = metrics_task(0, PEN_OPTIM_POSE);
+    t.scene.objects[0].pose.translation[0] += 0.03f;
+    t.scene.objects[0].pose.translation[2] += 0.04f;
+    const pen_object *ob = &t.ground_truth.objects[0];
+    double lo[3] = {1e30, 1e30, 1e30}, hi[3] = {-1e30, -1e30, -1e30};
+    for (int v = 0; v < ob->mesh.vertex_count; ++v) {
+        float p[3];
+        pen_pose_apply(&ob->pose, ob->mesh.positions + 3 * v, p);
+        for (int k = 0; k < 3; ++k)
+            lo[k] = fmin(lo[k], p[k]), hi[k] = fmax(hi[k], p[k]);
+    }
+    const double size = sqrt((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) +
+                             (hi[2] - lo[2]) * (hi[2] - lo[2]));
+    pen_optim_metrics m;
+    memset(&m, 0, sizeof m);
+    CHECK(pen__optim_metrics(NULL, &t, &m) == PEN_OK);
+    CHECK_NEAR(m.translation_error, 0.05, 1e-6);
+    CHECK_NEAR(m.translation_error_rel, 0.05 / size, 1e-6);
+    CHECK(size > 0.5 && size < 2.0); /* the ellipsoid: semi-axes 0.56, 0.36, 0.45 */
+    pen_optim_task_free(&t);
+}
+
 /* Pose of the textured ellipsoid from 8.9 degrees and 0.072 away. Measured: 1.28 degrees,
  * translation 0.039, vertex RMSE 0.040 (with the ground a receiver only: 1.64, 0.008, 0.014).
  * The ellipsoid hovers 0.55 over the ground, and how much of the sky below the horizon the
@@ -372,8 +400,8 @@ static void test_pose(void) {
  * degrees and 2.0 off after 282 iterations); "init": "fit" starts the lighting at the
  * unshadowed least-squares fit to the target instead (ridge 1e-2), and a smaller lighting rate
  * (3e-3) keeps Adam's first full-size steps from throwing that start away. Measured: rotation
- * 4.4 degrees, translation 0.043, lighting 0.170 (before the overlap weights: 3.8, 0.041,
- * 0.147). */
+ * 3.75 degrees, translation 0.026, lighting 0.100 (before the ground occlusion 4.4, 0.043,
+ * 0.170; before the overlap weights 3.8, 0.041, 0.147). */
 static void test_lighting_pose(void) {
     pen_optim_task t = os_task(os_egg(64, 1, 2), os_egg(64, 1, 2),
                                PEN_OPTIM_LIGHTING | PEN_OPTIM_POSE, check_quick_() ? 20 : 400);
@@ -451,8 +479,8 @@ static pen_scene occluded_egg(void) {
 
 /* Albedo (the ellipsoid's texture and the ball's constant) from black, with and without
  * shadows. Without them the solver can only explain the ball's shadow on the ellipsoid by a
- * darker texture, so it gets the shadowed pixels wrong. Measured in the shadowed region: 26.2 dB
- * with shadows, 12.9 dB without (the whole view: 25.5 against 17.4). */
+ * darker texture, so it gets the shadowed pixels wrong. Measured in the shadowed region: 25.6 dB
+ * with shadows, 12.9 dB without (the whole view: 30.8 against 17.4). */
 static void test_albedo_shadows_beat_baseline(void) {
     double view[2] = {0, 0}, shadow[2] = {0, 0}, fraction[2] = {0, 0};
     for (int shadows = 0; shadows < 2; ++shadows) {
@@ -482,5 +510,5 @@ RUN_TESTS(TEST(test_adam_quadratic), TEST(test_stopping_rule), TEST(test_rotatio
           TEST(test_lighting), TEST(test_shadows_beat_baseline), TEST(test_albedo_constant),
           TEST(test_albedo_texture), TEST(test_albedo_metrics), TEST(test_albedo_shadow_metrics),
           TEST(test_albedo_shadows_beat_baseline),
-          TEST(test_lighting_metrics), TEST(test_pose), TEST(test_lighting_pose),
+          TEST(test_lighting_metrics), TEST(test_translation_metrics), TEST(test_pose), TEST(test_lighting_pose),
           TEST(test_spheres_from_shadow))

@@ -86,8 +86,8 @@ prepare() { # mesh
     fi
 }
 
-printf 'mesh\ttask\tshadows\titerations\tconverged\ts_per_it\tfinal_loss\timage_rmse\tlighting_rel_error\talbedo_psnr_db\talbedo_shadow_psnr_db\talbedo_shadow_fraction\talbedo_texel_psnr_db\talbedo_observed\trotation_error_deg\ttranslation_error\tvertex_rmse\tsphere_iou\tsphere_chamfer\tshadow_iou\n' > "$OUT/results.tsv"
-echo "| mesh | task | shadows | iterations | s/it | image RMSE | lighting rel. error (bands 0–2) | albedo PSNR, view (in shadow) (dB) | rotation error (°) | translation error | vertex RMSE | shadow IoU (sphere IoU) |"
+printf 'mesh\ttask\tshadows\titerations\tconverged\ts_per_it\tfinal_loss\timage_rmse\tlighting_rel_error\talbedo_psnr_db\talbedo_shadow_psnr_db\talbedo_shadow_fraction\talbedo_texel_psnr_db\talbedo_observed\trotation_error_deg\ttranslation_error\ttranslation_error_rel\tvertex_rmse\tsphere_iou\tsphere_chamfer\tshadow_iou\n' > "$OUT/results.tsv"
+echo "| mesh | task | shadows | iterations | s/it | image RMSE | lighting rel. error (bands 0–2) | albedo PSNR, view (in shadow) (dB) | rotation error (°) | translation error (% of size) | vertex RMSE | shadow IoU (sphere IoU) |"
 echo "|---|---|---|---|---|---|---|---|---|---|---|---|"
 for mesh in $MESHES; do
     prepare $mesh
@@ -114,7 +114,8 @@ for mesh in $MESHES; do
             for f in iterations converged seconds_per_iteration final_loss image_rmse \
                 lighting_rel_error albedo_psnr_db albedo_shadow_psnr_db albedo_shadow_fraction \
                 albedo_texel_psnr_db albedo_observed \
-                rotation_error_deg translation_error vertex_rmse sphere_iou sphere_chamfer \
+                rotation_error_deg translation_error translation_error_rel vertex_rmse \
+                sphere_iou sphere_chamfer \
                 shadow_iou; do
                 printf '\t%s' "$(field "$r" $f)" >> "$OUT/results.tsv"
             done
@@ -128,6 +129,9 @@ for mesh in $MESHES; do
             in_shadow="$(field "$r" albedo_shadow_psnr_db)"
             [ "$in_shadow" = null ] && in_shadow=inf || in_shadow="$(fmt %.1f "$in_shadow")"
             [ "$albedo" = - ] || albedo="$albedo ($in_shadow)"
+            trans="$(fmt %.4f "$(field "$r" translation_error)")"
+            rel="$(field "$r" translation_error_rel)"
+            case $rel in -|null) ;; *) trans="$trans ($(echo "$rel" | awk '{printf "%.1f%%", 100 * $1}'))" ;; esac
             shadow="$(fmt %.3f "$(field "$r" shadow_iou)")"
             [ "$shadow" = - ] || shadow="$shadow ($(fmt %.3f "$(field "$r" sphere_iou)"))"
             echo "| $mesh | $task | $mode | $(field "$r" iterations)$conv |" \
@@ -135,7 +139,7 @@ for mesh in $MESHES; do
                 "$(fmt %.4f "$(field "$r" image_rmse)") | $light |" \
                 "$albedo |" \
                 "$(fmt %.2f "$(field "$r" rotation_error_deg)") |" \
-                "$(fmt %.4f "$(field "$r" translation_error)") |" \
+                "$trans |" \
                 "$(fmt %.4f "$(field "$r" vertex_rmse)") | $shadow |"
         done
     done

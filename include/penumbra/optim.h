@@ -214,6 +214,8 @@ typedef struct pen_optim_metrics {
     double albedo_shadow_fraction; /* the fraction of albedo_psnr_db's pixels in that set */
     double rotation_error_deg;  /* largest over objects of the angle of R R_true^T */
     double translation_error;   /* largest over objects of |t - t_true| (scene units) */
+    double translation_error_rel; /* largest over objects of |t - t_true| / the object's size
+                                     (the diagonal of the true posed mesh's bounding box) */
     double vertex_rmse;         /* posed vertices vs the truth's, all objects (scene units) */
     double sphere_iou;          /* volume IoU of the recovered and the true objects' unions of
                                    spheres (world space, on a 96^3 grid over both) */

@@ -254,8 +254,23 @@ static pen_status albedo_texels(pen_context *ctx, const pen_optim_task *t, pen_o
 
 /* ---- Pose ------------------------------------------------------------------------------------ */
 
+/* The diagonal of the true object's posed bounding box: "the object's size". */
+static double object_size(const pen_object *ob) {
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (int v = 0; v < ob->mesh.vertex_count; ++v) {
+        float p[3];
+        pen_pose_apply(&ob->pose, ob->mesh.positions + 3 * v, p);
+        for (int k = 0; k < 3; ++k)
+            lo[k] = fmin(lo[k], (double)p[k]), hi[k] = fmax(hi[k], (double)p[k]);
+    }
+    double d2 = 0.0;
+    for (int k = 0; k < 3; ++k)
+        d2 += ob->mesh.vertex_count ? (hi[k] - lo[k]) * (hi[k] - lo[k]) : 0.0;
+    return sqrt(d2);
+}
+
 static void pose_error(const pen_optim_task *t, pen_optim_metrics *m) {
-    double rot = 0.0, trans = 0.0, sq = 0.0;
+    double rot = 0.0, trans = 0.0, rel = 0.0, sq = 0.0;
     long long n = 0;
     for (int o = 0; o < t->scene.object_count; ++o) {
         const pen_object *a = &t->scene.objects[o], *b = &t->ground_truth.objects[o];
@@ -267,6 +282,8 @@ static void pose_error(const pen_optim_task *t, pen_optim_metrics *m) {
             d2 += d * d;
         }
         trans = fmax(trans, sqrt(d2));
+        const double size = object_size(b);
+        rel = fmax(rel, size > 0.0 ? sqrt(d2) / size : (double)NAN);
         for (int v = 0; v < a->mesh.vertex_count; ++v) {
             float pa[3], pb[3];
             pen_pose_apply(&a->pose, a->mesh.positions + 3 * v, pa);
@@ -279,6 +296,7 @@ static void pose_error(const pen_optim_task *t, pen_optim_metrics *m) {
     if (t->optimize & PEN_OPTIM_POSE) {
         m->rotation_error_deg = rot;
         m->translation_error = trans;
+        m->translation_error_rel = rel;
     }
     m->vertex_rmse = n ? sqrt(sq / (double)n) : (double)NAN;
 }

@@ -595,6 +595,7 @@ static void metrics_none(pen_optim_metrics *m) {
     m->albedo_texel_psnr_db = m->lighting_rel_error_b2 = none;
     m->albedo_shadow_psnr_db = m->albedo_shadow_fraction = none;
     m->rotation_error_deg = m->translation_error = m->vertex_rmse = none;
+    m->translation_error_rel = none;
     m->sphere_iou = m->sphere_chamfer = m->shadow_iou = none;
 }
 

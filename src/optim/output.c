@@ -294,6 +294,7 @@ static cJSON *metrics_json(const pen_optim_metrics *mt) {
              add_metric(m, "albedo_observed", mt->albedo_observed) &&
              add_metric(m, "rotation_error_deg", mt->rotation_error_deg) &&
              add_metric(m, "translation_error", mt->translation_error) &&
+             add_metric(m, "translation_error_rel", mt->translation_error_rel) &&
              add_metric(m, "vertex_rmse", mt->vertex_rmse) &&
              add_metric(m, "sphere_iou", mt->sphere_iou) &&
              add_metric(m, "sphere_chamfer", mt->sphere_chamfer) &&
