@@ -64,7 +64,8 @@ static void usage(FILE *f) {
     fprintf(f,
             "Usage: penumbra optimize TASK.json -o OUTDIR [options]\n\n"
             "Recovers the task's parameter groups (lighting, albedo, pose, deformation,\n"
-            "spheres) from its target image by Adam through the differentiable renderer, and\n"
+            "spheres) from its target image by Adam through the differentiable renderer (the\n"
+            "lighting solved exactly with \"lighting_solver\": \"least_squares\"), and\n"
             "writes OUTDIR/result.json (iterations, timing, losses, metrics against the ground\n"
             "truth), scene.json (the recovered scene), final.exr/.png, compare.png, loss.svg,\n"
             "checkpoint.bin and snapshots/iter_NNNNN.png. See docs/optimize.md.\n\n"
