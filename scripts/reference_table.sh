@@ -6,6 +6,9 @@
 #   REUSE=1 keeps the reference images (and their rows) of an earlier run into the same OUTDIR
 #   and redoes only the `render` rows. OVERLAP=none renders with the plain sphere sum (scene
 #   "shadow": {"overlap": "none"}) instead of the overlap weights, for the before/after table.
+#   GROUND=receiver renders with "shadow": {"ground": "receiver"} (the ground receives shadows but
+#   does not occlude the objects, the renderer before ground occlusion) instead of the default
+#   "occludes"; the reference always ray-traces the ground.
 # Times: the reference's own "seconds" (Embree build + render) and render's own (pen_render_fwd),
 # neither counting process start, scene loading (meshes, textures, sphere fits) or saving.
 # Writes OUTDIR/scenes/*.json, the images, OUTDIR/results.tsv, and a markdown table on stdout.
@@ -35,7 +38,7 @@ scene() { # name mesh albedo-json-fragment lift env scale exp
 { "camera": {"width": $SIZE, "height": $SIZE, "fov_y_deg": 35, "eye": [3.0, 1.9, 3.4], "target": [0, 0.5, 0.1], "up": [0, 1, 0]},
   "lighting": {"envmap": "$DATA/envmaps/$5.hdr", "scale": $6, "rotation_y_deg": 0},
   "sh_bands": 4,
-  "shadow": {"exp": "$7", "overlap": "${OVERLAP:-weights}"},
+  "shadow": {"exp": "$7", "overlap": "${OVERLAP:-weights}", "ground": "${GROUND:-occludes}"},
   "objects": [ {"mesh": "$DATA/meshes/$2", $3 "spheres": {"fit": 32},
                 "pose": {"rotation_axis_angle_deg": [0, 140, 0], "translation": [0, $4, 0], "scale": 1}} ],
   "ground": {"height": 0, "albedo": [0.8, 0.8, 0.8], "half_size": 4},
