@@ -84,8 +84,9 @@ typedef enum pen_shadow_overlap {
 
 /* What the ground plane does to the objects' light ("shadow": {"ground": ...}). */
 typedef enum pen_shadow_ground {
-    PEN_GROUND_OCCLUDES = 0, /* it hides the lower hemisphere from the objects: they shade with
-                                the lighting times the indicator of y > 0 (docs/renderer.md) */
+    PEN_GROUND_OCCLUDES = 0, /* it hides what lies below the horizon from the objects: each
+                                shades with the lighting times the indicator of y > -t, t from
+                                its height over the ground (docs/renderer.md) */
     PEN_GROUND_RECEIVER = 1  /* it only receives shadows; the objects see the whole sphere */
 } pen_shadow_ground;
 
