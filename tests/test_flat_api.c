@@ -237,6 +237,11 @@ static void test_flat_errors(void) {
     CHECK_ERROR(ctx, pen_flat_render_fwd(ctx, &f, NULL, img), PEN_ERROR_ARGUMENT, "sh_bands 9");
     f = fgood, f.object_count = 1, f.objects = NULL;
     CHECK_ERROR(ctx, pen_flat_render_fwd(ctx, &f, NULL, img), PEN_ERROR_ARGUMENT, "object list");
+    f = fgood, f.ground_occlusion = 2;
+    CHECK_ERROR(ctx, pen_flat_render_fwd(ctx, &f, NULL, img), PEN_ERROR_ARGUMENT,
+                "ground_occlusion 2 is not 0 or 1");
+    f = fgood, f.overlap = -1;
+    CHECK_ERROR(ctx, pen_flat_render_fwd(ctx, &f, NULL, img), PEN_ERROR_ARGUMENT, "overlap -1");
     f = fgood, f.width = 0;
     CHECK_ERROR(ctx, pen_flat_render_fwd(ctx, &f, NULL, img), PEN_ERROR_ARGUMENT, "0x16");
     f = fgood, f.envmap_width = 8, f.envmap_height = 4;

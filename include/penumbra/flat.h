@@ -89,6 +89,8 @@ typedef struct pen_flat_scene {
     int object_count;
     const pen_flat_object *objects;
     int overlap; /* pen_shadow_overlap: 0 overlap weights, 1 none (the plain sum) */
+    int ground_occlusion; /* pen_shadow_ground: 0 the ground hides the objects' lower horizon
+                             (the default), 1 it only receives shadows */
 } pen_flat_scene;
 
 /* A 64 x 64 camera at (0, 1, 3) looking at (0, 0.5, 0) with 40 degrees vertical field of view,

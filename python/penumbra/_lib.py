@@ -75,6 +75,7 @@ class FlatScene(ctypes.Structure):
         ("object_count", ctypes.c_int),
         ("objects", ctypes.POINTER(FlatObject)),
         ("overlap", ctypes.c_int),
+        ("ground_occlusion", ctypes.c_int),
     ]
 
 

@@ -86,7 +86,8 @@ def _scene_from_flat(f):
                  background="envmap" if f.background_envmap else tuple(f.background),
                  envmap=envmap, envmap_rotation_y_deg=f.envmap_rotation_y_deg,
                  envmap_scale=f.envmap_scale, epsilon=f.epsilon, exp=exp,
-                 overlap={0: "weights", 1: "none"}[f.overlap])
+                 overlap={0: "weights", 1: "none"}[f.overlap],
+                 ground_occlusion={0: "occludes", 1: "receiver"}[f.ground_occlusion])
 
 
 # ---- Meshes, images, spheres --------------------------------------------------------------------

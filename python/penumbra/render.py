@@ -19,6 +19,7 @@ from ._lib import PenumbraError
 
 EXP_METHODS = {"calibrated": 0, "default": 0, "paper": 1, "exact": 2}
 OVERLAP_MODES = {"weights": 0, "none": 1}
+GROUND_MODES = {"occludes": 0, "receiver": 1}
 
 
 @dataclasses.dataclass
@@ -64,7 +65,9 @@ class Scene:
     row, one column per colour channel. background is an RGB triple or "envmap" (then envmap, an
     (H, W, 3) float32 equirectangular map, is drawn where nothing is hit, rotated and scaled).
     epsilon <= 0 takes the exponential model's; exp is "calibrated", "paper" or "exact"; overlap is
-    "weights" (each sphere's log-visibility times its overlap weight) or "none" (the plain sum)."""
+    "weights" (each sphere's log-visibility times its overlap weight) or "none" (the plain sum);
+    ground_occlusion is "occludes" (the ground hides what lies below each object's horizon, as in
+    the ray-traced reference) or "receiver" (it only receives shadows)."""
 
     camera: Camera
     sh: torch.Tensor
@@ -80,6 +83,7 @@ class Scene:
     epsilon: float = 0.0
     exp: str = "calibrated"
     overlap: str = "weights"
+    ground_occlusion: str = "occludes"
 
 
 def pose(rotation_axis_angle_deg=(0.0, 0.0, 0.0), translation=(0.0, 0.0, 0.0), scale=1.0):
@@ -180,6 +184,10 @@ class _Spec:
             raise ValueError("penumbra: overlap must be \"weights\" or \"none\"; got %r"
                              % (scene.overlap,))
         self.overlap = OVERLAP_MODES[scene.overlap]
+        if scene.ground_occlusion not in GROUND_MODES:
+            raise ValueError("penumbra: ground_occlusion must be \"occludes\" or \"receiver\"; "
+                             "got %r" % (scene.ground_occlusion,))
+        self.ground_occlusion = GROUND_MODES[scene.ground_occlusion]
         self.envmap = None
         if scene.envmap is not None:
             self.envmap = _float_tensor("envmap", scene.envmap, (None, None, 3)).detach()
@@ -275,6 +283,7 @@ def _flat(spec, sh, ground_albedo, obj):
     s.envmap_rotation_y_deg, s.envmap_scale = spec.envmap_rotation_y_deg, spec.envmap_scale
     s.shadows, s.antialias = spec.shadows, spec.antialias
     s.overlap = spec.overlap
+    s.ground_occlusion = spec.ground_occlusion
     n = len(spec.objects)
     objs = (_lib.FlatObject * max(n, 1))()
     for i, os_ in enumerate(spec.objects):
@@ -360,7 +369,8 @@ def render(vertices, faces, sh, camera=None, *, uvs=None, uv_faces=None, texture
            albedo=None, spheres=None, pose=None, ground=True, ground_albedo=(0.8, 0.8, 0.8),
            ground_height=0.0, ground_half_size=4.0, background=(0.0, 0.0, 0.0), envmap=None,
            envmap_rotation_y_deg=0.0, envmap_scale=1.0, epsilon=0.0, exp="calibrated",
-           shadows=True, antialias=True, threads=0, sphere_weights=None, overlap="weights"):
+           shadows=True, antialias=True, threads=0, sphere_weights=None, overlap="weights",
+           ground_occlusion="occludes"):
     """Renders one object (see Object and Scene for the arguments); returns the (height, width, 3)
     float32 image. camera: a Camera (None: the default 64 x 64 one)."""
     scene = Scene(camera=camera or Camera(), sh=sh,
@@ -369,7 +379,7 @@ def render(vertices, faces, sh, camera=None, *, uvs=None, uv_faces=None, texture
                   ground=ground, ground_albedo=ground_albedo, ground_height=ground_height,
                   ground_half_size=ground_half_size, background=background, envmap=envmap,
                   envmap_rotation_y_deg=envmap_rotation_y_deg, envmap_scale=envmap_scale,
-                  epsilon=epsilon, exp=exp, overlap=overlap)
+                  epsilon=epsilon, exp=exp, overlap=overlap, ground_occlusion=ground_occlusion)
     return render_scene(scene, shadows=shadows, antialias=antialias, threads=threads)
 
 

@@ -1,6 +1,7 @@
 """The binding's contract: the same image as `penumbra render` for the same scene JSON, the
 loaders, argument errors (dtype, shape, device) and library errors, and autograd behaviour."""
 
+import dataclasses
 import os
 import shutil
 import subprocess
@@ -357,6 +358,22 @@ class OverlapTest(unittest.TestCase):
         self.assertFalse(torch.equal(plain, weighted))
         scene.overlap = "half"
         with self.assertRaisesRegex(ValueError, "overlap must be"):
+            penumbra.render_scene(scene)
+
+    def test_ground_occlusion(self):
+        """The ground hides the lower horizon from the objects by default; "receiver" renders the
+        ball differently and the ground itself the same; without shadows the mode changes
+        nothing."""
+        scene = scenes.ball_scene(12)
+        occluded = penumbra.render_scene(scene)
+        scene.ground_occlusion = "receiver"
+        received = penumbra.render_scene(scene)
+        self.assertFalse(torch.equal(occluded, received))
+        self.assertTrue(torch.equal(penumbra.render_scene(scene, shadows=False),
+                                    penumbra.render_scene(dataclasses.replace(
+                                        scene, ground_occlusion="occludes"), shadows=False)))
+        scene.ground_occlusion = "floor"
+        with self.assertRaisesRegex(ValueError, "ground_occlusion must be"):
             penumbra.render_scene(scene)
 
 

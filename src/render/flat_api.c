@@ -107,6 +107,11 @@ static pen_status scene_view(pen_context *ctx, const pen_flat_scene *f, pen_scen
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "flat scene: sh_bands %d out of range [1, %d]",
                           f->sh_bands, PEN_SH_MAX_BANDS);
     if (!f->sh) return pen__error(ctx, PEN_ERROR_ARGUMENT, "flat scene: no SH lighting");
+    if ((f->overlap != 0 && f->overlap != 1) ||
+        (f->ground_occlusion != 0 && f->ground_occlusion != 1))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "flat scene: overlap %d or ground_occlusion %d is not 0 or 1", f->overlap,
+                          f->ground_occlusion);
     if (f->object_count < 0 || f->object_count > MAX_OBJECTS ||
         (f->object_count > 0 && !f->objects))
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "flat scene: bad object list (%d objects)",
@@ -126,6 +131,7 @@ static pen_status scene_view(pen_context *ctx, const pen_flat_scene *f, pen_scen
     sc->shadow.epsilon = f->epsilon;
     sc->shadow.exp = (pen_sh_exp_method)f->exp_method;
     sc->shadow.overlap = (pen_shadow_overlap)f->overlap;
+    sc->shadow.ground = (pen_shadow_ground)f->ground_occlusion;
     sc->ground.enabled = f->ground_enabled != 0;
     sc->ground.height = f->ground_height;
     memcpy(sc->ground.albedo, f->ground_albedo, sizeof sc->ground.albedo);
@@ -302,6 +308,7 @@ static pen_status flatten(pen_context *ctx, pen_flat_loaded *l) {
     f->epsilon = sc->shadow.epsilon;
     f->exp_method = (int)sc->shadow.exp;
     f->overlap = (int)sc->shadow.overlap;
+    f->ground_occlusion = (int)sc->shadow.ground;
     f->ground_enabled = sc->ground.enabled;
     f->ground_height = sc->ground.height;
     memcpy(f->ground_albedo, sc->ground.albedo, sizeof f->ground_albedo);
