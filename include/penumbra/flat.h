@@ -95,8 +95,8 @@ typedef struct pen_flat_scene {
 
 /* A 64 x 64 camera at (0, 1, 3) looking at (0, 0.5, 0) with 40 degrees vertical field of view,
  * sh_bands 4 and no lighting array, the calibrated exponential with its own epsilon, overlap
- * weights on, the default ground (height 0, albedo 0.8, half size 4), black background, no map,
- * shadows and antialiasing on, no objects. */
+ * weights on, the default ground (height 0, albedo 0.8, half size 4, occluding the objects), black
+ * background, no map, shadows and antialiasing on, no objects. */
 pen_flat_scene pen_flat_scene_default(void);
 
 /* Where pen_flat_render_bwd writes; every pointer may be NULL (that gradient is not computed).
