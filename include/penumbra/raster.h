@@ -146,6 +146,13 @@ pen_status pen_raster_gbuffer(pen_context *ctx, const pen_view *view, const pen_
 pen_status pen_raster_bary_bwd(pen_context *ctx, const pen_view *view,
                                const pen_raster_mesh *meshes, int mesh_count, const pen_gbuffer *gb,
                                const float *d_bary, float *const *d_positions);
+/* The same with the caller's scratch buffer g (9 floats per pixel), so that a renderer calling it
+ * every frame allocates nothing: at 1024 x 1024 a fresh 37 MB buffer is above glibc's mmap
+ * threshold and its page faults cost about 24 ms per call (bench/NOTES.md). */
+void pen_raster_bary_bwd_scratch(pen_context *ctx, const pen_view *view,
+                                 const pen_raster_mesh *meshes, int mesh_count,
+                                 const pen_gbuffer *gb, const float *d_bary,
+                                 float *const *d_positions, float *g);
 
 /* World position of every non-background pixel's visible point, eye + depth * ray (3 floats per
  * pixel; background pixels get 0). For ground pixels this is the position to shade; mesh pixels

@@ -430,11 +430,22 @@ pen_status pen_raster_bary_bwd(pen_context *ctx, const pen_view *view,
                                const pen_raster_mesh *meshes, int mesh_count, const pen_gbuffer *gb,
                                const float *d_bary, float *const *d_positions) {
     if (!d_positions || !d_bary) return PEN_OK;
-    size_t n = (size_t)gb->width * (size_t)gb->height;
-    /* Each pixel's three vertex gradients are solved in parallel into a scratch buffer, then
-     * added to the shared vertices serially in pixel order, so sums do not depend on threads. */
-    float *g = pen__malloc(ctx, 9 * n, sizeof(float), "barycentric backward");
+    float *g = pen__malloc(ctx, 9 * (size_t)gb->width * (size_t)gb->height, sizeof(float),
+                           "barycentric backward");
     if (!g) return PEN_ERROR_MEMORY;
+    pen_raster_bary_bwd_scratch(ctx, view, meshes, mesh_count, gb, d_bary, d_positions, g);
+    free(g);
+    return PEN_OK;
+}
+
+void pen_raster_bary_bwd_scratch(pen_context *ctx, const pen_view *view,
+                                 const pen_raster_mesh *meshes, int mesh_count,
+                                 const pen_gbuffer *gb, const float *d_bary,
+                                 float *const *d_positions, float *g) {
+    if (!d_positions || !d_bary) return;
+    size_t n = (size_t)gb->width * (size_t)gb->height;
+    /* Each pixel's three vertex gradients are solved in parallel into the scratch buffer, then
+     * added to the shared vertices serially in pixel order, so sums do not depend on threads. */
     int W = gb->width, H = gb->height, threads = pen__raster_threads_for(ctx, n);
 #pragma omp parallel for num_threads(threads) schedule(static)
     for (int y = 0; y < H; ++y)
@@ -466,8 +477,6 @@ pen_status pen_raster_bary_bwd(pen_context *ctx, const pen_view *view,
         for (int k = 0; k < 9; ++k)
             d_positions[m][3 * (size_t)idx[k / 3] + k % 3] += gi[k];
     }
-    free(g);
-    return PEN_OK;
 }
 
 void pen_gbuffer_points(const pen_view *view, const pen_gbuffer *gb, float *out) {

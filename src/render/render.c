@@ -97,6 +97,8 @@ struct pen_render_state {
     size_t pixel_cap;
     float *x, *nraw, *n, *rho, *uv, *color, *nsign;
     float *d_color, *d_x, *d_nraw, *d_uv, *d_rho, *d_bary;
+    float *bary_scratch; /* pen_raster_bary_bwd_scratch's 9 floats per pixel, kept between frames */
+    size_t bary_cap;
     size_t fv_cap, rows_cap, ws_cap;
     float *fv; /* scalar kernel: F and V per pixel (2 bands^2); fast: its store, per tile */
     int fv_valid;
@@ -139,7 +141,7 @@ void pen_render_state_free(pen_render_state *st) {
                    st->d_color, st->d_x,  st->d_nraw, st->d_uv, st->d_rho, st->d_bary};
     for (size_t i = 0; i < sizeof px / sizeof px[0]; ++i)
         free(px[i]);
-    free(st->fv), free(st->rows), free(st->ws), free(st->bg);
+    free(st->fv), free(st->rows), free(st->ws), free(st->bg), free(st->bary_scratch);
     free(st);
 }
 
@@ -1268,7 +1270,11 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     if (want_geom) {
         s = s_geom;
         if (!s)
-            s = pen_raster_bary_bwd(ctx, &st->view, st->meshes, O, &st->gb, st->d_bary, d_world);
+            s = ensure(ctx, (void **)&st->bary_scratch, &st->bary_cap, 9 * np, sizeof(float),
+                       "barycentric backward");
+        if (!s)
+            pen_raster_bary_bwd_scratch(ctx, &st->view, st->meshes, O, &st->gb, st->d_bary,
+                                        d_world, st->bary_scratch);
         if (!s) {
             for (int o = 0; o < O; ++o) {
                 const pen_object *ob = &sc->objects[o];
