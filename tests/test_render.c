@@ -224,6 +224,32 @@ static void test_convex_object_does_not_shadow_itself(void) {
 }
 
 /* Background pixels show the constant background exactly (no geometry there to blend). */
+/* The render state keeps the antialiasing adjacency between frames; a mesh whose indices are
+ * edited in place (same counts) must get it rebuilt: the next frame equals a fresh state's. */
+static void test_state_notices_new_topology(void) {
+    unsigned long long rng = 99;
+    pen_scene sc = rs_ball_scene(32, 0, &rng);
+    pen_context *ctx = pen_context_create();
+    pen_render_state *st = NULL;
+    CHECK(pen_render_state_create(ctx, &st) == PEN_OK);
+    pen_image a = {0, 0, 0, NULL}, b = {0, 0, 0, NULL};
+    CHECK(pen_render_fwd(ctx, &sc, NULL, st, &a) == PEN_OK);
+    pen_mesh *m = &sc.objects[0].mesh;
+    for (int t = 0; t + 1 < m->triangle_count; t += 2) /* swap pairs of triangles */
+        for (int k = 0; k < 3; ++k) {
+            const uint32_t v = m->indices[3 * t + k];
+            m->indices[3 * t + k] = m->indices[3 * (t + 1) + k];
+            m->indices[3 * (t + 1) + k] = v;
+        }
+    CHECK(pen_render_fwd(ctx, &sc, NULL, st, &a) == PEN_OK);
+    CHECK(pen_render_fwd(ctx, &sc, NULL, NULL, &b) == PEN_OK);
+    CHECK(memcmp(a.data, b.data, sizeof(float) * 3 * 32 * 32) == 0);
+    pen_image_free(&a), pen_image_free(&b);
+    pen_render_state_free(st);
+    pen_context_destroy(ctx);
+    pen_scene_free(&sc);
+}
+
 static void test_background_constant(void) {
     pen_scene sc = rs_scene(16, 16);
     sc.ground.enabled = 0;
@@ -347,5 +373,5 @@ static void test_invalid_inputs(void) {
 
 RUN_TESTS(TEST(test_golden_plane), TEST(test_golden_sphere),
           TEST(test_shadow_depth_against_exact_occlusion),
-          TEST(test_convex_object_does_not_shadow_itself), TEST(test_background_constant),
+          TEST(test_convex_object_does_not_shadow_itself), TEST(test_state_notices_new_topology), TEST(test_background_constant),
           TEST(test_losses), TEST(test_invalid_inputs))
