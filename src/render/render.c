@@ -102,6 +102,8 @@ struct pen_render_state {
     float *x, *nraw, *n, *rho, *uv, *color, *nsign;
     float *d_color, *d_x, *d_nraw, *d_uv, *d_rho, *d_bary;
     float *bary_scratch; /* pen_raster_bary_bwd_scratch's 9 floats per pixel, kept between frames */
+    size_t *tile_off;    /* the fast store's layout per tile (tile_store_layout) */
+    size_t tile_off_cap;
     size_t bary_cap;
     size_t fv_cap, rows_cap, ws_cap;
     float *fv; /* scalar kernel: F and V per pixel (2 bands^2); fast: its store, per tile */
@@ -146,6 +148,7 @@ void pen_render_state_free(pen_render_state *st) {
     for (size_t i = 0; i < sizeof px / sizeof px[0]; ++i)
         free(px[i]);
     free(st->fv), free(st->rows), free(st->ws), free(st->bg), free(st->bary_scratch);
+    free(st->tile_off);
     free(st);
 }
 
@@ -756,49 +759,76 @@ typedef struct bwd_want {
     row_layout rl;
 } bwd_want;
 
-/* A pass over the tiles: store is the fast kernel's store (tile t's part at tile_store * t) or
- * the scalar kernel's per-pixel F and V (tile_store = 0), or NULL when nothing is kept; bw is
- * the backward's request (NULL in the forward). */
+/* A pass over the tiles: store is the fast kernel's store (tile t's part at tile_off[t]) or the
+ * scalar kernel's per-pixel F and V (tile_off NULL), or NULL when nothing is kept; bw is the
+ * backward's request (NULL in the forward). */
 typedef struct tile_job {
     const pen_scene *sc;
     pen_render_state *st;
     const bwd_want *bw;
     float *store;
-    size_t tile_store;
+    const size_t *tile_off;
 } tile_job;
 
 static float *tile_store_of(const tile_job *job, int t) {
-    return job->store ? job->store + job->tile_store * (size_t)t : NULL;
+    return job->store && job->tile_off ? job->store + job->tile_off[t] : NULL;
 }
 
-/* The fast kernel shades a tile's pixels in groups of one lighting each: pass 0 the ground's,
- * then the objects' (one pass per object with ground occlusion, whose objects see their own
- * lighting; otherwise all in one). Background pixels are done in pass 0. */
-static int tile_passes(const pen_scene *sc, const pen_render_state *st) {
-    return st->ground_occludes ? 1 + sc->object_count : 2;
+/* The kernels shade a tile's pixels in groups of one lighting each: the ground's (group 0), then
+ * the objects' (group 1 for all of them, or 1 + o per object o with ground occlusion, whose
+ * objects see their own lighting). Background pixels belong to none (-1). */
+static int pixel_group(const pen_render_state *st, int surf) {
+    if (surf == PEN_SURFACE_BACKGROUND) return -1;
+    if (surf == PEN_SURFACE_GROUND) return 0;
+    return st->ground_occludes ? 1 + surf : 1;
 }
 
-static int in_pass(const pen_render_state *st, int surf, int pass) {
-    if (pass == 0) return surf == PEN_SURFACE_GROUND || surf == PEN_SURFACE_BACKGROUND;
-    return st->ground_occludes ? surf == pass - 1 : surf >= 0;
+/* The lighting of group g. */
+static const float (*group_lighting(const pen_scene *sc, const pen_render_state *st, int g))[3] {
+    return g == 0 ? (const float(*)[3])sc->lighting.sh : lighting_of(sc, st, g - 1);
 }
 
-/* The lighting of pass `pass`. */
-static const float (*pass_lighting(const pen_scene *sc, const pen_render_state *st,
-                                   int pass))[3] {
-    return lighting_of(sc, st, pass == 0 ? PEN_SURFACE_GROUND : st->ground_occludes ? pass - 1 : 0);
+/* The shaded pixels of tile t (their indices into pix and their groups into grp), in raster
+ * order within each group, groups ascending; returns their number (at most TILE_PX). A tile
+ * usually holds one or two groups, so the stable insertion sort costs little. */
+static int tile_pixels(const pen_render_state *st, int t, int *pix, int *grp) {
+    int x0, y0, x1, y1, n = 0;
+    tile_rect(st, t, &x0, &y0, &x1, &y1);
+    for (int py = y0; py < y1; ++py)
+        for (int px = x0; px < x1; ++px) {
+            const size_t i = (size_t)py * (size_t)st->width + (size_t)px;
+            const int g = pixel_group(st, st->gb.surface[i]);
+            if (g < 0) continue;
+            int k = n++;
+            for (; k > 0 && grp[k - 1] > g; --k)
+                pix[k] = pix[k - 1], grp[k] = grp[k - 1];
+            pix[k] = (int)i, grp[k] = g;
+        }
+    return n;
 }
 
-/* Floats of the fast kernel's store per tile: its pixels in whole batches, plus one batch for
- * each further pass (each call ends in a partial batch), at most one per batch of pixels. */
-static size_t tile_store_floats(const pen_scene *sc, const pen_render_state *st) {
-    int extra = tile_passes(sc, st);
-    if (extra > TILE_PX / PEN_FAST_LANES) extra = TILE_PX / PEN_FAST_LANES;
-    return pen__shade_fast_store_floats(&st->params, TILE_PX + extra * PEN_FAST_LANES);
+/* Where each tile's part of the fast kernel's store begins (ntiles + 1 offsets in floats): each
+ * group is one kernel call and takes its pixels in whole batches. */
+static pen_status tile_store_layout(pen_context *ctx, pen_render_state *st, int ntiles) {
+    pen_status s = ensure(ctx, (void **)&st->tile_off, &st->tile_off_cap, (size_t)ntiles + 1,
+                          sizeof(size_t), "store layout");
+    if (s) return s;
+    int pix[TILE_PX], grp[TILE_PX];
+    st->tile_off[0] = 0;
+    for (int t = 0; t < ntiles; ++t) {
+        const int n = tile_pixels(st, t, pix, grp);
+        size_t need = 0;
+        for (int a = 0, b; a < n; a = b) {
+            for (b = a; b < n && grp[b] == grp[a]; ++b) {}
+            need += pen__shade_fast_store_floats(&st->params, b - a);
+        }
+        st->tile_off[t + 1] = st->tile_off[t] + need;
+    }
+    return PEN_OK;
 }
 
 /* Shades tile t: background pixels directly, surface pixels through the fast kernel (compacted
- * into ws, one call per pass) or the scalar kernel one by one. */
+ * into ws, one call per group) or the scalar kernel one by one. */
 static void shade_tile_fwd(const void *job_, int t, tile_ws *ws, pen__shade_fast_ticks *tk) {
     const tile_job *job = job_;
     const pen_scene *sc = job->sc;
@@ -807,34 +837,38 @@ static void shade_tile_fwd(const void *job_, int t, tile_ws *ws, pen__shade_fast
     const size_t nfv = 2 * (size_t)sc->sh_bands * (size_t)sc->sh_bands;
     int x0, y0, x1, y1;
     tile_rect(st, t, &x0, &y0, &x1, &y1);
-    for (int pass = 0; pass < tile_passes(sc, st); ++pass) {
-        int cnt = 0;
-        for (int py = y0; py < y1; ++py)
-            for (int px = x0; px < x1; ++px) {
-                const size_t i = (size_t)py * (size_t)st->width + (size_t)px;
-                const int surf = st->gb.surface[i];
-                if (!in_pass(st, surf, pass)) continue;
-                if (surf == PEN_SURFACE_BACKGROUND) {
-                    background_pixel(sc, st, px, py, i);
-                    continue;
-                }
+    for (int py = y0; py < y1; ++py)
+        for (int px = x0; px < x1; ++px) {
+            const size_t i = (size_t)py * (size_t)st->width + (size_t)px;
+            const int surf = st->gb.surface[i];
+            if (surf == PEN_SURFACE_BACKGROUND)
+                background_pixel(sc, st, px, py, i);
+            else
                 surface_attributes(sc, st, i, surf);
-                if (!st->fast) {
-                    pen__shade_fwd(&st->params, lighting_of(sc, st, surf), st->sphere_count,
-                                   st->spheres, st->kappa, st->x + 3 * i, st->n + 3 * i,
-                                   st->rho + 3 * i, st->color + 3 * i,
-                                   store ? store + nfv * i : NULL);
-                    continue;
-                }
-                ws_push(ws, cnt++, st, i);
+        }
+    int pix[TILE_PX], grp[TILE_PX];
+    const int n = tile_pixels(st, t, pix, grp);
+    for (int a = 0, b; a < n; a = b) {
+        for (b = a; b < n && grp[b] == grp[a]; ++b) {}
+        const float(*sh)[3] = group_lighting(sc, st, grp[a]);
+        if (!st->fast) {
+            for (int k = a; k < b; ++k) {
+                const size_t i = (size_t)pix[k];
+                pen__shade_fwd(&st->params, sh, st->sphere_count, st->spheres, st->kappa,
+                               st->x + 3 * i, st->n + 3 * i, st->rho + 3 * i, st->color + 3 * i,
+                               job->store ? job->store + nfv * i : NULL);
             }
-        if (!cnt) continue;
-        pen__shade_fast_fwd(&st->params, pass_lighting(sc, st, pass), st->sphere_count,
-                            st->spheres, st->kappa, cnt, pass == 0 ? cnt : 0, ws->x, ws->n,
-                            ws->rho, ws->out, store, ws->kernel, tk);
+            continue;
+        }
+        const int cnt = b - a;
+        for (int k = 0; k < cnt; ++k)
+            ws_push(ws, k, st, (size_t)pix[a + k]);
+        pen__shade_fast_fwd(&st->params, sh, st->sphere_count, st->spheres, st->kappa, cnt,
+                            grp[a] == 0 ? cnt : 0, ws->x, ws->n, ws->rho, ws->out, store,
+                            ws->kernel, tk);
         if (store) store += pen__shade_fast_store_floats(&st->params, cnt);
-        for (int j = 0; j < cnt; ++j)
-            memcpy(st->color + 3 * (size_t)ws->idx[j], ws->out + 3 * j, 3 * sizeof(float));
+        for (int k = 0; k < cnt; ++k)
+            memcpy(st->color + 3 * (size_t)ws->idx[k], ws->out + 3 * k, 3 * sizeof(float));
     }
 }
 
@@ -877,10 +911,10 @@ pen_status pen_render_fwd(pen_context *ctx, const pen_scene *sc, const pen_rende
         opt->kernel == PEN_RENDER_KERNEL_FAST && pen__shade_fast_supported(&st->params);
     const int ntiles = tile_count(st);
     const size_t nfv = 2 * (size_t)sc->sh_bands * (size_t)sc->sh_bands;
-    const size_t tile_store = tile_store_floats(sc, st);
     float *fv_all = NULL;
     if (own == NULL && opt->shadows) {
-        const size_t need = fast ? tile_store * (size_t)ntiles : nfv * (size_t)W * (size_t)H;
+        if (fast && (s = tile_store_layout(ctx, st, ntiles))) goto done;
+        const size_t need = fast ? st->tile_off[ntiles] : nfv * (size_t)W * (size_t)H;
         if ((s = ensure(ctx, (void **)&st->fv, &st->fv_cap, need, sizeof(float),
                         "visibility buffer")))
             goto done;
@@ -891,7 +925,7 @@ pen_status pen_render_fwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     const int nt = thread_count(ctx);
     size_t wsb = 0;
     if ((s = ensure_ws(ctx, st, nt, &wsb))) goto done;
-    const tile_job job = {sc, st, NULL, fv_all, fast ? tile_store : 0};
+    const tile_job job = {sc, st, NULL, fv_all, fast ? st->tile_off : NULL};
     t0 = omp_get_wtime();
     background_prepare(ctx, sc, st);
     const loop_ticks lt = run_tiles(st, nt, wsb, shade_tile_fwd, &job);
@@ -1003,7 +1037,7 @@ static void pixel_bwd_tail(const pen_scene *sc, pen_render_state *st, const bwd_
 }
 
 /* Backward of tile t into the tile's double accumulators and the per-pixel gradients d_x,
- * d_nraw, d_uv, d_rho (zeroed here for every pixel of the tile), in the forward's passes. */
+ * d_nraw, d_uv, d_rho (zeroed here for every pixel of the tile), in the forward's groups. */
 static void shade_tile_bwd(const void *job_, int t, tile_ws *ws, pen__shade_fast_ticks *tk) {
     const tile_job *job = job_;
     const pen_scene *sc = job->sc;
@@ -1026,54 +1060,56 @@ static void shade_tile_bwd(const void *job_, int t, tile_ws *ws, pen__shade_fast
                 d_x[a] = d_nraw[a] = d_rho[a] = 0.0f;
             d_uv[0] = d_uv[1] = 0.0f;
         }
-    for (int pass = 0; pass < tile_passes(sc, st); ++pass) {
-        /* where this pass's lighting gradient goes: an object's own `seen`, or the lighting */
-        const int own = st->ground_occludes && pass > 0;
+    int pix[TILE_PX], grp[TILE_PX];
+    const int n = tile_pixels(st, t, pix, grp);
+    for (int a = 0, b; a < n; a = b) {
+        for (b = a; b < n && grp[b] == grp[a]; ++b) {}
+        const int g = grp[a];
+        const float(*sh)[3] = group_lighting(sc, st, g);
+        /* where this group's lighting gradient goes: an object's own `seen`, or the lighting */
+        const int own = st->ground_occludes && g > 0;
         double(*d_sh)[3] =
-            own ? (bw->seen ? (double(*)[3])(row + bw->rl.sh_obj + nsh * (size_t)(pass - 1))
-                            : NULL)
+            own ? (bw->seen ? (double(*)[3])(row + bw->rl.sh_obj + nsh * (size_t)(g - 1)) : NULL)
                 : (bw->light ? (double(*)[3])(row + bw->rl.sh) : NULL);
-        int cnt = 0;
-        for (int py = y0; py < y1; ++py)
-            for (int px = x0; px < x1; ++px) {
-                const size_t i = (size_t)py * (size_t)st->width + (size_t)px;
+        if (!st->fast) {
+            for (int k = a; k < b; ++k) {
+                const size_t i = (size_t)pix[k];
                 const int surf = st->gb.surface[i];
-                if (surf == PEN_SURFACE_BACKGROUND || !in_pass(st, surf, pass)) continue;
                 const float *dc = st->d_color + 3 * i;
-                if (st->fast) {
-                    memcpy(ws->out + 3 * cnt, dc, 3 * sizeof(float));
-                    ws_push(ws, cnt++, st, i);
-                    continue;
-                }
                 if (dc[0] == 0.0f && dc[1] == 0.0f && dc[2] == 0.0f) continue;
                 const int geom = surf >= 0 && bw->geom;
                 const int need_rho =
                     bw->albedo || (geom && sc->objects[surf].texture.data != NULL);
                 float d_n[3] = {0.0f, 0.0f, 0.0f};
-                pen__shade_bwd(&st->params, lighting_of(sc, st, surf), S, st->spheres, st->kappa,
-                               st->x + 3 * i, st->n + 3 * i, st->rho + 3 * i, dc,
-                               store ? store + nfv * i : NULL, d_sh, d_sph,
+                pen__shade_bwd(&st->params, sh, S, st->spheres, st->kappa, st->x + 3 * i,
+                               st->n + 3 * i, st->rho + 3 * i, dc,
+                               job->store ? job->store + nfv * i : NULL, d_sh, d_sph,
                                geom ? st->d_x + 3 * i : NULL, geom ? d_n : NULL,
                                need_rho ? st->d_rho + 3 * i : NULL);
                 pixel_bwd_tail(sc, st, bw, row, i, surf, d_n);
             }
-        if (!cnt) continue;
+            continue;
+        }
+        const int cnt = b - a;
+        for (int k = 0; k < cnt; ++k) {
+            memcpy(ws->out + 3 * k, st->d_color + 3 * (size_t)pix[a + k], 3 * sizeof(float));
+            ws_push(ws, k, st, (size_t)pix[a + k]);
+        }
         memset(ws->dx, 0, 3 * sizeof(float) * (size_t)cnt);
         memset(ws->dn, 0, 3 * sizeof(float) * (size_t)cnt);
         memset(ws->drho, 0, 3 * sizeof(float) * (size_t)cnt);
-        pen__shade_fast_bwd(&st->params, pass_lighting(sc, st, pass), S, st->spheres, st->kappa,
-                            cnt, pass == 0 ? cnt : 0, ws->x, ws->n, ws->rho, ws->out, store,
-                            ws->kernel, d_sh, d_sph, bw->geom ? ws->dx : NULL,
-                            bw->geom ? ws->dn : NULL, ws->drho, tk);
+        pen__shade_fast_bwd(&st->params, sh, S, st->spheres, st->kappa, cnt, g == 0 ? cnt : 0,
+                            ws->x, ws->n, ws->rho, ws->out, store, ws->kernel, d_sh, d_sph,
+                            bw->geom ? ws->dx : NULL, bw->geom ? ws->dn : NULL, ws->drho, tk);
         if (store) store += pen__shade_fast_store_floats(&st->params, cnt);
-        for (int j = 0; j < cnt; ++j) {
-            const size_t i = (size_t)ws->idx[j];
+        for (int k = 0; k < cnt; ++k) {
+            const size_t i = (size_t)ws->idx[k];
             const int surf = st->gb.surface[i];
             const int geom = surf >= 0 && bw->geom;
             if (bw->albedo || (geom && sc->objects[surf].texture.data))
-                memcpy(st->d_rho + 3 * i, ws->drho + 3 * j, 3 * sizeof(float));
-            if (geom) memcpy(st->d_x + 3 * i, ws->dx + 3 * j, 3 * sizeof(float));
-            pixel_bwd_tail(sc, st, bw, row, i, surf, ws->dn + 3 * j);
+                memcpy(st->d_rho + 3 * i, ws->drho + 3 * k, 3 * sizeof(float));
+            if (geom) memcpy(st->d_x + 3 * i, ws->dx + 3 * k, 3 * sizeof(float));
+            pixel_bwd_tail(sc, st, bw, row, i, surf, ws->dn + 3 * k);
         }
     }
 }
@@ -1181,9 +1217,8 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     const int want_height = (wrt & PEN_GRAD_POSE) != 0 && st->ground_occludes;
     const bwd_want bw = {want_geom, want_sph,    want_light, want_albedo,
                          seen > 0 && (want_light || want_height), rl};
-    const size_t tile_store = tile_store_floats(sc, st);
     float *fv_all = st->fv_valid && st->params.shadows ? st->fv : NULL;
-    const tile_job job = {sc, st, &bw, fv_all, st->fast ? tile_store : 0};
+    const tile_job job = {sc, st, &bw, fv_all, st->fast ? st->tile_off : NULL};
     t0 = omp_get_wtime();
     const loop_ticks lt = run_tiles(st, nt, wsb, shade_tile_bwd, &job);
     tm->bwd_shade_ms = ms_since(t0);
