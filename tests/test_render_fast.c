@@ -332,8 +332,17 @@ static pen_scene frame_scene(int size_w, int size_h, int bands, int count, pen_s
  * Both kernels are float and differ in summation order and the exponential's rounding only;
  * tests/test_render_shade.c ties the scalar one to double precision. */
 static void check_frame(int w, int h, int bands, int count, pen_sh_exp_method m, int shadows,
-                        int verbose) {
+                        int objects, int verbose) {
     pen_scene sc = frame_scene(w, h, bands, count, m);
+    if (objects == 3) { /* two more at other heights: a lighting group each (ground occlusion) */
+        for (int k = 0; k < 2; ++k) {
+            const float s4[4] = {0, 0, 0, 0.18f};
+            pen_object *ob = rs_add_object(&sc, rs_octasphere(2, 0.2f, 0), 1, s4);
+            ob->pose.translation[0] = k ? 0.45f : -0.5f;
+            ob->pose.translation[1] = k ? 0.9f : 0.25f;
+            ob->pose.translation[2] = 0.2f;
+        }
+    }
     const size_t n = 3 * (size_t)w * (size_t)h;
     float *q = malloc(sizeof(float) * n);
     unsigned long long seed = 5;
@@ -371,13 +380,14 @@ static void test_frames_fast_vs_scalar(void) {
     const int verbose = getenv("PEN_TEST_VERBOSE") != NULL;
     const int w = check_quick_() ? 23 : 45, h = check_quick_() ? 19 : 37; /* not tile multiples */
     for (int bands = 3; bands <= 6; ++bands)
-        check_frame(w, h, bands, 19, PEN_SH_EXP_CALIBRATED, 1, verbose);
-    check_frame(w, h, 4, 0, PEN_SH_EXP_CALIBRATED, 1, verbose);
-    check_frame(w, h, 4, 2, PEN_SH_EXP_PAPER, 1, verbose);
-    check_frame(w, h, 4, 33, PEN_SH_EXP_CALIBRATED, 0, verbose);
+        check_frame(w, h, bands, 19, PEN_SH_EXP_CALIBRATED, 1, 1, verbose);
+    check_frame(w, h, 4, 0, PEN_SH_EXP_CALIBRATED, 1, 1, verbose);
+    check_frame(w, h, 4, 7, PEN_SH_EXP_CALIBRATED, 1, 3, verbose);
+    check_frame(w, h, 4, 2, PEN_SH_EXP_PAPER, 1, 1, verbose);
+    check_frame(w, h, 4, 33, PEN_SH_EXP_CALIBRATED, 0, 1, verbose);
     /* EXACT and 2 bands take the scalar kernel inside the fast option: identical. */
-    check_frame(w, h, 4, 2, PEN_SH_EXP_EXACT, 1, verbose);
-    check_frame(w, h, 2, 2, PEN_SH_EXP_CALIBRATED, 1, verbose);
+    check_frame(w, h, 4, 2, PEN_SH_EXP_EXACT, 1, 1, verbose);
+    check_frame(w, h, 2, 2, PEN_SH_EXP_CALIBRATED, 1, 1, verbose);
 }
 
 /* Threads take tiles in any order; every sum runs in tile order: 1 and 2 threads give the same
