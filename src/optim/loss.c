@@ -210,15 +210,16 @@ static void model_image(const pen_image *base, const pen_image *cols, int nb,
 /* The render is affine in the lighting: base (zero lighting) and, per coefficient k, cols[k] =
  * the render with coefficient k = 1 in every channel, minus base (cols: nb zeroed images). */
 static pen_status lighting_basis(pen_context *ctx, const pen_scene *sc,
-                                 const pen_render_options *opt, pen_image *base, pen_image *cols) {
+                                 const pen_render_options *opt, pen_render_state *state,
+                                 pen_image *base, pen_image *cols) {
     const int nb = sc->sh_bands * sc->sh_bands;
     pen_scene v = *sc; /* shallow: only the lighting differs */
     memset(v.lighting.sh, 0, sizeof v.lighting.sh);
-    pen_status s = pen_render_fwd(ctx, &v, opt, NULL, base);
+    pen_status s = pen_render_fwd(ctx, &v, opt, state, base);
     const size_t n = 3 * (size_t)sc->camera.width * (size_t)sc->camera.height;
     for (int k = 0; !s && k < nb; ++k) {
         v.lighting.sh[k][0] = v.lighting.sh[k][1] = v.lighting.sh[k][2] = 1.0f;
-        s = pen_render_fwd(ctx, &v, opt, NULL, &cols[k]);
+        s = pen_render_fwd(ctx, &v, opt, state, &cols[k]);
         v.lighting.sh[k][0] = v.lighting.sh[k][1] = v.lighting.sh[k][2] = 0.0f;
         for (size_t i = 0; !s && i < n; ++i)
             cols[k].data[i] -= base->data[i];
@@ -244,7 +245,7 @@ pen_status pen__optim_fit_lighting(pen_context *ctx, const pen_scene *sc, const 
     float *model = pen__malloc(ctx, 3 * pixels, sizeof(float), "lighting fit");
     float *mask = pen__malloc(ctx, pixels, sizeof(float), "lighting fit");
     pen_status s = cols && model && mask ? PEN_OK : PEN_ERROR_MEMORY;
-    if (!s) s = lighting_basis(ctx, sc, &opt, &base, cols);
+    if (!s) s = lighting_basis(ctx, sc, &opt, NULL, &base, cols);
     if (!s) s = fit_coefficients(ctx, target, &base, cols, nb, NULL, ridge, NULL, sh);
     if (!s) {
         model_image(&base, cols, nb, (const float(*)[3])sh, model);
@@ -260,13 +261,14 @@ pen_status pen__optim_fit_lighting(pen_context *ctx, const pen_scene *sc, const 
 }
 
 pen_status pen__optim_solve_lighting(pen_context *ctx, const pen_scene *sc,
-                                     const pen_render_options *opt, const pen_image *target,
+                                     const pen_render_options *opt, pen_render_state *state,
+                                     const pen_image *target,
                                      const float *weight, double ridge, double mu[3],
                                      float (*sh)[3]) {
     const int nb = sc->sh_bands * sc->sh_bands;
     pen_image base = {0, 0, 0, NULL};
     pen_image *cols = pen__calloc(ctx, (size_t)nb, sizeof *cols, "lighting solve");
-    pen_status s = cols ? lighting_basis(ctx, sc, opt, &base, cols) : PEN_ERROR_MEMORY;
+    pen_status s = cols ? lighting_basis(ctx, sc, opt, state, &base, cols) : PEN_ERROR_MEMORY;
     if (!s) s = fit_coefficients(ctx, target, &base, cols, nb, weight, ridge, mu, sh);
     basis_free(&base, cols, nb);
     return s;

@@ -104,9 +104,12 @@ pen_status pen__optim_fit_lighting(pen_context *ctx, const pen_scene *sc, const 
  * I the scene rendered with `opt` (shadows or not) and lighting L, w = weight (NULL: 1), from one
  * render per coefficient (the render is affine in L). mu[c] < 0 on entry: set to ridge * the
  * largest diagonal entry of channel c's normal equations and written back; mu[c] >= 0: used as
- * it is, so repeated solves minimise one fixed objective. The result goes into sh (bands^2). */
+ * it is, so repeated solves minimise one fixed objective. The result goes into sh (bands^2).
+ * state (may be NULL) is reused by the renders: a state kept across solves keeps what does not
+ * depend on the lighting between them (the antialiasing adjacency, the envmap background). */
 pen_status pen__optim_solve_lighting(pen_context *ctx, const pen_scene *sc,
-                                     const pen_render_options *opt, const pen_image *target,
+                                     const pen_render_options *opt, pen_render_state *state,
+                                     const pen_image *target,
                                      const float *weight, double ridge, double mu[3],
                                      float (*sh)[3]);
 /* Ridges (relative to the largest diagonal entry of the normal equations): the shadow mask

@@ -64,6 +64,7 @@ typedef struct run {
     double mu[3];             /* the ridge per channel, fixed at the initial guess */
     double weight_sum;        /* of the loss weights (the pixel count without them) */
     float *solved_for;        /* the parameters the lighting in x was solved for */
+    pen_render_state *solve_state; /* the solves' renders (kept: see solve_lighting) */
     int solved;               /* solved_for is valid */
 } run;
 
@@ -148,6 +149,7 @@ static void run_free(run *r) {
     free(r->best);
     free(r->weight);
     free(r->solved_for);
+    pen_render_state_free(r->solve_state);
     for (int o = 0; r->deform && o < r->sc->object_count; ++o) {
         object_deform *D = &r->deform[o];
         pen__optim_deform_free(&D->graph);
@@ -338,8 +340,9 @@ static pen_status solve_lighting(pen_context *ctx, const pen_optim_task *t,
     const size_t nl = 3 * (size_t)r->sc->sh_bands * (size_t)r->sc->sh_bands;
     const size_t rest = r->n - nl; /* the lighting segment comes first (layout) */
     if (r->solved && memcmp(r->solved_for, r->x + nl, sizeof(float) * rest) == 0) return PEN_OK;
-    pen_status s = pen__optim_solve_lighting(ctx, r->sc, opt, &t->target, r->weight,
-                                             t->lighting_ridge, r->mu, r->sc->lighting.sh);
+    pen_status s = pen__optim_solve_lighting(ctx, r->sc, opt, r->solve_state, &t->target,
+                                             r->weight, t->lighting_ridge, r->mu,
+                                             r->sc->lighting.sh);
     if (s) return s;
     for (size_t k = 0; k < nl; ++k)
         r->x[r->lighting + k] = r->sc->lighting.sh[k / 3][k % 3];
@@ -633,6 +636,8 @@ static pen_status lighting_solver_init(pen_context *ctx, const pen_optim_task *t
     r->mu[0] = r->mu[1] = r->mu[2] = -1.0;
     r->solved_for = pen__calloc(ctx, r->n + 1, sizeof(float), "lighting solve");
     if (!r->solved_for) return PEN_ERROR_MEMORY;
+    pen_status s = pen_render_state_create(ctx, &r->solve_state);
+    if (s) return s;
     pen_render_options opt = pen_render_options_default();
     opt.shadows = set->shadows;
     return solve_lighting(ctx, t, &opt, r);
