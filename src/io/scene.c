@@ -560,7 +560,8 @@ static cJSON *shadow_json(const pen_shadow *sh) {
     int ok =
         o && add(o, "epsilon", pen__json_float(sh->epsilon)) &&
         add(o, "exp", cJSON_CreateString(pen_sh_exp_method_name(sh->exp))) &&
-        add(o, "overlap", cJSON_CreateString(sh->overlap == PEN_OVERLAP_NONE ? "none" : "weights")) &&
+        add(o, "overlap",
+            cJSON_CreateString(sh->overlap == PEN_OVERLAP_NONE ? "none" : "weights")) &&
         add(o, "ground",
             cJSON_CreateString(sh->ground == PEN_GROUND_RECEIVER ? "receiver" : "occludes"));
     if (!ok) cJSON_Delete(o);

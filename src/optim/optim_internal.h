@@ -117,8 +117,9 @@ pen_status pen__optim_solve_lighting(pen_context *ctx, const pen_scene *sc,
 #define PEN__OPTIM_RIDGE_MASK 1e-9
 #define PEN__OPTIM_RIDGE_INIT 1e-2
 /* The shadow mask of optim.h ("shadow_weight") for the scene `sc` (the initial guess; the
- * ground truth for the metrics) against `target`: mask[p] in [0, 1] per pixel. fit_lighting: U's lighting is the least-squares fit to
- * the target instead of the scene's. Renders with the context's threads. */
+ * ground truth for the metrics) against `target`: mask[p] in [0, 1] per pixel. fit_lighting:
+ * U's lighting is the least-squares fit to the target instead of the scene's. Renders with the
+ * context's threads. */
 pen_status pen__optim_shadow_mask(pen_context *ctx, const pen_scene *sc, const pen_image *target,
                                   int fit_lighting, float *mask);
 

@@ -402,8 +402,8 @@ static pen_status check_task(pen_context *ctx, const pen_optim_task *t) {
                           "and the l2 loss",
                           name);
     if (!(t->lighting_ridge >= 0.0) || !isfinite(t->lighting_ridge))
-        return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: lighting_ridge must be a finite number >= 0",
-                          name);
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: lighting_ridge must be a finite number >= 0", name);
     const float lr[7] = {t->lr.lighting, t->lr.albedo,  t->lr.rotation,
                          t->lr.translation, t->lr.spheres, t->lr.deformation_rotation,
                          t->lr.deformation_translation};

@@ -522,7 +522,6 @@ static int thread_count(const pen_context *ctx) {
     return t > 0 ? t : omp_get_max_threads();
 }
 
-/* Poses the geometry, rasterizes, and interpolates the per-pixel attributes into st. */
 /* The ground plane as an occluder of the objects. The reference ray-traces the ground, so a
  * surface facing down or sideways loses the light from below the horizon; spheres cannot say
  * that (a plane is no sphere), and without it the model lights the undersides of objects with
@@ -567,6 +566,7 @@ static const float (*lighting_of(const pen_scene *sc, const pen_render_state *st
                                             : (const float(*)[3])sc->lighting.sh;
 }
 
+/* Poses the geometry, rasterizes, and interpolates the per-pixel attributes into st. */
 static pen_status prepare(pen_context *ctx, const pen_scene *sc, const pen_render_options *opt,
                           pen_render_state *st) {
     pen_status s = validate(ctx, sc);
