@@ -214,6 +214,10 @@ expect_error 'bad.json: optimize\[1\]: "deformation" and "spheres" both move the
     '{"scene": "truth.json", "target": "target.exr", "optimize": ["spheres", "deformation"]}'
 expect_error 'bad.json: deformation.k: expected an integer in \[1, 32\]' \
     '{"scene": "truth.json", "target": "target.exr", "optimize": ["deformation"], "deformation": {"k": 0}}'
+expect_error 'bad.json: spheres.w_smooth: expected a weight >= 0' \
+    '{"scene": "truth.json", "target": "target.exr", "optimize": ["spheres"], "spheres": {"w_smooth": -1}}'
+expect_error 'bad.json: spheres.w_reg: unknown key' \
+    '{"scene": "truth.json", "target": "target.exr", "optimize": ["spheres"], "spheres": {"w_reg": 1}}'
 expect_error 'bad.json: lighting_solver: unknown lighting solver "newton"' \
     '{"scene": "truth.json", "target": "target.exr", "optimize": ["lighting"], "lighting_solver": "newton"}'
 expect_error 'bad.json: lighting_solver: "least_squares" needs "lighting" in optimize and the l2 loss' \

@@ -101,6 +101,7 @@ static inline pen_optim_task os_task(pen_scene scene, pen_scene truth, unsigned 
     t.window = 10;
     t.init_black = 1;
     t.deformation = pen_optim_deformation_default();
+    t.spheres = pen_optim_spheres_default();
     t.target = os_reference(&t.ground_truth);
     return t;
 }

@@ -129,20 +129,25 @@ static pen_optim_result solve(pen_optim_task *t, int shadows) {
 }
 
 /* Result fields hold together: the loss curve starts at the initial render's loss, the final
- * render is the best iterate's and reproduces final_loss, the best is no worse than any. */
-static void check_result(const pen_optim_task *t, const pen_optim_result *r) {
+ * render is the best iterate's and reproduces final_loss (plus `reg`, the regulariser at the
+ * recovered parameters; 0 at the start), the best is no worse than any. */
+static void check_result_reg(const pen_optim_task *t, const pen_optim_result *r, double reg) {
     CHECK(r->losses && r->initial.data && r->final.data);
     if (!r->losses || !r->final.data) return;
     double l0 = 0.0, lf = 0.0;
     CHECK(pen_loss_l2(NULL, &r->initial, &t->target, &l0, NULL) == PEN_OK);
     CHECK(pen_loss_l2(NULL, &r->final, &t->target, &lf, NULL) == PEN_OK);
     CHECK_REL(l0, r->losses[0], 1e-9, 0);
-    CHECK_REL(lf, r->final_loss, 1e-9, 0);
+    CHECK_REL(lf + reg, r->final_loss, 1e-9, 0);
     for (int i = 0; i <= r->iterations; ++i)
         CHECK(r->final_loss <= r->losses[i] * (1 + 1e-12));
     CHECK(r->best_iteration >= 0 && r->best_iteration <= r->iterations);
     CHECK_REL(r->losses[r->best_iteration], r->final_loss, 1e-9, 0);
     CHECK(r->final_loss < r->losses[0]);
+}
+
+static void check_result(const pen_optim_task *t, const pen_optim_result *r) {
+    check_result_reg(t, r, 0.0);
 }
 
 /* Lighting, 2 bands (12 coefficients) from black. Measured: 0.210 relative error (0.185 before
@@ -338,11 +343,33 @@ static void test_lighting_metrics(void) {
     CHECK(pen__optim_metrics(NULL, &t, &m) == PEN_OK);
     CHECK_NEAR(m.lighting_rel_error, 0.1, 1e-6);
     CHECK_NEAR(m.lighting_rel_error_b2, 0.1, 1e-6);
+    CHECK_NEAR(m.lighting_rel_error_sky, 0.1, 1e-6);
     memcpy(t.scene.lighting.sh, t.ground_truth.lighting.sh, sizeof t.scene.lighting.sh);
     t.scene.lighting.sh[12][1] += 1.0f;
     CHECK(pen__optim_metrics(NULL, &t, &m) == PEN_OK);
     CHECK(m.lighting_rel_error > 0.1);
     CHECK_NEAR(m.lighting_rel_error_b2, 0.0, 1e-12);
+    /* The sky error against a midpoint quadrature of the squared radiance over y > 0 (the SH
+     * evaluated directly, 400 x 800 cells in (y, phi)): an error in one band-3 coefficient. */
+    double num = 0.0, den = 0.0;
+    for (int a = 0; a < 400; ++a)
+        for (int b = 0; b < 800; ++b) {
+            const double y = (a + 0.5) / 400.0, r = sqrt(1.0 - y * y);
+            const double phi = 2.0 * PEN_PI * (b + 0.5) / 800.0;
+            const double d[3] = {r * cos(phi), y, r * sin(phi)};
+            double Y[16];
+            pen_sh_eval_d(4, d, Y);
+            for (int ch = 0; ch < 3; ++ch) {
+                double e = 0.0, l = 0.0;
+                for (int k = 0; k < 16; ++k) {
+                    const double truth = t.ground_truth.lighting.sh[k][ch];
+                    e += ((double)t.scene.lighting.sh[k][ch] - truth) * Y[k];
+                    l += truth * Y[k];
+                }
+                num += e * e, den += l * l;
+            }
+        }
+    CHECK_REL(m.lighting_rel_error_sky, sqrt(num / den), 1e-4, 0);
     pen_optim_task_free(&t);
 }
 
@@ -427,30 +454,48 @@ static void test_lighting_pose(void) {
  * volume IoU against the true spheres falls (0.386 -> 0.348: they slid along the light). Without
  * shadows the spheres get no gradient and nothing moves. */
 static void test_spheres_from_shadow(void) {
-    double iou[2] = {0, 0}, chamfer[2] = {0, 0}, shadow_iou[2] = {0, 0}, start_iou = 0.0, start_chamfer = 0.0;
-    double start_shadow = 0.0;
-    for (int shadows = 1; shadows >= 0; --shadows) {
+    /* runs: 0 without shadows, 1 with shadows and the default smoothness, 2 with shadows and
+     * none (w_smooth = 0) */
+    double iou[3] = {0}, chamfer[3] = {0}, shadow_iou[3] = {0};
+    double start_iou = 0.0, start_chamfer = 0.0, start_shadow = 0.0;
+    for (int run = 0; run < 3; ++run) {
+        const int shadows = run > 0;
         pen_optim_task t = os_task(os_shadow_view(64), os_shadow_view(64), PEN_OPTIM_SPHERES,
                                    check_quick_() ? 20 : 400);
+        if (run == 2) t.spheres.w_smooth = 0.0;
         pen_spheres *sp = &t.scene.objects[0].spheres;
         for (int j = 0; j < sp->count; ++j) {
             sp->data[4 * j] += 0.12f;
             sp->data[4 * j + 2] -= 0.1f;
             sp->data[4 * j + 3] *= 0.7f;
         }
+        double start[4 * 8];
+        CHECK(sp->count <= 8);
+        for (int i = 0; i < 4 * sp->count; ++i)
+            start[i] = sp->data[i];
+        pen__deform_graph graph;
+        const pen_mesh none = {0};
+        CHECK(pen__optim_deform_build(NULL, &none, sp, t.spheres.k, &graph) == PEN_OK);
         pen_optim_metrics m0;
         memset(&m0, 0, sizeof m0);
         CHECK(pen__optim_metrics(NULL, &t, &m0) == PEN_OK);
         start_iou = m0.sphere_iou, start_chamfer = m0.sphere_chamfer, start_shadow = m0.shadow_iou;
         pen_optim_result r = solve(&t, shadows);
-        if (shadows) check_result(&t, &r);
-        iou[shadows] = r.metrics.sphere_iou, chamfer[shadows] = r.metrics.sphere_chamfer;
-        shadow_iou[shadows] = r.metrics.shadow_iou;
+        /* the recorded losses add the smoothness of the recovered spheres */
+        double end[4 * 8];
+        for (int i = 0; i < 4 * sp->count; ++i)
+            end[i] = sp->data[i];
+        const double reg = pen__optim_spheres_energy(&graph, start, end, t.spheres.w_smooth, NULL);
+        if (shadows) check_result_reg(&t, &r, reg);
+        if (run == 1) CHECK(reg > 0.0);
+        pen__optim_deform_free(&graph);
+        iou[run] = r.metrics.sphere_iou, chamfer[run] = r.metrics.sphere_chamfer;
+        shadow_iou[run] = r.metrics.shadow_iou;
         if (shadows && !check_quick_()) CHECK(r.final_loss < 0.4 * r.losses[0]);
-        printf("  %-10s sphere IoU %.3f -> %.3f, centre Chamfer %.4f -> %.4f, shadow IoU %.3f -> "
-               "%.3f\n",
-               shadows ? "shadows" : "no shadows", start_iou, iou[shadows], start_chamfer,
-               chamfer[shadows], start_shadow, shadow_iou[shadows]);
+        printf("  %-22s sphere IoU %.3f -> %.3f, centre Chamfer %.4f -> %.4f, shadow IoU %.3f "
+               "-> %.3f\n",
+               run == 0 ? "no shadows" : run == 1 ? "shadows" : "shadows, no smoothness",
+               start_iou, iou[run], start_chamfer, chamfer[run], start_shadow, shadow_iou[run]);
         pen_optim_result_free(&r);
         pen_optim_task_free(&t);
     }
@@ -458,11 +503,14 @@ static void test_spheres_from_shadow(void) {
     if (!check_quick_()) {
         CHECK_MSG(shadow_iou[1] > start_shadow + 0.1, "silhouette IoU %.3f from %.3f",
                   shadow_iou[1], start_shadow);
+        /* smoothness keeps the volume together: without it spheres collapse and swell */
+        CHECK_MSG(iou[1] > start_iou + 0.05 && iou[1] > iou[2] + 0.05,
+                  "sphere IoU %.3f (without smoothness %.3f) from %.3f", iou[1], iou[2],
+                  start_iou);
     }
     /* no shadows, no gradient: the spheres stay where they started */
     CHECK(iou[0] == start_iou && chamfer[0] == start_chamfer && shadow_iou[0] == start_shadow);
 }
-
 
 /* The truth scene with a ball (radius 0.5, one exact proxy sphere, constant albedo 0.5) hung 1.0
  * above the ellipsoid's centre towards the overhead light, at the top of the frame: its soft

@@ -149,27 +149,72 @@ static void test_deform_bwd_fd(void) {
     pen__optim_deform_free(&g);
 }
 
-/* The regularisers' gradient against central differences (double, h = 1e-6), far from rest. */
+/* An energy of n doubles (the rest of its arguments in `u`), its gradient added into grad (NULL:
+ * none). */
+typedef double (*energy_fn)(const double *p, void *u, double *grad);
+
+/* The largest relative error of grad against central differences of f (h = 1e-6) over p. */
+static double worst_fd_error(energy_fn f, void *u, double *p, int n, const double *grad) {
+    double worst = 0.0;
+    for (int i = 0; i < n; ++i) {
+        const double keep = p[i];
+        p[i] = keep + 1e-6;
+        const double fp = f(p, u, NULL);
+        p[i] = keep - 1e-6;
+        const double fm = f(p, u, NULL);
+        p[i] = keep;
+        const double fd = (fp - fm) / 2e-6;
+        worst = fmax(worst, fabs(fd - grad[i]) / fmax(fabs(fd), 1.0));
+    }
+    return worst;
+}
+
+static double deform_energy(const double *p, void *u, double *grad) {
+    return pen__optim_deform_energy(u, p, 0.7, 1.9, grad);
+}
+
+/* The regularisers' gradient against central differences (double), far from rest. */
 static void test_energy_grad_fd(void) {
     pen__deform_graph g;
     random_graph(10, 6, 3, &g);
     double p[72], d_p[72] = {0};
     random_params(&g, 0.4, p);
-    const double w_rot = 0.7, w_reg = 1.9;
-    const double e = pen__optim_deform_energy(&g, p, w_rot, w_reg, d_p);
-    CHECK(e > 0.0);
-    double worst = 0.0;
-    for (int i = 0; i < 72; ++i) {
-        const double keep = p[i];
-        p[i] = keep + 1e-6;
-        const double fp = pen__optim_deform_energy(&g, p, w_rot, w_reg, NULL);
-        p[i] = keep - 1e-6;
-        const double fm = pen__optim_deform_energy(&g, p, w_rot, w_reg, NULL);
-        p[i] = keep;
-        const double fd = (fp - fm) / 2e-6;
-        worst = fmax(worst, fabs(fd - d_p[i]) / fmax(fabs(fd), 1.0));
-    }
+    CHECK(deform_energy(p, &g, d_p) > 0.0);
+    const double worst = worst_fd_error(deform_energy, &g, p, 72, d_p);
     CHECK_MSG(worst < 1e-7, "worst relative error %.3g", worst);
+    pen__optim_deform_free(&g);
+}
+
+typedef struct spheres_args {
+    const pen__deform_graph *graph;
+    const double *start;
+} spheres_args;
+
+static double spheres_energy(const double *p, void *u, double *grad) {
+    const spheres_args *a = u;
+    return pen__optim_spheres_energy(a->graph, a->start, p, 2.3, grad);
+}
+
+/* The spheres group's smoothness (on a graph of the spheres alone): zero for equal moves, its
+ * gradient against central differences (double), and the backward adds. */
+static void test_spheres_energy(void) {
+    pen__deform_graph g;
+    random_graph(0, 7, 3, &g);
+    double s0[28], s[28], d_s[28] = {0};
+    for (int i = 0; i < 28; ++i)
+        s0[i] = check_rand_(&seed), s[i] = s0[i] + (i % 4 == 3 ? 0.05 : 0.2);
+    CHECK_NEAR(pen__optim_spheres_energy(&g, s0, s, 1.0, NULL), 0.0, 1e-28);
+    for (int i = 0; i < 28; ++i)
+        s[i] = s0[i] + 0.3 * (check_rand_(&seed) * 2.0 - 1.0);
+    spheres_args args = {&g, s0};
+    CHECK(spheres_energy(s, &args, d_s) > 0.0);
+    const double worst = worst_fd_error(spheres_energy, &args, s, 28, d_s);
+    CHECK_MSG(worst < 1e-8, "worst relative error %.3g", worst);
+    double again[28];
+    memcpy(again, d_s, sizeof again);
+    spheres_energy(s, &args, again);
+    for (int i = 0; i < 28; ++i)
+        CHECK_NEAR(again[i], 2.0 * d_s[i], 1e-12);
     pen__optim_deform_free(&g);
 }
 
@@ -259,4 +304,4 @@ static void test_deformation_recovery(void) {
 }
 
 RUN_TESTS(TEST(test_graph_structure), TEST(test_rest_and_rigid), TEST(test_deform_bwd_fd),
-          TEST(test_energy_grad_fd), TEST(test_deformation_recovery))
+          TEST(test_energy_grad_fd), TEST(test_spheres_energy), TEST(test_deformation_recovery))

@@ -159,24 +159,37 @@ static void test_resume_lighting_pose(void) {
 
 static void test_resume_deformation(void) { check_resume(PEN_OPTIM_DEFORMATION, "deformation"); }
 
-/* A checkpoint is refused by a task with another initial guess, and when damaged. */
-static void test_resume_refused(void) {
-    char dir[] = "/tmp/pen_resume_XXXXXX";
+/* Runs `groups` into the fresh folder made from the template `dir`, then resumes it with `edit`
+ * applied to the task, which must be refused with `message`; returns the folder (the caller
+ * cleans it up). */
+static char *refused_resume(unsigned groups, void (*edit)(pen_optim_task *), const char *message,
+                            char *dir) {
     CHECK(mkdtemp(dir) != NULL);
     pen_optim_task t;
-    pen_optim_result r = run(PEN_OPTIM_POSE, dir, 0, 0, NULL, &t);
+    pen_optim_result r = run(groups, dir, 0, 0, NULL, &t);
     pen_optim_result_free(&r);
     pen_optim_task_free(&t);
-    t = make_task(PEN_OPTIM_POSE);
-    t.scene.objects[0].pose.translation[2] += 0.01f;
+    t = make_task(groups);
+    edit(&t);
     pen_context *ctx = pen_context_create();
     pen_optim_settings set = pen_optim_settings_default();
     set.outdir = dir;
     set.resume = 1;
     CHECK(pen_optim_run(ctx, &t, &set, &r) == PEN_ERROR_ARGUMENT);
-    CHECK(strstr(pen_context_error(ctx), "checkpoint.bin: made for another initial guess"));
+    CHECK_MSG(strstr(pen_context_error(ctx), message), "%s", pen_context_error(ctx));
     CHECK(r.losses == NULL && r.final.data == NULL);
     pen_optim_task_free(&t);
+    pen_context_destroy(ctx);
+    return dir;
+}
+
+static void move_start(pen_optim_task *t) { t->scene.objects[0].pose.translation[2] += 0.01f; }
+
+/* A checkpoint is refused by a task with another initial guess, and when damaged. */
+static void test_resume_refused(void) {
+    char dir[] = "/tmp/pen_resume_XXXXXX";
+    refused_resume(PEN_OPTIM_POSE, move_start, "checkpoint.bin: made for another initial guess",
+                   dir);
     /* one flipped bit anywhere is caught: here in Adam's moments */
     const char *path = path_in(dir, "checkpoint.bin");
     FILE *f = fopen(path, "r+b");
@@ -188,7 +201,12 @@ static void test_resume_refused(void) {
         fputc(c ^ 4, f);
         fclose(f);
     }
-    t = make_task(PEN_OPTIM_POSE);
+    pen_optim_task t = make_task(PEN_OPTIM_POSE);
+    pen_context *ctx = pen_context_create();
+    pen_optim_settings set = pen_optim_settings_default();
+    set.outdir = dir;
+    set.resume = 1;
+    pen_optim_result r;
     CHECK(pen_optim_run(ctx, &t, &set, &r) == PEN_ERROR_PARSE);
     CHECK(strstr(pen_context_error(ctx), "checkpoint.bin: damaged checkpoint (checksum mismatch)"));
     pen_optim_task_free(&t);
@@ -196,5 +214,15 @@ static void test_resume_refused(void) {
     cleanup(dir);
 }
 
+static void stiffer(pen_optim_task *t) { t->spheres.w_smooth *= 2.0; }
+
+/* The regularisers are part of the objective: a checkpoint of the spheres group is refused by
+ * the same task with another smoothness weight. */
+static void test_resume_other_regularisers(void) {
+    char dir[] = "/tmp/pen_resume_XXXXXX";
+    cleanup(refused_resume(PEN_OPTIM_SPHERES, stiffer,
+                           "checkpoint.bin: made with other regularisers", dir));
+}
+
 RUN_TESTS(TEST(test_resume_lighting_pose), TEST(test_resume_deformation),
-          TEST(test_resume_refused))
+          TEST(test_resume_refused), TEST(test_resume_other_regularisers))

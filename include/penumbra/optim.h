@@ -91,6 +91,16 @@ typedef struct pen_optim_deformation {
 
 pen_optim_deformation pen_optim_deformation_default(void);
 
+/* The "spheres" group's regulariser: w_smooth E_smooth, E_smooth = sum_j sum_{k in N(j)}
+ * |d_j - d_k|^2 with d_j = (centre, radius) of sphere j minus its initial value and N(j) its k
+ * nearest spheres at the start: neighbouring spheres move and grow alike. */
+typedef struct pen_optim_spheres {
+    int k;           /* default 4 */
+    double w_smooth; /* default 0 */
+} pen_optim_spheres;
+
+pen_optim_spheres pen_optim_spheres_default(void);
+
 /* The shadow-weighted loss (task key "shadow_weight" = s >= 0). Per pixel p of the target T,
  *     m_p = clamp(1 - Y(T_p) / Y(U_p), 0, 1),   Y = the mean of the three channels,
  * the fraction of the light an unshadowed model predicts that the target lacks (0 where
@@ -135,6 +145,7 @@ typedef struct pen_optim_task {
     int init_fit;       /* 1 ("init": "fit"): as init_black, but optimised lighting starts at the
                            least-squares fit of the unshadowed render to the target */
     pen_optim_deformation deformation;
+    pen_optim_spheres spheres; /* with the "spheres" group */
     double shadow_weight; /* >= 0 (default 0): stresses the target's shadows in the loss,
                              below */
     pen_optim_lighting_solver lighting_solver; /* default PEN_OPTIM_LIGHTING_ADAM */
@@ -198,6 +209,9 @@ typedef struct pen_optim_metrics {
     double lighting_rel_error_b2; /* the same over bands 0..2 only, the bands an unshadowed
                                      diffuse surface sees (band 3 reaches it only through
                                      shadows); when there are more than 3 bands */
+    double lighting_rel_error_sky; /* the radiance's error over the upper hemisphere (y > 0),
+                                     the integral of its square relative to the truth's: the
+                                     light the ground does not hide */
     double albedo_psnr_db;      /* 10 log10(1 / mse), peak 1, of the albedo the camera sees: the
                                    recovered and the true objects rendered alone under unit
                                    radiance without shadows (pixel = albedo), over the pixels

@@ -15,6 +15,8 @@
  *     u64 n  u32 segments  {u64 offset, u64 count, u32 bound} per segment
  *     u32 groups  i32 loss  i32 shadows  i32 width  i32 height  f64 shadow_weight
  *     i32 lighting_solver  f64 lighting_ridge
+ *     i32 graph_k  f64 weights[3]   (the regularisers: deformation k, w_rot, w_reg or spheres k,
+ *                                   w_smooth, 0; zeros without either group)
  *     u64 target_hash  u64 init_hash
  *     i32 iteration  i32 recorded  i32 best_iteration  i32 adam_t  f64 best_loss  f64 seconds
  *     f32 x[n]  f32 best[n]  f32 m[n]  f32 v[n]  f64 losses[recorded]
@@ -32,7 +34,7 @@
 #include <unistd.h>
 
 #define CHECKPOINT_MAGIC "PENOPTCK"
-#define CHECKPOINT_VERSION 2u
+#define CHECKPOINT_VERSION 3u
 #define CHECKPOINT_ORDER 0x01020304u
 
 uint64_t pen__optim_hash(uint64_t h, const void *data, size_t size) {
@@ -77,6 +79,9 @@ static void put_identity(writer *w, const pen__optim_identity *id) {
     put_f64(w, id->shadow_weight);
     put_i32(w, id->lighting_solver);
     put_f64(w, id->lighting_ridge);
+    put_i32(w, id->graph_k);
+    for (int k = 0; k < 3; ++k)
+        put_f64(w, id->weights[k]);
     put_u64(w, id->target_hash);
     put_u64(w, id->init_hash);
 }
@@ -204,6 +209,10 @@ static pen_status check_identity(pen_context *ctx, const char *path, reader *r,
     const double weight = get_f64(r);
     const int32_t solver = get_i32(r);
     const double ridge = get_f64(r);
+    const int32_t graph_k = get_i32(r);
+    double weights[3];
+    for (int k = 0; k < 3; ++k)
+        weights[k] = get_f64(r);
     const uint64_t target = get_u64(r), init = get_u64(r);
     if (!r->ok) return pen__error(ctx, PEN_ERROR_PARSE, "%s: truncated checkpoint", path);
     if (groups != id->groups)
@@ -226,6 +235,12 @@ static pen_status check_identity(pen_context *ctx, const char *path, reader *r,
                           "%s, ridge %g",
                           path, solver ? "least_squares" : "adam", ridge,
                           id->lighting_solver ? "least_squares" : "adam", id->lighting_ridge);
+    if (graph_k != id->graph_k || memcmp(weights, id->weights, sizeof weights) != 0)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: made with other regularisers (k %d, weights %g %g %g), this "
+                          "task's are k %d, weights %g %g %g",
+                          path, graph_k, weights[0], weights[1], weights[2], id->graph_k,
+                          id->weights[0], id->weights[1], id->weights[2]);
     if (w != id->width || h != id->height || target != id->target_hash)
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "%s: made for another target image (%dx%d, or other pixels)", path, w, h);

@@ -17,7 +17,14 @@
  * Everything runs in double (graphs are small: tens of nodes); the caller converts.
  * Parameter layout: params[9 j .. 9 j + 9) = A_j row-major for j < M, then
  * params[9 M + 3 j .. + 3) = t_j, so that the matrices and the translations form two runs that
- * take different learning rates (supplement 5.1: 1e-3 and 1e-2). */
+ * take different learning rates (supplement 5.1: 1e-3 and 1e-2).
+ *
+ * The "spheres" group, which moves every sphere's centre and radius freely, borrows the node
+ * graph (built with no vertices) for its smoothness regulariser
+ *     E_smooth = sum_j sum_{k in N(j)} |d_j - d_k|^2,   d_j = s_j - s0_j,
+ * s_j = (centre, radius) and s0_j its initial value: neighbouring spheres move and grow alike.
+ * One shadow determines the union's outline seen from the light, not how the overlapping spheres
+ * share it; without the term some spheres shrink to nothing while their neighbours swell. */
 #include "optim/optim_internal.h"
 
 #include <stdlib.h>
@@ -238,4 +245,23 @@ double pen__optim_deform_energy(const pen__deform_graph *graph, const double *pa
         }
     }
     return w_rot * e_rot + w_reg * e_reg;
+}
+
+double pen__optim_spheres_energy(const pen__deform_graph *graph, const double *initial,
+                                 const double *spheres, double w, double *d_spheres) {
+    const int M = graph->nodes, KN = graph->kn;
+    double e = 0.0;
+    for (int j = 0; j < M; ++j)
+        for (int n = 0; n < KN; ++n) {
+            const int k = graph->nn[j * KN + n];
+            for (int c = 0; c < 4; ++c) {
+                const double dj = spheres[4 * j + c] - initial[4 * j + c];
+                const double dk = spheres[4 * k + c] - initial[4 * k + c];
+                e += (dj - dk) * (dj - dk);
+                if (!d_spheres) continue;
+                d_spheres[4 * j + c] += 2.0 * w * (dj - dk);
+                d_spheres[4 * k + c] -= 2.0 * w * (dj - dk);
+            }
+        }
+    return w * e;
 }

@@ -28,6 +28,7 @@
 #include "optim/optim_internal.h"
 
 #include "penumbra/render.h"
+#include "sh/sh_internal.h"
 
 #include <stdlib.h>
 #include <string.h>
@@ -108,6 +109,27 @@ static double lighting_error(const pen_scene *sc, const pen_scene *gt, int bands
             den += (double)gt->lighting.sh[k][ch] * (double)gt->lighting.sh[k][ch];
         }
     return den > 0.0 ? sqrt(num / den) : (num > 0.0 ? (double)INFINITY : 0.0);
+}
+
+/* The same for the radiance over the sky, the directions above the horizon (y > 0): the
+ * integral of the squared error function over them, e^T M e with M = pen__sh_above(0) the
+ * basis's Gram matrix on the upper hemisphere, relative to the truth's. The ground hides the
+ * lower hemisphere from the scene, so no image of it determines the light from below. */
+static double lighting_error_sky(const pen_scene *sc, const pen_scene *gt) {
+    const int n = sc->sh_bands * sc->sh_bands;
+    double M[PEN_SH_MAX_COEFFS * PEN_SH_MAX_COEFFS];
+    pen__sh_above(sc->sh_bands, 0.0, M, NULL);
+    double num = 0.0, den = 0.0;
+    for (int ch = 0; ch < 3; ++ch)
+        for (int j = 0; j < n; ++j)
+            for (int k = 0; k < n; ++k) {
+                const double tj = gt->lighting.sh[j][ch], tk = gt->lighting.sh[k][ch];
+                const double ej = (double)sc->lighting.sh[j][ch] - tj;
+                const double ek = (double)sc->lighting.sh[k][ch] - tk;
+                num += ej * M[j * n + k] * ek;
+                den += tj * M[j * n + k] * tk;
+            }
+    return den > 0.0 ? sqrt(fmax(num, 0.0) / den) : (num > 0.0 ? (double)INFINITY : 0.0);
 }
 
 /* ---- Albedo ---------------------------------------------------------------------------------- */
@@ -458,6 +480,7 @@ pen_status pen__optim_metrics(pen_context *ctx, const pen_optim_task *t, pen_opt
         m->lighting_rel_error = lighting_error(&t->scene, &t->ground_truth, t->scene.sh_bands);
         if (t->scene.sh_bands > 3)
             m->lighting_rel_error_b2 = lighting_error(&t->scene, &t->ground_truth, 3);
+        m->lighting_rel_error_sky = lighting_error_sky(&t->scene, &t->ground_truth);
     }
     if (t->optimize & (PEN_OPTIM_POSE | PEN_OPTIM_DEFORMATION)) pose_error(t, m);
     if (t->optimize & PEN_OPTIM_SPHERES) s = sphere_error(ctx, t, m);

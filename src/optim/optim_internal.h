@@ -82,6 +82,13 @@ void pen__optim_deform_bwd(const pen__deform_graph *graph, const double *params,
 double pen__optim_deform_energy(const pen__deform_graph *graph, const double *params, double w_rot,
                                 double w_reg, double *d_params);
 
+/* The spheres group's smoothness w E_smooth (deform.c) over a graph built on the initial spheres
+ * (no vertices); `initial` and `spheres` hold 4 values (centre, radius) per sphere, in double like
+ * the deformation's parameters (the caller converts). Adds its
+ * gradient into d_spheres (may be NULL). */
+double pen__optim_spheres_energy(const pen__deform_graph *graph, const double *initial,
+                                 const double *spheres, double w, double *d_spheres);
+
 /* ---- Weighted loss and shadow mask (src/optim/loss.c) --------------------------------------- */
 
 /* loss = sum_p w_p sum_c rho(image_pc - target_pc) / (C sum_p w_p) over the pixels p and the C
@@ -135,6 +142,8 @@ typedef struct pen__optim_identity {
     double shadow_weight;
     int lighting_solver;   /* pen_optim_lighting_solver */
     double lighting_ridge;
+    int graph_k;          /* the regularisers: deformation (k; w_rot, w_reg, 0) or spheres */
+    double weights[3];    /* (k; w_smooth, 0, 0); zeros without either group */
     uint64_t target_hash; /* of the target's pixels */
     uint64_t init_hash;   /* of the parameter vector of the initial guess */
 } pen__optim_identity;

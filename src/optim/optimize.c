@@ -44,6 +44,7 @@ typedef struct object_deform {
     double *params, *d_params; /* 12 per node */
     double *pos, *d_pos;       /* 3 per vertex */
     double *centres, *d_centres; /* 3 per node */
+    double *spheres0, *spheres, *d_spheres; /* the spheres group's smoothness: 4 per sphere */
 } object_deform;
 
 typedef struct run {
@@ -58,6 +59,7 @@ typedef struct run {
     float *best;              /* the parameters of the lowest loss so far */
     object_deform *deform;    /* per object, when deformation is optimised */
     double w_rot, w_reg;
+    double w_smooth;          /* the spheres group's smoothness weight */
     float *weight;            /* per pixel loss weights (shadow_weight > 0), else NULL */
     /* "lighting_solver": "least_squares": the lighting is solved, not stepped */
     int solve;
@@ -98,6 +100,7 @@ static pen_status layout(pen_context *ctx, run *r, const pen_optim_task *t) {
     if (!r->objects || !r->segments || !r->deform) return PEN_ERROR_MEMORY;
     r->w_rot = t->deformation.w_rot;
     r->w_reg = t->deformation.w_reg;
+    r->w_smooth = t->spheres.w_smooth;
     r->lighting = SIZE_MAX;
     if (r->groups & PEN_OPTIM_LIGHTING)
         r->lighting = add_segment(r, 3 * (size_t)sc->sh_bands * (size_t)sc->sh_bands,
@@ -114,9 +117,23 @@ static pen_status layout(pen_context *ctx, run *r, const pen_optim_task *t) {
             L->rotation = add_segment(r, 3, t->lr.rotation, PEN__BOUND_NONE);
             L->translation = add_segment(r, 3, t->lr.translation, PEN__BOUND_NONE);
         }
-        if ((r->groups & PEN_OPTIM_SPHERES) && ob->spheres.count > 0)
-            L->spheres = add_segment(r, 4 * (size_t)ob->spheres.count, t->lr.spheres,
-                                     PEN__BOUND_SPHERES);
+        if ((r->groups & PEN_OPTIM_SPHERES) && ob->spheres.count > 0) {
+            const size_t n = 4 * (size_t)ob->spheres.count;
+            L->spheres = add_segment(r, n, t->lr.spheres, PEN__BOUND_SPHERES);
+            if (r->w_smooth > 0.0) { /* the neighbours and the start of the smoothness term */
+                object_deform *D = &r->deform[o];
+                const pen_mesh none = {0};
+                pen_status s =
+                    pen__optim_deform_build(ctx, &none, &ob->spheres, t->spheres.k, &D->graph);
+                if (s) return s;
+                D->spheres0 = pen__malloc(ctx, n, sizeof(double), "initial spheres");
+                D->spheres = pen__malloc(ctx, n, sizeof(double), "spheres");
+                D->d_spheres = pen__malloc(ctx, n, sizeof(double), "sphere gradient");
+                if (!D->spheres0 || !D->spheres || !D->d_spheres) return PEN_ERROR_MEMORY;
+                for (size_t i = 0; i < n; ++i)
+                    D->spheres0[i] = ob->spheres.data[i];
+            }
+        }
         if (r->groups & PEN_OPTIM_DEFORMATION) {
             object_deform *D = &r->deform[o];
             pen_status s = pen__optim_deform_build(ctx, &ob->mesh, &ob->spheres, t->deformation.k,
@@ -159,6 +176,9 @@ static void run_free(run *r) {
         free(D->d_pos);
         free(D->centres);
         free(D->d_centres);
+        free(D->spheres0);
+        free(D->spheres);
+        free(D->d_spheres);
     }
     free(r->deform);
 }
@@ -222,6 +242,8 @@ static void transfer(run *r, int to_scene) {
                 memcpy(ob->spheres.data, r->x + L->spheres, sizeof(float) * n);
             else
                 memcpy(r->x + L->spheres, ob->spheres.data, sizeof(float) * n);
+            for (size_t i = 0; to_scene && r->deform[o].spheres && i < n; ++i)
+                r->deform[o].spheres[i] = r->x[L->spheres + i];
         }
     }
 }
@@ -251,14 +273,18 @@ static double ridge_penalty(const run *r) {
     return e / (3.0 * r->weight_sum);
 }
 
-/* The regularisers at the current parameters: every deformed object's (D->params, set by
- * transfer; their gradient is added in gather()) and the least-squares lighting's ridge. */
+/* The regularisers at the current parameters (D->params and D->spheres, set by transfer; their
+ * gradient is added in gather()): every deformed object's, the spheres' smoothness, and the
+ * least-squares lighting's ridge. */
 static double regularisers(run *r) {
     double e = ridge_penalty(r);
-    for (int o = 0; o < r->sc->object_count; ++o)
+    for (int o = 0; o < r->sc->object_count; ++o) {
+        const object_deform *D = &r->deform[o];
         if (r->objects[o].deform != SIZE_MAX)
-            e += pen__optim_deform_energy(&r->deform[o].graph, r->deform[o].params, r->w_rot,
-                                          r->w_reg, NULL);
+            e += pen__optim_deform_energy(&D->graph, D->params, r->w_rot, r->w_reg, NULL);
+        if (D->spheres0)
+            e += pen__optim_spheres_energy(&D->graph, D->spheres0, D->spheres, r->w_smooth, NULL);
+    }
     return e;
 }
 
@@ -295,9 +321,19 @@ static void gather(run *r, const pen_render_grad *grad, float scale) {
                     (float)((double)(scale * og->pose.rotation_axis_angle_deg[k]) * DEG_PER_RAD);
                 r->g[L->translation + k] = scale * og->pose.translation[k];
             }
-        if (L->spheres != SIZE_MAX)
-            for (size_t i = 0; i < 4 * (size_t)og->sphere_count; ++i)
+        if (L->spheres != SIZE_MAX) {
+            const size_t n = 4 * (size_t)og->sphere_count;
+            for (size_t i = 0; i < n; ++i)
                 r->g[L->spheres + i] = scale * og->spheres[i];
+            object_deform *D = &r->deform[o];
+            if (D->spheres0) { /* in the loss's units, scaled like its gradient */
+                memset(D->d_spheres, 0, sizeof(double) * n);
+                pen__optim_spheres_energy(&D->graph, D->spheres0, D->spheres,
+                                          (double)scale * r->w_smooth, D->d_spheres);
+                for (size_t i = 0; i < n; ++i)
+                    r->g[L->spheres + i] += (float)D->d_spheres[i];
+            }
+        }
         if (L->deform != SIZE_MAX) {
             object_deform *D = &r->deform[o];
             const size_t M = (size_t)D->graph.nodes;
@@ -384,6 +420,11 @@ static pen_status check_task(pen_context *ctx, const pen_optim_task *t) {
         (t->deformation.k < 1 || !(t->deformation.w_rot >= 0.0) || !(t->deformation.w_reg >= 0.0)))
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "%s: deformation: k must be positive, the weights >= 0", name);
+    if ((t->optimize & PEN_OPTIM_SPHERES) &&
+        (!(t->spheres.w_smooth >= 0.0) || !isfinite(t->spheres.w_smooth) ||
+         (t->spheres.w_smooth > 0.0 && t->spheres.k < 1)))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: spheres: k must be positive, w_smooth a finite number >= 0", name);
     if (!t->target.data || t->target.channels != 3 || t->target.width != t->scene.camera.width ||
         t->target.height != t->scene.camera.height)
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
@@ -431,6 +472,13 @@ static pen__optim_identity identity(const pen_optim_task *t, const pen_optim_set
     id.shadow_weight = t->shadow_weight;
     id.lighting_solver = (int)t->lighting_solver;
     id.lighting_ridge = t->lighting_ridge;
+    if (r->groups & PEN_OPTIM_DEFORMATION) {
+        id.graph_k = t->deformation.k;
+        id.weights[0] = t->deformation.w_rot, id.weights[1] = t->deformation.w_reg;
+    } else if (r->groups & PEN_OPTIM_SPHERES) {
+        id.graph_k = t->spheres.k;
+        id.weights[0] = t->spheres.w_smooth;
+    }
     id.target_hash = pen__optim_hash(PEN__OPTIM_HASH_SEED, t->target.data,
                                      sizeof(float) * 3 * (size_t)id.width * (size_t)id.height);
     id.init_hash = pen__optim_hash(PEN__OPTIM_HASH_SEED, r->x, sizeof(float) * r->n);
@@ -595,7 +643,7 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
 static void metrics_none(pen_optim_metrics *m) {
     const double none = (double)NAN;
     m->image_rmse = m->lighting_rel_error = m->albedo_psnr_db = m->albedo_observed = none;
-    m->albedo_texel_psnr_db = m->lighting_rel_error_b2 = none;
+    m->albedo_texel_psnr_db = m->lighting_rel_error_b2 = m->lighting_rel_error_sky = none;
     m->albedo_shadow_psnr_db = m->albedo_shadow_fraction = none;
     m->rotation_error_deg = m->translation_error = m->vertex_rmse = none;
     m->translation_error_rel = none;

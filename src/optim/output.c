@@ -287,6 +287,7 @@ static cJSON *metrics_json(const pen_optim_metrics *mt) {
     int ok = m && add_metric(m, "image_rmse", mt->image_rmse) &&
              add_metric(m, "lighting_rel_error", mt->lighting_rel_error) &&
              add_metric(m, "lighting_rel_error_bands_0_2", mt->lighting_rel_error_b2) &&
+             add_metric(m, "lighting_rel_error_sky", mt->lighting_rel_error_sky) &&
              add_metric(m, "albedo_psnr_db", mt->albedo_psnr_db) &&
              add_metric(m, "albedo_shadow_psnr_db", mt->albedo_shadow_psnr_db) &&
              add_metric(m, "albedo_shadow_fraction", mt->albedo_shadow_fraction) &&

@@ -41,6 +41,11 @@ pen_optim_deformation pen_optim_deformation_default(void) {
     return d;
 }
 
+pen_optim_spheres pen_optim_spheres_default(void) {
+    pen_optim_spheres d = {4, 1e-3};
+    return d;
+}
+
 /* "scene" / "ground_truth": a path or an inline object. */
 static pen_status parse_scene_ref(pen_context *ctx, const char *path, const where *top,
                                   const cJSON *root, const char *name, pen_scene *out) {
@@ -211,6 +216,28 @@ static pen_status parse_lr(pen_context *ctx, const where *top, const cJSON *root
     return PEN_OK;
 }
 
+/* An optional {"k": int, "<weight>": number, ...} member (a graph's neighbour count and weights):
+ * keys[0] is "k", keys[1..] name weights[0..]. */
+static pen_status parse_graph(pen_context *ctx, const where *top, const cJSON *root,
+                              const char *name, const char *const keys[], int *k,
+                              double *const weights[]) {
+    const cJSON *e = cJSON_GetObjectItemCaseSensitive(root, name);
+    if (!e) return PEN_OK;
+    where w = at(top, name);
+    if (!cJSON_IsObject(e))
+        return pen__json_error(ctx, PEN_ERROR_PARSE, &w, "expected an object, got %s",
+                               pen__json_type_name(e));
+    pen_status s = pen__json_known_keys(ctx, &w, e, keys);
+    for (int i = 0; !s && keys[i]; ++i) {
+        const cJSON *f = cJSON_GetObjectItemCaseSensitive(e, keys[i]);
+        if (!f) continue;
+        where wf = at(&w, keys[i]);
+        s = i == 0 ? pen__json_int(ctx, &wf, f, 1, 32, "an integer in [1, 32]", k)
+                   : pen__json_number(ctx, &wf, f, 0.0, 1e9, "a weight >= 0", weights[i - 1]);
+    }
+    return s;
+}
+
 static pen_status parse_options(pen_context *ctx, const where *top, const cJSON *root,
                                 pen_optim_task *t) {
     const cJSON *e;
@@ -265,29 +292,13 @@ static pen_status parse_options(pen_context *ctx, const where *top, const cJSON 
         t->init_black = k != 1;
         t->init_fit = k == 2;
     }
-    if ((e = cJSON_GetObjectItemCaseSensitive(root, "deformation"))) {
-        w = at(top, "deformation");
-        static const char *const known[] = {"k", "w_rot", "w_reg", NULL};
-        if (!cJSON_IsObject(e))
-            return pen__json_error(ctx, PEN_ERROR_PARSE, &w, "expected an object, got %s",
-                                   pen__json_type_name(e));
-        s = pen__json_known_keys(ctx, &w, e, known);
-        const cJSON *f;
-        where wf;
-        if (!s && (f = cJSON_GetObjectItemCaseSensitive(e, "k"))) {
-            wf = at(&w, "k");
-            s = pen__json_int(ctx, &wf, f, 1, 32, "an integer in [1, 32]", &t->deformation.k);
-        }
-        if (!s && (f = cJSON_GetObjectItemCaseSensitive(e, "w_rot"))) {
-            wf = at(&w, "w_rot");
-            s = pen__json_number(ctx, &wf, f, 0.0, 1e9, "a weight >= 0", &t->deformation.w_rot);
-        }
-        if (!s && (f = cJSON_GetObjectItemCaseSensitive(e, "w_reg"))) {
-            wf = at(&w, "w_reg");
-            s = pen__json_number(ctx, &wf, f, 0.0, 1e9, "a weight >= 0", &t->deformation.w_reg);
-        }
-        if (s) return s;
-    }
+    static const char *const deform_keys[] = {"k", "w_rot", "w_reg", NULL};
+    static const char *const sphere_keys[] = {"k", "w_smooth", NULL};
+    double *const deform_w[] = {&t->deformation.w_rot, &t->deformation.w_reg};
+    double *const sphere_w[] = {&t->spheres.w_smooth};
+    s = parse_graph(ctx, top, root, "deformation", deform_keys, &t->deformation.k, deform_w);
+    if (!s) s = parse_graph(ctx, top, root, "spheres", sphere_keys, &t->spheres.k, sphere_w);
+    if (s) return s;
     return parse_lr(ctx, top, root, &t->lr);
 }
 
@@ -299,7 +310,7 @@ static pen_status parse_task(pen_context *ctx, const char *path, const cJSON *ro
                                pen__json_type_name(root));
     static const char *const known[] = {"scene", "target",    "optimize", "iterations",
                                         "lr",    "loss",      "tolerance", "window",
-                                        "init",  "deformation", "ground_truth",
+                                        "init",  "deformation", "spheres", "ground_truth",
                                         "shadow_weight", "lighting_solver",
                                         "lighting_ridge", NULL};
     pen_status s = pen__json_known_keys(ctx, &top, root, known);
@@ -329,6 +340,7 @@ static pen_status task_from_text(pen_context *ctx, const char *text, size_t size
     out->lighting_solver = PEN_OPTIM_LIGHTING_ADAM;
     out->lighting_ridge = 1e-2;
     out->deformation = pen_optim_deformation_default();
+    out->spheres = pen_optim_spheres_default();
     cJSON *root = NULL;
     pen_status s = pen__json_parse(ctx, path, text, size, &root);
     if (s) return s;
