@@ -86,7 +86,7 @@ prepare() { # mesh
     fi
 }
 
-printf 'mesh\ttask\tshadows\titerations\tconverged\ts_per_it\tfinal_loss\timage_rmse\tlighting_rel_error\talbedo_psnr_db\talbedo_shadow_psnr_db\talbedo_shadow_fraction\talbedo_texel_psnr_db\talbedo_observed\trotation_error_deg\ttranslation_error\ttranslation_error_rel\tvertex_rmse\tsphere_iou\tsphere_chamfer\tshadow_iou\n' > "$OUT/results.tsv"
+printf 'mesh\ttask\tshadows\titerations\tconverged\ts_per_it\tfinal_loss\timage_rmse\tlighting_rel_error\tlighting_rel_error_sky\talbedo_psnr_db\talbedo_shadow_psnr_db\talbedo_shadow_fraction\talbedo_texel_psnr_db\talbedo_observed\trotation_error_deg\ttranslation_error\ttranslation_error_rel\tvertex_rmse\tsphere_iou\tsphere_chamfer\tshadow_iou\n' > "$OUT/results.tsv"
 echo "| mesh | task | shadows | iterations | s/it | image RMSE | lighting rel. error (bands 0–2) | albedo PSNR, view (in shadow) (dB) | rotation error (°) | translation error (% of size) | vertex RMSE | shadow IoU (sphere IoU) |"
 echo "|---|---|---|---|---|---|---|---|---|---|---|---|"
 for mesh in $MESHES; do
@@ -112,7 +112,8 @@ for mesh in $MESHES; do
             r="$dir/result.json"
             printf '%s\t%s\t%s' $mesh $task $mode >> "$OUT/results.tsv"
             for f in iterations converged seconds_per_iteration final_loss image_rmse \
-                lighting_rel_error albedo_psnr_db albedo_shadow_psnr_db albedo_shadow_fraction \
+                lighting_rel_error lighting_rel_error_sky albedo_psnr_db albedo_shadow_psnr_db \
+                albedo_shadow_fraction \
                 albedo_texel_psnr_db albedo_observed \
                 rotation_error_deg translation_error translation_error_rel vertex_rmse \
                 sphere_iou sphere_chamfer \
