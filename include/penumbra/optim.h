@@ -93,10 +93,12 @@ pen_optim_deformation pen_optim_deformation_default(void);
 
 /* The "spheres" group's regulariser: w_smooth E_smooth, E_smooth = sum_j sum_{k in N(j)}
  * |d_j - d_k|^2 with d_j = (centre, radius) of sphere j minus its initial value and N(j) its k
- * nearest spheres at the start: neighbouring spheres move and grow alike. */
+ * nearest spheres at the start: neighbouring spheres move and grow alike. The defaults are
+ * pen_optim_spheres_default()'s (what pen_optim_task_load starts from); w_smooth = 0 turns the
+ * term off, and then k is not used. */
 typedef struct pen_optim_spheres {
     int k;           /* default 4 */
-    double w_smooth; /* default 0 */
+    double w_smooth; /* default 1e-3, in the units of the mean-squared image loss */
 } pen_optim_spheres;
 
 pen_optim_spheres pen_optim_spheres_default(void);

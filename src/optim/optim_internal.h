@@ -84,8 +84,8 @@ double pen__optim_deform_energy(const pen__deform_graph *graph, const double *pa
 
 /* The spheres group's smoothness w E_smooth (deform.c) over a graph built on the initial spheres
  * (no vertices); `initial` and `spheres` hold 4 values (centre, radius) per sphere, in double like
- * the deformation's parameters (the caller converts). Adds its
- * gradient into d_spheres (may be NULL). */
+ * the deformation's parameters (the caller converts). Adds its gradient into d_spheres (may be
+ * NULL). */
 double pen__optim_spheres_energy(const pen__deform_graph *graph, const double *initial,
                                  const double *spheres, double w, double *d_spheres);
 
