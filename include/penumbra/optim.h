@@ -113,7 +113,9 @@ pen_optim_spheres pen_optim_spheres_default(void);
  * shadows do not darken it. The loss is
  *     sum_p w_p sum_c rho(I_pc - T_pc) / (3 sum_p w_p),   w_p = 1 + s m_p,
  * rho = r^2 (l2) or |r| (l1); with s = 0 the plain mean. The mask is computed once, before the
- * first iteration, and held fixed: the weights are constants of the objective. */
+ * first iteration, and held fixed: the weights are constants of the objective. (The task's
+ * "shadow_weight" field below.) */
+
 /* How optimised lighting is updated (task key "lighting_solver").
  * ADAM ("adam", the default): Adam steps on the SH coefficients like every other group
  * (supplement 5.1).
@@ -187,7 +189,7 @@ typedef int (*pen_optim_progress_fn)(void *user, int iteration, int iterations, 
  * task run to N iterations in one go and run to K, then resumed to N, give the same parameters,
  * losses and outputs bit for bit (same task, target, shadows and thread count; the renderer
  * reduces in a fixed order). A checkpoint of another task (parameter layout, target, initial
- * guess, loss, shadows) or a damaged one is refused with one line naming the file and what
+ * guess, loss, shadow weight, shadows, lighting solver and ridge, regularisers) or a damaged one is refused with one line naming the file and what
  * differs. `snapshot_every` > 0 writes the render of every K-th iterate to
  * OUTDIR/snapshots/iter_NNNNN.png. The folder is created when first written to. */
 typedef struct pen_optim_settings {

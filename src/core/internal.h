@@ -32,6 +32,17 @@ void *pen__calloc(pen_context *ctx, size_t count, size_t size, const char *what)
 /* Largest element count any loader will accept for one array (guards against absurd headers). */
 #define PEN_MAX_ELEMENTS ((size_t)1 << 28)
 
+/* FNV-1a 64 of `size` bytes, continuing from h (start: PEN__FNV1A_SEED): the checksums and keys
+ * of files penumbra writes (checkpoints, the sphere-fit cache). Byte at a time; the large-array
+ * cache keys of the renderer use a vectorised hash instead. */
+#define PEN__FNV1A_SEED 0xCBF29CE484222325ull
+static inline uint64_t pen__fnv1a(uint64_t h, const void *data, size_t size) {
+    const unsigned char *p = (const unsigned char *)data; /* (also compiled as C++) */
+    for (size_t i = 0; i < size; ++i)
+        h = (h ^ p[i]) * 0x100000001B3ull;
+    return h;
+}
+
 static inline int pen__finite3(const float v[3]) {
     return isfinite(v[0]) && isfinite(v[1]) && isfinite(v[2]);
 }

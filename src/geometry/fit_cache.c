@@ -19,21 +19,14 @@
 /* Cache files are small (a few kB per hundred spheres); anything larger is not ours. */
 #define FIT_CACHE_MAX_BYTES (16u << 20)
 
-static uint64_t fnv1a(uint64_t h, const void *data, size_t size) {
-    const unsigned char *p = data;
-    for (size_t i = 0; i < size; ++i)
-        h = (h ^ p[i]) * 0x100000001B3ull;
-    return h;
-}
-
 static uint64_t fit_key(const pen_mesh *mesh, int count, const pen_fit_settings *s) {
     char text[512];
     int n = snprintf(text, sizeof text, "%s %d %d %.17g %.17g %.17g %d %.17g %llu", FIT_VERSION,
                      count, s->voxels, s->surface_weight, s->margin_voxels,
                      s->samples_per_voxel_area, s->iterations, s->learning_rate, s->seed);
-    uint64_t h = fnv1a(0xCBF29CE484222325ull, text, (size_t)n);
-    h = fnv1a(h, mesh->positions, 3 * sizeof(float) * (size_t)mesh->vertex_count);
-    return fnv1a(h, mesh->indices, 3 * sizeof(uint32_t) * (size_t)mesh->triangle_count);
+    uint64_t h = pen__fnv1a(PEN__FNV1A_SEED, text, (size_t)n);
+    h = pen__fnv1a(h, mesh->positions, 3 * sizeof(float) * (size_t)mesh->vertex_count);
+    return pen__fnv1a(h, mesh->indices, 3 * sizeof(uint32_t) * (size_t)mesh->triangle_count);
 }
 
 /* Reads a whole small file; NULL if it is missing, unreadable or too large. */

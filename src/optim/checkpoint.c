@@ -7,8 +7,9 @@
  * at), plus the seconds spent so far. Everything else the loop uses is recomputed from the task
  * (the layout, the initial guess and its render, the shadow mask) and is checked against the
  * checkpoint through an identity (parameter layout, groups, loss, shadows, image size, shadow
- * weight, hashes of the target's pixels and of the initial parameter vector), so a checkpoint
- * is never applied to another problem.
+ * weight, lighting solver and ridge, the regularisers' k and weights, hashes of the target's
+ * pixels and of the initial parameter vector), so a checkpoint is never applied to another
+ * problem.
  *
  * File layout (native byte order; an order marker refuses files from another kind of machine):
  *     "PENOPTCK" u32 version u32 0x01020304
@@ -37,13 +38,6 @@
 #define CHECKPOINT_VERSION 3u
 #define CHECKPOINT_ORDER 0x01020304u
 
-uint64_t pen__optim_hash(uint64_t h, const void *data, size_t size) {
-    const unsigned char *p = data;
-    for (size_t i = 0; i < size; ++i)
-        h = (h ^ p[i]) * 0x100000001B3ull;
-    return h;
-}
-
 /* ---- Writing --------------------------------------------------------------------------------- */
 
 typedef struct writer {
@@ -54,7 +48,7 @@ typedef struct writer {
 
 static void put(writer *w, const void *data, size_t size) {
     if (!w->ok || size == 0) return;
-    w->hash = pen__optim_hash(w->hash, data, size);
+    w->hash = pen__fnv1a(w->hash, data, size);
     w->ok = fwrite(data, 1, size, w->f) == size;
 }
 
@@ -110,7 +104,7 @@ pen_status pen__optim_checkpoint_save(pen_context *ctx, const char *path,
     char *tmp = NULL;
     pen_status s = pen__io_temp_create(ctx, path, &tmp);
     if (s) return s;
-    writer w = {fopen(tmp, "wb"), PEN__OPTIM_HASH_SEED, 1};
+    writer w = {fopen(tmp, "wb"), PEN__FNV1A_SEED, 1};
     w.ok = w.f != NULL;
     const size_t n = id->n;
     put(&w, CHECKPOINT_MAGIC, 8);
@@ -159,7 +153,7 @@ static void get(reader *r, void *data, size_t size) {
     }
     r->ok = fread(data, 1, size, r->f) == size;
     if (r->ok) {
-        r->hash = pen__optim_hash(r->hash, data, size);
+        r->hash = pen__fnv1a(r->hash, data, size);
     } else {
         memset(data, 0, size);
     }
@@ -259,7 +253,7 @@ static int all_finite_f(const float *v, size_t n) {
 pen_status pen__optim_checkpoint_load(pen_context *ctx, const char *path,
                                       const pen__optim_identity *id, int max_losses,
                                       pen__optim_state *st) {
-    reader r = {fopen(path, "rb"), PEN__OPTIM_HASH_SEED, 1};
+    reader r = {fopen(path, "rb"), PEN__FNV1A_SEED, 1};
     if (!r.f)
         return pen__error(ctx, PEN_ERROR_IO, "%s: cannot open the checkpoint: %s", path,
                           strerror(errno));

@@ -41,8 +41,7 @@ static pen_status check_shapes(pen_context *ctx, const pen_image *image, const p
     return PEN_OK;
 }
 
-/* sum_p w_p (the pixel count when weight is NULL) */
-static double weight_sum(const float *weight, size_t pixels) {
+double pen__optim_weight_sum(const float *weight, size_t pixels) {
     if (!weight) return (double)pixels;
     double sum = 0.0;
     for (size_t p = 0; p < pixels; ++p)
@@ -56,7 +55,7 @@ pen_status pen__optim_loss_fwd(pen_context *ctx, pen_optim_loss kind, const pen_
     if (s) return s;
     const size_t pixels = (size_t)image->width * (size_t)image->height;
     const int C = image->channels;
-    const double wsum = weight_sum(weight, pixels);
+    const double wsum = pen__optim_weight_sum(weight, pixels);
     if (!(wsum > 0.0) || !isfinite(wsum))
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "loss: the pixel weights sum to %g", wsum);
     double sum = 0.0;
@@ -79,7 +78,7 @@ void pen__optim_loss_bwd(pen_optim_loss kind, const pen_image *image, const pen_
                          const float *weight, double d_loss, pen_image *d_image) {
     const size_t pixels = (size_t)image->width * (size_t)image->height;
     const int C = image->channels;
-    const double k = d_loss / ((double)C * weight_sum(weight, pixels));
+    const double k = d_loss / ((double)C * pen__optim_weight_sum(weight, pixels));
     for (size_t p = 0; p < pixels; ++p) {
         const double kp = weight ? k * (double)weight[p] : k;
         for (int c = 0; c < C; ++c) {

@@ -97,6 +97,8 @@ double pen__optim_spheres_energy(const pen__deform_graph *graph, const double *i
  * positive sum. */
 pen_status pen__optim_loss_fwd(pen_context *ctx, pen_optim_loss kind, const pen_image *image,
                                const pen_image *target, const float *weight, double *loss);
+/* sum_p w_p, summed in pixel order (the pixel count when weight is NULL). */
+double pen__optim_weight_sum(const float *weight, size_t pixels);
 /* Adds d_loss * dloss/dimage into d_image (the image's shape). */
 void pen__optim_loss_bwd(pen_optim_loss kind, const pen_image *image, const pen_image *target,
                          const float *weight, double d_loss, pen_image *d_image);
@@ -159,9 +161,6 @@ typedef struct pen__optim_state {
     double *losses;
 } pen__optim_state;
 
-/* FNV-1a 64 of `size` bytes, continuing from h (start: PEN__OPTIM_HASH_SEED). */
-#define PEN__OPTIM_HASH_SEED 0xCBF29CE484222325ull
-uint64_t pen__optim_hash(uint64_t h, const void *data, size_t size);
 /* Writes the state atomically: a temporary file beside `path`, fsync, rename, fsync of the
  * folder. */
 pen_status pen__optim_checkpoint_save(pen_context *ctx, const char *path,

@@ -3,10 +3,10 @@
  * Every optimised quantity of the scene is copied into one flat float vector x, cut into
  * segments (the lighting; per object its texels or constant albedo, its rotation, its
  * translation, its spheres, its deformation graph's matrices and translations), each with its
- * learning rate and bound. One iteration writes x into
- * the scene, renders (pen_render_fwd), evaluates the loss against the target, runs
- * pen_render_bwd for the groups being optimised only, gathers the gradient into the layout of x
- * and steps. Rotations live in x as radians (the scene keeps degrees) so that the supplement's
+ * learning rate and bound. One iteration writes x into the scene, solves the lighting when it is
+ * solved by least squares rather than stepped (solve_lighting), renders (pen_render_fwd),
+ * evaluates the loss against the target, runs pen_render_bwd for the groups being optimised
+ * only, gathers the gradient (plus the regularisers') into the layout of x and steps. Rotations live in x as radians (the scene keeps degrees) so that the supplement's
  * learning rate 1e-2 means about half a degree per step; their gradient is converted with the
  * same factor.
  *
@@ -15,8 +15,9 @@
  * through its epsilon (1e-8), which would otherwise dominate the tiny per-texel gradients of a
  * large image and slow textures down.
  *
- * Record keeping: losses[i] is the objective after i steps (the image loss, plus the deformation
- * regularisers when deformation is optimised); the stopping rule looks at them after each
+ * Record keeping: losses[i] is the objective after i steps (the image loss plus the regularisers:
+ * the deformation's, the spheres' smoothness, the least-squares lighting's ridge); the stopping
+ * rule looks at them after each
  * render, and when it fires no further step is taken. The parameters of the lowest objective
  * are kept (the best iterate) and rendered once more if they are not the last ones. */
 #include "optim/optim_internal.h"
@@ -49,6 +50,7 @@ typedef struct object_deform {
 
 typedef struct run {
     pen_scene *sc;
+    pen_render_options opt;   /* every render of the run (shadows or not) */
     unsigned groups;
     size_t lighting; /* offset of the SH block, SIZE_MAX if not optimised */
     object_layout *objects;
@@ -248,8 +250,6 @@ static void transfer(run *r, int to_scene) {
     }
 }
 
-/* Supplement 5.2: optimised lighting and albedo start black (albedo grey when both are
- * optimised, since their gradients vanish together at zero). */
 /* The deformation starts at rest (identity matrices, zero translations) whatever `init` says:
  * the scene holds the rest shape. */
 static void deformation_rest(run *r) {
@@ -288,6 +288,8 @@ static double regularisers(run *r) {
     return e;
 }
 
+/* Supplement 5.2: optimised lighting and albedo start black (albedo grey when both are
+ * optimised, since their gradients vanish together at zero). */
 static void initial_guess(run *r) {
     const float albedo0 = (r->groups & PEN_OPTIM_LIGHTING) ? 0.5f : 0.0f;
     if (r->lighting != SIZE_MAX)
@@ -479,9 +481,9 @@ static pen__optim_identity identity(const pen_optim_task *t, const pen_optim_set
         id.graph_k = t->spheres.k;
         id.weights[0] = t->spheres.w_smooth;
     }
-    id.target_hash = pen__optim_hash(PEN__OPTIM_HASH_SEED, t->target.data,
+    id.target_hash = pen__fnv1a(PEN__FNV1A_SEED, t->target.data,
                                      sizeof(float) * 3 * (size_t)id.width * (size_t)id.height);
-    id.init_hash = pen__optim_hash(PEN__OPTIM_HASH_SEED, r->x, sizeof(float) * r->n);
+    id.init_hash = pen__fnv1a(PEN__FNV1A_SEED, r->x, sizeof(float) * r->n);
     return id;
 }
 
@@ -514,7 +516,6 @@ static pen_status save_snapshot(pen_context *ctx, const pen_optim_settings *set,
 /* Resuming: the state after st->iteration steps replaces the initial guess. */
 static pen_status resume(pen_context *ctx, const pen_optim_task *t, const pen_optim_settings *set,
                          const pen__optim_identity *id, run *r, pen__optim_state *st) {
-    if (!set->outdir) return pen__error(ctx, PEN_ERROR_ARGUMENT, "resume: no output folder");
     char *path = pen__optim_join(ctx, set->outdir, "checkpoint.bin");
     if (!path) return PEN_ERROR_MEMORY;
     pen_status s = pen__optim_checkpoint_load(ctx, path, id, t->iterations + 1, st);
@@ -525,8 +526,7 @@ static pen_status resume(pen_context *ctx, const pen_optim_task *t, const pen_op
 
 static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_settings *set,
                            run *r, pen_optim_result *res) {
-    pen_render_options opt = pen_render_options_default();
-    opt.shadows = set->shadows;
+    const pen_render_options opt = r->opt;
     pen_render_state *state = NULL;
     pen_render_grad grad;
     memset(&grad, 0, sizeof grad);
@@ -542,7 +542,10 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
         if (!res->losses) s = PEN_ERROR_MEMORY;
     }
     if (!s) s = pen_render_fwd(ctx, &t->scene, &opt, NULL, &res->initial);
-    const pen__optim_identity id = identity(t, set, r);
+    /* (the hashes read the target and the parameters: only checkpoints need them) */
+    pen__optim_identity id;
+    memset(&id, 0, sizeof id);
+    if (set->outdir) id = identity(t, set, r);
     pen__optim_state st = {0, 0, -1, (double)INFINITY, 0.0, r->x, r->best, &adam, res->losses};
     if (!s && set->resume) s = resume(ctx, t, set, &id, r, &st);
     const int start = st.iteration;
@@ -672,23 +675,15 @@ static pen_status fitted_lighting(pen_context *ctx, const pen_optim_task *t, run
 
 /* Least-squares lighting: the ridge is fixed at the initial guess, whose lighting is then solved
  * for (so the first render, the loss curve's start, shows the solved lighting). */
-static pen_status lighting_solver_init(pen_context *ctx, const pen_optim_task *t,
-                                       const pen_optim_settings *set, run *r) {
-    const size_t pixels = (size_t)t->target.width * (size_t)t->target.height;
-    r->weight_sum = (double)pixels;
-    if (r->weight) {
-        r->weight_sum = 0.0;
-        for (size_t p = 0; p < pixels; ++p)
-            r->weight_sum += (double)r->weight[p];
-    }
+static pen_status lighting_solver_init(pen_context *ctx, const pen_optim_task *t, run *r) {
+    r->weight_sum = pen__optim_weight_sum(
+        r->weight, (size_t)t->target.width * (size_t)t->target.height);
     r->mu[0] = r->mu[1] = r->mu[2] = -1.0;
     r->solved_for = pen__calloc(ctx, r->n + 1, sizeof(float), "lighting solve");
     if (!r->solved_for) return PEN_ERROR_MEMORY;
     pen_status s = pen_render_state_create(ctx, &r->solve_state);
     if (s) return s;
-    pen_render_options opt = pen_render_options_default();
-    opt.shadows = set->shadows;
-    return solve_lighting(ctx, t, &opt, r);
+    return solve_lighting(ctx, t, &r->opt, r);
 }
 
 static pen_status check_settings(pen_context *ctx, const pen_optim_settings *set) {
@@ -733,6 +728,8 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
     run r;
     memset(&r, 0, sizeof r);
     r.sc = &task->scene;
+    r.opt = pen_render_options_default();
+    r.opt.shadows = set.shadows;
     r.groups = task->optimize;
     r.solve = task->lighting_solver == PEN_OPTIM_LIGHTING_LEAST_SQUARES;
     s = layout(ctx, &r, task);
@@ -744,7 +741,7 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
         transfer(&r, 1);
         if (task->init_fit && r.lighting != SIZE_MAX) s = fitted_lighting(ctx, task, &r);
         if (!s && task->shadow_weight > 0.0) s = shadow_weights(ctx, task, &r);
-        if (!s && r.solve) s = lighting_solver_init(ctx, task, &set, &r);
+        if (!s && r.solve) s = lighting_solver_init(ctx, task, &r);
     }
     if (!s) s = optimise(ctx, task, &set, &r, out);
     if (!s) {

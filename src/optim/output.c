@@ -317,11 +317,13 @@ static cJSON *lr_json(const pen_optim_lr *lr) {
     return ok ? o : NULL;
 }
 
-static cJSON *deformation_json(const pen_optim_deformation *d) {
+/* {"k": k, names[0]: w[0], ...}: a regulariser's neighbour count and weights, as the task
+ * JSON spells them. */
+static cJSON *graph_json(int k, const char *const names[], const double *w, int n) {
     cJSON *o = cJSON_CreateObject();
-    int ok = o && add(o, "k", cJSON_CreateNumber(d->k)) &&
-             add(o, "w_rot", cJSON_CreateNumber(d->w_rot)) &&
-             add(o, "w_reg", cJSON_CreateNumber(d->w_reg));
+    int ok = o && add(o, "k", cJSON_CreateNumber(k));
+    for (int i = 0; ok && i < n; ++i)
+        ok = add(o, names[i], cJSON_CreateNumber(w[i]));
     if (!ok) cJSON_Delete(o);
     return ok ? o : NULL;
 }
@@ -334,6 +336,9 @@ pen_status pen_optim_result_json(pen_context *ctx, const pen_optim_task *t,
     const int it = r->iterations;
     cJSON *root = cJSON_CreateObject();
     cJSON *losses = cJSON_CreateDoubleArray(r->losses, r->losses ? it + 1 : 0);
+    static const char *const deform_names[] = {"w_rot", "w_reg"};
+    static const char *const sphere_names[] = {"w_smooth"};
+    const double deform_w[] = {t->deformation.w_rot, t->deformation.w_reg};
     int ok = root && add(root, "task", cJSON_CreateString(t->path ? t->path : "")) &&
              add(root, "optimize", groups_json(t->optimize)) &&
              add(root, "shadows", cJSON_CreateBool(shadows)) &&
@@ -356,7 +361,11 @@ pen_status pen_optim_result_json(pen_context *ctx, const pen_optim_task *t,
              add(root, "metrics", metrics_json(&r->metrics)) &&
              add(root, "lr", lr_json(&t->lr)) &&
              (!(t->optimize & PEN_OPTIM_DEFORMATION) ||
-              add(root, "deformation", deformation_json(&t->deformation))) &&
+              add(root, "deformation",
+                  graph_json(t->deformation.k, deform_names, deform_w, 2))) &&
+             (!(t->optimize & PEN_OPTIM_SPHERES) ||
+              add(root, "spheres",
+                  graph_json(t->spheres.k, sphere_names, &t->spheres.w_smooth, 1))) &&
              add(root, "tolerance", cJSON_CreateNumber(t->tolerance)) &&
              add(root, "window", cJSON_CreateNumber(t->window)) &&
              add(root, "width", cJSON_CreateNumber(t->target.width)) &&
