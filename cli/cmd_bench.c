@@ -5,7 +5,8 @@
  * one sweep per parameter through it (resolution 256 / 1024, spheres 8 / 128, bands 3 / 5 / 6).
  * A case times what one optimisation step costs: forward render, L2 loss against a fixed target
  * (the render of a slightly perturbed scene), backward into lighting, albedo texture, spheres
- * and pose; warm-up iterations first (first-touch page faults, the Gaunt tables, the fit), then
+ * and pose; the spheres are fitted (or read from the fit cache) when the case is set up, before
+ * any iteration; then warm-up iterations (first-touch page faults, the Gaunt tables), then
  * --repeat timed iterations whose medians are reported, with the renderer's own per-stage times
  * (pen_render_state_timings) as medians per field.
  *
@@ -219,8 +220,11 @@ typedef struct truth_cache {
     truth_entry entry[MAX_CASES];
 } truth_cache;
 
-/* Sets the scene to the case: size, bands (lighting re-projected from the map, the exponential
- * model's epsilon for that band count), and `spheres` fitted spheres for every object. */
+/* Sets the scene to the case: size, bands, and `spheres` fitted spheres for every object. When
+ * the case's band count differs from the scene's, the lighting is re-projected from the map at
+ * the new count (replacing explicit "sh" rows too when the scene also names a map; without a map
+ * the rows are kept, cut or zero-padded) and epsilon becomes the exponential model's default for
+ * that count, replacing an explicit "epsilon". At the scene's own count both stay as loaded. */
 static pen_status configure(pen_context *ctx, pen_scene *sc, const bench_case *c) {
     sc->camera.width = c->width;
     sc->camera.height = c->height;
