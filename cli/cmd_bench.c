@@ -5,7 +5,8 @@
  * one sweep per parameter through it (resolution 256 / 1024, spheres 8 / 128, bands 3 / 5 / 6).
  * A case times what one optimisation step costs: forward render, L2 loss against a fixed target
  * (the render of a slightly perturbed scene), backward into lighting, albedo texture, spheres
- * and pose; warm-up iterations first (first-touch page faults, the Gaunt tables, the fit), then
+ * and pose; the spheres are fitted (or read from the fit cache) when the case is set up, before
+ * any iteration; then warm-up iterations (first-touch page faults, the Gaunt tables), then
  * --repeat timed iterations whose medians are reported, with the renderer's own per-stage times
  * (pen_render_state_timings) as medians per field.
  *
@@ -219,8 +220,11 @@ typedef struct truth_cache {
     truth_entry entry[MAX_CASES];
 } truth_cache;
 
-/* Sets the scene to the case: size, bands (lighting re-projected from the map, the exponential
- * model's epsilon for that band count), and `spheres` fitted spheres for every object. */
+/* Sets the scene to the case: size, bands, and `spheres` fitted spheres for every object. When
+ * the case's band count differs from the scene's, the lighting is re-projected from the map at
+ * the new count (replacing explicit "sh" rows too when the scene also names a map; without a map
+ * the rows are kept, cut or zero-padded) and epsilon becomes the exponential model's default for
+ * that count, replacing an explicit "epsilon". At the scene's own count both stay as loaded. */
 static pen_status configure(pen_context *ctx, pen_scene *sc, const bench_case *c) {
     sc->camera.width = c->width;
     sc->camera.height = c->height;
@@ -247,24 +251,28 @@ static pen_status configure(pen_context *ctx, pen_scene *sc, const bench_case *c
     return pen_scene_fit_spheres(ctx, sc);
 }
 
-/* The target: the scene with dimmer light, a turned and shifted pose (then restored). */
+/* The target: the scene with dimmer light, a turned and shifted pose (then restored: the saved
+ * values themselves, since x + 4 - 4 need not round back to x in float). */
 static pen_status render_target(pen_context *ctx, pen_scene *sc, const pen_render_options *opt,
                                 pen_image *target) {
+    const size_t n = sc->object_count > 0 ? (size_t)sc->object_count : 1;
+    pen_pose *poses = malloc(n * sizeof *poses);
+    if (!poses) return PEN_ERROR_MEMORY;
     float sh[PEN_SH_MAX_COEFFS][3];
     memcpy(sh, sc->lighting.sh, sizeof sh);
     for (int k = 0; k < PEN_SH_MAX_COEFFS; ++k)
         for (int ch = 0; ch < 3; ++ch)
             sc->lighting.sh[k][ch] *= 0.9f;
     for (int o = 0; o < sc->object_count; ++o) {
+        poses[o] = sc->objects[o].pose;
         sc->objects[o].pose.rotation_axis_angle_deg[1] += 4.0f;
         sc->objects[o].pose.translation[0] += 0.03f;
     }
     const pen_status s = pen_render_fwd(ctx, sc, opt, NULL, target);
     memcpy(sc->lighting.sh, sh, sizeof sh);
-    for (int o = 0; o < sc->object_count; ++o) {
-        sc->objects[o].pose.rotation_axis_angle_deg[1] -= 4.0f;
-        sc->objects[o].pose.translation[0] -= 0.03f;
-    }
+    for (int o = 0; o < sc->object_count; ++o)
+        sc->objects[o].pose = poses[o];
+    free(poses);
     return s;
 }
 
@@ -322,9 +330,10 @@ done:
     return s;
 }
 
-/* The truth for this size and band count, rendered on first use. */
+/* The truth for this size and band count, rendered on first use (only then is the Embree scene
+ * built). */
 static pen_status truth_for(pen_context *ctx, const bench_config *cfg, truth_cache *cache,
-                            const pen_scene *sc, const pen_reference *ref, const truth_entry **out) {
+                            const pen_scene *sc, const truth_entry **out) {
     for (int i = 0; i < cache->count; ++i) {
         const truth_entry *e = &cache->entry[i];
         if (e->width == sc->camera.width && e->height == sc->camera.height &&
@@ -335,8 +344,12 @@ static pen_status truth_for(pen_context *ctx, const bench_config *cfg, truth_cac
     }
     truth_entry *e = &cache->entry[cache->count];
     memset(e, 0, sizeof *e);
-    pen_status s = pen_reference_render_coverage(ctx, ref, cfg->truth_spp, TRUTH_SEED, &e->image,
-                                                 &e->coverage);
+    pen_reference *ref = NULL;
+    pen_status s = pen_reference_create(ctx, sc, PEN_REFERENCE_LIGHTING_SH, &ref);
+    if (!s)
+        s = pen_reference_render_coverage(ctx, ref, cfg->truth_spp, TRUTH_SEED, &e->image,
+                                          &e->coverage);
+    pen_reference_destroy(ref);
     if (s) return s;
     e->width = sc->camera.width, e->height = sc->camera.height, e->bands = sc->sh_bands;
     ++cache->count;
@@ -352,58 +365,50 @@ static void truth_cache_free(truth_cache *cache) {
     cache->count = 0;
 }
 
+/* One timed reference run at spp into *image (replacing it): what `penumbra reference` times,
+ * the scene build and the render, in *ms. */
+static pen_status timed_reference(pen_context *ctx, const pen_scene *sc, int spp, pen_image *image,
+                                  double *ms) {
+    pen_image_free(image);
+    pen_reference *ref = NULL;
+    const double t0 = omp_get_wtime();
+    pen_status s = pen_reference_create(ctx, sc, PEN_REFERENCE_LIGHTING_SH, &ref);
+    if (!s) s = pen_reference_render(ctx, ref, spp, SEARCH_SEED, image);
+    *ms = 1e3 * (omp_get_wtime() - t0);
+    pen_reference_destroy(ref);
+    return s;
+}
+
 /* The SH render's error against the truth, then the smallest power-of-two spp at which the
  * reference's error is no larger (up to truth_spp), and that spp's time. */
 static pen_status compare_reference(pen_context *ctx, const bench_config *cfg, truth_cache *cache,
                                     const pen_scene *sc, const pen_image *image, bench_result *r) {
-    pen_reference *ref = NULL;
-    pen_image trial = {0, 0, 0, NULL};
-    pen_status s = pen_reference_create(ctx, sc, PEN_REFERENCE_LIGHTING_SH, &ref);
-    if (s) return s;
     const truth_entry *truth = NULL;
-    if ((s = truth_for(ctx, cfg, cache, sc, ref, &truth))) goto done;
     pen_image_error all, masked;
-    if ((s = pen_image_compare(ctx, image, &truth->image, &truth->coverage, &all, &masked)))
-        goto done;
+    pen_status s = truth_for(ctx, cfg, cache, sc, &truth);
+    if (!s) s = pen_image_compare(ctx, image, &truth->image, &truth->coverage, &all, &masked);
+    if (s) return s;
     r->truth_spp = cfg->truth_spp;
     r->sh_rel_rmse = masked.rel_rmse;
+    pen_image trial = {0, 0, 0, NULL};
     double times[REF_TIMINGS];
     int found = 0;
-    for (int spp = 1; spp <= cfg->truth_spp && !found; spp *= 2) {
-        pen_image_free(&trial);
-        /* Time what `penumbra reference` times: the scene build and the render. */
-        pen_reference_destroy(ref);
-        ref = NULL;
-        const double t0 = omp_get_wtime();
-        if ((s = pen_reference_create(ctx, sc, PEN_REFERENCE_LIGHTING_SH, &ref)) ||
-            (s = pen_reference_render(ctx, ref, spp, SEARCH_SEED, &trial)))
-            goto done;
-        times[0] = 1e3 * (omp_get_wtime() - t0);
-        if ((s = pen_image_compare(ctx, &trial, &truth->image, &truth->coverage, &all, &masked)))
-            goto done;
-        if (masked.rel_rmse <= r->sh_rel_rmse) {
+    for (int spp = 1; spp <= cfg->truth_spp && !found && !s; spp *= 2) {
+        s = timed_reference(ctx, sc, spp, &trial, &times[0]);
+        if (!s) s = pen_image_compare(ctx, &trial, &truth->image, &truth->coverage, &all, &masked);
+        if (!s && masked.rel_rmse <= r->sh_rel_rmse) {
             found = 1;
             r->reference_spp = spp;
             r->reference_rel_rmse = masked.rel_rmse;
         }
     }
-    if (found) {
-        for (int k = 1; k < REF_TIMINGS; ++k) {
-            pen_reference_destroy(ref);
-            ref = NULL;
-            pen_image_free(&trial);
-            const double t0 = omp_get_wtime();
-            if ((s = pen_reference_create(ctx, sc, PEN_REFERENCE_LIGHTING_SH, &ref)) ||
-                (s = pen_reference_render(ctx, ref, r->reference_spp, SEARCH_SEED, &trial)))
-                goto done;
-            times[k] = 1e3 * (omp_get_wtime() - t0);
-        }
+    for (int k = 1; found && k < REF_TIMINGS && !s; ++k)
+        s = timed_reference(ctx, sc, r->reference_spp, &trial, &times[k]);
+    if (found && !s) {
         double scratch[REF_TIMINGS];
         r->reference_ms = median(times, REF_TIMINGS, 1, scratch);
     }
-done:
     pen_image_free(&trial);
-    pen_reference_destroy(ref);
     return s;
 }
 

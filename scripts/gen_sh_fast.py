@@ -1,6 +1,7 @@
 #!/usr/bin/env python3
-"""Generates src/sh/sh_fast_product.inc: straight-line SH products over lane vectors for the fast
-shading kernel (src/render/shade_fast.c), one set per band count 3..6.
+"""Generates src/sh/sh_fast_product.inc: straight-line SH code over lane vectors for the fast
+shading kernel (src/render/shade_fast.c, via shade_fast_ops.inc), one set per band count 3..6: the
+SH products, and the real SH basis and Legendre polynomials evaluated as polynomials (below).
 
 The product c = a * b, c_k = sum_ij Gamma_ijk a_i b_j, is sparse (353 ordered non-zero entries of
 16^3 at 4 bands). A loop over a table of entries spends most of its instructions on indices and
@@ -20,6 +21,21 @@ Variants (the fast kernel needs each):
                         outputs are left unwritten)
   fp_square_L(a, c)     c = a * a: Gamma is symmetric in i, j, so the pairs i < j are summed once
                         with weight 2 (the squarings of the exponential)
+
+Besides the products, the basis and the cap, written out per band count (no loops over l, m, and
+the Legendre recurrences folded into polynomial coefficients, Horner in z^2 or c^2):
+  fp_basis_L(x, y, z, Y)           Y_k at the unit direction (x, y, z), all L^2 of them (for the
+                                   clamped cosine rotated to the normal)
+  fp_basis_acc_L(x, y, z, su, F)   F_k += su_l Y_k(x, y, z), su one factor per band (a sphere's
+                                   log-visibility added into the sum)
+  fp_basis_contract_L(x, y, z, w, u, A, g)
+                                   A_l = sum over band l of w_k Y_k, and g the gradient in
+                                   (x, y, z) of sum_k u_l w_k Y_k (the backwards of the two above,
+                                   in one pass over the basis)
+  fp_cap_L(c, ce, u)               u_l = ce_l (P_{l-1}(c) - P_{l+1}(c)), P_{-1} = 1: a cap's
+                                   per-band log-visibility factor at cos(half-angle) c
+  fp_legendre_L(c, P)              P_l(c) for l < L (the cap's backward: du_l/dc is
+                                   proportional to P_l(c))
 
 The Gaunt values are computed here in double by the same exact quadrature as src/sh/gaunt.c
 (Gauss-Legendre in cos theta x uniform phi, entries below 1e-12 dropped), with the same real SH

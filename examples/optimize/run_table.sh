@@ -5,8 +5,9 @@
 #   lighting, albedo, pose, lighting_pose   the scene of <mesh>_truth.json (256x256, city map)
 #   deformation          the mesh bent sideways (bend_obj.py) recovered through the embedded
 #                        deformation graph from the unbent mesh
-#   shape_from_shadow    the proxy spheres recovered from the shadow alone (the camera looks
-#                        at the ground where the shadow falls), from a perturbed start
+#   shape_from_shadow    the proxy spheres recovered from the shadows alone (the spheres are not
+#                        drawn; the camera looks straight down at the object, its whole shadow
+#                        in the frame, <mesh>_shadow_truth.json), from a perturbed start
 #                        (perturb_spheres.py); own lighting, a 4-band sun (sun_sh.py)
 # Usage: sh examples/optimize/run_table.sh PENUMBRA_BIN [LIGHTING [MESH ...]]
 #   LIGHTING  the targets' light: envmap (default; the map itself, so sharp shadows the 4-band

@@ -136,8 +136,8 @@ def load_mesh(path):
 
 def _c_mesh(vertices, faces):
     """A pen_mesh borrowing the tensors (returned with the tensors that keep it alive)."""
-    v = vertices.detach().to(torch.float32).contiguous()
-    f = faces.detach().to(torch.int32).contiguous()
+    v = vertices.detach().to("cpu", torch.float32).contiguous()
+    f = faces.detach().to("cpu", torch.int32).contiguous()
     m = _lib.Mesh()
     m.vertex_count, m.triangle_count = v.shape[0], f.shape[0]
     m.positions, m.indices = _lib.fptr(v), _lib.uptr(f)
@@ -153,7 +153,7 @@ def load_image(path, raw=False):
 
 
 def _c_image(image):
-    t = image.detach().to(torch.float32).contiguous()
+    t = image.detach().to("cpu", torch.float32).contiguous()
     if t.dim() != 3 or not 1 <= t.shape[2] <= 4:
         raise ValueError("penumbra: an image must have shape (H, W, C) with C in 1..4, got %s"
                          % (tuple(t.shape),))
@@ -186,8 +186,11 @@ def envmap_to_sh(envmap, bands=4, rotation_y_deg=0.0, scale=1.0):
 def overlap_weights(spheres):
     """The overlap weights of an (S, 4) sphere set (pen_spheres_overlap_weights): an (S,) float32
     tensor, deterministic, that Object.sphere_weights takes. Not differentiable."""
-    s = spheres.detach().to(torch.float32).contiguous() if isinstance(spheres, torch.Tensor) \
-        else torch.tensor(spheres, dtype=torch.float32)
+    # Copied to the CPU (C reads the pointer), float64 input accepted.
+    if isinstance(spheres, torch.Tensor):
+        s = spheres.detach().to("cpu", torch.float32).contiguous()
+    else:
+        s = torch.tensor(spheres, dtype=torch.float32)
     if s.dim() != 2 or s.shape[1] != 4:
         raise ValueError("penumbra: spheres must have shape (N, 4), got %s" % (tuple(s.shape),))
     out = torch.zeros(s.shape[0], dtype=torch.float32)

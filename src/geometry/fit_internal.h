@@ -47,28 +47,6 @@ static inline double pen__fit_rand(uint64_t *state) {
     return (double)(pen__fit_rand_u64(state) >> 11) * (1.0 / 9007199254740992.0);
 }
 
-/* ---- Overlap weights (overlap.c) ---------------------------------------------------------- */
-
-typedef enum pen__overlap_method {
-    PEN__OVERLAP_NNLS = 0, /* least squares over lines, kappa >= 0, ridge towards the average */
-    PEN__OVERLAP_AVERAGE,  /* the line average of 1 / (spheres crossed) alone */
-    PEN__OVERLAP_VOLUME    /* the volume average of 1 / (spheres containing the point) */
-} pen__overlap_method;
-
-typedef struct pen__overlap_settings {
-    int lines_per_sphere; /* K (fewer for large sets, see overlap.c) */
-    double ridge;         /* weight of the pull towards the line average */
-    uint64_t seed;
-    pen__overlap_method method;
-    int max_sweeps; /* Gauss-Seidel sweeps at most */
-} pen__overlap_settings;
-
-/* The settings pen_spheres_overlap_weights uses. */
-void pen__overlap_settings_default(pen__overlap_settings *s);
-/* pen_spheres_overlap_weights with explicit settings (for measurements and tests). */
-pen_status pen__spheres_overlap_weights_ex(pen_context *ctx, const pen_spheres *spheres,
-                                           const pen__overlap_settings *s, float *kappa);
-
 /* ---- Energy (fit.c) ------------------------------------------------------------------------ */
 
 /* tanh(u) rounds to 1 in double for u >= 20 (1 - tanh(20) < 1e-17), so skipping those terms is

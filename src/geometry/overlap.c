@@ -44,16 +44,23 @@
 #define MAX_TESTS 2.0e8
 #define MIN_LINES 64
 
-void pen__overlap_settings_default(pen__overlap_settings *s) {
-    s->lines_per_sphere = 1024;
-    s->ridge = 0.3;
-    s->seed = 0x6f7665726c6170ull; /* "overlap" */
-    s->method = PEN__OVERLAP_NNLS;
-    s->max_sweeps = 5000;
-}
+/* The settings pen_spheres_overlap_weights uses (docs/fit-spheres.md has the measurements). */
+typedef struct overlap_settings {
+    int lines_per_sphere; /* K (fewer for large sets, see MAX_TESTS) */
+    double ridge;         /* weight of the pull towards the line average */
+    uint64_t seed;
+    int max_sweeps; /* Gauss-Seidel sweeps at most */
+} overlap_settings;
+
+static const overlap_settings SETTINGS = {
+    .lines_per_sphere = 1024,
+    .ridge = 0.3,
+    .seed = 0x6f7665726c6170ull, /* "overlap" */
+    .max_sweeps = 5000,
+};
 
 /* Line k of sphere i's proposal: a point p and a unit direction d. */
-static void sample_line(const pen__overlap_settings *s, const float *sph, int i, int k, double p[3],
+static void sample_line(const overlap_settings *s, const float *sph, int i, int k, double p[3],
                         double d[3]) {
     uint64_t st = s->seed ^ (0x9E3779B97F4A7C15ull * (uint64_t)(i + 1)) ^
                   (0xD1B54A32D192ED03ull * (uint64_t)(k + 1));
@@ -83,7 +90,7 @@ static int line_hits(const double p[3], const double d[3], const float *s4) {
 
 /* The spheres line (i, k) crosses, written to out (if not NULL); returns their count. The
  * proposal's own sphere always counts (the line was drawn through its disk). */
-static int line_hit_list(const pen__overlap_settings *s, const float *sph, int n, int i, int k,
+static int line_hit_list(const overlap_settings *s, const float *sph, int n, int i, int k,
                          int *out) {
     double p[3], d[3];
     sample_line(s, sph, i, k, p, d);
@@ -109,8 +116,8 @@ static void lines_free(lines *L) {
     free(L->start), free(L->hit), free(L->omega), free(L->by_start), free(L->by_line);
 }
 
-static pen_status lines_build(pen_context *ctx, const pen__overlap_settings *s, const float *sph,
-                              int n, int K, int threads, lines *L) {
+static pen_status lines_build(pen_context *ctx, const overlap_settings *s, const float *sph, int n,
+                              int K, int threads, lines *L) {
     memset(L, 0, sizeof *L);
     L->count = (long)n * K;
     L->start = pen__calloc(ctx, (size_t)L->count + 1, sizeof(long), "overlap: line offsets");
@@ -183,7 +190,7 @@ static int gram_row(const lines *L, int i, double *acc, int *touched, int *idx, 
 }
 
 /* Projected Gauss-Seidel on (G + ridge D) kappa = W + ridge D kappa0, D = diag(W), W_i = G_ii. */
-static pen_status solve(pen_context *ctx, const pen__overlap_settings *s, const lines *L, int n,
+static pen_status solve(pen_context *ctx, const overlap_settings *s, const lines *L, int n,
                         int threads, const double *W, const double *k0, double *kappa) {
     long *rs = pen__calloc(ctx, (size_t)n + 1, sizeof(long), "overlap: Gram offsets");
     double *acc = pen__calloc(ctx, (size_t)threads * (size_t)n, sizeof(double), "overlap: rows");
@@ -231,39 +238,8 @@ static pen_status solve(pen_context *ctx, const pen__overlap_settings *s, const 
     return st;
 }
 
-/* Volume variant (for comparison): kappa_i = mean over uniform points of sphere i of
- * 1 / (spheres containing the point). */
-static void volume_weights(const pen__overlap_settings *s, const float *sph, int n, int K,
-                           int threads, double *kappa) {
-#pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
-    for (int i = 0; i < n; ++i) {
-        const float *c = sph + 4 * (size_t)i;
-        uint64_t st = s->seed ^ (0x9E3779B97F4A7C15ull * (uint64_t)(i + 1));
-        double sum = 0.0;
-        for (int k = 0; k < K; ++k) {
-            double q[3], r2;
-            do {
-                for (int a = 0; a < 3; ++a)
-                    q[a] = 2.0 * pen__fit_rand(&st) - 1.0;
-                r2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2];
-            } while (r2 > 1.0);
-            for (int a = 0; a < 3; ++a)
-                q[a] = (double)c[a] + (double)c[3] * q[a];
-            int m = 0;
-            for (int j = 0; j < n; ++j) {
-                const float *o = sph + 4 * (size_t)j;
-                const double dx = q[0] - (double)o[0], dy = q[1] - (double)o[1],
-                             dz = q[2] - (double)o[2];
-                m += j == i || dx * dx + dy * dy + dz * dz < (double)o[3] * (double)o[3];
-            }
-            sum += 1.0 / m;
-        }
-        kappa[i] = sum / K;
-    }
-}
-
-pen_status pen__spheres_overlap_weights_ex(pen_context *ctx, const pen_spheres *spheres,
-                                           const pen__overlap_settings *s, float *kappa) {
+pen_status pen_spheres_overlap_weights(pen_context *ctx, const pen_spheres *spheres, float *kappa) {
+    const overlap_settings *s = &SETTINGS;
     const int n = spheres ? spheres->count : 0;
     if (!spheres || n < 0 || (n > 0 && (!spheres->data || !kappa)))
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "overlap weights: invalid arguments");
@@ -287,42 +263,28 @@ pen_status pen__spheres_overlap_weights_ex(pen_context *ctx, const pen_spheres *
     double *w = pen__calloc(ctx, 3 * (size_t)n, sizeof(double), "overlap: weights");
     if (!w) return PEN_ERROR_MEMORY;
     double *W = w, *k0 = w + n, *out = w + 2 * (size_t)n;
-    pen_status st = PEN_OK;
-    if (s->method == PEN__OVERLAP_VOLUME) {
-        volume_weights(s, spheres->data, n, K, threads, out);
-    } else {
-        lines L;
-        st = lines_build(ctx, s, spheres->data, n, K, threads, &L);
-        if (!st) {
-            for (int i = 0; i < n; ++i) {
-                double a = 0.0, b = 0.0;
-                for (long e = L.by_start[i]; e < L.by_start[i + 1]; ++e) {
-                    const long l = L.by_line[e];
-                    a += L.omega[l];
-                    b += L.omega[l] / (double)(L.start[l + 1] - L.start[l]);
-                }
-                W[i] = a;
-                k0[i] = a > 0.0 ? b / a : 1.0;
+    lines L;
+    pen_status st = lines_build(ctx, s, spheres->data, n, K, threads, &L);
+    if (!st) {
+        for (int i = 0; i < n; ++i) {
+            double a = 0.0, b = 0.0;
+            for (long e = L.by_start[i]; e < L.by_start[i + 1]; ++e) {
+                const long l = L.by_line[e];
+                a += L.omega[l];
+                b += L.omega[l] / (double)(L.start[l + 1] - L.start[l]);
             }
-            if (s->method == PEN__OVERLAP_AVERAGE)
-                memcpy(out, k0, sizeof(double) * (size_t)n);
-            else
-                st = solve(ctx, s, &L, n, threads, W, k0, out);
+            W[i] = a;
+            k0[i] = a > 0.0 ? b / a : 1.0;
         }
-        lines_free(&L);
+        st = solve(ctx, s, &L, n, threads, W, k0, out);
     }
+    lines_free(&L);
     /* Solved for a count of 1; the objective is quadratic, so the solution for the target T is
      * T times it (the ridge's kappa0 scales with it). */
     for (int i = 0; i < n && !st; ++i)
         kappa[i] = (float)(PEN_SPHERES_OVERLAP_TARGET * out[i]);
     free(w);
     return st;
-}
-
-pen_status pen_spheres_overlap_weights(pen_context *ctx, const pen_spheres *spheres, float *kappa) {
-    pen__overlap_settings s;
-    pen__overlap_settings_default(&s);
-    return pen__spheres_overlap_weights_ex(ctx, spheres, &s, kappa);
 }
 
 pen_status pen_spheres_ensure_weights(pen_context *ctx, pen_spheres *spheres) {

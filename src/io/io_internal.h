@@ -85,6 +85,10 @@ pen_status pen__json_choice(pen_context *ctx, const pen__json_where *w, const cJ
  * (members whose names start with '_' are comments and allowed). */
 pen_status pen__json_known_keys(pen_context *ctx, const pen__json_where *w, const cJSON *obj,
                                 const char *const *known);
+/* Adds item to object obj under name; returns 1, or 0 on failure (item NULL or not added), in
+ * which case item is deleted, so that a chain of "ok && pen__json_add(o, k, make())" leaves
+ * nothing unowned. */
+int pen__json_add(cJSON *obj, const char *name, cJSON *item);
 /* A JSON number for a float with the fewest decimal digits that read back to the same float
  * (so 0.3f is written 0.3, not 0.30000001192092896). NULL on exhaustion. */
 cJSON *pen__json_float(float value);

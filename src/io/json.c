@@ -200,6 +200,12 @@ pen_status pen__json_known_keys(pen_context *ctx, const pen__json_where *w, cons
     return PEN_OK;
 }
 
+int pen__json_add(cJSON *obj, const char *name, cJSON *item) {
+    if (item && cJSON_AddItemToObject(obj, name, item)) return 1;
+    cJSON_Delete(item);
+    return 0;
+}
+
 cJSON *pen__json_float(float value) {
     /* The shortest of %.6g .. %.9g that reads back to the same float (9 always does). */
     char buf[32];

@@ -455,29 +455,22 @@ void pen_scene_free(pen_scene *scene) {
 
 /* ---- Saving ---------------------------------------------------------------------------------- */
 
-/* Adds item to obj under name; on failure deletes item and returns 0. */
-static int add(cJSON *obj, const char *name, cJSON *item) {
-    if (item && cJSON_AddItemToObject(obj, name, item)) return 1;
-    cJSON_Delete(item);
-    return 0;
-}
-
 static int add_path(pen_context *ctx, cJSON *obj, const char *name, const char *json_path,
                     const char *target) {
     char *rel = pen__io_path_relative(ctx, json_path, target);
-    int ok = rel && add(obj, name, cJSON_CreateString(rel));
+    int ok = rel && pen__json_add(obj, name, cJSON_CreateString(rel));
     free(rel);
     return ok;
 }
 
 static cJSON *camera_json(const pen_camera *c) {
     cJSON *o = cJSON_CreateObject();
-    int ok = o && add(o, "width", cJSON_CreateNumber(c->width)) &&
-             add(o, "height", cJSON_CreateNumber(c->height)) &&
-             add(o, "fov_y_deg", pen__json_float(c->fov_y_deg)) &&
-             add(o, "eye", pen__json_float_array(c->eye, 3)) &&
-             add(o, "target", pen__json_float_array(c->target, 3)) &&
-             add(o, "up", pen__json_float_array(c->up, 3));
+    int ok = o && pen__json_add(o, "width", cJSON_CreateNumber(c->width)) &&
+             pen__json_add(o, "height", cJSON_CreateNumber(c->height)) &&
+             pen__json_add(o, "fov_y_deg", pen__json_float(c->fov_y_deg)) &&
+             pen__json_add(o, "eye", pen__json_float_array(c->eye, 3)) &&
+             pen__json_add(o, "target", pen__json_float_array(c->target, 3)) &&
+             pen__json_add(o, "up", pen__json_float_array(c->up, 3));
     if (!ok) cJSON_Delete(o);
     return ok ? o : NULL;
 }
@@ -490,11 +483,11 @@ static cJSON *lighting_json(pen_context *ctx, const char *path, const pen_scene 
     int has_env = L->envmap.data && L->envmap_path;
     if (ok && has_env)
         ok = add_path(ctx, o, "envmap", path, L->envmap_path) &&
-             add(o, "scale", pen__json_float(L->scale)) &&
-             add(o, "rotation_y_deg", pen__json_float(L->rotation_y_deg));
+             pen__json_add(o, "scale", pen__json_float(L->scale)) &&
+             pen__json_add(o, "rotation_y_deg", pen__json_float(L->rotation_y_deg));
     if (ok && (!has_env || (flags & PEN_SCENE_SAVE_SH_LIGHTING))) {
         cJSON *rows = cJSON_CreateArray();
-        ok = add(o, "sh", rows);
+        ok = pen__json_add(o, "sh", rows);
         for (int i = 0; ok && i < sc->sh_bands * sc->sh_bands; ++i)
             ok = cJSON_AddItemToArray(rows, pen__json_float_array(L->sh[i], 3));
     }
@@ -508,21 +501,22 @@ static cJSON *object_json(pen_context *ctx, const char *path, const pen_object *
     if (ok && obj->texture.data && obj->texture_path)
         ok = add_path(ctx, o, "albedo_texture", path, obj->texture_path);
     else if (ok)
-        ok = add(o, "albedo", pen__json_float_array(obj->albedo, 3));
+        ok = pen__json_add(o, "albedo", pen__json_float_array(obj->albedo, 3));
     if (ok && obj->spheres_path) {
         ok = add_path(ctx, o, "spheres", path, obj->spheres_path);
     } else if (ok && obj->spheres.count > 0) {
-        ok = add(o, "spheres", pen__spheres_to_json(&obj->spheres));
+        ok = pen__json_add(o, "spheres", pen__spheres_to_json(&obj->spheres));
     } else if (ok && obj->fit_spheres > 0) {
         cJSON *fit = cJSON_CreateObject();
-        ok = add(o, "spheres", fit) && add(fit, "fit", cJSON_CreateNumber(obj->fit_spheres));
+        ok = pen__json_add(o, "spheres", fit) &&
+             pen__json_add(fit, "fit", cJSON_CreateNumber(obj->fit_spheres));
     }
     cJSON *pose = ok ? cJSON_CreateObject() : NULL;
-    ok = ok && add(o, "pose", pose) &&
-         add(pose, "rotation_axis_angle_deg",
-             pen__json_float_array(obj->pose.rotation_axis_angle_deg, 3)) &&
-         add(pose, "translation", pen__json_float_array(obj->pose.translation, 3)) &&
-         add(pose, "scale", pen__json_float(obj->pose.scale));
+    ok = ok && pen__json_add(o, "pose", pose) &&
+         pen__json_add(pose, "rotation_axis_angle_deg",
+                       pen__json_float_array(obj->pose.rotation_axis_angle_deg, 3)) &&
+         pen__json_add(pose, "translation", pen__json_float_array(obj->pose.translation, 3)) &&
+         pen__json_add(pose, "scale", pen__json_float(obj->pose.scale));
     if (!ok) cJSON_Delete(o);
     return ok ? o : NULL;
 }
@@ -558,11 +552,12 @@ static pen_status check_saveable(pen_context *ctx, const char *path, const pen_s
 static cJSON *shadow_json(const pen_shadow *sh) {
     cJSON *o = cJSON_CreateObject();
     int ok =
-        o && add(o, "epsilon", pen__json_float(sh->epsilon)) &&
-        add(o, "exp", cJSON_CreateString(pen_sh_exp_method_name(sh->exp))) &&
-        add(o, "overlap",
-            cJSON_CreateString(sh->overlap == PEN_OVERLAP_NONE ? "none" : "weights")) &&
-        add(o, "ground",
+        o && pen__json_add(o, "epsilon", pen__json_float(sh->epsilon)) &&
+        pen__json_add(o, "exp", cJSON_CreateString(pen_sh_exp_method_name(sh->exp))) &&
+        pen__json_add(o, "overlap",
+                      cJSON_CreateString(sh->overlap == PEN_OVERLAP_NONE ? "none" : "weights")) &&
+        pen__json_add(
+            o, "ground",
             cJSON_CreateString(sh->ground == PEN_GROUND_RECEIVER ? "receiver" : "occludes"));
     if (!ok) cJSON_Delete(o);
     return ok ? o : NULL;
@@ -580,9 +575,9 @@ static cJSON *objects_json(pen_context *ctx, const char *path, const pen_scene *
 static cJSON *ground_json(const pen_ground *g) {
     if (!g->enabled) return cJSON_CreateNull();
     cJSON *o = cJSON_CreateObject();
-    int ok = o && add(o, "height", pen__json_float(g->height)) &&
-             add(o, "albedo", pen__json_float_array(g->albedo, 3)) &&
-             add(o, "half_size", pen__json_float(g->half_size));
+    int ok = o && pen__json_add(o, "height", pen__json_float(g->height)) &&
+             pen__json_add(o, "albedo", pen__json_float_array(g->albedo, 3)) &&
+             pen__json_add(o, "half_size", pen__json_float(g->half_size));
     if (!ok) cJSON_Delete(o);
     return ok ? o : NULL;
 }
@@ -591,17 +586,17 @@ pen_status pen_scene_save_ex(pen_context *ctx, const char *path, const pen_scene
                              unsigned flags) {
     pen_status s = check_saveable(ctx, path, sc);
     if (s) return s;
-    /* Each member is built inside its add() call, so nothing is left unowned on failure. */
+    /* Each member is built inside its pen__json_add call, so nothing is left unowned on failure. */
     cJSON *root = cJSON_CreateObject();
-    int ok = root && add(root, "camera", camera_json(&sc->camera)) &&
-             add(root, "lighting", lighting_json(ctx, path, sc, flags)) &&
-             add(root, "sh_bands", cJSON_CreateNumber(sc->sh_bands)) &&
-             add(root, "shadow", shadow_json(&sc->shadow)) &&
-             add(root, "objects", objects_json(ctx, path, sc)) &&
-             add(root, "ground", ground_json(&sc->ground)) &&
-             add(root, "background",
-                 sc->background_envmap ? cJSON_CreateString("envmap")
-                                       : pen__json_float_array(sc->background, 3));
+    int ok = root && pen__json_add(root, "camera", camera_json(&sc->camera)) &&
+             pen__json_add(root, "lighting", lighting_json(ctx, path, sc, flags)) &&
+             pen__json_add(root, "sh_bands", cJSON_CreateNumber(sc->sh_bands)) &&
+             pen__json_add(root, "shadow", shadow_json(&sc->shadow)) &&
+             pen__json_add(root, "objects", objects_json(ctx, path, sc)) &&
+             pen__json_add(root, "ground", ground_json(&sc->ground)) &&
+             pen__json_add(root, "background",
+                           sc->background_envmap ? cJSON_CreateString("envmap")
+                                                 : pen__json_float_array(sc->background, 3));
     char *text = ok ? cJSON_Print(root) : NULL;
     cJSON_Delete(root);
     if (!text) {

@@ -97,21 +97,15 @@ pen_status pen_spheres_load(pen_context *ctx, const char *path, pen_spheres *out
     return s;
 }
 
-/* Adds item to o under name; on failure deletes item. */
-static int add_member(cJSON *o, const char *name, cJSON *item) {
-    if (item && cJSON_AddItemToObject(o, name, item)) return 1;
-    cJSON_Delete(item);
-    return 0;
-}
-
 cJSON *pen__spheres_to_json(const pen_spheres *spheres) {
     cJSON *list = cJSON_CreateArray();
     for (int i = 0; list && i < spheres->count; ++i) {
         const float *d = spheres->data + 4 * (size_t)i;
         cJSON *o = cJSON_CreateObject();
-        int ok = o && add_member(o, "center", pen__json_float_array(d, 3)) &&
-                 add_member(o, "radius", pen__json_float(d[3])) &&
-                 (!spheres->weight || add_member(o, "weight", pen__json_float(spheres->weight[i])));
+        int ok =
+            o && pen__json_add(o, "center", pen__json_float_array(d, 3)) &&
+            pen__json_add(o, "radius", pen__json_float(d[3])) &&
+            (!spheres->weight || pen__json_add(o, "weight", pen__json_float(spheres->weight[i])));
         if (!ok || !cJSON_AddItemToArray(list, o)) {
             cJSON_Delete(o);
             cJSON_Delete(list);
