@@ -52,8 +52,7 @@ static void outputs_finish(outputs *o, int remove_files) {
     o->count = 0;
 }
 
-static pen_status save_image(pen_context *ctx, outputs *o, const char *name,
-                             const pen_image *img) {
+static pen_status save_image(pen_context *ctx, outputs *o, const char *name, const pen_image *img) {
     char *path = pen__optim_join(ctx, o->dir, name);
     if (!path) return PEN_ERROR_MEMORY;
     pen_status s = pen_image_save(ctx, path, img);
@@ -96,8 +95,10 @@ static pen_status save_scene(pen_context *ctx, outputs *o, const pen_optim_task 
             snprintf(name, sizeof name, "mesh_%d.obj", i);
             char *path = pen__optim_join(ctx, o->dir, name);
             s = path ? pen_mesh_save_obj(ctx, path, &sc->objects[i].mesh) : PEN_ERROR_MEMORY;
-            if (!s) s = remember(ctx, o, path);
-            else free(path);
+            if (!s)
+                s = remember(ctx, o, path);
+            else
+                free(path);
             if (!s) meshes[i] = pen__io_strdup(ctx, o->written[o->count - 1]);
             if (!s && !meshes[i]) s = PEN_ERROR_MEMORY;
             if (s) break;
@@ -168,8 +169,8 @@ static pen_status compare_picture(pen_context *ctx, const pen_optim_task *t,
             for (int ch = 0; ch < 3; ++ch)
                 err += fabsf(r->final.data[src + ch] - t->target.data[src + ch]) / 3.0f;
             for (int p = 0; p < 4; ++p) {
-                float *dst = out->data + 3 * ((size_t)y * (size_t)out->width +
-                                              (size_t)(p * (w + gap) + x));
+                float *dst =
+                    out->data + 3 * ((size_t)y * (size_t)out->width + (size_t)(p * (w + gap) + x));
                 for (int ch = 0; ch < 3; ++ch)
                     dst[ch] = p < 3 ? e * panels[p]->data[src + ch] : 4.0f * e * err;
             }
@@ -190,8 +191,8 @@ static int put(text_buf *b, const char *fmt, ...) {
     for (;;) {
         va_list ap;
         va_start(ap, fmt);
-        int n = vsnprintf(b->data ? b->data + b->len : NULL, b->data ? b->cap - b->len : 0, fmt,
-                          ap);
+        int n =
+            vsnprintf(b->data ? b->data + b->len : NULL, b->data ? b->cap - b->len : 0, fmt, ap);
         va_end(ap);
         if (n < 0) return 0;
         if (b->data && b->len + (size_t)n < b->cap) {
@@ -241,8 +242,8 @@ static pen_status loss_svg(pen_context *ctx, const pen_optim_result *r, int shad
                    "<text x=\"%.1f\" y=\"%d\" text-anchor=\"end\">%d</text>"
                    "<text x=\"%.1f\" y=\"%d\" text-anchor=\"middle\">iteration</text>\n"
                    "<polyline fill=\"none\" stroke=\"#c33\" stroke-width=\"1.5\" points=\"",
-                   left, H - bottom + 16, left + pw, H - bottom + 16, r->iterations,
-                   left + pw / 2, H - 12);
+                   left, H - bottom + 16, left + pw, H - bottom + 16, r->iterations, left + pw / 2,
+                   H - 12);
     for (int i = 0; ok && i < n; ++i) {
         const double v = r->losses[i] > 0.0 ? log10(r->losses[i]) : lo;
         const double x = left + pw * (n > 1 ? (double)i / (double)(n - 1) : 0.0);
@@ -259,16 +260,10 @@ static pen_status loss_svg(pen_context *ctx, const pen_optim_result *r, int shad
 
 /* ---- result.json ----------------------------------------------------------------------------- */
 
-static int add(cJSON *obj, const char *name, cJSON *item) {
-    if (item && cJSON_AddItemToObject(obj, name, item)) return 1;
-    cJSON_Delete(item);
-    return 0;
-}
-
 /* A metric if it applies (finite); infinite values (a perfect PSNR) are written as null. */
 static int add_metric(cJSON *m, const char *name, double v) {
     if (isnan(v)) return 1;
-    return add(m, name, isfinite(v) ? cJSON_CreateNumber(v) : cJSON_CreateNull());
+    return pen__json_add(m, name, isfinite(v) ? cJSON_CreateNumber(v) : cJSON_CreateNull());
 }
 
 static cJSON *groups_json(unsigned groups) {
@@ -306,13 +301,14 @@ static cJSON *metrics_json(const pen_optim_metrics *mt) {
 
 static cJSON *lr_json(const pen_optim_lr *lr) {
     cJSON *o = cJSON_CreateObject();
-    int ok = o && add(o, "lighting", pen__json_float(lr->lighting)) &&
-             add(o, "albedo", pen__json_float(lr->albedo)) &&
-             add(o, "rotation", pen__json_float(lr->rotation)) &&
-             add(o, "translation", pen__json_float(lr->translation)) &&
-             add(o, "spheres", pen__json_float(lr->spheres)) &&
-             add(o, "deformation_rotation", pen__json_float(lr->deformation_rotation)) &&
-             add(o, "deformation_translation", pen__json_float(lr->deformation_translation));
+    int ok =
+        o && pen__json_add(o, "lighting", pen__json_float(lr->lighting)) &&
+        pen__json_add(o, "albedo", pen__json_float(lr->albedo)) &&
+        pen__json_add(o, "rotation", pen__json_float(lr->rotation)) &&
+        pen__json_add(o, "translation", pen__json_float(lr->translation)) &&
+        pen__json_add(o, "spheres", pen__json_float(lr->spheres)) &&
+        pen__json_add(o, "deformation_rotation", pen__json_float(lr->deformation_rotation)) &&
+        pen__json_add(o, "deformation_translation", pen__json_float(lr->deformation_translation));
     if (!ok) cJSON_Delete(o);
     return ok ? o : NULL;
 }
@@ -321,9 +317,9 @@ static cJSON *lr_json(const pen_optim_lr *lr) {
  * JSON spells them. */
 static cJSON *graph_json(int k, const char *const names[], const double *w, int n) {
     cJSON *o = cJSON_CreateObject();
-    int ok = o && add(o, "k", cJSON_CreateNumber(k));
+    int ok = o && pen__json_add(o, "k", cJSON_CreateNumber(k));
     for (int i = 0; ok && i < n; ++i)
-        ok = add(o, names[i], cJSON_CreateNumber(w[i]));
+        ok = pen__json_add(o, names[i], cJSON_CreateNumber(w[i]));
     if (!ok) cJSON_Delete(o);
     return ok ? o : NULL;
 }
@@ -339,38 +335,40 @@ pen_status pen_optim_result_json(pen_context *ctx, const pen_optim_task *t,
     static const char *const deform_names[] = {"w_rot", "w_reg"};
     static const char *const sphere_names[] = {"w_smooth"};
     const double deform_w[] = {t->deformation.w_rot, t->deformation.w_reg};
-    int ok = root && add(root, "task", cJSON_CreateString(t->path ? t->path : "")) &&
-             add(root, "optimize", groups_json(t->optimize)) &&
-             add(root, "shadows", cJSON_CreateBool(shadows)) &&
-             add(root, "loss", cJSON_CreateString(t->loss == PEN_OPTIM_LOSS_L1 ? "l1" : "l2")) &&
-             add(root, "shadow_weight", cJSON_CreateNumber(t->shadow_weight)) &&
-             add(root, "lighting_solver",
-                 cJSON_CreateString(t->lighting_solver == PEN_OPTIM_LIGHTING_LEAST_SQUARES
-                                        ? "least_squares"
-                                        : "adam")) &&
-             add(root, "lighting_ridge", cJSON_CreateNumber(t->lighting_ridge)) &&
-             add(root, "iterations", cJSON_CreateNumber(it)) &&
-             add(root, "seconds", cJSON_CreateNumber(r->seconds)) &&
-             add(root, "seconds_per_iteration",
-                 cJSON_CreateNumber(it > 0 ? r->seconds / it : r->seconds)) &&
-             add(root, "initial_loss", cJSON_CreateNumber(r->losses ? r->losses[0] : (double)NAN)) &&
-             add(root, "final_loss", cJSON_CreateNumber(r->final_loss)) &&
-             add(root, "converged", cJSON_CreateBool(r->converged)) &&
-             add(root, "interrupted", cJSON_CreateBool(r->interrupted)) &&
-             add(root, "resumed_from", cJSON_CreateNumber(r->resumed_from)) &&
-             add(root, "metrics", metrics_json(&r->metrics)) &&
-             add(root, "lr", lr_json(&t->lr)) &&
+    int ok = root && pen__json_add(root, "task", cJSON_CreateString(t->path ? t->path : "")) &&
+             pen__json_add(root, "optimize", groups_json(t->optimize)) &&
+             pen__json_add(root, "shadows", cJSON_CreateBool(shadows)) &&
+             pen__json_add(root, "loss",
+                           cJSON_CreateString(t->loss == PEN_OPTIM_LOSS_L1 ? "l1" : "l2")) &&
+             pen__json_add(root, "shadow_weight", cJSON_CreateNumber(t->shadow_weight)) &&
+             pen__json_add(root, "lighting_solver",
+                           cJSON_CreateString(t->lighting_solver == PEN_OPTIM_LIGHTING_LEAST_SQUARES
+                                                  ? "least_squares"
+                                                  : "adam")) &&
+             pen__json_add(root, "lighting_ridge", cJSON_CreateNumber(t->lighting_ridge)) &&
+             pen__json_add(root, "iterations", cJSON_CreateNumber(it)) &&
+             pen__json_add(root, "seconds", cJSON_CreateNumber(r->seconds)) &&
+             pen__json_add(root, "seconds_per_iteration",
+                           cJSON_CreateNumber(it > 0 ? r->seconds / it : r->seconds)) &&
+             pen__json_add(root, "initial_loss",
+                           cJSON_CreateNumber(r->losses ? r->losses[0] : (double)NAN)) &&
+             pen__json_add(root, "final_loss", cJSON_CreateNumber(r->final_loss)) &&
+             pen__json_add(root, "converged", cJSON_CreateBool(r->converged)) &&
+             pen__json_add(root, "interrupted", cJSON_CreateBool(r->interrupted)) &&
+             pen__json_add(root, "resumed_from", cJSON_CreateNumber(r->resumed_from)) &&
+             pen__json_add(root, "metrics", metrics_json(&r->metrics)) &&
+             pen__json_add(root, "lr", lr_json(&t->lr)) &&
              (!(t->optimize & PEN_OPTIM_DEFORMATION) ||
-              add(root, "deformation",
-                  graph_json(t->deformation.k, deform_names, deform_w, 2))) &&
+              pen__json_add(root, "deformation",
+                            graph_json(t->deformation.k, deform_names, deform_w, 2))) &&
              (!(t->optimize & PEN_OPTIM_SPHERES) ||
-              add(root, "spheres",
-                  graph_json(t->spheres.k, sphere_names, &t->spheres.w_smooth, 1))) &&
-             add(root, "tolerance", cJSON_CreateNumber(t->tolerance)) &&
-             add(root, "window", cJSON_CreateNumber(t->window)) &&
-             add(root, "width", cJSON_CreateNumber(t->target.width)) &&
-             add(root, "height", cJSON_CreateNumber(t->target.height)) &&
-             add(root, "losses", losses);
+              pen__json_add(root, "spheres",
+                            graph_json(t->spheres.k, sphere_names, &t->spheres.w_smooth, 1))) &&
+             pen__json_add(root, "tolerance", cJSON_CreateNumber(t->tolerance)) &&
+             pen__json_add(root, "window", cJSON_CreateNumber(t->window)) &&
+             pen__json_add(root, "width", cJSON_CreateNumber(t->target.width)) &&
+             pen__json_add(root, "height", cJSON_CreateNumber(t->target.height)) &&
+             pen__json_add(root, "losses", losses);
     char *text = ok ? cJSON_Print(root) : NULL;
     cJSON_Delete(root);
     if (!text) return pen__error(ctx, PEN_ERROR_MEMORY, "result.json: out of memory");
