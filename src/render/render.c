@@ -789,8 +789,10 @@ static const float (*group_lighting(const pen_scene *sc, const pen_render_state 
 }
 
 /* The shaded pixels of tile t (their indices into pix and their groups into grp), in raster
- * order within each group, groups ascending; returns their number (at most TILE_PX). A tile
- * usually holds one or two groups, so the stable insertion sort costs little. */
+ * order within each group, groups ascending; returns their number (at most TILE_PX). The stable
+ * insertion sort moves each pixel past the earlier pixels of higher groups: nothing for a tile of
+ * one group, but a pixels of one group above b of a lower one (an object over the ground) cost
+ * a * b moves, up to TILE_PX^2 / 4. */
 static int tile_pixels(const pen_render_state *st, int t, int *pix, int *grp) {
     int x0, y0, x1, y1, n = 0;
     tile_rect(st, t, &x0, &y0, &x1, &y1);
