@@ -107,7 +107,7 @@ struct pen_render_state {
     size_t bary_cap;
     size_t fv_cap, rows_cap, ws_cap;
     float *fv; /* scalar kernel: F and V per pixel (2 bands^2); fast: its store, per tile */
-    int fv_valid;
+    int fv_valid;    /* the forward kept fv (only with shadows on: without, nothing is kept) */
     int fast;        /* the forward used the fast kernel */
     double *rows;    /* the backward's double accumulators, one block per tile */
     unsigned char *ws; /* per-thread workspaces (tile_ws) */
@@ -482,14 +482,9 @@ static void background_prepare(pen_context *ctx, const pen_scene *sc, pen_render
     }
     st->bg_valid = 0;
     const size_t np = (size_t)st->width * (size_t)st->height;
-    if (!st->bg || st->bg_cap < np) {
-        free(st->bg);
-        st->bg = pen__malloc(ctx, np, 3 * sizeof(float), "background cache");
-        st->bg_cap = st->bg ? np : 0;
-        if (!st->bg) {
-            pen_context_clear_error(ctx);
-            return;
-        }
+    if (ensure(ctx, (void **)&st->bg, &st->bg_cap, np, 3 * sizeof(float), "background cache")) {
+        pen_context_clear_error(ctx); /* not the render's failure: it goes on without the cache */
+        return;
     }
     st->bg_key = k;
     st->bg_use = 1;
@@ -558,12 +553,6 @@ static void ground_occlusion_prepare(const pen_scene *sc, const pen_render_optio
                 b->d_seen_dh[j][ch] = dv * dt_dh;
             }
     }
-}
-
-/* The lighting surface `surf` shades with. */
-static const float (*lighting_of(const pen_scene *sc, const pen_render_state *st, int surf))[3] {
-    return st->ground_occludes && surf >= 0 ? (const float(*)[3])st->obj[surf].seen
-                                            : (const float(*)[3])sc->lighting.sh;
 }
 
 /* Poses the geometry, rasterizes, and interpolates the per-pixel attributes into st. */
@@ -783,9 +772,16 @@ static int pixel_group(const pen_render_state *st, int surf) {
     return st->ground_occludes ? 1 + surf : 1;
 }
 
+/* The object whose own `seen` lighting group g shades with, or -1 for the scene's lighting (the
+ * ground's group, and every group without ground occlusion). */
+static int group_seen_object(const pen_render_state *st, int g) {
+    return st->ground_occludes && g > 0 ? g - 1 : -1;
+}
+
 /* The lighting of group g. */
 static const float (*group_lighting(const pen_scene *sc, const pen_render_state *st, int g))[3] {
-    return g == 0 ? (const float(*)[3])sc->lighting.sh : lighting_of(sc, st, g - 1);
+    const int o = group_seen_object(st, g);
+    return o >= 0 ? (const float(*)[3])st->obj[o].seen : (const float(*)[3])sc->lighting.sh;
 }
 
 /* The shaded pixels of tile t (their indices into pix and their groups into grp), in raster
@@ -1069,10 +1065,10 @@ static void shade_tile_bwd(const void *job_, int t, tile_ws *ws, pen__shade_fast
         const int g = grp[a];
         const float(*sh)[3] = group_lighting(sc, st, g);
         /* where this group's lighting gradient goes: an object's own `seen`, or the lighting */
-        const int own = st->ground_occludes && g > 0;
+        const int own = group_seen_object(st, g);
         double(*d_sh)[3] =
-            own ? (bw->seen ? (double(*)[3])(row + bw->rl.sh_obj + nsh * (size_t)(g - 1)) : NULL)
-                : (bw->light ? (double(*)[3])(row + bw->rl.sh) : NULL);
+            own >= 0 ? (bw->seen ? (double(*)[3])(row + bw->rl.sh_obj + nsh * (size_t)own) : NULL)
+                     : (bw->light ? (double(*)[3])(row + bw->rl.sh) : NULL);
         if (!st->fast) {
             for (int k = a; k < b; ++k) {
                 const size_t i = (size_t)pix[k];
@@ -1219,7 +1215,7 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     const int want_height = (wrt & PEN_GRAD_POSE) != 0 && st->ground_occludes;
     const bwd_want bw = {want_geom, want_sph,    want_light, want_albedo,
                          seen > 0 && (want_light || want_height), rl};
-    float *fv_all = st->fv_valid && st->params.shadows ? st->fv : NULL;
+    float *fv_all = st->fv_valid ? st->fv : NULL;
     const tile_job job = {sc, st, &bw, fv_all, st->fast ? st->tile_off : NULL};
     t0 = omp_get_wtime();
     const loop_ticks lt = run_tiles(st, nt, wsb, shade_tile_bwd, &job);
