@@ -50,7 +50,9 @@ static const char *group_name[G_COUNT] = {"rgb", "d_sh", "d_spheres", "d_x", "d_
  * inside spheres, some spheres behind tangent planes), checked group by group. */
 static void check_random_pixels(int bands, pen_sh_exp_method method, int shadows, int S,
                                 int count, int verbose) {
-    const int nground = count / 3; /* the first third on the ground plane, as the renderer sends */
+    /* The first third on the ground plane: a call that mixes ground and other pixels, with a
+     * batch across the boundary (the renderer's calls are all ground or none). */
+    const int nground = count / 3;
     const int nc = bands * bands;
     pen__shade_params p = params(bands, method, shadows);
     CHECK(pen__shade_fast_supported(&p));

@@ -47,8 +47,9 @@ extern "C" {
 
 /* Shading kernels (pen_render_options.kernel). FAST processes the pixels of a screen tile in
  * batches of SIMD lanes (16 floats with AVX-512) with SH code generated per band count; it covers
- * bands 3..6 with the calibrated and paper exponentials and falls back to SCALAR otherwise.
- * SCALAR is the per-pixel reference kernel. Both compute in float and agree to float rounding. */
+ * bands 3..6, with shadows the calibrated and paper exponentials, without shadows every method
+ * (no exponential is taken), and falls back to SCALAR otherwise. SCALAR is the per-pixel
+ * reference kernel. Both compute in float and agree to float rounding. */
 #define PEN_RENDER_KERNEL_FAST 0
 #define PEN_RENDER_KERNEL_SCALAR 1
 

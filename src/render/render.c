@@ -18,9 +18,11 @@
  *   kept between frames, see background_prepare). Antialiasing blends colours across
  *   silhouettes last.
  * - What the state keeps. The G-buffer and per-pixel x, raw normal, n, rho, uv and the
- *   pre-antialiasing colour, and the kernel's store: F per pixel (fast kernel, in its batch
- *   layout per tile) or F and V per pixel (scalar kernel). The per-sphere terms are recomputed
- *   in the backward (cheaper than storing bands^2 x spheres floats per pixel).
+ *   pre-antialiasing colour, each tile's shaded pixels in lighting groups (tile_group: one
+ *   parallel pass before the shading, read again by the backward), and the kernel's store: F
+ *   per pixel (fast kernel, in its batch layout per tile) or F and V per pixel (scalar kernel).
+ *   The per-sphere terms are recomputed in the backward (cheaper than storing bands^2 x spheres
+ *   floats per pixel).
  * - Backward. Antialiasing backward gives d_colour (and silhouette vertex gradients); a parallel
  *   pass over tiles runs the kernel's backward, writing per-pixel d_x, d_raw-normal, d_uv, d_rho,
  *   and per-tile double buffers for the small dense gradients (lighting, constant albedos,
@@ -49,6 +51,15 @@
  * tile's shaded pixels), and of the backward's double accumulators. */
 #define TILE 16
 #define TILE_PX (TILE * TILE)
+
+/* A tile's shaded pixels by lighting group (tile_group): indices in raster order within each
+ * group, groups ascending, in runs of one group each, run r being pix[end[r - 1]] ..
+ * pix[end[r] - 1] (end[-1] = 0). Made once per forward; its shading and the backward read it. */
+typedef struct tile_groups {
+    int runs;
+    int pix[TILE_PX], end[TILE_PX];
+    size_t store; /* floats of the fast kernel's store for these runs */
+} tile_groups;
 
 /* ---- State ----------------------------------------------------------------------------------- */
 
@@ -104,10 +115,12 @@ struct pen_render_state {
     float *bary_scratch; /* pen_raster_bary_bwd_scratch's 9 floats per pixel, kept between frames */
     size_t *tile_off;    /* the fast store's layout per tile (tile_store_layout) */
     size_t tile_off_cap;
+    tile_groups *groups; /* per tile, of the last forward */
+    size_t groups_cap;
     size_t bary_cap;
     size_t fv_cap, rows_cap, ws_cap;
     float *fv; /* scalar kernel: F and V per pixel (2 bands^2); fast: its store, per tile */
-    int fv_valid;
+    int fv_valid;    /* the forward kept fv (only with shadows on: without, nothing is kept) */
     int fast;        /* the forward used the fast kernel */
     double *rows;    /* the backward's double accumulators, one block per tile */
     unsigned char *ws; /* per-thread workspaces (tile_ws) */
@@ -148,7 +161,7 @@ void pen_render_state_free(pen_render_state *st) {
     for (size_t i = 0; i < sizeof px / sizeof px[0]; ++i)
         free(px[i]);
     free(st->fv), free(st->rows), free(st->ws), free(st->bg), free(st->bary_scratch);
-    free(st->tile_off);
+    free(st->tile_off), free(st->groups);
     free(st);
 }
 
@@ -482,14 +495,9 @@ static void background_prepare(pen_context *ctx, const pen_scene *sc, pen_render
     }
     st->bg_valid = 0;
     const size_t np = (size_t)st->width * (size_t)st->height;
-    if (!st->bg || st->bg_cap < np) {
-        free(st->bg);
-        st->bg = pen__malloc(ctx, np, 3 * sizeof(float), "background cache");
-        st->bg_cap = st->bg ? np : 0;
-        if (!st->bg) {
-            pen_context_clear_error(ctx);
-            return;
-        }
+    if (ensure(ctx, (void **)&st->bg, &st->bg_cap, np, 3 * sizeof(float), "background cache")) {
+        pen_context_clear_error(ctx); /* not the render's failure: it goes on without the cache */
+        return;
     }
     st->bg_key = k;
     st->bg_use = 1;
@@ -558,12 +566,6 @@ static void ground_occlusion_prepare(const pen_scene *sc, const pen_render_optio
                 b->d_seen_dh[j][ch] = dv * dt_dh;
             }
     }
-}
-
-/* The lighting surface `surf` shades with. */
-static const float (*lighting_of(const pen_scene *sc, const pen_render_state *st, int surf))[3] {
-    return st->ground_occludes && surf >= 0 ? (const float(*)[3])st->obj[surf].seen
-                                            : (const float(*)[3])sc->lighting.sh;
 }
 
 /* Poses the geometry, rasterizes, and interpolates the per-pixel attributes into st. */
@@ -783,16 +785,27 @@ static int pixel_group(const pen_render_state *st, int surf) {
     return st->ground_occludes ? 1 + surf : 1;
 }
 
-/* The lighting of group g. */
-static const float (*group_lighting(const pen_scene *sc, const pen_render_state *st, int g))[3] {
-    return g == 0 ? (const float(*)[3])sc->lighting.sh : lighting_of(sc, st, g - 1);
+/* The object whose own `seen` lighting group g shades with, or -1 for the scene's lighting (the
+ * ground's group, and every group without ground occlusion). */
+static int group_seen_object(const pen_render_state *st, int g) {
+    return st->ground_occludes && g > 0 ? g - 1 : -1;
 }
 
-/* The shaded pixels of tile t (their indices into pix and their groups into grp), in raster
- * order within each group, groups ascending; returns their number (at most TILE_PX). A tile
- * usually holds one or two groups, so the stable insertion sort costs little. */
-static int tile_pixels(const pen_render_state *st, int t, int *pix, int *grp) {
-    int x0, y0, x1, y1, n = 0;
+/* The lighting of group g. */
+static const float (*group_lighting(const pen_scene *sc, const pen_render_state *st, int g))[3] {
+    const int o = group_seen_object(st, g);
+    return o >= 0 ? (const float(*)[3])st->obj[o].seen : (const float(*)[3])sc->lighting.sh;
+}
+
+/* Groups the shaded pixels of tile t into st->groups[t] (a tile_fn: the forward runs it over the
+ * tiles in parallel before shading). The stable insertion sort moves each pixel past the earlier
+ * pixels of higher groups: nothing for a tile of one group, but a pixels of one group above b of
+ * a lower one (an object over the ground) cost a * b moves, up to TILE_PX^2 / 4. */
+static void tile_group(const void *job_, int t, tile_ws *ws, pen__shade_fast_ticks *tk) {
+    (void)ws, (void)tk;
+    const pen_render_state *st = ((const tile_job *)job_)->st;
+    tile_groups *tg = &st->groups[t];
+    int x0, y0, x1, y1, n = 0, grp[TILE_PX];
     tile_rect(st, t, &x0, &y0, &x1, &y1);
     for (int py = y0; py < y1; ++py)
         for (int px = x0; px < x1; ++px) {
@@ -801,29 +814,33 @@ static int tile_pixels(const pen_render_state *st, int t, int *pix, int *grp) {
             if (g < 0) continue;
             int k = n++;
             for (; k > 0 && grp[k - 1] > g; --k)
-                pix[k] = pix[k - 1], grp[k] = grp[k - 1];
-            pix[k] = (int)i, grp[k] = g;
+                tg->pix[k] = tg->pix[k - 1], grp[k] = grp[k - 1];
+            tg->pix[k] = (int)i, grp[k] = g;
         }
-    return n;
+    tg->runs = 0, tg->store = 0; /* each run is one kernel call, its pixels in whole batches */
+    for (int a = 0, b; a < n; a = b) {
+        for (b = a; b < n && grp[b] == grp[a]; ++b) {}
+        tg->end[tg->runs++] = b;
+        tg->store += pen__shade_fast_store_floats(&st->params, b - a);
+    }
 }
 
-/* Where each tile's part of the fast kernel's store begins (ntiles + 1 offsets in floats): each
- * group is one kernel call and takes its pixels in whole batches. */
+/* Run r of tile t (as tile_group made it): its pixels pix[0 .. count - 1]; returns its group. */
+static int tile_run(const pen_render_state *st, int t, int r, const int **pix, int *count) {
+    const tile_groups *tg = &st->groups[t];
+    const int a = r > 0 ? tg->end[r - 1] : 0;
+    *pix = tg->pix + a, *count = tg->end[r] - a;
+    return pixel_group(st, st->gb.surface[tg->pix[a]]);
+}
+
+/* Where each tile's part of the fast kernel's store begins (ntiles + 1 offsets in floats). */
 static pen_status tile_store_layout(pen_context *ctx, pen_render_state *st, int ntiles) {
     pen_status s = ensure(ctx, (void **)&st->tile_off, &st->tile_off_cap, (size_t)ntiles + 1,
                           sizeof(size_t), "store layout");
     if (s) return s;
-    int pix[TILE_PX], grp[TILE_PX];
     st->tile_off[0] = 0;
-    for (int t = 0; t < ntiles; ++t) {
-        const int n = tile_pixels(st, t, pix, grp);
-        size_t need = 0;
-        for (int a = 0, b; a < n; a = b) {
-            for (b = a; b < n && grp[b] == grp[a]; ++b) {}
-            need += pen__shade_fast_store_floats(&st->params, b - a);
-        }
-        st->tile_off[t + 1] = st->tile_off[t] + need;
-    }
+    for (int t = 0; t < ntiles; ++t)
+        st->tile_off[t + 1] = st->tile_off[t] + st->groups[t].store;
     return PEN_OK;
 }
 
@@ -846,13 +863,13 @@ static void shade_tile_fwd(const void *job_, int t, tile_ws *ws, pen__shade_fast
             else
                 surface_attributes(sc, st, i, surf);
         }
-    int pix[TILE_PX], grp[TILE_PX];
-    const int n = tile_pixels(st, t, pix, grp);
-    for (int a = 0, b; a < n; a = b) {
-        for (b = a; b < n && grp[b] == grp[a]; ++b) {}
-        const float(*sh)[3] = group_lighting(sc, st, grp[a]);
+    for (int r = 0; r < st->groups[t].runs; ++r) {
+        const int *pix;
+        int cnt;
+        const int g = tile_run(st, t, r, &pix, &cnt);
+        const float(*sh)[3] = group_lighting(sc, st, g);
         if (!st->fast) {
-            for (int k = a; k < b; ++k) {
+            for (int k = 0; k < cnt; ++k) {
                 const size_t i = (size_t)pix[k];
                 pen__shade_fwd(&st->params, sh, st->sphere_count, st->spheres, st->kappa,
                                st->x + 3 * i, st->n + 3 * i, st->rho + 3 * i, st->color + 3 * i,
@@ -860,11 +877,10 @@ static void shade_tile_fwd(const void *job_, int t, tile_ws *ws, pen__shade_fast
             }
             continue;
         }
-        const int cnt = b - a;
         for (int k = 0; k < cnt; ++k)
-            ws_push(ws, k, st, (size_t)pix[a + k]);
+            ws_push(ws, k, st, (size_t)pix[k]);
         pen__shade_fast_fwd(&st->params, sh, st->sphere_count, st->spheres, st->kappa, cnt,
-                            grp[a] == 0 ? cnt : 0, ws->x, ws->n, ws->rho, ws->out, store,
+                            g == 0 ? cnt : 0, ws->x, ws->n, ws->rho, ws->out, store,
                             ws->kernel, tk);
         if (store) store += pen__shade_fast_store_floats(&st->params, cnt);
         for (int k = 0; k < cnt; ++k)
@@ -905,12 +921,22 @@ pen_status pen_render_fwd(pen_context *ctx, const pen_scene *sc, const pen_rende
         goto done;
     }
 
-    /* Keep what the backward needs: the scalar kernel F and V per pixel (2 bands^2 floats:
-     * 32 MB at 512 x 512, 4 bands), the fast kernel F per pixel in its batch layout. */
     const int fast =
         opt->kernel == PEN_RENDER_KERNEL_FAST && pen__shade_fast_supported(&st->params);
     const int ntiles = tile_count(st);
     const size_t nfv = 2 * (size_t)sc->sh_bands * (size_t)sc->sh_bands;
+    const int nt = thread_count(ctx);
+    size_t wsb = 0;
+    if ((s = ensure_ws(ctx, st, nt, &wsb)) ||
+        (s = ensure(ctx, (void **)&st->groups, &st->groups_cap, (size_t)ntiles,
+                    sizeof(tile_groups), "tile pixel groups")))
+        goto done;
+    /* Every tile's lighting groups, for the shading below, the store's layout and the backward. */
+    t0 = omp_get_wtime();
+    const tile_job group_job = {sc, st, NULL, NULL, NULL};
+    run_tiles(st, nt, wsb, tile_group, &group_job);
+    /* Keep what the backward needs: the scalar kernel F and V per pixel (2 bands^2 floats:
+     * 32 MB at 512 x 512, 4 bands), the fast kernel F per pixel in its batch layout. */
     float *fv_all = NULL;
     if (own == NULL && opt->shadows) {
         if (fast && (s = tile_store_layout(ctx, st, ntiles))) goto done;
@@ -922,11 +948,7 @@ pen_status pen_render_fwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     }
     st->fv_valid = fv_all != NULL;
     st->fast = fast;
-    const int nt = thread_count(ctx);
-    size_t wsb = 0;
-    if ((s = ensure_ws(ctx, st, nt, &wsb))) goto done;
     const tile_job job = {sc, st, NULL, fv_all, fast ? st->tile_off : NULL};
-    t0 = omp_get_wtime();
     background_prepare(ctx, sc, st);
     const loop_ticks lt = run_tiles(st, nt, wsb, shade_tile_fwd, &job);
     if (st->bg_use == 1) st->bg_valid = 1;
@@ -1060,19 +1082,18 @@ static void shade_tile_bwd(const void *job_, int t, tile_ws *ws, pen__shade_fast
                 d_x[a] = d_nraw[a] = d_rho[a] = 0.0f;
             d_uv[0] = d_uv[1] = 0.0f;
         }
-    int pix[TILE_PX], grp[TILE_PX];
-    const int n = tile_pixels(st, t, pix, grp);
-    for (int a = 0, b; a < n; a = b) {
-        for (b = a; b < n && grp[b] == grp[a]; ++b) {}
-        const int g = grp[a];
+    for (int r = 0; r < st->groups[t].runs; ++r) {
+        const int *pix;
+        int cnt;
+        const int g = tile_run(st, t, r, &pix, &cnt);
         const float(*sh)[3] = group_lighting(sc, st, g);
         /* where this group's lighting gradient goes: an object's own `seen`, or the lighting */
-        const int own = st->ground_occludes && g > 0;
+        const int own = group_seen_object(st, g);
         double(*d_sh)[3] =
-            own ? (bw->seen ? (double(*)[3])(row + bw->rl.sh_obj + nsh * (size_t)(g - 1)) : NULL)
-                : (bw->light ? (double(*)[3])(row + bw->rl.sh) : NULL);
+            own >= 0 ? (bw->seen ? (double(*)[3])(row + bw->rl.sh_obj + nsh * (size_t)own) : NULL)
+                     : (bw->light ? (double(*)[3])(row + bw->rl.sh) : NULL);
         if (!st->fast) {
-            for (int k = a; k < b; ++k) {
+            for (int k = 0; k < cnt; ++k) {
                 const size_t i = (size_t)pix[k];
                 const int surf = st->gb.surface[i];
                 const float *dc = st->d_color + 3 * i;
@@ -1090,10 +1111,9 @@ static void shade_tile_bwd(const void *job_, int t, tile_ws *ws, pen__shade_fast
             }
             continue;
         }
-        const int cnt = b - a;
         for (int k = 0; k < cnt; ++k) {
-            memcpy(ws->out + 3 * k, st->d_color + 3 * (size_t)pix[a + k], 3 * sizeof(float));
-            ws_push(ws, k, st, (size_t)pix[a + k]);
+            memcpy(ws->out + 3 * k, st->d_color + 3 * (size_t)pix[k], 3 * sizeof(float));
+            ws_push(ws, k, st, (size_t)pix[k]);
         }
         memset(ws->dx, 0, 3 * sizeof(float) * (size_t)cnt);
         memset(ws->dn, 0, 3 * sizeof(float) * (size_t)cnt);
@@ -1217,7 +1237,7 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     const int want_height = (wrt & PEN_GRAD_POSE) != 0 && st->ground_occludes;
     const bwd_want bw = {want_geom, want_sph,    want_light, want_albedo,
                          seen > 0 && (want_light || want_height), rl};
-    float *fv_all = st->fv_valid && st->params.shadows ? st->fv : NULL;
+    float *fv_all = st->fv_valid ? st->fv : NULL;
     const tile_job job = {sc, st, &bw, fv_all, st->fast ? st->tile_off : NULL};
     t0 = omp_get_wtime();
     const loop_ticks lt = run_tiles(st, nt, wsb, shade_tile_bwd, &job);

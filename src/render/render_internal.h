@@ -56,8 +56,9 @@ void pen__shade_bwd_d(const pen__shade_params *p, const double (*sh)[3], int sph
  * The same shading as pen__shade_fwd / pen__shade_bwd, for many pixels at once: pixels go in
  * batches of PEN_FAST_LANES through structure-of-arrays lane vectors (one AVX-512 register of
  * floats), with straight-line SH products generated per band count (src/sh/sh_fast_product.inc).
- * Supports bands 3..6 and the CALIBRATED and PAPER exponentials (pen__shade_fast_supported);
- * the renderer uses the scalar kernel for anything else. kappa (may be NULL: all 1) scales
+ * Supports bands 3..6, with shadows the CALIBRATED and PAPER exponentials, without shadows
+ * (V == 1) every method (pen__shade_fast_supported); the renderer uses the scalar kernel for
+ * anything else. kappa (may be NULL: all 1) scales
  * sphere i's log-visibility, F = sum_i w_i kappa_i f_i; it is not differentiated. */
 #if defined(__AVX512F__)
 #define PEN_FAST_LANES 16
@@ -82,8 +83,8 @@ size_t pen__shade_fast_store_floats(const pen__shade_params *p, int count);
 size_t pen__shade_fast_scratch_bytes(const pen__shade_params *p, int sphere_count, int max_count);
 /* count pixels, AoS: x, n, rho and rgb 3 floats per pixel; the first `ground` of them lie on the
  * ground plane (n = +Y; their d_x and d_n are not wanted), which saves batches of them the
- * per-pixel product. store (may be NULL) receives what the backward needs when shadows are on. ticks may
- * be NULL. */
+ * per-pixel product. store (may be NULL) receives what the backward needs when shadows are on.
+ * ticks may be NULL. */
 void pen__shade_fast_fwd(const pen__shade_params *p, const float (*sh)[3], int sphere_count,
                          const float *spheres, const float *kappa, int count, int ground,
                          const float *x, const float *n, const float *rho, float *rgb,

@@ -4,9 +4,9 @@
  * Design
  * - Lanes. A batch is PEN_FAST_LANES pixels (16 with AVX-512: one register of floats) held as
  *   structure-of-arrays lane vectors (GCC vector extensions), so that every operation of the chain
- *   is one vector instruction for the whole batch. The renderer hands over the shaded pixels of a
- *   screen tile (background pixels removed), so the lanes are full except in a tile's last batch,
- *   whose spare lanes repeat its last pixel and carry no gradient.
+ *   is one vector instruction for the whole batch. The renderer hands over the shaded pixels of
+ *   one lighting group of a screen tile (background pixels removed), so the lanes are full except
+ *   in each group's last batch, whose spare lanes repeat its last pixel and carry no gradient.
  * - Generated SH code. The band count is fixed per frame; the basis, its gradient and the Gaunt
  *   products are written out per band count (3..6) by scripts/gen_sh_fast.py into
  *   src/sh/sh_fast_product.inc, with the Gaunt values as constants, and the stages of
@@ -16,16 +16,19 @@
  * - Exact culling. A sphere whose self-shadowing weight is 0 in every lane of a batch (it lies
  *   behind every lane's tangent plane) contributes nothing and has no gradient there; it is
  *   skipped after the weight's dot product.
- * - The ground plane. The renderer puts a tile's ground pixels first; batches made only of them
+ * - The ground plane. A call's first `ground` pixels lie on the ground; batches made only of them
  *   (n = +Y) use the lighting's product with the ground's clamped cosine, formed once per call,
- *   instead of a product per pixel (shade_fast_ops.inc, "The ground plane").
+ *   instead of a product per pixel (shade_fast_ops.inc, "The ground plane"). The renderer's
+ *   calls are one lighting group each and the ground is a group of its own, so it passes `ground`
+ *   = count or 0; a mixed call (the tests make some) is shaded just as well.
  * - Precision. All lane arithmetic is float, as in the scalar kernel; fused multiply-adds are
  *   explicit (the build is ISO C, which turns off the compiler's contraction). exp is a
  *   polynomial (Cephes' expf: about 1 ulp) instead of a per-lane libm call; 1/sqrt and 1/x in
  *   the sphere loop are the AVX-512 estimates refined by a Newton step (about 2 ulp, 9% faster
  *   than the divider). The double sums of d_sh and d_spheres take, per call, the sum over the
- *   call's batches of each lane in float (at most a tile's 16 batches), then the lanes in order
- *   in double; the result depends only on the call's pixels, never on threads.
+ *   call's batches of each lane in float (at most a render tile's 256 pixels / LANES batches: 16
+ *   with AVX-512), then the lanes in order in double; the result depends only on the call's
+ *   pixels, never on threads.
  * - What the forward keeps. F per pixel (bands^2 floats), from which the backward recomputes the
  *   exponential's squaring chain: a few hundred FMAs per pixel, cheaper than writing and reading
  *   the chain through memory (see bench/NOTES.md).
