@@ -83,25 +83,16 @@ static inline void os_perturb_pose(pen_scene *sc) {
     p->translation[2] -= 0.04f;
 }
 
-/* A task with the library's defaults (lr, l2, tolerance 1e-3, window 10, black initial guesses,
- * deformation settings) on scene `scene` (the initial guess) with ground truth `truth`, whose
+/* A task with the library's defaults (pen_optim_task_default) on scene `scene` (the initial guess) with ground truth `truth`, whose
  * reference render is the target; both scenes are taken over. */
 static inline pen_optim_task os_task(pen_scene scene, pen_scene truth, unsigned groups,
                                      int iterations) {
-    pen_optim_task t;
-    memset(&t, 0, sizeof t);
+    pen_optim_task t = pen_optim_task_default();
     t.scene = scene;
     t.ground_truth = truth;
     t.has_ground_truth = 1;
     t.optimize = groups;
     t.iterations = iterations;
-    t.lr = pen_optim_lr_default();
-    t.loss = PEN_OPTIM_LOSS_L2;
-    t.tolerance = 1e-3;
-    t.window = 10;
-    t.init_black = 1;
-    t.deformation = pen_optim_deformation_default();
-    t.spheres = pen_optim_spheres_default();
     t.target = os_reference(&t.ground_truth);
     return t;
 }

@@ -54,31 +54,49 @@ static void test_adam_quadratic(void) {
 }
 
 static void test_stopping_rule(void) {
-    double l[100];
+    double l[200];
     /* Falls 1% per iteration: never stalled with tolerance 1e-3. */
     for (int i = 0; i < 100; ++i)
         l[i] = pow(0.99, i);
     for (int n = 1; n <= 100; ++n)
         CHECK(!pen__optim_stalled(l, n, 10, 1e-3));
-    /* Plain rule (window 1) on a loss that wobbles +-1% around a slow fall fires at the first
-     * rise; window 10 averages the wobble out. */
+    /* A loss that wobbles +-1% around a slow fall: window 1 fires at the first rise; window 10
+     * always finds a new low in its window. */
     for (int i = 0; i < 100; ++i)
         l[i] = pow(0.995, i) * (1.0 + 0.01 * (i % 2 ? 1 : -1));
     CHECK(pen__optim_stalled(l, 2, 1, 1e-3));
     for (int n = 1; n <= 100; ++n)
         CHECK(!pen__optim_stalled(l, n, 10, 1e-3));
-    /* Flat: fires as soon as two windows exist. */
+    /* Adam's transient on a pose: the loss rises by 20% for 30 steps, then falls 1% per step to
+     * a floor at 0.5 from step 100 on. Window 50 waits the rise out and fires 50 steps after the
+     * floor is reached; window 10 fires during the rise (the old window-mean rule did too). */
+    for (int i = 0; i < 200; ++i)
+        l[i] = i < 30 ? 1.0 + 0.2 * sin(M_PI * i / 30.0) : fmax(0.5, pow(0.99, i - 30));
+    int first = 0;
+    while (first < 200 && !pen__optim_stalled(l, first + 1, 50, 1e-3))
+        ++first;
+    int floor_at = 0;
+    while (l[floor_at] > 0.5)
+        ++floor_at;
+    CHECK_MSG(first == floor_at + 50, "window 50 fired at %d, the floor is at %d", first,
+              floor_at);
+    CHECK(pen__optim_stalled(l, 20, 10, 1e-3));
+    /* Flat: fires as soon as one loss precedes the window. */
     for (int i = 0; i < 100; ++i)
         l[i] = 2.0;
-    CHECK(!pen__optim_stalled(l, 19, 10, 1e-3));
-    CHECK(pen__optim_stalled(l, 20, 10, 1e-3));
-    /* The threshold: window means 1.0005 then 1.0 (relative fall 5e-4) fire; 1.002 does not. */
+    CHECK(!pen__optim_stalled(l, 10, 10, 1e-3));
+    CHECK(pen__optim_stalled(l, 11, 10, 1e-3));
+    /* The threshold: best before 1.0005, best in the window 1.0 (relative fall 5e-4) fires;
+     * 1.002 before does not. Later rises in the window do not matter. */
     for (int i = 0; i < 10; ++i)
-        l[i] = 1.0005, l[10 + i] = 1.0;
+        l[i] = 1.0005, l[10 + i] = 1.0 + 0.1 * i;
     CHECK(pen__optim_stalled(l, 20, 10, 1e-3));
     for (int i = 0; i < 10; ++i)
         l[i] = 1.002;
     CHECK(!pen__optim_stalled(l, 20, 10, 1e-3));
+    /* A zero loss cannot fall further. */
+    l[19] = 0.0;
+    CHECK(pen__optim_stalled(l, 20, 10, 1e-3));
 }
 
 static void test_rotation_angle(void) {

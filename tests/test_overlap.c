@@ -425,8 +425,7 @@ static void test_closer_to_reference(void) {
 /* pen_optim_run computes the weights of an in-memory set without them once, from the initial
  * spheres, and keeps them while the spheres move. */
 static void test_optimize_holds_weights(void) {
-    pen_optim_task t;
-    memset(&t, 0, sizeof t);
+    pen_optim_task t = pen_optim_task_default();
     t.scene = os_egg(16, 0, 2);
     pen_spheres *sp = &t.scene.objects[0].spheres;
     CHECK(pen_render_fwd(ctx, &t.scene, NULL, NULL, &t.target) == PEN_OK);
@@ -439,10 +438,6 @@ static void test_optimize_holds_weights(void) {
     memcpy(before, sp->data, sizeof before);
     t.optimize = PEN_OPTIM_SPHERES;
     t.iterations = 4;
-    t.lr = pen_optim_lr_default();
-    t.loss = PEN_OPTIM_LOSS_L2;
-    t.tolerance = 1e-3;
-    t.window = 10;
     pen_optim_settings set = pen_optim_settings_default();
     pen_optim_result r;
     CHECK_MSG(pen_optim_run(ctx, &t, &set, &r) == PEN_OK, "%s", pen_context_error(ctx));

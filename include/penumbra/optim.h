@@ -9,7 +9,7 @@
  *       "target": "target.exr",
  *       "optimize": ["lighting", "albedo", "pose"],
  *       "iterations": 500, "lr": 0.01 or {"lighting": 0.01, ...}, "loss": "l2",
- *       "tolerance": 0.001, "window": 10, "init": "black",
+ *       "tolerance": 0.001, "window": 50, "init": "black",
  *       "ground_truth": "truth.json" or {...} }
  *
  * Usage:
@@ -26,10 +26,10 @@
  * 1e-2 for lighting, texture and pose). Rotations are optimised as axis-angle vectors in radians
  * (the scene stores degrees), so a learning rate of 1e-2 moves a rotation by about half a degree
  * per step. Albedos are kept in [0, 1], sphere radii positive. It stops after `iterations` steps or
- * when the objective has stopped falling: the mean loss of the last `window` iterations is less
- * than `tolerance` (relative) below the mean of the `window` before them. This is the
- * supplement's rule (Theta_{n-1} - Theta_n) / Theta_n <= 0.001 applied to window means, because
- * Adam's single-step losses wobble by more than 0.1% long before the optimum. The recovered
+ * when the objective has stopped falling: the lowest loss of the last `window` iterations is
+ * less than `tolerance` (relative) below the lowest before them. This is the supplement's rule
+ * (Theta_{n-1} - Theta_n) / Theta_n <= 0.001 applied to best losses over a window, because
+ * Adam's loss wobbles, and on pose tasks rises for tens of steps, long before the optimum. The recovered
  * parameters are those of the lowest loss seen (the best iterate), since with a constant step
  * the last iterate wanders around the optimum by about one learning rate.
  *
@@ -144,7 +144,7 @@ typedef struct pen_optim_task {
     pen_optim_lr lr;
     pen_optim_loss loss;
     double tolerance;   /* stopping rule (default 1e-3) */
-    int window;         /* stopping rule window (default 10; 1 is the supplement's plain rule) */
+    int window;         /* stopping rule window (default 50; 1 is close to the supplement's rule) */
     int init_black;     /* 1: supplement 5.2 initial guesses (default); 0: the scene's values */
     int init_fit;       /* 1 ("init": "fit"): as init_black, but optimised lighting starts at the
                            least-squares fit of the unshadowed render to the target */
@@ -157,6 +157,11 @@ typedef struct pen_optim_task {
     int has_ground_truth;
     pen_scene ground_truth; /* zeroed when has_ground_truth == 0 */
 } pen_optim_task;
+
+/* A task holding the defaults pen_optim_task_load starts from (500 iterations, the lr above,
+ * l2, tolerance 1e-3, window 50, black initial guesses, Adam lighting with ridge 1e-2, the
+ * deformation and spheres defaults) and nothing else: no scene, target or groups. */
+pen_optim_task pen_optim_task_default(void);
 
 /* Loads a task JSON; paths (scene, target, ground truth) are relative to the task file. Errors
  * name the file and the key ("task.json: optimize[1]: unknown group \"colour\""); errors inside

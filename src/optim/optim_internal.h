@@ -46,9 +46,9 @@ void pen__optim_adam_step(pen__adam *adam, const pen__optim_segment *segments, i
 /* Projects x onto the segments' bounds. */
 void pen__optim_project(const pen__optim_segment *segments, int segment_count, float *x);
 
-/* The stopping rule: with losses[0 .. n), 1 when n >= 2 window and the mean of the last
- * `window` losses is less than tolerance (relative to that mean) below the mean of the window
- * before it (a rise counts as stalled too). */
+/* The stopping rule: with losses[0 .. n), 1 when n > window and the lowest of the last `window`
+ * losses is not more than tolerance (relative to it) below the lowest of the losses before them;
+ * also 1 when that lowest loss is 0. */
 int pen__optim_stalled(const double *losses, int n, int window, double tolerance);
 
 /* ---- Embedded deformation (src/optim/deform.c) ----------------------------------------------- */

@@ -46,6 +46,22 @@ pen_optim_spheres pen_optim_spheres_default(void) {
     return d;
 }
 
+pen_optim_task pen_optim_task_default(void) {
+    pen_optim_task t;
+    memset(&t, 0, sizeof t);
+    t.iterations = 500;
+    t.lr = pen_optim_lr_default();
+    t.loss = PEN_OPTIM_LOSS_L2;
+    t.tolerance = 1e-3;
+    t.window = 50;
+    t.init_black = 1;
+    t.lighting_solver = PEN_OPTIM_LIGHTING_ADAM;
+    t.lighting_ridge = 1e-2;
+    t.deformation = pen_optim_deformation_default();
+    t.spheres = pen_optim_spheres_default();
+    return t;
+}
+
 /* "scene" / "ground_truth": a path or an inline object. */
 static pen_status parse_scene_ref(pen_context *ctx, const char *path, const where *top,
                                   const cJSON *root, const char *name, pen_scene *out) {
@@ -331,16 +347,7 @@ static pen_status parse_task(pen_context *ctx, const char *path, const cJSON *ro
 
 static pen_status task_from_text(pen_context *ctx, const char *text, size_t size,
                                  const char *path, const char *target, pen_optim_task *out) {
-    out->iterations = 500;
-    out->lr = pen_optim_lr_default();
-    out->loss = PEN_OPTIM_LOSS_L2;
-    out->tolerance = 1e-3;
-    out->window = 10;
-    out->init_black = 1;
-    out->lighting_solver = PEN_OPTIM_LIGHTING_ADAM;
-    out->lighting_ridge = 1e-2;
-    out->deformation = pen_optim_deformation_default();
-    out->spheres = pen_optim_spheres_default();
+    *out = pen_optim_task_default();
     cJSON *root = NULL;
     pen_status s = pen__json_parse(ctx, path, text, size, &root);
     if (s) return s;
