@@ -422,21 +422,29 @@ static void test_spot_mesh(void) {
 /* ---- Adjacency and validation -------------------------------------------------------------- */
 
 static void test_adjacency(void) {
-    /* Tetrahedron: every edge has one neighbour; the vertex opposite edge k of triangle t in its
-     * neighbour is the one vertex not on t. */
+    /* Tetrahedron: every edge has one neighbour, which holds the same edge reversed, and whose
+     * third vertex is the one vertex not on t; the relation is symmetric. */
     uint32_t tet[12] = {0, 2, 1, 0, 1, 3, 1, 2, 3, 2, 0, 3};
     int32_t adj[12];
     CHECK(pen_raster_adjacency(NULL, 4, 4, tet, adj) == PEN_OK);
     for (int t = 0; t < 4; ++t) {
         uint32_t missing = 6 - tet[3 * t] - tet[3 * t + 1] - tet[3 * t + 2];
-        for (int k = 0; k < 3; ++k)
-            CHECK(adj[3 * t + k] == (int32_t)missing);
+        for (int k = 0; k < 3; ++k) {
+            int32_t h = adj[3 * t + k];
+            CHECK(h >= 0 && h < 12 && h / 3 != t && adj[h] == 3 * t + k);
+            if (h < 0 || h >= 12) continue;
+            int u = h / 3, j = h % 3;
+            CHECK(tet[3 * u + j] == tet[3 * t + (k + 1) % 3] &&
+                  tet[3 * u + (j + 1) % 3] == tet[3 * t + k]);
+            CHECK(tet[3 * u + (j + 2) % 3] == missing);
+        }
     }
-    /* Quad: the diagonal is shared, the rim is boundary. */
+    /* Quad: the diagonal (edge 2 of the first, edge 0 of the second) is shared, the rim is
+     * boundary. */
     uint32_t quad[6] = {0, 1, 2, 0, 2, 3};
     CHECK(pen_raster_adjacency(NULL, 4, 2, quad, adj) == PEN_OK);
     CHECK(adj[0] == -1 && adj[1] == -1 && adj[2] == 3);
-    CHECK(adj[3] == 1 && adj[4] == -1 && adj[5] == -1);
+    CHECK(adj[3] == 2 && adj[4] == -1 && adj[5] == -1);
     /* Three triangles on one edge (non-manifold): -1 there. */
     uint32_t fan[9] = {0, 1, 2, 1, 0, 3, 0, 1, 4};
     CHECK(pen_raster_adjacency(NULL, 5, 3, fan, adj) == PEN_OK);

@@ -361,22 +361,29 @@ static void test_area_derivative(void) {
 
 /* ---- A real closed mesh ------------------------------------------------------------------- */
 
+/* The bundled Spot mesh and its adjacency (NULL, with the failure recorded, if it cannot load). */
+static int32_t *load_spot(pen_mesh *mesh) {
+    pen_context *ctx = pen_context_create();
+    pen_status st = pen_mesh_load(ctx, PEN_SOURCE_DIR "/data/meshes/spot_triangulated.obj", mesh);
+    CHECK_MSG(st == PEN_OK, "%s", pen_context_error(ctx));
+    pen_context_destroy(ctx);
+    if (st) return NULL;
+    int32_t *adj = malloc(sizeof(int32_t) * 3 * (size_t)mesh->triangle_count);
+    CHECK(pen_raster_adjacency(NULL, mesh->vertex_count, mesh->triangle_count, mesh->indices,
+                               adj) == PEN_OK);
+    return adj;
+}
+
 static void test_spot_silhouette_fd(void) {
     /* Spot over the ground: self-occlusion (ears, legs) and silhouettes against the ground and
      * the background. The vertices with the largest gradients are checked. */
-    pen_context *ctx = pen_context_create();
     pen_mesh mesh;
-    pen_status st = pen_mesh_load(ctx, PEN_SOURCE_DIR "/data/meshes/spot_triangulated.obj", &mesh);
-    CHECK_MSG(st == PEN_OK, "%s", pen_context_error(ctx));
-    pen_context_destroy(ctx);
-    if (st) return;
+    int32_t *adj = load_spot(&mesh);
+    if (!adj) return;
     flat_scene s;
     int size = check_quick_() ? 24 : 48;
     pen_camera cam = ru_camera(size, size, 35.0f, 0.9f, 1.0f, 2.5f, 0, 0.0f, 0);
     s.view = ru_view(&cam);
-    int32_t *adj = malloc(sizeof(int32_t) * 3 * (size_t)mesh.triangle_count);
-    CHECK(pen_raster_adjacency(NULL, mesh.vertex_count, mesh.triangle_count, mesh.indices, adj) ==
-          PEN_OK);
     s.mesh = ru_mesh(mesh.vertex_count, mesh.positions, mesh.triangle_count, mesh.indices, adj);
     pen_ground g = {1, -0.75f, {1, 1, 1}, 3};
     s.ground = &g;
@@ -410,6 +417,49 @@ static void test_spot_silhouette_fd(void) {
     CHECK(nonzero == 12 && tested >= 8);
     free(W), free(color), free(d_pos), free(adj);
     pen_gbuffer_free(&gb), pen_gbuffer_free(&gp), pen_gbuffer_free(&gm);
+    pen_mesh_free(&mesh);
+}
+
+/* Spot from afar, its triangles about a pixel or smaller: the segment between an outline pair's
+ * centres usually leaves the covering triangle through an edge the surface continues across,
+ * and the silhouette it crosses is an edge of a neighbour. Every outline pair (Spot against the
+ * background) must still blend (before the walk over neighbours 31% did at this size). */
+static void test_small_triangles_blend(void) {
+    pen_mesh mesh;
+    int32_t *adj = load_spot(&mesh);
+    if (!adj) return;
+    const int size = check_quick_() ? 96 : 192;
+    pen_camera cam = ru_camera(size, size, 35.0f, 1.8f, 2.0f, 5.0f, 0, 0.0f, 0);
+    pen_view view = ru_view(&cam);
+    pen_raster_mesh rm =
+        ru_mesh(mesh.vertex_count, mesh.positions, mesh.triangle_count, mesh.indices, adj);
+    pen_gbuffer gb = ru_gbuffer(size, size);
+    CHECK(ru_raster(&view, &rm, 1, NULL, &gb, 0) == PEN_OK);
+    size_t n = (size_t)size * (size_t)size;
+    float *color = malloc(3 * n * sizeof(float)), *out = malloc(3 * n * sizeof(float));
+    flat_colors(&gb, color);
+    CHECK(aa_fwd(&gb, &view, &rm, 1, color, 3, out, 0) == PEN_OK);
+    int outline = 0, blended = 0, covered = 0;
+    for (int y = 0; y < size; ++y)
+        for (int x = 0; x < size; ++x) {
+            size_t i = (size_t)y * (size_t)size + (size_t)x;
+            covered += gb.surface[i] == 0;
+            for (int axis = 0; axis < 2; ++axis) {
+                if (axis ? y + 1 == size : x + 1 == size) continue;
+                size_t j = axis ? i + (size_t)size : i + 1;
+                if ((gb.surface[i] == 0) == (gb.surface[j] == 0)) continue;
+                ++outline;
+                blended += memcmp(color + 3 * i, out + 3 * i, 3 * sizeof(float)) != 0 ||
+                           memcmp(color + 3 * j, out + 3 * j, 3 * sizeof(float)) != 0;
+            }
+        }
+    /* triangles about a pixel: 5856 of them over the covered pixels */
+    CHECK_MSG(covered < 2 * mesh.triangle_count, "%d pixels for %d triangles", covered,
+              mesh.triangle_count);
+    CHECK_MSG(outline > size && blended >= 0.98 * outline, "%d of %d outline pairs blend", blended,
+              outline);
+    free(color), free(out), free(adj);
+    pen_gbuffer_free(&gb);
     pen_mesh_free(&mesh);
 }
 
@@ -485,6 +535,7 @@ static void test_degenerate_and_errors(void) {
 }
 
 RUN_TESTS(TEST(test_triangle_over_background_fd), TEST(test_full_chain_fd),
+          TEST(test_small_triangles_blend),
           TEST(test_color_adjoint), TEST(test_closed_mesh_silhouettes_only),
           TEST(test_area_derivative), TEST(test_spot_silhouette_fd),
           TEST(test_threads_and_identity), TEST(test_degenerate_and_errors))

@@ -98,8 +98,9 @@ typedef struct pen_raster_mesh {
     const float *positions;  /* 3 * vertex_count, world space */
     const uint32_t *indices; /* 3 * triangle_count, into positions */
     /* 3 * triangle_count from pen_raster_adjacency: for edge k of triangle t (corner k to corner
-     * (k+1) % 3) the vertex of the neighbouring triangle opposite that edge, or -1. Needed by
-     * pen_antialias_*, ignored by the rasterizer; may be NULL when no antialiasing is done. */
+     * (k+1) % 3) the same edge in the neighbouring triangle t' as its half-edge 3 t' + k', or -1.
+     * Needed by pen_antialias_*, ignored by the rasterizer; may be NULL when no antialiasing is
+     * done. */
     const int32_t *adjacency;
 } pen_raster_mesh;
 
@@ -160,8 +161,9 @@ void pen_raster_bary_bwd_scratch(pen_context *ctx, const pen_view *view,
 void pen_gbuffer_points(const pen_view *view, const pen_gbuffer *gb, float *out);
 
 /* Edge adjacency of a triangle list (see pen_raster_mesh.adjacency): an edge shared by exactly
- * two triangles records the other triangle's third vertex; boundary and non-manifold edges get
- * -1 and are always treated as possible silhouettes. adjacency has 3 * triangle_count entries. */
+ * two triangles records the other triangle's half-edge (3 t' + k'; its third vertex is corner
+ * (k' + 2) % 3); boundary and non-manifold edges get -1 and are always treated as possible
+ * silhouettes. adjacency has 3 * triangle_count entries; at most INT32_MAX / 3 triangles. */
 pen_status pen_raster_adjacency(pen_context *ctx, int vertex_count, int triangle_count,
                                 const uint32_t *indices, int32_t *adjacency);
 

@@ -76,7 +76,39 @@ typedef struct aa_edge {
     double dalpha[4]; /* d alpha / d(P.x, P.y, Q.x, Q.y) in screen pixels */
 } aa_edge;
 
-/* Analyzes the pair of pixels (x, y) and its right (axis 0) or lower (axis 1) neighbour. */
+/* The longest walk over triangles of a continuing surface (below) before a pair gives up. */
+#define AA_WALK_MAX 16
+
+/* 1 when the edge of triangle `t` from corner k to k+1, whose neighbour across it has half-edge
+ * `neighbour` (pen_raster_adjacency; -1: none), is a silhouette seen from the eye. */
+static int is_silhouette(const pen_raster_mesh *mesh, const pen_view *view, int t, int k,
+                         int32_t neighbour) {
+    if (neighbour < 0) return 1;
+    const uint32_t *idx = mesh->indices + 3 * (size_t)t;
+    uint32_t far = mesh->indices[(size_t)neighbour - (size_t)neighbour % 3 +
+                                 ((size_t)neighbour % 3 + 2) % 3];
+    double p[4][3], a[3], b[3], c[3], o[3], nrm[3];
+    for (int j = 0; j < 3; ++j)
+        pen__load3_d(mesh->positions + 3 * (size_t)idx[j], p[j]);
+    pen__load3_d(mesh->positions + 3 * (size_t)far, p[3]);
+    pen__sub_d(p[k], view->eye, a);
+    pen__sub_d(p[(k + 1) % 3], view->eye, b);
+    pen__sub_d(p[(k + 2) % 3], view->eye, c);
+    pen__sub_d(p[3], view->eye, o);
+    pen__cross_d(a, b, nrm);
+    return pen__dot_d(nrm, c) * pen__dot_d(nrm, o) >= 0.0;
+}
+
+/* Analyzes the pair of pixels (x, y) and its right (axis 0) or lower (axis 1) neighbour.
+ *
+ * The segment from the occluder's centre leaves its triangle T through one edge. When that edge
+ * is not a silhouette the surface continues across it, and on a mesh whose triangles are about
+ * a pixel or smaller the silhouette is often an edge of a neighbour of T: the segment is
+ * followed across continuing edges, triangle by triangle (screen space, where the continuing
+ * surface's triangles tile the plane without folding), until it leaves through a silhouette
+ * edge, ends (alpha > 1: the other pixel's centre is on the same surface), or AA_WALK_MAX
+ * triangles are passed. Without the walk 31% of Spot's and 13% of Bob's outline pairs blended
+ * at 256x256; the rest had neither the continuous image nor the silhouette gradient. */
 static aa_pair analyze_pair(const aa_ctx *ac, int x, int y, int axis, aa_edge *edge) {
     aa_pair none = {0.0f, 0, 0};
     const pen_gbuffer *gb = ac->gb;
@@ -95,41 +127,46 @@ static aa_pair analyze_pair(const aa_ctx *ac, int x, int y, int axis, aa_edge *e
         return none;
     size_t io = occ ? i1 : i0;
     const pen_raster_mesh *mesh = ac->meshes + gb->surface[io];
+    const double *screen = ac->screen + 3 * ac->first_vertex[gb->surface[io]];
+    const pen_view *view = ac->view;
     int t = gb->triangle[io];
     if (t < 0 || t >= mesh->triangle_count) return none;
-    const uint32_t *idx = mesh->indices + 3 * (size_t)t;
-    const pen_view *view = ac->view;
-    const double *s[3];
-    for (int k = 0; k < 3; ++k) {
-        s[k] = ac->screen + 3 * (ac->first_vertex[gb->surface[io]] + idx[k]);
-        if (!(s[k][2] >= view->near_plane)) return none;
-    }
     /* Pair coordinates: u along the pair, v across; the occluder's centre and the direction. */
     int ua = axis, va = 1 - axis;
     double uo = (axis ? y : x) + 0.5 + occ, vc = (axis ? x : y) + 0.5;
     double dir = occ ? -1.0 : 1.0;
-    for (int k = 0; k < 3; ++k) {
-        const double *P = s[k], *Q = s[(k + 1) % 3];
-        double dv = Q[va] - P[va], du = Q[ua] - P[ua];
-        if (dv == 0.0 || (P[va] - vc) * (Q[va] - vc) > 0.0) continue;
-        double sp = (vc - P[va]) / dv;
-        double alpha = dir * (P[ua] + sp * du - uo);
-        if (!(alpha >= 0.0 && alpha <= 1.0)) continue;
-        /* This is the edge through which the segment leaves T. */
-        if (axis == 0 ? !(fabs(dv) >= fabs(du)) : !(fabs(dv) > fabs(du))) return none;
-        int32_t opp = mesh->adjacency[3 * (size_t)t + k];
-        if (opp >= 0) {
-            double a[3], b[3], c[3], o[3], nrm[3], p[4][3];
-            for (int j = 0; j < 3; ++j)
-                pen__load3_d(mesh->positions + 3 * (size_t)idx[j], p[j]);
-            pen__load3_d(mesh->positions + 3 * (size_t)opp, p[3]);
-            pen__sub_d(p[k], view->eye, a);
-            pen__sub_d(p[(k + 1) % 3], view->eye, b);
-            pen__sub_d(p[(k + 2) % 3], view->eye, c);
-            pen__sub_d(p[3], view->eye, o);
-            pen__cross_d(a, b, nrm);
-            if (pen__dot_d(nrm, c) * pen__dot_d(nrm, o) < 0.0) return none; /* not a silhouette */
+    int entry = -1;         /* the edge the walk entered t through */
+    double entered = 0.0;   /* alpha there */
+    for (int step = 0; step < AA_WALK_MAX; ++step) {
+        const uint32_t *idx = mesh->indices + 3 * (size_t)t;
+        const double *s[3];
+        for (int k = 0; k < 3; ++k) {
+            s[k] = screen + 3 * (size_t)idx[k];
+            if (!(s[k][2] >= view->near_plane)) return none;
         }
+        /* The edge through which the segment leaves t: the furthest crossing ahead of the
+         * entry (T contains the occluder's centre, so it has exactly one crossing ahead). */
+        int k_out = -1;
+        double alpha = -1.0, sp = 0.0;
+        for (int k = 0; k < 3; ++k) {
+            if (k == entry) continue;
+            const double *P = s[k], *Q = s[(k + 1) % 3];
+            double dv = Q[va] - P[va];
+            if (dv == 0.0 || (P[va] - vc) * (Q[va] - vc) > 0.0) continue;
+            double sk = (vc - P[va]) / dv;
+            double ak = dir * (P[ua] + sk * (Q[ua] - P[ua]) - uo);
+            if (!(ak >= entered) || ak <= alpha) continue;
+            k_out = k, alpha = ak, sp = sk;
+        }
+        if (k_out < 0 || alpha > 1.0) return none;
+        int32_t neighbour = mesh->adjacency[3 * (size_t)t + (size_t)k_out];
+        if (!is_silhouette(mesh, view, t, k_out, neighbour)) {
+            t = neighbour / 3, entry = neighbour % 3, entered = alpha;
+            continue;
+        }
+        const double *P = s[k_out], *Q = s[(k_out + 1) % 3];
+        double dv = Q[va] - P[va], du = Q[ua] - P[ua];
+        if (axis == 0 ? !(fabs(dv) >= fabs(du)) : !(fabs(dv) > fabs(du))) return none;
         aa_pair out;
         if (alpha >= 0.5) {
             out.weight = (float)(alpha - 0.5), out.slope = 1;
@@ -145,7 +182,7 @@ static aa_pair analyze_pair(const aa_ctx *ac, int x, int y, int axis, aa_edge *e
             d[2 + ua] = dir * sp;
             d[2 + va] = -dir * kk * sp;
             edge->mesh = gb->surface[io];
-            edge->v[0] = idx[k], edge->v[1] = idx[(k + 1) % 3];
+            edge->v[0] = idx[k_out], edge->v[1] = idx[(k_out + 1) % 3];
             memcpy(edge->dalpha, d, sizeof d);
         }
         return out;

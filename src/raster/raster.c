@@ -511,7 +511,8 @@ static int half_edge_cmp(const void *a, const void *b) {
 
 pen_status pen_raster_adjacency(pen_context *ctx, int vertex_count, int triangle_count,
                                 const uint32_t *indices, int32_t *adjacency) {
-    if (triangle_count < 0 || vertex_count < 0 || (triangle_count > 0 && (!indices || !adjacency)))
+    if (triangle_count < 0 || triangle_count > INT32_MAX / 3 || vertex_count < 0 ||
+        (triangle_count > 0 && (!indices || !adjacency)))
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "adjacency: bad arguments (%d triangles)",
                           triangle_count);
     size_t n = 3 * (size_t)triangle_count;
@@ -537,9 +538,8 @@ pen_status pen_raster_adjacency(pen_context *ctx, int vertex_count, int triangle
         uint32_t e0 = he[i].id, e1 = he[i + (j - i > 1)].id;
         int degenerate = (he[i].key >> 32) == (he[i].key & 0xffffffffu);
         if (j - i == 2 && e0 / 3 != e1 / 3 && !degenerate) {
-            /* The vertex opposite edge k of a triangle is its corner (k + 2) % 3. */
-            adjacency[e0] = (int32_t)indices[e1 - e1 % 3 + (e1 % 3 + 2) % 3];
-            adjacency[e1] = (int32_t)indices[e0 - e0 % 3 + (e0 % 3 + 2) % 3];
+            adjacency[e0] = (int32_t)e1;
+            adjacency[e1] = (int32_t)e0;
         }
         i = j;
     }
