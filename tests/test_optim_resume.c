@@ -136,8 +136,8 @@ static void check_resume(unsigned groups, const char *name) {
     CHECK(b.resumed_from == j && !b.interrupted);
     pen_optim_result c = run(groups, crash, K, 1, NULL, &tc);
     CHECK(c.resumed_from == 2 * K);
-    printf("  %-12s %d iterations, loss %.5g -> %.5g; resumed at %d and at %d\n", name,
-           a.iterations, a.losses ? a.losses[0] : 0.0, a.final_loss, b.resumed_from,
+    printf("  %-12s %d iterations%s, loss %.5g -> %.5g; resumed at %d and at %d\n", name,
+           a.iterations, a.converged ? " (converged)" : "", a.losses ? a.losses[0] : 0.0, a.final_loss, b.resumed_from,
            c.resumed_from);
     check_same(&a, &ta, &b, &tb, "interrupted + resumed");
     check_same(&a, &ta, &c, &tc, "crashed + resumed");
