@@ -62,6 +62,8 @@ typedef struct aa_ctx {
     int mesh_count;
     const size_t *first_vertex; /* per mesh, into screen */
     const double *screen;       /* per vertex of every mesh: sx, sy, depth */
+    const size_t *first_edge;   /* per mesh, into silhouette */
+    const uint8_t *silhouette;  /* per half-edge 3 t + k of every mesh: is_silhouette */
 } aa_ctx;
 
 typedef struct aa_pair {
@@ -85,8 +87,8 @@ static int is_silhouette(const pen_raster_mesh *mesh, const pen_view *view, int 
                          int32_t neighbour) {
     if (neighbour < 0) return 1;
     const uint32_t *idx = mesh->indices + 3 * (size_t)t;
-    uint32_t far = mesh->indices[(size_t)neighbour - (size_t)neighbour % 3 +
-                                 ((size_t)neighbour % 3 + 2) % 3];
+    uint32_t far =
+        mesh->indices[(size_t)neighbour - (size_t)neighbour % 3 + ((size_t)neighbour % 3 + 2) % 3];
     double p[4][3], a[3], b[3], c[3], o[3], nrm[3];
     for (int j = 0; j < 3; ++j)
         pen__load3_d(mesh->positions + 3 * (size_t)idx[j], p[j]);
@@ -128,6 +130,7 @@ static aa_pair analyze_pair(const aa_ctx *ac, int x, int y, int axis, aa_edge *e
     size_t io = occ ? i1 : i0;
     const pen_raster_mesh *mesh = ac->meshes + gb->surface[io];
     const double *screen = ac->screen + 3 * ac->first_vertex[gb->surface[io]];
+    const uint8_t *silhouette = ac->silhouette + ac->first_edge[gb->surface[io]];
     const pen_view *view = ac->view;
     int t = gb->triangle[io];
     if (t < 0 || t >= mesh->triangle_count) return none;
@@ -135,8 +138,8 @@ static aa_pair analyze_pair(const aa_ctx *ac, int x, int y, int axis, aa_edge *e
     int ua = axis, va = 1 - axis;
     double uo = (axis ? y : x) + 0.5 + occ, vc = (axis ? x : y) + 0.5;
     double dir = occ ? -1.0 : 1.0;
-    int entry = -1;         /* the edge the walk entered t through */
-    double entered = 0.0;   /* alpha there */
+    int entry = -1;       /* the edge the walk entered t through */
+    double entered = 0.0; /* alpha there */
     for (int step = 0; step < AA_WALK_MAX; ++step) {
         const uint32_t *idx = mesh->indices + 3 * (size_t)t;
         const double *s[3];
@@ -160,7 +163,7 @@ static aa_pair analyze_pair(const aa_ctx *ac, int x, int y, int axis, aa_edge *e
         }
         if (k_out < 0 || alpha > 1.0) return none;
         int32_t neighbour = mesh->adjacency[3 * (size_t)t + (size_t)k_out];
-        if (!is_silhouette(mesh, view, t, k_out, neighbour)) {
+        if (!silhouette[3 * (size_t)t + (size_t)k_out]) {
             t = neighbour / 3, entry = neighbour % 3, entered = alpha;
             continue;
         }
@@ -231,14 +234,17 @@ static pen_status check_args(pen_context *ctx, const pen_gbuffer *gb, const pen_
 typedef struct aa_state {
     aa_ctx ac;
     aa_pair *pairs;
-    size_t *first_vertex;
+    size_t *first_vertex, *first_edge;
     double *screen;
+    uint8_t *silhouette;
 } aa_state;
 
 static void aa_end(aa_state *st) {
     free(st->pairs);
     free(st->first_vertex);
+    free(st->first_edge);
     free(st->screen);
+    free(st->silhouette);
 }
 
 static pen_status aa_begin(pen_context *ctx, const pen_gbuffer *gb, const pen_view *view,
@@ -250,15 +256,22 @@ static pen_status aa_begin(pen_context *ctx, const pen_gbuffer *gb, const pen_vi
     int W = gb->width, H = gb->height;
     int threads = pen__raster_threads_for(ctx, (size_t)W * (size_t)H);
     size_t nh = (size_t)(W - 1) * (size_t)H, nv = (size_t)W * (size_t)(H - 1), total = 0;
+    size_t edges = 0;
     st->first_vertex = pen__malloc(ctx, (size_t)mesh_count + 1, sizeof(size_t), "antialias");
-    if (!st->first_vertex) return PEN_ERROR_MEMORY;
+    st->first_edge = pen__malloc(ctx, (size_t)mesh_count + 1, sizeof(size_t), "antialias");
+    if (!st->first_vertex || !st->first_edge) {
+        aa_end(st);
+        return PEN_ERROR_MEMORY;
+    }
     for (int m = 0; m < mesh_count; ++m) {
-        st->first_vertex[m] = total;
+        st->first_vertex[m] = total, st->first_edge[m] = edges;
         total += (size_t)meshes[m].vertex_count;
+        edges += 3 * (size_t)meshes[m].triangle_count;
     }
     st->screen = pen__malloc(ctx, 3 * total + 1, sizeof(double), "antialias screen vertices");
+    st->silhouette = pen__malloc(ctx, edges + 1, 1, "antialias silhouette flags");
     st->pairs = pen__malloc(ctx, nh + nv + 1, sizeof *st->pairs, "antialias pairs");
-    if (!st->screen || !st->pairs) {
+    if (!st->screen || !st->silhouette || !st->pairs) {
         aa_end(st);
         return PEN_ERROR_MEMORY;
     }
@@ -272,8 +285,19 @@ static pen_status aa_begin(pen_context *ctx, const pen_gbuffer *gb, const pen_vi
             pen__load3_d(pos + 3 * (size_t)v, p);
             pen__raster_project_d(view, p, out + 3 * (size_t)v, NULL);
         }
+        /* Each edge's silhouette test once per frame, not once per pair and walk step: with
+         * triangles of about a pixel nearly every pair of covered pixels walks. */
+        uint8_t *sil = st->silhouette + st->first_edge[m];
+        const pen_raster_mesh *mesh = &meshes[m];
+        int ethreads = pen__raster_threads_for(ctx, 3 * (size_t)mesh->triangle_count);
+#pragma omp parallel for num_threads(ethreads) schedule(static)
+        for (int t = 0; t < mesh->triangle_count; ++t)
+            for (int k = 0; k < 3; ++k)
+                sil[3 * (size_t)t + (size_t)k] = (uint8_t)is_silhouette(
+                    mesh, view, t, k, mesh->adjacency[3 * (size_t)t + (size_t)k]);
     }
-    aa_ctx ac = {gb, view, meshes, mesh_count, st->first_vertex, st->screen};
+    aa_ctx ac = {gb,         view,           meshes,        mesh_count, st->first_vertex,
+                 st->screen, st->first_edge, st->silhouette};
     st->ac = ac;
     aa_pair *pairs = st->pairs;
 #pragma omp parallel for num_threads(threads) schedule(static)
