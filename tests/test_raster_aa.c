@@ -520,11 +520,20 @@ static void test_degenerate_and_errors(void) {
     CHECK(aa_fwd(&gb, &view, &mesh, 1, c, 3, out, 0) == PEN_OK);
     CHECK(aa_bwd(&gb, &view, &mesh, 1, c, 3, c, dc, dps, 0) == PEN_OK);
     CHECK(ru_all_finite(out, 3 * n) && ru_all_finite(dc, 3 * n) && ru_all_finite(dp, 36));
-    /* Errors: no adjacency, no channels, size mismatch. */
+    /* Errors: no adjacency, an adjacency entry outside the mesh (the walk would follow it), no
+     * channels, size mismatch. */
     pen_context *ctx = pen_context_create();
     mesh.adjacency = NULL;
     CHECK(pen_antialias_fwd(ctx, &gb, &view, &mesh, 1, c, 3, out) == PEN_ERROR_ARGUMENT);
     CHECK(strstr(pen_context_error(ctx), "adjacency") != NULL);
+    int32_t bad[12];
+    memcpy(bad, adj, sizeof bad);
+    bad[5] = 12;
+    mesh.adjacency = bad;
+    CHECK(pen_antialias_fwd(ctx, &gb, &view, &mesh, 1, c, 3, out) == PEN_ERROR_ARGUMENT);
+    CHECK(strstr(pen_context_error(ctx), "adjacency[5] = 12") != NULL);
+    bad[5] = -2;
+    CHECK(pen_antialias_bwd(ctx, &gb, &view, &mesh, 1, c, 3, c, dc, NULL) == PEN_ERROR_ARGUMENT);
     mesh.adjacency = adj;
     CHECK(pen_antialias_bwd(ctx, &gb, &view, &mesh, 1, c, 0, c, dc, NULL) == PEN_ERROR_ARGUMENT);
     view.width = 31;

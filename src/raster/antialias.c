@@ -12,7 +12,9 @@
  * where T's projected edges are straight lines). That edge is a silhouette when it has no single
  * neighbouring triangle or when the neighbour lies on the same side of the plane through the eye
  * and the edge as T does (the surface folds away, so the far side shows something else); else
- * the surface continues across it and the pair is left alone.
+ * the surface continues across it, and the segment is followed into the neighbour and out
+ * through its next edge, until it crosses a silhouette edge (the pair blends there) or reaches
+ * B's centre (no blend): see analyze_pair.
  *
  * Treat each pixel as a unit box around its centre, and the edge as locally straight. Along the
  * segment, T reaches alpha pixels from A's centre, so it covers (alpha - 1/2) of B's box when
@@ -222,10 +224,20 @@ static pen_status check_args(pen_context *ctx, const pen_gbuffer *gb, const pen_
     size_t total;
     pen_status st = pen__raster_check_meshes(ctx, meshes, mesh_count, &total);
     if (st) return st;
-    for (int m = 0; m < mesh_count; ++m)
+    for (int m = 0; m < mesh_count; ++m) {
         if (meshes[m].triangle_count > 0 && !meshes[m].adjacency)
             return pen__error(ctx, PEN_ERROR_ARGUMENT,
                               "antialias: mesh %d has no adjacency (pen_raster_adjacency)", m);
+        /* The walk follows these entries: a wrong one must not read outside the mesh. */
+        const int32_t n = 3 * meshes[m].triangle_count; /* fits: at most INT32_MAX / 3 */
+        for (int32_t h = 0; h < n; ++h)
+            if (meshes[m].adjacency[h] < -1 || meshes[m].adjacency[h] >= n)
+                return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                                  "antialias: mesh %d: adjacency[%d] = %d is not a half-edge "
+                                  "of its %d triangles",
+                                  m, (int)h, (int)meshes[m].adjacency[h],
+                                  meshes[m].triangle_count);
+    }
     return PEN_OK;
 }
 

@@ -96,6 +96,7 @@ pen_status pen__raster_check_meshes(pen_context *ctx, const pen_raster_mesh *mes
     for (int m = 0; m < mesh_count; ++m) {
         const pen_raster_mesh *mesh = meshes + m;
         if (mesh->vertex_count < 0 || mesh->triangle_count < 0 ||
+            mesh->triangle_count > INT32_MAX / 3 || /* half-edge ids are int32 */
             (mesh->vertex_count > 0 && !mesh->positions) ||
             (mesh->triangle_count > 0 && !mesh->indices))
             return pen__error(ctx, PEN_ERROR_ARGUMENT,
