@@ -1,7 +1,8 @@
 /* Checkpoints and resuming (src/optim/checkpoint.c, the loop in src/optim/optimize.c): a run of
  * N iterations in one go and the same run stopped (interrupted at iteration j, or "crashed" with
  * only the periodic checkpoint of iteration K left) and resumed to N end with the same losses,
- * parameters and final render, bit for bit; and refused checkpoints (damaged, another problem).
+ * parameters and final render, bit for bit, also when the stopping rule ends the run after the
+ * resume; and refused checkpoints (damaged, another problem).
  *
  * Bitwise equality holds because the state written is all the loop carries from one iteration
  * to the next (parameters, Adam's moments and step, best iterate, loss history) and the renderer
@@ -16,10 +17,14 @@
 #include <unistd.h>
 
 #define SIZE 32
+#define STOP_TOLERANCE 1e-3
 
-static pen_optim_task make_task(unsigned groups) {
+/* window > 0: a stopping window short enough for the rule to stop the run after the resume, on
+ * a loss history that began before it (the default window, 50, outlasts these runs). */
+static pen_optim_task make_task(unsigned groups, int window) {
     pen_optim_task t = os_task(os_egg(SIZE, 1, 3), os_egg(SIZE, 1, 3), groups,
                                check_quick_() ? 12 : 30);
+    if (window > 0) t.window = window, t.tolerance = STOP_TOLERANCE;
     t.shadow_weight = 2.0; /* the weights are recomputed on resume: they must match too */
     pen_pose *p = &t.scene.objects[0].pose;
     p->rotation_axis_angle_deg[1] += 5.0f;
@@ -51,9 +56,9 @@ static int on_progress(void *user, int iteration, int iterations, double loss) {
     return iteration == s->stop_at;
 }
 
-static pen_optim_result run(unsigned groups, const char *outdir, int every, int resume,
-                            stopper *stop, pen_optim_task *task) {
-    *task = make_task(groups);
+static pen_optim_result run(unsigned groups, int window, const char *outdir, int every,
+                            int resume, stopper *stop, pen_optim_task *task) {
+    *task = make_task(groups, window);
     pen_context *ctx = pen_context_create();
     pen_optim_settings set = pen_optim_settings_default();
     set.outdir = outdir;
@@ -110,7 +115,7 @@ static void cleanup(const char *dir) {
 }
 
 /* One task: once, interrupted at j and resumed, crashed after the checkpoint at K and resumed. */
-static void check_resume(unsigned groups, const char *name) {
+static void check_resume(unsigned groups, int window, const char *name) {
     char base[] = "/tmp/pen_resume_XXXXXX";
     CHECK(mkdtemp(base) != NULL);
     char once[64], cut[64], crash[64];
@@ -120,7 +125,7 @@ static void check_resume(unsigned groups, const char *name) {
     CHECK(mkdir(crash, 0755) == 0);
     const int K = check_quick_() ? 3 : 5, j = check_quick_() ? 8 : 17; /* 2 K < j */
     pen_optim_task ta, tb, tc;
-    pen_optim_result a = run(groups, once, 0, 0, NULL, &ta);
+    pen_optim_result a = run(groups, window, once, 0, 0, NULL, &ta);
     /* Interrupted at j; the checkpoint of iteration 2K is copied away when it is written (the
      * loop writes it before that iteration's render, so the callback sees it). */
     stopper stop = {j, 2 * K, NULL, NULL};
@@ -128,14 +133,17 @@ static void check_resume(unsigned groups, const char *name) {
     snprintf(from, sizeof from, "%s/checkpoint.bin", cut);
     snprintf(to, sizeof to, "%s/checkpoint.bin", crash);
     stop.from = from, stop.to = to;
-    pen_optim_result b = run(groups, cut, K, 0, &stop, &tb);
+    pen_optim_result b = run(groups, window, cut, K, 0, &stop, &tb);
     CHECK(b.interrupted && b.iterations == j);
     pen_optim_result_free(&b);
     pen_optim_task_free(&tb);
-    b = run(groups, cut, K, 1, NULL, &tb);
+    b = run(groups, window, cut, K, 1, NULL, &tb);
     CHECK(b.resumed_from == j && !b.interrupted);
-    pen_optim_result c = run(groups, crash, K, 1, NULL, &tc);
+    pen_optim_result c = run(groups, window, crash, K, 1, NULL, &tc);
     CHECK(c.resumed_from == 2 * K);
+    if (window > 0) /* the stopping rule decided after the resume, on history from before it */
+        CHECK_MSG(a.converged && a.iterations > j, "%d iterations%s, interrupted at %d",
+                  a.iterations, a.converged ? " (converged)" : "", j);
     printf("  %-12s %d iterations%s, loss %.5g -> %.5g; resumed at %d and at %d\n", name,
            a.iterations, a.converged ? " (converged)" : "", a.losses ? a.losses[0] : 0.0, a.final_loss, b.resumed_from,
            c.resumed_from);
@@ -154,10 +162,15 @@ static void check_resume(unsigned groups, const char *name) {
 }
 
 static void test_resume_lighting_pose(void) {
-    check_resume(PEN_OPTIM_LIGHTING | PEN_OPTIM_POSE, "lighting+pose");
+    check_resume(PEN_OPTIM_LIGHTING | PEN_OPTIM_POSE, 0, "lighting+pose");
 }
 
-static void test_resume_deformation(void) { check_resume(PEN_OPTIM_DEFORMATION, "deformation"); }
+static void test_resume_deformation(void) { check_resume(PEN_OPTIM_DEFORMATION, 0, "deformation"); }
+
+static void test_resume_stopping(void) {
+    /* the loss is lowest near iteration 4, so the rule stops at about 4 + window: after j */
+    check_resume(PEN_OPTIM_POSE, check_quick_() ? 5 : 8, "pose, stops");
+}
 
 /* Runs `groups` into the fresh folder made from the template `dir`, then resumes it with `edit`
  * applied to the task, which must be refused with `message`; returns the folder (the caller
@@ -166,10 +179,10 @@ static char *refused_resume(unsigned groups, void (*edit)(pen_optim_task *), con
                             char *dir) {
     CHECK(mkdtemp(dir) != NULL);
     pen_optim_task t;
-    pen_optim_result r = run(groups, dir, 0, 0, NULL, &t);
+    pen_optim_result r = run(groups, 0, dir, 0, 0, NULL, &t);
     pen_optim_result_free(&r);
     pen_optim_task_free(&t);
-    t = make_task(groups);
+    t = make_task(groups, 0);
     edit(&t);
     pen_context *ctx = pen_context_create();
     pen_optim_settings set = pen_optim_settings_default();
@@ -201,7 +214,7 @@ static void test_resume_refused(void) {
         fputc(c ^ 4, f);
         fclose(f);
     }
-    pen_optim_task t = make_task(PEN_OPTIM_POSE);
+    pen_optim_task t = make_task(PEN_OPTIM_POSE, 0);
     pen_context *ctx = pen_context_create();
     pen_optim_settings set = pen_optim_settings_default();
     set.outdir = dir;
@@ -224,5 +237,5 @@ static void test_resume_other_regularisers(void) {
                            "checkpoint.bin: made with other regularisers", dir));
 }
 
-RUN_TESTS(TEST(test_resume_lighting_pose), TEST(test_resume_deformation),
+RUN_TESTS(TEST(test_resume_lighting_pose), TEST(test_resume_deformation), TEST(test_resume_stopping),
           TEST(test_resume_refused), TEST(test_resume_other_regularisers))
