@@ -24,7 +24,10 @@
 static pen_optim_task make_task(unsigned groups, int window) {
     pen_optim_task t = os_task(os_egg(SIZE, 1, 3), os_egg(SIZE, 1, 3), groups,
                                check_quick_() ? 12 : 30);
-    if (window > 0) t.window = window, t.tolerance = STOP_TOLERANCE;
+    if (window > 0) {
+        t.window = window;
+        t.tolerance = STOP_TOLERANCE;
+    }
     t.shadow_weight = 2.0; /* the weights are recomputed on resume: they must match too */
     pen_pose *p = &t.scene.objects[0].pose;
     p->rotation_axis_angle_deg[1] += 5.0f;

@@ -47,6 +47,11 @@ def absolute_scene(path, envmap):
     def fix(p):
         return os.path.normpath(os.path.join(here, p))
 
+    # The transfer images are renders lit by one coefficient each: only a black background
+    # leaves them nothing but the surfaces (with an envmap the background defaults to the map).
+    if scene.get("background") != [0, 0, 0]:
+        sys.exit("lighting_bound: %s: \"background\" must be [0, 0, 0], got %s"
+                 % (path, json.dumps(scene.get("background", "the default"))))
     lighting = scene.get("lighting", {})
     if "envmap" in lighting:
         lighting["envmap"] = fix(lighting["envmap"])
