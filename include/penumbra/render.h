@@ -62,6 +62,11 @@ typedef struct pen_render_options {
 /* shadows = 1, antialias = 1, kernel = PEN_RENDER_KERNEL_FAST. */
 pen_render_options pen_render_options_default(void);
 
+/* How many pixels the fast kernel in use shades per SIMD batch (16 with AVX-512). Its per-batch
+ * sums run in lane order, so fast-kernel results are bitwise reproducible between machines that
+ * report the same count. */
+int pen_render_fast_lanes(void);
+
 /* ---- Gradients ------------------------------------------------------------------------------- */
 
 /* What pen_render_bwd computes (bit mask). Skipping unwanted groups saves time; the fields of

@@ -126,7 +126,7 @@ struct pen_render_state {
     unsigned char *ws; /* per-thread workspaces (tile_ws) */
     float *bg;         /* environment-map background of the last frame, 3 per pixel */
     size_t bg_cap;
-    int bg_use;        /* this frame: 0 none, 1 fill bg, 2 read bg */
+    int bg_use;        /* this frame: 0 none, 2 read bg (filled by background_prepare) */
     bg_key bg_key;     /* what bg was computed from (bg_valid) */
     int bg_valid;
     pen_render_timings timings;
@@ -499,20 +499,32 @@ static void background_prepare(pen_context *ctx, const pen_scene *sc, pen_render
         pen_context_clear_error(ctx); /* not the render's failure: it goes on without the cache */
         return;
     }
+    /* Filled for every pixel now, not only for those that show the background in this frame:
+     * the cache outlives the frame, and a pixel covered by the object now may show the
+     * background after the object moves (filling on the fly left such pixels uninitialised). */
+    const int w = st->width, h = st->height;
+    const pen_view *view = &st->view;
+    float *bg = st->bg;
+    const int threads = pen_context_threads(ctx) > 0 ? pen_context_threads(ctx)
+                                                     : omp_get_max_threads();
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (int py = 0; py < h; ++py)
+        for (int px = 0; px < w; ++px)
+            background_fwd(sc, view, px, py, bg + 3 * ((size_t)py * (size_t)w + (size_t)px));
     st->bg_key = k;
-    st->bg_use = 1;
+    st->bg_valid = 1;
+    st->bg_use = 2;
 }
 
 /* Background pixel i at (px, py), through the cache when there is one. */
 static void background_pixel(const pen_scene *sc, const pen_render_state *st, int px, int py,
                              size_t i) {
     float *rgb = st->color + 3 * i;
-    if (st->bg_use == 2) {
+    if (st->bg_use) {
         memcpy(rgb, st->bg + 3 * i, 3 * sizeof(float));
         return;
     }
     background_fwd(sc, &st->view, px, py, rgb);
-    if (st->bg_use == 1) memcpy(st->bg + 3 * i, rgb, 3 * sizeof(float));
 }
 
 /* ---- Forward --------------------------------------------------------------------------------- */
@@ -951,7 +963,6 @@ pen_status pen_render_fwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     const tile_job job = {sc, st, NULL, fv_all, fast ? st->tile_off : NULL};
     background_prepare(ctx, sc, st);
     const loop_ticks lt = run_tiles(st, nt, wsb, shade_tile_fwd, &job);
-    if (st->bg_use == 1) st->bg_valid = 1;
     tm->fwd_shade_ms = ms_since(t0);
     tm->fwd_visibility_ms = stage_ms(tm->fwd_shade_ms, lt.visibility, lt.total);
     tm->fwd_exp_ms = stage_ms(tm->fwd_shade_ms, lt.exp, lt.total);

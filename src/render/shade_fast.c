@@ -35,6 +35,7 @@
  */
 #include "core/internal.h"
 #include "render/render_internal.h"
+#include "penumbra/render.h"
 #include "sh/sh_internal.h"
 
 #include <math.h>
@@ -370,3 +371,5 @@ void pen__shade_fast_bwd(const pen__shade_params *p, const float (*sh)[3], int s
     default: break;
     }
 }
+
+int pen_render_fast_lanes(void) { return LANES; }
