@@ -23,7 +23,8 @@
 
 static uint64_t fnv(uint64_t h, const void *data, size_t bytes) {
     const unsigned char *p = data;
-    for (size_t i = 0; i < bytes; ++i) h = (h ^ p[i]) * 0x100000001b3ull;
+    for (size_t i = 0; i < bytes; ++i)
+        h = (h ^ p[i]) * 0x100000001b3ull;
     return h;
 }
 #define FNV_START 0xcbf29ce484222325ull
@@ -75,8 +76,7 @@ static uint64_t hash_grad(const pen_render_grad *g) {
         if (og->texture) h = fnv(h, og->texture, sizeof(float) * 3 * (size_t)og->texel_count);
         if (og->spheres) h = fnv(h, og->spheres, sizeof(float) * 4 * (size_t)og->sphere_count);
         h = fnv(h, &og->pose, sizeof og->pose);
-        if (og->positions)
-            h = fnv(h, og->positions, sizeof(float) * 3 * (size_t)og->vertex_count);
+        if (og->positions) h = fnv(h, og->positions, sizeof(float) * 3 * (size_t)og->vertex_count);
     }
     return h;
 }
@@ -197,7 +197,8 @@ static void test_optimize(void) {
     task.scene.objects[0].pose.rotation_axis_angle_deg[1] += 6.0f;
     task.scene.objects[0].pose.translation[0] += 0.05f;
     if (getenv("PEN_GOLDEN_DEBUG"))
-        printf("dbg target %llx spheres %llx truth %llx\n", (unsigned long long)hash_image(&task.target),
+        printf("dbg target %llx spheres %llx truth %llx\n",
+               (unsigned long long)hash_image(&task.target),
                (unsigned long long)fnv(FNV_START, task.scene.objects[0].spheres.data, 16 * 32),
                (unsigned long long)fnv(FNV_START, truth.objects[0].spheres.data, 16 * 32));
     pen_optim_settings set = pen_optim_settings_default();
@@ -211,7 +212,8 @@ static void test_optimize(void) {
         return;
     }
     if (getenv("PEN_GOLDEN_DEBUG"))
-        for (int i = 0; i <= res.iterations; ++i) printf("loss %d %.17g\n", i, res.losses[i]);
+        for (int i = 0; i <= res.iterations; ++i)
+            printf("loss %d %.17g\n", i, res.losses[i]);
     uint64_t h = fnv(FNV_START, task.scene.lighting.sh, sizeof task.scene.lighting.sh);
     h = fnv(h, &task.scene.objects[0].pose, sizeof task.scene.objects[0].pose);
     h = fnv(h, res.losses, sizeof(double) * (size_t)(res.iterations + 1));
