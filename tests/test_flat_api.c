@@ -321,7 +321,8 @@ static void test_flat_renderer_reuse(void) {
             memset(d_sh[k], 0, sizeof d_sh[k]), memset(d_ground[k], 0, sizeof d_ground[k]);
             memset(d_albedo[k], 0, sizeof d_albedo[k]);
             memset(d_spheres[k], 0, sizeof d_spheres[k]), memset(d_pose[k], 0, sizeof d_pose[k]);
-            memset(d_pos[k], 0, nv * sizeof(float)), memset(d_tex[k], 0, (size_t)nt * sizeof(float));
+            memset(d_pos[k], 0, nv * sizeof(float));
+            memset(d_tex[k], 0, (size_t)nt * sizeof(float));
             pen_flat_object_grad og = {d_pos[k], d_tex[k], d_albedo[k], d_spheres[k], d_pose[k]};
             pen_flat_grad fg = {d_sh[k], d_ground[k], &og};
             if (k == 0) {
@@ -370,8 +371,8 @@ static void test_flat_abi(void) {
             const size_t align = t[j].size == 8 ? 8 : 4;
             align_max = align > align_max ? align : align_max;
             const size_t at = (end + align - 1) / align * align;
-            if (t[j].offset != at) printf("  %s.%s at %zu, expected %zu\n", type, t[j].field,
-                                          t[j].offset, at);
+            if (t[j].offset != at)
+                printf("  %s.%s at %zu, expected %zu\n", type, t[j].field, t[j].offset, at);
             CHECK(t[j].offset == at);
             end = t[j].offset + t[j].size;
         }
@@ -390,5 +391,5 @@ static void test_flat_abi(void) {
 }
 
 RUN_TESTS(TEST(test_flat_matches_render), TEST(test_flat_per_vertex_uvs),
-          TEST(test_flat_scene_load), TEST(test_flat_errors),
-          TEST(test_flat_renderer_reuse), TEST(test_flat_abi))
+          TEST(test_flat_scene_load), TEST(test_flat_errors), TEST(test_flat_renderer_reuse),
+          TEST(test_flat_abi))

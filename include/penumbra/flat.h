@@ -23,6 +23,9 @@
  *     pen_flat_grad g = {0}; g.sh = d_sh;                      NULL fields are not computed
  *     pen_flat_render_bwd(ctx, &sc, st, d_image, &g);          d_sh += dLoss/dsh
  *
+ * For many steps, a pen_flat_renderer (below) keeps the state and the calls' scratch between
+ * them; pen_flat_abi reports the structs' layout so that a binding can check its mirror of them.
+ *
  * Layouts: images and textures are rows top to bottom, 3 interleaved linear RGB floats per pixel
  * (as pen_image); SH lighting is sh[3 i + channel] for coefficient i < sh_bands^2 (index
  * l*l + l + m); spheres are x, y, z, r per sphere (object space); triangles index vertices with

@@ -15,8 +15,10 @@
 
 #include <stddef.h>
 
-#define SIZE_ROW(T) {#T, NULL, 0, sizeof(T)}
-#define FIELD(T, m) {#T, #m, offsetof(T, m), sizeof(((T *)0)->m)}
+#define SIZE_ROW(T)                                                                                \
+    { #T, NULL, 0, sizeof(T) }
+#define FIELD(T, m)                                                                                \
+    { #T, #m, offsetof(T, m), sizeof(((T *)0)->m) }
 
 static const pen_flat_abi_field table[] = {
     SIZE_ROW(pen_flat_object),

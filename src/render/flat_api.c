@@ -111,8 +111,8 @@ static pen_status object_room(pen_context *ctx, pen_object **buf, int *cap, int 
 
 /* Fills *sc from *f; sc->objects is *buf, grown to the object count (free it when done, never the
  * arrays it points to). */
-static pen_status scene_view(pen_context *ctx, const pen_flat_scene *f, pen_object **buf,
-                             int *cap, pen_scene *sc) {
+static pen_status scene_view(pen_context *ctx, const pen_flat_scene *f, pen_object **buf, int *cap,
+                             pen_scene *sc) {
     memset(sc, 0, sizeof *sc);
     if (f->sh_bands < 1 || f->sh_bands > PEN_SH_MAX_BANDS)
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "flat scene: sh_bands %d out of range [1, %d]",
