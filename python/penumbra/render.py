@@ -308,7 +308,10 @@ class Renderer:
 
     def __del__(self):
         if getattr(self, "_ctx", None) is not None:
-            self.close()
+            try:
+                self.close()
+            except Exception:  # interpreter shutdown: the modules may already be gone
+                pass
 
     def _call(self, threads, fn, *args):
         if not self._ptr:
