@@ -283,5 +283,113 @@ static void test_flat_errors(void) {
     pen_scene_free(&sc);
 }
 
+/* A renderer kept across calls gives what a fresh state gives, bit for bit, step after step,
+ * while the parameters change between steps and the frame changes size. */
+static void test_flat_renderer_reuse(void) {
+    pen_context *ctx = fixture_ctx();
+    unsigned long long seed = 11;
+    pen_scene sc = rs_ball_scene(24, 1, &seed);
+    const pen_object *ob = &sc.objects[0];
+    pen_flat_object fo;
+    float sh[3 * PEN_SH_MAX_COEFFS];
+    pen_flat_scene f = flat_of(&sc, &fo, sh);
+    const int V = ob->mesh.vertex_count, nt = 3 * ob->texture.width * ob->texture.height;
+    const size_t np = 3 * 24 * 24, nv = 3 * (size_t)V;
+    float *img[2], *d_img = malloc(np * sizeof(float)), *d_pos[2], *d_tex[2];
+    float d_sh[2][3 * 16], d_ground[2][3], d_albedo[2][3], d_spheres[2][8], d_pose[2][7];
+    for (int k = 0; k < 2; ++k) {
+        img[k] = malloc(np * sizeof(float));
+        d_pos[k] = malloc(nv * sizeof(float));
+        d_tex[k] = malloc((size_t)nt * sizeof(float));
+    }
+    pen_flat_renderer *r = NULL;
+    CHECK(pen_flat_renderer_create(ctx, &r) == PEN_OK);
+    CHECK(pen_flat_renderer_state(r) != NULL);
+    float *pos = malloc(nv * sizeof(float)), sph[8];
+    memcpy(pos, ob->mesh.positions, nv * sizeof(float));
+    memcpy(sph, ob->spheres.data, sizeof sph);
+    fo.positions = pos, fo.spheres = sph;
+    for (int step = 0; step < 4; ++step) {
+        /* Every differentiable input moves a little; step 2 renders a smaller frame. */
+        sh[3] += 0.05f, fo.pose[4] += 0.01f, fo.albedo[1] *= 0.97f;
+        sph[3] *= 1.02f, pos[1] += 0.003f;
+        f.width = f.height = step == 2 ? 20 : 24;
+        const size_t n = 3 * (size_t)f.width * (size_t)f.height;
+        for (size_t i = 0; i < n; ++i)
+            d_img[i] = (float)(check_rand_(&seed) - 0.5);
+        for (int k = 0; k < 2; ++k) {
+            memset(d_sh[k], 0, sizeof d_sh[k]), memset(d_ground[k], 0, sizeof d_ground[k]);
+            memset(d_albedo[k], 0, sizeof d_albedo[k]);
+            memset(d_spheres[k], 0, sizeof d_spheres[k]), memset(d_pose[k], 0, sizeof d_pose[k]);
+            memset(d_pos[k], 0, nv * sizeof(float));
+            memset(d_tex[k], 0, (size_t)nt * sizeof(float));
+            pen_flat_object_grad og = {d_pos[k], d_tex[k], d_albedo[k], d_spheres[k], d_pose[k]};
+            pen_flat_grad fg = {d_sh[k], d_ground[k], &og};
+            if (k == 0) {
+                pen_render_state *st = NULL;
+                CHECK(pen_render_state_create(ctx, &st) == PEN_OK);
+                CHECK(pen_flat_render_fwd(ctx, &f, st, img[k]) == PEN_OK);
+                CHECK(pen_flat_render_bwd(ctx, &f, st, d_img, &fg) == PEN_OK);
+                pen_render_state_free(st);
+            } else {
+                CHECK(pen_flat_renderer_fwd(ctx, r, &f, img[k]) == PEN_OK);
+                CHECK(pen_flat_renderer_bwd(ctx, r, &f, d_img, &fg) == PEN_OK);
+            }
+        }
+        CHECK(same_floats(img[0], img[1], n));
+        CHECK(same_floats(d_sh[0], d_sh[1], 48) && same_floats(d_ground[0], d_ground[1], 3));
+        CHECK(same_floats(d_albedo[0], d_albedo[1], 3));
+        CHECK(same_floats(d_spheres[0], d_spheres[1], 8) && same_floats(d_pose[0], d_pose[1], 7));
+        CHECK(same_floats(d_pos[0], d_pos[1], nv) && same_floats(d_tex[0], d_tex[1], (size_t)nt));
+    }
+    CHECK_ERROR(ctx, pen_flat_renderer_fwd(ctx, NULL, &f, img[0]), PEN_ERROR_ARGUMENT, "NULL");
+    pen_flat_renderer_free(r);
+    pen_flat_renderer_free(NULL);
+    for (int k = 0; k < 2; ++k)
+        free(img[k]), free(d_pos[k]), free(d_tex[k]);
+    free(d_img), free(pos);
+    pen_scene_free(&sc);
+}
+
+/* The layout table names every member of each struct: members follow one another with no gap
+ * beyond alignment (4 bytes for ints, floats and float arrays, 8 for pointers), and the struct
+ * ends after its last member (rounded to 8 when it holds a pointer). */
+static void test_flat_abi(void) {
+    const pen_flat_abi_field *t = NULL;
+    int n = 0;
+    CHECK(pen_flat_abi(&t, &n) == PEN_FLAT_ABI_VERSION);
+    CHECK(t != NULL && n > 0 && t[0].field == NULL);
+    int structs = 0;
+    for (int i = 0; i < n;) {
+        CHECK(t[i].field == NULL);
+        const char *type = t[i].type;
+        const size_t size = t[i].size;
+        size_t end = 0, align_max = 4;
+        int j = i + 1;
+        for (; j < n && t[j].field; ++j) {
+            CHECK(strcmp(t[j].type, type) == 0);
+            const size_t align = t[j].size == 8 ? 8 : 4;
+            align_max = align > align_max ? align : align_max;
+            const size_t at = (end + align - 1) / align * align;
+            if (t[j].offset != at)
+                printf("  %s.%s at %zu, expected %zu\n", type, t[j].field, t[j].offset, at);
+            CHECK(t[j].offset == at);
+            end = t[j].offset + t[j].size;
+        }
+        CHECK(j > i + 1);
+        CHECK(size == (end + align_max - 1) / align_max * align_max);
+        ++structs, i = j;
+    }
+    CHECK(structs == 7);
+    int found = 0;
+    for (int i = 0; i < n; ++i)
+        if (t[i].field && !strcmp(t[i].type, "pen_flat_scene") &&
+            !strcmp(t[i].field, "ground_occlusion"))
+            found = t[i].offset == offsetof(pen_flat_scene, ground_occlusion) &&
+                    t[i].size == sizeof(int);
+    CHECK(found);
+}
+
 RUN_TESTS(TEST(test_flat_matches_render), TEST(test_flat_per_vertex_uvs),
-          TEST(test_flat_scene_load), TEST(test_flat_errors))
+          TEST(test_flat_scene_load), TEST(test_flat_errors), TEST(test_flat_renderer_reuse),
+          TEST(test_flat_abi))

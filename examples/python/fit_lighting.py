@@ -32,10 +32,11 @@ def fit_lighting(scene, target, iterations=200, lr=0.05, shadows=True, log=None)
     # The whole fit, as in docs/python.md:
     scene.sh = torch.zeros_like(truth, requires_grad=True)
     opt = torch.optim.Adam([scene.sh], lr=lr)
+    renderer = penumbra.Renderer()  # keeps the render state and its caches between iterations
     losses = []
     for it in range(iterations):
         opt.zero_grad()
-        loss = (penumbra.render_scene(scene, shadows=shadows) - target).square().mean()
+        loss = (renderer.render_scene(scene, shadows=shadows) - target).square().mean()
         loss.backward()
         opt.step()
         losses.append(loss.item())

@@ -23,6 +23,9 @@
  *     pen_flat_grad g = {0}; g.sh = d_sh;                      NULL fields are not computed
  *     pen_flat_render_bwd(ctx, &sc, st, d_image, &g);          d_sh += dLoss/dsh
  *
+ * For many steps, a pen_flat_renderer (below) keeps the state and the calls' scratch between
+ * them; pen_flat_abi reports the structs' layout so that a binding can check its mirror of them.
+ *
  * Layouts: images and textures are rows top to bottom, 3 interleaved linear RGB floats per pixel
  * (as pen_image); SH lighting is sh[3 i + channel] for coefficient i < sh_bands^2 (index
  * l*l + l + m); spheres are x, y, z, r per sphere (object space); triangles index vertices with
@@ -128,6 +131,50 @@ pen_status pen_flat_render_fwd(pen_context *ctx, const pen_flat_scene *scene,
 pen_status pen_flat_render_bwd(pen_context *ctx, const pen_flat_scene *scene,
                                pen_render_state *state, const float *d_image,
                                const pen_flat_grad *grad);
+
+/* ---- A renderer kept across calls ------------------------------------------------------------ */
+
+/* A pen_render_state together with what a flat call otherwise allocates anew (the pen_scene
+ * view's object array, the gradient the backward fills before adding it into pen_flat_grad),
+ * kept from one call to the next. The renderer's caches then survive between optimisation steps:
+ * the per-pixel buffers, the mesh adjacency, the environment-map background and overlap weights
+ * computed from unchanged spheres. Images and gradients are those of pen_flat_render_fwd / _bwd
+ * with a fresh state, bit for bit. One call at a time per renderer (it is not locked). */
+typedef struct pen_flat_renderer pen_flat_renderer;
+
+/* On failure *out is NULL. */
+pen_status pen_flat_renderer_create(pen_context *ctx, pen_flat_renderer **out);
+/* NULL is a no-op. */
+void pen_flat_renderer_free(pen_flat_renderer *renderer);
+/* pen_flat_render_fwd with the renderer's state. */
+pen_status pen_flat_renderer_fwd(pen_context *ctx, pen_flat_renderer *renderer,
+                                 const pen_flat_scene *scene, float *image);
+/* pen_flat_render_bwd of the renderer's last forward, whose scene must be unchanged. */
+pen_status pen_flat_renderer_bwd(pen_context *ctx, pen_flat_renderer *renderer,
+                                 const pen_flat_scene *scene, const float *d_image,
+                                 const pen_flat_grad *grad);
+/* The renderer's state (owned by it), e.g. for pen_render_state_timings. */
+pen_render_state *pen_flat_renderer_state(pen_flat_renderer *renderer);
+
+/* ---- Layout check ---------------------------------------------------------------------------- */
+
+/* Raised whenever a row of pen_flat_abi's table changes (a field added, moved or resized). */
+#define PEN_FLAT_ABI_VERSION 1
+
+/* One row of the layout table. */
+typedef struct pen_flat_abi_field {
+    const char *type;  /* the struct's name: "pen_flat_scene", ... */
+    const char *field; /* a member's name; NULL in the row that gives the struct's own size */
+    size_t offset;     /* offsetof (0 in the size row) */
+    size_t size;       /* sizeof the member (of the struct in the size row) */
+} pen_flat_abi_field;
+
+/* The layout, as compiled into the library, of every struct a binding mirrors: pen_flat_object,
+ * pen_flat_scene, pen_flat_object_grad, pen_flat_grad, and the loaders' pen_image, pen_mesh and
+ * pen_spheres. *fields points to *count static rows: per struct, its size row, then one row per
+ * member in declaration order. Returns PEN_FLAT_ABI_VERSION. A binding compares the table with
+ * its own mirror once, when it loads the library, and refuses a library that differs. */
+int pen_flat_abi(const pen_flat_abi_field **fields, int *count);
 
 /* ---- Scenes from JSON ------------------------------------------------------------------------ */
 

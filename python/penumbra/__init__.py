@@ -1,28 +1,39 @@
 """penumbra: differentiable soft-shadow rendering (SH visibility from sphere proxies) for PyTorch.
 
-A thin ctypes binding over the C library libpenumbra.so (found through $PENUMBRA_LIB, or in the
-repository's build/ folder). See docs/python.md.
+A thin ctypes binding over the C library libpenumbra.so (found where `cmake --install` put it,
+through $PENUMBRA_LIB, or in the repository's build/ folder). See docs/python.md.
 
     import penumbra, torch
     scene = penumbra.load_scene("examples/scenes/spot_city.json")
     scene.sh.requires_grad_()
     image = penumbra.render_scene(scene)        # (H, W, 3) float32, linear RGB
     image.mean().backward()                     # scene.sh.grad from the C backward
+
+In a loop, render through one penumbra.Renderer: it keeps the C render state (and its caches)
+from one step to the next.
 """
 
+from . import _lib
 from ._lib import PenumbraError
 from .io import (Mesh, envmap_to_sh, fit_spheres, load_image, load_mesh, load_scene,
                  load_spheres, overlap_weights, save_image)
-from .render import Camera, Object, RenderFunction, Scene, pose, render, render_scene
+from .render import (Camera, Object, RenderFunction, Renderer, Scene, pose, render,
+                     render_scene)
+
+# Load the library now when it is there, so that one whose struct layout differs from this
+# package's is refused at import; a missing one is reported at first use (with where it looked).
+try:
+    _lib.lib()
+except _lib.LibraryNotFound:
+    pass
 
 
 def version():
     """The C library's version string."""
-    from . import _lib
     return _lib.lib().pen_version().decode()
 
 
-__all__ = ["Camera", "Mesh", "Object", "PenumbraError", "RenderFunction", "Scene",
+__all__ = ["Camera", "Mesh", "Object", "PenumbraError", "RenderFunction", "Renderer", "Scene",
            "envmap_to_sh", "fit_spheres", "load_image", "load_mesh", "load_scene",
            "load_spheres", "overlap_weights", "pose", "render", "render_scene", "save_image",
            "version"]

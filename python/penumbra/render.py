@@ -1,18 +1,27 @@
 """penumbra.render: the differentiable soft-shadow renderer as a torch.autograd.Function.
 
-The forward calls pen_flat_render_fwd, the backward pen_flat_render_bwd (include/penumbra/flat.h):
-this module only checks the tensors and hands their memory to the C library. Differentiable
-inputs (float32 CPU tensors): SH lighting, ground albedo, and per object the vertex positions,
-texture or constant albedo, proxy spheres and pose. Not differentiated: faces, texture
-coordinates, camera, ground geometry, background and environment map (as in the C renderer).
+The forward calls pen_flat_renderer_fwd, the backward pen_flat_renderer_bwd
+(include/penumbra/flat.h): this module only checks the tensors and hands their memory to the C
+library. Differentiable inputs (float32 CPU tensors): SH lighting, ground albedo, and per object
+the vertex positions, texture or constant albedo, proxy spheres and pose. Not differentiated:
+faces, texture coordinates, camera, ground geometry, background and environment map (as in the C
+renderer).
+
+A Renderer owns one C renderer (its render state and caches) across calls; render_scene without
+one makes a fresh one per call. A backward needs the state of its own forward: a Renderer
+remembers which forward its state holds, and when a later forward has replaced it (two renders
+in one graph), the backward renders its scene again first, which gives the same state bit for bit
+(the renderer is deterministic), so the gradients are right at the cost of one forward.
 """
 
 import ctypes
 import dataclasses
 import math
+import threading
 from typing import List, Optional, Sequence
 
 import torch
+from torch.autograd.function import once_differentiable
 
 from . import _lib
 from ._lib import PenumbraError
@@ -204,6 +213,7 @@ class _Spec:
         self.envmap_scale = float(scene.envmap_scale)
         self.shadows, self.antialias = int(bool(shadows)), int(bool(antialias))
         self.threads = threads
+        self.renderer = None
         self.objects = []
 
 
@@ -249,18 +259,85 @@ def _check_object(i, ob):
 # ---- The Function -------------------------------------------------------------------------------
 
 
-class _State:
-    """A pen_render_state: the forward's buffers that its backward reads."""
+class Renderer:
+    """A C renderer (pen_flat_renderer) kept across calls: its render state and caches (per-pixel
+    buffers, mesh adjacency, environment-map background, overlap weights of unchanged spheres)
+    survive from one step to the next. Images and gradients are those of a fresh render, bit for
+    bit. threads: the default thread count of its renders (0: all cores). Safe to share between
+    Python threads (calls take turns). close() frees it now; otherwise it is freed with the last
+    reference (graphs that still need its backward hold one).
 
-    def __init__(self):
-        self.ptr = ctypes.c_void_p()
-        with _lib.Context() as c:
-            c.check(_lib.lib().pen_render_state_create(c.ptr, ctypes.byref(self.ptr)))
+        renderer = penumbra.Renderer()
+        for step in range(200):
+            loss = (renderer.render_scene(scene) - target).square().mean()
+            ...
+    """
+
+    def __init__(self, threads=0):
+        self.threads = int(threads)
+        self._lock = threading.Lock()
+        self._ctx = _lib.Context(self.threads)
+        self._ptr = ctypes.c_void_p()
+        self._last = None  # the token of the forward whose buffers the state holds
+        self._ctx.check(_lib.lib().pen_flat_renderer_create(self._ctx.ptr,
+                                                            ctypes.byref(self._ptr)))
+
+    def render_scene(self, scene, shadows=True, antialias=True, threads=None):
+        """render_scene() through this renderer."""
+        return render_scene(scene, shadows=shadows, antialias=antialias, threads=threads,
+                            renderer=self)
+
+    def render(self, vertices, faces, sh, camera=None, **kwargs):
+        """render() through this renderer."""
+        return render(vertices, faces, sh, camera, renderer=self, **kwargs)
+
+    def close(self):
+        """Frees the C renderer; rendering or a backward through it afterwards is an error."""
+        with self._lock:
+            if self._ptr and _lib._lib is not None:
+                _lib.lib().pen_flat_renderer_free(self._ptr)
+            self._ptr = ctypes.c_void_p()
+            if self._ctx.ptr and _lib._lib is not None:
+                self._ctx.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
 
     def __del__(self):
-        if getattr(self, "ptr", None) and _lib._lib is not None:
-            _lib.lib().pen_render_state_free(self.ptr)
-            self.ptr = None
+        if getattr(self, "_ctx", None) is not None:
+            try:
+                self.close()
+            except Exception:  # interpreter shutdown: the modules may already be gone
+                pass
+
+    def _call(self, threads, fn, *args):
+        if not self._ptr:
+            raise PenumbraError("penumbra: the Renderer is closed")
+        self._ctx.set_threads(threads)
+        self._ctx.check(fn(self._ctx.ptr, self._ptr, *args))
+
+    def _forward(self, threads, flat, image):
+        """Renders flat into image; returns the token its backward passes to _backward."""
+        with self._lock:
+            self._last = None
+            self._call(threads, _lib.lib().pen_flat_renderer_fwd, ctypes.byref(flat),
+                       _lib.fptr(image))
+            self._last = object()
+            return self._last
+
+    def _backward(self, token, threads, flat, d_image, grad):
+        with self._lock:
+            if self._last is not token:  # a later forward replaced this one's state
+                image = torch.empty(flat.height, flat.width, 3, dtype=torch.float32)
+                self._last = None
+                self._call(threads, _lib.lib().pen_flat_renderer_fwd, ctypes.byref(flat),
+                           _lib.fptr(image))
+                self._last = token
+            self._call(threads, _lib.lib().pen_flat_renderer_bwd, ctypes.byref(flat),
+                       _lib.fptr(d_image), ctypes.byref(grad))
 
 
 def _flat(spec, sh, ground_albedo, obj):
@@ -309,21 +386,21 @@ def _flat(spec, sh, ground_albedo, obj):
 
 class RenderFunction(torch.autograd.Function):
     """apply(spec, sh, ground_albedo, *per-object (vertices, texture, albedo, spheres, pose));
-    use render() or render_scene(), which check the arguments and build spec."""
+    use render() or render_scene(), which check the arguments and build spec. The backward is
+    the C backward, itself not differentiable (once_differentiable)."""
 
     @staticmethod
     def forward(ctx, spec, sh, ground_albedo, *obj):
-        state = _State()
+        renderer = spec.renderer if spec.renderer is not None else Renderer(spec.threads)
         flat = _flat(spec, sh, ground_albedo, obj)
         image = torch.empty(flat.height, flat.width, 3, dtype=torch.float32)
-        with _lib.Context(spec.threads) as c:
-            c.check(_lib.lib().pen_flat_render_fwd(c.ptr, ctypes.byref(flat), state.ptr,
-                                                   _lib.fptr(image)))
-        ctx.spec, ctx.state = spec, state
+        ctx.token = renderer._forward(spec.threads, flat, image)
+        ctx.spec, ctx.renderer = spec, renderer
         ctx.save_for_backward(sh, ground_albedo, *obj)
         return image
 
     @staticmethod
+    @once_differentiable
     def backward(ctx, d_image):
         spec, need = ctx.spec, ctx.needs_input_grad
         sh, ground_albedo, *obj = ctx.saved_tensors
@@ -340,20 +417,26 @@ class RenderFunction(torch.autograd.Function):
             for name, t in zip(("positions",) + _OBJ_FIELDS[1:], d_obj[5 * i:5 * i + 5]):
                 setattr(grads[i], name, _lib.fptr(t))
         g = _lib.FlatGrad(_lib.fptr(d_sh), _lib.fptr(d_ground), grads)
-        with _lib.Context(spec.threads) as c:
-            c.check(_lib.lib().pen_flat_render_bwd(c.ptr, ctypes.byref(flat), ctx.state.ptr,
-                                                   _lib.fptr(d_image), ctypes.byref(g)))
+        ctx.renderer._backward(ctx.token, spec.threads, flat, d_image, g)
         return (None, d_sh, d_ground, *d_obj)
 
 
-def render_scene(scene, shadows=True, antialias=True, threads=0):
+def render_scene(scene, shadows=True, antialias=True, threads=None, renderer=None):
     """Renders a Scene; returns the (height, width, 3) float32 linear RGB image, differentiable in
     scene.sh, scene.ground_albedo and each object's vertices, texture, albedo, spheres and pose
-    (whichever are tensors with requires_grad)."""
+    (whichever are tensors with requires_grad). renderer: a Renderer to render through (its state
+    and caches kept for the next call); None: a fresh one for this call. threads: None takes the
+    renderer's (0 without one: all cores)."""
     if not isinstance(scene, Scene):
         raise TypeError("penumbra: render_scene takes a penumbra.Scene, got %s"
                         % type(scene).__name__)
+    if renderer is not None and not isinstance(renderer, Renderer):
+        raise TypeError("penumbra: renderer must be a penumbra.Renderer, got %s"
+                        % type(renderer).__name__)
+    if threads is None:
+        threads = renderer.threads if renderer is not None else 0
     spec = _Spec(scene, shadows, antialias, int(threads))
+    spec.renderer = renderer
     sh = _float_tensor("sh", scene.sh, (None, 3))
     _sh_bands(sh)
     ground_albedo = _float_tensor("ground_albedo", scene.ground_albedo, (3,), allow_list=True)
@@ -369,10 +452,11 @@ def render(vertices, faces, sh, camera=None, *, uvs=None, uv_faces=None, texture
            albedo=None, spheres=None, pose=None, ground=True, ground_albedo=(0.8, 0.8, 0.8),
            ground_height=0.0, ground_half_size=4.0, background=(0.0, 0.0, 0.0), envmap=None,
            envmap_rotation_y_deg=0.0, envmap_scale=1.0, epsilon=0.0, exp="calibrated",
-           shadows=True, antialias=True, threads=0, sphere_weights=None, overlap="weights",
-           ground_occlusion="occludes"):
+           shadows=True, antialias=True, threads=None, sphere_weights=None, overlap="weights",
+           ground_occlusion="occludes", renderer=None):
     """Renders one object (see Object and Scene for the arguments); returns the (height, width, 3)
-    float32 image. camera: a Camera (None: the default 64 x 64 one)."""
+    float32 image. camera: a Camera (None: the default 64 x 64 one). threads, renderer: as
+    render_scene."""
     scene = Scene(camera=camera or Camera(), sh=sh,
                   objects=[Object(vertices, faces, uvs, uv_faces, texture, albedo, spheres, pose,
                                   sphere_weights)],
@@ -380,8 +464,9 @@ def render(vertices, faces, sh, camera=None, *, uvs=None, uv_faces=None, texture
                   ground_half_size=ground_half_size, background=background, envmap=envmap,
                   envmap_rotation_y_deg=envmap_rotation_y_deg, envmap_scale=envmap_scale,
                   epsilon=epsilon, exp=exp, overlap=overlap, ground_occlusion=ground_occlusion)
-    return render_scene(scene, shadows=shadows, antialias=antialias, threads=threads)
+    return render_scene(scene, shadows=shadows, antialias=antialias, threads=threads,
+                        renderer=renderer)
 
 
-__all__ = ["Camera", "Object", "Scene", "pose", "render", "render_scene", "RenderFunction",
-           "PenumbraError"]
+__all__ = ["Camera", "Object", "Renderer", "Scene", "pose", "render", "render_scene",
+           "RenderFunction", "PenumbraError"]

@@ -19,6 +19,9 @@ moving geometry makes the antialiased image continuous only up to isolated jumps
 corners (docs/rasterizer.md), which favours small ones: at eps 1e-3, two of the 54 vertex
 coordinates of this scene straddle a jump (a difference quotient of 148 against an analytic 1.2);
 at 1e-4 none does, and the noise stays under 0.5 % of the largest derivative.
+
+Two checks run through one penumbra.Renderer kept across all of gradcheck's calls (the others
+through a fresh render state per call).
 """
 
 import unittest
@@ -91,6 +94,16 @@ class GradcheckTest(unittest.TestCase):
     def test_vertices_textured(self):
         _check(self, lambda s: _ob(s).vertices, lambda s, x: setattr(_ob(s), "vertices", x),
                1e-4, 3e-2, 2e-2, textured=True)
+
+    # Through one kept Renderer: gradcheck's perturbed forwards replace the state between the
+    # forward of the checked output and its backward, which then renders again first.
+    def test_lighting_through_one_renderer(self):
+        _check(self, lambda s: s.sh, lambda s, x: setattr(s, "sh", x), 1e-2, 1e-3, 1e-3,
+               renderer=penumbra.Renderer())
+
+    def test_vertices_through_one_renderer(self):
+        _check(self, lambda s: _ob(s).vertices, lambda s, x: setattr(_ob(s), "vertices", x),
+               1e-4, 3e-2, 2e-2, textured=True, renderer=penumbra.Renderer())
 
 
 if __name__ == "__main__":

@@ -100,8 +100,19 @@ static pen_status object_view(pen_context *ctx, int o, const pen_flat_object *f,
     return PEN_OK;
 }
 
-/* Fills *sc from *f; sc->objects is allocated (free it, never the arrays it points to). */
-static pen_status scene_view(pen_context *ctx, const pen_flat_scene *f, pen_scene *sc) {
+/* Room for n pen_objects in *buf (holding *cap), grown as needed; contents are not kept. */
+static pen_status object_room(pen_context *ctx, pen_object **buf, int *cap, int n) {
+    if (*buf && *cap >= n) return PEN_OK;
+    free(*buf);
+    *buf = pen__calloc(ctx, (size_t)n, sizeof **buf, "flat objects");
+    *cap = *buf ? n : 0;
+    return *buf ? PEN_OK : PEN_ERROR_MEMORY;
+}
+
+/* Fills *sc from *f; sc->objects is *buf, grown to the object count (free it when done, never the
+ * arrays it points to). */
+static pen_status scene_view(pen_context *ctx, const pen_flat_scene *f, pen_object **buf, int *cap,
+                             pen_scene *sc) {
     memset(sc, 0, sizeof *sc);
     if (f->sh_bands < 1 || f->sh_bands > PEN_SH_MAX_BANDS)
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "flat scene: sh_bands %d out of range [1, %d]",
@@ -139,8 +150,8 @@ static pen_status scene_view(pen_context *ctx, const pen_flat_scene *f, pen_scen
     sc->background_envmap = f->background_envmap != 0;
     memcpy(sc->background, f->background, sizeof sc->background);
     if (f->object_count == 0) return PEN_OK;
-    sc->objects = pen__calloc(ctx, (size_t)f->object_count, sizeof *sc->objects, "flat objects");
-    if (!sc->objects) return PEN_ERROR_MEMORY;
+    if ((s = object_room(ctx, buf, cap, f->object_count))) return s;
+    sc->objects = *buf;
     sc->object_count = f->object_count;
     for (int o = 0; o < f->object_count; ++o)
         if ((s = object_view(ctx, o, &f->objects[o], &sc->objects[o]))) return s;
@@ -156,23 +167,29 @@ static pen_render_options options_of(const pen_flat_scene *f) {
 
 /* ---- Forward and backward -------------------------------------------------------------------- */
 
-pen_status pen_flat_render_fwd(pen_context *ctx, const pen_flat_scene *f, pen_render_state *state,
-                               float *image) {
+/* The flat forward with the caller's state and object buffer (see scene_view). */
+static pen_status flat_fwd(pen_context *ctx, const pen_flat_scene *f, pen_render_state *state,
+                           pen_object **buf, int *cap, float *image) {
     if (!f || !image) return pen__error(ctx, PEN_ERROR_ARGUMENT, "flat render: NULL argument");
     pen_scene sc;
-    pen_status s = scene_view(ctx, f, &sc);
-    if (!s) {
-        const pen_render_options opt = options_of(f);
-        /* The camera is checked by the renderer; the size must match before it writes. */
-        pen_image img = {f->width, f->height, 3, image};
-        if (f->width < 1 || f->height < 1 || f->width > PEN_IMAGE_MAX_DIM ||
-            f->height > PEN_IMAGE_MAX_DIM)
-            s = pen__error(ctx, PEN_ERROR_ARGUMENT, "flat render: image size %dx%d out of range",
-                           f->width, f->height);
-        else
-            s = pen_render_fwd(ctx, &sc, &opt, state, &img);
-    }
-    free(sc.objects);
+    pen_status s = scene_view(ctx, f, buf, cap, &sc);
+    if (s) return s;
+    const pen_render_options opt = options_of(f);
+    /* The camera is checked by the renderer; the size must match before it writes. */
+    pen_image img = {f->width, f->height, 3, image};
+    if (f->width < 1 || f->height < 1 || f->width > PEN_IMAGE_MAX_DIM ||
+        f->height > PEN_IMAGE_MAX_DIM)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "flat render: image size %dx%d out of range",
+                          f->width, f->height);
+    return pen_render_fwd(ctx, &sc, &opt, state, &img);
+}
+
+pen_status pen_flat_render_fwd(pen_context *ctx, const pen_flat_scene *f, pen_render_state *state,
+                               float *image) {
+    pen_object *objects = NULL;
+    int cap = 0;
+    pen_status s = flat_fwd(ctx, f, state, &objects, &cap, image);
+    free(objects);
     return s;
 }
 
@@ -211,31 +228,104 @@ static void scatter_object(const pen_object_grad *src, const pen_object *ob,
     }
 }
 
-pen_status pen_flat_render_bwd(pen_context *ctx, const pen_flat_scene *f, pen_render_state *state,
-                               const float *d_image, const pen_flat_grad *grad) {
+/* Whether g is shaped like sc (as pen_render_grad_create would make it). */
+static int grad_fits(const pen_render_grad *g, const pen_scene *sc) {
+    if (g->bands != sc->sh_bands || g->object_count != sc->object_count) return 0;
+    for (int o = 0; o < sc->object_count; ++o) {
+        const pen_object *ob = &sc->objects[o];
+        const pen_object_grad *og = &g->objects[o];
+        const int texels = ob->texture.data ? ob->texture.width * ob->texture.height : 0;
+        if (og->vertex_count != ob->mesh.vertex_count || og->sphere_count != ob->spheres.count ||
+            og->texel_count != texels || (og->texture != NULL) != (ob->texture.data != NULL) ||
+            (ob->texture.data && ob->texture.channels != 3))
+            return 0;
+    }
+    return 1;
+}
+
+/* The flat backward with the caller's state, object buffer and gradient (*g zeroed or made
+ * anew to fit the scene; kept for the next call). */
+static pen_status flat_bwd(pen_context *ctx, const pen_flat_scene *f, pen_render_state *state,
+                           pen_object **buf, int *cap, pen_render_grad *g, const float *d_image,
+                           const pen_flat_grad *grad) {
     if (!f || !d_image || !grad)
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "flat render backward: NULL argument");
     pen_scene sc;
+    pen_status s = scene_view(ctx, f, buf, cap, &sc);
+    if (s) return s;
+    if (grad_fits(g, &sc)) {
+        pen_render_grad_zero(g);
+    } else {
+        pen_render_grad_free(g);
+        if ((s = pen_render_grad_create(ctx, &sc, g))) return s;
+    }
+    const pen_render_options opt = options_of(f);
+    const pen_image d_img = {f->width, f->height, 3, (float *)d_image};
+    s = pen_render_bwd(ctx, &sc, &opt, state, &d_img, wanted(f, grad), g);
+    if (s) return s;
+    const int nc = sc.sh_bands * sc.sh_bands;
+    for (int i = 0; grad->sh && i < nc; ++i)
+        add_n(grad->sh + 3 * i, g->sh[i], 3);
+    if (grad->ground_albedo) add_n(grad->ground_albedo, g->ground_albedo, 3);
+    for (int o = 0; grad->objects && o < sc.object_count; ++o)
+        scatter_object(&g->objects[o], &sc.objects[o], &grad->objects[o]);
+    return PEN_OK;
+}
+
+pen_status pen_flat_render_bwd(pen_context *ctx, const pen_flat_scene *f, pen_render_state *state,
+                               const float *d_image, const pen_flat_grad *grad) {
+    pen_object *objects = NULL;
+    int cap = 0;
     pen_render_grad g;
     memset(&g, 0, sizeof g);
-    pen_status s = scene_view(ctx, f, &sc);
-    if (!s) s = pen_render_grad_create(ctx, &sc, &g);
-    if (!s) {
-        const pen_render_options opt = options_of(f);
-        const pen_image d_img = {f->width, f->height, 3, (float *)d_image};
-        s = pen_render_bwd(ctx, &sc, &opt, state, &d_img, wanted(f, grad), &g);
-    }
-    if (!s) {
-        const int nc = sc.sh_bands * sc.sh_bands;
-        for (int i = 0; grad->sh && i < nc; ++i)
-            add_n(grad->sh + 3 * i, g.sh[i], 3);
-        if (grad->ground_albedo) add_n(grad->ground_albedo, g.ground_albedo, 3);
-        for (int o = 0; grad->objects && o < sc.object_count; ++o)
-            scatter_object(&g.objects[o], &sc.objects[o], &grad->objects[o]);
-    }
+    pen_status s = flat_bwd(ctx, f, state, &objects, &cap, &g, d_image, grad);
     pen_render_grad_free(&g);
-    free(sc.objects);
+    free(objects);
     return s;
+}
+
+/* ---- A renderer kept across calls ------------------------------------------------------------ */
+
+struct pen_flat_renderer {
+    pen_render_state *state;
+    pen_object *objects; /* scene_view's buffer */
+    int object_cap;
+    pen_render_grad grad; /* flat_bwd's, reused while the scene keeps its shape */
+};
+
+pen_status pen_flat_renderer_create(pen_context *ctx, pen_flat_renderer **out) {
+    *out = pen__calloc(ctx, 1, sizeof **out, "flat renderer");
+    if (!*out) return PEN_ERROR_MEMORY;
+    pen_status s = pen_render_state_create(ctx, &(*out)->state);
+    if (s) {
+        free(*out);
+        *out = NULL;
+    }
+    return s;
+}
+
+void pen_flat_renderer_free(pen_flat_renderer *r) {
+    if (!r) return;
+    pen_render_state_free(r->state);
+    pen_render_grad_free(&r->grad);
+    free(r->objects);
+    free(r);
+}
+
+pen_render_state *pen_flat_renderer_state(pen_flat_renderer *r) {
+    return r ? r->state : NULL;
+}
+
+pen_status pen_flat_renderer_fwd(pen_context *ctx, pen_flat_renderer *r, const pen_flat_scene *f,
+                                 float *image) {
+    if (!r) return pen__error(ctx, PEN_ERROR_ARGUMENT, "flat renderer: NULL renderer");
+    return flat_fwd(ctx, f, r->state, &r->objects, &r->object_cap, image);
+}
+
+pen_status pen_flat_renderer_bwd(pen_context *ctx, pen_flat_renderer *r, const pen_flat_scene *f,
+                                 const float *d_image, const pen_flat_grad *grad) {
+    if (!r) return pen__error(ctx, PEN_ERROR_ARGUMENT, "flat renderer backward: NULL renderer");
+    return flat_bwd(ctx, f, r->state, &r->objects, &r->object_cap, &r->grad, d_image, grad);
 }
 
 /* ---- Scenes from JSON ------------------------------------------------------------------------ */
