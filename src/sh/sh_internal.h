@@ -22,10 +22,4 @@ void pen__sh_above(int bands, double t, double *M, double *dM);
  * |g|^11 / 11! is below 1e-20. */
 #define PEN_SH_EXP_TAYLOR_ORDER 10
 
-/* Ray-tested truth of the accuracy protocol (src/sh/accuracy.c) for up to
- * PEN_ACCURACY_MAX_SPHERES spheres seen from the origin, receiver normal +Y, on an nq x 2nq grid:
- * T_k = integral Y_k V max(w_y, 0) dw and P_k = integral Y_k V dw for k < 36 (six bands). */
-#define PEN_ACCURACY_MAX_SPHERES 32
-void pen__accuracy_truth(const float (*spheres)[4], int count, int nq, double *T, double *P);
-
 #endif
