@@ -104,9 +104,9 @@ static void build(int L) {
                 dup |= perm[u][0] == perm[p][0] && perm[u][1] == perm[p][1] &&
                        perm[u][2] == perm[p][2];
             if (dup) continue;
-            E[count++] = (pen_sh_gaunt_entry){(unsigned short)perm[p][0],
-                                              (unsigned short)perm[p][1],
-                                              (unsigned short)perm[p][2], g->value};
+            E[count++] =
+                (pen_sh_gaunt_entry){(unsigned short)perm[p][0], (unsigned short)perm[p][1],
+                                     (unsigned short)perm[p][2], g->value};
         }
     }
     qsort(E, (size_t)count, sizeof *E, cmp_entry);
