@@ -1,11 +1,11 @@
 # penumbra: the two commands of the README, and a few more for developers.
 #   make demo   install missing Debian packages, build, run the main job on the bundled data
 #   make test   install missing Debian packages, build, run the whole test suite (ctest)
-# Developers: make build | make test-asan | make bench | make clean
+# Developers: make build | make test-asan | make bench | make generate | make clean
 JOBS  ?= $(shell nproc)
 BUILD ?= build
 
-.PHONY: all deps build demo test test-asan bench clean
+.PHONY: all deps build demo test test-asan bench generate clean
 
 all: build
 
@@ -30,6 +30,18 @@ test-asan: deps
 
 bench: build
 	@$(BUILD)/penumbra bench
+
+# Regenerates the generated SH code from its generators (tests/cli_generated.sh checks that the
+# committed files match). Each file is written beside itself first, so a failing generator leaves
+# the committed one as it was.
+PYTHON ?= /usr/bin/python3
+GENERATED = src/sh/tables.c:scripts/gen_sh_tables.py src/sh/sh_fast_product.inc:scripts/gen_sh_fast.py
+generate:
+	@set -e; for pair in $(GENERATED); do \
+	    out=$${pair%%:*}; gen=$${pair#*:}; \
+	    PYTHONDONTWRITEBYTECODE=1 $(PYTHON) $$gen > $$out.tmp && mv $$out.tmp $$out || { rm -f $$out.tmp; exit 1; }; \
+	    echo "generated $$out ($$gen)"; \
+	done
 
 clean:
 	rm -rf $(BUILD) $(BUILD)-asan

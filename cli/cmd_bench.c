@@ -1,4 +1,4 @@
-/* penumbra bench: the performance suite of DESIGN.md section 5 (docs/bench.md).
+/* penumbra bench: the performance suite of docs/design.md sec. 5 (docs/bench.md).
  *
  * Every case is the bundled scene examples/scenes/spot_city.json (or --scene) with its image size,
  * SH band count and sphere count changed: the headline case (512 x 512, 32 spheres, 4 bands) and

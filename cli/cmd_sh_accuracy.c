@@ -1,9 +1,10 @@
 /* penumbra sh-accuracy: the irradiance error of SH visibility against ray-tested truth, per
- * exponential method, sphere count, lighting and band count (protocol: include/penumbra/accuracy.h,
- * docs/sh-accuracy.md). With --calibrate it also fits the calibrated model on the training seed and
- * prints the parameter rows for src/sh/calibration.c. */
+ * exponential method, sphere count, lighting and band count (protocol:
+ * research/penumbra_research.h, docs/sh-accuracy.md). With --calibrate it also fits the calibrated
+ * model on the training seed and prints the parameter rows for src/sh/calibration.c. The harness
+ * is the penumbra_research library, not libpenumbra. */
 #include "commands.h"
-#include "penumbra/accuracy.h"
+#include "penumbra_research.h"
 
 #include <stdio.h>
 #include <stdlib.h>

@@ -1,5 +1,5 @@
 #!/bin/sh
-# Contract of `penumbra bench` (DESIGN.md section 5, docs/bench.md): --json prints one JSON object
+# Contract of `penumbra bench` (docs/design.md sec. 5, docs/bench.md): --json prints one JSON object
 # per case with the contract's fields, finite positive times, the headline case among them; flags
 # select cases, threads and repeats; usage errors exit 2 with one error line. No timing is
 # asserted: the numbers are the benchmark's business, not the test's.

@@ -1,5 +1,5 @@
 #!/bin/sh
-# Contract tests of `penumbra optimize` (DESIGN.md section 3): the output folder's files, the
+# Contract tests of `penumbra optimize` (docs/design.md sec. 3): the output folder's files, the
 # result.json fields, a recovered scene that `penumbra render` reproduces, --no-shadows, and
 # one-line errors naming the file and the JSON key, with no output folder left behind.
 # Usage: sh cli_optimize.sh PENUMBRA_BIN SRC_DIR

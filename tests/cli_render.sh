@@ -1,5 +1,5 @@
 #!/bin/sh
-# Contract tests of `penumbra render` (DESIGN.md section 3): outputs in the three formats, the
+# Contract tests of `penumbra render` (docs/design.md sec. 3): outputs in the three formats, the
 # --no-shadows and --threads flags, one-line errors with a non-zero exit, no partial files.
 # Usage: sh cli_render.sh PENUMBRA_BIN SRC_DIR
 set -u

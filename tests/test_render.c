@@ -135,7 +135,7 @@ static pen_scene occluder_scene(float height, float radius) {
 
 /* The shadow's depth: directly below a sphere of angular radius alpha, the true irradiance of a
  * plane under uniform radiance 1 is pi (1 - sin^2 alpha) (the cap's cosine-weighted solid angle
- * is pi sin^2 alpha). Metric: |E - E_true| / E_unoccluded (DESIGN.md section 4), threshold 0.1
+ * is pi sin^2 alpha). Metric: |E - E_true| / E_unoccluded (docs/design.md sec. 4.1), threshold 0.1
  * for spheres covering sin^2 alpha = 0.04 .. 0.36 of the hemisphere; the shadow must deepen with
  * the sphere's size. */
 static void test_shadow_depth_against_exact_occlusion(void) {

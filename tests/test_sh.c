@@ -15,8 +15,9 @@ static void rand_dir(double d[3]) {
     d[0] = s * cos(phi), d[1] = s * sin(phi), d[2] = z;
 }
 
-/* A quadrature independent of src/sh/gaunt.c: midpoint in cos(theta) (many nodes) x uniform phi.
- * Exact in phi, O(h^2) in theta; used with enough nodes for 1e-7 agreement. */
+/* A quadrature independent of the generated product tensor (scripts/sh_common.py): midpoint in
+ * cos(theta) (many nodes) x uniform phi. Exact in phi, O(h^2) in theta; used with enough nodes for
+ * 1e-7 agreement. */
 typedef struct {
     int count;
     double (*dir)[3];
@@ -249,6 +250,44 @@ static void test_gaunt_by_quadrature(void) {
         for (int j = 0; j < n; ++j)
             for (int k = 0; k < n; ++k) worst = fmax(worst, fabs(G[i][j][k] - T[i][j][k]));
     CHECK_MSG(worst < 1e-5, "max |Gamma - quadrature| = %g", worst);
+    free_quad(&q);
+}
+
+static void test_gaunt_all_bands(void) {
+    /* The generated table (scripts/sh_common.py via src/sh/tables.c) at every band count: the
+     * table of L bands is exactly the part of the 8-band one with indices < L^2, and every 8-band
+     * entry agrees with the independent quadrature (phi exact; midpoint in theta). */
+    const pen_sh_gaunt *g8 = pen_sh_gaunt_table(8);
+    CHECK(g8 != NULL);
+    if (!g8) return;
+    for (int L = 1; L < 8; ++L) {
+        const pen_sh_gaunt *g = pen_sh_gaunt_table(L);
+        const int n = L * L;
+        int e8 = 0, same = 1;
+        for (int e = 0; e < g8->count; ++e) {
+            const pen_sh_gaunt_entry *a = &g8->entries[e];
+            if (a->i >= n || a->j >= n || a->k >= n) continue;
+            const pen_sh_gaunt_entry *b = e8 < g->count ? &g->entries[e8] : NULL;
+            same &= b && b->i == a->i && b->j == a->j && b->k == a->k && b->value == a->value &&
+                    g->values_f[e8] == (float)a->value;
+            ++e8;
+        }
+        CHECK_MSG(same && e8 == g->count, "bands %d: not the 8-band table restricted", L);
+    }
+    quad q = make_quad(4000, 64);
+    double *acc = calloc((size_t)g8->count, sizeof(double)), y[64];
+    for (int p = 0; p < q.count; ++p) {
+        pen_sh_eval_d(8, q.dir[p], y);
+        for (int e = 0; e < g8->count; ++e) {
+            const pen_sh_gaunt_entry *a = &g8->entries[e];
+            acc[e] += q.w[p] * y[a->i] * y[a->j] * y[a->k];
+        }
+    }
+    double worst = 0;
+    for (int e = 0; e < g8->count; ++e) worst = fmax(worst, fabs(acc[e] - g8->entries[e].value));
+    printf("  8 bands: %d ordered entries, max |Gamma - quadrature| = %.2g\n", g8->count, worst);
+    CHECK_MSG(worst < 1e-5, "8 bands: max |Gamma - quadrature| = %g", worst);
+    free(acc);
     free_quad(&q);
 }
 
@@ -508,7 +547,8 @@ RUN_TESTS(TEST(test_basis_known_values), TEST(test_basis_orthonormal), TEST(test
           TEST(test_zonal_cap_by_quadrature), TEST(test_zonal_cap_derivative_fd),
           TEST(test_clamped_cosine), TEST(test_rotate_zonal_addition_theorem),
           TEST(test_rotate_zonal_bwd_fd), TEST(test_gaunt_identity_and_symmetry),
-          TEST(test_gaunt_by_quadrature), TEST(test_product_is_projection),
+          TEST(test_gaunt_by_quadrature), TEST(test_gaunt_all_bands),
+          TEST(test_product_is_projection),
           TEST(test_product_bwd_fd), TEST(test_logvis_matches_cap_projection),
           TEST(test_logvis_bwd_fd), TEST(test_logvis_singular_finite),
           TEST(test_exp_dc_isolation_exact), TEST(test_exp_paper_formula),

@@ -1,8 +1,7 @@
-/* Tests of the accuracy protocol (src/sh/accuracy.c): its ray-tested truth against closed forms,
+/* Tests of the accuracy protocol (research/accuracy.c): its ray-tested truth against closed forms,
  * and the calibrated model's accuracy claims on a held-out seed. */
 #include "check.h"
-#include "penumbra/accuracy.h"
-#include "sh/sh_internal.h"
+#include "penumbra_research.h"
 
 #include <string.h>
 

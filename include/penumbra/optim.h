@@ -1,7 +1,7 @@
 /* penumbra/optim.h -- inverse problems: recover lighting, albedo and pose from an image by
  * gradient descent through the differentiable soft-shadow renderer (`penumbra optimize`).
  *
- * A task (DESIGN.md section 3, docs/optimize.md) names an initial scene, a target image (linear
+ * A task (docs/design.md sec. 3.5, docs/optimize.md) names an initial scene, a target image (linear
  * radiance, usually made by `penumbra reference` from a ground-truth scene), the parameter groups
  * to optimise and optionally the ground-truth scene the metrics are computed from:
  *

@@ -1,6 +1,6 @@
 /* penumbra/reference.h -- the ground-truth renderer: Monte-Carlo shading on Embree.
  *
- * It integrates the same shading model as the SH renderer (DESIGN.md section 1),
+ * It integrates the same shading model as the SH renderer (docs/design.md sec. 1 and 2),
  *     L_o(x) = rho(x)/pi * integral L(w) V(x, w) max(n . w, 0) dw,
  * with the same camera, albedo and lighting, but with the visibility V ray-traced against the
  * real (posed) meshes and the ground plane: no spheres and no SH visibility. The lighting L is

@@ -1,5 +1,5 @@
 /* penumbra/scene.h -- a scene: camera, lighting, objects with their sphere proxies, ground plane,
- * background; loaded from the scene JSON of docs/file-formats.md (DESIGN.md section 3).
+ * background; loaded from the scene JSON of docs/file-formats.md (docs/design.md sec. 3.3).
  *
  * Coordinates: right-handed, Y up, scene units. Angles in the JSON are degrees.
  * Camera: pinhole; image row 0 is the top; pixel (px, py) covers [px, px+1) x [py, py+1) and its

@@ -1,5 +1,5 @@
-/* Scene JSON (DESIGN.md section 3, docs/file-formats.md): loading with everything it references,
- * and saving back.
+/* Scene JSON (docs/design.md sec. 3.3, docs/file-formats.md): loading with everything it
+ * references, and saving back.
  *
  * The loader walks the JSON once, key by key, carrying the key path ("objects[1].pose.scale")
  * so that each error is one line naming the file, the key and the problem; errors from files the

@@ -1,4 +1,4 @@
-/* Task JSON of `penumbra optimize` (DESIGN.md section 3, docs/optimize.md): the initial scene,
+/* Task JSON of `penumbra optimize` (docs/design.md sec. 3.5, docs/optimize.md): the initial scene,
  * the target image, the groups to optimise, the optimiser's settings and the ground truth.
  *
  * Like the scene loader it walks the JSON key by key so that every error is one line naming the

@@ -1,12 +1,15 @@
-/* The SH product tensor Gamma_ijk = integral over the sphere of Y_i Y_j Y_k.
+/* The SH product tensor Gamma_ijk = integral over the sphere of Y_i Y_j Y_k, per band count, and
+ * the hemisphere projection matrix of ground occlusion (pen__sh_above).
  *
- * Computed once per band count, in double, by quadrature that is exact for the integrand: the
- * product of three SH of degree < L is a polynomial of degree <= 3(L-1) in (x, y, z), so
- * Gauss-Legendre in cos(theta) with n >= (3(L-1)+1)/2 nodes and a uniform phi grid with
- * M >= 3(L-1)+1 points integrate it to rounding. We take n = 2L and M = 4L. Only the unordered
- * triples i <= j <= k are integrated; the ordered entries are their permutations. Entries below
- * 1e-12 in magnitude are zero by the selection rules (m and parity) and are dropped.
- * Tables are built lazily, one pthread_once per band count, and live for the process.
+ * Product tensor. Its values have one source of truth, scripts/sh_common.py, which integrates
+ * them once in double for PEN_SH_MAX_BANDS bands by a quadrature exact for the integrand
+ * (Gauss-Legendre in cos(theta) with 2L nodes x 4L uniform phi) and writes the non-zero unordered
+ * triples i <= j <= k into src/sh/tables.c (`make generate`; tests/cli_generated.sh checks that
+ * the committed file matches its generator). The fast kernel's product code
+ * (sh_fast_product.inc) is generated from the same values. Gamma does not depend on the band
+ * count, so the table of L bands takes the triples with k < L^2; here they are expanded into
+ * their distinct orderings and sorted by (k, i, j), lazily, one pthread_once per band count, and
+ * live for the process. tests/test_sh.c checks the result against an independent quadrature.
  */
 #include "core/internal.h"
 #include "sh/sh_internal.h"
@@ -81,63 +84,38 @@ static int cmp_entry(const void *pa, const void *pb) {
 }
 
 static void build(int L) {
-    const int n = L * L, nt = 2 * L, np = 4 * L, q = nt * np;
-    double *Y = malloc(sizeof(double) * (size_t)q * (size_t)n);
-    double *W = malloc(sizeof(double) * (size_t)q);
-    int cap = 1024, count = 0;
-    pen_sh_gaunt_entry *E = malloc(sizeof *E * (size_t)cap);
-    if (!Y || !W || !E) goto fail;
-    double xs[2 * PEN_SH_MAX_BANDS], ws[2 * PEN_SH_MAX_BANDS];
-    gauss_legendre(nt, xs, ws);
-    for (int a = 0; a < nt; ++a)
-        for (int b = 0; b < np; ++b) {
-            const double z = xs[a], s = sqrt(fmax(0.0, 1.0 - z * z));
-            const double phi = 2.0 * PEN_PI * (b + 0.5) / np;
-            const double d[3] = {s * cos(phi), s * sin(phi), z};
-            const int p = a * np + b;
-            pen_sh_eval_d(L, d, Y + (size_t)p * n);
-            W[p] = ws[a] * 2.0 * PEN_PI / np;
+    const int n = L * L;
+    int count = 0;
+    for (int t = 0; t < pen__sh_gaunt_triple_count; ++t)
+        if (pen__sh_gaunt_triples[t].k < n) count += 6;
+    pen_sh_gaunt_entry *E = malloc(sizeof *E * (size_t)(count ? count : 1));
+    float *vf = malloc(sizeof(float) * (size_t)(count ? count : 1));
+    if (!E || !vf) goto fail;
+    count = 0;
+    for (int t = 0; t < pen__sh_gaunt_triple_count; ++t) {
+        const pen_sh_gaunt_entry *g = &pen__sh_gaunt_triples[t];
+        if (g->k >= n) continue;
+        const int i = g->i, j = g->j, k = g->k;
+        /* The distinct orderings of (i, j, k). */
+        const int perm[6][3] = {{i, j, k}, {i, k, j}, {j, i, k}, {j, k, i}, {k, i, j}, {k, j, i}};
+        for (int p = 0; p < 6; ++p) {
+            int dup = 0;
+            for (int u = 0; u < p; ++u)
+                dup |= perm[u][0] == perm[p][0] && perm[u][1] == perm[p][1] &&
+                       perm[u][2] == perm[p][2];
+            if (dup) continue;
+            E[count++] =
+                (pen_sh_gaunt_entry){(unsigned short)perm[p][0], (unsigned short)perm[p][1],
+                                     (unsigned short)perm[p][2], g->value};
         }
-    for (int i = 0; i < n; ++i)
-        for (int j = i; j < n; ++j)
-            for (int k = j; k < n; ++k) {
-                double s = 0.0;
-                for (int p = 0; p < q; ++p) {
-                    const double *y = Y + (size_t)p * n;
-                    s += W[p] * y[i] * y[j] * y[k];
-                }
-                if (fabs(s) < 1e-12) continue;
-                /* The distinct orderings of (i, j, k). */
-                const int perm[6][3] = {{i, j, k}, {i, k, j}, {j, i, k},
-                                        {j, k, i}, {k, i, j}, {k, j, i}};
-                for (int t = 0; t < 6; ++t) {
-                    int dup = 0;
-                    for (int u = 0; u < t; ++u)
-                        dup |= perm[u][0] == perm[t][0] && perm[u][1] == perm[t][1] &&
-                               perm[u][2] == perm[t][2];
-                    if (dup) continue;
-                    if (count == cap) {
-                        pen_sh_gaunt_entry *grown = realloc(E, sizeof *E * (size_t)cap * 2);
-                        if (!grown) goto fail;
-                        E = grown, cap *= 2;
-                    }
-                    E[count++] = (pen_sh_gaunt_entry){(unsigned short)perm[t][0],
-                                                      (unsigned short)perm[t][1],
-                                                      (unsigned short)perm[t][2], s};
-                }
-            }
+    }
     qsort(E, (size_t)count, sizeof *E, cmp_entry);
-    float *vf = malloc(sizeof(float) * (size_t)count);
-    if (!vf) goto fail;
     for (int e = 0; e < count; ++e) vf[e] = (float)E[e].value;
-    free(Y);
-    free(W);
     tables[L] = (pen_sh_gaunt){L, count, E, vf};
     return;
 fail: /* leaves tables[L].entries NULL: pen_sh_gaunt_table reports the table as unavailable */
-    free(Y);
-    free(W);
     free(E);
+    free(vf);
 }
 
 #define ONCE_FN(L) \

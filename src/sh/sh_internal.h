@@ -6,6 +6,12 @@
 
 extern const double pen__sh_K[PEN_SH_MAX_BANDS][PEN_SH_MAX_BANDS];
 
+/* The SH product tensor, generated into src/sh/tables.c from scripts/sh_common.py (its one
+ * definition): the non-zero Gamma_ijk for i <= j <= k < PEN_SH_MAX_COEFFS, sorted by (i, j, k).
+ * pen_sh_gaunt_table (src/sh/gaunt.c) builds each band count's ordered table from it. */
+extern const int pen__sh_gaunt_triple_count;
+extern const pen_sh_gaunt_entry pen__sh_gaunt_triples[];
+
 /* M[j * n + k] = the integral of Y_j Y_k over the directions with y > -t (t in [-1, 1]),
  * n = bands^2: the matrix that multiplies an SH function by the indicator of y > -t and projects
  * the product back to `bands` (symmetric; t = 0: the upper hemisphere). dM (may be NULL)
@@ -21,11 +27,5 @@ void pen__sh_above(int bands, double t, double *M, double *dM);
 /* Degree of the EXACT method's Taylor series: after scaling |g| <= 1/16, the remainder
  * |g|^11 / 11! is below 1e-20. */
 #define PEN_SH_EXP_TAYLOR_ORDER 10
-
-/* Ray-tested truth of the accuracy protocol (src/sh/accuracy.c) for up to
- * PEN_ACCURACY_MAX_SPHERES spheres seen from the origin, receiver normal +Y, on an nq x 2nq grid:
- * T_k = integral Y_k V max(w_y, 0) dw and P_k = integral Y_k V dw for k < 36 (six bands). */
-#define PEN_ACCURACY_MAX_SPHERES 32
-void pen__accuracy_truth(const float (*spheres)[4], int count, int nq, double *T, double *P);
 
 #endif

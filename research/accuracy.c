@@ -1,4 +1,4 @@
-/* The SH-visibility accuracy protocol of include/penumbra/accuracy.h.
+/* The SH-visibility accuracy protocol of research/penumbra_research.h.
  *
  * Truth. For each sphere set we integrate, over a full-sphere grid equal-area in cos(theta) and
  * uniform in phi, with a ray-sphere test per direction:
@@ -17,7 +17,7 @@
  * (Rec. 709 weights) since visibility is colour-blind.
  */
 #include "core/internal.h"
-#include "penumbra/accuracy.h"
+#include "penumbra_research.h"
 #include "penumbra/scene.h"
 #include "sh/sh_internal.h"
 

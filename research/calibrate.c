@@ -12,7 +12,7 @@
  * (|E - E_true|), so we use Nelder-Mead from two starts (epsilon 2 and 4).
  */
 #include "core/internal.h"
-#include "penumbra/accuracy.h"
+#include "penumbra_research.h"
 
 #include <string.h>
 

@@ -1,4 +1,11 @@
-/* penumbra/accuracy.h -- how accurate is SH visibility where it matters: irradiance.
+/* penumbra_research.h -- how accurate is SH visibility where it matters: irradiance.
+ *
+ * The research harnesses (the accuracy protocol and the calibration of the CALIBRATED model) are
+ * their own static library, penumbra_research (folder research/), linked by the CLI's
+ * `penumbra sh-accuracy` and by the tests that need it; they are not part of libpenumbra, and this
+ * header is not installed. They use the library's public API and a few of its internals (src/).
+ * What the renderer needs of the calibration, the fitted constants, stays in the library
+ * (src/sh/calibration.c).
  *
  * Protocol (docs/sh-accuracy.md): a receiver at the origin with normal +Y; seeded random sets of
  * 1, 8 and 32 spheres above its tangent plane (centre distance D in [0.4, 1.6], radius 10-40 % of
@@ -12,8 +19,8 @@
  * A set holds the sphere sets with their ray-traced truth, computed once for up to
  * PEN_ACCURACY_MAX_BANDS bands; models are evaluated on it cheaply at any band count <= that.
  */
-#ifndef PENUMBRA_ACCURACY_H
-#define PENUMBRA_ACCURACY_H
+#ifndef PENUMBRA_RESEARCH_H
+#define PENUMBRA_RESEARCH_H
 
 #include "penumbra/core.h"
 #include "penumbra/image.h"
@@ -66,6 +73,13 @@ pen_status pen_accuracy_evaluate(pen_context *ctx, const pen_accuracy_set *set, 
  * mean error reached. Deterministic. */
 pen_status pen_accuracy_calibrate(pen_context *ctx, const pen_accuracy_set *train, int bands,
                                   pen_sh_exp_model *out, double *objective);
+
+/* Ray-tested truth of the protocol (research/accuracy.c; exposed for tests/test_sh_accuracy.c)
+ * for up to PEN_ACCURACY_MAX_SPHERES spheres seen from the origin, receiver normal +Y, on an
+ * nq x 2nq grid: T_k = integral Y_k V max(w_y, 0) dw and P_k = integral Y_k V dw for
+ * k < PEN_ACCURACY_MAX_BANDS^2. */
+#define PEN_ACCURACY_MAX_SPHERES 32
+void pen__accuracy_truth(const float (*spheres)[4], int count, int nq, double *T, double *P);
 
 #ifdef __cplusplus
 }
