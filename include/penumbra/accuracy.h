@@ -37,18 +37,18 @@ typedef struct pen_accuracy_options {
 } pen_accuracy_options;
 
 /* Sensible defaults: seed 2 (the held-out set; calibration uses seed 1), 100 sets, 256. */
-pen_accuracy_options pen_accuracy_options_default(void);
+PEN_API pen_accuracy_options pen_accuracy_options_default(void);
 
 typedef struct pen_accuracy_set pen_accuracy_set;
 
-pen_status pen_accuracy_set_create(pen_context *ctx, const pen_accuracy_options *opt,
-                                   pen_accuracy_set **out);
-void pen_accuracy_set_destroy(pen_accuracy_set *set);
+PEN_API pen_status pen_accuracy_set_create(pen_context *ctx, const pen_accuracy_options *opt,
+                                           pen_accuracy_set **out);
+PEN_API void pen_accuracy_set_destroy(pen_accuracy_set *set);
 
 /* The sphere count of row c (0..PEN_ACCURACY_COUNTS-1), the number of lightings, their names. */
-int pen_accuracy_sphere_count(int c);
-int pen_accuracy_light_count(const pen_accuracy_set *set);
-const char *pen_accuracy_light_name(const pen_accuracy_set *set, int light);
+PEN_API int pen_accuracy_sphere_count(int c);
+PEN_API int pen_accuracy_light_count(const pen_accuracy_set *set);
+PEN_API const char *pen_accuracy_light_name(const pen_accuracy_set *set, int light);
 
 typedef struct pen_accuracy_stats {
     double median, p90, mean;        /* of |E - E_true| / E_unoccluded */
@@ -57,15 +57,15 @@ typedef struct pen_accuracy_stats {
 
 /* Evaluates model m with log-visibility depth epsilon at `bands` (<= PEN_ACCURACY_MAX_BANDS),
  * in the float hot path, filling stats[c][light]. */
-pen_status pen_accuracy_evaluate(pen_context *ctx, const pen_accuracy_set *set, int bands,
-                                 const pen_sh_exp_model *m, double epsilon,
-                                 pen_accuracy_stats stats[PEN_ACCURACY_COUNTS][PEN_ACCURACY_MAX_LIGHTS]);
+PEN_API pen_status pen_accuracy_evaluate(
+    pen_context *ctx, const pen_accuracy_set *set, int bands, const pen_sh_exp_model *m,
+    double epsilon, pen_accuracy_stats stats[PEN_ACCURACY_COUNTS][PEN_ACCURACY_MAX_LIGHTS]);
 
 /* Fits the CALIBRATED model's parameters (epsilon, a, b, band windows; squarings by search) at
  * `bands` on `train`, minimising the mean irradiance error over all rows. *objective receives the
  * mean error reached. Deterministic. */
-pen_status pen_accuracy_calibrate(pen_context *ctx, const pen_accuracy_set *train, int bands,
-                                  pen_sh_exp_model *out, double *objective);
+PEN_API pen_status pen_accuracy_calibrate(pen_context *ctx, const pen_accuracy_set *train,
+                                          int bands, pen_sh_exp_model *out, double *objective);
 
 #ifdef __cplusplus
 }
