@@ -16,7 +16,7 @@ DIR=${1:-$(dirname "$0")/../include/penumbra}
 DECL='^((const|unsigned|struct|enum) +)*[A-Za-z_][A-Za-z_0-9]*[ *]+pen_[a-z0-9_]+\('
 SKIP='^(typedef|static|extern|PEN_API|#)'
 if [ "$MODE" = check ]; then
-    missing=$(grep -nE "$DECL" "$DIR"/*.h | grep -vE "^[^:]*:[0-9]+:($SKIP)" || true)
+    missing=$(grep -HnE "$DECL" "$DIR"/*.h | grep -vE "^[^:]*:[0-9]+:($SKIP)" || true)
     if [ -n "$missing" ]; then
         echo "declarations without PEN_API (run sh scripts/pen_api.sh):"
         echo "$missing"

@@ -30,12 +30,23 @@ fi
 export PKG_CONFIG_PATH="$P/lib/pkgconfig:$P/lib/$(gcc -print-multiarch 2>/dev/null)/pkgconfig"
 LIBDIR=$(pkg-config --variable=libdir penumbra) || { echo "FAIL: no penumbra.pc"; exit 1; }
 for f in "$LIBDIR/libpenumbra.so.0" "$LIBDIR/libpenumbra.a" "$P/include/penumbra/penumbra.h" \
-    "$P/include/penumbra/version.h" "$P/bin/penumbra" "$LIBDIR/cmake/penumbra/penumbraConfig.cmake" \
+    "$P/include/penumbra/version.h" "$P/bin/penumbra" \
+    "$LIBDIR/cmake/penumbra/penumbraConfig.cmake" "$LIBDIR/pkgconfig/penumbra.pc" \
     "$P/share/penumbra/examples/scenes/spot_city.json" "$P/share/penumbra/data/envmaps/city.hdr"; do
     [ -e "$f" ] || fail "not installed: ${f#"$P"/}"
 done
 [ "$(readlink "$LIBDIR/libpenumbra.so")" = libpenumbra.so.0 ] || fail "libpenumbra.so -> .so.0"
 objdump -p "$LIBDIR/libpenumbra.so.0" | grep -q 'SONAME *libpenumbra.so.0$' || fail "SONAME"
+
+# A sanitizer build (make test-asan) installs an instrumented library: programs using it are
+# compiled with the same sanitizers, and Python, which is not, preloads their runtimes (ASan
+# first), as tests/cli_python.sh does.
+san_lib() { ldd "$LIBDIR/libpenumbra.so.0" 2>/dev/null | awk -v n="$1" '$1 ~ n {print $3}'; }
+SAN= PRELOAD=
+if [ -n "$(san_lib '^libasan[.]so')" ]; then
+    SAN="-fsanitize=address,undefined"
+    PRELOAD=$(echo $(san_lib '^libasan[.]so') $(san_lib '^libubsan[.]so'))
+fi
 
 # ---- Exported symbols: the public API and nothing else --------------------------------------
 nm -D --defined-only "$LIBDIR/libpenumbra.so.0" | awk '{print $3}' | sort >"$T/exported"
@@ -48,12 +59,16 @@ sed -n 's/^PEN_API [^(]*[ *]\(pen_[a-z0-9_]*\)(.*/\1/p' "$P"/include/penumbra/*.
 missing=$(comm -23 "$T/declared" "$T/exported")
 [ -z "$missing" ] || fail "declared PEN_API but not exported: $(echo $missing)"
 sh "$SRC/scripts/pen_api.sh" --check "$SRC/include/penumbra" || fail "pen_api.sh --check"
+# The Python binding calls only exported functions (the names its ctypes declarations use).
+grep -ho '"pen_[a-z0-9_]*"' "$SRC"/python/penumbra/*.py | tr -d '"' | sort -u >"$T/python_uses"
+missing=$(comm -23 "$T/python_uses" "$T/exported")
+[ -z "$missing" ] || fail "python/penumbra uses symbols not exported: $(echo $missing)"
 
 # ---- The outside program: pkg-config alone (shared), pkg-config --static, find_package --------
 SCENE=$P/share/penumbra/examples/scenes/spot_city.json
 OUT=$SRC/tests/install/outside.c
 # shellcheck disable=SC2046
-if $CC -o "$T/outside" "$OUT" $(pkg-config --cflags --libs penumbra); then
+if $CC $SAN -o "$T/outside" "$OUT" $(pkg-config --cflags --libs penumbra); then
     LD_LIBRARY_PATH=$LIBDIR "$T/outside" "$SCENE" "$T/outside.png" || fail "outside (shared) ran"
     [ -s "$T/outside.png" ] || fail "outside (shared) wrote no image"
     # It runs against the installed library, not the build's.
@@ -64,14 +79,15 @@ else
 fi
 STATIC_LIBS=$(pkg-config --static --libs penumbra | sed 's/\(^\| \)-lpenumbra\( \|$\)/ /')
 # shellcheck disable=SC2046,SC2086
-if $CC -o "$T/outside_static" "$OUT" $(pkg-config --cflags penumbra) "$LIBDIR/libpenumbra.a" \
+if $CC $SAN -o "$T/outside_static" "$OUT" $(pkg-config --cflags penumbra) "$LIBDIR/libpenumbra.a" \
     $STATIC_LIBS; then
     "$T/outside_static" "$SCENE" "$T/outside_static.png" || fail "outside (static) ran"
 else
     fail "outside.c does not link libpenumbra.a with pkg-config --static --libs penumbra"
 fi
 if cmake -S "$SRC/tests/install" -B "$T/fp" -DCMAKE_PREFIX_PATH="$P" -DCMAKE_BUILD_TYPE=Release \
-    >"$T/fp.log" 2>&1 && cmake --build "$T/fp" >>"$T/fp.log" 2>&1; then
+    -DCMAKE_C_FLAGS="$SAN" -DCMAKE_EXE_LINKER_FLAGS="$SAN" >"$T/fp.log" 2>&1 &&
+    cmake --build "$T/fp" >>"$T/fp.log" 2>&1; then
     # The imported target carries no rpath into the prefix: the loader is told where.
     LD_LIBRARY_PATH=$LIBDIR "$T/fp/outside" "$SCENE" "$T/fp.png" || fail "outside (find_package)"
 else
@@ -143,8 +159,11 @@ image.mean().backward()
 assert torch.isfinite(sh.grad).all() and sh.grad[0].abs().sum() > 0
 print("python: penumbra", penumbra.version(), "from", penumbra.__file__)
 EOF
-# A clean environment: no PENUMBRA_LIB, PYTHONPATH or LD_LIBRARY_PATH leads it to the library.
-if ! env -i PATH=/usr/bin:/bin HOME="$T" PYTHONDONTWRITEBYTECODE=1 "$PY" "$T/use.py"; then
+# A clean environment: no PENUMBRA_LIB, PYTHONPATH or LD_LIBRARY_PATH leads it to the library
+# (LD_PRELOAD only in a sanitizer build, for the runtimes; leaks are the C tests' business).
+set -- PATH=/usr/bin:/bin HOME="$T" PYTHONDONTWRITEBYTECODE=1
+[ -z "$PRELOAD" ] || set -- "$@" LD_PRELOAD="$PRELOAD" ASAN_OPTIONS=detect_leaks=0
+if ! env -i "$@" "$PY" "$T/use.py"; then
     fail "installed Python package"
 fi
 if [ "$fails" -ne 0 ]; then
