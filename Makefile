@@ -2,10 +2,12 @@
 #   make demo   install missing Debian packages, build, run the main job on the bundled data
 #   make test   install missing Debian packages, build, run the whole test suite (ctest)
 # Developers: make build | make test-asan | make bench | make clean
-JOBS  ?= $(shell nproc)
-BUILD ?= build
+#   make install [PREFIX=/usr/local] [DESTDIR=...]   cmake --install of the build (README "Install")
+JOBS   ?= $(shell nproc)
+BUILD  ?= build
+PREFIX ?= /usr/local
 
-.PHONY: all deps build demo test test-asan bench clean
+.PHONY: all deps build demo test test-asan bench install clean
 
 all: build
 
@@ -30,6 +32,9 @@ test-asan: deps
 
 bench: build
 	@$(BUILD)/penumbra bench
+
+install: build
+	@cmake --install $(BUILD) --prefix $(PREFIX)
 
 clean:
 	rm -rf $(BUILD) $(BUILD)-asan
