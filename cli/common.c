@@ -93,9 +93,14 @@ int pen_cli_is_help(const char *arg) {
 
 /* ---- Bundled data ---------------------------------------------------------------------------- */
 
-/* Nothing is compiled in: the places are relative to the running executable (/proc/self/exe),
- * so a build moved or installed elsewhere still finds its data, and a build never reads the
- * source tree it was made from unless it runs inside it. */
+/* The installed data relative to the installed executable (CMakeLists.txt, "Install"). */
+#ifndef PEN_DATA_FROM_BINDIR
+#define PEN_DATA_FROM_BINDIR "../share/penumbra"
+#endif
+
+/* No absolute path is compiled in: the places are relative to the running executable (/proc/self/exe),
+ * so a build moved or installed elsewhere still finds its data, and a binary reads the source
+ * tree it was made from only when it lies inside that tree. */
 const char *pen_cli_data_path(const char *cmd, const char *rel, const char *hint, char *buf,
                               size_t size) {
     char tried[4][4096];
@@ -104,11 +109,15 @@ const char *pen_cli_data_path(const char *cmd, const char *rel, const char *hint
     if (env && *env) snprintf(tried[n++], sizeof tried[0], "%s/%s", env, rel);
     char exe[2048];
     const ssize_t len = readlink("/proc/self/exe", exe, sizeof exe - 1);
-    char *slash = len > 0 ? (exe[len] = '\0', strrchr(exe, '/')) : NULL;
+    char *slash = NULL;
+    if (len > 0) {
+        exe[len] = '\0';
+        slash = strrchr(exe, '/');
+    }
     if (slash) {
         *slash = '\0';
         /* Installed: <prefix>/bin/penumbra beside <prefix>/share/penumbra. */
-        snprintf(tried[n++], sizeof tried[0], "%s/../share/penumbra/%s", exe, rel);
+        snprintf(tried[n++], sizeof tried[0], "%s/" PEN_DATA_FROM_BINDIR "/%s", exe, rel);
         /* A build folder in the checkout (build/penumbra), or one level deeper. */
         snprintf(tried[n++], sizeof tried[0], "%s/../%s", exe, rel);
         snprintf(tried[n++], sizeof tried[0], "%s/../../%s", exe, rel);
