@@ -2,10 +2,12 @@
 #   make demo   install missing Debian packages, build, run the main job on the bundled data
 #   make test   install missing Debian packages, build, run the whole test suite (ctest)
 # Developers: make build | make test-asan | make bench | make generate | make clean
-JOBS  ?= $(shell nproc)
-BUILD ?= build
+#   make install [PREFIX=/usr/local] [DESTDIR=...]   cmake --install of the build (README "Install")
+JOBS   ?= $(shell nproc)
+BUILD  ?= build
+PREFIX ?= /usr/local
 
-.PHONY: all deps build demo test test-asan bench generate clean
+.PHONY: all deps build demo test test-asan bench generate install clean
 
 all: build
 
@@ -42,6 +44,9 @@ generate:
 	    PYTHONDONTWRITEBYTECODE=1 $(PYTHON) $$gen > $$out.tmp && mv $$out.tmp $$out || { rm -f $$out.tmp; exit 1; }; \
 	    echo "generated $$out ($$gen)"; \
 	done
+
+install: build
+	@cmake --install $(BUILD) --prefix $(PREFIX)
 
 clean:
 	rm -rf $(BUILD) $(BUILD)-asan

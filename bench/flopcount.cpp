@@ -17,7 +17,7 @@
 // rasterization, antialiasing, and the double-precision accumulations (d_sh, d_spheres).
 //
 // Build (from the repository root, after building the library into build/):
-//   g++ -O2 -std=c++17 -Iinclude -Isrc bench/flopcount.cpp build/libpenumbra_static.a
+//   g++ -O2 -std=c++17 -Iinclude -Isrc bench/flopcount.cpp build/libpenumbra.a
 //     $(pkg-config --libs libcjson OpenEXR stb) -lembree3 -fopenmp -o build/flopcount
 // Run: build/flopcount [SCENE.json] [--size N] [--spheres N] [--bands N] [--stride K]
 //   (--stride K counts every K-th pixel in x and y and scales up; default 1: every pixel)

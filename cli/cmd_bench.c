@@ -37,11 +37,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <unistd.h>
-
-#ifndef PEN_SOURCE_DIR
-#define PEN_SOURCE_DIR "."
-#endif
 
 static const char *const CMD = "bench";
 static const char *const SCENE_REL = "examples/scenes/spot_city.json";
@@ -78,8 +73,8 @@ static void usage(FILE *f) {
             "  --no-reference   skip the Embree reference comparison (its fields are null)\n"
             "  --truth-spp N    samples per pixel of the reference taken as truth (default 256)\n"
             "  --scene PATH     another scene; its objects get the case's fitted spheres\n"
-            "                   (default: %s in the source tree, else\n"
-            "                   ../ of the executable's folder)\n",
+            "                   (default: the bundled %s, found beside the\n"
+            "                   executable: ../share/penumbra when installed, else the checkout)\n",
             SCENE_REL);
 }
 
@@ -129,23 +124,6 @@ static int selected(const bench_config *cfg, const char *name) {
     for (int i = 0; i < cfg->only_count; ++i)
         if (!strcmp(cfg->only[i], name)) return 1;
     return 0;
-}
-
-/* The bundled scene: under the source tree this binary was built from, else beside the
- * executable's folder (build/penumbra -> ../examples/...). NULL if neither exists. */
-static const char *default_scene(char *buf, size_t size) {
-    snprintf(buf, size, "%s/%s", PEN_SOURCE_DIR, SCENE_REL);
-    if (access(buf, R_OK) == 0) return buf;
-    char exe[2048];
-    const ssize_t len = readlink("/proc/self/exe", exe, sizeof exe - 1);
-    if (len > 0) {
-        exe[len] = '\0';
-        char *slash = strrchr(exe, '/');
-        if (slash) *slash = '\0';
-        snprintf(buf, size, "%s/../%s", exe, SCENE_REL);
-        if (access(buf, R_OK) == 0) return buf;
-    }
-    return NULL;
 }
 
 static double load_average(void) {
@@ -589,9 +567,9 @@ int pen_cmd_bench(int argc, char **argv) {
                                        cfg.only[i]);
     }
     char scene_buf[4096];
-    if (!cfg.scene_path && !(cfg.scene_path = default_scene(scene_buf, sizeof scene_buf)))
-        return pen_cli_fail(CMD, "%s not found under %s or beside the executable; use --scene",
-                            SCENE_REL, PEN_SOURCE_DIR);
+    if (!cfg.scene_path && !(cfg.scene_path = pen_cli_data_path(CMD, SCENE_REL, "use --scene",
+                                                                 scene_buf, sizeof scene_buf)))
+        return 1;
 
     pen_context *ctx = pen_context_create();
     if (!ctx) return pen_cli_fail(CMD, "out of memory");

@@ -11,10 +11,6 @@
 #include <string.h>
 #include <time.h>
 
-#ifndef PEN_SOURCE_DIR
-#define PEN_SOURCE_DIR "."
-#endif
-
 static const char *usage =
     "Usage: penumbra sh-accuracy [--bands N] [--json] [--seed S] [--sets N] [--quadrature N]\n"
     "                            [--envmap PATH]... [--no-envmaps] [--calibrate]\n\n"
@@ -147,9 +143,14 @@ int pen_cmd_sh_accuracy(int argc, char **argv) {
             return pen_cli_usage_error(cmd, "unknown option '%s'", a);
         }
     }
+    char bundled[2][4096];
     if (!nenv && !no_env) {
-        envpaths[0] = PEN_SOURCE_DIR "/data/envmaps/city.hdr";
-        envpaths[1] = PEN_SOURCE_DIR "/data/envmaps/interior.hdr";
+        const char *hint = "use --envmap PATH or --no-envmaps";
+        if (!(envpaths[0] = pen_cli_data_path(cmd, "data/envmaps/city.hdr", hint, bundled[0],
+                                              sizeof bundled[0])) ||
+            !(envpaths[1] = pen_cli_data_path(cmd, "data/envmaps/interior.hdr", hint, bundled[1],
+                                              sizeof bundled[1])))
+            return 1;
         nenv = 2;
     }
     if (no_env) nenv = 0;

@@ -40,5 +40,12 @@ int pen_cli_parse_float(const char *cmd, const char *flag, const char *text, dou
 int pen_cli_positional(const char *cmd, const char *arg, const char **slots, int count);
 /* 1 if arg is -h or --help. */
 int pen_cli_is_help(const char *arg);
+/* The bundled file `rel` (e.g. "data/envmaps/city.hdr"), looked for at run time, first found of:
+ * $PENUMBRA_DATA_DIR/rel, <exe dir>/../share/penumbra/rel (installed), <exe dir>/../rel and
+ * <exe dir>/../../rel (a build folder inside the checkout). Writes the path into buf and returns
+ * it; otherwise prints one error line naming every place tried, then `hint` (what the user can
+ * do instead), and returns NULL. */
+const char *pen_cli_data_path(const char *cmd, const char *rel, const char *hint, char *buf,
+                              size_t size);
 
 #endif

@@ -49,7 +49,7 @@ pen_accuracy_options pen_accuracy_options_default(void);
 typedef struct pen_accuracy_set pen_accuracy_set;
 
 pen_status pen_accuracy_set_create(pen_context *ctx, const pen_accuracy_options *opt,
-                                   pen_accuracy_set **out);
+                                           pen_accuracy_set **out);
 void pen_accuracy_set_destroy(pen_accuracy_set *set);
 
 /* The sphere count of row c (0..PEN_ACCURACY_COUNTS-1), the number of lightings, their names. */
@@ -64,15 +64,15 @@ typedef struct pen_accuracy_stats {
 
 /* Evaluates model m with log-visibility depth epsilon at `bands` (<= PEN_ACCURACY_MAX_BANDS),
  * in the float hot path, filling stats[c][light]. */
-pen_status pen_accuracy_evaluate(pen_context *ctx, const pen_accuracy_set *set, int bands,
-                                 const pen_sh_exp_model *m, double epsilon,
-                                 pen_accuracy_stats stats[PEN_ACCURACY_COUNTS][PEN_ACCURACY_MAX_LIGHTS]);
+pen_status pen_accuracy_evaluate(
+    pen_context *ctx, const pen_accuracy_set *set, int bands, const pen_sh_exp_model *m,
+    double epsilon, pen_accuracy_stats stats[PEN_ACCURACY_COUNTS][PEN_ACCURACY_MAX_LIGHTS]);
 
 /* Fits the CALIBRATED model's parameters (epsilon, a, b, band windows; squarings by search) at
  * `bands` on `train`, minimising the mean irradiance error over all rows. *objective receives the
  * mean error reached. Deterministic. */
-pen_status pen_accuracy_calibrate(pen_context *ctx, const pen_accuracy_set *train, int bands,
-                                  pen_sh_exp_model *out, double *objective);
+pen_status pen_accuracy_calibrate(pen_context *ctx, const pen_accuracy_set *train,
+                                          int bands, pen_sh_exp_model *out, double *objective);
 
 /* Ray-tested truth of the protocol (research/accuracy.c; exposed for tests/test_sh_accuracy.c)
  * for up to PEN_ACCURACY_MAX_SPHERES spheres seen from the origin, receiver normal +Y, on an

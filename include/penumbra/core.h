@@ -11,6 +11,8 @@
 #ifndef PENUMBRA_CORE_H
 #define PENUMBRA_CORE_H
 
+#include "penumbra/api.h"
+
 #include <stddef.h>
 
 #ifdef __cplusplus
@@ -31,23 +33,24 @@ typedef enum pen_status {
 typedef struct pen_context pen_context;
 
 /* Creates a context. Returns NULL only if memory is exhausted. */
-pen_context *pen_context_create(void);
+PEN_API pen_context *pen_context_create(void);
 /* Frees a context; NULL is a no-op. */
-void pen_context_destroy(pen_context *ctx);
+PEN_API void pen_context_destroy(pen_context *ctx);
 /* The last error's message ("" if none). Owned by the context; valid until the next call. */
-const char *pen_context_error(const pen_context *ctx);
+PEN_API const char *pen_context_error(const pen_context *ctx);
 /* The last error's status. */
-pen_status pen_context_status(const pen_context *ctx);
+PEN_API pen_status pen_context_status(const pen_context *ctx);
 /* Clears the last error. */
-void pen_context_clear_error(pen_context *ctx);
+PEN_API void pen_context_clear_error(pen_context *ctx);
 /* Threads used by parallel passes; 0 (the default) means all cores (OpenMP's default). */
-void pen_context_set_threads(pen_context *ctx, int threads);
-int pen_context_threads(const pen_context *ctx);
+PEN_API void pen_context_set_threads(pen_context *ctx, int threads);
+PEN_API int pen_context_threads(const pen_context *ctx);
 
 /* A short name for a status code ("parse error", ...). */
-const char *pen_status_string(pen_status status);
-/* The library's version string, e.g. "0.1.0". */
-const char *pen_version(void);
+PEN_API const char *pen_status_string(pen_status status);
+/* The library's version string, e.g. "0.1.0": PEN_VERSION_STRING of penumbra/version.h as the
+ * library was built (compare it with the macro to catch a header/library mismatch). */
+PEN_API const char *pen_version(void);
 
 #ifdef __cplusplus
 }

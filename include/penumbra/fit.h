@@ -73,16 +73,16 @@ typedef struct pen_fit_metrics {
 } pen_fit_metrics;
 
 /* The defaults (measured on the bundled meshes; docs/fit-spheres.md). */
-void pen_fit_settings_default(pen_fit_settings *settings);
+PEN_API void pen_fit_settings_default(pen_fit_settings *settings);
 
 /* Fits `count` spheres (1 .. PEN_FIT_MAX_SPHERES) to a closed mesh. settings may be NULL
  * (defaults); metrics may be NULL. Uses the context's thread count. On success *out owns a new
  * array of `count` spheres (free with pen_spheres_free); on failure *out is zeroed. Errors: a
  * mesh with no triangles, out-of-range indices, NaN/Inf positions, a degenerate (flat) bounding
  * box, fewer inside voxels than spheres (mesh too thin for the grid, or not closed). */
-pen_status pen_spheres_fit(pen_context *ctx, const pen_mesh *mesh, int count,
-                           const pen_fit_settings *settings, pen_spheres *out,
-                           pen_fit_metrics *metrics);
+PEN_API pen_status pen_spheres_fit(pen_context *ctx, const pen_mesh *mesh, int count,
+                                   const pen_fit_settings *settings, pen_spheres *out,
+                                   pen_fit_metrics *metrics);
 
 /* Like pen_spheres_fit, but first looks for a cached fit next to the mesh file:
  *     <mesh_path>.fit-<count>-<key>.json
@@ -90,33 +90,36 @@ pen_status pen_spheres_fit(pen_context *ctx, const pen_mesh *mesh, int count,
  * setting and the fitter's version. A cache hit returns the stored spheres and metrics (with
  * from_cache = 1) without fitting. After a fit the result is written there (atomically); failing
  * to write the cache (read-only folder) is not an error. mesh_path may be NULL: no cache. */
-pen_status pen_spheres_fit_cached(pen_context *ctx, const pen_mesh *mesh, const char *mesh_path,
-                                  int count, const pen_fit_settings *settings, pen_spheres *out,
-                                  pen_fit_metrics *metrics);
+PEN_API pen_status pen_spheres_fit_cached(pen_context *ctx, const pen_mesh *mesh,
+                                          const char *mesh_path, int count,
+                                          const pen_fit_settings *settings, pen_spheres *out,
+                                          pen_fit_metrics *metrics);
 
 /* The cache file pen_spheres_fit_cached uses for these arguments (malloc'd into *path; the
  * caller frees it), e.g. to remove a cached fit. */
-pen_status pen_spheres_fit_cache_path(pen_context *ctx, const pen_mesh *mesh, const char *mesh_path,
-                                      int count, const pen_fit_settings *settings, char **path);
+PEN_API pen_status pen_spheres_fit_cache_path(pen_context *ctx, const pen_mesh *mesh,
+                                              const char *mesh_path, int count,
+                                              const pen_fit_settings *settings, char **path);
 
 /* A picture of a sphere set over its mesh: three square orthographic panels of size x size
  * pixels side by side (the mesh, the spheres, the spheres blended over the mesh), seen from
  * azimuth_deg about +Y (0 looks from +Z towards -Z) and elevation_deg above the horizon.
  * Flat shading with one fixed light; linear RGB in [0, 1], white background. On success *out owns
  * a new (3 size) x size RGB image (free with pen_image_free). */
-pen_status pen_spheres_preview(pen_context *ctx, const pen_mesh *mesh, const pen_spheres *spheres,
-                               float azimuth_deg, float elevation_deg, int size, pen_image *out);
+PEN_API pen_status pen_spheres_preview(pen_context *ctx, const pen_mesh *mesh,
+                                       const pen_spheres *spheres, float azimuth_deg,
+                                       float elevation_deg, int size, pen_image *out);
 
 /* Fits every object of a loaded scene that asks for it ("spheres": {"fit": N}, so fit_spheres > 0
  * and no spheres yet) with pen_spheres_fit_cached and the default settings, next to the object's
  * mesh file. Objects that have spheres are left alone. */
-pen_status pen_scene_fit_spheres(pen_context *ctx, pen_scene *scene);
+PEN_API pen_status pen_scene_fit_spheres(pen_context *ctx, pen_scene *scene);
 
 /* Writes {"metrics": {...}, "fit_settings": {...}} (the settings member only when settings is
  * not NULL) into buf, NUL-terminated and cut at size; returns the length it needed, as snprintf
  * does. The text is what pen_spheres_save takes as extra_json. */
-int pen_fit_json(const pen_fit_settings *settings, const pen_fit_metrics *metrics, char *buf,
-                 size_t size);
+PEN_API int pen_fit_json(const pen_fit_settings *settings, const pen_fit_metrics *metrics,
+                         char *buf, size_t size);
 
 #ifdef __cplusplus
 }

@@ -100,7 +100,7 @@ typedef struct pen_flat_scene {
  * sh_bands 4 and no lighting array, the calibrated exponential with its own epsilon, overlap
  * weights on, the default ground (height 0, albedo 0.8, half size 4, occluding the objects), black
  * background, no map, shadows and antialiasing on, no objects. */
-pen_flat_scene pen_flat_scene_default(void);
+PEN_API pen_flat_scene pen_flat_scene_default(void);
 
 /* Where pen_flat_render_bwd writes; every pointer may be NULL (that gradient is not computed).
  * The backward ADDS into the arrays. */
@@ -121,16 +121,16 @@ typedef struct pen_flat_grad {
 /* Renders into `image` (3 * width * height floats, caller-owned). `state` may be NULL when no
  * backward follows. Fails (PEN_ERROR_ARGUMENT, the message naming the field) on missing arrays,
  * bad counts or sizes, and on whatever pen_render_fwd refuses. */
-pen_status pen_flat_render_fwd(pen_context *ctx, const pen_flat_scene *scene,
-                               pen_render_state *state, float *image);
+PEN_API pen_status pen_flat_render_fwd(pen_context *ctx, const pen_flat_scene *scene,
+                                       pen_render_state *state, float *image);
 
 /* Backward of the last pen_flat_render_fwd with this state, whose scene (arrays included) must
  * be unchanged: adds dLoss/dparameter into the non-NULL arrays of `grad`, given d_image
  * (3 * width * height). The groups computed follow from which pointers are set (lighting:
  * sh; albedo: texture, albedo, ground_albedo; spheres; pose; vertices: positions). */
-pen_status pen_flat_render_bwd(pen_context *ctx, const pen_flat_scene *scene,
-                               pen_render_state *state, const float *d_image,
-                               const pen_flat_grad *grad);
+PEN_API pen_status pen_flat_render_bwd(pen_context *ctx, const pen_flat_scene *scene,
+                                       pen_render_state *state, const float *d_image,
+                                       const pen_flat_grad *grad);
 
 /* ---- A renderer kept across calls ------------------------------------------------------------ */
 
@@ -143,18 +143,18 @@ pen_status pen_flat_render_bwd(pen_context *ctx, const pen_flat_scene *scene,
 typedef struct pen_flat_renderer pen_flat_renderer;
 
 /* On failure *out is NULL. */
-pen_status pen_flat_renderer_create(pen_context *ctx, pen_flat_renderer **out);
+PEN_API pen_status pen_flat_renderer_create(pen_context *ctx, pen_flat_renderer **out);
 /* NULL is a no-op. */
-void pen_flat_renderer_free(pen_flat_renderer *renderer);
+PEN_API void pen_flat_renderer_free(pen_flat_renderer *renderer);
 /* pen_flat_render_fwd with the renderer's state. */
-pen_status pen_flat_renderer_fwd(pen_context *ctx, pen_flat_renderer *renderer,
-                                 const pen_flat_scene *scene, float *image);
+PEN_API pen_status pen_flat_renderer_fwd(pen_context *ctx, pen_flat_renderer *renderer,
+                                         const pen_flat_scene *scene, float *image);
 /* pen_flat_render_bwd of the renderer's last forward, whose scene must be unchanged. */
-pen_status pen_flat_renderer_bwd(pen_context *ctx, pen_flat_renderer *renderer,
-                                 const pen_flat_scene *scene, const float *d_image,
-                                 const pen_flat_grad *grad);
+PEN_API pen_status pen_flat_renderer_bwd(pen_context *ctx, pen_flat_renderer *renderer,
+                                         const pen_flat_scene *scene, const float *d_image,
+                                         const pen_flat_grad *grad);
 /* The renderer's state (owned by it), e.g. for pen_render_state_timings. */
-pen_render_state *pen_flat_renderer_state(pen_flat_renderer *renderer);
+PEN_API pen_render_state *pen_flat_renderer_state(pen_flat_renderer *renderer);
 
 /* ---- Layout check ---------------------------------------------------------------------------- */
 
@@ -174,7 +174,7 @@ typedef struct pen_flat_abi_field {
  * pen_spheres. *fields points to *count static rows: per struct, its size row, then one row per
  * member in declaration order. Returns PEN_FLAT_ABI_VERSION. A binding compares the table with
  * its own mirror once, when it loads the library, and refuses a library that differs. */
-int pen_flat_abi(const pen_flat_abi_field **fields, int *count);
+PEN_API int pen_flat_abi(const pen_flat_abi_field **fields, int *count);
 
 /* ---- Scenes from JSON ------------------------------------------------------------------------ */
 
@@ -184,14 +184,14 @@ typedef struct pen_flat_loaded pen_flat_loaded;
 /* Loads a scene JSON (pen_scene_load). With fit_spheres != 0, objects whose spheres are
  * {"fit": N} get them as `penumbra render` does (pen_scene_fit_spheres: cached beside the mesh);
  * with 0 they are left without spheres. On failure *out is NULL. */
-pen_status pen_flat_scene_load(pen_context *ctx, const char *path, int fit_spheres,
-                               pen_flat_loaded **out);
+PEN_API pen_status pen_flat_scene_load(pen_context *ctx, const char *path, int fit_spheres,
+                                       pen_flat_loaded **out);
 /* The flat view; valid until pen_flat_loaded_free. Its objects' uv_indices are always set. */
-const pen_flat_scene *pen_flat_loaded_scene(const pen_flat_loaded *loaded);
+PEN_API const pen_flat_scene *pen_flat_loaded_scene(const pen_flat_loaded *loaded);
 /* The "fit" request of object o ({"fit": N} gives N, 0 otherwise; -1 if o is out of range). */
-int pen_flat_loaded_fit_request(const pen_flat_loaded *loaded, int o);
+PEN_API int pen_flat_loaded_fit_request(const pen_flat_loaded *loaded, int o);
 /* NULL is a no-op. */
-void pen_flat_loaded_free(pen_flat_loaded *loaded);
+PEN_API void pen_flat_loaded_free(pen_flat_loaded *loaded);
 
 #ifdef __cplusplus
 }

@@ -36,20 +36,20 @@ typedef struct pen_mesh {
  * (relative) indices are resolved; zero and out-of-range indices, NaN/Inf coordinates,
  * truncated files and absurd counts are errors naming the file and line (or byte offset).
  * On success *out owns the arrays; on failure *out is zeroed. */
-pen_status pen_mesh_load(pen_context *ctx, const char *path, pen_mesh *out);
-pen_status pen_mesh_load_obj(pen_context *ctx, const char *path, pen_mesh *out);
-pen_status pen_mesh_load_ply(pen_context *ctx, const char *path, pen_mesh *out);
+PEN_API pen_status pen_mesh_load(pen_context *ctx, const char *path, pen_mesh *out);
+PEN_API pen_status pen_mesh_load_obj(pen_context *ctx, const char *path, pen_mesh *out);
+PEN_API pen_status pen_mesh_load_ply(pen_context *ctx, const char *path, pen_mesh *out);
 /* Writes a Wavefront OBJ (v, vt, vn, f with 1-based v/vt/vn references; no material). Atomic:
  * temporary file + rename. pen_mesh_save picks the format by extension (.obj only). */
-pen_status pen_mesh_save(pen_context *ctx, const char *path, const pen_mesh *mesh);
-pen_status pen_mesh_save_obj(pen_context *ctx, const char *path, const pen_mesh *mesh);
+PEN_API pen_status pen_mesh_save(pen_context *ctx, const char *path, const pen_mesh *mesh);
+PEN_API pen_status pen_mesh_save_obj(pen_context *ctx, const char *path, const pen_mesh *mesh);
 /* Checks a mesh built in memory: positive counts within the loaders' cap, finite coordinates,
  * every index in range. Errors (PEN_ERROR_ARGUMENT) name the triangle or vertex. */
-pen_status pen_mesh_validate(pen_context *ctx, const pen_mesh *mesh);
+PEN_API pen_status pen_mesh_validate(pen_context *ctx, const pen_mesh *mesh);
 /* Frees the arrays of a mesh and zeroes it; NULL is a no-op. */
-void pen_mesh_free(pen_mesh *mesh);
+PEN_API void pen_mesh_free(pen_mesh *mesh);
 /* Axis-aligned bounds of the positions (all zero for a mesh without vertices). */
-void pen_mesh_bounds(const pen_mesh *mesh, float lo[3], float hi[3]);
+PEN_API void pen_mesh_bounds(const pen_mesh *mesh, float lo[3], float hi[3]);
 
 #ifdef __cplusplus
 }

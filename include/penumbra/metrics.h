@@ -30,8 +30,9 @@ typedef struct pen_image_error {
  * finite values. `mask` may be NULL; otherwise it must have the same width and height (any
  * channel count), and *masked receives the metrics restricted to it (`masked` may be NULL when
  * mask is NULL). Errors name the image ("A", "B", "mask") and the pixel. */
-pen_status pen_image_compare(pen_context *ctx, const pen_image *a, const pen_image *b,
-                             const pen_image *mask, pen_image_error *all, pen_image_error *masked);
+PEN_API pen_status pen_image_compare(pen_context *ctx, const pen_image *a, const pen_image *b,
+                                     const pen_image *mask, pen_image_error *all,
+                                     pen_image_error *masked);
 
 #ifdef __cplusplus
 }

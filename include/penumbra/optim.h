@@ -75,7 +75,7 @@ typedef struct pen_optim_lr {
 } pen_optim_lr;
 
 /* 1e-2, and 1e-3 for the deformation matrices (supplement section 5.1). */
-pen_optim_lr pen_optim_lr_default(void);
+PEN_API pen_optim_lr pen_optim_lr_default(void);
 
 /* The embedded deformation graph (supplement section 3; Sumner et al. 2007): nodes at each
  * object's sphere centres, each carrying a 3x3 matrix A_j and a translation t_j; a vertex follows
@@ -89,7 +89,7 @@ typedef struct pen_optim_deformation {
     double w_reg; /* default 1e-3 */
 } pen_optim_deformation;
 
-pen_optim_deformation pen_optim_deformation_default(void);
+PEN_API pen_optim_deformation pen_optim_deformation_default(void);
 
 /* The "spheres" group's regulariser: w_smooth E_smooth, E_smooth = sum_j sum_{k in N(j)}
  * |d_j - d_k|^2 with d_j = (centre, radius) of sphere j minus its initial value and N(j) its k
@@ -101,7 +101,7 @@ typedef struct pen_optim_spheres {
     double w_smooth; /* default 1e-3, in the units of the mean-squared image loss */
 } pen_optim_spheres;
 
-pen_optim_spheres pen_optim_spheres_default(void);
+PEN_API pen_optim_spheres pen_optim_spheres_default(void);
 
 /* The shadow-weighted loss (task key "shadow_weight" = s >= 0). Per pixel p of the target T,
  *     m_p = clamp(1 - Y(T_p) / Y(U_p), 0, 1),   Y = the mean of the three channels,
@@ -161,26 +161,27 @@ typedef struct pen_optim_task {
 /* A task holding the defaults pen_optim_task_load starts from (500 iterations, the lr above,
  * l2, tolerance 1e-3, window 50, black initial guesses, Adam lighting with ridge 1e-2, the
  * deformation and spheres defaults) and nothing else: no scene, target or groups. */
-pen_optim_task pen_optim_task_default(void);
+PEN_API pen_optim_task pen_optim_task_default(void);
 
 /* Loads a task JSON; paths (scene, target, ground truth) are relative to the task file. Errors
  * name the file and the key ("task.json: optimize[1]: unknown group \"colour\""); errors inside
  * an inline scene read "task.json:scene: camera.width: ...". The target must be a linear image
  * (.exr or .hdr) of the scene camera's size. The scene's {"fit": N} sphere requests are left for
  * pen_optim_run. On failure *out is zeroed. */
-pen_status pen_optim_task_load(pen_context *ctx, const char *path, pen_optim_task *out);
+PEN_API pen_status pen_optim_task_load(pen_context *ctx, const char *path, pen_optim_task *out);
 /* The same with the target image taken from `target` (a path as given, not relative to the task;
  * NULL: the task's "target") instead of the task's "target" key, which is then not read at all. */
-pen_status pen_optim_task_load_ex(pen_context *ctx, const char *path, const char *target,
-                                  pen_optim_task *out);
+PEN_API pen_status pen_optim_task_load_ex(pen_context *ctx, const char *path, const char *target,
+                                          pen_optim_task *out);
 /* The same from JSON text; `path` names it and is the base of its relative paths. */
-pen_status pen_optim_task_parse(pen_context *ctx, const char *json_text, const char *path,
-                                pen_optim_task *out);
+PEN_API pen_status pen_optim_task_parse(pen_context *ctx, const char *json_text, const char *path,
+                                        pen_optim_task *out);
 /* Replaces the task's target by the image at `path` (.exr or .hdr, the scene camera's size). On
  * failure the task is unchanged. */
-pen_status pen_optim_task_set_target(pen_context *ctx, pen_optim_task *task, const char *path);
+PEN_API pen_status pen_optim_task_set_target(pen_context *ctx, pen_optim_task *task,
+                                             const char *path);
 /* Frees everything the task owns and zeroes it; NULL is a no-op. */
-void pen_optim_task_free(pen_optim_task *task);
+PEN_API void pen_optim_task_free(pen_optim_task *task);
 
 /* Called after every iteration with the loss of that iteration's render; return non-zero to
  * stop early (e.g. on Ctrl-C: the run then ends normally with converged = 0, interrupted = 1). */
@@ -208,7 +209,7 @@ typedef struct pen_optim_settings {
 } pen_optim_settings;
 
 /* shadows = 1, no callback, no output folder. */
-pen_optim_settings pen_optim_settings_default(void);
+PEN_API pen_optim_settings pen_optim_settings_default(void);
 
 /* Metrics against the ground truth; NaN where a metric does not apply (no ground truth, or the
  * group was not optimised). */
@@ -270,23 +271,24 @@ typedef struct pen_optim_result {
  * iteration limit is reached, leaves the best iterate's parameters in task->scene and computes
  * the metrics. Threads: pen_context_threads. On failure *out is zeroed (task->scene may then be
  * partly updated). */
-pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim_settings *settings,
-                         pen_optim_result *out);
+PEN_API pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task,
+                                 const pen_optim_settings *settings, pen_optim_result *out);
 /* Frees the result's arrays and images and zeroes it; NULL is a no-op. */
-void pen_optim_result_free(pen_optim_result *result);
+PEN_API void pen_optim_result_free(pen_optim_result *result);
 
 /* Writes into folder `outdir` (created if missing): result.json, scene.json (the recovered scene,
  * SH lighting inline, renderable by `penumbra render`; optimised textures beside it as
  * texture_<object>.png), final.exr and final.png (the final render), compare.png (target |
  * initial | result | 4x absolute error, side by side), loss.svg (the loss curve). Every file is
  * written atomically; if any write fails the files already written by this call are removed. */
-pen_status pen_optim_write(pen_context *ctx, const char *outdir, const pen_optim_task *task,
-                           const pen_optim_settings *settings, const pen_optim_result *result);
+PEN_API pen_status pen_optim_write(pen_context *ctx, const char *outdir, const pen_optim_task *task,
+                                   const pen_optim_settings *settings,
+                                   const pen_optim_result *result);
 
 /* The result.json text (malloc'd; the caller frees it), as pen_optim_write writes it. */
-pen_status pen_optim_result_json(pen_context *ctx, const pen_optim_task *task,
-                                 const pen_optim_settings *settings,
-                                 const pen_optim_result *result, char **json);
+PEN_API pen_status pen_optim_result_json(pen_context *ctx, const pen_optim_task *task,
+                                         const pen_optim_settings *settings,
+                                         const pen_optim_result *result, char **json);
 
 #ifdef __cplusplus
 }

@@ -21,5 +21,6 @@
 #include "penumbra/scene.h"
 #include "penumbra/sh.h"
 #include "penumbra/spheres.h"
+#include "penumbra/version.h"
 
 #endif

@@ -60,17 +60,18 @@ typedef struct pen_view {
  * eye != target) and prepares the view. The near plane defaults to 1e-3 * |target - eye|; a
  * caller may overwrite view->near_plane (> 0) afterwards. If `up` is parallel to the viewing
  * direction another axis is used, as pen_camera_frame does. */
-pen_status pen_view_init(pen_context *ctx, const pen_camera *cam, pen_view *view);
+PEN_API pen_status pen_view_init(pen_context *ctx, const pen_camera *cam, pen_view *view);
 
 /* World point -> (sx, sy, depth): sx = cx + f (d.right)/(d.forward), sy = cy - f
  * (d.up)/(d.forward), depth = d.forward with d = p - eye. Points at depth <= 0 give non-finite
  * screen coordinates; callers test depth against near_plane first. */
-void pen_view_project_fwd(const pen_view *view, const float p[3], float s[3]);
+PEN_API void pen_view_project_fwd(const pen_view *view, const float p[3], float s[3]);
 /* d_p += J^T d_s with J = d(sx, sy, depth)/dp. */
-void pen_view_project_bwd(const pen_view *view, const float p[3], const float d_s[3], float d_p[3]);
+PEN_API void pen_view_project_bwd(const pen_view *view, const float p[3], const float d_s[3],
+                                  float d_p[3]);
 /* The world-space ray direction through image point (px, py), scaled so that its forward
  * component is 1: the point at depth z on that ray is eye + z * dir. */
-void pen_view_ray(const pen_view *view, double px, double py, double dir[3]);
+PEN_API void pen_view_ray(const pen_view *view, double px, double py, double dir[3]);
 
 /* ---- Rigid pose backward (the forward, pen_pose_rotation / pen_pose_apply, is in scene.h) -----
  */
@@ -81,13 +82,13 @@ typedef pen_pose pen_pose_grad;
 /* Backward of pen_pose_apply: with out = R(a) * (scale * p) + t, adds d_out's pull-back into
  * d_pose (rotation_axis_angle_deg per degree, translation, scale) and d_p (each may be NULL).
  * Exact at and near angle 0 (series expansion of the Rodrigues coefficients). */
-void pen_pose_apply_bwd(const pen_pose *pose, const float p[3], const float d_out[3],
-                        pen_pose_grad *d_pose, float d_p[3]);
+PEN_API void pen_pose_apply_bwd(const pen_pose *pose, const float p[3], const float d_out[3],
+                                pen_pose_grad *d_pose, float d_p[3]);
 /* pen_pose_apply over n points (3 floats each). `out` may not alias `p`. */
-void pen_pose_points_fwd(const pen_pose *pose, int n, const float *p, float *out);
+PEN_API void pen_pose_points_fwd(const pen_pose *pose, int n, const float *p, float *out);
 /* Backward of pen_pose_points_fwd; reduces over the points in double. */
-void pen_pose_points_bwd(const pen_pose *pose, int n, const float *p, const float *d_out,
-                         pen_pose_grad *d_pose, float *d_p);
+PEN_API void pen_pose_points_bwd(const pen_pose *pose, int n, const float *p, const float *d_out,
+                                 pen_pose_grad *d_pose, float *d_p);
 
 /* ---- Rasterizer ------------------------------------------------------------------------------ */
 
@@ -125,8 +126,8 @@ typedef struct pen_gbuffer {
     float *depth;
 } pen_gbuffer;
 
-pen_status pen_gbuffer_create(pen_context *ctx, int width, int height, pen_gbuffer *out);
-void pen_gbuffer_free(pen_gbuffer *gb);
+PEN_API pen_status pen_gbuffer_create(pen_context *ctx, int width, int height, pen_gbuffer *out);
+PEN_API void pen_gbuffer_free(pen_gbuffer *gb);
 
 /* Rasterizes the meshes and the ground plane (may be NULL or disabled) into gb, which must have
  * the view's size. Both faces of every triangle are drawn (no culling). The ground is the finite
@@ -136,62 +137,66 @@ void pen_gbuffer_free(pen_gbuffer *gb);
  * the earlier mesh and triangle, and meshes win ties against the ground. Tiles of 16x16 pixels
  * are processed in parallel (pen_context_threads); the result does not depend on the thread
  * count. Fails on a size mismatch, an index out of range or a non-finite position. */
-pen_status pen_raster_gbuffer(pen_context *ctx, const pen_view *view, const pen_raster_mesh *meshes,
-                              int mesh_count, const pen_ground *ground, pen_gbuffer *gb);
+PEN_API pen_status pen_raster_gbuffer(pen_context *ctx, const pen_view *view,
+                                      const pen_raster_mesh *meshes, int mesh_count,
+                                      const pen_ground *ground, pen_gbuffer *gb);
 
 /* Backward of the barycentrics of the visible points: with d_bary (2 per pixel, d/du and d/dv),
  * adds into d_positions[m] (3 * vertex_count, or NULL to skip mesh m) the gradient through the
  * barycentrics of each pixel's point, which moves on its fixed pixel ray as the triangle moves.
  * Ground and background pixels are skipped. Parallel over pixels, with a fixed summation order.
  * Fails only if its scratch buffer (9 floats per pixel) cannot be allocated. */
-pen_status pen_raster_bary_bwd(pen_context *ctx, const pen_view *view,
-                               const pen_raster_mesh *meshes, int mesh_count, const pen_gbuffer *gb,
-                               const float *d_bary, float *const *d_positions);
+PEN_API pen_status pen_raster_bary_bwd(pen_context *ctx, const pen_view *view,
+                                       const pen_raster_mesh *meshes, int mesh_count,
+                                       const pen_gbuffer *gb, const float *d_bary,
+                                       float *const *d_positions);
 /* The same with the caller's scratch buffer g (9 floats per pixel), so that a renderer calling it
  * every frame allocates nothing: at 1024 x 1024 a fresh 37 MB buffer is above glibc's mmap
  * threshold and its page faults cost about 24 ms per call (bench/NOTES.md). */
-void pen_raster_bary_bwd_scratch(pen_context *ctx, const pen_view *view,
-                                 const pen_raster_mesh *meshes, int mesh_count,
-                                 const pen_gbuffer *gb, const float *d_bary,
-                                 float *const *d_positions, float *g);
+PEN_API void pen_raster_bary_bwd_scratch(pen_context *ctx, const pen_view *view,
+                                         const pen_raster_mesh *meshes, int mesh_count,
+                                         const pen_gbuffer *gb, const float *d_bary,
+                                         float *const *d_positions, float *g);
 
 /* World position of every non-background pixel's visible point, eye + depth * ray (3 floats per
  * pixel; background pixels get 0). For ground pixels this is the position to shade; mesh pixels
  * should use pen_interpolate_fwd of the positions, which carries gradients. */
-void pen_gbuffer_points(const pen_view *view, const pen_gbuffer *gb, float *out);
+PEN_API void pen_gbuffer_points(const pen_view *view, const pen_gbuffer *gb, float *out);
 
 /* Edge adjacency of a triangle list (see pen_raster_mesh.adjacency): an edge shared by exactly
  * two triangles records the other triangle's half-edge (3 t' + k'; its third vertex is corner
  * (k' + 2) % 3); boundary and non-manifold edges get -1 and are always treated as possible
  * silhouettes. adjacency has 3 * triangle_count entries; at most INT32_MAX / 3 triangles. */
-pen_status pen_raster_adjacency(pen_context *ctx, int vertex_count, int triangle_count,
-                                const uint32_t *indices, int32_t *adjacency);
+PEN_API pen_status pen_raster_adjacency(pen_context *ctx, int vertex_count, int triangle_count,
+                                        const uint32_t *indices, int32_t *adjacency);
 
 /* ---- Attribute interpolation ----------------------------------------------------------------- */
 
 /* For every pixel whose surface is `object`: out[i*dim + c] = sum_k b_k values[idx_k*dim + c]
  * with idx_k = indices[3 * triangle + k] and (b0, b1, b2) = (1-u-v, u, v). Other pixels of out
  * are left untouched. `indices` may differ from the position indices (UV seams). */
-void pen_interpolate_fwd(const pen_gbuffer *gb, int object, const uint32_t *indices,
-                         const float *values, int dim, float *out);
+PEN_API void pen_interpolate_fwd(const pen_gbuffer *gb, int object, const uint32_t *indices,
+                                 const float *values, int dim, float *out);
 /* Adds into d_values (per value, dim each) and d_bary (2 per pixel, may be NULL). */
-void pen_interpolate_bwd(const pen_gbuffer *gb, int object, const uint32_t *indices,
-                         const float *values, int dim, const float *d_out, float *d_values,
-                         float *d_bary);
+PEN_API void pen_interpolate_bwd(const pen_gbuffer *gb, int object, const uint32_t *indices,
+                                 const float *values, int dim, const float *d_out, float *d_values,
+                                 float *d_bary);
 
 /* Smooth vertex normals weighted by triangle area: normals[v] = normalize(sum over triangles
  * around v of (p1 - p0) x (p2 - p0)), summed in double. A vertex whose sum is shorter than 1e-20
  * (no non-degenerate triangle) gets (0, 0, 0) and no gradient. Fails on an index out of range. */
-pen_status pen_vertex_normals_fwd(pen_context *ctx, int vertex_count, const float *positions,
-                                  int triangle_count, const uint32_t *indices, float *normals);
-pen_status pen_vertex_normals_bwd(pen_context *ctx, int vertex_count, const float *positions,
-                                  int triangle_count, const uint32_t *indices,
-                                  const float *d_normals, float *d_positions);
+PEN_API pen_status pen_vertex_normals_fwd(pen_context *ctx, int vertex_count,
+                                          const float *positions, int triangle_count,
+                                          const uint32_t *indices, float *normals);
+PEN_API pen_status pen_vertex_normals_bwd(pen_context *ctx, int vertex_count,
+                                          const float *positions, int triangle_count,
+                                          const uint32_t *indices, const float *d_normals,
+                                          float *d_positions);
 
 /* out[i] = v[i] / |v[i]| for n 3-vectors (interpolated normals are no longer unit); a vector of
  * length below 1e-20 gives (0, 0, 0) and no gradient. `out` may alias `v`. */
-void pen_normalize_fwd(int n, const float *v, float *out);
-void pen_normalize_bwd(int n, const float *v, const float *d_out, float *d_v);
+PEN_API void pen_normalize_fwd(int n, const float *v, float *out);
+PEN_API void pen_normalize_bwd(int n, const float *v, const float *d_out, float *d_v);
 
 /* ---- Edge antialiasing ----------------------------------------------------------------------- */
 
@@ -199,14 +204,14 @@ void pen_normalize_bwd(int n, const float *v, const float *d_out, float *d_v);
  * silhouette edges by the fraction of the pixel the edge leaves to the other side, so that the
  * image becomes a continuous function of vertex positions (Laine et al. 2020 in idea; the
  * scheme is in docs/rasterizer.md). Every mesh needs its adjacency. `out` may not alias `color`. */
-pen_status pen_antialias_fwd(pen_context *ctx, const pen_gbuffer *gb, const pen_view *view,
-                             const pen_raster_mesh *meshes, int mesh_count, const float *color,
-                             int channels, float *out);
+PEN_API pen_status pen_antialias_fwd(pen_context *ctx, const pen_gbuffer *gb, const pen_view *view,
+                                     const pen_raster_mesh *meshes, int mesh_count,
+                                     const float *color, int channels, float *out);
 /* Adds into d_color (per pixel) and d_positions[m] (3 * vertex_count, or NULL). */
-pen_status pen_antialias_bwd(pen_context *ctx, const pen_gbuffer *gb, const pen_view *view,
-                             const pen_raster_mesh *meshes, int mesh_count, const float *color,
-                             int channels, const float *d_out, float *d_color,
-                             float *const *d_positions);
+PEN_API pen_status pen_antialias_bwd(pen_context *ctx, const pen_gbuffer *gb, const pen_view *view,
+                                     const pen_raster_mesh *meshes, int mesh_count,
+                                     const float *color, int channels, const float *d_out,
+                                     float *d_color, float *const *d_positions);
 
 #ifdef __cplusplus
 }

@@ -63,33 +63,35 @@ typedef struct pen_reference pen_reference;
 
 /* Builds the ray-tracing scene. Validates the scene (indices, finite positions, sizes, texture
  * and envmap shapes); ENVMAP lighting on a scene without an envmap is an error. */
-pen_status pen_reference_create(pen_context *ctx, const pen_scene *scene,
-                                pen_reference_lighting lighting, pen_reference **out);
+PEN_API pen_status pen_reference_create(pen_context *ctx, const pen_scene *scene,
+                                        pen_reference_lighting lighting, pen_reference **out);
 /* Frees the reference; NULL is a no-op. */
-void pen_reference_destroy(pen_reference *ref);
+PEN_API void pen_reference_destroy(pen_reference *ref);
 /* The lighting mode in use (AUTO resolved). */
-pen_reference_lighting pen_reference_lighting_mode(const pen_reference *ref);
+PEN_API pen_reference_lighting pen_reference_lighting_mode(const pen_reference *ref);
 
 /* Renders the camera's image: 3 channels, linear radiance, `spp` in [1, PEN_REFERENCE_MAX_SPP]
  * samples per pixel. *out is allocated here (pen_image_free releases it); zeroed on failure. */
-pen_status pen_reference_render(pen_context *ctx, const pen_reference *ref, int spp, uint64_t seed,
-                                pen_image *out);
+PEN_API pen_status pen_reference_render(pen_context *ctx, const pen_reference *ref, int spp,
+                                        uint64_t seed, pen_image *out);
 /* The same image (bit for bit), and, when `coverage` is not NULL, a 1-channel image of the
  * fraction of each pixel's camera samples that hit a surface (mesh or ground): 0 where the pixel
  * shows only background. Thresholded at 0.5 it is a mask for pen_image_compare that leaves out
  * the background, whose box-filtered texture detail no rasterizer sampling at pixel centres
  * reproduces. */
-pen_status pen_reference_render_coverage(pen_context *ctx, const pen_reference *ref, int spp,
-                                         uint64_t seed, pen_image *out, pen_image *coverage);
+PEN_API pen_status pen_reference_render_coverage(pen_context *ctx, const pen_reference *ref,
+                                                 int spp, uint64_t seed, pen_image *out,
+                                                 pen_image *coverage);
 
 /* Irradiance E = integral L(w) V(x, w) max(n . w, 0) dw at the surface point x with unit normal
  * n (rays leave from x nudged along n), estimated with `samples` sample pairs. */
-pen_status pen_reference_irradiance(pen_context *ctx, const pen_reference *ref, const float x[3],
-                                    const float n[3], int samples, uint64_t seed, float E[3]);
+PEN_API pen_status pen_reference_irradiance(pen_context *ctx, const pen_reference *ref,
+                                            const float x[3], const float n[3], int samples,
+                                            uint64_t seed, float E[3]);
 
 /* "envmap", "sh" or "auto" to the enum; -1 for anything else. */
-int pen_reference_lighting_parse(const char *name);
-const char *pen_reference_lighting_name(pen_reference_lighting lighting);
+PEN_API int pen_reference_lighting_parse(const char *name);
+PEN_API const char *pen_reference_lighting_name(pen_reference_lighting lighting);
 
 #ifdef __cplusplus
 }

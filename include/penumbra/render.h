@@ -60,12 +60,12 @@ typedef struct pen_render_options {
 } pen_render_options;
 
 /* shadows = 1, antialias = 1, kernel = PEN_RENDER_KERNEL_FAST. */
-pen_render_options pen_render_options_default(void);
+PEN_API pen_render_options pen_render_options_default(void);
 
 /* How many pixels the fast kernel in use shades per SIMD batch (16 with AVX-512). Its per-batch
  * sums run in lane order, so fast-kernel results are bitwise reproducible between machines that
  * report the same count. */
-int pen_render_fast_lanes(void);
+PEN_API int pen_render_fast_lanes(void);
 
 /* ---- Gradients ------------------------------------------------------------------------------- */
 
@@ -98,34 +98,36 @@ typedef struct pen_render_grad {
 } pen_render_grad;
 
 /* Allocates a zeroed gradient shaped like the scene. On failure *out is zeroed. */
-pen_status pen_render_grad_create(pen_context *ctx, const pen_scene *scene, pen_render_grad *out);
+PEN_API pen_status pen_render_grad_create(pen_context *ctx, const pen_scene *scene,
+                                          pen_render_grad *out);
 /* Sets every gradient to 0. */
-void pen_render_grad_zero(pen_render_grad *grad);
+PEN_API void pen_render_grad_zero(pen_render_grad *grad);
 /* Frees the arrays and zeroes the struct; NULL is a no-op. */
-void pen_render_grad_free(pen_render_grad *grad);
+PEN_API void pen_render_grad_free(pen_render_grad *grad);
 
 /* ---- Forward and backward -------------------------------------------------------------------- */
 
 /* Buffers kept between a forward and its backward, reused across frames of the same size. */
 typedef struct pen_render_state pen_render_state;
 
-pen_status pen_render_state_create(pen_context *ctx, pen_render_state **out);
-void pen_render_state_free(pen_render_state *state);
+PEN_API pen_status pen_render_state_create(pen_context *ctx, pen_render_state **out);
+PEN_API void pen_render_state_free(pen_render_state *state);
 
 /* Renders the scene into `image`: if image->data is NULL it is allocated (3 channels, camera
  * size), otherwise it must already have that shape. `state` may be NULL when no backward
  * follows. Fails on an invalid camera, mesh, sphere set or lighting (NaN/Inf, bad indices), or a
  * scene whose objects need a sphere set they do not have while shadows are on. Threads:
  * pen_context_threads. */
-pen_status pen_render_fwd(pen_context *ctx, const pen_scene *scene, const pen_render_options *opt,
-                          pen_render_state *state, pen_image *image);
+PEN_API pen_status pen_render_fwd(pen_context *ctx, const pen_scene *scene,
+                                  const pen_render_options *opt, pen_render_state *state,
+                                  pen_image *image);
 
 /* Backward of the last pen_render_fwd with this state: adds the gradient of the loss into
  * `grad` for the groups in `wrt` (PEN_GRAD_*), given d_image (3 channels, image size). `opt`
  * must equal the forward's (NULL: the defaults); the scene must be the forward's, unchanged. */
-pen_status pen_render_bwd(pen_context *ctx, const pen_scene *scene, const pen_render_options *opt,
-                          pen_render_state *state, const pen_image *d_image, unsigned wrt,
-                          pen_render_grad *grad);
+PEN_API pen_status pen_render_bwd(pen_context *ctx, const pen_scene *scene,
+                                  const pen_render_options *opt, pen_render_state *state,
+                                  const pen_image *d_image, unsigned wrt, pen_render_grad *grad);
 
 /* ---- Timings ------------------------------------------------------------------------------- */
 
@@ -148,18 +150,18 @@ typedef struct pen_render_timings {
 } pen_render_timings;
 
 /* The stage times of the state's last forward and backward (zeros before any). */
-void pen_render_state_timings(const pen_render_state *state, pen_render_timings *out);
+PEN_API void pen_render_state_timings(const pen_render_state *state, pen_render_timings *out);
 
 /* ---- Image losses ---------------------------------------------------------------------------- */
 
 /* Mean squared error over all pixels and channels, loss = (1/N) sum (image - target)^2;
  * d_image (may be NULL; allocated if its data is NULL) += dLoss/dimage. Shapes must match. */
-pen_status pen_loss_l2(pen_context *ctx, const pen_image *image, const pen_image *target,
-                       double *loss, pen_image *d_image);
+PEN_API pen_status pen_loss_l2(pen_context *ctx, const pen_image *image, const pen_image *target,
+                               double *loss, pen_image *d_image);
 /* Mean absolute error, loss = (1/N) sum |image - target|; the gradient is sign(image - target)/N
  * (0 where equal). */
-pen_status pen_loss_l1(pen_context *ctx, const pen_image *image, const pen_image *target,
-                       double *loss, pen_image *d_image);
+PEN_API pen_status pen_loss_l1(pen_context *ctx, const pen_image *image, const pen_image *target,
+                               double *loss, pen_image *d_image);
 
 #ifdef __cplusplus
 }

@@ -29,9 +29,9 @@ typedef struct pen_camera {
 } pen_camera;
 
 /* Orthonormal camera frame: right, up (true up), forward (towards target). */
-void pen_camera_frame(const pen_camera *cam, float right[3], float up[3], float forward[3]);
+PEN_API void pen_camera_frame(const pen_camera *cam, float right[3], float up[3], float forward[3]);
 /* The unit direction of the ray through image point (px, py) (pixel units, row 0 top). */
-void pen_camera_ray(const pen_camera *cam, float px, float py, float dir[3]);
+PEN_API void pen_camera_ray(const pen_camera *cam, float px, float py, float dir[3]);
 
 /* Rigid pose with uniform scale: p_world = R(axis_angle) * (scale * p_object) + translation. */
 typedef struct pen_pose {
@@ -41,9 +41,9 @@ typedef struct pen_pose {
 } pen_pose;
 
 /* 3x3 rotation matrix (row-major) of an axis-angle vector in degrees. */
-void pen_pose_rotation(const pen_pose *pose, float R[9]);
+PEN_API void pen_pose_rotation(const pen_pose *pose, float R[9]);
 /* Applies the pose to a point. */
-void pen_pose_apply(const pen_pose *pose, const float p[3], float out[3]);
+PEN_API void pen_pose_apply(const pen_pose *pose, const float p[3], float out[3]);
 
 typedef struct pen_object {
     pen_mesh mesh;          /* object space */
@@ -117,21 +117,21 @@ typedef struct pen_scene {
  * JSON key path, e.g. "scene.json: camera.width: expected a positive integer, got -3"; errors of
  * a referenced file are prefixed with the key that named it. Unknown keys are errors (keys
  * starting with '_' are comments). On failure *out is zeroed. */
-pen_status pen_scene_load(pen_context *ctx, const char *path, pen_scene *out);
+PEN_API pen_status pen_scene_load(pen_context *ctx, const char *path, pen_scene *out);
 /* The same from JSON text (e.g. a scene embedded in a task file, printed back to text): `path`
  * names the text in messages and is the base of its relative paths. */
-pen_status pen_scene_parse(pen_context *ctx, const char *json_text, const char *path,
-                           pen_scene *out);
-void pen_scene_free(pen_scene *scene);
+PEN_API pen_status pen_scene_parse(pen_context *ctx, const char *json_text, const char *path,
+                                   pen_scene *out);
+PEN_API void pen_scene_free(pen_scene *scene);
 /* Writes a scene JSON that pen_scene_load reads back to the same scene (paths relative to the
  * new file where possible; the referenced files are not written). Atomic. */
-pen_status pen_scene_save(pen_context *ctx, const char *path, const pen_scene *scene);
+PEN_API pen_status pen_scene_save(pen_context *ctx, const char *path, const pen_scene *scene);
 /* Flags of pen_scene_save_ex. PEN_SCENE_SAVE_SH_LIGHTING writes the SH coefficients as "sh" even
  * when there is an envmap (which is then written too, for the background): for lighting that was
  * optimized and no longer equals the map's projection. */
 #define PEN_SCENE_SAVE_SH_LIGHTING 1u
-pen_status pen_scene_save_ex(pen_context *ctx, const char *path, const pen_scene *scene,
-                             unsigned flags);
+PEN_API pen_status pen_scene_save_ex(pen_context *ctx, const char *path, const pen_scene *scene,
+                                     unsigned flags);
 
 /* Equirectangular maps (Y up). u in [0, 1) is the azimuth phi = 2 pi u, v in [0, 1] the polar
  * angle theta = pi v from +Y:
@@ -143,21 +143,21 @@ pen_status pen_scene_save_ex(pen_context *ctx, const char *path, const pen_scene
  * A rotation by rotation_y_deg = a turns the map right-handedly about +Y: map direction d lights
  * the scene from world direction R_y(a) d, R_y(a) (x, y, z) = (cos a x + sin a z, y,
  * -sin a x + cos a z). */
-void pen_envmap_direction(float u, float v, float dir[3]);
+PEN_API void pen_envmap_direction(float u, float v, float dir[3]);
 /* The inverse (dir need not be unit length; the zero vector gives u = v = 0). */
-void pen_envmap_uv(const float dir[3], float *u, float *v);
+PEN_API void pen_envmap_uv(const float dir[3], float *u, float *v);
 /* Projects an equirectangular map (1 or >= 3 channels; grey is repeated) onto `bands` bands,
  * after rotating it by rotation_y_deg about +Y and multiplying by scale (finite, >= 0):
  * sh[i][ch] for i < bands^2. Each pixel is weighted by the exact solid angle of its cell,
  * (2 pi / W) (cos theta_top - cos theta_bottom), and sampled at its centre; negative pixel values
  * are clamped to 0. NaN/Inf pixels are an error. */
-pen_status pen_envmap_to_sh(pen_context *ctx, const pen_image *env, int bands,
-                            float rotation_y_deg, float scale, float sh[][3]);
+PEN_API pen_status pen_envmap_to_sh(pen_context *ctx, const pen_image *env, int bands,
+                                    float rotation_y_deg, float scale, float sh[][3]);
 /* The radiance arriving from world direction dir (the background seen along a camera ray):
  * the map rotated by rotation_y_deg and multiplied by scale, bilinear between texel centres
  * (wrapping in u, clamped in v), negative texels clamped to 0. An invalid map gives black. */
-void pen_envmap_eval(const pen_image *env, float rotation_y_deg, float scale, const float dir[3],
-                     float rgb[3]);
+PEN_API void pen_envmap_eval(const pen_image *env, float rotation_y_deg, float scale,
+                             const float dir[3], float rgb[3]);
 
 #ifdef __cplusplus
 }

@@ -35,11 +35,11 @@ static inline int pen_sh_index(int l, int m) { return l * l + l + m; }
 /* ---- Basis -------------------------------------------------------------------------------- */
 
 /* y[i] = Y_i(dir) for i < bands^2. */
-void pen_sh_eval(int bands, const float dir[3], float *y);
-void pen_sh_eval_d(int bands, const double dir[3], double *y);
+PEN_API void pen_sh_eval(int bands, const float dir[3], float *y);
+PEN_API void pen_sh_eval_d(int bands, const double dir[3], double *y);
 /* d_dir += sum_i d_y[i] * dY_i/d(dir). */
-void pen_sh_eval_bwd(int bands, const float dir[3], const float *d_y, float d_dir[3]);
-void pen_sh_eval_bwd_d(int bands, const double dir[3], const double *d_y, double d_dir[3]);
+PEN_API void pen_sh_eval_bwd(int bands, const float dir[3], const float *d_y, float d_dir[3]);
+PEN_API void pen_sh_eval_bwd_d(int bands, const double dir[3], const double *d_y, double d_dir[3]);
 
 /* ---- Zonal functions ------------------------------------------------------------------------
  * A zonal function (symmetric about +z) is given by its m = 0 coefficients z[l], l < bands. */
@@ -47,21 +47,21 @@ void pen_sh_eval_bwd_d(int bands, const double dir[3], const double *d_y, double
 /* Indicator of a spherical cap of half-angle alpha around +z, given cos(alpha) in [-1, 1]:
  *   z_0 = sqrt(pi) (1 - cos a),  z_l = sqrt(pi / (2l+1)) (P_{l-1}(cos a) - P_{l+1}(cos a)).
  * dz_dcos[l] (may be NULL) receives dz_l / d(cos a) = -sqrt(pi (2l+1)) P_l(cos a). */
-void pen_sh_zonal_cap(int bands, float cos_alpha, float *z, float *dz_dcos);
-void pen_sh_zonal_cap_d(int bands, double cos_alpha, double *z, double *dz_dcos);
+PEN_API void pen_sh_zonal_cap(int bands, float cos_alpha, float *z, float *dz_dcos);
+PEN_API void pen_sh_zonal_cap_d(int bands, double cos_alpha, double *z, double *dz_dcos);
 
 /* Clamped cosine max(cos theta, 0) around +z: 0.886227, 1.023327, 0.495416, 0, -0.110778, ... */
-void pen_sh_zonal_clamped_cosine(int bands, float *z);
-void pen_sh_zonal_clamped_cosine_d(int bands, double *z);
+PEN_API void pen_sh_zonal_clamped_cosine(int bands, float *z);
+PEN_API void pen_sh_zonal_clamped_cosine_d(int bands, double *z);
 
 /* Rotates a zonal function so that its axis points along dir:
  *   out[l, m] = sqrt(4 pi / (2l+1)) z[l] Y_lm(dir). */
-void pen_sh_rotate_zonal(int bands, const float *z, const float dir[3], float *out);
-void pen_sh_rotate_zonal_d(int bands, const double *z, const double dir[3], double *out);
-void pen_sh_rotate_zonal_bwd(int bands, const float *z, const float dir[3], const float *d_out,
-                             float *d_z, float d_dir[3]);
-void pen_sh_rotate_zonal_bwd_d(int bands, const double *z, const double dir[3],
-                               const double *d_out, double *d_z, double d_dir[3]);
+PEN_API void pen_sh_rotate_zonal(int bands, const float *z, const float dir[3], float *out);
+PEN_API void pen_sh_rotate_zonal_d(int bands, const double *z, const double dir[3], double *out);
+PEN_API void pen_sh_rotate_zonal_bwd(int bands, const float *z, const float dir[3],
+                                     const float *d_out, float *d_z, float d_dir[3]);
+PEN_API void pen_sh_rotate_zonal_bwd_d(int bands, const double *z, const double dir[3],
+                                       const double *d_out, double *d_z, double d_dir[3]);
 
 /* ---- Product ---------------------------------------------------------------------------------
  * The product tensor Gamma_ijk = integral of Y_i Y_j Y_k over the sphere, computed once per band
@@ -83,15 +83,15 @@ typedef struct pen_sh_gaunt {
 
 /* The table for `bands` (1 .. PEN_SH_MAX_BANDS); built on first use (thread-safe), owned by the
  * library, never freed by the caller. Returns NULL if bands is out of range. */
-const pen_sh_gaunt *pen_sh_gaunt_table(int bands);
+PEN_API const pen_sh_gaunt *pen_sh_gaunt_table(int bands);
 
 /* c = a * b (c must not alias a or b). */
-void pen_sh_product(const pen_sh_gaunt *g, const float *a, const float *b, float *c);
-void pen_sh_product_d(const pen_sh_gaunt *g, const double *a, const double *b, double *c);
-void pen_sh_product_bwd(const pen_sh_gaunt *g, const float *a, const float *b, const float *d_c,
-                        float *d_a, float *d_b);
-void pen_sh_product_bwd_d(const pen_sh_gaunt *g, const double *a, const double *b,
-                          const double *d_c, double *d_a, double *d_b);
+PEN_API void pen_sh_product(const pen_sh_gaunt *g, const float *a, const float *b, float *c);
+PEN_API void pen_sh_product_d(const pen_sh_gaunt *g, const double *a, const double *b, double *c);
+PEN_API void pen_sh_product_bwd(const pen_sh_gaunt *g, const float *a, const float *b,
+                                const float *d_c, float *d_a, float *d_b);
+PEN_API void pen_sh_product_bwd_d(const pen_sh_gaunt *g, const double *a, const double *b,
+                                  const double *d_c, double *d_a, double *d_b);
 
 /* ---- Log-visibility of one sphere ------------------------------------------------------------
  * Seen from receiver x, a sphere (c, r) covers the cap of half-angle alpha = asin(r / |c - x|)
@@ -105,14 +105,16 @@ void pen_sh_product_bwd_d(const pen_sh_gaunt *g, const double *a, const double *
  *   deep inside sees the whole sphere blocked (f = DC only). |c - x| is floored at 1e-6 r. */
 #define PEN_SH_CAP_T0 1e-2
 
-void pen_sh_logvis(int bands, const float x[3], const float c[3], float r, float eps, float *f);
-void pen_sh_logvis_d(int bands, const double x[3], const double c[3], double r, double eps,
-                     double *f);
-void pen_sh_logvis_bwd(int bands, const float x[3], const float c[3], float r, float eps,
-                       const float *d_f, float d_x[3], float d_c[3], float *d_r, float *d_eps);
-void pen_sh_logvis_bwd_d(int bands, const double x[3], const double c[3], double r, double eps,
-                         const double *d_f, double d_x[3], double d_c[3], double *d_r,
-                         double *d_eps);
+PEN_API void pen_sh_logvis(int bands, const float x[3], const float c[3], float r, float eps,
+                           float *f);
+PEN_API void pen_sh_logvis_d(int bands, const double x[3], const double c[3], double r, double eps,
+                             double *f);
+PEN_API void pen_sh_logvis_bwd(int bands, const float x[3], const float c[3], float r, float eps,
+                               const float *d_f, float d_x[3], float d_c[3], float *d_r,
+                               float *d_eps);
+PEN_API void pen_sh_logvis_bwd_d(int bands, const double x[3], const double c[3], double r,
+                                 double eps, const double *d_f, double d_x[3], double d_c[3],
+                                 double *d_r, double *d_eps);
 
 /* ---- SH exponential ---------------------------------------------------------------------------
  * V = exp*(F), the SH coefficients of exp(F(omega)) (supplement sec. 4.2):
@@ -147,19 +149,20 @@ typedef struct pen_sh_exp_model {
 /* The model for a method at a band count: PAPER and EXACT have fixed definitions (with
  * epsilon = 4, the supplement's setting); CALIBRATED comes from the shipped parameter table
  * (src/sh/calibration.c) for bands 3..6 and falls back to the nearest fitted band count. */
-pen_sh_exp_model pen_sh_exp_model_default(pen_sh_exp_method method, int bands);
+PEN_API pen_sh_exp_model pen_sh_exp_model_default(pen_sh_exp_method method, int bands);
 /* Parses "paper", "exact", "calibrated" (or "default"); returns -1 for anything else. */
-int pen_sh_exp_method_parse(const char *name);
-const char *pen_sh_exp_method_name(pen_sh_exp_method method);
+PEN_API int pen_sh_exp_method_parse(const char *name);
+PEN_API const char *pen_sh_exp_method_name(pen_sh_exp_method method);
 
 /* V = exp*(F) under model m (g is the product table for the band count). */
-void pen_sh_exp(const pen_sh_exp_model *m, const pen_sh_gaunt *g, const float *F, float *V);
-void pen_sh_exp_d(const pen_sh_exp_model *m, const pen_sh_gaunt *g, const double *F, double *V);
+PEN_API void pen_sh_exp(const pen_sh_exp_model *m, const pen_sh_gaunt *g, const float *F, float *V);
+PEN_API void pen_sh_exp_d(const pen_sh_exp_model *m, const pen_sh_gaunt *g, const double *F,
+                          double *V);
 /* d_F += (dV/dF)^T d_V. Recomputes the forward's intermediates. */
-void pen_sh_exp_bwd(const pen_sh_exp_model *m, const pen_sh_gaunt *g, const float *F,
-                    const float *d_V, float *d_F);
-void pen_sh_exp_bwd_d(const pen_sh_exp_model *m, const pen_sh_gaunt *g, const double *F,
-                      const double *d_V, double *d_F);
+PEN_API void pen_sh_exp_bwd(const pen_sh_exp_model *m, const pen_sh_gaunt *g, const float *F,
+                            const float *d_V, float *d_F);
+PEN_API void pen_sh_exp_bwd_d(const pen_sh_exp_model *m, const pen_sh_gaunt *g, const double *F,
+                              const double *d_V, double *d_F);
 
 #ifdef __cplusplus
 }

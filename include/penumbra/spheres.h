@@ -30,9 +30,9 @@ typedef struct pen_spheres {
                       data (pen_spheres_free frees both) */
 } pen_spheres;
 
-pen_status pen_spheres_create(pen_context *ctx, int count, pen_spheres *out);
-void pen_spheres_free(pen_spheres *spheres);
-pen_status pen_spheres_load(pen_context *ctx, const char *path, pen_spheres *out);
+PEN_API pen_status pen_spheres_create(pen_context *ctx, int count, pen_spheres *out);
+PEN_API void pen_spheres_free(pen_spheres *spheres);
+PEN_API pen_status pen_spheres_load(pen_context *ctx, const char *path, pen_spheres *out);
 /* Overlap weights: kappa[i] >= 0 per sphere (count floats), chosen so that along a line through
  * the set the weights of the spheres it crosses add up to about PEN_SPHERES_OVERLAP_TARGET (a
  * non-negative least-squares fit over random lines, docs/fit-spheres.md). The renderer multiplies
@@ -41,13 +41,14 @@ pen_status pen_spheres_load(pen_context *ctx, const char *path, pen_spheres *out
  * independent of the thread count); a single sphere gets exactly the target, disjoint spheres
  * about the target, k coincident copies about target / k each. Invariant under a pose (computed
  * in object space). Fails on a radius <= 0 or a non-finite value. */
-pen_status pen_spheres_overlap_weights(pen_context *ctx, const pen_spheres *spheres, float *kappa);
+PEN_API pen_status pen_spheres_overlap_weights(pen_context *ctx, const pen_spheres *spheres,
+                                               float *kappa);
 /* Computes spheres->weight when it is NULL (allocating it); leaves existing weights alone. */
-pen_status pen_spheres_ensure_weights(pen_context *ctx, pen_spheres *spheres);
+PEN_API pen_status pen_spheres_ensure_weights(pen_context *ctx, pen_spheres *spheres);
 /* Writes the spheres; `extra_json` (may be NULL) is a JSON object text whose members are added
  * at the top level (e.g. "metrics"). Atomic: temp file + rename. */
-pen_status pen_spheres_save(pen_context *ctx, const char *path, const pen_spheres *spheres,
-                            const char *extra_json);
+PEN_API pen_status pen_spheres_save(pen_context *ctx, const char *path, const pen_spheres *spheres,
+                                    const char *extra_json);
 
 #ifdef __cplusplus
 }

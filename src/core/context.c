@@ -1,14 +1,11 @@
 /* Context: last error with its place, thread count. No global state. */
 #include "core/internal.h"
+#include "penumbra/version.h"
 
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-
-#ifndef PEN_VERSION
-#define PEN_VERSION "unknown"
-#endif
 
 pen_context *pen_context_create(void) {
     return calloc(1, sizeof(pen_context));
@@ -54,7 +51,7 @@ const char *pen_status_string(pen_status status) {
 }
 
 const char *pen_version(void) {
-    return PEN_VERSION;
+    return PEN_VERSION_STRING;
 }
 
 pen_status pen__error(pen_context *ctx, pen_status status, const char *fmt, ...) {

@@ -137,7 +137,7 @@ pen_status pen__json_floats(pen_context *ctx, const pen__json_where *w, const cJ
     cJSON_ArrayForEach(e, item) {
         pen__json_where wi;
         pen__json_index(w, i, &wi);
-        double v;
+        double v = 0.0; /* set on success; GCC cannot see that once the call is inlined */
         pen_status s = pen__json_number(ctx, &wi, e, lo, hi, range, &v);
         if (s) return s;
         /* A finite double can still overflow a float. */
