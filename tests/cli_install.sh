@@ -60,7 +60,11 @@ missing=$(comm -23 "$T/declared" "$T/exported")
 [ -z "$missing" ] || fail "declared PEN_API but not exported: $(echo $missing)"
 sh "$SRC/scripts/pen_api.sh" --check "$SRC/include/penumbra" || fail "pen_api.sh --check"
 # The Python binding calls only exported functions (the names its ctypes declarations use).
-grep -ho '"pen_[a-z0-9_]*"' "$SRC"/python/penumbra/*.py | tr -d '"' | sort -u >"$T/python_uses"
+# Quoted struct names (the layout table's keys) are types, not symbols: left out.
+grep -ho 'typedef struct pen_[a-z0-9_]*' "$P"/include/penumbra/*.h | awk '{print $3}' | sort -u \
+    >"$T/types"
+grep -ho '"pen_[a-z0-9_]*"' "$SRC"/python/penumbra/*.py | tr -d '"' | sort -u |
+    comm -23 - "$T/types" >"$T/python_uses"
 missing=$(comm -23 "$T/python_uses" "$T/exported")
 [ -z "$missing" ] || fail "python/penumbra uses symbols not exported: $(echo $missing)"
 
