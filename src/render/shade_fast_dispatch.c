@@ -26,7 +26,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#if defined(__x86_64__) || defined(__i386__)
+#if defined(__x86_64__)
 extern const pen__shade_fast_ops pen__shade_fast_ops_avx512, pen__shade_fast_ops_avx2,
     pen__shade_fast_ops_sse2;
 static const pen__shade_fast_ops *const variants[] = {
