@@ -478,7 +478,7 @@ static void test_kernel_option(void) {
     pen_scene_free(&sc);
 }
 
-/* ---- Every variant ------------------------------------------------------------------------------ */
+/* ---- Every variant --------------------------------------------------------------------------- *
 
 /* Runs fn with each variant of the fast kernel this processor runs, from the process's choice down
  * to the baseline, then restores the choice. */
@@ -497,10 +497,18 @@ static void each_variant(void (*fn)(void)) {
     CHECK(pen__shade_fast_use(first));
 }
 
-static void test_random_pixels_each(void) { each_variant(test_random_pixels); }
-static void test_kappa_each(void) { each_variant(test_kappa); }
-static void test_frames_each(void) { each_variant(test_frames_fast_vs_scalar); }
-static void test_threads_each(void) { each_variant(test_threads_bitwise); }
+static void test_random_pixels_each(void) {
+    each_variant(test_random_pixels);
+}
+static void test_kappa_each(void) {
+    each_variant(test_kappa);
+}
+static void test_frames_each(void) {
+    each_variant(test_frames_fast_vs_scalar);
+}
+static void test_threads_each(void) {
+    each_variant(test_threads_bitwise);
+}
 
 /* The choice: the baseline always runs; PEN_CPU naming a variant this processor runs is obeyed;
  * without PEN_CPU the widest is taken. */

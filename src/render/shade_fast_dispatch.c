@@ -20,8 +20,8 @@
  *   AVX-512, whether the operating system saves the wide registers; the variant's compiler flags
  *   (CMakeLists.txt) and the features tested here are the same list.
  */
-#include "render/render_internal.h"
 #include "penumbra/render.h"
+#include "render/render_internal.h"
 
 #include <stdlib.h>
 #include <string.h>
@@ -40,8 +40,10 @@ static int cpu_runs(int v) {
                __builtin_cpu_supports("avx512bw") && __builtin_cpu_supports("avx512vl") &&
                __builtin_cpu_supports("avx512cd") && __builtin_cpu_supports("avx2") &&
                __builtin_cpu_supports("fma");
-    case 1: return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
-    default: return 1; /* SSE2 is part of x86-64 */
+    case 1:
+        return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+    default:
+        return 1; /* SSE2 is part of x86-64 */
     }
 }
 #else
@@ -78,7 +80,9 @@ static const pen__shade_fast_ops *ops(void) {
     return variants[v];
 }
 
-int pen__shade_fast_variants(void) { return VARIANTS; }
+int pen__shade_fast_variants(void) {
+    return VARIANTS;
+}
 
 const pen__shade_fast_ops *pen__shade_fast_variant_ops(int v) {
     return v >= 0 && v < VARIANTS && cpu_runs(v) ? variants[v] : NULL;
@@ -90,7 +94,9 @@ int pen__shade_fast_use(int v) {
     return 1;
 }
 
-const pen__shade_fast_ops *pen__shade_fast_current(void) { return ops(); }
+const pen__shade_fast_ops *pen__shade_fast_current(void) {
+    return ops();
+}
 
 int pen__shade_fast_supported(const pen__shade_params *p) {
     return p->bands >= 3 && p->bands <= 6 &&
@@ -108,8 +114,8 @@ size_t pen__shade_fast_scratch_bytes(const pen__shade_params *p, int sphere_coun
 
 void pen__shade_fast_fwd(const pen__shade_params *p, const float (*sh)[3], int sphere_count,
                          const float *spheres, const float *kappa, int count, int ground,
-                         const float *x, const float *n, const float *rho, float *rgb,
-                         float *store, void *scratch, pen__shade_fast_ticks *ticks) {
+                         const float *x, const float *n, const float *rho, float *rgb, float *store,
+                         void *scratch, pen__shade_fast_ticks *ticks) {
     ops()->fwd(p, sh, sphere_count, spheres, kappa, count, ground, x, n, rho, rgb, store, scratch,
                ticks);
 }
@@ -119,8 +125,10 @@ void pen__shade_fast_bwd(const pen__shade_params *p, const float (*sh)[3], int s
                          const float *x, const float *n, const float *rho, const float *d_rgb,
                          const float *store, void *scratch, double (*d_sh)[3], double *d_spheres,
                          float *d_x, float *d_n, float *d_rho, pen__shade_fast_ticks *ticks) {
-    ops()->bwd(p, sh, sphere_count, spheres, kappa, count, ground, x, n, rho, d_rgb, store,
-               scratch, d_sh, d_spheres, d_x, d_n, d_rho, ticks);
+    ops()->bwd(p, sh, sphere_count, spheres, kappa, count, ground, x, n, rho, d_rgb, store, scratch,
+               d_sh, d_spheres, d_x, d_n, d_rho, ticks);
 }
 
-int pen_render_fast_lanes(void) { return ops()->lanes; }
+int pen_render_fast_lanes(void) {
+    return ops()->lanes;
+}
