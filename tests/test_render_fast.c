@@ -478,7 +478,7 @@ static void test_kernel_option(void) {
     pen_scene_free(&sc);
 }
 
-/* ---- Every variant -------------------------------------------------------------------------- */
+/* ---- Every variant --------------------------------------------------------------------------- */
 
 /* Runs fn with each variant of the fast kernel this processor runs, from the process's choice down
  * to the baseline, then restores the choice. */
