@@ -4,7 +4,9 @@
  * pixel counts not multiples of the lane count, receivers inside spheres, overlap weights kappa
  * (some 0); then whole frames
  * through pen_render_fwd / pen_render_bwd (fast vs scalar kernel option), and thread-count
- * independence of the fast path.
+ * independence of the fast path. The kernel's checks run once per variant (instruction set) this
+ * processor runs, from the one the process chose (PEN_CPU may name a narrower one) down to the
+ * baseline.
  *
  * Tolerances. Both kernels compute in float; the reference is double. The error budget is float
  * rounding through the chain: sums of up to 33 sphere terms, two or more squarings (each a sum of
@@ -240,8 +242,8 @@ static void test_random_pixels(void) {
         }
     /* A single pixel and a batch and a half. */
     check_random_pixels(4, PEN_SH_EXP_CALIBRATED, 1, 5, 1, verbose);
-    check_random_pixels(4, PEN_SH_EXP_CALIBRATED, 1, 5, PEN_FAST_LANES + PEN_FAST_LANES / 2,
-                        verbose);
+    const int lanes = pen_render_fast_lanes();
+    check_random_pixels(4, PEN_SH_EXP_CALIBRATED, 1, 5, lanes + lanes / 2, verbose);
 }
 
 /* ---- Whole frames ------------------------------------------------------------------------------ */
@@ -476,5 +478,58 @@ static void test_kernel_option(void) {
     pen_scene_free(&sc);
 }
 
-RUN_TESTS(TEST(test_random_pixels), TEST(test_kappa), TEST(test_frames_fast_vs_scalar), TEST(test_threads_bitwise),
-          TEST(test_kernel_option), TEST(test_background_cache))
+/* ---- Every variant --------------------------------------------------------------------------- */
+
+/* Runs fn with each variant of the fast kernel this processor runs, from the process's choice down
+ * to the baseline, then restores the choice. */
+static void each_variant(void (*fn)(void)) {
+    const pen__shade_fast_ops *chosen = pen__shade_fast_current();
+    int first = 0;
+    while (pen__shade_fast_variant_ops(first) != chosen)
+        ++first;
+    for (int v = first; v < pen__shade_fast_variants(); ++v) {
+        if (!pen__shade_fast_use(v)) continue;
+        const pen__shade_fast_ops *o = pen__shade_fast_current();
+        CHECK(pen_render_fast_lanes() == o->lanes);
+        printf("  variant %s (%d lanes)\n", o->name, o->lanes);
+        fn();
+    }
+    CHECK(pen__shade_fast_use(first));
+}
+
+static void test_random_pixels_each(void) {
+    each_variant(test_random_pixels);
+}
+static void test_kappa_each(void) {
+    each_variant(test_kappa);
+}
+static void test_frames_each(void) {
+    each_variant(test_frames_fast_vs_scalar);
+}
+static void test_threads_each(void) {
+    each_variant(test_threads_bitwise);
+}
+
+/* The choice: the baseline always runs; PEN_CPU naming a variant this processor runs is obeyed;
+ * without PEN_CPU the widest is taken. */
+static void test_variant_choice(void) {
+    const int nv = pen__shade_fast_variants();
+    CHECK(nv >= 1 && pen__shade_fast_variant_ops(nv - 1) != NULL);
+    CHECK(pen__shade_fast_variant_ops(nv) == NULL && pen__shade_fast_variant_ops(-1) == NULL);
+    CHECK(!pen__shade_fast_use(nv));
+    const char *want = getenv("PEN_CPU");
+    int widest = 0;
+    while (!pen__shade_fast_variant_ops(widest))
+        ++widest;
+    const char *expect = pen__shade_fast_variant_ops(widest)->name;
+    for (int v = widest; want && v < nv; ++v)
+        if (!strcmp(want, pen__shade_fast_variant_ops(v)->name)) expect = want;
+    printf("  in use: %s (%d lanes); PEN_CPU %s\n", pen__shade_fast_current()->name,
+           pen_render_fast_lanes(), want ? want : "unset");
+    CHECK_MSG(!strcmp(pen__shade_fast_current()->name, expect), "in use %s, expected %s",
+              pen__shade_fast_current()->name, expect);
+}
+
+RUN_TESTS(TEST(test_variant_choice), TEST(test_random_pixels_each), TEST(test_kappa_each),
+          TEST(test_frames_each), TEST(test_threads_each), TEST(test_kernel_option),
+          TEST(test_background_cache))

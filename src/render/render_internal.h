@@ -52,28 +52,34 @@ void pen__shade_bwd_d(const pen__shade_params *p, const double (*sh)[3], int sph
                       const double *fv, double (*d_sh)[3], double *d_spheres, double d_x[3],
                       double d_n[3], double d_rho[3]);
 
-/* ---- Fast kernel (shade_fast.c) ---------------------------------------------------------------
+/* ---- Fast kernel (shade_fast.c, shade_fast_dispatch.c) -----------------------------------------
  * The same shading as pen__shade_fwd / pen__shade_bwd, for many pixels at once: pixels go in
- * batches of PEN_FAST_LANES through structure-of-arrays lane vectors (one AVX-512 register of
+ * batches of lanes through structure-of-arrays lane vectors (16 lanes: one AVX-512 register of
  * floats), with straight-line SH products generated per band count (src/sh/sh_fast_product.inc).
  * Supports bands 3..6, with shadows the CALIBRATED and PAPER exponentials, without shadows
  * (V == 1) every method (pen__shade_fast_supported); the renderer uses the scalar kernel for
  * anything else. kappa (may be NULL: all 1) scales
- * sphere i's log-visibility, F = sum_i w_i kappa_i f_i; it is not differentiated. */
-#if defined(__AVX512F__)
-#define PEN_FAST_LANES 16
-#elif defined(__AVX__)
-#define PEN_FAST_LANES 8
-#else
-#define PEN_FAST_LANES 4
-#endif
+ * sphere i's log-visibility, F = sum_i w_i kappa_i f_i; it is not differentiated.
+ * The kernel exists in one variant per instruction set; the functions below call the variant
+ * chosen once per process (the widest the processor runs, or a lower one named by the environment
+ * variable PEN_CPU: avx512, avx2, sse2). Lane count, store layout and sums differ between variants:
+ * a forward and its backward must run with the same one. */
 
 /* Clock ticks spent in the stages of a fast call, added to by each call (for the renderer's
- * stage timings; only ratios of ticks are meaningful). */
+ * stage timings; only ratios of ticks are meaningful). Inline: the kernel reads it per batch. */
 typedef struct pen__shade_fast_ticks {
     unsigned long long visibility, exp;
 } pen__shade_fast_ticks;
-unsigned long long pen__shade_fast_now(void);
+#if defined(__x86_64__) || defined(__i386__)
+static inline unsigned long long pen__shade_fast_now(void) {
+    return (unsigned long long)__builtin_ia32_rdtsc();
+}
+#else
+#include <omp.h>
+static inline unsigned long long pen__shade_fast_now(void) {
+    return (unsigned long long)(omp_get_wtime() * 1e9);
+}
+#endif
 
 int pen__shade_fast_supported(const pen__shade_params *p);
 /* Floats per pixel of the forward's store (F, for the backward), in whole batches: a call with
@@ -98,6 +104,33 @@ void pen__shade_fast_bwd(const pen__shade_params *p, const float (*sh)[3], int s
                          const float *x, const float *n, const float *rho, const float *d_rgb,
                          const float *store, void *scratch, double (*d_sh)[3], double *d_spheres,
                          float *d_x, float *d_n, float *d_rho, pen__shade_fast_ticks *ticks);
+
+/* One variant: its entry points (the functions above without the dispatch), exported by each
+ * compilation of shade_fast.c as pen__shade_fast_ops_<name>. */
+typedef struct pen__shade_fast_ops {
+    const char *name; /* "avx512", "avx2", "sse2" or "generic" (not x86) */
+    int lanes;
+    size_t (*store_floats)(const pen__shade_params *p, int count);
+    size_t (*scratch_bytes)(const pen__shade_params *p, int sphere_count, int max_count);
+    void (*fwd)(const pen__shade_params *p, const float (*sh)[3], int sphere_count,
+                const float *spheres, const float *kappa, int count, int ground, const float *x,
+                const float *n, const float *rho, float *rgb, float *store, void *scratch,
+                pen__shade_fast_ticks *ticks);
+    void (*bwd)(const pen__shade_params *p, const float (*sh)[3], int sphere_count,
+                const float *spheres, const float *kappa, int count, int ground, const float *x,
+                const float *n, const float *rho, const float *d_rgb, const float *store,
+                void *scratch, double (*d_sh)[3], double *d_spheres, float *d_x, float *d_n,
+                float *d_rho, pen__shade_fast_ticks *ticks);
+} pen__shade_fast_ops;
+
+/* Test and benchmark hooks. Variants are numbered widest first, 0 .. pen__shade_fast_variants()-1;
+ * pen__shade_fast_variant_ops(v) is variant v's table, or NULL when this processor cannot run it.
+ * pen__shade_fast_use(v) makes v the one in use (returns 0 when it cannot run here); not while
+ * another thread renders. pen__shade_fast_current() is the one in use. */
+int pen__shade_fast_variants(void);
+const pen__shade_fast_ops *pen__shade_fast_variant_ops(int v);
+int pen__shade_fast_use(int v);
+const pen__shade_fast_ops *pen__shade_fast_current(void);
 
 /* Bilinear texture lookup (3 channels), repeat wrap, texel centres at ((i + 0.5) / W,
  * 1 - (j + 0.5) / H) in (u, v) with v up (row 0 is the top of the image). */

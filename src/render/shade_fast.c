@@ -2,7 +2,13 @@
  * exponential, diffuse SH shading, and their backward) for batches of pixels at once.
  *
  * Design
- * - Lanes. A batch is PEN_FAST_LANES pixels (16 with AVX-512: one register of floats) held as
+ * - Variants. This file is compiled once per instruction set (CMakeLists.txt): PEN_FAST_ISA names
+ *   it (avx512: 16 lanes, avx2: 8 lanes with FMA, sse2: 4 lanes, the x86-64 baseline; generic:
+ *   4 lanes of plain vector code, other processors) and suffixes the one symbol each copy
+ *   exports, its table of entry points (pen__shade_fast_ops_<isa>). shade_fast_dispatch.c picks
+ *   the widest copy the processor runs, so that a build for any x86-64 still shades with AVX-512
+ *   where it exists; the rest of the library needs no special instructions.
+ * - Lanes. A batch is LANES pixels (16 with AVX-512: one register of floats) held as
  *   structure-of-arrays lane vectors (GCC vector extensions), so that every operation of the chain
  *   is one vector instruction for the whole batch. The renderer hands over the shaded pixels of
  *   one lighting group of a screen tile (background pixels removed), so the lanes are full except
@@ -35,23 +41,45 @@
  */
 #include "core/internal.h"
 #include "render/render_internal.h"
-#include "penumbra/render.h"
 #include "sh/sh_internal.h"
 
 #include <math.h>
 #include <stdint.h>
 #include <string.h>
 
-#if defined(__x86_64__) || defined(__i386__)
+#if defined(__x86_64__)
 #include <immintrin.h>
-#include <x86intrin.h>
 #define HAVE_X86 1
 #else
-#include <omp.h>
 #define HAVE_X86 0
 #endif
 
-#define LANES PEN_FAST_LANES
+/* The variant: lanes from PEN_FAST_ISA, which CMake sets together with the instruction-set flags
+ * (the intrinsics below need them); a compilation outside CMake gets the widest its flags allow. */
+#define ISA_avx512 16
+#define ISA_avx2 8
+#define ISA_sse2 4
+#define ISA_generic 4
+#ifndef PEN_FAST_ISA
+#if defined(__AVX512F__)
+#define PEN_FAST_ISA avx512
+#elif defined(__AVX2__) && defined(__FMA__)
+#define PEN_FAST_ISA avx2
+#elif HAVE_X86
+#define PEN_FAST_ISA sse2
+#else
+#define PEN_FAST_ISA generic
+#endif
+#endif
+#define CAT_(a, b) a##b
+#define CAT(a, b) CAT_(a, b)
+#define LANES CAT(ISA_, PEN_FAST_ISA)
+#if LANES == 16 && !defined(__AVX512F__)
+#error "the avx512 variant needs -mavx512f (and -mfma)"
+#endif
+#if LANES == 8 && !(defined(__AVX2__) && defined(__FMA__))
+#error "the avx2 variant needs -mavx2 -mfma"
+#endif
 #define INLINE static inline __attribute__((always_inline))
 
 typedef float vf __attribute__((vector_size(4 * LANES)));
@@ -206,14 +234,6 @@ static inline void scatter3(const vf v[3], int first, int count, float *dst, int
     }
 }
 
-unsigned long long pen__shade_fast_now(void) {
-#if HAVE_X86
-    return (unsigned long long)__rdtsc();
-#else
-    return (unsigned long long)(omp_get_wtime() * 1e9);
-#endif
-}
-
 /* ---- Frame constants ---------------------------------------------------------------------------- */
 
 /* What every batch of a call shares, in float. */
@@ -232,12 +252,6 @@ typedef struct frame {
     vf hzs_v[PEN_SH_MAX_BANDS];      /* the same, broadcast */
     float L[PEN_SH_MAX_COEFFS][3];   /* lighting */
 } frame;
-
-int pen__shade_fast_supported(const pen__shade_params *p) {
-    return p->bands >= 3 && p->bands <= 6 &&
-           (!p->shadows || p->model.method == PEN_SH_EXP_CALIBRATED ||
-            p->model.method == PEN_SH_EXP_PAPER);
-}
 
 static void frame_init(frame *fr, const pen__shade_params *p, const float (*sh)[3], int S,
                        const float *spheres, const float *inv_r, const float *kappa) {
@@ -293,7 +307,7 @@ static void frame_init(frame *fr, const pen__shade_params *p, const float (*sh)[
 
 /* ---- Entry points -------------------------------------------------------------------------------- */
 
-size_t pen__shade_fast_store_floats(const pen__shade_params *p, int count) {
+static size_t store_floats(const pen__shade_params *p, int count) {
     if (!p->shadows) return 0;
     const size_t nb = ((size_t)count + LANES - 1) / LANES;
     return nb * LANES * (size_t)p->bands * (size_t)p->bands;
@@ -301,7 +315,7 @@ size_t pen__shade_fast_store_floats(const pen__shade_params *p, int count) {
 
 /* Scratch: 1/r per sphere, then (aligned) the lane arrays: forward F and V of every batch;
  * backward the lane accumulators of d_sh (two sets: see bwd_FB) and d_spheres. */
-size_t pen__shade_fast_scratch_bytes(const pen__shade_params *p, int sphere_count, int max_count) {
+static size_t scratch_bytes(const pen__shade_params *p, int sphere_count, int max_count) {
     const size_t nc = (size_t)p->bands * (size_t)p->bands;
     const size_t nb = ((size_t)max_count + LANES - 1) / LANES;
     size_t fwd = 2 * nb * nc, bwd = 6 * nc + 4 * (size_t)sphere_count;
@@ -327,10 +341,10 @@ static unsigned char *frame_setup(frame *fr, const pen__shade_params *p, const f
     return scratch_lanes(scratch, S);
 }
 
-void pen__shade_fast_fwd(const pen__shade_params *p, const float (*sh)[3], int sphere_count,
-                         const float *spheres, const float *kappa, int count, int ground,
-                         const float *x, const float *n, const float *rho, float *rgb,
-                         float *store, void *scratch, pen__shade_fast_ticks *ticks) {
+static void shade_fwd(const pen__shade_params *p, const float (*sh)[3], int sphere_count,
+                      const float *spheres, const float *kappa, int count, int ground,
+                      const float *x, const float *n, const float *rho, float *rgb, float *store,
+                      void *scratch, pen__shade_fast_ticks *ticks) {
     if (count <= 0) return;
     frame fr;
     unsigned char *lanes = frame_setup(&fr, p, sh, sphere_count, spheres, kappa, scratch);
@@ -343,11 +357,11 @@ void pen__shade_fast_fwd(const pen__shade_params *p, const float (*sh)[3], int s
     }
 }
 
-void pen__shade_fast_bwd(const pen__shade_params *p, const float (*sh)[3], int sphere_count,
-                         const float *spheres, const float *kappa, int count, int ground,
-                         const float *x, const float *n, const float *rho, const float *d_rgb,
-                         const float *store, void *scratch, double (*d_sh)[3], double *d_spheres,
-                         float *d_x, float *d_n, float *d_rho, pen__shade_fast_ticks *ticks) {
+static void shade_bwd(const pen__shade_params *p, const float (*sh)[3], int sphere_count,
+                      const float *spheres, const float *kappa, int count, int ground,
+                      const float *x, const float *n, const float *rho, const float *d_rgb,
+                      const float *store, void *scratch, double (*d_sh)[3], double *d_spheres,
+                      float *d_x, float *d_n, float *d_rho, pen__shade_fast_ticks *ticks) {
     if (count <= 0) return;
     frame fr;
     unsigned char *lanes = frame_setup(&fr, p, sh, sphere_count, spheres, kappa, scratch);
@@ -372,4 +386,8 @@ void pen__shade_fast_bwd(const pen__shade_params *p, const float (*sh)[3], int s
     }
 }
 
-int pen_render_fast_lanes(void) { return LANES; }
+#define STR_(x) #x
+#define STR(x) STR_(x)
+const pen__shade_fast_ops CAT(pen__shade_fast_ops_, PEN_FAST_ISA) = {
+    STR(PEN_FAST_ISA), LANES, store_floats, scratch_bytes, shade_fwd, shade_bwd,
+};
