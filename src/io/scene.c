@@ -59,14 +59,6 @@ static pen_status opt_floats(pen_context *ctx, const where *w, const cJSON *obj,
     return pen__json_floats(ctx, &wk, item, 3, lo, hi, out);
 }
 
-/* Re-records the context's current error (from a referenced file) behind the key that named the
- * file: "scene.json: objects[0].mesh: spot.obj:12: ...". */
-static pen_status wrap(pen_context *ctx, const where *w, pen_status s) {
-    char inner[1024];
-    snprintf(inner, sizeof inner, "%s", pen_context_error(ctx));
-    return pen__json_error(ctx, s, w, "%s", inner);
-}
-
 /* ---- Loading --------------------------------------------------------------------------------- */
 
 static pen_status parse_camera(pen_context *ctx, const where *top, const cJSON *root,
@@ -142,7 +134,7 @@ static pen_status parse_lighting(pen_context *ctx, const char *path, const where
         s = pen_image_load(ctx, L->envmap_path, &L->envmap);
         if (!s && !sh)
             s = pen_envmap_to_sh(ctx, &L->envmap, bands, L->rotation_y_deg, L->scale, L->sh);
-        if (s) return wrap(ctx, &we, s);
+        if (s) return pen__json_wrap(ctx, s, &we);
     }
     if (sh) {
         where ws = at(&w, "sh");
@@ -242,11 +234,11 @@ static pen_status parse_spheres(pen_context *ctx, const char *path, const where 
         s = pen_spheres_load(ctx, obj->spheres_path, &obj->spheres);
         /* Files written before overlap weights existed get them now (pen_spheres.weight). */
         if (!s) s = pen_spheres_ensure_weights(ctx, &obj->spheres);
-        return s ? wrap(ctx, w, s) : PEN_OK;
+        return s ? pen__json_wrap(ctx, s, w) : PEN_OK;
     }
     if (cJSON_IsArray(item)) {
         pen_status s = pen__spheres_from_json(ctx, w, item, &obj->spheres);
-        if (!s && (s = pen_spheres_ensure_weights(ctx, &obj->spheres))) s = wrap(ctx, w, s);
+        if (!s && (s = pen_spheres_ensure_weights(ctx, &obj->spheres))) s = pen__json_wrap(ctx, s, w);
         return s;
     }
     if (cJSON_IsObject(item)) {
@@ -287,7 +279,7 @@ static pen_status parse_object(pen_context *ctx, const char *path, const where *
     obj->mesh_path = pen__io_path_resolve(ctx, path, mesh_rel);
     if (!obj->mesh_path) return PEN_ERROR_MEMORY;
     s = pen_mesh_load(ctx, obj->mesh_path, &obj->mesh);
-    if (s) return wrap(ctx, &wm, s);
+    if (s) return pen__json_wrap(ctx, s, &wm);
 
     /* The texture: given, or the mesh material's map_Kd when no constant albedo is given. */
     const where *wtex = &wt;
@@ -304,7 +296,7 @@ static pen_status parse_object(pen_context *ctx, const char *path, const where *
             return pen__json_error(ctx, PEN_ERROR_PARSE, wtex,
                                    "a texture needs a mesh with texture coordinates");
         s = pen_image_load(ctx, obj->texture_path, &obj->texture);
-        if (s) return wrap(ctx, wtex, s);
+        if (s) return pen__json_wrap(ctx, s, wtex);
     }
     return parse_spheres(ctx, path, &ws, member(o, "spheres"), obj);
 }
