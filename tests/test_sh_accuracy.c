@@ -2,6 +2,7 @@
  * and the calibrated model's accuracy claims on a held-out seed. */
 #include "check.h"
 #include "penumbra/accuracy.h"
+#include "penumbra/io.h"
 #include "sh/sh_internal.h"
 
 #include <string.h>

@@ -9,9 +9,11 @@
 #define PENUMBRA_H
 
 #include "penumbra/core.h"
+#include "penumbra/envmap.h"
 #include "penumbra/fit.h"
 #include "penumbra/flat.h"
 #include "penumbra/image.h"
+#include "penumbra/io.h"
 #include "penumbra/mesh.h"
 #include "penumbra/metrics.h"
 #include "penumbra/optim.h"

@@ -34,6 +34,7 @@
  */
 #include "core/internal.h"
 #include "core/random.h"
+#include "penumbra/fit.h"
 #include "penumbra/spheres.h"
 
 #include <omp.h>

@@ -21,7 +21,8 @@
  * small undershoots of lossy EXR codecs) are clamped to 0 before projecting, as in lookups. The
  * sums run in double, row by row, in a fixed order (deterministic). */
 #include "io/io_internal.h"
-#include "penumbra/scene.h"
+#include "penumbra/envmap.h"
+#include "penumbra/sh.h"
 
 #include <stdlib.h>
 #include <string.h>

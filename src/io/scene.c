@@ -6,7 +6,9 @@
  * scene references (a mesh, a texture) are prefixed with the key that named them. Unknown keys
  * are errors, because a misspelt optional key ("albdeo") would otherwise be silently ignored;
  * keys starting with '_' are comments. Defaults are applied here and nowhere else. */
-#include "penumbra/scene.h"
+#include "penumbra/envmap.h"
+#include "penumbra/fit.h"
+#include "penumbra/io.h"
 #include "io/io_internal.h"
 #include "io/spheres_json.h"
 
@@ -425,24 +427,6 @@ pen_status pen_scene_load(pen_context *ctx, const char *path, pen_scene *out) {
     s = scene_from_text(ctx, text, size, path, out);
     free(text);
     return s;
-}
-
-void pen_scene_free(pen_scene *scene) {
-    if (!scene) return;
-    for (int i = 0; i < scene->object_count; ++i) {
-        pen_object *o = &scene->objects[i];
-        pen_mesh_free(&o->mesh);
-        pen_image_free(&o->texture);
-        pen_spheres_free(&o->spheres);
-        free(o->mesh_path);
-        free(o->texture_path);
-        free(o->spheres_path);
-    }
-    free(scene->objects);
-    pen_image_free(&scene->lighting.envmap);
-    free(scene->lighting.envmap_path);
-    free(scene->path);
-    memset(scene, 0, sizeof *scene);
 }
 
 /* ---- Saving ---------------------------------------------------------------------------------- */

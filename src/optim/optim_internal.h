@@ -5,6 +5,7 @@
 
 #include "core/internal.h"
 #include "render/loss.h"
+#include "penumbra/io.h"
 #include "penumbra/optim.h"
 #include "penumbra/mesh.h"
 #include "penumbra/render.h"

@@ -31,13 +31,14 @@
  */
 #include "penumbra/reference.h"
 
+#include "penumbra/envmap.h"
 #include "penumbra/raster.h"
 
 #include "core/internal.h"
 #include "core/vec.h"
 #include "geometry/embree.h"
 #include "reference/internal.h"
-#include "render/render_internal.h"
+#include "scene/texture.h"
 
 #include <omp.h>
 

@@ -15,6 +15,7 @@
 
 #include "core/internal.h"
 #include "penumbra/fit.h"
+#include "penumbra/io.h"
 #include "penumbra/scene.h"
 
 #include <stdio.h>
