@@ -5,9 +5,11 @@
  * so that each error is one line naming the file, the key and the problem; errors from files the
  * scene references (a mesh, a texture) are prefixed with the key that named them. Unknown keys
  * are errors, because a misspelt optional key ("albdeo") would otherwise be silently ignored;
- * keys starting with '_' are comments. Defaults are applied here and nowhere else. */
+ * keys starting with '_' are comments. Defaults are applied here and nowhere else. The loader
+ * only parses: sphere sets keep the overlap weights their JSON gives and get none otherwise
+ * (the renderer computes missing weights once per render state; pen_spheres_ensure_weights
+ * computes them explicitly, as the optimizer and the flat API do). */
 #include "penumbra/envmap.h"
-#include "penumbra/fit.h"
 #include "penumbra/io.h"
 #include "io/io_internal.h"
 #include "io/spheres_json.h"
@@ -234,14 +236,10 @@ static pen_status parse_spheres(pen_context *ctx, const char *path, const where 
         obj->spheres_path = pen__io_path_resolve(ctx, path, rel);
         if (!obj->spheres_path) return PEN_ERROR_MEMORY;
         s = pen_spheres_load(ctx, obj->spheres_path, &obj->spheres);
-        /* Files written before overlap weights existed get them now (pen_spheres.weight). */
-        if (!s) s = pen_spheres_ensure_weights(ctx, &obj->spheres);
         return s ? pen__json_wrap(ctx, s, w) : PEN_OK;
     }
     if (cJSON_IsArray(item)) {
-        pen_status s = pen__spheres_from_json(ctx, w, item, &obj->spheres);
-        if (!s && (s = pen_spheres_ensure_weights(ctx, &obj->spheres))) s = pen__json_wrap(ctx, s, w);
-        return s;
+        return pen__spheres_from_json(ctx, w, item, &obj->spheres);
     }
     if (cJSON_IsObject(item)) {
         static const char *const known[] = {"fit", NULL};
