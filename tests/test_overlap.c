@@ -3,8 +3,8 @@
  * lines, determinism across thread counts, pose invariance, argument errors), the sphere-file
  * "weight" entries (round trip, malformed files), the scene's "shadow.overlap" option (parsing,
  * weights left to be computed after load, the option off rendering exactly the unweighted sum),
- * the optimiser holding them fixed, and one accuracy check against the Embree reference on a fitted, heavily
- * overlapping set. */
+ * the optimiser holding them fixed, and one accuracy check against the Embree reference on a
+ * fitted, heavily overlapping set. */
 #include "io_fixtures.h" /* first: it sets the feature-test macros */
 #include "optim_scenes.h"
 

@@ -30,8 +30,8 @@ void pen_envmap_uv(const float dir[3], float *u, float *v);
  * sh[i][ch] for i < bands^2. Each pixel is weighted by the exact solid angle of its cell,
  * (2 pi / W) (cos theta_top - cos theta_bottom), and sampled at its centre; negative pixel values
  * are clamped to 0. NaN/Inf pixels are an error. */
-pen_status pen_envmap_to_sh(pen_context *ctx, const pen_image *env, int bands,
-                            float rotation_y_deg, float scale, float sh[][3]);
+pen_status pen_envmap_to_sh(pen_context *ctx, const pen_image *env, int bands, float rotation_y_deg,
+                            float scale, float sh[][3]);
 /* The radiance arriving from world direction dir (the background seen along a camera ray):
  * the map rotated by rotation_y_deg and multiplied by scale, bilinear between texel centres
  * (wrapping in u, clamped in v), negative texels clamped to 0. An invalid map gives black. */

@@ -118,7 +118,7 @@ pen_status pen_scene_fit_spheres(pen_context *ctx, pen_scene *scene);
 int pen_fit_json(const pen_fit_settings *settings, const pen_fit_metrics *metrics, char *buf,
                  size_t size);
 
-/* ---- Overlap weights (src/geometry/overlap.c) ------------------------------------------------- */
+/* ---- Overlap weights (src/geometry/overlap.c) ------------------------------------------------ */
 
 /* Overlap weights: kappa[i] >= 0 per sphere (count floats), chosen so that along a line through
  * the set the weights of the spheres it crosses add up to about PEN_SPHERES_OVERLAP_TARGET (a

@@ -21,7 +21,7 @@
 extern "C" {
 #endif
 
-/* ---- Scenes ------------------------------------------------------------------------------------ */
+/* ---- Scenes ---------------------------------------------------------------------------------- */
 
 /* Loads a scene JSON (docs/file-formats.md) with everything it references (meshes, textures,
  * sphere sets, envmap), paths relative to the JSON file. Lighting: "envmap" is projected onto
@@ -46,7 +46,7 @@ pen_status pen_scene_save(pen_context *ctx, const char *path, const pen_scene *s
 pen_status pen_scene_save_ex(pen_context *ctx, const char *path, const pen_scene *scene,
                              unsigned flags);
 
-/* ---- Meshes ------------------------------------------------------------------------------------ */
+/* ---- Meshes ---------------------------------------------------------------------------------- */
 
 /* Loads a mesh by extension (.obj, .ply). Polygons are triangulated as fans; OBJ negative
  * (relative) indices are resolved; zero and out-of-range indices, NaN/Inf coordinates,
@@ -59,7 +59,7 @@ pen_status pen_mesh_load_ply(pen_context *ctx, const char *path, pen_mesh *out);
  * temporary file + rename. pen_mesh_save picks the format by extension (.obj only). */
 pen_status pen_mesh_save(pen_context *ctx, const char *path, const pen_mesh *mesh);
 pen_status pen_mesh_save_obj(pen_context *ctx, const char *path, const pen_mesh *mesh);
-/* ---- Images ------------------------------------------------------------------------------------ */
+/* ---- Images ---------------------------------------------------------------------------------- */
 
 /* Loads .png (8- or 16-bit), .hdr or .exr (by extension) into 3 channels (RGB), linear: grey is
  * replicated, alpha dropped. The size must be within PEN_IMAGE_MAX_DIM and every value finite

@@ -33,8 +33,8 @@ typedef struct pen_mesh {
     char *texture_path;        /* diffuse map from an OBJ's mtllib/map_Kd (resolved path), or NULL */
 } pen_mesh;
 
-/* Checks a mesh (loaded, or built in memory): positive counts within the loaders' cap, finite coordinates,
- * every index in range. Errors (PEN_ERROR_ARGUMENT) name the triangle or vertex. */
+/* Checks a mesh (loaded, or built in memory): positive counts within the loaders' cap, finite
+ * coordinates, every index in range. Errors (PEN_ERROR_ARGUMENT) name the triangle or vertex. */
 pen_status pen_mesh_validate(pen_context *ctx, const pen_mesh *mesh);
 /* Frees the arrays of a mesh and zeroes it; NULL is a no-op. */
 void pen_mesh_free(pen_mesh *mesh);

@@ -1,7 +1,8 @@
 /* penumbra/scene.h -- the model: a scene (camera, lighting, objects with their sphere proxies,
  * ground plane, background), the camera's frame and rays, and the rigid pose with its backward.
- * Implemented in src/scene, which depends on nothing but src/core; files are read and written by
- * penumbra/io.h (the scene JSON of docs/file-formats.md).
+ * Implemented in src/scene, which depends on nothing but src/core (sh.h only gives the lighting's
+ * coefficient count and exponential method); files are read and written by penumbra/io.h (the
+ * scene JSON of docs/file-formats.md).
  *
  * Coordinates: right-handed, Y up, scene units. Angles in the JSON are degrees.
  * Camera: pinhole; image row 0 is the top; pixel (px, py) covers [px, px+1) x [py, py+1) and its
@@ -47,8 +48,8 @@ void pen_pose_rotation(const pen_pose *pose, float R[9]);
 /* Applies the pose to a point. */
 void pen_pose_apply(const pen_pose *pose, const float p[3], float out[3]);
 
-/* Pose backward, beside its forward. */
-/* Gradient of a pose: the same fields as pen_pose, holding d/d(field). */
+/* Gradient of a pose (the backward beside its forward): the same fields as pen_pose, holding
+ * d/d(field). */
 typedef pen_pose pen_pose_grad;
 
 /* Backward of pen_pose_apply: with out = R(a) * (scale * p) + t, adds d_out's pull-back into

@@ -17,8 +17,8 @@ extern "C" {
 #endif
 
 /* The weighted count of spheres along a line through a set (see pen_spheres_overlap_weights in
- * fit.h): a shadow ray through an object gets this many times the blocker depth epsilon. 2, not 1: the
- * calibrated epsilon was fitted on small isolated caps, and proxied objects near a receiver
+ * fit.h): a shadow ray through an object gets this many times the blocker depth epsilon. 2, not 1:
+ * the calibrated epsilon was fitted on small isolated caps, and proxied objects near a receiver
  * subtend large ones, which band-limited visibility darkens less; 2 had the lowest mean render
  * error for Spot and Bob at 1 to 64 spheres under both bundled maps, never more than 9 % above
  * each case's best (docs/fit-spheres.md, "Overlap weights"). */

@@ -66,7 +66,8 @@ static void sample_line(const overlap_settings *s, const float *sph, int i, int 
     uint64_t st = s->seed ^ (PEN__SPLITMIX_GAMMA * (uint64_t)(i + 1)) ^
                   (0xD1B54A32D192ED03ull * (uint64_t)(k + 1));
     (void)pen__splitmix_next(&st); /* decorrelate nearby seeds */
-    const double z = 1.0 - 2.0 * pen__splitmix_uniform(&st), phi = 2.0 * PEN_PI * pen__splitmix_uniform(&st);
+    const double z = 1.0 - 2.0 * pen__splitmix_uniform(&st),
+                 phi = 2.0 * PEN_PI * pen__splitmix_uniform(&st);
     const double sz = sqrt(fmax(0.0, 1.0 - z * z));
     d[0] = sz * cos(phi), d[1] = sz * sin(phi), d[2] = z;
     /* An orthonormal pair perpendicular to d (Frisvad / Duff et al.). */

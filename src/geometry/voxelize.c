@@ -15,9 +15,9 @@
  * meshes (vertices on round coordinates, symmetric about the origin) do not put grid lines
  * exactly through their vertices and edges.
  */
+#include "geometry/voxelize.h"
 #include "core/random.h"
 #include "geometry/embree.h"
-#include "geometry/voxelize.h"
 
 #include <omp.h>
 #include <stdlib.h>

@@ -8,8 +8,8 @@
  *
  * sRGB: the IEC 61966-2-1 curve, decoded exactly (a table for 8-bit, the formula for 16-bit) and
  * encoded with rounding to the nearest 8-bit code after clamping to [0, 1]. */
-#include "penumbra/io.h"
 #include "io/io_internal.h"
+#include "penumbra/io.h"
 
 #include <errno.h>
 #include <limits.h>

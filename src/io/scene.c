@@ -9,10 +9,10 @@
  * only parses: sphere sets keep the overlap weights their JSON gives and get none otherwise
  * (the renderer computes missing weights once per render state; pen_spheres_ensure_weights
  * computes them explicitly, as the optimizer and the flat API do). */
-#include "penumbra/envmap.h"
-#include "penumbra/io.h"
 #include "io/io_internal.h"
 #include "io/spheres_json.h"
+#include "penumbra/envmap.h"
+#include "penumbra/io.h"
 
 #include <float.h>
 #include <stdlib.h>

@@ -3,9 +3,9 @@
  * (or a bare array of sphere objects). Other top-level members are kept by writers and ignored
  * by the reader; inside a sphere object only "center", "radius", the optional overlap "weight"
  * (finite, >= 0; given for every sphere or for none) and "_comments" may appear. */
-#include "penumbra/io.h"
 #include "io/io_internal.h"
 #include "io/spheres_json.h"
+#include "penumbra/io.h"
 
 #include <float.h>
 #include <stdlib.h>

@@ -4,12 +4,12 @@
 #define PEN_OPTIM_INTERNAL_H
 
 #include "core/internal.h"
-#include "render/loss.h"
 #include "penumbra/io.h"
-#include "penumbra/optim.h"
 #include "penumbra/mesh.h"
+#include "penumbra/optim.h"
 #include "penumbra/render.h"
 #include "penumbra/spheres.h"
+#include "render/loss.h"
 
 #include <stdint.h>
 
@@ -101,8 +101,8 @@ static inline pen_status pen__optim_loss_fwd(pen_context *ctx, pen_optim_loss ki
     return pen__loss_weighted_fwd(ctx, kind == PEN_OPTIM_LOSS_L1, image, target, weight, loss);
 }
 static inline void pen__optim_loss_bwd(pen_optim_loss kind, const pen_image *image,
-                                       const pen_image *target, const float *weight,
-                                       double d_loss, pen_image *d_image) {
+                                       const pen_image *target, const float *weight, double d_loss,
+                                       pen_image *d_image) {
     pen__loss_weighted_bwd(kind == PEN_OPTIM_LOSS_L1, image, target, weight, d_loss, d_image);
 }
 /* The SH lighting (sh_bands^2 rows) that best explains `target` by the scene `sc` rendered

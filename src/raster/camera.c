@@ -11,9 +11,9 @@
  * a ray's parameter is the view depth itself. Everything is computed in double; the float
  * entry points convert at the boundary.
  */
+#include "scene/camera.h"
 #include "core/internal.h"
 #include "raster/raster_internal.h"
-#include "scene/camera.h"
 
 #include <math.h>
 

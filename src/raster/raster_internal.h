@@ -27,8 +27,8 @@ void pen__raster_ray_bary_bwd_d(const double eye[3], const double dir[3], const 
 pen_status pen__raster_check_meshes(pen_context *ctx, const pen_raster_mesh *meshes, int mesh_count,
                                     size_t *total);
 
-/* The thread count (pen__threads) for a loop of `work` cheap items: one thread below a few thousand, where waking a
- * team costs more than the loop (and a lot more on a loaded machine). */
+/* The thread count (pen__threads) for a loop of `work` cheap items: one thread below a few
+ * thousand, where waking a team costs more than the loop (and a lot more on a loaded machine). */
 static inline int pen__raster_threads_for(const pen_context *ctx, size_t work) {
     return work < 8192 ? 1 : pen__threads(ctx);
 }

@@ -231,7 +231,8 @@ static void mesh_surface(const pen_reference *ref, unsigned g, unsigned t, float
         e2[i] = P[3 * idx[2] + i] - P[3 * idx[0] + i];
     }
     pen__cross_f(e1, e2, s->ng);
-    if (!pen__normalize_f(s->ng)) { /* Embree does not report hits on degenerate triangles, but be safe */
+    /* Embree does not report hits on degenerate triangles, but be safe. */
+    if (!pen__normalize_f(s->ng)) {
         for (int i = 0; i < 3; ++i)
             s->ng[i] = -dir[i];
     }

@@ -16,7 +16,8 @@ static inline double drho(int l1, double r) {
     return l1 ? (r > 0.0 ? 1.0 : r < 0.0 ? -1.0 : 0.0) : 2.0 * r;
 }
 
-/* ---- Plain means (render.h) ------------------------------------------------------------------- */
+/* ---- Plain means (render.h) -------------------------------------------------------------------
+ */
 
 static pen_status prepare(pen_context *ctx, const char *name, const pen_image *image,
                           const pen_image *target, pen_image *d_image) {
@@ -62,7 +63,8 @@ pen_status pen_loss_l1(pen_context *ctx, const pen_image *image, const pen_image
     return loss(ctx, 1, image, target, out, d_image);
 }
 
-/* ---- Weighted mean (loss.h) ------------------------------------------------------------------- */
+/* ---- Weighted mean (loss.h) -------------------------------------------------------------------
+ */
 
 double pen__loss_weight_sum(const float *weight, size_t pixels) {
     if (!weight) return (double)pixels;

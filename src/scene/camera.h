@@ -1,5 +1,5 @@
 /* Internal interface of the model's camera (src/scene/camera.c), in double: what the rasterizer's
- * prepared view (src/raster/camera.c) is built from, so that both compute the same frame and rays. */
+ * prepared view (src/raster/camera.c) is built from, so both compute the same frame and rays. */
 #ifndef PEN_SCENE_CAMERA_H
 #define PEN_SCENE_CAMERA_H
 
@@ -14,9 +14,9 @@ void pen__camera_intrinsics_d(const pen_camera *cam, double *focal, double *cx, 
 
 /* The ray direction through image point (px, py), scaled so that its forward component is 1:
  * (px - cx)/f right + (cy - py)/f up + forward. */
-static inline void pen__camera_ray_d(const double right[3], const double up[3],
-                                     const double fwd[3], double focal, double cx, double cy,
-                                     double px, double py, double dir[3]) {
+static inline void pen__camera_ray_d(const double right[3], const double up[3], const double fwd[3],
+                                     double focal, double cx, double cy, double px, double py,
+                                     double dir[3]) {
     double rx = (px - cx) / focal;
     double ry = (cy - py) / focal;
     for (int i = 0; i < 3; ++i)
