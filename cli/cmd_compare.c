@@ -1,4 +1,4 @@
-/* penumbra compare: image error metrics as one JSON object on stdout (src/render/metrics.c). */
+/* penumbra compare: image error metrics as one JSON object on stdout (src/scene/metrics.c). */
 #include "commands.h"
 
 #include <math.h>

@@ -23,6 +23,7 @@
 #define PENUMBRA_RESEARCH_H
 
 #include "penumbra/core.h"
+#include "penumbra/envmap.h" /* pen_envmap_to_sh: the projection whose accuracy is measured */
 #include "penumbra/image.h"
 #include "penumbra/sh.h"
 

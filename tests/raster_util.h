@@ -4,6 +4,7 @@
 #define PEN_TEST_RASTER_UTIL_H
 
 #include "check.h"
+#include "penumbra/io.h"
 #include "penumbra/raster.h"
 #include "raster/raster_internal.h"
 

@@ -2,9 +2,9 @@
  * (a lone sphere, coincident copies, disjoint spheres, the weighted count along fresh random
  * lines, determinism across thread counts, pose invariance, argument errors), the sphere-file
  * "weight" entries (round trip, malformed files), the scene's "shadow.overlap" option (parsing,
- * weights computed at load, the option off rendering exactly the unweighted sum), the optimiser
- * holding them fixed, and one accuracy check against the Embree reference on a fitted, heavily
- * overlapping set. */
+ * weights left to be computed after load, the option off rendering exactly the unweighted sum),
+ * the optimiser holding them fixed, and one accuracy check against the Embree reference on a
+ * fitted, heavily overlapping set. */
 #include "io_fixtures.h" /* first: it sets the feature-test macros */
 #include "optim_scenes.h"
 
@@ -283,10 +283,14 @@ static pen_status scene_text(const char *shadow, const char *spheres, pen_scene 
 
 static void test_scene_option_and_load(void) {
     pen_scene sc;
-    /* Default: weights; a file without them gets them computed; one with them keeps them. */
+    /* Default: weights. The loader only parses: a file without them leaves them to be computed
+     * (pen_spheres_ensure_weights, or the renderer when it needs them); one with them keeps
+     * them. */
     CHECK(scene_text("", "\"old.json\"", &sc) == PEN_OK);
     CHECK(sc.shadow.overlap == PEN_OVERLAP_WEIGHTS);
-    const pen_spheres *sp = &sc.objects[0].spheres;
+    pen_spheres *sp = &sc.objects[0].spheres;
+    CHECK(sp->weight == NULL);
+    CHECK(pen_spheres_ensure_weights(ctx, sp) == PEN_OK);
     float *k = weights_of(sp->data, 2);
     CHECK(sp->weight && memcmp(sp->weight, k, sizeof(float) * 2) == 0);
     free(k);
@@ -314,6 +318,8 @@ static void test_scene_option_and_load(void) {
     CHECK(sc.objects[0].spheres.weight && sc.objects[0].spheres.weight[0] == 3.0f);
     pen_scene_free(&sc);
     CHECK(scene_text("", "[{\"center\": [0, 1, 0], \"radius\": 0.5}]", &sc) == PEN_OK);
+    CHECK(sc.objects[0].spheres.weight == NULL);
+    CHECK(pen_spheres_ensure_weights(ctx, &sc.objects[0].spheres) == PEN_OK);
     CHECK(sc.objects[0].spheres.weight && sc.objects[0].spheres.weight[0] == (float)T);
     pen_scene_free(&sc);
     /* The ground mode beside it (render.c, ground occlusion): occludes by default. */

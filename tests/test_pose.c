@@ -1,8 +1,8 @@
 /* Rigid pose: Rodrigues rotation against an independent axis-angle formula, its derivative and
  * the pose backward against central finite differences in double, at and near angle zero. */
 #include "check.h"
-#include "geometry/pose_internal.h"
 #include "penumbra/raster.h"
+#include "scene/pose_internal.h"
 
 #include <math.h>
 #include <string.h>

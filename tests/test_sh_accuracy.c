@@ -1,6 +1,7 @@
 /* Tests of the accuracy protocol (research/accuracy.c): its ray-tested truth against closed forms,
  * and the calibrated model's accuracy claims on a held-out seed. */
 #include "check.h"
+#include "penumbra/io.h"
 #include "penumbra_research.h"
 
 #include <string.h>

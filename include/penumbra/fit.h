@@ -121,6 +121,20 @@ PEN_API pen_status pen_scene_fit_spheres(pen_context *ctx, pen_scene *scene);
 PEN_API int pen_fit_json(const pen_fit_settings *settings, const pen_fit_metrics *metrics,
                          char *buf, size_t size);
 
+/* ---- Overlap weights (src/geometry/overlap.c) ------------------------------------------------ */
+
+/* Overlap weights: kappa[i] >= 0 per sphere (count floats), chosen so that along a line through
+ * the set the weights of the spheres it crosses add up to about PEN_SPHERES_OVERLAP_TARGET (a
+ * non-negative least-squares fit over random lines, docs/fit-spheres.md). The renderer multiplies
+ * sphere i's log-visibility by kappa[i], so that a shadow ray through an object has about the same
+ * depth however many of its overlapping proxy spheres it crosses. Deterministic (fixed seed,
+ * independent of the thread count); a single sphere gets exactly the target, disjoint spheres
+ * about the target, k coincident copies about target / k each. Invariant under a pose (computed
+ * in object space). Fails on a radius <= 0 or a non-finite value. */
+PEN_API pen_status pen_spheres_overlap_weights(pen_context *ctx, const pen_spheres *spheres,
+                                               float *kappa);
+/* Computes spheres->weight when it is NULL (allocating it); leaves existing weights alone. */
+PEN_API pen_status pen_spheres_ensure_weights(pen_context *ctx, pen_spheres *spheres);
 #ifdef __cplusplus
 }
 #endif

@@ -1,4 +1,5 @@
-/* penumbra/mesh.h -- triangle meshes: layout, loading (OBJ, PLY), freeing.
+/* penumbra/mesh.h -- triangle meshes: layout, validation, bounds, freeing (src/scene). Files (OBJ,
+ * PLY) are read and written by penumbra/io.h.
  *
  * Layout: positions are float x,y,z per vertex (3 * vertex_count floats); triangles index
  * positions with three uint32 each (counter-clockwise seen from outside). UVs and normals, when
@@ -32,19 +33,8 @@ typedef struct pen_mesh {
     char *texture_path;        /* diffuse map from an OBJ's mtllib/map_Kd (resolved path), or NULL */
 } pen_mesh;
 
-/* Loads a mesh by extension (.obj, .ply). Polygons are triangulated as fans; OBJ negative
- * (relative) indices are resolved; zero and out-of-range indices, NaN/Inf coordinates,
- * truncated files and absurd counts are errors naming the file and line (or byte offset).
- * On success *out owns the arrays; on failure *out is zeroed. */
-PEN_API pen_status pen_mesh_load(pen_context *ctx, const char *path, pen_mesh *out);
-PEN_API pen_status pen_mesh_load_obj(pen_context *ctx, const char *path, pen_mesh *out);
-PEN_API pen_status pen_mesh_load_ply(pen_context *ctx, const char *path, pen_mesh *out);
-/* Writes a Wavefront OBJ (v, vt, vn, f with 1-based v/vt/vn references; no material). Atomic:
- * temporary file + rename. pen_mesh_save picks the format by extension (.obj only). */
-PEN_API pen_status pen_mesh_save(pen_context *ctx, const char *path, const pen_mesh *mesh);
-PEN_API pen_status pen_mesh_save_obj(pen_context *ctx, const char *path, const pen_mesh *mesh);
-/* Checks a mesh built in memory: positive counts within the loaders' cap, finite coordinates,
- * every index in range. Errors (PEN_ERROR_ARGUMENT) name the triangle or vertex. */
+/* Checks a mesh (loaded, or built in memory): positive counts within the loaders' cap, finite
+ * coordinates, every index in range. Errors (PEN_ERROR_ARGUMENT) name the triangle or vertex. */
 PEN_API pen_status pen_mesh_validate(pen_context *ctx, const pen_mesh *mesh);
 /* Frees the arrays of a mesh and zeroes it; NULL is a no-op. */
 PEN_API void pen_mesh_free(pen_mesh *mesh);

@@ -9,15 +9,17 @@
 #define PENUMBRA_H
 
 #include "penumbra/core.h"
+#include "penumbra/envmap.h"
 #include "penumbra/fit.h"
 #include "penumbra/flat.h"
 #include "penumbra/image.h"
+#include "penumbra/io.h"
 #include "penumbra/mesh.h"
 #include "penumbra/metrics.h"
 #include "penumbra/optim.h"
 #include "penumbra/raster.h"
-#include "penumbra/render.h"
 #include "penumbra/reference.h"
+#include "penumbra/render.h"
 #include "penumbra/scene.h"
 #include "penumbra/sh.h"
 #include "penumbra/spheres.h"

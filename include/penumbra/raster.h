@@ -1,5 +1,6 @@
 /* penumbra/raster.h -- camera projection, rasterizer (G-buffer), attribute interpolation, edge
- * antialiasing and the rigid-pose backward: the differentiable visibility stage of the renderer.
+ * antialiasing: the differentiable visibility stage of the renderer (the rigid pose it starts
+ * from, forward and backward, is the model's: penumbra/scene.h).
  *
  * Data flow of one frame (the shading pipeline in src/render drives it):
  *
@@ -72,23 +73,6 @@ PEN_API void pen_view_project_bwd(const pen_view *view, const float p[3], const 
 /* The world-space ray direction through image point (px, py), scaled so that its forward
  * component is 1: the point at depth z on that ray is eye + z * dir. */
 PEN_API void pen_view_ray(const pen_view *view, double px, double py, double dir[3]);
-
-/* ---- Rigid pose backward (the forward, pen_pose_rotation / pen_pose_apply, is in scene.h) -----
- */
-
-/* Gradient of a pose: the same fields as pen_pose, holding d/d(field). */
-typedef pen_pose pen_pose_grad;
-
-/* Backward of pen_pose_apply: with out = R(a) * (scale * p) + t, adds d_out's pull-back into
- * d_pose (rotation_axis_angle_deg per degree, translation, scale) and d_p (each may be NULL).
- * Exact at and near angle 0 (series expansion of the Rodrigues coefficients). */
-PEN_API void pen_pose_apply_bwd(const pen_pose *pose, const float p[3], const float d_out[3],
-                                pen_pose_grad *d_pose, float d_p[3]);
-/* pen_pose_apply over n points (3 floats each). `out` may not alias `p`. */
-PEN_API void pen_pose_points_fwd(const pen_pose *pose, int n, const float *p, float *out);
-/* Backward of pen_pose_points_fwd; reduces over the points in double. */
-PEN_API void pen_pose_points_bwd(const pen_pose *pose, int n, const float *p, const float *d_out,
-                                 pen_pose_grad *d_pose, float *d_p);
 
 /* ---- Rasterizer ------------------------------------------------------------------------------ */
 

@@ -1,5 +1,8 @@
-/* penumbra/scene.h -- a scene: camera, lighting, objects with their sphere proxies, ground plane,
- * background; loaded from the scene JSON of docs/file-formats.md (docs/design.md sec. 3.3).
+/* penumbra/scene.h -- the model: a scene (camera, lighting, objects with their sphere proxies,
+ * ground plane, background), the camera's frame and rays, and the rigid pose with its backward.
+ * Implemented in src/scene, which depends on nothing but src/core (sh.h only gives the lighting's
+ * coefficient count and exponential method); files are read and written by penumbra/io.h (the
+ * scene JSON of docs/file-formats.md).
  *
  * Coordinates: right-handed, Y up, scene units. Angles in the JSON are degrees.
  * Camera: pinhole; image row 0 is the top; pixel (px, py) covers [px, px+1) x [py, py+1) and its
@@ -7,7 +10,7 @@
  * Lighting: SH coefficients per colour channel, sh[i][ch] for i < sh_bands^2 (index l*l + l + m),
  * radiance units; projected from an equirectangular environment map or given in the JSON.
  * Equirectangular maps: column u in [0,1) is the azimuth, row v in [0,1) the polar angle from +Y
- * (row 0 = zenith, image centre = -Z); see pen_envmap_direction for the exact map.
+ * (row 0 = zenith, image centre = -Z); see pen_envmap_direction (penumbra/envmap.h).
  */
 #ifndef PENUMBRA_SCENE_H
 #define PENUMBRA_SCENE_H
@@ -44,6 +47,21 @@ typedef struct pen_pose {
 PEN_API void pen_pose_rotation(const pen_pose *pose, float R[9]);
 /* Applies the pose to a point. */
 PEN_API void pen_pose_apply(const pen_pose *pose, const float p[3], float out[3]);
+
+/* Gradient of a pose (the backward beside its forward): the same fields as pen_pose, holding
+ * d/d(field). */
+typedef pen_pose pen_pose_grad;
+
+/* Backward of pen_pose_apply: with out = R(a) * (scale * p) + t, adds d_out's pull-back into
+ * d_pose (rotation_axis_angle_deg per degree, translation, scale) and d_p (each may be NULL).
+ * Exact at and near angle 0 (series expansion of the Rodrigues coefficients). */
+PEN_API void pen_pose_apply_bwd(const pen_pose *pose, const float p[3], const float d_out[3],
+                                pen_pose_grad *d_pose, float d_p[3]);
+/* pen_pose_apply over n points (3 floats each). `out` may not alias `p`. */
+PEN_API void pen_pose_points_fwd(const pen_pose *pose, int n, const float *p, float *out);
+/* Backward of pen_pose_points_fwd; reduces over the points in double. */
+PEN_API void pen_pose_points_bwd(const pen_pose *pose, int n, const float *p, const float *d_out,
+                                 pen_pose_grad *d_pose, float *d_p);
 
 typedef struct pen_object {
     pen_mesh mesh;          /* object space */
@@ -110,54 +128,10 @@ typedef struct pen_scene {
     char *path;                     /* the JSON file, for relative paths and messages */
 } pen_scene;
 
-/* Loads a scene JSON (docs/file-formats.md) with everything it references (meshes, textures,
- * sphere sets, envmap), paths relative to the JSON file. Lighting: "envmap" is projected onto
- * sh_bands bands (pen_envmap_to_sh) and kept for the background; "sh" gives the coefficients
- * directly (and wins over the projection when both are present). Errors name the file and the
- * JSON key path, e.g. "scene.json: camera.width: expected a positive integer, got -3"; errors of
- * a referenced file are prefixed with the key that named it. Unknown keys are errors (keys
- * starting with '_' are comments). On failure *out is zeroed. */
-PEN_API pen_status pen_scene_load(pen_context *ctx, const char *path, pen_scene *out);
-/* The same from JSON text (e.g. a scene embedded in a task file, printed back to text): `path`
- * names the text in messages and is the base of its relative paths. */
-PEN_API pen_status pen_scene_parse(pen_context *ctx, const char *json_text, const char *path,
-                                   pen_scene *out);
+/* Frees everything a scene owns (meshes, textures, sphere sets, the envmap, the paths) and
+ * zeroes it; NULL is a no-op. Scenes come from pen_scene_load (penumbra/io.h) or are built in
+ * memory from arrays allocated with malloc. */
 PEN_API void pen_scene_free(pen_scene *scene);
-/* Writes a scene JSON that pen_scene_load reads back to the same scene (paths relative to the
- * new file where possible; the referenced files are not written). Atomic. */
-PEN_API pen_status pen_scene_save(pen_context *ctx, const char *path, const pen_scene *scene);
-/* Flags of pen_scene_save_ex. PEN_SCENE_SAVE_SH_LIGHTING writes the SH coefficients as "sh" even
- * when there is an envmap (which is then written too, for the background): for lighting that was
- * optimized and no longer equals the map's projection. */
-#define PEN_SCENE_SAVE_SH_LIGHTING 1u
-PEN_API pen_status pen_scene_save_ex(pen_context *ctx, const char *path, const pen_scene *scene,
-                                     unsigned flags);
-
-/* Equirectangular maps (Y up). u in [0, 1) is the azimuth phi = 2 pi u, v in [0, 1] the polar
- * angle theta = pi v from +Y:
- *     dir(u, v) = (-sin(theta) sin(phi), cos(theta), sin(theta) cos(phi)).
- * Row 0 is the zenith, the middle row the horizon; the image centre (u = 1/2) is the direction
- * -Z, u = 3/4 is +X, u = 1/4 is -X, and u = 0 is +Z: seen from the origin looking along -Z the
- * map is not mirrored. Pixel (x, y) of a W x H map covers u in [x/W, (x+1)/W), v in
- * [y/H, (y+1)/H).
- * A rotation by rotation_y_deg = a turns the map right-handedly about +Y: map direction d lights
- * the scene from world direction R_y(a) d, R_y(a) (x, y, z) = (cos a x + sin a z, y,
- * -sin a x + cos a z). */
-PEN_API void pen_envmap_direction(float u, float v, float dir[3]);
-/* The inverse (dir need not be unit length; the zero vector gives u = v = 0). */
-PEN_API void pen_envmap_uv(const float dir[3], float *u, float *v);
-/* Projects an equirectangular map (1 or >= 3 channels; grey is repeated) onto `bands` bands,
- * after rotating it by rotation_y_deg about +Y and multiplying by scale (finite, >= 0):
- * sh[i][ch] for i < bands^2. Each pixel is weighted by the exact solid angle of its cell,
- * (2 pi / W) (cos theta_top - cos theta_bottom), and sampled at its centre; negative pixel values
- * are clamped to 0. NaN/Inf pixels are an error. */
-PEN_API pen_status pen_envmap_to_sh(pen_context *ctx, const pen_image *env, int bands,
-                                    float rotation_y_deg, float scale, float sh[][3]);
-/* The radiance arriving from world direction dir (the background seen along a camera ray):
- * the map rotated by rotation_y_deg and multiplied by scale, bilinear between texel centres
- * (wrapping in u, clamped in v), negative texels clamped to 0. An invalid map gives black. */
-PEN_API void pen_envmap_eval(const pen_image *env, float rotation_y_deg, float scale,
-                             const float dir[3], float rgb[3]);
 
 #ifdef __cplusplus
 }

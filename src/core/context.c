@@ -2,6 +2,7 @@
 #include "core/internal.h"
 #include "penumbra/version.h"
 
+#include <omp.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -37,6 +38,14 @@ int pen_context_threads(const pen_context *ctx) {
     return ctx ? ctx->threads : 0;
 }
 
+int pen__threads_resolve(int requested) {
+    return requested > 0 ? requested : omp_get_max_threads();
+}
+
+int pen__threads(const pen_context *ctx) {
+    return pen__threads_resolve(pen_context_threads(ctx));
+}
+
 const char *pen_status_string(pen_status status) {
     switch (status) {
     case PEN_OK: return "ok";
@@ -65,6 +74,17 @@ pen_status pen__error(pen_context *ctx, pen_status status, const char *fmt, ...)
     for (char *p = ctx->message; *p; ++p)
         if (*p == '\n' || *p == '\r') *p = ' ';
     return status;
+}
+
+pen_status pen__error_prefix(pen_context *ctx, pen_status status, const char *fmt, ...) {
+    if (!ctx) return status;
+    char prefix[sizeof ctx->message], inner[sizeof ctx->message];
+    snprintf(inner, sizeof inner, "%s", ctx->message); /* the old message, before it is replaced */
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(prefix, sizeof prefix, fmt, ap);
+    va_end(ap);
+    return pen__error(ctx, status, "%s%s", prefix, inner);
 }
 
 static void *checked_alloc(pen_context *ctx, size_t count, size_t size, const char *what,

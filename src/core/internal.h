@@ -25,6 +25,18 @@ struct pen_context {
  *     return pen__error(ctx, PEN_ERROR_PARSE, "%s:%d: bad index", path, line);            */
 pen_status pen__error(pen_context *ctx, pen_status status, const char *fmt, ...) PEN_PRINTF(3, 4);
 
+/* Re-records the context's current error behind a prefix: the prefix is formatted from fmt and
+ * the old message follows it unchanged, so an error of a referenced file keeps its place, e.g.
+ *     pen__error_prefix(ctx, s, "%s: objects[%d].mesh: ", json, o)
+ * gives "scene.json: objects[0].mesh: spot.obj:12: ...". Returns status. */
+pen_status pen__error_prefix(pen_context *ctx, pen_status status, const char *fmt, ...)
+    PEN_PRINTF(3, 4);
+
+/* The thread count a parallel pass uses: `requested` when positive, else the OpenMP runtime's
+ * default (all cores). pen__threads resolves a context's setting (pen_context_set_threads). */
+int pen__threads_resolve(int requested);
+int pen__threads(const pen_context *ctx);
+
 /* Allocation with overflow-checked sizes (stb's mul2sizes habit). Return NULL on overflow or
  * exhaustion and record PEN_ERROR_MEMORY in ctx with `what` in the message. */
 void *pen__malloc(pen_context *ctx, size_t count, size_t size, const char *what);

@@ -171,7 +171,7 @@ static double cell_terms(const pen__fit_problem *p, const pen__fit_points *pts, 
  * in thread order afterwards, so a run is reproducible for a given thread count. */
 static double energy_eval(const pen__fit_problem *p, int count, const double *sph, double d_E,
                           double *d_spheres) {
-    int threads = p->threads > 0 ? p->threads : omp_get_max_threads();
+    int threads = pen__threads_resolve(p->threads);
     int sov_cells = p->sov.cells ? p->sov.cells : 1;
     int total = sov_cells + (p->surf.cells ? p->surf.cells : 1);
     double *partial = calloc((size_t)threads, sizeof(double));
@@ -264,7 +264,7 @@ static pen_status kmeans(pen_context *ctx, const float *pts, long n_pts, int k, 
         return PEN_ERROR_MEMORY;
     }
     uint64_t rng = seed;
-    long first = (long)(pen__fit_rand(&rng) * (double)n_pts);
+    long first = (long)(pen__splitmix_uniform(&rng) * (double)n_pts);
     for (int a = 0; a < 3; ++a)
         sph[a] = (double)pts[3 * first + a];
     for (long j = 0; j < n_pts; ++j)
@@ -273,7 +273,7 @@ static pen_status kmeans(pen_context *ctx, const float *pts, long n_pts, int k, 
         double sum = 0;
         for (long j = 0; j < n_pts; ++j)
             sum += d2[j];
-        double x = pen__fit_rand(&rng) * sum;
+        double x = pen__splitmix_uniform(&rng) * sum;
         long pick = n_pts - 1;
         for (long j = 0; j < n_pts; ++j)
             if ((x -= d2[j]) < 0) {
@@ -636,7 +636,7 @@ pen_status pen_spheres_fit(pen_context *ctx, const pen_mesh *mesh, int count,
     pen_fit_settings s;
     pen_status st = pen__fit_resolve_settings(ctx, settings, &s);
     if (st) return st;
-    int threads = pen_context_threads(ctx) > 0 ? pen_context_threads(ctx) : omp_get_max_threads();
+    int threads = pen__threads(ctx);
 
     fit_data d;
     memset(&d, 0, sizeof d);

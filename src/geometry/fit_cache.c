@@ -8,6 +8,7 @@
  * wrong is ignored and overwritten, never trusted.
  */
 #include "geometry/fit_internal.h"
+#include "penumbra/io.h"
 
 #include <cjson/cJSON.h>
 #include <stdio.h>

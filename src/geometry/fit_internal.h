@@ -1,8 +1,11 @@
-/* Internal pieces of the sphere fit (src/geometry/fit.c, voxelize.c), shared with the tests. */
+/* Internal pieces of the sphere fit (src/geometry/fit.c), shared with the tests. The voxel grid
+ * and surface samples it fits to are voxelize.h's. */
 #ifndef PEN_GEOMETRY_FIT_INTERNAL_H
 #define PEN_GEOMETRY_FIT_INTERNAL_H
 
 #include "core/internal.h"
+#include "core/random.h"
+#include "geometry/voxelize.h"
 #include "penumbra/fit.h"
 
 #include <stdint.h>
@@ -10,42 +13,6 @@
 /* Copies the settings (defaults for NULL), fills zero fields with the defaults, checks ranges. */
 pen_status pen__fit_resolve_settings(pen_context *ctx, const pen_fit_settings *in,
                                      pen_fit_settings *out);
-
-/* ---- Voxel grid and inside test (voxelize.c) ------------------------------------------------ */
-
-/* Cubic voxels of edge h; voxel (i, j, k) has its centre at origin + h * (i, j, k) (the origin is
- * the first centre) and index i + n[0] * (j + n[1] * k). */
-typedef struct pen__fit_grid {
-    double origin[3];
-    double h;
-    int n[3];
-    uint8_t *inside; /* n[0] n[1] n[2] flags, 1 = inside the mesh */
-} pen__fit_grid;
-
-/* pen_mesh_validate, and a bounding box that is not a point; on success lo/hi are the bounds. */
-pen_status pen__fit_check_mesh(pen_context *ctx, const pen_mesh *mesh, float lo[3], float hi[3]);
-/* Builds the grid over the mesh bounds padded by `pad` of the longest extent on every side, with
- * `voxels` voxels along the longest padded axis, and classifies every centre (six-vote winding
- * number test, see fit.h). */
-pen_status pen__fit_voxelize(pen_context *ctx, const pen_mesh *mesh, int voxels, double pad,
-                             pen__fit_grid *out);
-void pen__fit_grid_free(pen__fit_grid *grid);
-
-/* Area-uniform random points on the surface: 3 * count floats. Also returns the total area. */
-pen_status pen__fit_sample_surface(pen_context *ctx, const pen_mesh *mesh, int count, uint64_t seed,
-                                   float *points, double *area);
-
-/* splitmix64: the fitter's only random source (seeded, reproducible). */
-static inline uint64_t pen__fit_rand_u64(uint64_t *state) {
-    uint64_t z = (*state += 0x9E3779B97F4A7C15ull);
-    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-    return z ^ (z >> 31);
-}
-/* Uniform in [0, 1). */
-static inline double pen__fit_rand(uint64_t *state) {
-    return (double)(pen__fit_rand_u64(state) >> 11) * (1.0 / 9007199254740992.0);
-}
 
 /* ---- Energy (fit.c) ------------------------------------------------------------------------ */
 

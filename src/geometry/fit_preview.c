@@ -4,6 +4,7 @@
  * fixed directional light, no shadows. The view frames the union of the mesh's and the spheres'
  * bounds, so a sphere that strays out of the mesh is seen.
  */
+#include "core/vec.h"
 #include "geometry/fit_internal.h"
 
 #include "penumbra/image.h"
@@ -17,20 +18,16 @@ typedef struct view {
     int size;
 } view;
 
-static double dot3(const double *a, const double *b) {
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-}
-
 /* World point to (pixel x, pixel y, depth along fwd). */
 static void project(const view *v, const double *p, double *px, double *py, double *depth) {
     double d[3] = {p[0] - v->centre[0], p[1] - v->centre[1], p[2] - v->centre[2]};
-    *px = 0.5 * v->size + dot3(d, v->right) / v->scale;
-    *py = 0.5 * v->size - dot3(d, v->up) / v->scale;
-    *depth = dot3(d, v->fwd);
+    *px = 0.5 * v->size + pen__dot_d(d, v->right) / v->scale;
+    *py = 0.5 * v->size - pen__dot_d(d, v->up) / v->scale;
+    *depth = pen__dot_d(d, v->fwd);
 }
 
 static double shade(const double *n, const double *light) {
-    return 0.25 + 0.75 * fmax(0, dot3(n, light));
+    return 0.25 + 0.75 * fmax(0, pen__dot_d(n, light));
 }
 
 /* Mesh panel: per-pixel depth (INFINITY where empty) and grey level. */
@@ -50,11 +47,11 @@ static void raster_mesh(const view *v, const pen_mesh *m, const double *light, d
         n[0] = e1[1] * e2[2] - e1[2] * e2[1];
         n[1] = e1[2] * e2[0] - e1[0] * e2[2];
         n[2] = e1[0] * e2[1] - e1[1] * e2[0];
-        double len = sqrt(dot3(n, n));
+        double len = sqrt(pen__dot_d(n, n));
         if (!(len > 0)) continue;
         for (int a = 0; a < 3; ++a)
             n[a] /= len;
-        if (dot3(n, v->fwd) > 0)
+        if (pen__dot_d(n, v->fwd) > 0)
             for (int a = 0; a < 3; ++a)
                 n[a] = -n[a]; /* light the side we see */
         double area = (sx[1] - sx[0]) * (sy[2] - sy[0]) - (sx[2] - sx[0]) * (sy[1] - sy[0]);
@@ -100,8 +97,8 @@ static int trace_spheres(const view *v, const pen_spheres *s, double px, double 
     for (int i = 0; i < s->count; ++i) {
         const float *sp = s->data + 4 * (size_t)i;
         double c[3] = {(double)sp[0] - o[0], (double)sp[1] - o[1], (double)sp[2] - o[2]};
-        double t = dot3(c, v->fwd), r = sp[3];
-        double q = dot3(c, c) - t * t;
+        double t = pen__dot_d(c, v->fwd), r = sp[3];
+        double q = pen__dot_d(c, c) - t * t;
         if (q > r * r) continue;
         double hit = t - sqrt(r * r - q);
         if (hit < *depth) {
@@ -155,7 +152,7 @@ pen_status pen_spheres_preview(pen_context *ctx, const pen_mesh *mesh, const pen
     double light[3] = {0.5 * v.right[0] + 0.7 * v.up[0] - 0.5 * v.fwd[0],
                        0.5 * v.right[1] + 0.7 * v.up[1] - 0.5 * v.fwd[1],
                        0.5 * v.right[2] + 0.7 * v.up[2] - 0.5 * v.fwd[2]};
-    double ll = sqrt(dot3(light, light));
+    double ll = sqrt(pen__dot_d(light, light));
     for (int a = 0; a < 3; ++a)
         light[a] /= ll;
 

@@ -33,7 +33,8 @@
  * line count per sphere shrinks for large sets to keep the work bounded.
  */
 #include "core/internal.h"
-#include "geometry/fit_internal.h"
+#include "core/random.h"
+#include "penumbra/fit.h"
 #include "penumbra/spheres.h"
 
 #include <omp.h>
@@ -62,10 +63,11 @@ static const overlap_settings SETTINGS = {
 /* Line k of sphere i's proposal: a point p and a unit direction d. */
 static void sample_line(const overlap_settings *s, const float *sph, int i, int k, double p[3],
                         double d[3]) {
-    uint64_t st = s->seed ^ (0x9E3779B97F4A7C15ull * (uint64_t)(i + 1)) ^
+    uint64_t st = s->seed ^ (PEN__SPLITMIX_GAMMA * (uint64_t)(i + 1)) ^
                   (0xD1B54A32D192ED03ull * (uint64_t)(k + 1));
-    (void)pen__fit_rand_u64(&st); /* decorrelate nearby seeds */
-    const double z = 1.0 - 2.0 * pen__fit_rand(&st), phi = 2.0 * PEN_PI * pen__fit_rand(&st);
+    (void)pen__splitmix_next(&st); /* decorrelate nearby seeds */
+    const double z = 1.0 - 2.0 * pen__splitmix_uniform(&st),
+                 phi = 2.0 * PEN_PI * pen__splitmix_uniform(&st);
     const double sz = sqrt(fmax(0.0, 1.0 - z * z));
     d[0] = sz * cos(phi), d[1] = sz * sin(phi), d[2] = z;
     /* An orthonormal pair perpendicular to d (Frisvad / Duff et al.). */
@@ -73,8 +75,8 @@ static void sample_line(const overlap_settings *s, const float *sph, int i, int 
     const double e1[3] = {1.0 + sg * d[0] * d[0] * a, sg * b, -sg * d[0]};
     const double e2[3] = {b, sg + d[1] * d[1] * a, -d[1]};
     const float *c = sph + 4 * (size_t)i;
-    const double rho = (double)c[3] * sqrt(pen__fit_rand(&st));
-    const double th = 2.0 * PEN_PI * pen__fit_rand(&st);
+    const double rho = (double)c[3] * sqrt(pen__splitmix_uniform(&st));
+    const double th = 2.0 * PEN_PI * pen__splitmix_uniform(&st);
     const double u = rho * cos(th), v = rho * sin(th);
     for (int a3 = 0; a3 < 3; ++a3)
         p[a3] = (double)c[a3] + u * e1[a3] + v * e2[a3];
@@ -255,8 +257,7 @@ pen_status pen_spheres_overlap_weights(pen_context *ctx, const pen_spheres *sphe
         kappa[0] = (float)PEN_SPHERES_OVERLAP_TARGET;
         return PEN_OK;
     }
-    const int threads =
-        pen_context_threads(ctx) > 0 ? pen_context_threads(ctx) : omp_get_max_threads();
+    const int threads = pen__threads(ctx);
     int K = s->lines_per_sphere;
     const double cap = MAX_TESTS / ((double)n * (double)n);
     if (K > cap) K = cap > MIN_LINES ? (int)cap : MIN_LINES;

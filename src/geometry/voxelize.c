@@ -15,9 +15,10 @@
  * meshes (vertices on round coordinates, symmetric about the origin) do not put grid lines
  * exactly through their vertices and edges.
  */
-#include "geometry/fit_internal.h"
+#include "geometry/voxelize.h"
+#include "core/random.h"
+#include "geometry/embree.h"
 
-#include <embree3/rtcore.h>
 #include <omp.h>
 #include <stdlib.h>
 #include <string.h>
@@ -124,19 +125,13 @@ static RTCScene build_scene(pen_context *ctx, RTCDevice device, const pen_mesh *
         return NULL;
     }
     rtcSetSceneFlags(scene, RTC_SCENE_FLAG_ROBUST);
-    /* Copies, not shared buffers: Embree reads up to 16 bytes past a vertex. */
-    float *vb = rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
-                                        3 * sizeof(float), (size_t)mesh->vertex_count);
-    unsigned *ib = rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
-                                           3 * sizeof(unsigned), (size_t)mesh->triangle_count);
-    if (!vb || !ib) {
+    if (!pen__embree_fill_triangles(geom, mesh->positions, (size_t)mesh->vertex_count,
+                                    mesh->indices, (size_t)mesh->triangle_count)) {
         rtcReleaseGeometry(geom);
         rtcReleaseScene(scene);
         pen__error(ctx, PEN_ERROR_MEMORY, "fit: cannot allocate the Embree buffers");
         return NULL;
     }
-    memcpy(vb, mesh->positions, 3 * sizeof(float) * (size_t)mesh->vertex_count);
-    memcpy(ib, mesh->indices, 3 * sizeof(unsigned) * (size_t)mesh->triangle_count);
     rtcSetGeometryIntersectFilterFunction(geom, record_hit);
     rtcCommitGeometry(geom);
     rtcAttachGeometry(scene, geom);
@@ -249,7 +244,7 @@ pen_status pen__fit_voxelize(pen_context *ctx, const pen_mesh *mesh, int voxels,
         free(votes);
         return pen_context_status(ctx);
     }
-    int threads = pen_context_threads(ctx) > 0 ? pen_context_threads(ctx) : omp_get_max_threads();
+    int threads = pen__threads(ctx);
     /* A line crosses each triangle at most once; filters may repeat one, hence the slack. */
     int capacity = mesh->triangle_count < (1 << 20) ? 2 * mesh->triangle_count + 16 : (1 << 21);
     int ok = 1;
@@ -298,7 +293,7 @@ pen_status pen__fit_sample_surface(pen_context *ctx, const pen_mesh *mesh, int c
     }
     uint64_t rng = seed ^ 0x5A4D504C45ull; /* distinct stream from the k-means seeding */
     for (int s = 0; s < count; ++s) {
-        double x = pen__fit_rand(&rng) * sum;
+        double x = pen__splitmix_uniform(&rng) * sum;
         int lo = 0, hi = mesh->triangle_count - 1; /* first t with cdf[t] > x */
         while (lo < hi) {
             int mid = lo + (hi - lo) / 2;
@@ -307,7 +302,7 @@ pen_status pen__fit_sample_surface(pen_context *ctx, const pen_mesh *mesh, int c
             else
                 lo = mid + 1;
         }
-        double r1 = sqrt(pen__fit_rand(&rng)), r2 = pen__fit_rand(&rng);
+        double r1 = sqrt(pen__splitmix_uniform(&rng)), r2 = pen__splitmix_uniform(&rng);
         double wa = 1 - r1, wb = r1 * (1 - r2), wc = r1 * r2; /* uniform barycentrics */
         const uint32_t *tri = mesh->indices + 3 * (size_t)lo;
         for (int k = 0; k < 3; ++k)

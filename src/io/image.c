@@ -8,8 +8,8 @@
  *
  * sRGB: the IEC 61966-2-1 curve, decoded exactly (a table for 8-bit, the formula for 16-bit) and
  * encoded with rounding to the nearest 8-bit code after clamping to [0, 1]. */
-#include "penumbra/image.h"
 #include "io/io_internal.h"
+#include "penumbra/io.h"
 
 #include <errno.h>
 #include <limits.h>
@@ -19,28 +19,6 @@
 #include <string.h>
 
 #define IMAGE_MAX_FILE_BYTES ((size_t)INT_MAX) /* stb takes an int length */
-
-pen_status pen_image_create(pen_context *ctx, int width, int height, int channels, pen_image *out) {
-    memset(out, 0, sizeof *out);
-    if (width < 1 || height < 1 || width > PEN_IMAGE_MAX_DIM || height > PEN_IMAGE_MAX_DIM ||
-        channels < 1 || channels > 4)
-        return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                          "image: size %d x %d x %d outside [1, %d]^2 x [1, 4]", width, height,
-                          channels, PEN_IMAGE_MAX_DIM);
-    size_t n = (size_t)width * (size_t)height;
-    out->data = pen__calloc(ctx, n, (size_t)channels * sizeof(float), "image");
-    if (!out->data) return PEN_ERROR_MEMORY;
-    out->width = width;
-    out->height = height;
-    out->channels = channels;
-    return PEN_OK;
-}
-
-void pen_image_free(pen_image *image) {
-    if (!image) return;
-    free(image->data);
-    memset(image, 0, sizeof *image);
-}
 
 /* ---- sRGB ------------------------------------------------------------------------------------ */
 

@@ -65,6 +65,10 @@ const char *pen__json_type_name(const cJSON *item);
 pen_status pen__json_error(pen_context *ctx, pen_status status, const pen__json_where *w,
                            const char *fmt, ...) PEN_PRINTF(4, 5);
 
+/* Re-records the context's current error (from a file the key named) behind "file: key: ", e.g.
+ * "scene.json: objects[0].mesh: spot.obj:12: ...", and returns status. */
+pen_status pen__json_wrap(pen_context *ctx, pen_status status, const pen__json_where *w);
+
 /* A finite number in [lo, hi]. `what` describes the expectation ("a positive number"). */
 pen_status pen__json_number(pen_context *ctx, const pen__json_where *w, const cJSON *item,
                             double lo, double hi, const char *what, double *out);

@@ -89,6 +89,11 @@ pen_status pen__json_error(pen_context *ctx, pen_status status, const pen__json_
     return pen__error(ctx, status, "%s: %s", w->file, what);
 }
 
+pen_status pen__json_wrap(pen_context *ctx, pen_status status, const pen__json_where *w) {
+    if (w->key[0]) return pen__error_prefix(ctx, status, "%s: %s: ", w->file, w->key);
+    return pen__error_prefix(ctx, status, "%s: ", w->file);
+}
+
 /* "expected <what>, got <the value or its type>" */
 static pen_status expected(pen_context *ctx, const pen__json_where *w, const cJSON *item,
                            const char *what) {

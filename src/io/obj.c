@@ -14,7 +14,7 @@
  * not an error (OBJ files often travel without theirs): the mesh simply has no texture path.
  * Every statement other than v, vt, vn, f, mtllib and usemtl is ignored. */
 #include "io/io_internal.h"
-#include "penumbra/mesh.h"
+#include "penumbra/io.h"
 
 #include <errno.h>
 #include <stdlib.h>

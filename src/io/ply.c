@@ -13,7 +13,7 @@
  * and in their type's range, indices must be in range, coordinates finite. Errors name the line
  * (ascii) or the byte offset (binary). */
 #include "io/io_internal.h"
-#include "penumbra/mesh.h"
+#include "penumbra/io.h"
 
 #include <errno.h>
 #include <stdarg.h>

@@ -5,10 +5,14 @@
  * so that each error is one line naming the file, the key and the problem; errors from files the
  * scene references (a mesh, a texture) are prefixed with the key that named them. Unknown keys
  * are errors, because a misspelt optional key ("albdeo") would otherwise be silently ignored;
- * keys starting with '_' are comments. Defaults are applied here and nowhere else. */
-#include "penumbra/scene.h"
+ * keys starting with '_' are comments. Defaults are applied here and nowhere else. The loader
+ * only parses: sphere sets keep the overlap weights their JSON gives and get none otherwise
+ * (the renderer computes missing weights once per render state; pen_spheres_ensure_weights
+ * computes them explicitly, as the optimizer and the flat API do). */
 #include "io/io_internal.h"
 #include "io/spheres_json.h"
+#include "penumbra/envmap.h"
+#include "penumbra/io.h"
 
 #include <float.h>
 #include <stdlib.h>
@@ -57,14 +61,6 @@ static pen_status opt_floats(pen_context *ctx, const where *w, const cJSON *obj,
     if (!item) return PEN_OK;
     where wk = at(w, name);
     return pen__json_floats(ctx, &wk, item, 3, lo, hi, out);
-}
-
-/* Re-records the context's current error (from a referenced file) behind the key that named the
- * file: "scene.json: objects[0].mesh: spot.obj:12: ...". */
-static pen_status wrap(pen_context *ctx, const where *w, pen_status s) {
-    char inner[1024];
-    snprintf(inner, sizeof inner, "%s", pen_context_error(ctx));
-    return pen__json_error(ctx, s, w, "%s", inner);
 }
 
 /* ---- Loading --------------------------------------------------------------------------------- */
@@ -142,7 +138,7 @@ static pen_status parse_lighting(pen_context *ctx, const char *path, const where
         s = pen_image_load(ctx, L->envmap_path, &L->envmap);
         if (!s && !sh)
             s = pen_envmap_to_sh(ctx, &L->envmap, bands, L->rotation_y_deg, L->scale, L->sh);
-        if (s) return wrap(ctx, &we, s);
+        if (s) return pen__json_wrap(ctx, s, &we);
     }
     if (sh) {
         where ws = at(&w, "sh");
@@ -240,14 +236,10 @@ static pen_status parse_spheres(pen_context *ctx, const char *path, const where 
         obj->spheres_path = pen__io_path_resolve(ctx, path, rel);
         if (!obj->spheres_path) return PEN_ERROR_MEMORY;
         s = pen_spheres_load(ctx, obj->spheres_path, &obj->spheres);
-        /* Files written before overlap weights existed get them now (pen_spheres.weight). */
-        if (!s) s = pen_spheres_ensure_weights(ctx, &obj->spheres);
-        return s ? wrap(ctx, w, s) : PEN_OK;
+        return s ? pen__json_wrap(ctx, s, w) : PEN_OK;
     }
     if (cJSON_IsArray(item)) {
-        pen_status s = pen__spheres_from_json(ctx, w, item, &obj->spheres);
-        if (!s && (s = pen_spheres_ensure_weights(ctx, &obj->spheres))) s = wrap(ctx, w, s);
-        return s;
+        return pen__spheres_from_json(ctx, w, item, &obj->spheres);
     }
     if (cJSON_IsObject(item)) {
         static const char *const known[] = {"fit", NULL};
@@ -287,7 +279,7 @@ static pen_status parse_object(pen_context *ctx, const char *path, const where *
     obj->mesh_path = pen__io_path_resolve(ctx, path, mesh_rel);
     if (!obj->mesh_path) return PEN_ERROR_MEMORY;
     s = pen_mesh_load(ctx, obj->mesh_path, &obj->mesh);
-    if (s) return wrap(ctx, &wm, s);
+    if (s) return pen__json_wrap(ctx, s, &wm);
 
     /* The texture: given, or the mesh material's map_Kd when no constant albedo is given. */
     const where *wtex = &wt;
@@ -304,7 +296,7 @@ static pen_status parse_object(pen_context *ctx, const char *path, const where *
             return pen__json_error(ctx, PEN_ERROR_PARSE, wtex,
                                    "a texture needs a mesh with texture coordinates");
         s = pen_image_load(ctx, obj->texture_path, &obj->texture);
-        if (s) return wrap(ctx, wtex, s);
+        if (s) return pen__json_wrap(ctx, s, wtex);
     }
     return parse_spheres(ctx, path, &ws, member(o, "spheres"), obj);
 }
@@ -433,24 +425,6 @@ pen_status pen_scene_load(pen_context *ctx, const char *path, pen_scene *out) {
     s = scene_from_text(ctx, text, size, path, out);
     free(text);
     return s;
-}
-
-void pen_scene_free(pen_scene *scene) {
-    if (!scene) return;
-    for (int i = 0; i < scene->object_count; ++i) {
-        pen_object *o = &scene->objects[i];
-        pen_mesh_free(&o->mesh);
-        pen_image_free(&o->texture);
-        pen_spheres_free(&o->spheres);
-        free(o->mesh_path);
-        free(o->texture_path);
-        free(o->spheres_path);
-    }
-    free(scene->objects);
-    pen_image_free(&scene->lighting.envmap);
-    free(scene->lighting.envmap_path);
-    free(scene->path);
-    memset(scene, 0, sizeof *scene);
 }
 
 /* ---- Saving ---------------------------------------------------------------------------------- */

@@ -1,34 +1,15 @@
-/* Sphere sets: allocation and their JSON files
+/* Sphere sets: their JSON files
  *     {"spheres": [{"center": [x, y, z], "radius": r, "weight": k}, ...], "metrics": {...}, ...}
  * (or a bare array of sphere objects). Other top-level members are kept by writers and ignored
  * by the reader; inside a sphere object only "center", "radius", the optional overlap "weight"
  * (finite, >= 0; given for every sphere or for none) and "_comments" may appear. */
-#include "penumbra/spheres.h"
 #include "io/io_internal.h"
 #include "io/spheres_json.h"
+#include "penumbra/io.h"
 
 #include <float.h>
 #include <stdlib.h>
 #include <string.h>
-
-pen_status pen_spheres_create(pen_context *ctx, int count, pen_spheres *out) {
-    memset(out, 0, sizeof *out);
-    if (count < 0 || (size_t)count > PEN_MAX_ELEMENTS)
-        return pen__error(ctx, PEN_ERROR_ARGUMENT, "spheres: count %d out of range [0, %zu]", count,
-                          (size_t)PEN_MAX_ELEMENTS);
-    if (count == 0) return PEN_OK;
-    out->data = pen__calloc(ctx, 4 * (size_t)count, sizeof(float), "spheres");
-    if (!out->data) return PEN_ERROR_MEMORY;
-    out->count = count;
-    return PEN_OK;
-}
-
-void pen_spheres_free(pen_spheres *spheres) {
-    if (!spheres) return;
-    free(spheres->data);
-    free(spheres->weight);
-    memset(spheres, 0, sizeof *spheres);
-}
 
 pen_status pen__spheres_from_json(pen_context *ctx, const pen__json_where *w, const cJSON *list,
                                   pen_spheres *out) {

@@ -24,72 +24,14 @@
  * The mask is computed once, before the first iteration, and held fixed: the weights are
  * constants of the objective, whose gradient is then the plain loss's gradient times w_p / mean
  * weight. The loss is normalised by the weights' sum, so s = 0 is exactly the plain mean and the
- * loss keeps the units of a mean squared (or absolute) error. */
+ * loss keeps the units of a mean squared (or absolute) error. The weighted loss itself is
+ * computed beside the plain ones, in src/render/loss.c; this file makes the weights. */
 #include "optim/optim_internal.h"
 
 #include "penumbra/render.h"
 
 #include <stdlib.h>
 #include <string.h>
-
-/* ---- The loss -------------------------------------------------------------------------------- */
-
-static pen_status check_shapes(pen_context *ctx, const pen_image *image, const pen_image *target) {
-    if (!image->data || !target->data || image->width != target->width ||
-        image->height != target->height || image->channels != target->channels)
-        return pen__error(ctx, PEN_ERROR_ARGUMENT, "loss: image and target shapes differ");
-    return PEN_OK;
-}
-
-double pen__optim_weight_sum(const float *weight, size_t pixels) {
-    if (!weight) return (double)pixels;
-    double sum = 0.0;
-    for (size_t p = 0; p < pixels; ++p)
-        sum += (double)weight[p];
-    return sum;
-}
-
-pen_status pen__optim_loss_fwd(pen_context *ctx, pen_optim_loss kind, const pen_image *image,
-                               const pen_image *target, const float *weight, double *loss) {
-    pen_status s = check_shapes(ctx, image, target);
-    if (s) return s;
-    const size_t pixels = (size_t)image->width * (size_t)image->height;
-    const int C = image->channels;
-    const double wsum = pen__optim_weight_sum(weight, pixels);
-    if (!(wsum > 0.0) || !isfinite(wsum))
-        return pen__error(ctx, PEN_ERROR_ARGUMENT, "loss: the pixel weights sum to %g", wsum);
-    double sum = 0.0;
-    for (size_t p = 0; p < pixels; ++p) {
-        double e = 0.0;
-        for (int c = 0; c < C; ++c) {
-            const size_t i = p * (size_t)C + (size_t)c;
-            const double r = (double)image->data[i] - (double)target->data[i];
-            e += kind == PEN_OPTIM_LOSS_L1 ? fabs(r) : r * r;
-        }
-        sum += weight ? (double)weight[p] * e : e;
-    }
-    *loss = sum / ((double)C * wsum);
-    if (!isfinite(*loss))
-        return pen__error(ctx, PEN_ERROR_ARGUMENT, "loss: not finite (NaN/Inf pixels)");
-    return PEN_OK;
-}
-
-void pen__optim_loss_bwd(pen_optim_loss kind, const pen_image *image, const pen_image *target,
-                         const float *weight, double d_loss, pen_image *d_image) {
-    const size_t pixels = (size_t)image->width * (size_t)image->height;
-    const int C = image->channels;
-    const double k = d_loss / ((double)C * pen__optim_weight_sum(weight, pixels));
-    for (size_t p = 0; p < pixels; ++p) {
-        const double kp = weight ? k * (double)weight[p] : k;
-        for (int c = 0; c < C; ++c) {
-            const size_t i = p * (size_t)C + (size_t)c;
-            const double r = (double)image->data[i] - (double)target->data[i];
-            const double g = kind == PEN_OPTIM_LOSS_L1 ? (r > 0.0 ? 1.0 : r < 0.0 ? -1.0 : 0.0)
-                                                       : 2.0 * r;
-            d_image->data[i] += (float)(kp * g);
-        }
-    }
-}
 
 /* ---- The shadow mask ------------------------------------------------------------------------- */
 

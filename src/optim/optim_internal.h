@@ -4,10 +4,12 @@
 #define PEN_OPTIM_INTERNAL_H
 
 #include "core/internal.h"
-#include "penumbra/optim.h"
+#include "penumbra/io.h"
 #include "penumbra/mesh.h"
+#include "penumbra/optim.h"
 #include "penumbra/render.h"
 #include "penumbra/spheres.h"
+#include "render/loss.h"
 
 #include <stdint.h>
 
@@ -91,17 +93,18 @@ double pen__optim_spheres_energy(const pen__deform_graph *graph, const double *i
 
 /* ---- Weighted loss and shadow mask (src/optim/loss.c) --------------------------------------- */
 
-/* loss = sum_p w_p sum_c rho(image_pc - target_pc) / (C sum_p w_p) over the pixels p and the C
- * channels, rho = r^2 (l2) or |r| (l1); `weight` (one per pixel) NULL means w = 1, the plain
- * mean. Summed in double in pixel order. Shapes must match; the weights must be >= 0 with a
- * positive sum. */
-pen_status pen__optim_loss_fwd(pen_context *ctx, pen_optim_loss kind, const pen_image *image,
-                               const pen_image *target, const float *weight, double *loss);
-/* sum_p w_p, summed in pixel order (the pixel count when weight is NULL). */
-double pen__optim_weight_sum(const float *weight, size_t pixels);
-/* Adds d_loss * dloss/dimage into d_image (the image's shape). */
-void pen__optim_loss_bwd(pen_optim_loss kind, const pen_image *image, const pen_image *target,
-                         const float *weight, double d_loss, pen_image *d_image);
+/* The weighted loss is computed beside the plain ones (src/render/loss.c, render/loss.h); these
+ * name it by the task's loss kind. */
+static inline pen_status pen__optim_loss_fwd(pen_context *ctx, pen_optim_loss kind,
+                                             const pen_image *image, const pen_image *target,
+                                             const float *weight, double *loss) {
+    return pen__loss_weighted_fwd(ctx, kind == PEN_OPTIM_LOSS_L1, image, target, weight, loss);
+}
+static inline void pen__optim_loss_bwd(pen_optim_loss kind, const pen_image *image,
+                                       const pen_image *target, const float *weight, double d_loss,
+                                       pen_image *d_image) {
+    pen__loss_weighted_bwd(kind == PEN_OPTIM_LOSS_L1, image, target, weight, d_loss, d_image);
+}
 /* The SH lighting (sh_bands^2 rows) that best explains `target` by the scene `sc` rendered
  * without shadows (least squares per channel; refitted once over the pixels the first fit's
  * shadow mask calls lit, m < 0.1). Band 3's coefficients stay 0: no unshadowed diffuse surface

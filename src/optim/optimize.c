@@ -676,8 +676,8 @@ static pen_status fitted_lighting(pen_context *ctx, const pen_optim_task *t, run
 /* Least-squares lighting: the ridge is fixed at the initial guess, whose lighting is then solved
  * for (so the first render, the loss curve's start, shows the solved lighting). */
 static pen_status lighting_solver_init(pen_context *ctx, const pen_optim_task *t, run *r) {
-    r->weight_sum = pen__optim_weight_sum(
-        r->weight, (size_t)t->target.width * (size_t)t->target.height);
+    r->weight_sum =
+        pen__loss_weight_sum(r->weight, (size_t)t->target.width * (size_t)t->target.height);
     r->mu[0] = r->mu[1] = r->mu[2] = -1.0;
     r->solved_for = pen__calloc(ctx, r->n + 1, sizeof(float), "lighting solve");
     if (!r->solved_for) return PEN_ERROR_MEMORY;

@@ -24,13 +24,6 @@ static where at(const where *w, const char *name) {
     return c;
 }
 
-/* Re-records the current error (from a referenced file) behind the key that named it. */
-static pen_status wrap(pen_context *ctx, const where *w, pen_status s) {
-    char inner[1024];
-    snprintf(inner, sizeof inner, "%s", pen_context_error(ctx));
-    return pen__json_error(ctx, s, w, "%s", inner);
-}
-
 pen_optim_lr pen_optim_lr_default(void) {
     pen_optim_lr lr = {1e-2f, 1e-2f, 1e-2f, 1e-2f, 1e-2f, 1e-3f, 1e-2f};
     return lr;
@@ -75,7 +68,7 @@ static pen_status parse_scene_ref(pen_context *ctx, const char *path, const wher
         if (!full) return PEN_ERROR_MEMORY;
         s = pen_scene_load(ctx, full, out);
         free(full);
-        return s ? wrap(ctx, &w, s) : PEN_OK;
+        return s ? pen__json_wrap(ctx, s, &w) : PEN_OK;
     }
     if (cJSON_IsObject(item)) {
         char *text = cJSON_PrintUnformatted(item);
@@ -134,7 +127,7 @@ static pen_status parse_target(pen_context *ctx, const char *path, const where *
     if (!full) return PEN_ERROR_MEMORY;
     s = pen_optim_task_set_target(ctx, t, full);
     free(full);
-    return s ? wrap(ctx, &w, s) : PEN_OK;
+    return s ? pen__json_wrap(ctx, s, &w) : PEN_OK;
 }
 
 static pen_status parse_groups(pen_context *ctx, const where *top, const cJSON *root,

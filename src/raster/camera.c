@@ -1,4 +1,5 @@
-/* Pinhole camera: frame, rays, and the world -> screen projection with its Jacobian.
+/* The prepared pinhole camera (pen_view): the world -> screen projection with its Jacobian, and
+ * pixel rays. The camera's frame and intrinsics are the model's (src/scene/camera.c):
  *
  * The camera looks from eye towards target. Its frame is right = normalize(forward x up),
  * true up = right x forward, so (right, up, -forward) is a right-handed basis. With
@@ -10,82 +11,25 @@
  * a ray's parameter is the view depth itself. Everything is computed in double; the float
  * entry points convert at the boundary.
  */
+#include "scene/camera.h"
 #include "core/internal.h"
 #include "raster/raster_internal.h"
 
 #include <math.h>
 
-/* ---- Frame ----------------------------------------------------------------------------------- */
-
-static void normalize_d(double v[3]) {
-    double n = sqrt(pen__dot_d(v, v));
-    v[0] /= n, v[1] /= n, v[2] /= n;
-}
-
-/* Orthonormal frame of a camera without failing: a degenerate forward falls back to -Z, an up
- * vector parallel to forward to the world axis least aligned with forward. */
-static void camera_frame_d(const pen_camera *cam, double right[3], double up[3], double fwd[3]) {
-    double f[3] = {(double)cam->target[0] - (double)cam->eye[0],
-                   (double)cam->target[1] - (double)cam->eye[1],
-                   (double)cam->target[2] - (double)cam->eye[2]};
-    double fl = sqrt(pen__dot_d(f, f));
-    if (!(fl > 0.0) || !isfinite(fl)) f[0] = 0.0, f[1] = 0.0, f[2] = -1.0, fl = 1.0;
-    f[0] /= fl, f[1] /= fl, f[2] /= fl;
-    double u[3];
-    pen__load3_d(cam->up, u);
-    double r[3];
-    pen__cross_d(f, u, r);
-    double ul = sqrt(pen__dot_d(u, u));
-    double rl = sqrt(pen__dot_d(r, r));
-    if (!(rl > 1e-6 * ul) || !isfinite(rl)) {
-        /* up is zero, non-finite or parallel to the view direction: pick the axis with the
-         * smallest component along f, which is at least ~0.8 away from parallel. */
-        int k = 0;
-        for (int i = 1; i < 3; ++i)
-            if (fabs(f[i]) < fabs(f[k])) k = i;
-        u[0] = u[1] = u[2] = 0.0;
-        u[k] = 1.0;
-        pen__cross_d(f, u, r);
-    }
-    normalize_d(r);
-    pen__cross_d(r, f, up);
-    normalize_d(up);
-    for (int i = 0; i < 3; ++i)
-        right[i] = r[i], fwd[i] = f[i];
-}
+/* ---- View ------------------------------------------------------------------------------------ */
 
 static void view_setup(const pen_camera *cam, pen_view *view) {
     view->width = cam->width;
     view->height = cam->height;
     pen__load3_d(cam->eye, view->eye);
-    camera_frame_d(cam, view->right, view->up, view->forward);
-    double h = cam->height > 0 ? (double)cam->height : 1.0;
-    double fov = (double)cam->fov_y_deg;
-    if (!(fov > 0.0 && fov < 180.0)) fov = 60.0; /* only reachable without pen_view_init */
-    view->focal = h / (2.0 * tan(fov * (PEN_PI / 360.0)));
-    view->cx = 0.5 * (double)cam->width;
-    view->cy = 0.5 * h;
+    pen__camera_frame_d(cam, view->right, view->up, view->forward);
+    pen__camera_intrinsics_d(cam, &view->focal, &view->cx, &view->cy);
     double d[3];
     pen__load3_d(cam->target, d);
     pen__sub_d(d, view->eye, d);
     double dist = sqrt(pen__dot_d(d, d));
     view->near_plane = dist > 0.0 && isfinite(dist) ? 1e-3 * dist : 1e-3;
-}
-
-void pen_camera_frame(const pen_camera *cam, float right[3], float up[3], float forward[3]) {
-    double r[3], u[3], f[3];
-    camera_frame_d(cam, r, u, f);
-    for (int i = 0; i < 3; ++i)
-        right[i] = (float)r[i], up[i] = (float)u[i], forward[i] = (float)f[i];
-}
-
-void pen_camera_ray(const pen_camera *cam, float px, float py, float dir[3]) {
-    pen_view view;
-    view_setup(cam, &view);
-    double d[3];
-    pen_view_ray(&view, (double)px, (double)py, d);
-    normalize_d(d);
-    dir[0] = (float)d[0], dir[1] = (float)d[1], dir[2] = (float)d[2];
 }
 
 pen_status pen_view_init(pen_context *ctx, const pen_camera *cam, pen_view *view) {
@@ -107,10 +51,8 @@ pen_status pen_view_init(pen_context *ctx, const pen_camera *cam, pen_view *view
 }
 
 void pen_view_ray(const pen_view *view, double px, double py, double dir[3]) {
-    double rx = (px - view->cx) / view->focal;
-    double ry = (view->cy - py) / view->focal;
-    for (int i = 0; i < 3; ++i)
-        dir[i] = rx * view->right[i] + ry * view->up[i] + view->forward[i];
+    pen__camera_ray_d(view->right, view->up, view->forward, view->focal, view->cx, view->cy, px, py,
+                      dir);
 }
 
 /* ---- Projection: forward and backward ------------------------------------------------------- */

@@ -38,11 +38,6 @@
 
 #define TILE 16
 
-int pen__raster_threads(const pen_context *ctx) {
-    int n = pen_context_threads(ctx);
-    return n > 0 ? n : omp_get_max_threads();
-}
-
 /* ---- G-buffer -------------------------------------------------------------------------------- */
 
 pen_status pen_gbuffer_create(pen_context *ctx, int width, int height, pen_gbuffer *out) {

@@ -3,6 +3,8 @@
 #ifndef PEN_RASTER_INTERNAL_H
 #define PEN_RASTER_INTERNAL_H
 
+#include "core/internal.h"
+#include "core/vec.h"
 #include "penumbra/raster.h"
 
 /* Projection of a world point: s = (sx, sy, depth); J (may be NULL) = ds/dp, row-major 3x3. */
@@ -20,36 +22,15 @@ void pen__raster_ray_bary_bwd_d(const double eye[3], const double dir[3], const 
                                 const double d_x[3], double d_p0[3], double d_p1[3],
                                 double d_p2[3]);
 
-static inline void pen__cross_d(const double a[3], const double b[3], double out[3]) {
-    double x = a[1] * b[2] - a[2] * b[1];
-    double y = a[2] * b[0] - a[0] * b[2];
-    double z = a[0] * b[1] - a[1] * b[0];
-    out[0] = x, out[1] = y, out[2] = z;
-}
-
-static inline double pen__dot_d(const double a[3], const double b[3]) {
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-}
-
-static inline void pen__sub_d(const double a[3], const double b[3], double out[3]) {
-    out[0] = a[0] - b[0], out[1] = a[1] - b[1], out[2] = a[2] - b[2];
-}
-
-static inline void pen__load3_d(const float *p, double out[3]) {
-    out[0] = (double)p[0], out[1] = (double)p[1], out[2] = (double)p[2];
-}
-
 /* Validates a mesh list (counts, NULL arrays, finite positions, indices in range); *total gets
  * the number of triangles. */
 pen_status pen__raster_check_meshes(pen_context *ctx, const pen_raster_mesh *meshes, int mesh_count,
                                     size_t *total);
 
-/* OpenMP thread count for a context: its setting, or the runtime's default when 0. */
-int pen__raster_threads(const pen_context *ctx);
-/* The same for a loop of `work` cheap items: one thread below a few thousand, where waking a
- * team costs more than the loop (and a lot more on a loaded machine). */
+/* The thread count (pen__threads) for a loop of `work` cheap items: one thread below a few
+ * thousand, where waking a team costs more than the loop (and a lot more on a loaded machine). */
 static inline int pen__raster_threads_for(const pen_context *ctx, size_t work) {
-    return work < 8192 ? 1 : pen__raster_threads(ctx);
+    return work < 8192 ? 1 : pen__threads(ctx);
 }
 
 #endif

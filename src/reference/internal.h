@@ -3,6 +3,7 @@
 #ifndef PEN_REFERENCE_INTERNAL_H
 #define PEN_REFERENCE_INTERNAL_H
 
+#include "core/random.h"
 #include "penumbra/image.h"
 
 #include <stdint.h>
@@ -15,30 +16,22 @@ typedef struct pen__rng {
     uint64_t state;
 } pen__rng;
 
-static inline uint64_t pen__rng_mix(uint64_t z) {
-    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-    return z ^ (z >> 31);
-}
-
 static inline pen__rng pen__rng_stream(uint64_t seed, uint64_t a, uint64_t b) {
     pen__rng r;
-    uint64_t k = pen__rng_mix(seed + 0x9E3779B97F4A7C15ull);
-    k = pen__rng_mix(k ^ (a + 0x632BE59BD9B4E019ull));
-    r.state = pen__rng_mix(k ^ (b + 0x85157AF5ull));
+    uint64_t k = pen__splitmix_mix(seed + PEN__SPLITMIX_GAMMA);
+    k = pen__splitmix_mix(k ^ (a + 0x632BE59BD9B4E019ull));
+    r.state = pen__splitmix_mix(k ^ (b + 0x85157AF5ull));
     return r;
 }
 
 /* Uniform in [0, 1) with 24 random bits (every value exactly representable as a float). */
 static inline float pen__rng_next(pen__rng *r) {
-    r->state += 0x9E3779B97F4A7C15ull;
-    return (float)(pen__rng_mix(r->state) >> 40) * 0x1p-24f;
+    return (float)(pen__splitmix_next(&r->state) >> 40) * 0x1p-24f;
 }
 
 /* Uniform in [0, 1) with 53 random bits, for choices among more than 2^24 items. */
 static inline double pen__rng_next_double(pen__rng *r) {
-    r->state += 0x9E3779B97F4A7C15ull;
-    return (double)(pen__rng_mix(r->state) >> 11) * 0x1p-53;
+    return (double)(pen__splitmix_next(&r->state) >> 11) * 0x1p-53;
 }
 
 /* ---- Environment-map sampling ------------------------------------------------------------------

@@ -31,13 +31,15 @@
  */
 #include "penumbra/reference.h"
 
+#include "penumbra/envmap.h"
 #include "penumbra/raster.h"
 
 #include "core/internal.h"
+#include "core/vec.h"
+#include "geometry/embree.h"
 #include "reference/internal.h"
-#include "render/render_internal.h"
+#include "scene/texture.h"
 
-#include <embree3/rtcore.h>
 #include <omp.h>
 
 #include <math.h>
@@ -62,26 +64,6 @@ struct pen_reference {
     float cosine_zonal[PEN_SH_MAX_BANDS]; /* clamped cosine as a zonal function, SH lighting */
     pen__envmap_sampler sampler;          /* ENVMAP lighting only */
 };
-
-/* ---- Small vector helpers ------------------------------------------------------------------- */
-
-static float dot3(const float a[3], const float b[3]) {
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-}
-
-static void cross3(const float a[3], const float b[3], float out[3]) {
-    out[0] = a[1] * b[2] - a[2] * b[1];
-    out[1] = a[2] * b[0] - a[0] * b[2];
-    out[2] = a[0] * b[1] - a[1] * b[0];
-}
-
-/* Normalises v in place; returns 0 (and leaves v) if it has no usable length. */
-static int normalize3(float v[3]) {
-    float len = sqrtf(dot3(v, v));
-    if (!(len > 1e-30f) || !isfinite(len)) return 0;
-    v[0] /= len, v[1] /= len, v[2] /= len;
-    return 1;
-}
 
 /* ---- Lighting -------------------------------------------------------------------------------
  * World direction w and map direction m are related by w = R_y(rotation) m: the map is rotated
@@ -201,7 +183,7 @@ static void irradiance_sample(const pen_reference *ref, const float org[3], cons
         pen__envmap_sampler_sample(&ref->sampler, pick, r, &u, &v, &tx, &ty);
         pen_envmap_direction(u, v, m);
         map_to_world(ref, m, w);
-        float c = dot3(n, w);
+        float c = pen__dot_f(n, w);
         float pl = pen__envmap_sampler_pdf(&ref->sampler, tx, ty, sinf(PEN_PI_F * v));
         if (c > 0 && pl > 0 && !occluded(ref, org, w)) {
             envmap_texel_radiance(ref, tx, ty, L);
@@ -248,16 +230,17 @@ static void mesh_surface(const pen_reference *ref, unsigned g, unsigned t, float
         e1[i] = P[3 * idx[1] + i] - P[3 * idx[0] + i];
         e2[i] = P[3 * idx[2] + i] - P[3 * idx[0] + i];
     }
-    cross3(e1, e2, s->ng);
-    if (!normalize3(s->ng)) { /* Embree does not report hits on degenerate triangles, but be safe */
+    pen__cross_f(e1, e2, s->ng);
+    /* Embree does not report hits on degenerate triangles, but be safe. */
+    if (!pen__normalize_f(s->ng)) {
         for (int i = 0; i < 3; ++i)
             s->ng[i] = -dir[i];
     }
-    if (!normalize3(s->ns)) memcpy(s->ns, s->ng, sizeof s->ns);
-    if (dot3(s->ng, dir) > 0) /* the camera sees the back: light that side */
+    if (!pen__normalize_f(s->ns)) memcpy(s->ns, s->ng, sizeof s->ns);
+    if (pen__dot_f(s->ng, dir) > 0) /* the camera sees the back: light that side */
         for (int i = 0; i < 3; ++i)
             s->ng[i] = -s->ng[i], s->ns[i] = -s->ns[i];
-    if (dot3(s->ns, s->ng) <= 0) memcpy(s->ns, s->ng, sizeof s->ns);
+    if (pen__dot_f(s->ns, s->ng) <= 0) memcpy(s->ns, s->ng, sizeof s->ns);
 
     if (obj->texture.data) {
         const uint32_t *ti = mesh->uv_indices + 3 * (size_t)t;
@@ -441,16 +424,11 @@ static pen_status build_embree(pen_context *ctx, pen_reference *ref) {
         const pen_mesh *m = &sc->objects[o].mesh;
         if (m->triangle_count == 0) continue;
         RTCGeometry geom = rtcNewGeometry(ref->device, RTC_GEOMETRY_TYPE_TRIANGLE);
-        float *vb = rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
-                                            3 * sizeof(float), (size_t)m->vertex_count);
-        unsigned *ib = rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
-                                               3 * sizeof(unsigned), (size_t)m->triangle_count);
-        if (!vb || !ib) {
+        if (!pen__embree_fill_triangles(geom, ref->positions[o], (size_t)m->vertex_count,
+                                        m->indices, (size_t)m->triangle_count)) {
             rtcReleaseGeometry(geom);
             return embree_status(ctx, ref->device, "allocating mesh buffers");
         }
-        memcpy(vb, ref->positions[o], 3 * sizeof(float) * (size_t)m->vertex_count);
-        memcpy(ib, m->indices, 3 * sizeof(unsigned) * (size_t)m->triangle_count);
         rtcCommitGeometry(geom);
         rtcAttachGeometryByID(ref->rtc, geom, (unsigned)o);
         rtcReleaseGeometry(geom);
@@ -458,18 +436,12 @@ static pen_status build_embree(pen_context *ctx, pen_reference *ref) {
     if (sc->ground.enabled) {
         float h = sc->ground.half_size, y = sc->ground.height;
         RTCGeometry geom = rtcNewGeometry(ref->device, RTC_GEOMETRY_TYPE_TRIANGLE);
-        float *vb = rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
-                                            3 * sizeof(float), 4);
-        unsigned *ib = rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
-                                               3 * sizeof(unsigned), 2);
-        if (!vb || !ib) {
+        const float corners[12] = {-h, y, -h, -h, y, h, h, y, h, h, y, -h};
+        const uint32_t tris[6] = {0, 1, 2, 0, 2, 3}; /* counter-clockwise seen from +Y */
+        if (!pen__embree_fill_triangles(geom, corners, 4, tris, 2)) {
             rtcReleaseGeometry(geom);
             return embree_status(ctx, ref->device, "allocating ground buffers");
         }
-        const float corners[12] = {-h, y, -h, -h, y, h, h, y, h, h, y, -h};
-        const unsigned tris[6] = {0, 1, 2, 0, 2, 3}; /* counter-clockwise seen from +Y */
-        memcpy(vb, corners, sizeof corners);
-        memcpy(ib, tris, sizeof tris);
         rtcCommitGeometry(geom);
         ref->ground_id = (unsigned)sc->object_count;
         rtcAttachGeometryByID(ref->rtc, geom, ref->ground_id);
@@ -626,8 +598,7 @@ pen_status pen_reference_render_coverage(pen_context *ctx, const pen_reference *
     }
     int grid = (int)floor(sqrt((double)spp));
     const int tiles_x = (w + TILE - 1) / TILE, tiles = tiles_x * ((h + TILE - 1) / TILE);
-    int threads = pen_context_threads(ctx);
-    if (threads <= 0) threads = omp_get_max_threads();
+    int threads = pen__threads(ctx);
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
     for (int t = 0; t < tiles; ++t) {
         int x0 = (t % tiles_x) * TILE, y0 = (t / tiles_x) * TILE;
@@ -660,7 +631,7 @@ pen_status pen_reference_irradiance(pen_context *ctx, const pen_reference *ref, 
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "reference: samples %d out of [1, %d]", samples,
                           PEN_REFERENCE_MAX_SPP);
     float nn[3] = {n[0], n[1], n[2]};
-    if (!pen__finite3(x) || !pen__finite3(n) || !normalize3(nn))
+    if (!pen__finite3(x) || !pen__finite3(n) || !pen__normalize_f(nn))
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "reference: bad point or normal");
     float org[3];
     for (int i = 0; i < 3; ++i)

@@ -15,6 +15,7 @@
 
 #include "core/internal.h"
 #include "penumbra/fit.h"
+#include "penumbra/io.h"
 #include "penumbra/scene.h"
 
 #include <stdio.h>
@@ -435,6 +436,10 @@ pen_status pen_flat_scene_load(pen_context *ctx, const char *path, int fit_spher
     if (!l) return PEN_ERROR_MEMORY;
     pen_status s = pen_scene_load(ctx, path, &l->scene);
     if (!s && fit_spheres) s = pen_scene_fit_spheres(ctx, &l->scene);
+    /* The overlap weights, which the loader does not solve: the flat scene carries them, so the
+     * binding's renders do not solve them again for every render state. */
+    for (int o = 0; !s && o < l->scene.object_count; ++o)
+        s = pen_spheres_ensure_weights(ctx, &l->scene.objects[o].spheres);
     if (!s) s = flatten(ctx, l);
     if (s) {
         pen_flat_loaded_free(l);

@@ -4,8 +4,11 @@
 #ifndef PEN_RENDER_INTERNAL_H
 #define PEN_RENDER_INTERNAL_H
 
+#include "penumbra/envmap.h" /* the background along camera rays */
+#include "penumbra/fit.h"    /* overlap weights, computed when a sphere set has none */
 #include "penumbra/image.h"
 #include "penumbra/sh.h"
+#include "scene/texture.h" /* the albedo lookup shading uses */
 
 /* Everything about a frame's shading that is the same for every pixel. */
 typedef struct pen__shade_params {
@@ -131,12 +134,5 @@ int pen__shade_fast_variants(void);
 const pen__shade_fast_ops *pen__shade_fast_variant_ops(int v);
 int pen__shade_fast_use(int v);
 const pen__shade_fast_ops *pen__shade_fast_current(void);
-
-/* Bilinear texture lookup (3 channels), repeat wrap, texel centres at ((i + 0.5) / W,
- * 1 - (j + 0.5) / H) in (u, v) with v up (row 0 is the top of the image). */
-void pen__texture_fwd(const pen_image *tex, const float uv[2], float rgb[3]);
-/* Adds into d_texels (3 per texel, may be NULL) and d_uv (may be NULL). */
-void pen__texture_bwd(const pen_image *tex, const float uv[2], const float d_rgb[3],
-                      float *d_texels, float d_uv[2]);
 
 #endif

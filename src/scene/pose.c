@@ -11,8 +11,8 @@
  * identity. The backward over many points first reduces G = sum_i d_out_i p_i^T in double, then
  * contracts G with dR/dw once, so its cost is one pass over the points.
  */
-#include "geometry/pose_internal.h"
-#include "penumbra/raster.h"
+#include "penumbra/scene.h"
+#include "scene/pose_internal.h"
 
 #include <math.h>
 

@@ -1,7 +1,7 @@
-/* Triangle meshes: freeing, bounds, validation, and loading/saving by file extension. */
+/* Triangle meshes as data: freeing, bounds and validation (the checks every loader's result and
+ * every mesh built in memory must pass). File formats are src/io's (obj.c, ply.c, mesh.c). */
 #include "penumbra/mesh.h"
 #include "core/internal.h"
-#include "io/io_internal.h"
 
 #include <stdlib.h>
 #include <string.h>
@@ -81,17 +81,4 @@ pen_status pen_mesh_validate(pen_context *ctx, const pen_mesh *mesh) {
                               "normal");
     }
     return s;
-}
-
-pen_status pen_mesh_load(pen_context *ctx, const char *path, pen_mesh *out) {
-    memset(out, 0, sizeof *out);
-    if (pen__io_has_ext(path, "obj")) return pen_mesh_load_obj(ctx, path, out);
-    if (pen__io_has_ext(path, "ply")) return pen_mesh_load_ply(ctx, path, out);
-    return pen__error(ctx, PEN_ERROR_UNSUPPORTED,
-                      "%s: unknown mesh format (expected a .obj or .ply file)", path);
-}
-
-pen_status pen_mesh_save(pen_context *ctx, const char *path, const pen_mesh *mesh) {
-    if (pen__io_has_ext(path, "obj")) return pen_mesh_save_obj(ctx, path, mesh);
-    return pen__error(ctx, PEN_ERROR_UNSUPPORTED, "%s: meshes are saved as .obj only", path);
 }

@@ -1,4 +1,4 @@
-/* Internal interface of src/geometry/pose.c: the rotation in double with its derivative, for the
+/* Internal interface of src/scene/pose.c: the rotation in double with its derivative, for the
  * pose backward and its finite-difference tests. */
 #ifndef PEN_POSE_INTERNAL_H
 #define PEN_POSE_INTERNAL_H

@@ -1,0 +1,95 @@
+/* penumbra/io.h -- the file formats: scene JSON, meshes (OBJ, PLY), images (PNG, Radiance HDR,
+ * OpenEXR) and sphere sets, read into and written from the model types of scene.h, mesh.h,
+ * image.h and spheres.h. Implemented in src/io, which computes nothing beyond parsing: a scene's
+ * overlap weights, for instance, are not solved at load (the renderer computes them when a sphere
+ * set has none; pen_spheres_ensure_weights in fit.h does it explicitly).
+ *
+ * Every loader zeroes *out on failure and names the file and the place (line, byte offset or
+ * JSON key path) in the context's message. Every writer is atomic: it writes a temporary file in
+ * the same folder and renames it, so a failure never leaves a partial file.
+ */
+#ifndef PENUMBRA_IO_H
+#define PENUMBRA_IO_H
+
+#include "penumbra/core.h"
+#include "penumbra/image.h"
+#include "penumbra/mesh.h"
+#include "penumbra/scene.h"
+#include "penumbra/spheres.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* ---- Scenes ---------------------------------------------------------------------------------- */
+
+/* Loads a scene JSON (docs/file-formats.md) with everything it references (meshes, textures,
+ * sphere sets, envmap), paths relative to the JSON file. Lighting: "envmap" is projected onto
+ * sh_bands bands (pen_envmap_to_sh) and kept for the background; "sh" gives the coefficients
+ * directly (and wins over the projection when both are present). Errors name the file and the
+ * JSON key path, e.g. "scene.json: camera.width: expected a positive integer, got -3"; errors of
+ * a referenced file are prefixed with the key that named it. Unknown keys are errors (keys
+ * starting with '_' are comments). Sphere sets keep the overlap weights their JSON gives and get
+ * none otherwise (pen_spheres.weight NULL: computed when needed). On failure *out is zeroed. */
+PEN_API pen_status pen_scene_load(pen_context *ctx, const char *path, pen_scene *out);
+/* The same from JSON text (e.g. a scene embedded in a task file, printed back to text): `path`
+ * names the text in messages and is the base of its relative paths. */
+PEN_API pen_status pen_scene_parse(pen_context *ctx, const char *json_text, const char *path,
+                                   pen_scene *out);
+/* Writes a scene JSON that pen_scene_load reads back to the same scene (paths relative to the
+ * new file where possible; the referenced files are not written). Atomic. */
+PEN_API pen_status pen_scene_save(pen_context *ctx, const char *path, const pen_scene *scene);
+/* Flags of pen_scene_save_ex. PEN_SCENE_SAVE_SH_LIGHTING writes the SH coefficients as "sh" even
+ * when there is an envmap (which is then written too, for the background): for lighting that was
+ * optimized and no longer equals the map's projection. */
+#define PEN_SCENE_SAVE_SH_LIGHTING 1u
+PEN_API pen_status pen_scene_save_ex(pen_context *ctx, const char *path, const pen_scene *scene,
+                                     unsigned flags);
+
+/* ---- Meshes ---------------------------------------------------------------------------------- */
+
+/* Loads a mesh by extension (.obj, .ply). Polygons are triangulated as fans; OBJ negative
+ * (relative) indices are resolved; zero and out-of-range indices, NaN/Inf coordinates,
+ * truncated files and absurd counts are errors naming the file and line (or byte offset).
+ * On success *out owns the arrays; on failure *out is zeroed. */
+PEN_API pen_status pen_mesh_load(pen_context *ctx, const char *path, pen_mesh *out);
+PEN_API pen_status pen_mesh_load_obj(pen_context *ctx, const char *path, pen_mesh *out);
+PEN_API pen_status pen_mesh_load_ply(pen_context *ctx, const char *path, pen_mesh *out);
+/* Writes a Wavefront OBJ (v, vt, vn, f with 1-based v/vt/vn references; no material). Atomic:
+ * temporary file + rename. pen_mesh_save picks the format by extension (.obj only). */
+PEN_API pen_status pen_mesh_save(pen_context *ctx, const char *path, const pen_mesh *mesh);
+PEN_API pen_status pen_mesh_save_obj(pen_context *ctx, const char *path, const pen_mesh *mesh);
+/* ---- Images ---------------------------------------------------------------------------------- */
+
+/* Loads .png (8- or 16-bit), .hdr or .exr (by extension) into 3 channels (RGB), linear: grey is
+ * replicated, alpha dropped. The size must be within PEN_IMAGE_MAX_DIM and every value finite
+ * (PEN_ERROR_PARSE otherwise). EXR channels R, G, B (or Y) are read as 32-bit floats whatever
+ * their stored type or compression; values are loaded as stored (an EXR may hold small negative
+ * values from lossy compression: clamping them is the user's business, see pen_envmap_to_sh).
+ * On failure *out is zeroed. */
+PEN_API pen_status pen_image_load(pen_context *ctx, const char *path, pen_image *out);
+/* PNG values as stored, v / 255 (or / 65535), without sRGB decoding: for data maps. */
+#define PEN_IMAGE_LOAD_RAW 1u
+PEN_API pen_status pen_image_load_ex(pen_context *ctx, const char *path, unsigned flags,
+                                     pen_image *out);
+/* Saves by extension: .png 8-bit sRGB (values clamped to [0,1], then encoded; a 2nd or 4th
+ * channel is alpha, stored linear), .hdr Radiance RGBE (negative values become 0), .exr 32-bit
+ * float with ZIP compression. 1 to 4 channels. Writes to a temporary file in the same folder and
+ * renames it, so a failure never leaves a partial file. NaN/Inf pixels are an error
+ * (PEN_ERROR_ARGUMENT naming the pixel). */
+PEN_API pen_status pen_image_save(pen_context *ctx, const char *path, const pen_image *image);
+/* 1 if path ends in an image extension pen_image_load/save handle (.png, .hdr, .exr; any case). */
+PEN_API int pen_image_path_supported(const char *path);
+
+/* ---- Sphere sets (the JSON of spheres.h) ----------------------------------------------------- */
+
+PEN_API pen_status pen_spheres_load(pen_context *ctx, const char *path, pen_spheres *out);
+/* Writes the spheres; `extra_json` (may be NULL) is a JSON object text whose members are added
+ * at the top level (e.g. "metrics"). Atomic: temp file + rename. */
+PEN_API pen_status pen_spheres_save(pen_context *ctx, const char *path, const pen_spheres *spheres,
+                                    const char *extra_json);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

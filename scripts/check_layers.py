@@ -1,0 +1,121 @@
+#!/usr/bin/env python3
+"""Checks the library's layering from a build's object files (README, "Layout").
+
+For each source file under src/ it lists the other folders' internal headers it includes and the
+functions it calls in other folders (undefined symbols of its object resolved to the object that
+defines them, by nm), then reports the folder dependency graph, its cycles, pairs of files that
+call each other, source files over 900 lines, and the folders implementing each public header.
+
+    python3 scripts/check_layers.py [build-dir] [-v]
+
+Exits 1 when the folder graph has a cycle or two files call each other, else 0. Calls through
+the sh/accuracy.c harness (measured against io's envmap projection) are reported like any other.
+"""
+import collections
+import os
+import re
+import subprocess
+import sys
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+args = [a for a in sys.argv[1:] if not a.startswith('-')]
+VERBOSE = '-v' in sys.argv
+BUILD = args[0] if args else os.path.join(ROOT, 'build')
+OBJDIR = os.path.join(BUILD, 'CMakeFiles', 'penumbra_obj.dir', 'src')
+
+
+def folder(src):
+    return src.split('/')[0]
+
+
+def cycles(graph):
+    """Every back edge's cycle found by a depth-first search (enough to say whether any exists)."""
+    state, found = {}, []
+
+    def visit(u, stack):
+        state[u] = 1
+        stack.append(u)
+        for v in sorted(graph.get(u, ())):
+            if v == u:
+                continue
+            if state.get(v) == 1:
+                found.append(stack[stack.index(v):] + [v])
+            elif not state.get(v):
+                visit(v, stack)
+        stack.pop()
+        state[u] = 2
+
+    for u in sorted(graph):
+        if not state.get(u):
+            visit(u, [])
+    return found
+
+
+def main():
+    if not os.path.isdir(OBJDIR):
+        sys.exit('no objects in %s: build first' % OBJDIR)
+    defined, undefined = {}, collections.defaultdict(set)
+    for dirpath, _, files in os.walk(OBJDIR):
+        for f in files:
+            if not f.endswith('.o'):
+                continue
+            path = os.path.join(dirpath, f)
+            src = os.path.relpath(path, OBJDIR)[:-2]
+            if not os.path.exists(os.path.join(ROOT, 'src', src)):
+                continue  # the object of a source that has since moved
+            out = subprocess.run(['nm', path], capture_output=True, text=True, check=True).stdout
+            for line in out.splitlines():
+                p = line.split()
+                if len(p) == 3 and p[1] in 'TDBRW':
+                    defined.setdefault(p[2], src)
+                elif len(p) == 2 and p[0] == 'U':
+                    undefined[src].add(p[1])
+    sources = sorted(set(undefined) | set(defined.values()))
+    calls = collections.defaultdict(lambda: collections.defaultdict(set))
+    for s in sources:
+        for sym in undefined[s]:
+            if sym in defined and defined[sym] != s:
+                calls[s][defined[sym]].add(sym)
+    graph = collections.defaultdict(set)
+    for s in sources:
+        text = open(os.path.join(ROOT, 'src', s), errors='replace').read()
+        heads = sorted({m.group(1) for m in re.finditer(r'#include "([a-z_]+/[a-z_]+\.(?:h|inc))"', text)
+                        if not m.group(1).startswith('penumbra/') and folder(m.group(1)) != folder(s)})
+        by_folder = collections.defaultdict(set)
+        for t, syms in calls[s].items():
+            if folder(t) != folder(s):
+                by_folder[folder(t)] |= syms
+        graph[folder(s)] |= set(by_folder) | {folder(h) for h in heads}
+        if VERBOSE and (heads or by_folder):
+            print(s)
+            for h in heads:
+                print('    includes', h)
+            for f, syms in sorted(by_folder.items()):
+                print('    calls %s: %s' % (f, ' '.join(sorted(syms))))
+    print('folder graph:')
+    for f in sorted(graph):
+        print('    %-10s -> %s' % (f, ', '.join(sorted(graph[f] - {f})) or '(nothing)'))
+    folder_cycles = cycles(graph)
+    print('folder cycles:', folder_cycles or 'none')
+    pairs = sorted({tuple(sorted((s, t))) for s in sources for t in calls[s] if s in calls[t]})
+    print('files calling each other:', pairs or 'none')
+    big = []
+    for dirpath, _, files in os.walk(os.path.join(ROOT, 'src')):
+        for f in files:
+            path = os.path.join(dirpath, f)
+            n = sum(1 for _ in open(path, errors='replace'))
+            if n > 900:
+                big.append('%s (%d)' % (os.path.relpath(path, ROOT), n))
+    print('source files over 900 lines:', ', '.join(sorted(big)) or 'none')
+    print('public headers -> folders implementing their functions:')
+    hdir = os.path.join(ROOT, 'include', 'penumbra')
+    for h in sorted(os.listdir(hdir)):
+        text = re.sub(r'/\*.*?\*/', '', open(os.path.join(hdir, h)).read(), flags=re.S)
+        impl = collections.Counter(folder(defined[n]) for n in set(re.findall(r'\b(pen_[a-z0-9_]+)\s*\(', text))
+                                   if n in defined)
+        print('    %-12s %s' % (h, ', '.join('%s (%d)' % kv for kv in sorted(impl.items())) or '(includes only)'))
+    return 1 if folder_cycles or pairs else 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

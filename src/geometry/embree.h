@@ -1,0 +1,17 @@
+/* Embree scene setup shared by the sphere fit's voxelizer (voxelize.c) and the reference renderer
+ * (src/reference): triangle geometry filled from penumbra's mesh arrays. Internal. */
+#ifndef PEN_GEOMETRY_EMBREE_H
+#define PEN_GEOMETRY_EMBREE_H
+
+#include <embree3/rtcore.h>
+#include <stddef.h>
+#include <stdint.h>
+
+/* Gives a triangle geometry (RTC_GEOMETRY_TYPE_TRIANGLE, not yet committed) new vertex and index
+ * buffers holding copies of `positions` (3 floats a vertex) and `indices` (3 a triangle). Copies,
+ * not shared buffers: Embree reads up to 16 bytes past the last vertex, which a caller's array
+ * need not have. Returns 0 when a buffer could not be allocated. */
+int pen__embree_fill_triangles(RTCGeometry geom, const float *positions, size_t vertex_count,
+                               const uint32_t *indices, size_t triangle_count);
+
+#endif

@@ -1,0 +1,34 @@
+/* The inside/outside voxel grid of a mesh and area-uniform surface samples (voxelize.c): what
+ * the sphere fit (fit.c) fits to. Internal to src/geometry, shared with the tests. */
+#ifndef PEN_GEOMETRY_VOXELIZE_H
+#define PEN_GEOMETRY_VOXELIZE_H
+
+#include "core/internal.h"
+#include "penumbra/fit.h" /* PEN_FIT_MAX_VOXELS */
+#include "penumbra/mesh.h"
+
+#include <stdint.h>
+
+/* Cubic voxels of edge h; voxel (i, j, k) has its centre at origin + h * (i, j, k) (the origin is
+ * the first centre) and index i + n[0] * (j + n[1] * k). */
+typedef struct pen__fit_grid {
+    double origin[3];
+    double h;
+    int n[3];
+    uint8_t *inside; /* n[0] n[1] n[2] flags, 1 = inside the mesh */
+} pen__fit_grid;
+
+/* pen_mesh_validate, and a bounding box that is not a point; on success lo/hi are the bounds. */
+pen_status pen__fit_check_mesh(pen_context *ctx, const pen_mesh *mesh, float lo[3], float hi[3]);
+/* Builds the grid over the mesh bounds padded by `pad` of the longest extent on every side, with
+ * `voxels` voxels along the longest padded axis, and classifies every centre (six-vote winding
+ * number test, see fit.h). */
+pen_status pen__fit_voxelize(pen_context *ctx, const pen_mesh *mesh, int voxels, double pad,
+                             pen__fit_grid *out);
+void pen__fit_grid_free(pen__fit_grid *grid);
+
+/* Area-uniform random points on the surface: 3 * count floats. Also returns the total area. */
+pen_status pen__fit_sample_surface(pen_context *ctx, const pen_mesh *mesh, int count, uint64_t seed,
+                                   float *points, double *area);
+
+#endif

@@ -1,0 +1,70 @@
+/* The pinhole camera of the model: its orthonormal frame, its intrinsics and the unit ray through
+ * an image point (pen_camera_frame, pen_camera_ray; conventions in penumbra/scene.h and
+ * src/raster/camera.c). The frame is right = normalize(forward x up), true up = right x forward;
+ * the focal length in pixels is f = H / (2 tan(fov_y / 2)) with the principal point at the image
+ * centre. Computed in double; the float entry points convert at the boundary. */
+#include "scene/camera.h"
+#include "core/internal.h"
+#include "core/vec.h"
+
+#include <math.h>
+
+static void normalize_d(double v[3]) {
+    double n = sqrt(pen__dot_d(v, v));
+    v[0] /= n, v[1] /= n, v[2] /= n;
+}
+
+void pen__camera_frame_d(const pen_camera *cam, double right[3], double up[3], double fwd[3]) {
+    double f[3] = {(double)cam->target[0] - (double)cam->eye[0],
+                   (double)cam->target[1] - (double)cam->eye[1],
+                   (double)cam->target[2] - (double)cam->eye[2]};
+    double fl = sqrt(pen__dot_d(f, f));
+    if (!(fl > 0.0) || !isfinite(fl)) f[0] = 0.0, f[1] = 0.0, f[2] = -1.0, fl = 1.0;
+    f[0] /= fl, f[1] /= fl, f[2] /= fl;
+    double u[3];
+    pen__load3_d(cam->up, u);
+    double r[3];
+    pen__cross_d(f, u, r);
+    double ul = sqrt(pen__dot_d(u, u));
+    double rl = sqrt(pen__dot_d(r, r));
+    if (!(rl > 1e-6 * ul) || !isfinite(rl)) {
+        /* up is zero, non-finite or parallel to the view direction: pick the axis with the
+         * smallest component along f, which is at least ~0.8 away from parallel. */
+        int k = 0;
+        for (int i = 1; i < 3; ++i)
+            if (fabs(f[i]) < fabs(f[k])) k = i;
+        u[0] = u[1] = u[2] = 0.0;
+        u[k] = 1.0;
+        pen__cross_d(f, u, r);
+    }
+    normalize_d(r);
+    pen__cross_d(r, f, up);
+    normalize_d(up);
+    for (int i = 0; i < 3; ++i)
+        right[i] = r[i], fwd[i] = f[i];
+}
+
+void pen__camera_intrinsics_d(const pen_camera *cam, double *focal, double *cx, double *cy) {
+    double h = cam->height > 0 ? (double)cam->height : 1.0;
+    double fov = (double)cam->fov_y_deg;
+    if (!(fov > 0.0 && fov < 180.0)) fov = 60.0; /* only reachable without pen_view_init */
+    *focal = h / (2.0 * tan(fov * (PEN_PI / 360.0)));
+    *cx = 0.5 * (double)cam->width;
+    *cy = 0.5 * h;
+}
+
+void pen_camera_frame(const pen_camera *cam, float right[3], float up[3], float forward[3]) {
+    double r[3], u[3], f[3];
+    pen__camera_frame_d(cam, r, u, f);
+    for (int i = 0; i < 3; ++i)
+        right[i] = (float)r[i], up[i] = (float)u[i], forward[i] = (float)f[i];
+}
+
+void pen_camera_ray(const pen_camera *cam, float px, float py, float dir[3]) {
+    double r[3], u[3], f[3], focal, cx, cy, d[3];
+    pen__camera_frame_d(cam, r, u, f);
+    pen__camera_intrinsics_d(cam, &focal, &cx, &cy);
+    pen__camera_ray_d(r, u, f, focal, cx, cy, (double)px, (double)py, d);
+    normalize_d(d);
+    dir[0] = (float)d[0], dir[1] = (float)d[1], dir[2] = (float)d[2];
+}

@@ -1,0 +1,89 @@
+/* Bilinear texture sampling with its backward: the one lookup of an object's albedo texture, used
+ * by the renderer's shading and by the reference renderer, so that both see the same albedo.
+ *
+ * Texture lookup: bilinear between the four nearest texel centres, repeat wrap in both
+ * directions (the OpenGL default and what OBJ texture coordinates outside [0,1] expect). Texel
+ * (i, j), row j counted from the top of the image, has its centre at u = (i + 0.5) / W,
+ * v = 1 - (j + 0.5) / H. The lookup is continuous in uv and piecewise linear; its uv gradient
+ * jumps at texel centres, which the optimiser tolerates like any kink.
+ */
+#include "scene/texture.h"
+
+#include <math.h>
+#include <stddef.h>
+
+typedef struct bilinear {
+    size_t idx[4]; /* texel offsets (in texels) of (i0,j0), (i1,j0), (i0,j1), (i1,j1) */
+    float a, b;    /* fractions along u (columns) and down the rows */
+} bilinear;
+
+static int wrap(long i, int n) {
+    if (i >= 0 && i < n) return (int)i; /* the common case, without a division */
+    if (i == n) return 0;
+    long r = i % n;
+    return (int)(r < 0 ? r + n : r);
+}
+
+static bilinear bilinear_at(const pen_image *tex, const float uv[2]) {
+    /* Double for the texel coordinate: u * W loses the fraction in float for large u. */
+    const double fx = (double)uv[0] * tex->width - 0.5;
+    const double fy = (1.0 - (double)uv[1]) * tex->height - 0.5;
+    bilinear s;
+    double x0 = floor(fx), y0 = floor(fy);
+    if (!isfinite(x0) || fabs(x0) > 1e9) x0 = 0.0; /* garbage uv: a defined texel */
+    if (!isfinite(y0) || fabs(y0) > 1e9) y0 = 0.0;
+    s.a = (float)(isfinite(fx) ? fx - x0 : 0.0);
+    s.b = (float)(isfinite(fy) ? fy - y0 : 0.0);
+    if (!(s.a >= 0.0f && s.a <= 1.0f)) s.a = 0.0f;
+    if (!(s.b >= 0.0f && s.b <= 1.0f)) s.b = 0.0f;
+    const int i0 = wrap((long)x0, tex->width), i1 = wrap((long)x0 + 1, tex->width);
+    const int j0 = wrap((long)y0, tex->height), j1 = wrap((long)y0 + 1, tex->height);
+    const size_t w = (size_t)tex->width;
+    s.idx[0] = (size_t)j0 * w + (size_t)i0;
+    s.idx[1] = (size_t)j0 * w + (size_t)i1;
+    s.idx[2] = (size_t)j1 * w + (size_t)i0;
+    s.idx[3] = (size_t)j1 * w + (size_t)i1;
+    return s;
+}
+
+void pen__texture_fwd(const pen_image *tex, const float uv[2], float rgb[3]) {
+    const bilinear s = bilinear_at(tex, uv);
+    const float wt[4] = {(1 - s.a) * (1 - s.b), s.a * (1 - s.b), (1 - s.a) * s.b, s.a * s.b};
+    const int nch = tex->channels;
+    for (int ch = 0; ch < 3; ++ch) {
+        const int c = ch < nch ? ch : nch - 1;
+        float v = 0.0f;
+        for (int q = 0; q < 4; ++q)
+            v += wt[q] * tex->data[s.idx[q] * (size_t)nch + (size_t)c];
+        rgb[ch] = v;
+    }
+}
+
+void pen__texture_bwd(const pen_image *tex, const float uv[2], const float d_rgb[3],
+                      float *d_texels, float d_uv[2]) {
+    const bilinear s = bilinear_at(tex, uv);
+    const int nch = tex->channels;
+    if (d_texels) {
+        const float wt[4] = {(1 - s.a) * (1 - s.b), s.a * (1 - s.b), (1 - s.a) * s.b, s.a * s.b};
+        for (int q = 0; q < 4; ++q)
+            for (int ch = 0; ch < 3 && ch < nch; ++ch)
+                d_texels[s.idx[q] * (size_t)nch + (size_t)ch] += wt[q] * d_rgb[ch];
+    }
+    if (d_uv) {
+        /* rgb = (1-b)((1-a) t00 + a t10) + b((1-a) t01 + a t11); a grows with u (x W), b grows
+         * downwards, i.e. with -v (x H). */
+        float da = 0.0f, db = 0.0f;
+        for (int ch = 0; ch < 3; ++ch) {
+            const int c = ch < nch ? ch : nch - 1;
+            const float *t = tex->data;
+            const float t00 = t[s.idx[0] * (size_t)nch + (size_t)c];
+            const float t10 = t[s.idx[1] * (size_t)nch + (size_t)c];
+            const float t01 = t[s.idx[2] * (size_t)nch + (size_t)c];
+            const float t11 = t[s.idx[3] * (size_t)nch + (size_t)c];
+            da += d_rgb[ch] * ((1 - s.b) * (t10 - t00) + s.b * (t11 - t01));
+            db += d_rgb[ch] * ((1 - s.a) * (t01 - t00) + s.a * (t11 - t10));
+        }
+        d_uv[0] += da * (float)tex->width;
+        d_uv[1] -= db * (float)tex->height;
+    }
+}
