@@ -36,12 +36,14 @@ pen_render_options pen_render_options_default(void) {
     return o;
 }
 
+/* ---- Geometry and attributes ----------------------------------------------------------------- */
+
 /* Poses the geometry, rasterizes, and interpolates the per-pixel attributes into st. */
 static pen_status prepare(pen_context *ctx, const pen_scene *sc, const pen_render_options *opt,
                           pen_render_state *st) {
     pen_status s = pen__scene_validate(ctx, sc);
     if (s) return s;
-    if ((s = pen_view_init(ctx, &sc->camera, &st->view))) return s;
+    if ((s = pen_view_init(ctx, &sc->camera, &st->view))) return s; /* validated: fills the view */
     const int W = st->view.width, H = st->view.height;
     const size_t np = (size_t)W * (size_t)H;
     if (st->gb.width != W || st->gb.height != H) {
@@ -149,6 +151,8 @@ static void surface_attributes(const pen_scene *sc, pen_render_state *st, size_t
         for (int ch = 0; ch < 3; ++ch)
             rho[ch] = ob->albedo[ch];
 }
+
+/* ---- Shading and the pass -------------------------------------------------------------------- */
 
 /* Shades tile t: background pixels directly, surface pixels through the fast kernel (compacted
  * into ws, one call per group) or the scalar kernel one by one. */

@@ -2,20 +2,21 @@
  * backward.
  *
  * Design
- * - The reference ray-traces the ground, so a surface facing down or sideways loses the light from
- *   below the horizon; spheres cannot say that (a plane is no sphere), and without it the model
- *   lights the undersides of objects with the lower half of the environment. Seen from a point at
- *   height h over a disc of radius s (the ground's half size), the ground covers the directions
- *   within atan(s / h) of straight down, i.e. the point sees the directions with y > -t, t = h /
- *   sqrt(h^2 + s^2). The product of the lighting with that indicator, projected back to the bands,
- *   is a linear map of the lighting, seen = M(t) sh (pen__sh_above), so it costs nothing per pixel
- *   when t is one per object: h is taken at the object's origin (the pose's translation; the
- *   bundled meshes are centred), and the object's pixels shade with `seen`, the ground's own pixels
- *   with sh. The backward maps the gradient of `seen` back through M^T = M into the lighting, and
- *   through dM/dt dt/dh into the pose's vertical translation. With shadows off (V = 1 everywhere)
- *   nothing is occluded.
- * - The backward (pen__ground_occlusion_bwd) takes the per-object gradients of `seen` that the
- *   tiles summed (the pixels of object o shade with its own `seen`: tiles.c's lighting groups).
+ * - The reference ray-traces the ground, so a surface facing down or sideways loses the light
+ *   from below the horizon; spheres cannot say that (a plane is no sphere), and without it the
+ *   model lights the undersides of objects with the lower half of the environment.
+ * - Seen from a point at height h over a disc of radius s (the ground's half size), the ground
+ *   covers the directions within atan(s / h) of straight down, i.e. the point sees the
+ *   directions with y > -t, t = h / sqrt(h^2 + s^2). The product of the lighting with that
+ *   indicator, projected back to the bands, is a linear map of the lighting, seen = M(t) sh
+ *   (pen__sh_above), so it costs nothing per pixel when t is one per object: h is taken at the
+ *   object's origin (the pose's translation; the bundled meshes are centred), and the object's
+ *   pixels shade with `seen`, the ground's own pixels with sh. With shadows off (V = 1
+ *   everywhere) nothing is occluded.
+ * - The backward maps the gradient of `seen` back through M^T = M into the lighting, and through
+ *   dM/dt dt/dh into the pose's vertical translation. It takes the per-object gradients of
+ *   `seen` that the tiles summed (the pixels of object o shade with its own `seen`: tiles.c's
+ *   lighting groups).
  */
 #include "core/internal.h"
 #include "render/render_internal.h"
