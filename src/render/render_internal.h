@@ -9,13 +9,7 @@
 #define PEN_RENDER_INTERNAL_H
 
 #include "penumbra/image.h"
-#include "penumbra/render.h"
 #include "penumbra/sh.h"
-
-#include <stddef.h>
-#include <stdint.h>
-#include <stdlib.h>
-#include <string.h>
 
 /* Everything about a frame's shading that is the same for every pixel. */
 typedef struct pen__shade_params {
@@ -120,6 +114,12 @@ void pen__texture_bwd(const pen_image *tex, const float uv[2], const float d_rgb
  * Who calls whom: forward.c calls validate.c, state.c, tiles.c, background.c and ground.c;
  * backward.c calls tiles.c and ground.c; background.c calls tiles.c and state.c; tiles.c calls
  * state.c; state.c, validate.c and ground.c call no other file of the frame. */
+#include "penumbra/render.h" /* the state's options, view, G-buffer and timings */
+
+#include <stddef.h>
+#include <stdint.h>
+#include <stdlib.h> /* free, in PEN__BUF_FREE */
+#include <string.h> /* memcpy, in pen__tile_ws_push */
 
 /* Screen tiles: the unit of parallel work and of the fast kernel's calls (its batches are the
  * tile's shaded pixels), and of the backward's double accumulators. */
