@@ -55,8 +55,16 @@ uint64_t pen__render_hash32(const void *data, size_t n) {
     return r;
 }
 
-/* ---- Create, free, timings --------------------------------------------------------------------
- */
+/* The per-pixel buffers, 3 floats per pixel each. */
+#define PIXEL_BUFFERS 13
+static void pixel_buffers(pen_render_state *st, pen__buf_float *px[PIXEL_BUFFERS]) {
+    pen__buf_float *all[PIXEL_BUFFERS] = {
+        &st->x,       &st->nraw, &st->n,      &st->rho,  &st->uv,    &st->color, &st->nsign,
+        &st->d_color, &st->d_x,  &st->d_nraw, &st->d_uv, &st->d_rho, &st->d_bary};
+    memcpy(px, all, sizeof all);
+}
+
+/* ---- Create, free, timings ------------------------------------------------------------------- */
 
 void pen_render_state_timings(const pen_render_state *st, pen_render_timings *out) {
     memset(out, 0, sizeof *out);
@@ -79,18 +87,16 @@ void pen_render_state_free(pen_render_state *st) {
     free(st->obj), free(st->meshes), free(st->sphere_first);
     PEN__BUF_FREE(st->spheres), PEN__BUF_FREE(st->kappa), PEN__BUF_FREE(st->kappa_key);
     PEN__BUF_FREE(st->kappa_first);
-    pen__buf_float *px[] = {&st->x,     &st->nraw,  &st->n,       &st->rho, &st->uv,
-                            &st->color, &st->nsign, &st->d_color, &st->d_x, &st->d_nraw,
-                            &st->d_uv,  &st->d_rho, &st->d_bary};
-    for (size_t i = 0; i < sizeof px / sizeof px[0]; ++i)
+    pen__buf_float *px[PIXEL_BUFFERS];
+    pixel_buffers(st, px);
+    for (int i = 0; i < PIXEL_BUFFERS; ++i)
         PEN__BUF_FREE(*px[i]);
     PEN__BUF_FREE(st->fv), PEN__BUF_FREE(st->rows), PEN__BUF_FREE(st->ws), PEN__BUF_FREE(st->bg);
     PEN__BUF_FREE(st->bary_scratch), PEN__BUF_FREE(st->tile_off), PEN__BUF_FREE(st->groups);
     free(st);
 }
 
-/* ---- Buffers ----------------------------------------------------------------------------------
- */
+/* ---- Buffers --------------------------------------------------------------------------------- */
 
 pen_status pen__render_object_reserve(pen_context *ctx, pen__object_buf *b, size_t V, size_t T) {
     if (b->adjacency.cap < 3 * T + 1) b->adj_valid = 0; /* the cache goes with the old block */
@@ -124,18 +130,16 @@ static pen_status reserve_objects(pen_context *ctx, pen_render_state *st, int co
 
 pen_status pen__render_state_reserve(pen_context *ctx, pen_render_state *st, size_t n,
                                      int objects) {
-    pen__buf_float *px[] = {&st->x,     &st->nraw,  &st->n,       &st->rho, &st->uv,
-                            &st->color, &st->nsign, &st->d_color, &st->d_x, &st->d_nraw,
-                            &st->d_uv,  &st->d_rho, &st->d_bary};
-    for (size_t i = 0; i < sizeof px / sizeof px[0]; ++i) {
+    pen__buf_float *px[PIXEL_BUFFERS];
+    pixel_buffers(st, px);
+    for (int i = 0; i < PIXEL_BUFFERS; ++i) {
         pen_status s = PEN__BUF_RESERVE(ctx, *px[i], 3 * n, "render pixel buffer");
         if (s) return s;
     }
     return reserve_objects(ctx, st, objects);
 }
 
-/* ---- Caches: adjacency, overlap weights --------------------------------------------------------
- */
+/* ---- Caches: adjacency, overlap weights ------------------------------------------------------ */
 
 pen_status pen__render_object_adjacency(pen_context *ctx, pen__object_buf *b,
                                         const pen_mesh *mesh) {

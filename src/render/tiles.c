@@ -30,8 +30,7 @@ double pen__render_ms_since(double t0) {
     return 1e3 * (omp_get_wtime() - t0);
 }
 
-/* ---- Workspaces -------------------------------------------------------------------------------
- */
+/* ---- Workspaces ------------------------------------------------------------------------------ */
 
 static size_t tile_ws_bytes(const pen__shade_params *p, int spheres) {
     const size_t b = sizeof(int) * PEN_TILE_PX + 7 * 3 * sizeof(float) * PEN_TILE_PX +
@@ -58,8 +57,7 @@ static pen__tile_ws tile_ws_at(pen_render_state *st, size_t bytes) {
     return w;
 }
 
-/* ---- Tiles and the parallel loop --------------------------------------------------------------
- */
+/* ---- Tiles and the parallel loop ------------------------------------------------------------- */
 
 void pen__tile_rect(const pen_render_state *st, int t, int *x0, int *y0, int *x1, int *y1) {
     const int tiles_x = (st->width + PEN_TILE - 1) / PEN_TILE;
@@ -104,8 +102,7 @@ double pen__stage_ms(double loop_ms, unsigned long long stage, unsigned long lon
     return total ? loop_ms * (double)stage / (double)total : 0.0;
 }
 
-/* ---- Lighting groups --------------------------------------------------------------------------
- */
+/* ---- Lighting groups ------------------------------------------------------------------------- */
 
 float *pen__tile_store_of(const pen__tile_job *job, int t) {
     return job->store && job->tile_off ? job->store + job->tile_off[t] : NULL;
