@@ -112,8 +112,9 @@ void pen__texture_bwd(const pen_image *tex, const float uv[2], const float d_rgb
 
 /* ---- Frame: what the files of the full frame share --------------------------------------------
  * Who calls whom: forward.c calls validate.c, state.c, tiles.c, background.c and ground.c;
- * backward.c calls tiles.c and ground.c; background.c calls tiles.c and state.c; tiles.c calls
- * state.c; state.c, validate.c and ground.c call no other file of the frame. */
+ * backward.c calls state.c, tiles.c and ground.c; background.c calls tiles.c and state.c; tiles.c
+ * calls state.c (pen__buf_grow, behind PEN__BUF_RESERVE, is state.c's); state.c, validate.c and
+ * ground.c call no other file of the frame. */
 #include "penumbra/render.h" /* the state's options, view, G-buffer and timings */
 
 #include <stddef.h>
