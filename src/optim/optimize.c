@@ -21,6 +21,7 @@
  * render, and when it fires no further step is taken. The parameters of the lowest objective
  * are kept (the best iterate) and rendered once more if they are not the last ones. */
 #include "optim/optim_internal.h"
+#include "render/render_internal.h" /* pen__scene_validate */
 
 #include "penumbra/fit.h"
 #include "penumbra/metrics.h"
@@ -703,6 +704,9 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
     pen_optim_settings set = settings ? *settings : pen_optim_settings_default();
     pen_status s = check_task(ctx, task);
     if (!s) s = check_settings(ctx, &set);
+    /* The scene as the renderer takes it (the renderer's own checks and messages), before the
+     * checks against the ground truth, the sphere fit and the layout read its arrays. */
+    if (!s) s = pen__scene_validate(ctx, &task->scene);
     if (s) return s;
     if (task->has_ground_truth) {
         s = pen__optim_check_truth(ctx, task);

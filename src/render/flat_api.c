@@ -5,9 +5,12 @@
  *   into the caller's memory (never freed here), and pen_render_fwd / pen_render_bwd do the
  *   work, so the binding and the CLI render the same scene identically.
  * - Checks at this boundary are those pen_render's own validation cannot make because they are
- *   about the flat description itself: NULL arrays behind positive counts, counts and sizes out
- *   of range, per-vertex UVs whose count does not match the vertices. Everything else (indices in
- *   range, NaN/Inf, radii, the camera) is left to the renderer, whose messages name the object.
+ *   about the flat description itself, and must pass before a pen_scene can be built over it:
+ *   NULL arrays behind positive counts, counts and sizes out of range, per-vertex UVs whose count
+ *   does not match the vertices. Everything else (indices in range, NaN/Inf, radii, the camera
+ *   and so the output image's size) is left to the renderer's one scene validation
+ *   (pen__scene_validate, which pen_render_fwd runs before it writes), whose messages name the
+ *   object.
  * - The backward allocates a pen_render_grad shaped like the scene, asks only for the groups
  *   whose output arrays are set, and adds the result into them.
  */
@@ -176,12 +179,9 @@ static pen_status flat_fwd(pen_context *ctx, const pen_flat_scene *f, pen_render
     pen_status s = scene_view(ctx, f, buf, cap, &sc);
     if (s) return s;
     const pen_render_options opt = options_of(f);
-    /* The camera is checked by the renderer; the size must match before it writes. */
+    /* The image has the camera's size by construction; the renderer validates the camera (its
+     * size in [1, PEN_IMAGE_MAX_DIM]) before it writes. */
     pen_image img = {f->width, f->height, 3, image};
-    if (f->width < 1 || f->height < 1 || f->width > PEN_IMAGE_MAX_DIM ||
-        f->height > PEN_IMAGE_MAX_DIM)
-        return pen__error(ctx, PEN_ERROR_ARGUMENT, "flat render: image size %dx%d out of range",
-                          f->width, f->height);
     return pen_render_fwd(ctx, &sc, &opt, state, &img);
 }
 

@@ -1,6 +1,10 @@
 /* Internal interface of src/render: the per-pixel shading kernel (visibility from spheres, SH
  * exponential, diffuse SH shading) and texture sampling, each a forward/backward pair. The kernel
- * is compiled in float (the renderer) and double (`_d`, gradient checks) from shade_ops.inc. */
+ * is compiled in float (the renderer) and double (`_d`, gradient checks) from shade_ops.inc.
+ * Below them, the frame's internals shared by the files of the full differentiable frame: the
+ * render state (state.c), scene validation (validate.c), the tile scheduler (tiles.c), the
+ * background (background.c), ground occlusion (ground.c) and the passes (forward.c,
+ * backward.c). A file only calls files listed before it, never back. */
 #ifndef PEN_RENDER_INTERNAL_H
 #define PEN_RENDER_INTERNAL_H
 
@@ -134,5 +138,232 @@ int pen__shade_fast_variants(void);
 const pen__shade_fast_ops *pen__shade_fast_variant_ops(int v);
 int pen__shade_fast_use(int v);
 const pen__shade_fast_ops *pen__shade_fast_current(void);
+
+/* ---- Frame: what the files of the full frame share --------------------------------------------
+ * Who calls whom: forward.c calls validate.c, state.c, tiles.c, background.c and ground.c;
+ * backward.c calls state.c, tiles.c and ground.c; background.c calls tiles.c and state.c; tiles.c
+ * calls state.c (pen__buf_grow, behind PEN__BUF_RESERVE, is state.c's); state.c, validate.c and
+ * ground.c call no other file of the frame. */
+#include "penumbra/render.h" /* the state's options, view, G-buffer and timings */
+
+#include <stddef.h>
+#include <stdint.h>
+#include <stdlib.h> /* free, in PEN__BUF_FREE */
+#include <string.h> /* memcpy, in pen__tile_ws_push */
+
+/* Screen tiles: the unit of parallel work and of the fast kernel's calls (its batches are the
+ * tile's shaded pixels), and of the backward's double accumulators. */
+#define PEN_TILE 16
+#define PEN_TILE_PX (PEN_TILE * PEN_TILE)
+
+/* Frames smaller than this are shaded on the calling thread: waking a team costs more than a few
+ * thousand pixels take, and optimisers render many small frames. */
+#define PEN_RENDER_PARALLEL_MIN_PIXELS 4096
+
+/* A growable array of T (klib's kvec habit): data holds cap elements. Growing does not keep the
+ * contents (every buffer of the state is rewritten by the pass that reserves it, or is a cache
+ * that says whether it is valid). Free with PEN__BUF_FREE. */
+#define PEN__BUF(T)                                                                                \
+    struct {                                                                                       \
+        T *data;                                                                                   \
+        size_t cap;                                                                                \
+    }
+/* data itself when cap already holds count elements of `size` bytes; else data is freed and a new
+ * block returned (NULL without memory, cap 0, error recorded with `what`). Use through
+ * PEN__BUF_RESERVE. */
+void *pen__buf_grow(pen_context *ctx, void *data, size_t *cap, size_t count, size_t size,
+                    const char *what);
+/* Makes buffer b (an lvalue, evaluated more than once) hold count elements; a pen_status. */
+#define PEN__BUF_RESERVE(ctx, b, count, what)                                                      \
+    (((b).data = pen__buf_grow((ctx), (b).data, &(b).cap, (count), sizeof *(b).data, (what)))      \
+         ? PEN_OK                                                                                  \
+         : PEN_ERROR_MEMORY)
+#define PEN__BUF_FREE(b) (free((b).data), (b).data = NULL, (b).cap = 0)
+
+typedef PEN__BUF(float) pen__buf_float;
+
+/* A tile's shaded pixels by lighting group (pen__tile_group): indices in raster order within each
+ * group, groups ascending, in runs of one group each, run r being pix[end[r - 1]] ..
+ * pix[end[r] - 1] (end[-1] = 0). Made once per forward; its shading and the backward read it. */
+typedef struct pen__tile_groups {
+    int runs;
+    int pix[PEN_TILE_PX], end[PEN_TILE_PX];
+    size_t store; /* floats of the fast kernel's store for these runs */
+} pen__tile_groups;
+
+/* What an environment-map background depends on: the camera, the map (its pixels by a hash)
+ * and its rotation and scale. */
+typedef struct pen__bg_key {
+    pen_camera camera;
+    const float *data;
+    int width, height, channels;
+    float rotation_y_deg, scale;
+    uint64_t hash;
+} pen__bg_key;
+
+/* One object's posed geometry and its gradient buffers. */
+typedef struct pen__object_buf {
+    pen__buf_float world, vnormal, d_world, d_vnormal; /* 3 per vertex (+ 1) */
+    PEN__BUF(int32_t) adjacency;                       /* 3 per triangle (+ 1) */
+    /* Ground occlusion (pen__ground_occlusion_prepare): the lighting the object's surfaces see,
+     * seen = M sh, M = pen__sh_above(t) (symmetric), and d seen / d h for the backward. */
+    double horizon[PEN_SH_MAX_COEFFS * PEN_SH_MAX_COEFFS];
+    float seen[PEN_SH_MAX_COEFFS][3];
+    double d_seen_dh[PEN_SH_MAX_COEFFS][3];
+    /* What adjacency was built from (the topology, which optimisers do not change): sorting
+     * the half-edges every frame cost about 0.5 ms at the headline. */
+    int adj_valid, adj_vertices, adj_triangles;
+    uint64_t adj_hash;
+} pen__object_buf;
+
+struct pen_render_state {
+    int valid;              /* a forward has filled the buffers */
+    pen_render_options opt; /* the forward's options */
+    int width, height;
+    pen_view view;
+    pen_gbuffer gb;
+    pen__shade_params params;
+    int object_count, object_cap; /* obj, meshes: object_cap each; sphere_first: object_cap + 1 */
+    pen__object_buf *obj;
+    pen_raster_mesh *meshes;
+    int sphere_count;
+    pen__buf_float spheres; /* world space, all objects */
+    int *sphere_first;      /* object o owns spheres [first[o], first[o+1]) */
+    pen__buf_float kappa;   /* overlap weight per world-space sphere (all 1 with overlap "none") */
+    pen__buf_float kappa_key;  /* per sphere (4 floats): the object-space set kappa was computed
+                                * from, NaN where it was not computed (weights given, or "none") */
+    PEN__BUF(int) kappa_first; /* the object -> sphere offsets the keys were laid out with */
+    /* Per pixel, 3 floats each (uv, d_uv and d_bary use 2, nsign 1). */
+    pen__buf_float x, nraw, n, rho, uv, color, nsign;
+    pen__buf_float d_color, d_x, d_nraw, d_uv, d_rho, d_bary;
+    pen__buf_float bary_scratch; /* pen_raster_bary_bwd_scratch's 9 floats per pixel */
+    PEN__BUF(size_t) tile_off;   /* the fast store's layout per tile (pen__tile_store_layout) */
+    PEN__BUF(pen__tile_groups) groups; /* per tile, of the last forward */
+    pen__buf_float fv; /* scalar kernel: F and V per pixel (2 bands^2); fast: its store, per tile */
+    int fv_valid;      /* the forward kept fv (only with shadows on: without, nothing is kept) */
+    int fast;          /* the forward used the fast kernel */
+    PEN__BUF(double) rows;      /* the backward's double accumulators, one block per tile */
+    PEN__BUF(unsigned char) ws; /* per-thread workspaces (pen__tile_ws) */
+    pen__buf_float bg;          /* environment-map background of the last frame, 3 per pixel */
+    int bg_use;         /* this frame: 0 none, 2 read bg (filled by pen__background_prepare) */
+    pen__bg_key bg_key; /* what bg was computed from (bg_valid) */
+    int bg_valid;
+    pen_render_timings timings;
+    int ground_occludes; /* shadow.ground "occludes", shadows on, a ground: see ground.c */
+};
+
+/* ---- state.c ---- */
+
+/* A 64-bit hash of n 32-bit words, for caches keyed by large arrays that may be edited in place. */
+uint64_t pen__render_hash32(const void *data, size_t n);
+/* Sizes the per-pixel buffers for n pixels and the per-object arrays for `objects` objects. */
+pen_status pen__render_state_reserve(pen_context *ctx, pen_render_state *st, size_t n, int objects);
+/* Sizes one object's buffers for V vertices and T triangles. */
+pen_status pen__render_object_reserve(pen_context *ctx, pen__object_buf *b, size_t V, size_t T);
+/* b->adjacency for the mesh, rebuilt only when its topology changed. */
+pen_status pen__render_object_adjacency(pen_context *ctx, pen__object_buf *b, const pen_mesh *mesh);
+/* st->kappa for the scene's spheres (st->sphere_first laid out): given, 1, or computed from the
+ * spheres and kept with them. */
+pen_status pen__render_overlap_weights(pen_context *ctx, const pen_scene *sc, pen_render_state *st);
+
+/* ---- validate.c ---- */
+
+/* Whether a scene can be rendered: SH bands and lighting, the shadow model, background and
+ * ground, every object's mesh, texture or albedo, pose, spheres and overlap weights, and the
+ * camera. The message names the object ("render: objects[2] (spot.obj): ..."). */
+pen_status pen__scene_validate(pen_context *ctx, const pen_scene *sc);
+
+/* ---- tiles.c ---- */
+
+/* The threads a pass runs on: the context's count, else OpenMP's. */
+int pen__render_threads(const pen_context *ctx);
+/* Milliseconds since the omp_get_wtime() t0. */
+double pen__render_ms_since(double t0);
+
+/* A thread's workspace for one tile: the tile's shaded pixels compacted (pixel index, x, n, rho,
+ * the kernel's output or d_colour, and the backward's per-pixel results), and the fast kernel's
+ * scratch. Allocated once per state and reused, so the pixel loops do not allocate. */
+typedef struct pen__tile_ws {
+    int *idx;
+    float *x, *n, *rho, *out, *dx, *dn, *drho; /* 3 floats per compacted pixel */
+    void *kernel;
+} pen__tile_ws;
+
+/* Sizes st->ws for `threads` workspaces; *bytes: one workspace's size. */
+pen_status pen__tile_ws_reserve(pen_context *ctx, pen_render_state *st, int threads, size_t *bytes);
+
+/* Appends surface pixel i (index, x, n, rho) as the j-th compacted pixel. */
+static inline void pen__tile_ws_push(pen__tile_ws *ws, int j, const pen_render_state *st,
+                                     size_t i) {
+    ws->idx[j] = (int)i;
+    memcpy(ws->x + 3 * j, st->x.data + 3 * i, 3 * sizeof(float));
+    memcpy(ws->n + 3 * j, st->n.data + 3 * i, 3 * sizeof(float));
+    memcpy(ws->rho + 3 * j, st->rho.data + 3 * i, 3 * sizeof(float));
+}
+
+int pen__tile_count(const pen_render_state *st);
+/* Pixel rectangle [x0, x1) x [y0, y1) of tile t. */
+void pen__tile_rect(const pen_render_state *st, int t, int *x0, int *y0, int *x1, int *y1);
+
+/* Per-thread stage ticks of a pixel loop, summed over threads. */
+typedef struct pen__loop_ticks {
+    unsigned long long visibility, exp, total;
+} pen__loop_ticks;
+
+/* Runs fn on every tile, threads over tiles with dynamic scheduling (small frames on the calling
+ * thread), each thread with its own workspace (ws_bytes each, pen__tile_ws_reserve); returns the
+ * threads' summed stage ticks. */
+typedef void (*pen__tile_fn)(const void *job, int t, pen__tile_ws *ws, pen__shade_fast_ticks *tk);
+pen__loop_ticks pen__tiles_run(pen_render_state *st, int threads, size_t ws_bytes, pen__tile_fn fn,
+                               const void *job);
+/* A stage's share of a loop's wall time. */
+double pen__stage_ms(double loop_ms, unsigned long long stage, unsigned long long total);
+
+/* A pass over the tiles: store is the fast kernel's store (tile t's part at tile_off[t]) or the
+ * scalar kernel's per-pixel F and V (tile_off NULL), or NULL when nothing is kept; bw is the
+ * backward's request (backward.c; NULL in the forward). */
+struct pen__bwd_want;
+typedef struct pen__tile_job {
+    const pen_scene *sc;
+    pen_render_state *st;
+    const struct pen__bwd_want *bw;
+    float *store;
+    const size_t *tile_off;
+} pen__tile_job;
+
+/* Tile t's part of the job's store, or NULL. */
+float *pen__tile_store_of(const pen__tile_job *job, int t);
+/* Groups the shaded pixels of tile t into st->groups (a pen__tile_fn on a pen__tile_job: the
+ * forward runs it over the tiles in parallel before shading). */
+void pen__tile_group(const void *job, int t, pen__tile_ws *ws, pen__shade_fast_ticks *tk);
+/* Run r of tile t (as pen__tile_group made it): its pixels pix[0 .. count - 1]; returns its
+ * group. */
+int pen__tile_run(const pen_render_state *st, int t, int r, const int **pix, int *count);
+/* The object whose own `seen` lighting group g shades with, or -1 for the scene's lighting. */
+int pen__tile_group_object(const pen_render_state *st, int g);
+/* The lighting of group g. */
+const float (*pen__tile_group_lighting(const pen_scene *sc, const pen_render_state *st, int g))[3];
+/* Where each tile's part of the fast kernel's store begins (ntiles + 1 offsets in floats). */
+pen_status pen__tile_store_layout(pen_context *ctx, pen_render_state *st, int ntiles);
+
+/* ---- background.c ---- */
+
+/* Decides st->bg_use for this frame and fills the environment-map cache when it is stale; never
+ * fails the render (without memory for the cache the background is computed per pixel). */
+void pen__background_prepare(pen_context *ctx, const pen_scene *sc, pen_render_state *st);
+/* Background pixel i at (px, py) into st->color, through the cache when there is one. */
+void pen__background_pixel(const pen_scene *sc, const pen_render_state *st, int px, int py,
+                           size_t i);
+
+/* ---- ground.c ---- */
+
+/* Sets st->ground_occludes and, when set, each object's `seen` lighting and its derivative. */
+void pen__ground_occlusion_prepare(const pen_scene *sc, const pen_render_options *opt,
+                                   pen_render_state *st);
+/* Backward of the objects' `seen` lightings, d_seen: per object, 3 bands^2 doubles. Adds
+ * M^T d_seen into d_sh (double, may be NULL) and, when grad is not NULL, the objects' height
+ * gradients into their pose translation[1]. Only with st->ground_occludes. */
+void pen__ground_occlusion_bwd(const pen_scene *sc, const pen_render_state *st,
+                               const double *d_seen, double (*d_sh)[3], pen_render_grad *grad);
 
 #endif

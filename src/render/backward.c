@@ -1,0 +1,431 @@
+/* The backward of the full differentiable frame (forward.c): from the image's gradient into the
+ * lighting, albedos and texels, spheres, poses and vertex positions; and the gradient struct.
+ *
+ * Design
+ * - Antialiasing backward gives d_colour (and silhouette vertex gradients); a parallel pass over
+ *   the forward's tiles and lighting groups (tiles.c) runs the kernel's backward, writing per-pixel
+ *   d_x, d_raw-normal, d_uv, d_rho, and per-tile double buffers for the small dense gradients
+ *   (lighting, constant albedos, ground albedo, world-space spheres). Tiles are reduced in order,
+ *   so the result does not depend on the thread count. Then the texel scatter (in pixel order)
+ *   beside the per-object interpolation and vertex-normal backward (two threads, disjoint
+ *   outputs), the barycentric backward (the pixel's point slides on its ray as the triangle
+ *   moves), and the pose backward, which splits world-space gradients of vertices and spheres
+ *   into object-space and pose parts.
+ * - Gradients are added into the caller's pen_render_grad (so several losses accumulate); only
+ *   the groups asked for in `wrt` are computed.
+ */
+#include "penumbra/render.h"
+
+#include "core/internal.h"
+#include "render/render_internal.h"
+
+#include <omp.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* ---- Gradient struct ------------------------------------------------------------------------- */
+
+pen_status pen_render_grad_create(pen_context *ctx, const pen_scene *sc, pen_render_grad *out) {
+    memset(out, 0, sizeof *out);
+    out->bands = sc->sh_bands;
+    if (sc->object_count <= 0) return PEN_OK;
+    out->objects =
+        pen__calloc(ctx, (size_t)sc->object_count, sizeof *out->objects, "gradient objects");
+    if (!out->objects) return PEN_ERROR_MEMORY;
+    out->object_count = sc->object_count;
+    for (int o = 0; o < sc->object_count; ++o) {
+        const pen_object *ob = &sc->objects[o];
+        pen_object_grad *g = &out->objects[o];
+        g->vertex_count = ob->mesh.vertex_count > 0 ? ob->mesh.vertex_count : 0;
+        g->sphere_count = ob->spheres.count > 0 ? ob->spheres.count : 0;
+        g->positions =
+            pen__calloc(ctx, 3 * (size_t)g->vertex_count + 1, sizeof(float), "vertex gradient");
+        g->spheres =
+            pen__calloc(ctx, 4 * (size_t)g->sphere_count + 1, sizeof(float), "sphere gradient");
+        if (!g->positions || !g->spheres) goto fail;
+        if (ob->texture.data) {
+            g->texel_count = ob->texture.width * ob->texture.height;
+            g->texture =
+                pen__calloc(ctx, (size_t)g->texel_count,
+                            sizeof(float) * (size_t)ob->texture.channels, "texture gradient");
+            if (!g->texture) goto fail;
+        }
+    }
+    return PEN_OK;
+fail:
+    pen_render_grad_free(out);
+    return PEN_ERROR_MEMORY;
+}
+
+void pen_render_grad_zero(pen_render_grad *g) {
+    memset(g->sh, 0, sizeof g->sh);
+    memset(g->ground_albedo, 0, sizeof g->ground_albedo);
+    for (int o = 0; o < g->object_count; ++o) {
+        pen_object_grad *og = &g->objects[o];
+        memset(og->albedo, 0, sizeof og->albedo);
+        memset(&og->pose, 0, sizeof og->pose);
+        memset(og->positions, 0, sizeof(float) * 3 * (size_t)og->vertex_count);
+        memset(og->spheres, 0, sizeof(float) * 4 * (size_t)og->sphere_count);
+        if (og->texture) memset(og->texture, 0, sizeof(float) * 3 * (size_t)og->texel_count);
+    }
+}
+
+void pen_render_grad_free(pen_render_grad *g) {
+    if (!g) return;
+    for (int o = 0; o < g->object_count; ++o) {
+        free(g->objects[o].positions);
+        free(g->objects[o].spheres);
+        free(g->objects[o].texture);
+    }
+    free(g->objects);
+    memset(g, 0, sizeof *g);
+}
+
+/* ---- Backward -------------------------------------------------------------------------------- */
+
+/* Layout of one tile's double accumulators (the backward's small dense gradients). */
+typedef struct row_layout {
+    size_t sh, sh_obj, ground, albedo, spheres, stride;
+} row_layout;
+
+/* sh: the lighting gradient of pixels shaded with the scene's lighting; sh_obj (with ground
+ * occlusion, `seen` objects, else none): per object, of its pixels shaded with its `seen`, mapped
+ * back after the reduction. */
+static row_layout rows_layout(int bands, int objects, int seen, int spheres) {
+    row_layout r;
+    r.sh = 0;
+    r.sh_obj = r.sh + 3 * (size_t)bands * (size_t)bands;
+    r.ground = r.sh_obj + 3 * (size_t)bands * (size_t)bands * (size_t)seen;
+    r.albedo = r.ground + 3;
+    r.spheres = r.albedo + 3 * (size_t)objects;
+    r.stride = r.spheres + 4 * (size_t)spheres;
+    return r;
+}
+
+/* What the backward computes (the request a pen__tile_job carries to shade_tile_bwd). */
+typedef struct pen__bwd_want {
+    int geom, spheres, light, albedo;
+    int seen; /* the gradient of each object's `seen` lighting (for the lighting or the pose) */
+    row_layout rl;
+} bwd_want;
+
+/* After the kernel's backward of surface pixel i: its albedo gradient into the tile's sums (ground,
+ * constant albedo) or through the texture lookup to uv, and d_n through the facing sign and the
+ * normalisation to the raw normal. d_rho is st->d_rho of the pixel. */
+static void pixel_bwd_tail(const pen_scene *sc, pen_render_state *st, const bwd_want *bw,
+                           double *row, size_t i, int surf, float d_n[3]) {
+    const float *d_rho = st->d_rho.data + 3 * i;
+    if (surf < 0) {
+        if (bw->albedo)
+            for (int ch = 0; ch < 3; ++ch)
+                row[bw->rl.ground + ch] += (double)d_rho[ch];
+        return;
+    }
+    const pen_object *ob = &sc->objects[surf];
+    if (!ob->texture.data && bw->albedo)
+        for (int ch = 0; ch < 3; ++ch)
+            row[bw->rl.albedo + 3 * (size_t)surf + ch] += (double)d_rho[ch];
+    if (!bw->geom) return;
+    if (ob->texture.data)
+        pen__texture_bwd(&ob->texture, st->uv.data + 2 * i, d_rho, NULL, st->d_uv.data + 2 * i);
+    const float sign = st->nsign.data[i];
+    for (int a = 0; a < 3; ++a)
+        d_n[a] *= sign;
+    pen_normalize_bwd(1, st->nraw.data + 3 * i, d_n, st->d_nraw.data + 3 * i);
+}
+
+/* Backward of tile t into the tile's double accumulators and the per-pixel gradients d_x,
+ * d_nraw, d_uv, d_rho (zeroed here for every pixel of the tile), in the forward's groups. */
+static void shade_tile_bwd(const void *job_, int t, pen__tile_ws *ws, pen__shade_fast_ticks *tk) {
+    const pen__tile_job *job = job_;
+    const pen_scene *sc = job->sc;
+    pen_render_state *st = job->st;
+    const bwd_want *bw = job->bw;
+    const float *store = pen__tile_store_of(job, t);
+    const size_t nfv = 2 * (size_t)sc->sh_bands * (size_t)sc->sh_bands;
+    const size_t nsh = 3 * (size_t)sc->sh_bands * (size_t)sc->sh_bands;
+    const int S = st->sphere_count;
+    double *row = st->rows.data + bw->rl.stride * (size_t)t;
+    double *d_sph = bw->spheres ? row + bw->rl.spheres : NULL;
+    int x0, y0, x1, y1;
+    pen__tile_rect(st, t, &x0, &y0, &x1, &y1);
+    for (int py = y0; py < y1; ++py)
+        for (int px = x0; px < x1; ++px) {
+            const size_t i = (size_t)py * (size_t)st->width + (size_t)px;
+            float *d_x = st->d_x.data + 3 * i, *d_rho = st->d_rho.data + 3 * i;
+            float *d_nraw = st->d_nraw.data + 3 * i, *d_uv = st->d_uv.data + 2 * i;
+            for (int a = 0; a < 3; ++a)
+                d_x[a] = d_nraw[a] = d_rho[a] = 0.0f;
+            d_uv[0] = d_uv[1] = 0.0f;
+        }
+    for (int r = 0; r < st->groups.data[t].runs; ++r) {
+        const int *pix;
+        int cnt;
+        const int g = pen__tile_run(st, t, r, &pix, &cnt);
+        const float(*sh)[3] = pen__tile_group_lighting(sc, st, g);
+        /* where this group's lighting gradient goes: an object's own `seen`, or the lighting */
+        const int own = pen__tile_group_object(st, g);
+        double(*d_sh)[3] =
+            own >= 0 ? (bw->seen ? (double(*)[3])(row + bw->rl.sh_obj + nsh * (size_t)own) : NULL)
+                     : (bw->light ? (double(*)[3])(row + bw->rl.sh) : NULL);
+        if (!st->fast) {
+            for (int k = 0; k < cnt; ++k) {
+                const size_t i = (size_t)pix[k];
+                const int surf = st->gb.surface[i];
+                const float *dc = st->d_color.data + 3 * i;
+                if (dc[0] == 0.0f && dc[1] == 0.0f && dc[2] == 0.0f) continue;
+                const int geom = surf >= 0 && bw->geom;
+                const int need_rho = bw->albedo || (geom && sc->objects[surf].texture.data != NULL);
+                float d_n[3] = {0.0f, 0.0f, 0.0f};
+                pen__shade_bwd(&st->params, sh, S, st->spheres.data, st->kappa.data,
+                               st->x.data + 3 * i, st->n.data + 3 * i, st->rho.data + 3 * i, dc,
+                               job->store ? job->store + nfv * i : NULL, d_sh, d_sph,
+                               geom ? st->d_x.data + 3 * i : NULL, geom ? d_n : NULL,
+                               need_rho ? st->d_rho.data + 3 * i : NULL);
+                pixel_bwd_tail(sc, st, bw, row, i, surf, d_n);
+            }
+            continue;
+        }
+        for (int k = 0; k < cnt; ++k) {
+            memcpy(ws->out + 3 * k, st->d_color.data + 3 * (size_t)pix[k], 3 * sizeof(float));
+            pen__tile_ws_push(ws, k, st, (size_t)pix[k]);
+        }
+        memset(ws->dx, 0, 3 * sizeof(float) * (size_t)cnt);
+        memset(ws->dn, 0, 3 * sizeof(float) * (size_t)cnt);
+        memset(ws->drho, 0, 3 * sizeof(float) * (size_t)cnt);
+        pen__shade_fast_bwd(&st->params, sh, S, st->spheres.data, st->kappa.data, cnt,
+                            g == 0 ? cnt : 0, ws->x, ws->n, ws->rho, ws->out, store, ws->kernel,
+                            d_sh, d_sph, bw->geom ? ws->dx : NULL, bw->geom ? ws->dn : NULL,
+                            ws->drho, tk);
+        if (store) store += pen__shade_fast_store_floats(&st->params, cnt);
+        for (int k = 0; k < cnt; ++k) {
+            const size_t i = (size_t)ws->idx[k];
+            const int surf = st->gb.surface[i];
+            const int geom = surf >= 0 && bw->geom;
+            if (bw->albedo || (geom && sc->objects[surf].texture.data))
+                memcpy(st->d_rho.data + 3 * i, ws->drho + 3 * k, 3 * sizeof(float));
+            if (geom) memcpy(st->d_x.data + 3 * i, ws->dx + 3 * k, 3 * sizeof(float));
+            pixel_bwd_tail(sc, st, bw, row, i, surf, ws->dn + 3 * k);
+        }
+    }
+}
+
+static pen_status check_grad_shape(pen_context *ctx, const pen_scene *sc,
+                                   const pen_render_grad *g) {
+    if (g->object_count != sc->object_count || g->bands != sc->sh_bands)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "render backward: gradient struct does not match the scene");
+    for (int o = 0; o < sc->object_count; ++o) {
+        const pen_object_grad *og = &g->objects[o];
+        const pen_object *ob = &sc->objects[o];
+        if (og->vertex_count != ob->mesh.vertex_count || og->sphere_count != ob->spheres.count ||
+            (!ob->texture.data != !og->texture) ||
+            (ob->texture.data && og->texel_count != ob->texture.width * ob->texture.height))
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "render backward: gradient of objects[%d] does not match the scene",
+                              o);
+    }
+    return PEN_OK;
+}
+
+pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_render_options *opt,
+                          pen_render_state *st, const pen_image *d_image, unsigned wrt,
+                          pen_render_grad *grad) {
+    pen_render_options def = pen_render_options_default();
+    if (!opt) opt = &def;
+    if (!st || !st->valid)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "render backward: no forward pass to undo");
+    if (opt->shadows != st->opt.shadows || opt->antialias != st->opt.antialias ||
+        opt->kernel != st->opt.kernel)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "render backward: options differ from the forward pass");
+    const int W = st->width, H = st->height;
+    if (!d_image || !d_image->data || d_image->width != W || d_image->height != H ||
+        d_image->channels != 3)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "render backward: d_image must be %dx%d with 3 channels", W, H);
+    int changed = st->object_count != sc->object_count;
+    for (int o = 0; o < sc->object_count && !changed; ++o)
+        changed = st->meshes[o].vertex_count != sc->objects[o].mesh.vertex_count ||
+                  st->meshes[o].triangle_count != sc->objects[o].mesh.triangle_count ||
+                  st->sphere_first[o + 1] - st->sphere_first[o] != sc->objects[o].spheres.count;
+    if (changed)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "render backward: the scene changed since the forward pass");
+    pen_status s = check_grad_shape(ctx, sc, grad);
+    if (s) return s;
+    const size_t np = (size_t)W * (size_t)H;
+    const int O = sc->object_count, S = st->sphere_count, nc = sc->sh_bands * sc->sh_bands;
+    const int want_geom = (wrt & (PEN_GRAD_POSE | PEN_GRAD_VERTICES)) != 0;
+    const int want_sph = (wrt & (PEN_GRAD_SPHERES | PEN_GRAD_POSE)) != 0;
+    const int want_light = (wrt & PEN_GRAD_LIGHTING) != 0;
+    const int want_albedo = (wrt & PEN_GRAD_ALBEDO) != 0;
+
+    /* World-space vertex gradient buffers. */
+    float **d_world = NULL;
+    if (want_geom) {
+        d_world = pen__calloc(ctx, (size_t)O + 1, sizeof *d_world, "vertex gradient pointers");
+        if (!d_world) return PEN_ERROR_MEMORY;
+        for (int o = 0; o < O; ++o) {
+            pen__object_buf *b = &st->obj[o];
+            const size_t V = (size_t)sc->objects[o].mesh.vertex_count;
+            memset(b->d_world.data, 0, sizeof(float) * 3 * V);
+            memset(b->d_vnormal.data, 0, sizeof(float) * 3 * V);
+            d_world[o] = b->d_world.data;
+        }
+    }
+
+    pen_render_timings *tm = &st->timings;
+    tm->bwd_antialias_ms = tm->bwd_shade_ms = tm->bwd_visibility_ms = tm->bwd_exp_ms = 0.0;
+    tm->bwd_scatter_ms = 0.0;
+    double t0 = omp_get_wtime();
+
+    /* Antialiasing backward: d_image -> d_colour (+ silhouette vertex gradients). */
+    if (opt->antialias && O > 0) {
+        memset(st->d_color.data, 0, sizeof(float) * 3 * np);
+        s = pen_antialias_bwd(ctx, &st->gb, &st->view, st->meshes, O, st->color.data, 3,
+                              d_image->data, st->d_color.data, want_geom ? d_world : NULL);
+        if (s) {
+            free(d_world);
+            return s;
+        }
+    } else {
+        memcpy(st->d_color.data, d_image->data, sizeof(float) * 3 * np);
+    }
+    tm->bwd_antialias_ms = pen__render_ms_since(t0);
+
+    /* Per-pixel backward, tiles in parallel, each tile into its own accumulators. */
+    const int seen = st->ground_occludes ? O : 0;
+    const row_layout rl = rows_layout(sc->sh_bands, O, seen, S);
+    const int ntiles = pen__tile_count(st);
+    if ((s = PEN__BUF_RESERVE(ctx, st->rows, rl.stride * (size_t)ntiles,
+                              "tile gradient buffers"))) {
+        free(d_world);
+        return s;
+    }
+    memset(st->rows.data, 0, sizeof(double) * rl.stride * (size_t)ntiles);
+    const int nt = pen__render_threads(ctx);
+    size_t wsb = 0;
+    if ((s = pen__tile_ws_reserve(ctx, st, nt, &wsb))) {
+        free(d_world);
+        return s;
+    }
+    const int want_height = (wrt & PEN_GRAD_POSE) != 0 && st->ground_occludes;
+    const bwd_want bw = {
+        want_geom, want_sph, want_light, want_albedo, seen > 0 && (want_light || want_height), rl};
+    float *fv_all = st->fv_valid ? st->fv.data : NULL;
+    const pen__tile_job job = {sc, st, &bw, fv_all, st->fast ? st->tile_off.data : NULL};
+    t0 = omp_get_wtime();
+    const pen__loop_ticks lt = pen__tiles_run(st, nt, wsb, shade_tile_bwd, &job);
+    tm->bwd_shade_ms = pen__render_ms_since(t0);
+    tm->bwd_visibility_ms = pen__stage_ms(tm->bwd_shade_ms, lt.visibility, lt.total);
+    tm->bwd_exp_ms = pen__stage_ms(tm->bwd_shade_ms, lt.exp, lt.total);
+    t0 = omp_get_wtime();
+
+    /* Reduce the tiles in order. */
+    double *sum = pen__calloc(ctx, rl.stride + 1, sizeof(double), "gradient sums");
+    if (!sum) {
+        free(d_world);
+        return PEN_ERROR_MEMORY;
+    }
+    for (int t = 0; t < ntiles; ++t) {
+        const double *row = st->rows.data + rl.stride * (size_t)t;
+        for (size_t k = 0; k < rl.stride; ++k)
+            sum[k] += row[k];
+    }
+    /* Lighting: the scene's own, plus what reaches it through the objects' `seen` (ground.c,
+     * which also gives the objects' heights their share). */
+    double d_sh[PEN_SH_MAX_COEFFS][3];
+    for (int k = 0; k < nc; ++k)
+        for (int ch = 0; ch < 3; ++ch)
+            d_sh[k][ch] = sum[rl.sh + 3 * (size_t)k + ch];
+    pen__ground_occlusion_bwd(sc, st, sum + rl.sh_obj, want_light ? d_sh : NULL,
+                              want_height ? grad : NULL);
+    if (want_light)
+        for (int k = 0; k < nc; ++k)
+            for (int ch = 0; ch < 3; ++ch)
+                grad->sh[k][ch] += (float)d_sh[k][ch];
+    if (want_albedo) {
+        for (int ch = 0; ch < 3; ++ch)
+            grad->ground_albedo[ch] += (float)sum[rl.ground + ch];
+        for (int o = 0; o < O; ++o)
+            for (int ch = 0; ch < 3; ++ch)
+                grad->objects[o].albedo[ch] += (float)sum[rl.albedo + 3 * (size_t)o + ch];
+    }
+
+    /* Spheres: world-space gradients -> object space and pose. */
+    if (want_sph)
+        for (int o = 0; o < O; ++o) {
+            const pen_object *ob = &sc->objects[o];
+            pen_object_grad *og = &grad->objects[o];
+            for (int i = 0; i < ob->spheres.count; ++i) {
+                const double *dw = sum + rl.spheres + 4 * (size_t)(st->sphere_first[o] + i);
+                const float *c = ob->spheres.data + 4 * (size_t)i;
+                const float d_c[3] = {(float)dw[0], (float)dw[1], (float)dw[2]};
+                float d_co[3] = {0.0f, 0.0f, 0.0f};
+                pen_pose_apply_bwd(&ob->pose, c, d_c, (wrt & PEN_GRAD_POSE) ? &og->pose : NULL,
+                                   d_co);
+                if (wrt & PEN_GRAD_SPHERES) {
+                    for (int a = 0; a < 3; ++a)
+                        og->spheres[4 * (size_t)i + a] += d_co[a];
+                    og->spheres[4 * (size_t)i + 3] += (float)(dw[3] * (double)ob->pose.scale);
+                }
+                if (wrt & PEN_GRAD_POSE) og->pose.scale += (float)(dw[3] * (double)c[3]);
+            }
+        }
+    free(sum);
+
+    /* Two independent serial scatters, side by side on two threads: the texels (in pixel order,
+     * so every texel sums its pixels in the same order whatever the threads) and the geometry's
+     * interpolation and vertex-normal backward (into the vertex and barycentric buffers). */
+    pen_status s_geom = PEN_OK;
+    if (want_geom) memset(st->d_bary.data, 0, sizeof(float) * 2 * np);
+#pragma omp parallel sections num_threads(nt > 1 ? 2 : 1) if (np >= PEN_RENDER_PARALLEL_MIN_PIXELS)
+    {
+#pragma omp section
+        if (want_albedo)
+            for (size_t i = 0; i < np; ++i) {
+                const int surf = st->gb.surface[i];
+                if (surf < 0 || !sc->objects[surf].texture.data) continue;
+                pen__texture_bwd(&sc->objects[surf].texture, st->uv.data + 2 * i,
+                                 st->d_rho.data + 3 * i, grad->objects[surf].texture, NULL);
+            }
+#pragma omp section
+        if (want_geom)
+            for (int o = 0; o < O && !s_geom; ++o) {
+                const pen_object *ob = &sc->objects[o];
+                pen__object_buf *b = &st->obj[o];
+                pen_interpolate_bwd(&st->gb, o, ob->mesh.indices, b->world.data, 3, st->d_x.data,
+                                    b->d_world.data, st->d_bary.data);
+                pen_interpolate_bwd(&st->gb, o, ob->mesh.indices, b->vnormal.data, 3,
+                                    st->d_nraw.data, b->d_vnormal.data, st->d_bary.data);
+                if (ob->texture.data)
+                    pen_interpolate_bwd(&st->gb, o, ob->mesh.uv_indices, ob->mesh.uvs, 2,
+                                        st->d_uv.data, NULL, st->d_bary.data);
+                s_geom = pen_vertex_normals_bwd(ctx, ob->mesh.vertex_count, b->world.data,
+                                                ob->mesh.triangle_count, ob->mesh.indices,
+                                                b->d_vnormal.data, b->d_world.data);
+            }
+    }
+
+    /* Geometry: barycentrics, pose. */
+    if (want_geom) {
+        s = s_geom;
+        if (!s) s = PEN__BUF_RESERVE(ctx, st->bary_scratch, 9 * np, "barycentric backward");
+        if (!s)
+            pen_raster_bary_bwd_scratch(ctx, &st->view, st->meshes, O, &st->gb, st->d_bary.data,
+                                        d_world, st->bary_scratch.data);
+        if (!s) {
+            for (int o = 0; o < O; ++o) {
+                const pen_object *ob = &sc->objects[o];
+                pen_object_grad *og = &grad->objects[o];
+                pen_pose_points_bwd(&ob->pose, ob->mesh.vertex_count, ob->mesh.positions,
+                                    d_world[o], (wrt & PEN_GRAD_POSE) ? &og->pose : NULL,
+                                    (wrt & PEN_GRAD_VERTICES) ? og->positions : NULL);
+            }
+        }
+    }
+    free(d_world);
+    tm->bwd_scatter_ms = pen__render_ms_since(t0);
+    return s;
+}

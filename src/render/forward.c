@@ -1,0 +1,280 @@
+/* The forward of the full differentiable frame: scene -> posed geometry -> G-buffer -> per-pixel
+ * attributes -> shading with SH visibility -> silhouette antialiasing. Its backward, into
+ * lighting, albedo, spheres, poses and vertex positions, is backward.c.
+ *
+ * Design
+ * - Vertices and sphere centres are posed (pen_pose_points_fwd; radii times the pose's scale).
+ *   The rasterizer gives per pixel the surface, triangle and barycentrics; the visible point x,
+ *   the raw normal (interpolated area-weighted vertex normals, computed from the posed positions
+ *   so that they move with the vertices) and the UV are interpolated; n = +/- raw/|raw| with the
+ *   sign chosen so that n faces the camera's side of the triangle's geometric normal (closed
+ *   meshes seen from outside never flip; open meshes seen from behind do). Ground pixels: x on
+ *   the plane, n = +Y, the ground albedo.
+ * - Shading runs over 16 x 16 tiles in parallel (tiles.c: dynamic scheduling, a workspace per
+ *   thread, the tile's pixels in lighting groups): the tile's surface pixels go compacted to the
+ *   fast kernel (shade_fast.c, batches of SIMD lanes) or one by one to the scalar reference
+ *   kernel (shade_ops.inc), as pen_render_options.kernel and the kernel's coverage decide;
+ *   background pixels show the constant background or the environment map (background.c).
+ *   Antialiasing blends colours across silhouettes last.
+ * - What the backward needs stays in the state (state.c): the per-pixel attributes, the groups,
+ *   and the kernel's store (F, or F and V, per pixel), kept only when the caller passed a state
+ *   and shadows are on.
+ */
+#include "penumbra/render.h"
+
+#include "core/internal.h"
+#include "render/render_internal.h"
+
+#include <omp.h>
+#include <string.h>
+
+pen_render_options pen_render_options_default(void) {
+    pen_render_options o;
+    o.shadows = 1;
+    o.antialias = 1;
+    o.kernel = PEN_RENDER_KERNEL_FAST;
+    return o;
+}
+
+/* ---- Geometry and attributes ----------------------------------------------------------------- */
+
+/* Poses the geometry, rasterizes, and interpolates the per-pixel attributes into st. */
+static pen_status prepare(pen_context *ctx, const pen_scene *sc, const pen_render_options *opt,
+                          pen_render_state *st) {
+    pen_status s = pen__scene_validate(ctx, sc);
+    if (s) return s;
+    if ((s = pen_view_init(ctx, &sc->camera, &st->view))) return s; /* validated: fills the view */
+    const int W = st->view.width, H = st->view.height;
+    const size_t np = (size_t)W * (size_t)H;
+    if (st->gb.width != W || st->gb.height != H) {
+        pen_gbuffer_free(&st->gb);
+        if ((s = pen_gbuffer_create(ctx, W, H, &st->gb))) return s;
+    }
+    st->width = W, st->height = H;
+    if ((s = pen__render_state_reserve(ctx, st, np, sc->object_count))) return s;
+    st->object_count = sc->object_count;
+
+    /* Posed vertices, their normals and the adjacency for antialiasing. */
+    int spheres = 0;
+    for (int o = 0; o < sc->object_count; ++o) {
+        const pen_object *ob = &sc->objects[o];
+        pen__object_buf *b = &st->obj[o];
+        const size_t V = (size_t)ob->mesh.vertex_count, T = (size_t)ob->mesh.triangle_count;
+        if ((s = pen__render_object_reserve(ctx, b, V, T))) return s;
+        pen_pose_points_fwd(&ob->pose, (int)V, ob->mesh.positions, b->world.data);
+        if ((s = pen_vertex_normals_fwd(ctx, (int)V, b->world.data, (int)T, ob->mesh.indices,
+                                        b->vnormal.data)))
+            return s;
+        if (opt->antialias && (s = pen__render_object_adjacency(ctx, b, &ob->mesh))) return s;
+        pen_raster_mesh *m = &st->meshes[o];
+        m->vertex_count = (int)V;
+        m->triangle_count = (int)T;
+        m->positions = b->world.data;
+        m->indices = ob->mesh.indices;
+        m->adjacency = opt->antialias ? b->adjacency.data : NULL;
+        st->sphere_first[o] = spheres;
+        spheres += ob->spheres.count;
+    }
+    st->sphere_first[sc->object_count] = spheres;
+    st->sphere_count = spheres;
+    if ((s = PEN__BUF_RESERVE(ctx, st->spheres, 4 * (size_t)spheres, "posed spheres"))) return s;
+    for (int o = 0; o < sc->object_count; ++o) {
+        const pen_object *ob = &sc->objects[o];
+        for (int i = 0; i < ob->spheres.count; ++i) {
+            const float *src = ob->spheres.data + 4 * (size_t)i;
+            float *dst = st->spheres.data + 4 * (size_t)(st->sphere_first[o] + i);
+            pen_pose_apply(&ob->pose, src, dst);
+            dst[3] = src[3] * ob->pose.scale;
+        }
+    }
+    if ((s = pen__render_overlap_weights(ctx, sc, st))) return s;
+
+    if ((s = pen_raster_gbuffer(ctx, &st->view, st->meshes, sc->object_count, &sc->ground,
+                                &st->gb)))
+        return s;
+    pen_gbuffer_points(&st->view, &st->gb, st->x.data);
+    for (int o = 0; o < sc->object_count; ++o) {
+        const pen_object *ob = &sc->objects[o];
+        pen_interpolate_fwd(&st->gb, o, ob->mesh.indices, st->obj[o].world.data, 3, st->x.data);
+        pen_interpolate_fwd(&st->gb, o, ob->mesh.indices, st->obj[o].vnormal.data, 3,
+                            st->nraw.data);
+        if (ob->texture.data)
+            pen_interpolate_fwd(&st->gb, o, ob->mesh.uv_indices, ob->mesh.uvs, 2, st->uv.data);
+    }
+
+    const pen_sh_exp_model model = pen_sh_exp_model_default(sc->shadow.exp, sc->sh_bands);
+    pen__shade_params_init(&st->params, sc->sh_bands, &model, (double)sc->shadow.epsilon,
+                           opt->shadows);
+    if (!st->params.gaunt)
+        return pen__error(ctx, PEN_ERROR_INTERNAL, "render: no product table for %d bands",
+                          sc->sh_bands);
+    pen__ground_occlusion_prepare(sc, opt, st);
+    return PEN_OK;
+}
+
+/* Sign that turns the interpolated normal towards the viewer's side of the triangle. */
+static float facing_sign(const pen_render_state *st, const pen_object *ob, int o, size_t i) {
+    const uint32_t *idx = ob->mesh.indices + 3 * (size_t)st->gb.triangle[i];
+    const float *w = st->obj[o].world.data;
+    const float *p0 = w + 3 * (size_t)idx[0], *p1 = w + 3 * (size_t)idx[1],
+                *p2 = w + 3 * (size_t)idx[2];
+    double e1[3], e2[3], g[3], v[3];
+    for (int a = 0; a < 3; ++a) {
+        e1[a] = (double)p1[a] - (double)p0[a];
+        e2[a] = (double)p2[a] - (double)p0[a];
+        v[a] = st->view.eye[a] - (double)st->x.data[3 * i + a];
+    }
+    g[0] = e1[1] * e2[2] - e1[2] * e2[1];
+    g[1] = e1[2] * e2[0] - e1[0] * e2[2];
+    g[2] = e1[0] * e2[1] - e1[1] * e2[0];
+    return g[0] * v[0] + g[1] * v[1] + g[2] * v[2] < 0.0 ? -1.0f : 1.0f;
+}
+
+/* Normal (facing the camera) and albedo of surface pixel i. */
+static void surface_attributes(const pen_scene *sc, pen_render_state *st, size_t i, int surf) {
+    float *n = st->n.data + 3 * i, *rho = st->rho.data + 3 * i;
+    if (surf == PEN_SURFACE_GROUND) {
+        n[0] = 0.0f, n[1] = 1.0f, n[2] = 0.0f;
+        for (int ch = 0; ch < 3; ++ch)
+            rho[ch] = sc->ground.albedo[ch];
+        return;
+    }
+    const pen_object *ob = &sc->objects[surf];
+    const float sign = facing_sign(st, ob, surf, i);
+    st->nsign.data[i] = sign;
+    pen_normalize_fwd(1, st->nraw.data + 3 * i, n);
+    for (int a = 0; a < 3; ++a)
+        n[a] *= sign;
+    if (ob->texture.data)
+        pen__texture_fwd(&ob->texture, st->uv.data + 2 * i, rho);
+    else
+        for (int ch = 0; ch < 3; ++ch)
+            rho[ch] = ob->albedo[ch];
+}
+
+/* ---- Shading and the pass -------------------------------------------------------------------- */
+
+/* Shades tile t: background pixels directly, surface pixels through the fast kernel (compacted
+ * into ws, one call per group) or the scalar kernel one by one. */
+static void shade_tile_fwd(const void *job_, int t, pen__tile_ws *ws, pen__shade_fast_ticks *tk) {
+    const pen__tile_job *job = job_;
+    const pen_scene *sc = job->sc;
+    pen_render_state *st = job->st;
+    float *store = pen__tile_store_of(job, t);
+    const size_t nfv = 2 * (size_t)sc->sh_bands * (size_t)sc->sh_bands;
+    int x0, y0, x1, y1;
+    pen__tile_rect(st, t, &x0, &y0, &x1, &y1);
+    for (int py = y0; py < y1; ++py)
+        for (int px = x0; px < x1; ++px) {
+            const size_t i = (size_t)py * (size_t)st->width + (size_t)px;
+            const int surf = st->gb.surface[i];
+            if (surf == PEN_SURFACE_BACKGROUND)
+                pen__background_pixel(sc, st, px, py, i);
+            else
+                surface_attributes(sc, st, i, surf);
+        }
+    for (int r = 0; r < st->groups.data[t].runs; ++r) {
+        const int *pix;
+        int cnt;
+        const int g = pen__tile_run(st, t, r, &pix, &cnt);
+        const float(*sh)[3] = pen__tile_group_lighting(sc, st, g);
+        if (!st->fast) {
+            for (int k = 0; k < cnt; ++k) {
+                const size_t i = (size_t)pix[k];
+                pen__shade_fwd(&st->params, sh, st->sphere_count, st->spheres.data, st->kappa.data,
+                               st->x.data + 3 * i, st->n.data + 3 * i, st->rho.data + 3 * i,
+                               st->color.data + 3 * i, job->store ? job->store + nfv * i : NULL);
+            }
+            continue;
+        }
+        for (int k = 0; k < cnt; ++k)
+            pen__tile_ws_push(ws, k, st, (size_t)pix[k]);
+        pen__shade_fast_fwd(&st->params, sh, st->sphere_count, st->spheres.data, st->kappa.data,
+                            cnt, g == 0 ? cnt : 0, ws->x, ws->n, ws->rho, ws->out, store,
+                            ws->kernel, tk);
+        if (store) store += pen__shade_fast_store_floats(&st->params, cnt);
+        for (int k = 0; k < cnt; ++k)
+            memcpy(st->color.data + 3 * (size_t)ws->idx[k], ws->out + 3 * k, 3 * sizeof(float));
+    }
+}
+
+pen_status pen_render_fwd(pen_context *ctx, const pen_scene *sc, const pen_render_options *opt,
+                          pen_render_state *state, pen_image *image) {
+    pen_render_options def = pen_render_options_default();
+    if (!opt) opt = &def;
+    pen_render_state *own = NULL;
+    pen_status s;
+    if (!state) {
+        if ((s = pen_render_state_create(ctx, &own))) return s;
+        state = own;
+    }
+    if (opt->kernel != PEN_RENDER_KERNEL_FAST && opt->kernel != PEN_RENDER_KERNEL_SCALAR) {
+        s = pen__error(ctx, PEN_ERROR_ARGUMENT, "render: unknown kernel %d", opt->kernel);
+        goto done;
+    }
+    pen_render_state *st = state;
+    st->valid = 0;
+    pen_render_timings *tm = &st->timings;
+    memset(tm, 0, sizeof *tm);
+    double t0 = omp_get_wtime();
+    if ((s = prepare(ctx, sc, opt, st))) goto done;
+    tm->fwd_prepare_ms = pen__render_ms_since(t0);
+    const int W = st->width, H = st->height;
+    if (image->data) {
+        if (image->width != W || image->height != H || image->channels != 3) {
+            s = pen__error(ctx, PEN_ERROR_ARGUMENT,
+                           "render: output image is %dx%dx%d, the camera needs %dx%dx3",
+                           image->width, image->height, image->channels, W, H);
+            goto done;
+        }
+    } else if ((s = pen_image_create(ctx, W, H, 3, image))) {
+        goto done;
+    }
+
+    const int fast =
+        opt->kernel == PEN_RENDER_KERNEL_FAST && pen__shade_fast_supported(&st->params);
+    const int ntiles = pen__tile_count(st);
+    const size_t nfv = 2 * (size_t)sc->sh_bands * (size_t)sc->sh_bands;
+    const int nt = pen__render_threads(ctx);
+    size_t wsb = 0;
+    if ((s = pen__tile_ws_reserve(ctx, st, nt, &wsb)) ||
+        (s = PEN__BUF_RESERVE(ctx, st->groups, (size_t)ntiles, "tile pixel groups")))
+        goto done;
+    /* Every tile's lighting groups, for the shading below, the store's layout and the backward. */
+    t0 = omp_get_wtime();
+    const pen__tile_job group_job = {sc, st, NULL, NULL, NULL};
+    pen__tiles_run(st, nt, wsb, pen__tile_group, &group_job);
+    /* Keep what the backward needs: the scalar kernel F and V per pixel (2 bands^2 floats:
+     * 32 MB at 512 x 512, 4 bands), the fast kernel F per pixel in its batch layout. */
+    float *fv_all = NULL;
+    if (own == NULL && opt->shadows) {
+        if (fast && (s = pen__tile_store_layout(ctx, st, ntiles))) goto done;
+        const size_t need = fast ? st->tile_off.data[ntiles] : nfv * (size_t)W * (size_t)H;
+        if ((s = PEN__BUF_RESERVE(ctx, st->fv, need, "visibility buffer"))) goto done;
+        fv_all = st->fv.data;
+    }
+    st->fv_valid = fv_all != NULL;
+    st->fast = fast;
+    const pen__tile_job job = {sc, st, NULL, fv_all, fast ? st->tile_off.data : NULL};
+    pen__background_prepare(ctx, sc, st);
+    const pen__loop_ticks lt = pen__tiles_run(st, nt, wsb, shade_tile_fwd, &job);
+    tm->fwd_shade_ms = pen__render_ms_since(t0);
+    tm->fwd_visibility_ms = pen__stage_ms(tm->fwd_shade_ms, lt.visibility, lt.total);
+    tm->fwd_exp_ms = pen__stage_ms(tm->fwd_shade_ms, lt.exp, lt.total);
+
+    t0 = omp_get_wtime();
+    if (opt->antialias && sc->object_count > 0) {
+        if ((s = pen_antialias_fwd(ctx, &st->gb, &st->view, st->meshes, sc->object_count,
+                                   st->color.data, 3, image->data)))
+            goto done;
+    } else {
+        memcpy(image->data, st->color.data, sizeof(float) * 3 * (size_t)W * (size_t)H);
+    }
+    tm->fwd_antialias_ms = pen__render_ms_since(t0);
+    st->opt = *opt;
+    st->valid = 1;
+    s = PEN_OK;
+done:
+    pen_render_state_free(own);
+    return s;
+}

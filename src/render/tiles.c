@@ -1,0 +1,171 @@
+/* The tile scheduler of the full frame: 16 x 16 screen tiles, the threads' workspaces, and each
+ * tile's shaded pixels sorted into lighting groups.
+ *
+ * Design
+ * - A tile is the unit of parallel work (threads take tiles with dynamic scheduling: the cost of a
+ *   tile follows how much of it is surface), of the fast kernel's calls (its batches are a
+ *   group's pixels, compacted into the thread's workspace), and of the backward's double
+ *   accumulators, which are reduced in tile order so that gradients do not depend on the
+ *   thread count. Frames smaller than PEN_RENDER_PARALLEL_MIN_PIXELS stay on the calling thread.
+ * - Lighting groups: the kernels shade a tile's pixels in groups that share one lighting: the
+ *   ground's (group 0), then the objects' (group 1 for all of them, or 1 + o per object o with
+ *   ground occlusion, whose objects see their own lighting: ground.c). Background pixels belong to
+ *   none. pen__tile_group sorts each tile once per forward; the forward's shading, the fast
+ *   store's layout and the backward all read the same runs, so the store's batches line up.
+ * - Stage timings: the fast kernel counts clock ticks per stage; each pass sums them over its
+ *   threads and splits its wall time in their ratios (pen__stage_ms).
+ */
+#include "core/internal.h"
+#include "render/render_internal.h"
+
+#include <omp.h>
+#include <string.h>
+
+int pen__render_threads(const pen_context *ctx) {
+    int t = pen_context_threads(ctx);
+    return t > 0 ? t : omp_get_max_threads();
+}
+
+double pen__render_ms_since(double t0) {
+    return 1e3 * (omp_get_wtime() - t0);
+}
+
+/* ---- Workspaces ------------------------------------------------------------------------------ */
+
+static size_t tile_ws_bytes(const pen__shade_params *p, int spheres) {
+    const size_t b = sizeof(int) * PEN_TILE_PX + 7 * 3 * sizeof(float) * PEN_TILE_PX +
+                     pen__shade_fast_scratch_bytes(p, spheres, PEN_TILE_PX);
+    return (b + 127) & ~(size_t)127; /* threads' blocks on separate cache lines */
+}
+
+pen_status pen__tile_ws_reserve(pen_context *ctx, pen_render_state *st, int threads,
+                                size_t *bytes) {
+    *bytes = tile_ws_bytes(&st->params, st->sphere_count);
+    return PEN__BUF_RESERVE(ctx, st->ws, *bytes * (size_t)threads, "render workspaces");
+}
+
+/* The calling thread's workspace. */
+static pen__tile_ws tile_ws_at(pen_render_state *st, size_t bytes) {
+    const int tid = omp_get_thread_num();
+    unsigned char *b = st->ws.data + bytes * (size_t)tid;
+    pen__tile_ws w;
+    w.idx = (int *)b;
+    float *f = (float *)(b + sizeof(int) * PEN_TILE_PX);
+    w.x = f, w.n = f + 3 * PEN_TILE_PX, w.rho = f + 6 * PEN_TILE_PX, w.out = f + 9 * PEN_TILE_PX;
+    w.dx = f + 12 * PEN_TILE_PX, w.dn = f + 15 * PEN_TILE_PX, w.drho = f + 18 * PEN_TILE_PX;
+    w.kernel = f + 21 * PEN_TILE_PX;
+    return w;
+}
+
+/* ---- Tiles and the parallel loop ------------------------------------------------------------- */
+
+void pen__tile_rect(const pen_render_state *st, int t, int *x0, int *y0, int *x1, int *y1) {
+    const int tiles_x = (st->width + PEN_TILE - 1) / PEN_TILE;
+    *x0 = (t % tiles_x) * PEN_TILE, *y0 = (t / tiles_x) * PEN_TILE;
+    *x1 = *x0 + PEN_TILE < st->width ? *x0 + PEN_TILE : st->width;
+    *y1 = *y0 + PEN_TILE < st->height ? *y0 + PEN_TILE : st->height;
+}
+
+int pen__tile_count(const pen_render_state *st) {
+    return ((st->width + PEN_TILE - 1) / PEN_TILE) * ((st->height + PEN_TILE - 1) / PEN_TILE);
+}
+
+static void loop_ticks_add(pen__loop_ticks *sum, const pen__shade_fast_ticks *tk,
+                           unsigned long long total) {
+#pragma omp critical(pen_render_ticks)
+    {
+        sum->visibility += tk->visibility;
+        sum->exp += tk->exp;
+        sum->total += total;
+    }
+}
+
+pen__loop_ticks pen__tiles_run(pen_render_state *st, int threads, size_t ws_bytes, pen__tile_fn fn,
+                               const void *job) {
+    pen__loop_ticks lt = {0, 0, 0};
+    const int ntiles = pen__tile_count(st);
+#pragma omp parallel num_threads(threads) if (st->width * st->height >=                            \
+                                              PEN_RENDER_PARALLEL_MIN_PIXELS)
+    {
+        pen__tile_ws ws = tile_ws_at(st, ws_bytes);
+        pen__shade_fast_ticks tk = {0, 0};
+        const unsigned long long start = pen__shade_fast_now();
+#pragma omp for schedule(dynamic, 1) nowait
+        for (int t = 0; t < ntiles; ++t)
+            fn(job, t, &ws, &tk);
+        loop_ticks_add(&lt, &tk, pen__shade_fast_now() - start);
+    }
+    return lt;
+}
+
+double pen__stage_ms(double loop_ms, unsigned long long stage, unsigned long long total) {
+    return total ? loop_ms * (double)stage / (double)total : 0.0;
+}
+
+/* ---- Lighting groups ------------------------------------------------------------------------- */
+
+float *pen__tile_store_of(const pen__tile_job *job, int t) {
+    return job->store && job->tile_off ? job->store + job->tile_off[t] : NULL;
+}
+
+/* The group of a pixel showing surface `surf` (-1: none). */
+static int pixel_group(const pen_render_state *st, int surf) {
+    if (surf == PEN_SURFACE_BACKGROUND) return -1;
+    if (surf == PEN_SURFACE_GROUND) return 0;
+    return st->ground_occludes ? 1 + surf : 1;
+}
+
+/* The ground's group, and every group without ground occlusion, shade with the scene's lighting. */
+int pen__tile_group_object(const pen_render_state *st, int g) {
+    return st->ground_occludes && g > 0 ? g - 1 : -1;
+}
+
+const float (*pen__tile_group_lighting(const pen_scene *sc, const pen_render_state *st, int g))[3] {
+    const int o = pen__tile_group_object(st, g);
+    return o >= 0 ? (const float(*)[3])st->obj[o].seen : (const float(*)[3])sc->lighting.sh;
+}
+
+/* The stable insertion sort moves each pixel past the earlier pixels of higher groups: nothing
+ * for a tile of one group, but a pixels of one group above b of a lower one (an object over the
+ * ground) cost a * b moves, up to PEN_TILE_PX^2 / 4. */
+void pen__tile_group(const void *job_, int t, pen__tile_ws *ws, pen__shade_fast_ticks *tk) {
+    (void)ws, (void)tk;
+    const pen_render_state *st = ((const pen__tile_job *)job_)->st;
+    pen__tile_groups *tg = &st->groups.data[t];
+    int x0, y0, x1, y1, n = 0, grp[PEN_TILE_PX];
+    pen__tile_rect(st, t, &x0, &y0, &x1, &y1);
+    for (int py = y0; py < y1; ++py)
+        for (int px = x0; px < x1; ++px) {
+            const size_t i = (size_t)py * (size_t)st->width + (size_t)px;
+            const int g = pixel_group(st, st->gb.surface[i]);
+            if (g < 0) continue;
+            int k = n++;
+            for (; k > 0 && grp[k - 1] > g; --k)
+                tg->pix[k] = tg->pix[k - 1], grp[k] = grp[k - 1];
+            tg->pix[k] = (int)i, grp[k] = g;
+        }
+    tg->runs = 0, tg->store = 0; /* each run is one kernel call, its pixels in whole batches */
+    for (int a = 0, b; a < n; a = b) {
+        for (b = a; b < n && grp[b] == grp[a]; ++b) {
+        }
+        tg->end[tg->runs++] = b;
+        tg->store += pen__shade_fast_store_floats(&st->params, b - a);
+    }
+}
+
+int pen__tile_run(const pen_render_state *st, int t, int r, const int **pix, int *count) {
+    const pen__tile_groups *tg = &st->groups.data[t];
+    const int a = r > 0 ? tg->end[r - 1] : 0;
+    *pix = tg->pix + a, *count = tg->end[r] - a;
+    return pixel_group(st, st->gb.surface[tg->pix[a]]);
+}
+
+pen_status pen__tile_store_layout(pen_context *ctx, pen_render_state *st, int ntiles) {
+    pen_status s = PEN__BUF_RESERVE(ctx, st->tile_off, (size_t)ntiles + 1, "store layout");
+    if (s) return s;
+    size_t *off = st->tile_off.data;
+    off[0] = 0;
+    for (int t = 0; t < ntiles; ++t)
+        off[t + 1] = off[t] + st->groups.data[t].store;
+    return PEN_OK;
+}

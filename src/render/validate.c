@@ -1,0 +1,115 @@
+/* Scene validation for rendering: the one place that decides whether a pen_scene can be rendered,
+ * with messages that name the object and the field ("render: objects[2] (spot.obj): sphere 7:
+ * needs a finite center and a radius > 0").
+ *
+ * Design
+ * - It runs at the start of every forward, before anything is allocated or written, so it is
+ *   cheap: one pass over each array, the float tests on exponent bits (a texture is millions of
+ *   values). Meshes are checked by pen_mesh_validate (indices in range, finite positions and
+ *   UVs), the camera by pen_view_init; their messages come through behind the object's name.
+ * - Callers that build a pen_scene from other descriptions (the flat API, the optimizer) rely on
+ *   this function for the scene's contents and keep only the checks about their own inputs.
+ */
+#include "core/internal.h"
+#include "render/render_internal.h"
+
+#include <stdio.h>
+#include <string.h>
+
+/* Whether all n floats are finite. Textures make this a per-frame scan of millions of values, so
+ * it tests the exponent bits without branches (the compiler vectorises it) in blocks. */
+static int finite_n(const float *v, size_t n) {
+    for (size_t i = 0; i < n; i += 4096) {
+        const size_t end = n - i < 4096 ? n : i + 4096;
+        uint32_t bad = 0;
+        for (size_t j = i; j < end; ++j) {
+            uint32_t bits;
+            memcpy(&bits, v + j, sizeof bits);
+            bad |= (bits & 0x7f800000u) == 0x7f800000u; /* Inf or NaN */
+        }
+        if (bad) return 0;
+    }
+    return 1;
+}
+
+static const char *object_name(const pen_object *ob) {
+    return ob->mesh_path ? ob->mesh_path : "in memory";
+}
+
+pen_status pen__scene_validate(pen_context *ctx, const pen_scene *sc) {
+    if (sc->sh_bands < 1 || sc->sh_bands > PEN_SH_MAX_BANDS)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "render: sh_bands %d out of range [1, %d]",
+                          sc->sh_bands, PEN_SH_MAX_BANDS);
+    const int nc = sc->sh_bands * sc->sh_bands;
+    if (!finite_n(&sc->lighting.sh[0][0], 3 * (size_t)nc))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "render: lighting: non-finite SH coefficient");
+    if (sc->shadow.exp != PEN_SH_EXP_CALIBRATED && sc->shadow.exp != PEN_SH_EXP_PAPER &&
+        sc->shadow.exp != PEN_SH_EXP_EXACT)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "render: shadow.exp: unknown method %d",
+                          (int)sc->shadow.exp);
+    if (sc->shadow.overlap != PEN_OVERLAP_WEIGHTS && sc->shadow.overlap != PEN_OVERLAP_NONE)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "render: shadow.overlap: unknown mode %d",
+                          (int)sc->shadow.overlap);
+    if (sc->object_count < 0 || (sc->object_count > 0 && !sc->objects))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "render: bad object list");
+    if (!finite_n(sc->background, 3) ||
+        (sc->ground.enabled && (!finite_n(sc->ground.albedo, 3) || !isfinite(sc->ground.height) ||
+                                !isfinite(sc->ground.half_size))))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "render: non-finite background or ground");
+    if (sc->background_envmap && (!sc->lighting.envmap.data || !isfinite(sc->lighting.scale) ||
+                                  !isfinite(sc->lighting.rotation_y_deg)))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "render: the background shows the environment map, but there is none");
+    for (int o = 0; o < sc->object_count; ++o) {
+        const pen_object *ob = &sc->objects[o];
+        const char *name = object_name(ob);
+        pen_status s = pen_mesh_validate(ctx, &ob->mesh);
+        if (s) {
+            char msg[sizeof((pen_context *)0)->message];
+            snprintf(msg, sizeof msg, "%s", pen_context_error(ctx));
+            return pen__error(ctx, s, "render: objects[%d] (%s): %s", o, name, msg);
+        }
+        if (ob->texture.data) {
+            if (ob->texture.width < 1 || ob->texture.height < 1 || ob->texture.channels < 3)
+                return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                                  "render: objects[%d] (%s): texture must be RGB", o, name);
+            if (ob->mesh.uv_count <= 0)
+                return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                                  "render: objects[%d] (%s): texture but no texture coordinates", o,
+                                  name);
+            if (!finite_n(ob->texture.data, (size_t)ob->texture.width * (size_t)ob->texture.height *
+                                                (size_t)ob->texture.channels))
+                return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                                  "render: objects[%d] (%s): non-finite texel", o, name);
+        } else if (!finite_n(ob->albedo, 3)) {
+            return pen__error(ctx, PEN_ERROR_ARGUMENT, "render: objects[%d] (%s): bad albedo", o,
+                              name);
+        }
+        const pen_pose *ps = &ob->pose;
+        if (!finite_n(ps->rotation_axis_angle_deg, 3) || !finite_n(ps->translation, 3) ||
+            !isfinite(ps->scale) || !(ps->scale > 0.0f))
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "render: objects[%d] (%s): pose must be finite with scale > 0", o,
+                              name);
+        if (ob->spheres.count < 0 || (ob->spheres.count > 0 && !ob->spheres.data))
+            return pen__error(ctx, PEN_ERROR_ARGUMENT, "render: objects[%d] (%s): bad sphere set",
+                              o, name);
+        for (int i = 0; i < ob->spheres.count; ++i) {
+            const float *s4 = ob->spheres.data + 4 * (size_t)i;
+            if (!finite_n(s4, 4) || !(s4[3] > 0.0f))
+                return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                                  "render: objects[%d] (%s): sphere %d: needs a finite center and "
+                                  "a radius > 0",
+                                  o, name, i);
+            const float *k = ob->spheres.weight;
+            if (k && !(isfinite(k[i]) && k[i] >= 0.0f))
+                return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                                  "render: objects[%d] (%s): sphere %d: overlap weight %g is not a "
+                                  "finite number >= 0",
+                                  o, name, i, (double)k[i]);
+        }
+    }
+    /* The camera last: the forward checked it after the rest. */
+    pen_view view;
+    return pen_view_init(ctx, &sc->camera, &view);
+}
