@@ -10,7 +10,7 @@
 // computes those once per frame. The calls from shade_ops.inc into the SH engine are redirected
 // through wrappers (macro rescanning of the SUF() names) that attribute the counts to a stage.
 //
-// The frame is set up as src/render/render.c does through the public API: scene, fitted spheres,
+// The frame is set up as src/render/forward.c does through the public API: scene, fitted spheres,
 // posed mesh, G-buffer, interpolated points and normals; every shaded pixel (object or ground)
 // runs the forward and the backward the bench times (all gradient groups but vertices: d_x and
 // d_n on object pixels, d_rho, d_sh, d_spheres). Not counted: texture lookups, the background,
@@ -227,7 +227,7 @@ int main(int argc, char **argv) {
     }
     if (pen_scene_fit_spheres(ctx, &sc)) die(ctx, "fit");
 
-    // Posed geometry, G-buffer and per-pixel attributes, as render.c's prepare().
+    // Posed geometry, G-buffer and per-pixel attributes, as forward.c's prepare().
     const int O = sc.object_count;
     std::vector<std::vector<float>> world(O), vnormal(O);
     std::vector<pen_raster_mesh> meshes(O);

@@ -17,6 +17,7 @@
  * (Rec. 709 weights) since visibility is colour-blind.
  */
 #include "core/internal.h"
+#include "core/random.h"
 #include "penumbra_research.h"
 #include "penumbra/scene.h"
 #include "sh/sh_internal.h"
@@ -65,26 +66,16 @@ const char *pen_accuracy_light_name(const pen_accuracy_set *set, int light) {
     return light >= 0 && light < set->light_count ? set->light_names[light] : "";
 }
 
-/* splitmix64: a small, seedable, well-mixed stream; one per sample so results do not depend on
- * thread scheduling. */
-static double next_uniform(unsigned long long *s) {
-    unsigned long long z = (*s += 0x9E3779B97F4A7C15ull);
-    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-    z ^= z >> 31;
-    return (double)(z >> 11) * (1.0 / 9007199254740992.0);
-}
-
 /* A unit direction with sin(elevation above the y = 0 plane) uniform in [lo, hi]. */
-static void random_upper_direction(unsigned long long *s, double lo, double hi, double d[3]) {
-    const double sy = lo + (hi - lo) * next_uniform(s);
-    const double phi = 2.0 * PEN_PI * next_uniform(s), c = sqrt(1.0 - sy * sy);
+static void random_upper_direction(uint64_t *s, double lo, double hi, double d[3]) {
+    const double sy = lo + (hi - lo) * pen__splitmix_uniform(s);
+    const double phi = 2.0 * PEN_PI * pen__splitmix_uniform(s), c = sqrt(1.0 - sy * sy);
     d[0] = c * cos(phi), d[1] = sy, d[2] = c * sin(phi);
 }
 
 /* ---- Lighting ------------------------------------------------------------------------------ */
 
-static void sky_sun_sh(unsigned long long *s, double L[NC]) {
+static void sky_sun_sh(uint64_t *s, double L[NC]) {
     const double kappa = 100.0, S = 1.5 * kappa;
     double sun[3], zl[NB];
     random_upper_direction(s, 0.1, 1.0, sun);
@@ -202,12 +193,13 @@ pen_status pen_accuracy_set_create(pen_context *ctx, const pen_accuracy_options 
     /* Draw every random number serially (each sample from its own stream), then integrate. */
     for (int i = 0; i < total && !st; ++i) {
         sample *s = &set->samples[i];
-        unsigned long long rs = opt->seed * 0x100000001B3ull + (unsigned long long)i * 7919ull + 1;
+        /* One stream per sample, so results do not depend on thread scheduling. */
+        uint64_t rs = opt->seed * 0x100000001B3ull + (uint64_t)i * 7919ull + 1;
         s->count = sphere_counts[i / opt->sets_per_count];
         for (int k = 0; k < s->count; ++k) {
             double d[3];
-            const double D = 0.4 + 1.2 * next_uniform(&rs);
-            const double r = (0.1 + 0.3 * next_uniform(&rs)) * D;
+            const double D = 0.4 + 1.2 * pen__splitmix_uniform(&rs);
+            const double r = (0.1 + 0.3 * pen__splitmix_uniform(&rs)) * D;
             random_upper_direction(&rs, 0.15, 1.0, d);
             for (int a = 0; a < 3; ++a) s->spheres[k][a] = (float)(D * d[a]);
             s->spheres[k][3] = (float)r;
@@ -215,7 +207,7 @@ pen_status pen_accuracy_set_create(pen_context *ctx, const pen_accuracy_options 
         sky_sun_sh(&rs, s->L[0]);
         for (int e = 0; e < opt->envmap_count && !st; ++e) {
             float sh[NC][3];
-            const float rot = (float)(360.0 * next_uniform(&rs));
+            const float rot = (float)(360.0 * pen__splitmix_uniform(&rs));
             st = pen_envmap_to_sh(ctx, &small[e], NB, rot, 1.0f, sh);
             for (int k = 0; k < NC; ++k)
                 s->L[1 + e][k] = 0.2126 * (double)sh[k][0] + 0.7152 * (double)sh[k][1] + 0.0722 * (double)sh[k][2];

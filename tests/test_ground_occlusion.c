@@ -1,4 +1,4 @@
-/* The ground plane as an occluder of the objects (src/render/render.c, ground_occlusion_prepare;
+/* The ground plane as an occluder of the objects (src/render/ground.c, pen__ground_occlusion_prepare;
  * src/sh/gaunt.c, pen__sh_above).
  *
  * - The matrix M(t) = integral over y > -t of Y_j Y_k against Monte-Carlo integration, its

@@ -421,7 +421,7 @@ static void test_translation_metrics(void) {
  * translation 0.039, vertex RMSE 0.040 after 110 iterations (the same after 69 under the earlier
  * stopping rule; with the ground a receiver only: 1.64, 0.008, 0.014).
  * The ellipsoid hovers 0.55 over the ground, and how much of the sky below the horizon the
- * ground hides from it depends on its height (render.c, ground occlusion), so the vertical
+ * ground hides from it depends on its height (src/render/ground.c), so the vertical
  * translation now also trades against its shading. */
 static void test_pose(void) {
     pen_optim_task t = make_task(1, 4, PEN_OPTIM_POSE);

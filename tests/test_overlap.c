@@ -322,7 +322,7 @@ static void test_scene_option_and_load(void) {
     CHECK(pen_spheres_ensure_weights(ctx, &sc.objects[0].spheres) == PEN_OK);
     CHECK(sc.objects[0].spheres.weight && sc.objects[0].spheres.weight[0] == (float)T);
     pen_scene_free(&sc);
-    /* The ground mode beside it (render.c, ground occlusion): occludes by default. */
+    /* The ground mode beside it (src/render/ground.c): occludes by default. */
     CHECK(scene_text("\"shadow\": {\"ground\": \"receiver\"},", "\"old.json\"", &sc) == PEN_OK);
     CHECK(sc.shadow.ground == PEN_GROUND_RECEIVER);
     pen_scene_free(&sc);

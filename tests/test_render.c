@@ -1,4 +1,4 @@
-/* Forward tests of the renderer (src/render/render.c) against references that are not our own
+/* Forward tests of the renderer (src/render/forward.c) against references that are not our own
  * output: closed-form irradiance of an unoccluded plane and of a tessellated sphere, the exact
  * cosine-weighted occlusion of a sphere above a plane, the self-shadowing rule on a convex
  * object, background colours; image losses; argument errors. */
@@ -317,11 +317,25 @@ static void expect_error(pen_scene *sc, const char *fragment) {
     CHECK_MSG(strstr(pen_context_error(ctx), fragment) != NULL, "message '%s' lacks '%s'",
               pen_context_error(ctx), fragment);
     CHECK(img.data == NULL);
+    /* The model layer's pen_scene_validate runs the same checks: the same message, its first
+     * word "scene" where the renderer's is "render". */
+    char rendered[512];
+    snprintf(rendered, sizeof rendered, "%s", pen_context_error(ctx));
+    CHECK(pen_scene_validate(ctx, sc) != PEN_OK);
+    const char *v = pen_context_error(ctx);
+    if (!strncmp(rendered, "render: ", 8))
+        CHECK_MSG(!strncmp(v, "scene: ", 7) && !strcmp(v + 7, rendered + 8), "'%s' vs '%s'", v,
+                  rendered);
+    else
+        CHECK_MSG(!strcmp(v, rendered), "'%s' vs '%s'", v, rendered);
     pen_context_destroy(ctx);
 }
 
 static void test_invalid_inputs(void) {
     pen_scene sc = rs_ball_scene(16, 0, &seed);
+    pen_context *vctx = pen_context_create();
+    CHECK(pen_scene_validate(vctx, &sc) == PEN_OK);
+    pen_context_destroy(vctx);
     float *r = &sc.objects[0].spheres.data[3];
     *r = -1.0f;
     expect_error(&sc, "sphere 0");

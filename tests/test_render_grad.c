@@ -1,4 +1,4 @@
-/* Whole-image gradient checks of the renderer (src/render/render.c) against central finite
+/* Whole-image gradient checks of the renderer (src/render/forward.c, backward.c) against central finite
  * differences of the rendered image, for every parameter kind: SH lighting, constant and ground
  * albedo, texels, sphere centres and radii, pose rotation, translation and scale, and vertex
  * positions (interior and silhouettes, the latter through the antialiased render).

@@ -31,6 +31,9 @@ typedef struct pen_camera {
     float eye[3], target[3], up[3];
 } pen_camera;
 
+/* Checks a camera: size in [1, PEN_IMAGE_MAX_DIM] each way, fov_y_deg in (0, 180), finite eye,
+ * target and up, eye != target. Messages begin with "camera: ". */
+PEN_API pen_status pen_camera_validate(pen_context *ctx, const pen_camera *cam);
 /* Orthonormal camera frame: right, up (true up), forward (towards target). */
 PEN_API void pen_camera_frame(const pen_camera *cam, float right[3], float up[3], float forward[3]);
 /* The unit direction of the ray through image point (px, py) (pixel units, row 0 top). */
@@ -132,6 +135,15 @@ typedef struct pen_scene {
  * zeroes it; NULL is a no-op. Scenes come from pen_scene_load (penumbra/io.h) or are built in
  * memory from arrays allocated with malloc. */
 PEN_API void pen_scene_free(pen_scene *scene);
+
+/* Checks that a scene can be rendered and optimised: SH bands and finite coefficients, known
+ * shadow modes, the object list, finite background and ground, an environment map when the
+ * background shows one, each object's mesh (pen_mesh_validate), texture (RGB, with UVs, finite)
+ * or albedo, pose (finite, scale > 0), sphere set (finite centres, radii > 0, weights finite and
+ * >= 0 when present), and the camera (pen_camera_validate). The first problem is reported, e.g.
+ * "scene: objects[2] (spot.obj): sphere 7: needs a finite center and a radius > 0". The
+ * renderer and the optimizer run the same checks (their messages begin with "render: "). */
+PEN_API pen_status pen_scene_validate(pen_context *ctx, const pen_scene *scene);
 
 #ifdef __cplusplus
 }

@@ -21,7 +21,7 @@
  * render, and when it fires no further step is taken. The parameters of the lowest objective
  * are kept (the best iterate) and rendered once more if they are not the last ones. */
 #include "optim/optim_internal.h"
-#include "render/render_internal.h" /* pen__scene_validate */
+#include "scene/validate.h"
 
 #include "penumbra/fit.h"
 #include "penumbra/metrics.h"
@@ -706,7 +706,7 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
     if (!s) s = check_settings(ctx, &set);
     /* The scene as the renderer takes it (the renderer's own checks and messages), before the
      * checks against the ground truth, the sphere fit and the layout read its arrays. */
-    if (!s) s = pen__scene_validate(ctx, &task->scene);
+    if (!s) s = pen__scene_validate(ctx, &task->scene, "render");
     if (s) return s;
     if (task->has_ground_truth) {
         s = pen__optim_check_truth(ctx, task);

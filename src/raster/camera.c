@@ -34,18 +34,8 @@ static void view_setup(const pen_camera *cam, pen_view *view) {
 
 pen_status pen_view_init(pen_context *ctx, const pen_camera *cam, pen_view *view) {
     if (!cam || !view) return pen__error(ctx, PEN_ERROR_ARGUMENT, "pen_view_init: NULL argument");
-    if (cam->width < 1 || cam->height < 1 || cam->width > PEN_IMAGE_MAX_DIM ||
-        cam->height > PEN_IMAGE_MAX_DIM)
-        return pen__error(ctx, PEN_ERROR_ARGUMENT, "camera: size %dx%d outside [1, %d]", cam->width,
-                          cam->height, PEN_IMAGE_MAX_DIM);
-    if (!(cam->fov_y_deg > 0.0f && cam->fov_y_deg < 180.0f))
-        return pen__error(ctx, PEN_ERROR_ARGUMENT, "camera: fov_y_deg %g outside (0, 180)",
-                          (double)cam->fov_y_deg);
-    if (!pen__finite3(cam->eye) || !pen__finite3(cam->target) || !pen__finite3(cam->up))
-        return pen__error(ctx, PEN_ERROR_ARGUMENT, "camera: non-finite eye, target or up");
-    if (cam->eye[0] == cam->target[0] && cam->eye[1] == cam->target[1] &&
-        cam->eye[2] == cam->target[2])
-        return pen__error(ctx, PEN_ERROR_ARGUMENT, "camera: eye equals target");
+    pen_status s = pen_camera_validate(ctx, cam);
+    if (s) return s;
     view_setup(cam, view);
     return PEN_OK;
 }

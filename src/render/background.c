@@ -71,7 +71,7 @@ void pen__background_prepare(pen_context *ctx, const pen_scene *sc, pen_render_s
     const int w = st->width, h = st->height;
     const pen_view *view = &st->view;
     float *bg = st->bg.data;
-    const int threads = pen__render_threads(ctx);
+    const int threads = pen__threads(ctx);
 #pragma omp parallel for num_threads(threads) schedule(static)
     for (int py = 0; py < h; ++py)
         for (int px = 0; px < w; ++px)

@@ -304,7 +304,7 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
         return s;
     }
     memset(st->rows.data, 0, sizeof(double) * rl.stride * (size_t)ntiles);
-    const int nt = pen__render_threads(ctx);
+    const int nt = pen__threads(ctx);
     size_t wsb = 0;
     if ((s = pen__tile_ws_reserve(ctx, st, nt, &wsb))) {
         free(d_world);

@@ -9,7 +9,7 @@
  *   NULL arrays behind positive counts, counts and sizes out of range, per-vertex UVs whose count
  *   does not match the vertices. Everything else (indices in range, NaN/Inf, radii, the camera
  *   and so the output image's size) is left to the renderer's one scene validation
- *   (pen__scene_validate, which pen_render_fwd runs before it writes), whose messages name the
+ *   (src/scene/validate.c, which pen_render_fwd runs before it writes), whose messages name the
  *   object.
  * - The backward allocates a pen_render_grad shaped like the scene, asks only for the groups
  *   whose output arrays are set, and adds the result into them.

@@ -24,6 +24,7 @@
 
 #include "core/internal.h"
 #include "render/render_internal.h"
+#include "scene/validate.h"
 
 #include <omp.h>
 #include <string.h>
@@ -41,7 +42,7 @@ pen_render_options pen_render_options_default(void) {
 /* Poses the geometry, rasterizes, and interpolates the per-pixel attributes into st. */
 static pen_status prepare(pen_context *ctx, const pen_scene *sc, const pen_render_options *opt,
                           pen_render_state *st) {
-    pen_status s = pen__scene_validate(ctx, sc);
+    pen_status s = pen__scene_validate(ctx, sc, "render");
     if (s) return s;
     if ((s = pen_view_init(ctx, &sc->camera, &st->view))) return s; /* validated: fills the view */
     const int W = st->view.width, H = st->view.height;
@@ -235,7 +236,7 @@ pen_status pen_render_fwd(pen_context *ctx, const pen_scene *sc, const pen_rende
         opt->kernel == PEN_RENDER_KERNEL_FAST && pen__shade_fast_supported(&st->params);
     const int ntiles = pen__tile_count(st);
     const size_t nfv = 2 * (size_t)sc->sh_bands * (size_t)sc->sh_bands;
-    const int nt = pen__render_threads(ctx);
+    const int nt = pen__threads(ctx);
     size_t wsb = 0;
     if ((s = pen__tile_ws_reserve(ctx, st, nt, &wsb)) ||
         (s = PEN__BUF_RESERVE(ctx, st->groups, (size_t)ntiles, "tile pixel groups")))

@@ -2,9 +2,10 @@
  * exponential, diffuse SH shading) and texture sampling, each a forward/backward pair. The kernel
  * is compiled in float (the renderer) and double (`_d`, gradient checks) from shade_ops.inc.
  * Below them, the frame's internals shared by the files of the full differentiable frame: the
- * render state (state.c), scene validation (validate.c), the tile scheduler (tiles.c), the
+ * render state (state.c), the tile scheduler (tiles.c), the
  * background (background.c), ground occlusion (ground.c) and the passes (forward.c,
- * backward.c). A file only calls files listed before it, never back. */
+ * backward.c). A file only calls files listed before it, never back. Scenes are validated by the
+ * model layer (src/scene/validate.c) before a forward touches them. */
 #ifndef PEN_RENDER_INTERNAL_H
 #define PEN_RENDER_INTERNAL_H
 
@@ -140,10 +141,10 @@ int pen__shade_fast_use(int v);
 const pen__shade_fast_ops *pen__shade_fast_current(void);
 
 /* ---- Frame: what the files of the full frame share --------------------------------------------
- * Who calls whom: forward.c calls validate.c, state.c, tiles.c, background.c and ground.c;
+ * Who calls whom: forward.c calls state.c, tiles.c, background.c and ground.c;
  * backward.c calls state.c, tiles.c and ground.c; background.c calls tiles.c and state.c; tiles.c
- * calls state.c (pen__buf_grow, behind PEN__BUF_RESERVE, is state.c's); state.c, validate.c and
- * ground.c call no other file of the frame. */
+ * calls state.c (pen__buf_grow, behind PEN__BUF_RESERVE, is state.c's); state.c and ground.c
+ * call no other file of the frame. */
 #include "penumbra/render.h" /* the state's options, view, G-buffer and timings */
 
 #include <stddef.h>
@@ -266,17 +267,8 @@ pen_status pen__render_object_adjacency(pen_context *ctx, pen__object_buf *b, co
  * spheres and kept with them. */
 pen_status pen__render_overlap_weights(pen_context *ctx, const pen_scene *sc, pen_render_state *st);
 
-/* ---- validate.c ---- */
-
-/* Whether a scene can be rendered: SH bands and lighting, the shadow model, background and
- * ground, every object's mesh, texture or albedo, pose, spheres and overlap weights, and the
- * camera. The message names the object ("render: objects[2] (spot.obj): ..."). */
-pen_status pen__scene_validate(pen_context *ctx, const pen_scene *sc);
-
 /* ---- tiles.c ---- */
 
-/* The threads a pass runs on: the context's count, else OpenMP's. */
-int pen__render_threads(const pen_context *ctx);
 /* Milliseconds since the omp_get_wtime() t0. */
 double pen__render_ms_since(double t0);
 

@@ -21,11 +21,6 @@
 #include <omp.h>
 #include <string.h>
 
-int pen__render_threads(const pen_context *ctx) {
-    int t = pen_context_threads(ctx);
-    return t > 0 ? t : omp_get_max_threads();
-}
-
 double pen__render_ms_since(double t0) {
     return 1e3 * (omp_get_wtime() - t0);
 }

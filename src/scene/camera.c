@@ -53,6 +53,22 @@ void pen__camera_intrinsics_d(const pen_camera *cam, double *focal, double *cx, 
     *cy = 0.5 * h;
 }
 
+pen_status pen_camera_validate(pen_context *ctx, const pen_camera *cam) {
+    if (cam->width < 1 || cam->height < 1 || cam->width > PEN_IMAGE_MAX_DIM ||
+        cam->height > PEN_IMAGE_MAX_DIM)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "camera: size %dx%d outside [1, %d]", cam->width,
+                          cam->height, PEN_IMAGE_MAX_DIM);
+    if (!(cam->fov_y_deg > 0.0f && cam->fov_y_deg < 180.0f))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "camera: fov_y_deg %g outside (0, 180)",
+                          (double)cam->fov_y_deg);
+    if (!pen__finite3(cam->eye) || !pen__finite3(cam->target) || !pen__finite3(cam->up))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "camera: non-finite eye, target or up");
+    if (cam->eye[0] == cam->target[0] && cam->eye[1] == cam->target[1] &&
+        cam->eye[2] == cam->target[2])
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "camera: eye equals target");
+    return PEN_OK;
+}
+
 void pen_camera_frame(const pen_camera *cam, float right[3], float up[3], float forward[3]) {
     double r[3], u[3], f[3];
     pen__camera_frame_d(cam, r, u, f);

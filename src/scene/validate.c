@@ -1,17 +1,23 @@
-/* Scene validation for rendering: the one place that decides whether a pen_scene can be rendered,
- * with messages that name the object and the field ("render: objects[2] (spot.obj): sphere 7:
- * needs a finite center and a radius > 0").
+/* Scene validation: the one place that decides whether a pen_scene is complete and consistent
+ * enough to render or optimise, with messages that name the object and the field ("render:
+ * objects[2] (spot.obj): sphere 7: needs a finite center and a radius > 0"; the first word is the
+ * caller's: the renderer and the optimizer say "render", pen_scene_validate says "scene").
  *
  * Design
  * - It runs at the start of every forward, before anything is allocated or written, so it is
  *   cheap: one pass over each array, the float tests on exponent bits (a texture is millions of
  *   values). Meshes are checked by pen_mesh_validate (indices in range, finite positions and
- *   UVs), the camera by pen_view_init; their messages come through behind the object's name.
+ *   UVs) and the camera by pen_camera_validate; the mesh's messages come through behind the
+ *   object's name, the camera's as they are ("camera: ...").
  * - Callers that build a pen_scene from other descriptions (the flat API, the optimizer) rely on
  *   this function for the scene's contents and keep only the checks about their own inputs.
  */
+#include "scene/validate.h"
+
 #include "core/internal.h"
-#include "render/render_internal.h"
+#include "penumbra/mesh.h"
+
+#include <math.h>
 
 #include <stdio.h>
 #include <string.h>
@@ -36,30 +42,30 @@ static const char *object_name(const pen_object *ob) {
     return ob->mesh_path ? ob->mesh_path : "in memory";
 }
 
-pen_status pen__scene_validate(pen_context *ctx, const pen_scene *sc) {
+pen_status pen__scene_validate(pen_context *ctx, const pen_scene *sc, const char *who) {
     if (sc->sh_bands < 1 || sc->sh_bands > PEN_SH_MAX_BANDS)
-        return pen__error(ctx, PEN_ERROR_ARGUMENT, "render: sh_bands %d out of range [1, %d]",
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: sh_bands %d out of range [1, %d]", who,
                           sc->sh_bands, PEN_SH_MAX_BANDS);
     const int nc = sc->sh_bands * sc->sh_bands;
     if (!finite_n(&sc->lighting.sh[0][0], 3 * (size_t)nc))
-        return pen__error(ctx, PEN_ERROR_ARGUMENT, "render: lighting: non-finite SH coefficient");
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: lighting: non-finite SH coefficient", who);
     if (sc->shadow.exp != PEN_SH_EXP_CALIBRATED && sc->shadow.exp != PEN_SH_EXP_PAPER &&
         sc->shadow.exp != PEN_SH_EXP_EXACT)
-        return pen__error(ctx, PEN_ERROR_ARGUMENT, "render: shadow.exp: unknown method %d",
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: shadow.exp: unknown method %d", who,
                           (int)sc->shadow.exp);
     if (sc->shadow.overlap != PEN_OVERLAP_WEIGHTS && sc->shadow.overlap != PEN_OVERLAP_NONE)
-        return pen__error(ctx, PEN_ERROR_ARGUMENT, "render: shadow.overlap: unknown mode %d",
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: shadow.overlap: unknown mode %d", who,
                           (int)sc->shadow.overlap);
     if (sc->object_count < 0 || (sc->object_count > 0 && !sc->objects))
-        return pen__error(ctx, PEN_ERROR_ARGUMENT, "render: bad object list");
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: bad object list", who);
     if (!finite_n(sc->background, 3) ||
         (sc->ground.enabled && (!finite_n(sc->ground.albedo, 3) || !isfinite(sc->ground.height) ||
                                 !isfinite(sc->ground.half_size))))
-        return pen__error(ctx, PEN_ERROR_ARGUMENT, "render: non-finite background or ground");
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: non-finite background or ground", who);
     if (sc->background_envmap && (!sc->lighting.envmap.data || !isfinite(sc->lighting.scale) ||
                                   !isfinite(sc->lighting.rotation_y_deg)))
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                          "render: the background shows the environment map, but there is none");
+                          "%s: the background shows the environment map, but there is none", who);
     for (int o = 0; o < sc->object_count; ++o) {
         const pen_object *ob = &sc->objects[o];
         const char *name = object_name(ob);
@@ -67,49 +73,53 @@ pen_status pen__scene_validate(pen_context *ctx, const pen_scene *sc) {
         if (s) {
             char msg[sizeof((pen_context *)0)->message];
             snprintf(msg, sizeof msg, "%s", pen_context_error(ctx));
-            return pen__error(ctx, s, "render: objects[%d] (%s): %s", o, name, msg);
+            return pen__error(ctx, s, "%s: objects[%d] (%s): %s", who, o, name, msg);
         }
         if (ob->texture.data) {
             if (ob->texture.width < 1 || ob->texture.height < 1 || ob->texture.channels < 3)
                 return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                                  "render: objects[%d] (%s): texture must be RGB", o, name);
+                                  "%s: objects[%d] (%s): texture must be RGB", who, o, name);
             if (ob->mesh.uv_count <= 0)
                 return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                                  "render: objects[%d] (%s): texture but no texture coordinates", o,
-                                  name);
+                                  "%s: objects[%d] (%s): texture but no texture coordinates", who,
+                                  o, name);
             if (!finite_n(ob->texture.data, (size_t)ob->texture.width * (size_t)ob->texture.height *
                                                 (size_t)ob->texture.channels))
-                return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                                  "render: objects[%d] (%s): non-finite texel", o, name);
+                return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: objects[%d] (%s): non-finite texel",
+                                  who, o, name);
         } else if (!finite_n(ob->albedo, 3)) {
-            return pen__error(ctx, PEN_ERROR_ARGUMENT, "render: objects[%d] (%s): bad albedo", o,
+            return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: objects[%d] (%s): bad albedo", who, o,
                               name);
         }
         const pen_pose *ps = &ob->pose;
         if (!finite_n(ps->rotation_axis_angle_deg, 3) || !finite_n(ps->translation, 3) ||
             !isfinite(ps->scale) || !(ps->scale > 0.0f))
             return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                              "render: objects[%d] (%s): pose must be finite with scale > 0", o,
+                              "%s: objects[%d] (%s): pose must be finite with scale > 0", who, o,
                               name);
         if (ob->spheres.count < 0 || (ob->spheres.count > 0 && !ob->spheres.data))
-            return pen__error(ctx, PEN_ERROR_ARGUMENT, "render: objects[%d] (%s): bad sphere set",
+            return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: objects[%d] (%s): bad sphere set", who,
                               o, name);
         for (int i = 0; i < ob->spheres.count; ++i) {
             const float *s4 = ob->spheres.data + 4 * (size_t)i;
             if (!finite_n(s4, 4) || !(s4[3] > 0.0f))
                 return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                                  "render: objects[%d] (%s): sphere %d: needs a finite center and "
+                                  "%s: objects[%d] (%s): sphere %d: needs a finite center and "
                                   "a radius > 0",
-                                  o, name, i);
+                                  who, o, name, i);
             const float *k = ob->spheres.weight;
             if (k && !(isfinite(k[i]) && k[i] >= 0.0f))
                 return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                                  "render: objects[%d] (%s): sphere %d: overlap weight %g is not a "
+                                  "%s: objects[%d] (%s): sphere %d: overlap weight %g is not a "
                                   "finite number >= 0",
-                                  o, name, i, (double)k[i]);
+                                  who, o, name, i, (double)k[i]);
         }
     }
     /* The camera last: the forward checked it after the rest. */
-    pen_view view;
-    return pen_view_init(ctx, &sc->camera, &view);
+    return pen_camera_validate(ctx, &sc->camera);
+}
+
+pen_status pen_scene_validate(pen_context *ctx, const pen_scene *scene) {
+    if (!scene) return pen__error(ctx, PEN_ERROR_ARGUMENT, "pen_scene_validate: NULL argument");
+    return pen__scene_validate(ctx, scene, "scene");
 }
