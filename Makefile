@@ -37,11 +37,14 @@ bench: build
 # committed files match). Each file is written beside itself first, so a failing generator leaves
 # the committed one as it was.
 PYTHON ?= /usr/bin/python3
-GENERATED = src/sh/tables.c:scripts/gen_sh_tables.py src/sh/sh_fast_product.inc:scripts/gen_sh_fast.py
+# Each entry: OUTPUT:GENERATOR[:ARGUMENT].
+GENERATED = src/sh/tables.c:scripts/gen_sh_tables.py \
+            $(foreach L,3 4 5 6,src/sh/sh_fast_product_$(L).inc:scripts/gen_sh_fast.py:$(L))
 generate:
 	@set -e; for pair in $(GENERATED); do \
-	    out=$${pair%%:*}; gen=$${pair#*:}; \
-	    PYTHONDONTWRITEBYTECODE=1 $(PYTHON) $$gen > $$out.tmp && mv $$out.tmp $$out || { rm -f $$out.tmp; exit 1; }; \
+	    out=$${pair%%:*}; rest=$${pair#*:}; gen=$${rest%%:*}; arg=; \
+	    [ "$$rest" = "$$gen" ] || arg=$${rest#*:}; \
+	    PYTHONDONTWRITEBYTECODE=1 $(PYTHON) $$gen $$arg > $$out.tmp && mv $$out.tmp $$out || { rm -f $$out.tmp; exit 1; }; \
 	    echo "generated $$out ($$gen)"; \
 	done
 

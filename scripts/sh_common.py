@@ -5,7 +5,7 @@ This module is the one source of truth for the SH product tensor Gamma_ijk = int
 sphere of Y_i Y_j Y_k (real SH, Condon-Shortley phase, index l^2 + l + m; the recurrence of
 src/sh/sh_ops.inc). gen_sh_tables.py writes it into src/sh/tables.c, which is what the library
 uses at run time (src/sh/gaunt.c only expands and sorts it); gen_sh_fast.py writes the same values
-as float literals into src/sh/sh_fast_product.inc. tests/test_sh.c checks the table against an
+as float literals into src/sh/sh_fast_product_L.inc. tests/test_sh.c checks the table against an
 independent quadrature in C.
 
 Gamma does not depend on the band count: the table for L bands is the part of the PEN_SH_MAX_BANDS

@@ -17,14 +17,14 @@ T=$(mktemp -d)
 trap 'rm -rf "$T"' EXIT
 fails=0
 
-# check GENERATOR OUTPUT: both relative to the source folder.
+# check GENERATOR OUTPUT [ARGUMENT]: both paths relative to the source folder.
 check() {
     out="$T/$(basename "$2")"
-    if ! (cd "$SRC" && PYTHONDONTWRITEBYTECODE=1 "$PY" "$1" > "$out"); then
+    if ! (cd "$SRC" && PYTHONDONTWRITEBYTECODE=1 "$PY" "$1" ${3:-} > "$out"); then
         echo "FAIL: $1 did not run"
         fails=$((fails + 1))
     elif ! cmp -s "$out" "$SRC/$2"; then
-        echo "FAIL: $2 is stale: regenerate it with \`python3 $1 > $2\` (or \`make generate\`)"
+        echo "FAIL: $2 is stale: regenerate it with \`python3 $1${3:+ $3} > $2\` (or \`make generate\`)"
         fails=$((fails + 1))
     else
         echo "ok   $2 matches $1"
@@ -32,6 +32,8 @@ check() {
 }
 
 check scripts/gen_sh_tables.py src/sh/tables.c
-check scripts/gen_sh_fast.py src/sh/sh_fast_product.inc
+for L in 3 4 5 6; do
+    check scripts/gen_sh_fast.py src/sh/sh_fast_product_$L.inc $L
+done
 
 [ $fails -eq 0 ] || exit 1

@@ -63,7 +63,7 @@ void pen__shade_bwd_d(const pen__shade_params *p, const double (*sh)[3], int sph
 /* ---- Fast kernel (shade_fast.c, shade_fast_dispatch.c) -----------------------------------------
  * The same shading as pen__shade_fwd / pen__shade_bwd, for many pixels at once: pixels go in
  * batches of lanes through structure-of-arrays lane vectors (16 lanes: one AVX-512 register of
- * floats), with straight-line SH products generated per band count (src/sh/sh_fast_product.inc).
+ * floats), with straight-line SH products generated per band count (src/sh/sh_fast_product_L.inc).
  * Supports bands 3..6, with shadows the CALIBRATED and PAPER exponentials, without shadows
  * (V == 1) every method (pen__shade_fast_supported); the renderer uses the scalar kernel for
  * anything else. kappa (may be NULL: all 1) scales

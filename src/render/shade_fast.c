@@ -15,7 +15,7 @@
  *   in each group's last batch, whose spare lanes repeat its last pixel and carry no gradient.
  * - Generated SH code. The band count is fixed per frame; the basis, its gradient and the Gaunt
  *   products are written out per band count (3..6) by scripts/gen_sh_fast.py into
- *   src/sh/sh_fast_product.inc, with the Gaunt values as constants, and the stages of
+ *   src/sh/sh_fast_product_L.inc, with the Gaunt values as constants, and the stages of
  *   shade_fast_ops.inc are compiled once per band count. Other band counts and the EXACT
  *   exponential (a Taylor series in the product algebra, made for reference not speed) use the
  *   scalar kernel.
@@ -290,7 +290,10 @@ static void frame_init(frame *fr, const pen__shade_params *p, const float (*sh)[
 #define FP_MUL(a, b) ((a) * (b))
 #define FP_FMA(a, b, c) vfma(a, b, c)
 #define FP_K(x) vk(x)
-#include "sh/sh_fast_product.inc"
+#include "sh/sh_fast_product_3.inc"
+#include "sh/sh_fast_product_4.inc"
+#include "sh/sh_fast_product_5.inc"
+#include "sh/sh_fast_product_6.inc"
 
 #define FB 3
 #include "render/shade_fast_ops.inc"

@@ -6,7 +6,7 @@
  * (Gauss-Legendre in cos(theta) with 2L nodes x 4L uniform phi) and writes the non-zero unordered
  * triples i <= j <= k into src/sh/tables.c (`make generate`; tests/cli_generated.sh checks that
  * the committed file matches its generator). The fast kernel's product code
- * (sh_fast_product.inc) is generated from the same values. Gamma does not depend on the band
+ * (sh_fast_product_L.inc) is generated from the same values. Gamma does not depend on the band
  * count, so the table of L bands takes the triples with k < L^2; here they are expanded into
  * their distinct orderings and sorted by (k, i, j), lazily, one pthread_once per band count, and
  * live for the process. tests/test_sh.c checks the result against an independent quadrature.
