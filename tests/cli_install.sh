@@ -58,6 +58,8 @@ sed -n 's/^PEN_API [^(]*[ *]\(pen_[a-z0-9_]*\)(.*/\1/p' "$P"/include/penumbra/*.
 [ -s "$T/declared" ] || fail "no PEN_API declaration in the installed headers"
 missing=$(comm -23 "$T/declared" "$T/exported")
 [ -z "$missing" ] || fail "declared PEN_API but not exported: $(echo $missing)"
+extra=$(comm -13 "$T/declared" "$T/exported")
+[ -z "$extra" ] || fail "exported but not declared PEN_API in a public header: $(echo $extra)"
 sh "$SRC/scripts/pen_api.sh" --check "$SRC/include/penumbra" || fail "pen_api.sh --check"
 # The Python binding calls only exported functions (the names its ctypes declarations use).
 # Quoted struct names (the layout table's keys) are types, not symbols: left out.

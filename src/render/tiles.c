@@ -67,7 +67,10 @@ int pen__tile_count(const pen_render_state *st) {
 
 static void loop_ticks_add(pen__loop_ticks *sum, const pen__shade_fast_ticks *tk,
                            unsigned long long total) {
-#pragma omp critical(pen_render_ticks)
+/* Unnamed: a named critical section is a global symbol (.gomp_critical_user_NAME) that the shared
+ * library would export; this one runs once per thread and pass, so sharing libgomp's default lock
+ * costs nothing. */
+#pragma omp critical
     {
         sum->visibility += tk->visibility;
         sum->exp += tk->exp;
