@@ -231,7 +231,8 @@ int main(int argc, char **argv) {
     const int O = sc.object_count;
     std::vector<std::vector<float>> world(O), vnormal(O);
     std::vector<pen_raster_mesh> meshes(O);
-    std::vector<float> sph; // world-space spheres of all objects
+    std::vector<float> sph;   // world-space spheres of all objects
+    std::vector<float> kappa; // their overlap weights, as the renderer computes them
     for (int o = 0; o < O; ++o) {
         const pen_object *ob = &sc.objects[o];
         const int V = ob->mesh.vertex_count, T = ob->mesh.triangle_count;
@@ -243,6 +244,10 @@ int main(int argc, char **argv) {
         meshes[o].vertex_count = V, meshes[o].triangle_count = T;
         meshes[o].positions = world[o].data(), meshes[o].indices = ob->mesh.indices;
         meshes[o].adjacency = nullptr;
+        std::vector<float> k((size_t)ob->spheres.count);
+        if (ob->spheres.count > 0 && pen_spheres_overlap_weights(ctx, &ob->spheres, k.data()))
+            die(ctx, "overlap weights");
+        kappa.insert(kappa.end(), k.begin(), k.end());
         for (int i = 0; i < ob->spheres.count; ++i) {
             float c[3];
             pen_pose_apply(&ob->pose, ob->spheres.data + 4 * (size_t)i, c);
@@ -268,6 +273,8 @@ int main(int argc, char **argv) {
     const int S = (int)(sph.size() / 4), nc = bands * bands;
     std::vector<R> rs(sph.size());
     for (size_t i = 0; i < sph.size(); ++i) rs[i] = R::data(sph[i]);
+    std::vector<R> rk(kappa.size());
+    for (size_t i = 0; i < kappa.size(); ++i) rk[i] = R::data(kappa[i]);
     R sh[PEN_SH_MAX_COEFFS][3];
     for (int k = 0; k < nc; ++k)
         for (int ch = 0; ch < 3; ++ch) sh[k][ch] = R(sc.lighting.sh[k][ch]); // per-frame constant
@@ -297,12 +304,12 @@ int main(int argc, char **argv) {
                 ramp += h > PEN_RENDER_SELF_H0 && h < PEN_RENDER_SELF_H1;
             }
             g_pass = 0;
-            pen__shade_fwd_cnt(&p, sh, S, rs.data(), x, nn, rho, rgb, fv);
+            pen__shade_fwd_cnt(&p, sh, S, rs.data(), rk.data(), x, nn, rho, rgb, fv);
             g_pass = 1;
             R d_rgb[3] = {R::data(0.01f), R::data(-0.02f), R::data(0.015f)};
             R d_x[3], d_n[3], d_rho[3];
             double d_sh[PEN_SH_MAX_COEFFS][3];
-            pen__shade_bwd_cnt(&p, sh, S, rs.data(), x, nn, rho, d_rgb, fv, d_sh, d_sph.data(),
+            pen__shade_bwd_cnt(&p, sh, S, rs.data(), rk.data(), x, nn, rho, d_rgb, fv, d_sh, d_sph.data(),
                                obj ? d_x : nullptr, obj ? d_n : nullptr, d_rho);
         }
     const double scale = (double)stride * (double)stride, shaded = px_obj + px_ground;
