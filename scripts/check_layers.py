@@ -8,8 +8,9 @@ call each other, source files over 900 lines, and the folders implementing each 
 
     python3 scripts/check_layers.py [build-dir] [-v]
 
-Exits 1 when the folder graph has a cycle or two files call each other, else 0. Calls through
-the sh/accuracy.c harness (measured against io's envmap projection) are reported like any other.
+Exits 1 when the folder graph has a cycle, two files call each other, a source file (research/ and
+cli/ included) is over 900 lines or a public header is implemented by more than one folder, else
+0. tests/cli_layers.sh runs it in the test suite.
 """
 import collections
 import os
@@ -100,7 +101,8 @@ def main():
     pairs = sorted({tuple(sorted((s, t))) for s in sources for t in calls[s] if s in calls[t]})
     print('files calling each other:', pairs or 'none')
     big = []
-    for dirpath, _, files in os.walk(os.path.join(ROOT, 'src')):
+    for dirpath, _, files in (w for top in ('src', 'research', 'cli')
+                              for w in os.walk(os.path.join(ROOT, top))):
         for f in files:
             path = os.path.join(dirpath, f)
             n = sum(1 for _ in open(path, errors='replace'))
@@ -109,12 +111,16 @@ def main():
     print('source files over 900 lines:', ', '.join(sorted(big)) or 'none')
     print('public headers -> folders implementing their functions:')
     hdir = os.path.join(ROOT, 'include', 'penumbra')
+    split = []
     for h in sorted(os.listdir(hdir)):
         text = re.sub(r'/\*.*?\*/', '', open(os.path.join(hdir, h)).read(), flags=re.S)
         impl = collections.Counter(folder(defined[n]) for n in set(re.findall(r'\b(pen_[a-z0-9_]+)\s*\(', text))
                                    if n in defined)
         print('    %-12s %s' % (h, ', '.join('%s (%d)' % kv for kv in sorted(impl.items())) or '(includes only)'))
-    return 1 if folder_cycles or pairs else 0
+        if len(impl) > 1:
+            split.append(h)
+    print('public headers implemented in more than one folder:', ', '.join(split) or 'none')
+    return 1 if folder_cycles or pairs or big or split else 0
 
 
 if __name__ == '__main__':
