@@ -60,7 +60,9 @@ int pen_cmd_render(int argc, char **argv) {
     if (!out_path) return pen_cli_usage_error(CMD, "missing -o OUT.(png|exr|hdr)");
     if (!pen_image_path_supported(out_path))
         return pen_cli_usage_error(CMD, "%s: the output must end in .png, .exr or .hdr", out_path);
-    pen_cli_outputs outputs = {0}; /* checked before the fits and the render */
+    /* Checked before the fits and the render; one output, written atomically by pen_image_save,
+     * so a failure leaves an existing file as it was without keeping a second name. */
+    pen_cli_outputs outputs = {0};
     if (!pen_cli_outputs_add(&outputs, CMD, out_path)) return 1;
 
     pen_context *ctx = pen_context_create();
