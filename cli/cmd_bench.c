@@ -53,7 +53,7 @@ static void usage(FILE *f) {
     fprintf(f,
             "Usage: penumbra bench [--json] [--quick] [--threads N] [--repeat N] [--warmup N]\n"
             "                      [--case NAME]... [--no-reference] [--truth-spp N]\n"
-            "                      [--scene SCENE.json]\n\n"
+            "                      [--scene SCENE.json] [--no-cache]\n\n"
             "Times forward render + L2 loss + backward (gradients of lighting, albedo texture,\n"
             "spheres and pose) on the bundled Spot scene, and how long the Embree reference takes\n"
             "to reach the SH render's error (docs/bench.md).\n\n"
@@ -74,7 +74,9 @@ static void usage(FILE *f) {
             "  --truth-spp N    samples per pixel of the reference taken as truth (default 256)\n"
             "  --scene PATH     another scene; its objects get the case's fitted spheres\n"
             "                   (default: the bundled %s, found beside the\n"
-            "                   executable: ../share/penumbra when installed, else the checkout)\n",
+            "                   executable: ../share/penumbra when installed, else the checkout)\n"
+            "  --no-cache       fit the spheres afresh, without reading or writing the fit cache\n"
+            "                   ($XDG_CACHE_HOME/penumbra; also PENUMBRA_NO_CACHE=1)\n",
             SCENE_REL);
 }
 
@@ -86,7 +88,7 @@ typedef struct bench_case {
 } bench_case;
 
 typedef struct bench_config {
-    int json, quick, threads, repeat, warmup, reference, truth_spp;
+    int json, quick, threads, repeat, warmup, reference, truth_spp, no_cache;
     const char *scene_path;
     int only_count;
     const char *only[MAX_CASES];
@@ -517,6 +519,8 @@ static int parse_args(int argc, char **argv, bench_config *cfg) {
             cfg->quick = 1;
         } else if (!strcmp(a, "--no-reference")) {
             cfg->reference = 0;
+        } else if (!strcmp(a, "--no-cache")) {
+            cfg->no_cache = 1;
         } else if (!strcmp(a, "--threads")) {
             if (!pen_cli_parse_int(CMD, a, v, 0, 4096, &cfg->threads)) return 2;
             ++i;
@@ -574,6 +578,7 @@ int pen_cmd_bench(int argc, char **argv) {
     pen_context *ctx = pen_context_create();
     if (!ctx) return pen_cli_fail(CMD, "out of memory");
     pen_context_set_threads(ctx, cfg.threads);
+    if (cfg.no_cache) pen_context_set_fit_cache(ctx, 0);
     /* A scene that does not load fails before any output. */
     pen_scene probe;
     if (pen_scene_load(ctx, cfg.scene_path, &probe)) {

@@ -60,9 +60,17 @@ int pen_cmd_compare(int argc, char **argv) {
     int status = 1;
     if (load(ctx, paths[0], &a) && load(ctx, paths[1], &b) &&
         (!mask_path || load(ctx, mask_path, &m))) {
-        if (pen_image_compare(ctx, &a, &b, mask_path ? &m : NULL, &all, &masked)) {
+        if (mask_path && (m.width != a.width || m.height != a.height)) {
+            /* the mask is the file at fault: its name first */
+            pen_cli_fail(CMD, "%s: the mask is %dx%d but the images are %dx%d (%s)", mask_path,
+                         m.width, m.height, a.width, a.height, paths[0]);
+        } else if (pen_image_compare(ctx, &a, &b, mask_path ? &m : NULL, &all, &masked)) {
             /* Name the files: the library only knows them as A, B and mask. */
-            pen_cli_fail(CMD, "%s vs %s: %s", paths[0], paths[1], pen_context_error(ctx));
+            if (mask_path)
+                pen_cli_fail(CMD, "%s vs %s (mask %s): %s", paths[0], paths[1], mask_path,
+                             pen_context_error(ctx));
+            else
+                pen_cli_fail(CMD, "%s vs %s: %s", paths[0], paths[1], pen_context_error(ctx));
         } else {
             printf("{");
             print_error(&all);

@@ -87,6 +87,11 @@ int pen_cmd_fit_spheres(int argc, char **argv) {
     if (!mesh_path) return pen_cli_usage_error(CMD, "no mesh given");
     if (count == 0) return pen_cli_usage_error(CMD, "-n N is required");
     if (!out_path) return pen_cli_usage_error(CMD, "-o SPHERES.json is required");
+    /* Both outputs are checked before the fit (seconds) and written all or nothing. */
+    pen_cli_outputs outputs = {0};
+    if (!pen_cli_outputs_add(&outputs, CMD, out_path) ||
+        (preview_path && !pen_cli_outputs_add(&outputs, CMD, preview_path)))
+        return 1;
 
     pen_context *ctx = pen_context_create();
     if (!ctx) return pen_cli_fail(CMD, "out of memory");
@@ -97,20 +102,23 @@ int pen_cmd_fit_spheres(int argc, char **argv) {
     pen_fit_metrics m;
     memset(&m, 0, sizeof m);
     int rc = 0;
-    if (pen_mesh_load(ctx, mesh_path, &mesh) ||
-        pen_spheres_fit(ctx, &mesh, count, &s, &spheres, &m))
+    if (pen_mesh_load(ctx, mesh_path, &mesh)) {
         rc = pen_cli_fail_ctx(CMD, ctx);
-    /* The picture is made before anything is written, so a failure leaves no files behind. */
+    } else if (pen_spheres_fit(ctx, &mesh, count, &s, &spheres, &m)) {
+        /* the fitter knows triangles, not files: name the mesh */
+        rc = pen_cli_fail(CMD, "%s: %s", mesh_path, pen_context_error(ctx));
+    }
+    /* The picture is made before anything is written. */
     if (!rc && preview_path &&
         pen_spheres_preview(ctx, &mesh, &spheres, (float)az, (float)el, 400, &picture))
-        rc = pen_cli_fail_ctx(CMD, ctx);
+        rc = pen_cli_fail(CMD, "%s: %s", mesh_path, pen_context_error(ctx));
     char json[2048];
     pen_fit_json(&s, &m, json, sizeof json);
+    if (!rc && !pen_cli_outputs_keep(&outputs, CMD)) rc = 1;
     if (!rc && pen_spheres_save(ctx, out_path, &spheres, json)) rc = pen_cli_fail_ctx(CMD, ctx);
-    if (!rc && preview_path && pen_image_save(ctx, preview_path, &picture)) {
+    if (!rc && preview_path && pen_image_save(ctx, preview_path, &picture))
         rc = pen_cli_fail_ctx(CMD, ctx);
-        remove(out_path); /* all or nothing */
-    }
+    pen_cli_outputs_end(&outputs, rc == 0); /* a failed write puts the old files back */
     if (!rc) printf("%s\n", json);
     pen_image_free(&picture);
     pen_spheres_free(&spheres);

@@ -78,6 +78,8 @@ static void usage(FILE *f) {
             "  --checkpoint-every K  checkpoint every K iterations (default 50; 0: at the end)\n"
             "  --snapshot-every K  render snapshot every K iterations (default 50; 0: none)\n"
             "  --threads N         worker threads (default: all cores)\n"
+            "  --no-cache          fit {\"fit\": N} spheres afresh, without reading or writing\n"
+            "                      the fit cache ($XDG_CACHE_HOME/penumbra; PENUMBRA_NO_CACHE=1)\n"
             "  -q, --quiet         no summary line\n");
 }
 
@@ -87,7 +89,7 @@ static void print_metric(const char *name, double v) {
 
 int pen_cmd_optimize(int argc, char **argv) {
     const char *task_path = NULL, *outdir = NULL, *target = NULL;
-    int threads = 0, quiet = 0, iterations = 0;
+    int threads = 0, quiet = 0, iterations = 0, no_cache = 0;
     pen_optim_settings set = pen_optim_settings_default();
     set.checkpoint_every = 50;
     set.snapshot_every = 50;
@@ -123,6 +125,8 @@ int pen_cmd_optimize(int argc, char **argv) {
                 return 2;
         } else if (!strcmp(a, "-q") || !strcmp(a, "--quiet")) {
             quiet = 1;
+        } else if (!strcmp(a, "--no-cache")) {
+            no_cache = 1;
         } else if (pen_cli_positional(CMD, a, &task_path, 1)) {
             return 2;
         }
@@ -141,6 +145,7 @@ int pen_cmd_optimize(int argc, char **argv) {
         return pen_cli_fail(CMD, "out of memory");
     }
     pen_context_set_threads(ctx, threads);
+    if (no_cache) pen_context_set_fit_cache(ctx, 0);
     pen_optim_task task;
     pen_optim_result res;
     memset(&res, 0, sizeof res);

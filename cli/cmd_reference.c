@@ -22,6 +22,7 @@ static void usage(FILE *f) {
             "  --threads N   threads (default 0: all cores)\n"
             "  --coverage M  also write the fraction of each pixel's samples that hit a surface\n"
             "                (1-channel image; `compare --mask M` then leaves the background out)\n"
+            "Both outputs are written, or neither (an existing file is kept on failure).\n"
             "Prints one JSON line: size, spp, lighting, threads and seconds.\n");
 }
 
@@ -66,6 +67,10 @@ int pen_cmd_reference(int argc, char **argv) {
     if (cov_path && !pen_image_path_supported(cov_path))
         return pen_cli_usage_error(CMD, "%s: the coverage must end in .exr, .hdr or .png",
                                    cov_path);
+    pen_cli_outputs outputs = {0}; /* checked before the (long) render */
+    if (!pen_cli_outputs_add(&outputs, CMD, out_path) ||
+        (cov_path && !pen_cli_outputs_add(&outputs, CMD, cov_path)))
+        return 1;
 
     pen_context *ctx = pen_context_create();
     if (!ctx) return pen_cli_fail(CMD, "out of memory");
@@ -86,13 +91,13 @@ int pen_cmd_reference(int argc, char **argv) {
         status = pen_cli_fail_ctx(CMD, ctx);
     } else {
         double seconds = omp_get_wtime() - t0;
-        /* Coverage first: if the image then fails, the coverage is removed again, so a failed
-         * run leaves neither file. */
-        if (cov_path && pen_image_save(ctx, cov_path, &cov)) {
+        /* All or nothing: a failed write puts back the files the paths held before. */
+        if (!pen_cli_outputs_keep(&outputs, CMD)) {
+            status = 1;
+        } else if (cov_path && pen_image_save(ctx, cov_path, &cov)) {
             status = pen_cli_fail_ctx(CMD, ctx);
         } else if (pen_image_save(ctx, out_path, &img)) {
             status = pen_cli_fail_ctx(CMD, ctx);
-            if (cov_path) remove(cov_path);
         } else {
             printf("{\"output\": \"%s\", \"width\": %d, \"height\": %d, \"spp\": %d, \"seed\": %d, "
                    "\"lighting\": \"%s\", \"threads\": %d, \"seconds\": %.3f}\n",
@@ -101,6 +106,7 @@ int pen_cmd_reference(int argc, char **argv) {
                    threads > 0 ? threads : omp_get_max_threads(), seconds);
         }
     }
+    pen_cli_outputs_end(&outputs, status == 0);
     pen_image_free(&img);
     pen_image_free(&cov);
     pen_reference_destroy(ref);

@@ -1,7 +1,7 @@
 /* penumbra render: the SH-shadow render of a scene JSON into a PNG (sRGB), EXR or HDR (linear).
  * Objects whose spheres are {"fit": N} get a fitted set first (pen_spheres_fit_cached with the
- * default settings: the fit is stored beside the mesh file and reused, as pen_scene_fit_spheres
- * does; done here per object to print each fit's metrics). */
+ * default settings: the fit is stored in the user's cache folder and reused, as
+ * pen_scene_fit_spheres does; done here per object to print each fit's metrics). */
 #include "commands.h"
 
 #include "penumbra/fit.h"
@@ -18,18 +18,20 @@ static void usage(FILE *f) {
             "Renders the scene with soft shadows from its sphere sets (SH visibility) and writes\n"
             "the image: .png is 8-bit sRGB, .exr and .hdr are linear radiance. Objects with\n"
             "\"spheres\": {\"fit\": N} get N fitted spheres first (seconds per object; the fit\n"
-            "is cached beside the mesh file and reused).\n\n"
+            "is cached in $XDG_CACHE_HOME/penumbra, else ~/.cache/penumbra, and reused).\n\n"
             "Options:\n"
             "  -o, --output PATH   output image (required)\n"
             "  --no-shadows        visibility 1 everywhere (unshadowed SH irradiance)\n"
             "  --no-antialias      no silhouette antialiasing\n"
             "  --threads N         worker threads (default: all cores)\n"
+            "  --no-cache          fit {\"fit\": N} spheres afresh, without reading or writing\n"
+            "                      the fit cache (also PENUMBRA_NO_CACHE=1)\n"
             "  -q, --quiet         do not print the summary line\n");
 }
 
 int pen_cmd_render(int argc, char **argv) {
     const char *scene_path = NULL, *out_path = NULL;
-    int threads = 0, quiet = 0;
+    int threads = 0, quiet = 0, no_cache = 0;
     pen_render_options opt = pen_render_options_default();
     for (int i = 1; i < argc; ++i) {
         const char *a = argv[i];
@@ -48,6 +50,8 @@ int pen_cmd_render(int argc, char **argv) {
                 return 2;
         } else if (!strcmp(a, "-q") || !strcmp(a, "--quiet")) {
             quiet = 1;
+        } else if (!strcmp(a, "--no-cache")) {
+            no_cache = 1;
         } else if (pen_cli_positional(CMD, a, &scene_path, 1)) {
             return 2;
         }
@@ -56,10 +60,15 @@ int pen_cmd_render(int argc, char **argv) {
     if (!out_path) return pen_cli_usage_error(CMD, "missing -o OUT.(png|exr|hdr)");
     if (!pen_image_path_supported(out_path))
         return pen_cli_usage_error(CMD, "%s: the output must end in .png, .exr or .hdr", out_path);
+    /* Checked before the fits and the render; one output, written atomically by pen_image_save,
+     * so a failure leaves an existing file as it was without keeping a second name. */
+    pen_cli_outputs outputs = {0};
+    if (!pen_cli_outputs_add(&outputs, CMD, out_path)) return 1;
 
     pen_context *ctx = pen_context_create();
     if (!ctx) return pen_cli_fail(CMD, "out of memory");
     pen_context_set_threads(ctx, threads);
+    if (no_cache) pen_context_set_fit_cache(ctx, 0);
     pen_scene scene;
     pen_image image = {0, 0, 0, NULL};
     int rc = 1;

@@ -40,6 +40,35 @@ int pen_cli_parse_float(const char *cmd, const char *flag, const char *text, dou
 int pen_cli_positional(const char *cmd, const char *arg, const char **slots, int count);
 /* 1 if arg is -h or --help. */
 int pen_cli_is_help(const char *arg);
+
+/* All-or-nothing outputs of one command: a command that fails leaves every output path as it
+ * found it (an existing file keeps its old contents, a new one is removed), and one that cannot
+ * write an output says so before doing its work.
+ *     pen_cli_outputs out = {0};
+ *     if (!pen_cli_outputs_add(&out, CMD, path_a) || !pen_cli_outputs_add(&out, CMD, path_b))
+ *         return 1;                                   (checked before the work)
+ *     ... work ...
+ *     if (!pen_cli_outputs_keep(&out, CMD)) fail;    (right before writing: keeps old files)
+ *     ok = write a && write b;
+ *     pen_cli_outputs_end(&out, ok);                 (restores or drops the kept files)
+ * The library's writers are atomic (temporary file + rename), so each file is whole; this makes
+ * the set whole. A kept file is a hard link (or a copy) named "<path>.penumbra-keep-<pid>". */
+#define PEN_CLI_MAX_OUTPUTS 4
+typedef struct pen_cli_outputs {
+    int count;
+    int kept_all; /* pen_cli_outputs_keep succeeded: outputs may have been written since */
+    const char *path[PEN_CLI_MAX_OUTPUTS];
+    char *kept[PEN_CLI_MAX_OUTPUTS]; /* the old file's second name, or NULL if none existed */
+} pen_cli_outputs;
+/* Adds an output path (not copied) after checking that it can be written: not a folder, and in
+ * an existing folder this user may write. Returns 1, or 0 after printing the error line. */
+int pen_cli_outputs_add(pen_cli_outputs *out, const char *cmd, const char *path);
+/* Gives every existing output a second name so that it can be restored. Returns 1, or 0 after
+ * printing the error line (then nothing is kept and nothing should be written). */
+int pen_cli_outputs_keep(pen_cli_outputs *out, const char *cmd);
+/* ok: drops the kept names. Not ok: puts each kept file back and removes outputs that did not
+ * exist before (after pen_cli_outputs_keep only: before it nothing was written). */
+void pen_cli_outputs_end(pen_cli_outputs *out, int ok);
 /* The bundled file `rel` (e.g. "data/envmaps/city.hdr"), looked for at run time, first found of:
  * $PENUMBRA_DATA_DIR/rel, <exe dir>/../share/penumbra/rel (installed), <exe dir>/../rel and
  * <exe dir>/../../rel (a build folder inside the checkout). Writes the path into buf and returns

@@ -1,7 +1,7 @@
 /* Shared helpers of the subcommands: one-line errors, strict number parsing, and finding the
  * bundled data (scenes, environment maps) at run time, so that the same binary works from the
  * build folder of a checkout and once installed. */
-#define _XOPEN_SOURCE 700 /* readlink, realpath */
+#define _XOPEN_SOURCE 700 /* readlink, realpath, link */
 #include "commands.h"
 
 #include <errno.h>
@@ -11,6 +11,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 static int vfail(int status, const char *cmd, const char *fmt, va_list ap) {
@@ -89,6 +90,85 @@ int pen_cli_parse_float(const char *cmd, const char *flag, const char *text, dou
 
 int pen_cli_is_help(const char *arg) {
     return strcmp(arg, "-h") == 0 || strcmp(arg, "--help") == 0;
+}
+
+/* ---- All-or-nothing outputs ----------------------------------------------------------------- */
+
+int pen_cli_outputs_add(pen_cli_outputs *out, const char *cmd, const char *path) {
+    if (out->count == PEN_CLI_MAX_OUTPUTS) {
+        pen_cli_fail(cmd, "%s: too many outputs", path);
+        return 0;
+    }
+    struct stat st;
+    if (stat(path, &st) == 0 && S_ISDIR(st.st_mode)) {
+        pen_cli_fail(cmd, "%s: cannot write: it is a folder", path);
+        return 0;
+    }
+    const char *slash = strrchr(path, '/');
+    char dir[PATH_MAX];
+    if (!slash)
+        snprintf(dir, sizeof dir, ".");
+    else
+        snprintf(dir, sizeof dir, "%.*s", slash == path ? 1 : (int)(slash - path), path);
+    if (access(dir, W_OK | X_OK) != 0) {
+        pen_cli_fail(cmd, "%s: cannot write into the folder %s: %s", path, dir, strerror(errno));
+        return 0;
+    }
+    out->path[out->count] = path;
+    out->kept[out->count++] = NULL;
+    return 1;
+}
+
+/* A copy of src at dst, for file systems without hard links. 1 on success. */
+static int copy_file(const char *src, const char *dst) {
+    FILE *in = fopen(src, "rb"), *to = in ? fopen(dst, "wbx") : NULL;
+    int ok = in && to;
+    char buf[1 << 16];
+    size_t n;
+    while (ok && (n = fread(buf, 1, sizeof buf, in)) > 0)
+        ok = fwrite(buf, 1, n, to) == n;
+    if (in && ferror(in)) ok = 0;
+    if (to && fclose(to) != 0) ok = 0;
+    if (in) fclose(in);
+    if (!ok && to) remove(dst);
+    return ok;
+}
+
+int pen_cli_outputs_keep(pen_cli_outputs *out, const char *cmd) {
+    for (int i = 0; i < out->count; ++i) {
+        const char *path = out->path[i];
+        if (access(path, F_OK) != 0) continue; /* a new file: removed again on failure */
+        const size_t n = strlen(path) + 40;
+        char *kept = malloc(n);
+        if (kept) snprintf(kept, n, "%s.penumbra-keep-%ld", path, (long)getpid());
+        if (!kept || (link(path, kept) != 0 && !copy_file(path, kept))) {
+            pen_cli_fail(cmd, "%s: cannot keep the existing file while writing: %s", path,
+                         strerror(errno));
+            free(kept);
+            pen_cli_outputs_end(out, 1); /* drops what was kept so far; nothing was written */
+            return 0;
+        }
+        out->kept[i] = kept;
+    }
+    out->kept_all = 1;
+    return 1;
+}
+
+void pen_cli_outputs_end(pen_cli_outputs *out, int ok) {
+    for (int i = 0; i < out->count; ++i) {
+        if (out->kept[i]) {
+            if (ok)
+                remove(out->kept[i]);
+            else
+                rename(out->kept[i], out->path[i]); /* atomic: the old file is back whole */
+        } else if (!ok && out->kept_all) {
+            remove(out->path[i]);
+        }
+        free(out->kept[i]);
+        out->kept[i] = NULL;
+    }
+    out->count = 0;
+    out->kept_all = 0;
 }
 
 /* ---- Bundled data ---------------------------------------------------------------------------- */

@@ -85,6 +85,26 @@ static inline double check_rand_(unsigned long long *s) {
     return (double)(z >> 11) * (1.0 / 9007199254740992.0);
 }
 
+#if defined(_POSIX_C_SOURCE) && _POSIX_C_SOURCE >= 200809L
+/* Tests that fit spheres call this first: the fit cache (pen_spheres_fit_cached writes into
+ * $XDG_CACHE_HOME/penumbra) then goes to a fresh folder under /tmp, removed at exit, never into
+ * the user's own cache, however the test is run. Needs _POSIX_C_SOURCE >= 200809L (mkdtemp,
+ * setenv) defined before the first include. */
+static char check_cache_dir_[] = "/tmp/pen_test_cache_XXXXXX";
+static inline void check_cache_remove_(void) {
+    char cmd[64];
+    snprintf(cmd, sizeof cmd, "rm -rf '%s'", check_cache_dir_);
+    if (system(cmd) != 0) fprintf(stderr, "could not remove %s\n", check_cache_dir_);
+}
+static inline void check_private_cache_(void) {
+    if (!mkdtemp(check_cache_dir_) || setenv("XDG_CACHE_HOME", check_cache_dir_, 1) != 0) {
+        fprintf(stderr, "cannot make a private cache folder\n");
+        exit(1);
+    }
+    atexit(check_cache_remove_);
+}
+#endif
+
 /* 1 when PEN_TEST_QUICK is set (sanitizer builds run smaller problem sizes). */
 static inline int check_quick_(void) {
     const char *q = getenv("PEN_TEST_QUICK");

@@ -12,8 +12,10 @@ trap 'rm -rf "$T"' EXIT
 fails=0
 fail() { echo "FAIL: $*"; fails=$((fails + 1)); }
 
-# The bundled scene with its mesh copied here, so that the sphere fits the bench asks for are
-# cached in $T and not beside the source tree's mesh.
+# The bundled scene with its mesh copied here; the sphere fits the bench asks for are cached in
+# $XDG_CACHE_HOME/penumbra, a folder of this test (never the user's cache).
+export XDG_CACHE_HOME="$T/cache"
+unset PENUMBRA_NO_CACHE
 cp "$SRC/data/meshes/spot_triangulated.obj" "$T/spot.obj"
 sed -e "s|\.\./\.\./data/meshes/spot_triangulated.obj|$T/spot.obj|" \
     -e "s|\.\./\.\./data/|$SRC/data/|g" "$SRC/examples/scenes/spot_city.json" > "$T/scene.json"
@@ -124,8 +126,9 @@ h = [o for o in map(json.loads, open(sys.argv[1])) if o["name"] == "headline"]
 sys.exit(0 if len(h) == 1 and (h[0]["width"], h[0]["height"], h[0]["spheres"], h[0]["bands"])
          == (64, 64, 32, 4) and h[0]["quick"] is True and h[0]["sh_rel_rmse"] is not None else 1)
 PY
-# The fits were cached beside the mesh copy (and so not in the source tree).
-ls "$T" | grep -q 'spot.obj.fit-32-' || fail "no cached fit beside the mesh copy"
+# The fits were cached in the cache folder, not beside the mesh.
+ls "$T/cache/penumbra" | grep -q '^spot\.obj-[0-9a-f]*-32-' || fail "no cached fit in the cache"
+ls "$T" | grep -q 'fit-' && fail "a cached fit beside the mesh copy"
 
 # One case, one thread, one repeat, no reference: one line, its reference fields null.
 if ! "$BIN" bench --json --quick --scene "$T/scene.json" --case headline --threads 1 \

@@ -67,6 +67,8 @@ grep -q "4x3" "$T/err" && grep -q "5x3" "$T/err" || fail "size mismatch message:
 expect_error "compare: missing file" "$BIN" compare "$T/a.hdr" "$T/nope.hdr"
 grep -q "nope.hdr" "$T/err" || fail "missing file message: $(cat "$T/err")"
 expect_error "compare: mask size" "$BIN" compare "$T/a.hdr" "$T/b.hdr" --mask "$T/c.hdr"
+grep -q "c.hdr: the mask is 5x3 but the images are 4x3" "$T/err" ||
+    fail "mask size message does not name the mask: $(cat "$T/err")"
 "$BIN" compare "$T/a.hdr" > /dev/null 2>&1 && fail "compare with one image succeeded"
 
 # ---- reference ----
@@ -104,6 +106,16 @@ expect_error "reference: unwritable output" "$BIN" reference "$T/scene.json" -o 
 expect_error "reference: unwritable output with coverage" "$BIN" reference "$T/scene.json" \
     -o "$T/no/dir/x.exr" --coverage "$T/x_cov.png" --spp 1
 [ ! -e "$T/x_cov.png" ] || fail "reference left the coverage of a failed run"
+grep -q "no/dir/x.exr: cannot write into the folder" "$T/err" || fail "unwritable: $(cat "$T/err")"
+# An image that fails to write after the coverage was written: the earlier coverage file is put
+# back as it was (a name longer than NAME_MAX passes the folder check, then fails to open).
+cp "$T/cov.png" "$T/keep_cov.png"
+long=$(printf 'x%.0s' $(seq 1 300))
+expect_error "reference: image fails after the coverage" "$BIN" reference "$T/scene.json" \
+    -o "$T/$long.exr" --coverage "$T/keep_cov.png" --spp 1
+cmp -s "$T/cov.png" "$T/keep_cov.png" || fail "a failed reference run changed the earlier coverage"
+ls "$T" | grep -q penumbra-keep && fail "a kept file left behind: $(ls "$T")"
+rm -f "$T/keep_cov.png"
 ls "$T/no" > /dev/null 2>&1 && fail "reference created a folder"
 "$BIN" reference "$T/scene.json" -o "$T/x.exr" --lighting moon > /dev/null 2>&1 && fail "bad --lighting accepted"
 "$BIN" reference "$T/scene.json" -o "$T/x.exr" --spp 0 > /dev/null 2>&1 && fail "--spp 0 accepted"

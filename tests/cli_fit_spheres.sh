@@ -32,10 +32,46 @@ grep -q '"sov_fraction"' "$T/out" || fail "metrics not printed"
 [ "$(wc -l < "$T/err")" -eq 1 ] || fail "expected one error line, got: $(cat "$T/err")"
 grep -q "missing.obj" "$T/err" || fail "error does not name the file: $(cat "$T/err")"
 [ ! -e "$T/a.json" ] || fail "failed fit left a file"
-# A preview that cannot be written takes the sphere file with it.
+# A preview that cannot be written: found before the fit, no sphere file written.
 "$BIN" fit-spheres "$SRC/data/meshes/blub.obj" -n 4 --voxels 24 --iterations 20 \
     -o "$T/a.json" --preview "$T/no/such/dir/p.png" > /dev/null 2> "$T/err"
 [ $? -eq 1 ] || fail "unwritable preview should exit 1"
+grep -q "no/such/dir/p.png: cannot write into the folder" "$T/err" || fail "preview: $(cat "$T/err")"
 [ ! -e "$T/a.json" ] || fail "unwritable preview left the sphere file"
-ls "$T" | grep -q tmp && fail "temporary file left behind"
+# ... and an existing sphere file stays as it was (it used to be deleted).
+cp "$T/s.json" "$T/old.json"
+"$BIN" fit-spheres "$SRC/data/meshes/blub.obj" -n 4 --voxels 24 --iterations 20 \
+    -o "$T/old.json" --preview "$T/no/such/dir/p.png" > /dev/null 2> "$T/err"
+[ $? -eq 1 ] || fail "unwritable preview should exit 1"
+cmp -s "$T/s.json" "$T/old.json" || fail "a failed run changed or removed the existing sphere file"
+# A preview that fails only when written (a name longer than NAME_MAX passes the folder check):
+# the sphere file already written is replaced by the earlier one again.
+long=$(printf 'p%.0s' $(seq 1 300))
+"$BIN" fit-spheres "$SRC/data/meshes/blub.obj" -n 4 --voxels 24 --iterations 20 \
+    -o "$T/old.json" --preview "$T/$long.png" > /dev/null 2> "$T/err"
+[ $? -eq 1 ] || fail "unwritable long preview should exit 1"
+cmp -s "$T/s.json" "$T/old.json" || fail "a failed preview write did not restore the sphere file"
+ls "$T" | grep -q -e tmp -e penumbra-keep && fail "temporary file left behind: $(ls "$T")"
+# An output that is a folder.
+"$BIN" fit-spheres "$SRC/data/meshes/blub.obj" -n 4 -o "$T" 2> "$T/err"
+[ $? -eq 1 ] || fail "a folder as output should exit 1"
+grep -q "it is a folder" "$T/err" || fail "folder output: $(cat "$T/err")"
+
+# Fitter errors name the mesh; a closed mesh at an absurd scale says so instead of blaming holes.
+for s in 1e-20 1e20; do
+    awk -v s=$s '/^v /{printf "v %.9g %.9g %.9g\n", $2 * s, $3 * s, $4 * s; next}
+                 /^f /{for (i = 2; i <= NF; ++i) { split($i, c, "/"); $i = c[1] } print}' \
+        "$SRC/data/meshes/blub.obj" > "$T/scaled.obj"
+    "$BIN" fit-spheres "$T/scaled.obj" -n 4 --voxels 24 -o "$T/b.json" 2> "$T/err"
+    [ $? -eq 1 ] || fail "scale $s: exit status"
+    grep -q "scaled.obj: fit: the mesh's longest side is .*rescale" "$T/err" ||
+        fail "scale $s: $(cat "$T/err")"
+    grep -q "closed" "$T/err" && fail "scale $s: blames the mesh for not being closed"
+done
+# A mesh that is really open (one face): the fit's message names it.
+printf 'v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\n' > "$T/open.obj"
+"$BIN" fit-spheres "$T/open.obj" -n 4 --voxels 16 -o "$T/b.json" 2> "$T/err"
+[ $? -eq 1 ] || fail "open mesh: exit status"
+grep -q "^penumbra fit-spheres: .*open.obj: fit: " "$T/err" || fail "open mesh: $(cat "$T/err")"
+[ ! -e "$T/b.json" ] || fail "a failed fit left a sphere file"
 echo "ok"

@@ -231,6 +231,36 @@ if "$BIN" optimize "$T/task.json" -o "$T/afile" --iterations 2 2>"$T/err" >/dev/
     fail "no error for an output path that is a file"
 fi
 grep -q "afile: exists and is not a folder" "$T/err" || fail "outdir error: $(cat "$T/err")"
+# A group with nothing to move is refused instead of running with zero parameters.
+sed '/"spheres"/,/"radius": 0.2}\],/d' "$T/truth.json" > "$T/nosph.json"
+grep -q spheres "$T/nosph.json" && fail "the sphere-less scene still has spheres"
+expect_error 'bad.json: optimize: "spheres": no object of the scene has spheres, nothing to optimise' \
+    '{"scene": "nosph.json", "target": "target.exr", "optimize": ["spheres"]}'
+expect_error 'bad.json: optimize: "deformation": no object of the scene has spheres' \
+    '{"scene": "nosph.json", "target": "target.exr", "optimize": ["deformation"]}'
+# A run that fails after its first steps (here a snapshot path taken by a folder) removes the
+# snapshots and checkpoint it made, and leaves what the folder held before.
+mkdir -p "$T/failrun/snapshots/iter_00002.png"
+echo keep > "$T/failrun/earlier.txt"
+if "$BIN" optimize "$T/task.json" -o "$T/failrun" --iterations 5 --snapshot-every 1 \
+    --checkpoint-every 1 2>"$T/err" >/dev/null; then
+    fail "no error for an unwritable snapshot"
+fi
+[ "$(wc -l < "$T/err")" -eq 1 ] || fail "failed run: $(cat "$T/err")"
+left=$(cd "$T/failrun" && find . | sort | tr '\n' ' ')
+[ "$left" = ". ./earlier.txt ./snapshots ./snapshots/iter_00002.png " ] ||
+    fail "a failed run left files or removed earlier ones: $left"
+# A write that fails after some outputs were replaced puts the earlier run's files back.
+"$BIN" optimize "$T/task.json" -o "$T/rewrite" --iterations 2 -q || fail "first run to rewrite"
+cp "$T/rewrite/final.exr" "$T/final_before.exr"
+cp "$T/rewrite/result.json" "$T/result_before.json"
+rm "$T/rewrite/loss.svg" && mkdir "$T/rewrite/loss.svg" # written after final.* and compare.png
+if "$BIN" optimize "$T/task.json" -o "$T/rewrite" --iterations 6 -q 2>"$T/err" >/dev/null; then
+    fail "no error for an unwritable loss.svg"
+fi
+cmp -s "$T/rewrite/final.exr" "$T/final_before.exr" || fail "a failed write lost the earlier final.exr"
+cmp -s "$T/rewrite/result.json" "$T/result_before.json" || fail "a failed write changed result.json"
+ls "$T/rewrite" | grep -q -e previous -e tmp- && fail "kept files left: $(ls "$T/rewrite")"
 # --target replaces the task's target, with the same checks.
 "$BIN" optimize "$T/task.json" -o "$T/retarget" --target "$T/target_tex.exr" --iterations 2 -q ||
     fail "--target"

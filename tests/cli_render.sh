@@ -71,8 +71,11 @@ lines=$("$BIN" render "$T/nosuch.json" -o "$T/bad.png" 2>&1 >/dev/null | wc -l)
 # A malformed scene: the key path is named.
 sed 's/"radius": 0.36/"radius": -1/' "$T/scene.json" > "$T/neg.json"
 expect_error "radius" "$T/neg.json" -o "$T/bad.png"
-# A scene asking for fitted spheres: fitted before rendering, cached beside the mesh (a copy
-# here, so that the source tree stays untouched) and reused; not needed with --no-shadows.
+# A scene asking for fitted spheres: fitted before rendering, cached in $XDG_CACHE_HOME/penumbra
+# (a folder of this test: never the user's cache) and reused; not needed with --no-shadows.
+# Nothing is written beside the mesh.
+export XDG_CACHE_HOME="$T/cache"
+unset PENUMBRA_NO_CACHE
 cp "$SRC/data/meshes/spot_triangulated.obj" "$T/spot.obj"
 sed -e 's/"spheres": \[{"center": \[0, -0.07, 0.3\], "radius": 0.36},/"spheres": {"fit": 4}, "_s": [{"center": [0, -0.07, 0.3], "radius": 0.36},/' \
     -e "s|$SRC/data/meshes/spot_triangulated.obj|spot.obj|" "$T/scene.json" > "$T/fit.json"
@@ -81,6 +84,24 @@ case "$out" in *"4 fitted spheres (fitted now"*"4 spheres, shadows"*) ;; *) fail
 out=$("$BIN" render "$T/fit.json" -o "$T/fit2.png") || fail "render with a cached fit"
 case "$out" in *"(from the cache"*) ;; *) fail "cached fit summary: $out" ;; esac
 cmp -s "$T/fit.png" "$T/fit2.png" || fail "the cached fit renders differently"
+ls "$T/cache/penumbra" | grep -q '^spot\.obj-[0-9a-f]*-4-[0-9a-f]*\.json$' ||
+    fail "no cache file in \$XDG_CACHE_HOME/penumbra: $(ls -R "$T/cache" 2>&1)"
+ls "$T" | grep -q 'fit-' && fail "a cache file beside the mesh: $(ls "$T")"
+# --no-cache and PENUMBRA_NO_CACHE=1: fitted afresh, nothing read or written.
+rm -rf "$T/cache"
+out=$("$BIN" render "$T/fit.json" -o "$T/fit3.png" --no-cache) || fail "render --no-cache"
+case "$out" in *"(fitted now"*) ;; *) fail "--no-cache summary: $out" ;; esac
+out=$(PENUMBRA_NO_CACHE=1 "$BIN" render "$T/fit.json" -o "$T/fit3.png") || fail "PENUMBRA_NO_CACHE"
+case "$out" in *"(fitted now"*) ;; *) fail "PENUMBRA_NO_CACHE=1 summary: $out" ;; esac
+[ ! -e "$T/cache" ] || fail "--no-cache wrote the cache: $(ls -R "$T/cache")"
+cmp -s "$T/fit.png" "$T/fit3.png" || fail "the uncached fit renders differently"
+# A fit that fails names the mesh: a closed mesh scaled by 1e-20 is too small, not "open"
+# (tiny rather than huge: huge coordinates may be refused by the loader itself).
+awk '/^v /{printf "v %.9g %.9g %.9g\n", $2 * 1e-20, $3 * 1e-20, $4 * 1e-20; next} {print}' \
+    "$T/spot.obj" > "$T/tiny.obj"
+sed 's|"spot.obj"|"tiny.obj"|' "$T/fit.json" > "$T/tiny.json"
+expect_error "tiny.obj: fit: the mesh's longest side" "$T/tiny.json" -o "$T/tiny.png"
+grep -q "closed" "$T/err" && fail "a scaled closed mesh is blamed for not being closed"
 "$BIN" render "$T/fit.json" -o "$T/fitplain.png" --no-shadows -q || fail "fit scene, --no-shadows"
 # The output folder does not exist: an i/o error, nothing written.
 expect_error "nodir" "$T/scene.json" -o "$T/nodir/bad.png"

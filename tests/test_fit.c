@@ -1,6 +1,7 @@
 /* Tests of the sphere fit (src/geometry/fit.c, voxelize.c): the energy's analytic gradient against
  * finite differences, the inside test on closed, inverted, overlapping and holed meshes, surface
  * sampling, and fits of shapes whose answer is known (a sphere, a capsule, a dumbbell). */
+#define _POSIX_C_SOURCE 200809L /* mkdtemp, setenv: check_private_cache_ */
 #include "check.h"
 #include "geometry/fit_internal.h"
 #include "penumbra/penumbra.h"
@@ -485,17 +486,26 @@ static void test_fit_more_spheres(void) {
 }
 
 /* The cache: a miss fits and writes, a hit reads the same spheres back, a broken or foreign file
- * is refitted, an unwritable folder is no error, and a scene's {"fit": N} objects get spheres. */
+ * is refitted, an unwritable folder is no error, and a scene's {"fit": N} objects get spheres.
+ * The files go to $XDG_CACHE_HOME/penumbra (a private folder here), named after the mesh. */
 static void test_fit_cache(void) {
+    check_private_cache_();
     pen_context *ctx = pen_context_create();
     pen_mesh m = make_capsule(0.3, 0.4);
     pen_fit_settings s = small_settings();
     s.iterations = 60;
     const char *mesh_path = "test_fit_cache_capsule.obj"; /* only names the cache's place */
-    char *path = NULL;
+    char *path = NULL, want[128];
     CHECK(pen_spheres_fit_cache_path(ctx, &m, mesh_path, 3, &s, &path) == PEN_OK);
-    CHECK(path && strncmp(path, "test_fit_cache_capsule.obj.fit-3-", 33) == 0);
-    remove(path);
+    snprintf(want, sizeof want, "%s/penumbra/test_fit_cache_capsule.obj-", check_cache_dir_);
+    CHECK_MSG(path && strncmp(path, want, strlen(want)) == 0 && strstr(path, "-3-"), "%s",
+              path ? path : "(null)");
+    /* The same mesh file name in another folder: another cache file. */
+    char *elsewhere = NULL;
+    CHECK(pen_spheres_fit_cache_path(ctx, &m, "/elsewhere/test_fit_cache_capsule.obj", 3, &s,
+                                     &elsewhere) == PEN_OK);
+    CHECK(elsewhere && path && strcmp(elsewhere, path) != 0);
+    free(elsewhere);
     pen_spheres a, b;
     pen_fit_metrics ma, mb;
     CHECK(pen_spheres_fit_cached(ctx, &m, mesh_path, 3, &s, &a, &ma) == PEN_OK);
@@ -534,10 +544,42 @@ static void test_fit_cache(void) {
     pen_spheres_free(&b);
     remove(path);
     free(path);
-    /* No folder to write to: still a fit. */
+    /* The mesh's own folder is never written to, even when it does not exist. */
     CHECK(pen_spheres_fit_cached(ctx, &m, "/nonexistent-folder/x.obj", 2, &s, &b, &mb) == PEN_OK);
     CHECK(b.count == 2 && mb.from_cache == 0);
     pen_spheres_free(&b);
+    /* The cache switched off (the context, or PENUMBRA_NO_CACHE=1): no read, no write. */
+    CHECK(pen_spheres_fit_cache_path(ctx, &m, mesh_path, 3, &s, &path) == PEN_OK);
+    pen_context_set_fit_cache(ctx, 0);
+    CHECK(pen_spheres_fit_cached(ctx, &m, mesh_path, 3, &s, &b, &mb) == PEN_OK);
+    CHECK(mb.from_cache == 0 && b.count == 3 && fopen(path, "r") == NULL);
+    pen_spheres_free(&b);
+    pen_context_set_fit_cache(ctx, 1);
+    setenv("PENUMBRA_NO_CACHE", "1", 1);
+    CHECK(pen_spheres_fit_cached(ctx, &m, mesh_path, 3, &s, &b, &mb) == PEN_OK);
+    CHECK(mb.from_cache == 0 && fopen(path, "r") == NULL);
+    pen_spheres_free(&b);
+    setenv("PENUMBRA_NO_CACHE", "0", 1);
+    /* No cache folder at all (neither variable absolute): a fit, no error. */
+    const char *home = getenv("HOME");
+    char *home_copy = home ? strdup(home) : NULL;
+    setenv("XDG_CACHE_HOME", "relative/cache", 1);
+    unsetenv("HOME");
+    CHECK(pen_spheres_fit_cached(ctx, &m, mesh_path, 2, &s, &b, &mb) == PEN_OK);
+    CHECK(b.count == 2 && mb.from_cache == 0 && pen_context_status(ctx) == PEN_OK);
+    pen_spheres_free(&b);
+    char *none = NULL;
+    CHECK(pen_spheres_fit_cache_path(ctx, &m, mesh_path, 2, &s, &none) == PEN_ERROR_IO && !none);
+    pen_context_clear_error(ctx);
+    if (home_copy) setenv("HOME", home_copy, 1);
+    free(home_copy);
+    setenv("XDG_CACHE_HOME", check_cache_dir_, 1);
+    free(path);
+    /* Errors name the mesh file: the fitter alone knows only triangles. */
+    CHECK(pen_spheres_fit_cached(ctx, &m, "named_mesh.obj", 0, &s, &b, &mb) != PEN_OK);
+    CHECK_MSG(strncmp(pen_context_error(ctx), "named_mesh.obj: fit: ", 21) == 0, "%s",
+              pen_context_error(ctx));
+    pen_context_clear_error(ctx);
 
     /* A scene object asking for {"fit": 2}. */
     pen_object obj;

@@ -9,6 +9,8 @@
 
 #include "penumbra/flat.h"
 
+#include <sys/stat.h>
+
 /* A flat view of sc (objects must hold room for sc->object_count; sh for 3 * 64 floats). */
 static pen_flat_scene flat_of(const pen_scene *sc, pen_flat_object *objects, float *sh) {
     pen_flat_scene f = pen_flat_scene_default();
@@ -153,6 +155,7 @@ static const char CUBE_OBJ[] = "v -0.3 0 -0.3\nv 0.3 0 -0.3\nv 0.3 0.6 -0.3\nv -
 /* A scene JSON loaded through the flat API renders as pen_scene_load + pen_render_fwd does; a
  * {"fit": N} request is left empty or fitted as asked. */
 static void test_flat_scene_load(void) {
+    check_private_cache_(); /* the fit cache below goes to a folder of this test */
     pen_context *ctx = fixture_ctx();
     fixture_text("cube.obj", CUBE_OBJ);
     const char *json =
@@ -191,6 +194,9 @@ static void test_flat_scene_load(void) {
 
     /* With fit_spheres the request goes to the fitter's cache; a cache file written here
      * stands in for a fit (a real one takes seconds, and is tested in test_fit). */
+    char cache_dir[64];
+    snprintf(cache_dir, sizeof cache_dir, "%s/penumbra", check_cache_dir_);
+    CHECK(mkdir(cache_dir, 0700) == 0);
     char *cache = NULL;
     CHECK(pen_spheres_fit_cache_path(ctx, &sc.objects[1].mesh, sc.objects[1].mesh_path, 2, NULL,
                                      &cache) == PEN_OK);

@@ -255,6 +255,24 @@ typedef struct bad_case {
     "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"                \
     "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
 
+/* A header comment longer than any fixed line buffer (tools write provenance there) is valid. */
+static void test_ply_long_comment(void) {
+    static char text[8192];
+    int n = snprintf(text, sizeof text, "ply\nformat ascii 1.0\ncomment ");
+    for (int i = 0; i < 3000; ++i)
+        text[n++] = (char)('a' + i % 26);
+    snprintf(text + n, sizeof text - (size_t)n,
+             "\n  obj_info   %0600d\nelement vertex 3\nproperty float x\nproperty float y\n"
+             "property float z\nelement face 1\nproperty list uchar int vertex_indices\n"
+             "end_header\n0 0 0\n1 0 0\n\n0 1 0  \r\n3 0 1 2\n",
+             7);
+    pen_mesh m;
+    CHECK_MSG(pen_mesh_load(ctx, fixture_text("long_comment.ply", text), &m) == PEN_OK, "%s",
+              pen_context_error(ctx));
+    CHECK(m.vertex_count == 3 && m.triangle_count == 1 && m.positions[7] == 1.0f);
+    pen_mesh_free(&m);
+}
+
 static void test_malformed_text(void) {
     static const bad_case cases[] = {
         {"idx.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n", PEN_ERROR_PARSE,
@@ -313,6 +331,32 @@ static void test_malformed_text(void) {
          "v\nend_header\n",
          PEN_ERROR_PARSE, ":5:", "count type must be an integer"},
         {"mesh.stl", "solid x\n", PEN_ERROR_UNSUPPORTED, "mesh.stl", "unknown mesh format"},
+        /* -2^63: the relative-index check must not negate it (UBSan). */
+        {"min.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 -9223372036854775808\n", PEN_ERROR_PARSE,
+         ":4:", "reaches before the first one"},
+        /* A row short of one value: every later vertex would shift by one. */
+        {"short_row.ply", PLY_HEAD "0 0\n1 0 0\n0 1 0\n3 0 1 2\n", PEN_ERROR_PARSE,
+         ":10:", "vertex 0: the line ends after 2 values"},
+        {"long_row.ply", PLY_HEAD "0 0 0\n1 0 0 7\n0 1 0\n3 0 1 2\n", PEN_ERROR_PARSE,
+         ":11:", "vertex 1: more values on the line"},
+        {"face_row.ply", PLY_HEAD "0 0 0\n1 0 0\n0 1 0\n3 0 1\n2\n", PEN_ERROR_PARSE,
+         ":13:", "face 0: the line ends after 3 values"},
+        {"long_header.ply",
+         "ply\nformat ascii 1.0\nelement vertex 3 "
+         "1111111111111111111111111111111111111111111111111111111111111111111111111111111111111111"
+         "1111111111111111111111111111111111111111111111111111111111111111111111111111111111111111"
+         "1111111111111111111111111111111111111111111111111111111111111111111111111111111111111111"
+         "1111111111111111111111111111111111111111111111111111111111111111111111111111111111111111"
+         "1111111111111111111111111111111111111111111111111111111111111111111111111111111111111111"
+         "1111111111111111111111111111111111111111111111111111111111111111111111111111111111111111"
+         "1111111111111111111111111111111111111111111111111111111111111111111111111111111111111111"
+         "1111111111111111111111111111111111111111111111111111111111111111111111111111111111111111"
+         "1111111111111111111111111111111111111111111111111111111111111111111111111111111111111111"
+         "1111111111111111111111111111111111111111111111111111111111111111111111111111111111111111"
+         "1111111111111111111111111111111111111111111111111111111111111111111111111111111111111111"
+         "1111111111111111111111111111111111111111111111111111111111111111111111111111111111111111\n"
+         "end_header\n",
+         PEN_ERROR_PARSE, ":3:", "header line of 1073 bytes"},
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; ++i) {
         const bad_case *c = &cases[i];
@@ -406,4 +450,5 @@ static void test_mutations(void) {
 }
 
 RUN_TESTS(TEST(test_bundled), TEST(test_obj_features), TEST(test_obj_round_trip), TEST(test_ply),
+          TEST(test_ply_long_comment),
           TEST(test_malformed_text), TEST(test_malformed_binary), TEST(test_mutations))

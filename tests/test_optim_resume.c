@@ -225,6 +225,23 @@ static void test_resume_refused(void) {
     pen_optim_result r;
     CHECK(pen_optim_run(ctx, &t, &set, &r) == PEN_ERROR_PARSE);
     CHECK(strstr(pen_context_error(ctx), "checkpoint.bin: damaged checkpoint (checksum mismatch)"));
+    /* An iteration (and Adam step) of INT32_MAX is refused from the counts alone, before the
+     * checksum is read, without computing iteration + 1 in 32 bits (UBSan). The counts follow
+     * the identity: 28 bytes, 20 a segment, then 84 (see the layout in checkpoint.c). */
+    f = fopen(path, "r+b");
+    CHECK(f != NULL);
+    if (f) {
+        uint32_t segs = 0;
+        CHECK(fseek(f, 24, SEEK_SET) == 0 && fread(&segs, 4, 1, f) == 1);
+        const int32_t big[4] = {INT32_MAX, 3, 0, INT32_MAX}; /* iteration, losses, best, step */
+        CHECK(fseek(f, 112 + 20 * (long)segs, SEEK_SET) == 0);
+        CHECK(fwrite(big, sizeof big, 1, f) == 1);
+        fclose(f);
+    }
+    pen_context_clear_error(ctx);
+    CHECK(pen_optim_run(ctx, &t, &set, &r) == PEN_ERROR_PARSE);
+    CHECK_MSG(strstr(pen_context_error(ctx), "damaged checkpoint (iteration 2147483647"), "%s",
+              pen_context_error(ctx));
     pen_optim_task_free(&t);
     pen_context_destroy(ctx);
     cleanup(dir);

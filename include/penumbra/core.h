@@ -45,6 +45,11 @@ PEN_API void pen_context_clear_error(pen_context *ctx);
 /* Threads used by parallel passes; 0 (the default) means all cores (OpenMP's default). */
 PEN_API void pen_context_set_threads(pen_context *ctx, int threads);
 PEN_API int pen_context_threads(const pen_context *ctx);
+/* Whether sphere fits read and write the fit cache (pen_spheres_fit_cached, in the user's cache
+ * folder): on by default; off after pen_context_set_fit_cache(ctx, 0) or while the environment
+ * sets PENUMBRA_NO_CACHE to anything but "" or "0" (`--no-cache` of the CLI). */
+PEN_API void pen_context_set_fit_cache(pen_context *ctx, int enabled);
+PEN_API int pen_context_fit_cache(const pen_context *ctx);
 
 /* A short name for a status code ("parse error", ...). */
 PEN_API const char *pen_status_string(pen_status status);

@@ -79,17 +79,22 @@ PEN_API void pen_fit_settings_default(pen_fit_settings *settings);
  * (defaults); metrics may be NULL. Uses the context's thread count. On success *out owns a new
  * array of `count` spheres (free with pen_spheres_free); on failure *out is zeroed. Errors: a
  * mesh with no triangles, out-of-range indices, NaN/Inf positions, a degenerate (flat) bounding
- * box, fewer inside voxels than spheres (mesh too thin for the grid, or not closed). */
+ * box, a bounding box whose longest side is outside [1e-9, 1e9] (rescale the mesh), fewer inside
+ * voxels than spheres (mesh too thin for the grid, or not closed). */
 PEN_API pen_status pen_spheres_fit(pen_context *ctx, const pen_mesh *mesh, int count,
                                    const pen_fit_settings *settings, pen_spheres *out,
                                    pen_fit_metrics *metrics);
 
-/* Like pen_spheres_fit, but first looks for a cached fit next to the mesh file:
- *     <mesh_path>.fit-<count>-<key>.json
+/* Like pen_spheres_fit, but first looks for a cached fit in the user's cache folder,
+ * $XDG_CACHE_HOME/penumbra (else ~/.cache/penumbra):
+ *     <mesh file name>-<hash of the absolute mesh path>-<count>-<key>.json
  * where key is a 64-bit hash (16 hex digits) of the mesh's positions and indices, `count`, every
  * setting and the fitter's version. A cache hit returns the stored spheres and metrics (with
- * from_cache = 1) without fitting. After a fit the result is written there (atomically); failing
- * to write the cache (read-only folder) is not an error. mesh_path may be NULL: no cache. */
+ * from_cache = 1) without fitting. After a fit the result is written there (atomically, the
+ * folder created); failing to write the cache (read-only folder, no HOME) is not an error.
+ * Nothing is written beside the mesh. mesh_path may be NULL: no cache. With the cache off
+ * (pen_context_set_fit_cache, PENUMBRA_NO_CACHE=1) this is pen_spheres_fit. Errors are those of
+ * pen_spheres_fit behind "<mesh_path>: ". */
 PEN_API pen_status pen_spheres_fit_cached(pen_context *ctx, const pen_mesh *mesh,
                                           const char *mesh_path, int count,
                                           const pen_fit_settings *settings, pen_spheres *out,
@@ -111,8 +116,8 @@ PEN_API pen_status pen_spheres_preview(pen_context *ctx, const pen_mesh *mesh,
                                        float elevation_deg, int size, pen_image *out);
 
 /* Fits every object of a loaded scene that asks for it ("spheres": {"fit": N}, so fit_spheres > 0
- * and no spheres yet) with pen_spheres_fit_cached and the default settings, next to the object's
- * mesh file. Objects that have spheres are left alone. */
+ * and no spheres yet) with pen_spheres_fit_cached and the default settings (cached in the user's
+ * cache folder). Objects that have spheres are left alone. */
 PEN_API pen_status pen_scene_fit_spheres(pen_context *ctx, pen_scene *scene);
 
 /* Writes {"metrics": {...}, "fit_settings": {...}} (the settings member only when settings is

@@ -182,7 +182,7 @@ PEN_API int pen_flat_abi(const pen_flat_abi_field **fields, int *count);
 typedef struct pen_flat_loaded pen_flat_loaded;
 
 /* Loads a scene JSON (pen_scene_load). With fit_spheres != 0, objects whose spheres are
- * {"fit": N} get them as `penumbra render` does (pen_scene_fit_spheres: cached beside the mesh);
+ * {"fit": N} get them as `penumbra render` does (pen_scene_fit_spheres: cached in the user's cache folder);
  * with 0 they are left without spheres. On failure *out is NULL. */
 PEN_API pen_status pen_flat_scene_load(pen_context *ctx, const char *path, int fit_spheres,
                                        pen_flat_loaded **out);

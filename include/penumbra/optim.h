@@ -266,7 +266,7 @@ typedef struct pen_optim_result {
     pen_optim_metrics metrics;
 } pen_optim_result;
 
-/* Runs the task: fits sphere sets the scene asks for ({"fit": N}, cached beside the mesh; only
+/* Runs the task: fits sphere sets the scene asks for ({"fit": N}, cached as pen_spheres_fit_cached says; only
  * with shadows), applies the initial guesses, runs Adam until the stopping rule fires or the
  * iteration limit is reached, leaves the best iterate's parameters in task->scene and computes
  * the metrics. Threads: pen_context_threads. On failure *out is zeroed (task->scene may then be

@@ -43,7 +43,7 @@ def load_scene(path, fit_spheres=True, threads=0):
     """Loads a scene JSON (docs/file-formats.md) into a Scene of tensors, as `penumbra render`
     sees it: the lighting is the map's SH projection (or the "sh" given), objects keep their
     texture (or constant albedo), spheres and pose. With fit_spheres, objects whose spheres are
-    {"fit": N} get the fitted set (cached beside the mesh, shared with the CLI); otherwise they
+    {"fit": N} get the fitted set (cached in $XDG_CACHE_HOME/penumbra, shared with the CLI); otherwise they
     have none (spheres None)."""
     L = _lib.lib()
     with _lib.Context(threads) as c:

@@ -38,6 +38,16 @@ int pen_context_threads(const pen_context *ctx) {
     return ctx ? ctx->threads : 0;
 }
 
+void pen_context_set_fit_cache(pen_context *ctx, int enabled) {
+    if (ctx) ctx->no_fit_cache = !enabled;
+}
+
+int pen_context_fit_cache(const pen_context *ctx) {
+    const char *env = getenv("PENUMBRA_NO_CACHE");
+    if (env && *env && strcmp(env, "0") != 0) return 0;
+    return ctx ? !ctx->no_fit_cache : 1;
+}
+
 int pen__threads_resolve(int requested) {
     return requested > 0 ? requested : omp_get_max_threads();
 }

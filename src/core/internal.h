@@ -12,6 +12,7 @@
 struct pen_context {
     pen_status status;
     int threads;
+    int no_fit_cache; /* pen_context_set_fit_cache(ctx, 0); zero (calloc) keeps the cache on */
     char message[1024];
 };
 

@@ -1,19 +1,29 @@
-/* Cached sphere fits: a fit is stored beside its mesh file under a name that carries a hash of
- * everything the result depends on, so asking again for the same fit reads the file instead of
- * fitting (a scene with "spheres": {"fit": N} loads instantly the second time).
+/* Cached sphere fits: a fit is stored in the user's cache folder under a name that carries a
+ * hash of everything the result depends on, so asking again for the same fit reads the file
+ * instead of fitting (a scene with "spheres": {"fit": N} loads instantly the second time).
  *
+ * Place: $XDG_CACHE_HOME/penumbra (XDG base directory spec; a relative XDG_CACHE_HOME is ignored,
+ * as the spec asks), else ~/.cache/penumbra, created on the first write. Never beside the mesh:
+ * users' data folders are not ours to fill, and may be read-only or shared.
+ * Name: <mesh file name>-<hash of the mesh's absolute path>-<count>-<key>.json, so fits of two
+ * meshes with the same name in different folders do not replace each other's files, and a user
+ * can tell which cache file belongs to which mesh.
  * Key: FNV-1a 64 over the fitter's version, the sphere count, the resolved settings (as text, so
  * defaults given explicitly or by zero fields hash alike) and the bytes of the mesh's positions
  * and indices. The file repeats the key ("fit_key"); a file whose key, sphere count or format is
  * wrong is ignored and overwritten, never trusted.
  */
+#define _DEFAULT_SOURCE /* realpath */
 #include "geometry/fit_internal.h"
 #include "penumbra/io.h"
 
 #include <cjson/cJSON.h>
+#include <errno.h>
+#include <limits.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 
 /* Bump when a change of the fitter changes its results, so old cache files are not reused (3:
  * the fits cached before session 5 differed from what the fitter now computes under the same
@@ -96,7 +106,37 @@ static int cache_read(const char *path, const char *key, int count, pen_spheres 
     return ok;
 }
 
-/* The key as 16 hex digits and the cache file's path (malloc'd). */
+/* The cache folder (see the top of this file) into buf; 0 when neither XDG_CACHE_HOME nor HOME
+ * gives one. */
+static int cache_dir(char *buf, size_t size) {
+    const char *xdg = getenv("XDG_CACHE_HOME"), *home = getenv("HOME");
+    int n;
+    if (xdg && xdg[0] == '/')
+        n = snprintf(buf, size, "%s/penumbra", xdg);
+    else if (home && home[0] == '/')
+        n = snprintf(buf, size, "%s/.cache/penumbra", home);
+    else
+        return 0;
+    return n > 0 && (size_t)n < size;
+}
+
+/* mkdir -p of the cache folder, private to the user (0700, as the XDG spec asks). */
+static int make_dirs(const char *dir) {
+    char buf[PATH_MAX];
+    if (snprintf(buf, sizeof buf, "%s", dir) >= (int)sizeof buf) return 0;
+    for (char *p = buf + 1;; ++p) {
+        if (*p != '/' && *p != '\0') continue;
+        const char c = *p;
+        *p = '\0';
+        if (mkdir(buf, 0700) != 0 && errno != EEXIST) return 0;
+        *p = c;
+        if (!c) break;
+    }
+    return 1;
+}
+
+/* The key as 16 hex digits and the cache file's path (malloc'd). Without a cache folder (no
+ * HOME) the status is PEN_ERROR_IO and *path NULL. */
 static pen_status cache_name(pen_context *ctx, const pen_mesh *mesh, const char *mesh_path,
                              int count, const pen_fit_settings *s, char key[17], char **path) {
     *path = NULL;
@@ -105,10 +145,28 @@ static pen_status cache_name(pen_context *ctx, const pen_mesh *mesh, const char 
     if (st) return st;
     if (!mesh_path) return pen__error(ctx, PEN_ERROR_ARGUMENT, "fit: no mesh path for the cache");
     snprintf(key, 17, "%016llx", (unsigned long long)fit_key(mesh, count, s));
-    size_t len = strlen(mesh_path) + 64;
+    char dir[PATH_MAX];
+    if (!cache_dir(dir, sizeof dir))
+        return pen__error(ctx, PEN_ERROR_IO,
+                          "fit: no cache folder (neither XDG_CACHE_HOME nor HOME is an absolute "
+                          "path)");
+    /* The absolute path when the mesh file exists (it may not: the mesh can come from memory). */
+    char *real = realpath(mesh_path, NULL);
+    const char *abs = real ? real : mesh_path;
+    const uint64_t where = pen__fnv1a(PEN__FNV1A_SEED, abs, strlen(abs));
+    const char *slash = strrchr(abs, '/');
+    char base[65];
+    snprintf(base, sizeof base, "%s", slash ? slash + 1 : abs);
+    for (char *c = base; *c; ++c) /* a readable hint only: keep it to portable characters */
+        if (!((*c >= 'a' && *c <= 'z') || (*c >= 'A' && *c <= 'Z') || (*c >= '0' && *c <= '9') ||
+              *c == '.' || *c == '_' || *c == '-'))
+            *c = '_';
+    free(real);
+    size_t len = strlen(dir) + strlen(base) + 96;
     *path = pen__malloc(ctx, len, 1, "fit: cache path");
     if (!*path) return PEN_ERROR_MEMORY;
-    snprintf(*path, len, "%s.fit-%d-%s.json", mesh_path, count, key);
+    snprintf(*path, len, "%s/%s-%016llx-%d-%s.json", dir, base, (unsigned long long)where, count,
+             key);
     return PEN_OK;
 }
 
@@ -121,17 +179,24 @@ pen_status pen_spheres_fit_cache_path(pen_context *ctx, const pen_mesh *mesh, co
     return st ? st : cache_name(ctx, mesh, mesh_path, count, &s, key, path);
 }
 
-pen_status pen_spheres_fit_cached(pen_context *ctx, const pen_mesh *mesh, const char *mesh_path,
-                                  int count, const pen_fit_settings *settings, pen_spheres *out,
-                                  pen_fit_metrics *metrics) {
-    if (!mesh_path) return pen_spheres_fit(ctx, mesh, count, settings, out, metrics);
+/* The fit behind the cache; errors name the mesh file ("spot.obj: fit: ..."), since the fitter
+ * itself only knows the mesh's triangles. */
+static pen_status cached_fit(pen_context *ctx, const pen_mesh *mesh, const char *mesh_path,
+                             int count, const pen_fit_settings *settings, pen_spheres *out,
+                             pen_fit_metrics *metrics) {
     if (out) memset(out, 0, sizeof *out);
     if (metrics) memset(metrics, 0, sizeof *metrics);
     if (!out) return pen__error(ctx, PEN_ERROR_ARGUMENT, "fit: no output sphere set");
     pen_fit_settings s;
     pen_status st = pen__fit_resolve_settings(ctx, settings, &s);
+    if (st) return st;
+    if (!pen_context_fit_cache(ctx)) return pen_spheres_fit(ctx, mesh, count, &s, out, metrics);
     char key[17], *path = NULL;
-    if (!st) st = cache_name(ctx, mesh, mesh_path, count, &s, key, &path);
+    st = cache_name(ctx, mesh, mesh_path, count, &s, key, &path);
+    if (st == PEN_ERROR_IO) { /* no cache folder: the cache only saves time */
+        pen_context_clear_error(ctx);
+        return pen_spheres_fit(ctx, mesh, count, &s, out, metrics);
+    }
     if (st) return st;
     if (cache_read(path, key, count, out, metrics)) {
         free(path);
@@ -151,11 +216,20 @@ pen_status pen_spheres_fit_cached(pen_context *ctx, const pen_mesh *mesh, const 
     pen_fit_json(&s, &m, body, sizeof body);
     snprintf(extra, sizeof extra, "{\"fit_key\": \"%s\", %s", key, body + 1);
     /* The cache only saves time: a folder we cannot write to is not an error. */
+    char dir[PATH_MAX];
     pen_context *tmp = pen_context_create();
-    if (tmp) pen_spheres_save(tmp, path, out, extra);
+    if (tmp && cache_dir(dir, sizeof dir) && make_dirs(dir)) pen_spheres_save(tmp, path, out, extra);
     pen_context_destroy(tmp);
     free(path);
     return PEN_OK;
+}
+
+pen_status pen_spheres_fit_cached(pen_context *ctx, const pen_mesh *mesh, const char *mesh_path,
+                                  int count, const pen_fit_settings *settings, pen_spheres *out,
+                                  pen_fit_metrics *metrics) {
+    if (!mesh_path) return pen_spheres_fit(ctx, mesh, count, settings, out, metrics);
+    pen_status st = cached_fit(ctx, mesh, mesh_path, count, settings, out, metrics);
+    return st ? pen__error_prefix(ctx, st, "%s: ", mesh_path) : PEN_OK;
 }
 
 pen_status pen_scene_fit_spheres(pen_context *ctx, pen_scene *scene) {

@@ -18,7 +18,12 @@ typedef struct pen__fit_grid {
     uint8_t *inside; /* n[0] n[1] n[2] flags, 1 = inside the mesh */
 } pen__fit_grid;
 
-/* pen_mesh_validate, and a bounding box that is not a point; on success lo/hi are the bounds. */
+/* The longest side of a mesh's bounding box that the fitter accepts (voxelize.c says why). */
+#define PEN__FIT_MIN_SIDE 1e-9
+#define PEN__FIT_MAX_SIDE 1e9
+
+/* pen_mesh_validate, a bounding box that is not a point and whose longest side is within
+ * [PEN__FIT_MIN_SIDE, PEN__FIT_MAX_SIDE]; on success lo/hi are the bounds. */
 pen_status pen__fit_check_mesh(pen_context *ctx, const pen_mesh *mesh, float lo[3], float hi[3]);
 /* Builds the grid over the mesh bounds padded by `pad` of the longest extent on every side, with
  * `voxels` voxels along the longest padded axis, and classifies every centre (six-vote winding

@@ -238,7 +238,8 @@ static pen_status resolve_index(obj_state *st, const line *ln, long idx, long se
                           "%s:%d: %s index 0 is invalid (OBJ indices start at 1)", st->path,
                           ln->number, kind);
     if (idx < 0) {
-        if (-idx > seen)
+        /* idx < -seen rather than -idx > seen: negating LONG_MIN is undefined. */
+        if (idx < -seen)
             return pen__error(st->ctx, PEN_ERROR_PARSE,
                               "%s:%d: relative %s index %ld reaches before the first one "
                               "(%ld defined so far)",

@@ -24,6 +24,10 @@
 #define PLY_MAX_ELEMENTS 64
 #define PLY_MAX_PROPERTIES 64
 #define PLY_MAX_LIST 4096 /* corners of one polygon */
+/* Header lines: comments and obj_info may be long (tools write paths and provenance there) and
+ * are skipped without copying, up to this bound; any other line has at most five short words. */
+#define PLY_MAX_COMMENT_LINE ((size_t)1 << 16)
+#define PLY_MAX_HEADER_LINE 1024
 
 typedef enum ply_type { T_NONE, T_I8, T_U8, T_I16, T_U16, T_I32, T_U32, T_F32, T_F64 } ply_type;
 typedef enum ply_format { F_ASCII, F_LE, F_BE } ply_format;
@@ -73,6 +77,12 @@ typedef struct ply_reader {
     const char *begin, *p, *end; /* whole file; cursor; end */
     ply_format format;
     int line; /* ascii: line of the cursor */
+    /* ascii: the row being read (one row a line): its element, index, and whether a value of it
+     * has been read yet, so that a line ending early is an error instead of the next line's
+     * values silently filling this row. */
+    const char *row_element;
+    size_t row;
+    int row_values;
 } ply_reader;
 
 /* Records an error at the reader's place: "file:line: what" (ascii) or "file: byte N: what". */
@@ -108,9 +118,26 @@ static pen_status parse_header(ply_reader *r, ply_header *h) {
         const char *nl = memchr(r->p, '\n', (size_t)(r->end - r->p));
         ++r->line;
         if (!nl) return ply_error(r, "header does not end with end_header");
-        char buf[256];
+        char buf[PLY_MAX_HEADER_LINE];
         size_t n = (size_t)(nl - r->p);
-        if (n >= sizeof buf) return ply_error(r, "header line too long");
+        if (n >= sizeof buf) {
+            const char *w = r->p;
+            while (w < nl && (*w == ' ' || *w == '\t'))
+                ++w;
+            const size_t left = (size_t)(nl - w);
+            const int remark = (left >= 8 && memcmp(w, "comment", 7) == 0 &&
+                                (w[7] == ' ' || w[7] == '\t')) ||
+                               (left >= 9 && memcmp(w, "obj_info", 8) == 0 &&
+                                (w[8] == ' ' || w[8] == '\t'));
+            if (!remark)
+                return ply_error(r, "header line of %zu bytes (the limit is %d)", n,
+                                 PLY_MAX_HEADER_LINE - 1);
+            if (n > PLY_MAX_COMMENT_LINE)
+                return ply_error(r, "header comment of %zu bytes (the limit is %zu)", n,
+                                 PLY_MAX_COMMENT_LINE);
+            r->p = nl + 1;
+            continue;
+        }
         memcpy(buf, r->p, n);
         buf[n] = '\0';
         if (n && buf[n - 1] == '\r') buf[n - 1] = '\0';
@@ -230,7 +257,13 @@ static pen_status read_value(ply_reader *r, ply_type t, double *out) {
         return PEN_OK;
     }
     while (r->p < r->end && (*r->p == ' ' || *r->p == '\t' || *r->p == '\r' || *r->p == '\n')) {
-        if (*r->p == '\n') ++r->line;
+        if (*r->p == '\n') {
+            if (r->row_values > 0)
+                return ply_error(r, "%s %zu: the line ends after %d values, before the header's "
+                                    "properties are all read",
+                                 r->row_element, r->row, r->row_values);
+            ++r->line;
+        }
         ++r->p;
     }
     if (r->p == r->end) return ply_error(r, "file truncated");
@@ -243,7 +276,27 @@ static pen_status read_value(ply_reader *r, ply_type t, double *out) {
         return ply_error(r, "'%.*s' is not a valid %s", (int)(stop - r->p), r->p,
                          type_info[t].names[0]);
     r->p = stop;
+    ++r->row_values;
     *out = v;
+    return PEN_OK;
+}
+
+/* Ascii rows are lines: begin_row marks the start of row `row` of `element`; end_row checks that
+ * nothing but blanks follows its last value on the line. Binary rows have no delimiters. */
+static void begin_row(ply_reader *r, const char *element, size_t row) {
+    r->row_element = element;
+    r->row = row;
+    r->row_values = 0;
+}
+
+static pen_status end_row(ply_reader *r) {
+    if (r->format != F_ASCII) return PEN_OK;
+    while (r->p < r->end && (*r->p == ' ' || *r->p == '\t' || *r->p == '\r'))
+        ++r->p;
+    if (r->p < r->end && *r->p != '\n')
+        return ply_error(r, "%s %zu: more values on the line than the header's %d", r->row_element,
+                         r->row, r->row_values);
+    r->row_values = 0;
     return PEN_OK;
 }
 
@@ -329,6 +382,7 @@ static pen_status read_vertices(ply_reader *r, const ply_element *e, pen_mesh *m
         m->normal_count = (int)n;
     }
     for (size_t i = 0; i < n; ++i) {
+        begin_row(r, "vertex", i);
         for (int k = 0; k < e->property_count; ++k) {
             const ply_property *pr = &e->props[k];
             if (pr->count_type != T_NONE) {
@@ -351,6 +405,8 @@ static pen_status read_vertices(ply_reader *r, const ply_element *e, pen_mesh *m
                 return ply_error(r, "vertex %zu: %s is not a finite float", i, pr->name);
             *dst = (float)v;
         }
+        pen_status s = end_row(r);
+        if (s) return s;
     }
     return PEN_OK;
 }
@@ -391,6 +447,7 @@ static pen_status read_faces(ply_reader *r, const ply_element *e, size_t vertex_
     if (is_float_type(e->props[iv].type))
         return ply_error(r, "vertex_indices must have an integer type");
     for (size_t f = 0; f < e->count; ++f) {
+        begin_row(r, "face", f);
         for (int k = 0; k < e->property_count; ++k) {
             const ply_property *pr = &e->props[k];
             pen_status s;
@@ -414,6 +471,8 @@ static pen_status read_faces(ply_reader *r, const ply_element *e, size_t vertex_
                 prev = idx;
             }
         }
+        pen_status s = end_row(r);
+        if (s) return s;
     }
     return PEN_OK;
 }
@@ -442,9 +501,12 @@ static pen_status load(ply_reader *r, pen_mesh *m) {
         } else if (e == face) {
             s = read_faces(r, e, vertex->count, &t);
         } else if (e->property_count > 0) { /* rows without properties take no bytes */
-            for (size_t row = 0; !s && row < e->count; ++row)
+            for (size_t row = 0; !s && row < e->count; ++row) {
+                begin_row(r, e->name, row);
                 for (int k = 0; !s && k < e->property_count; ++k)
                     s = skip_property(r, &e->props[k]);
+                if (!s) s = end_row(r);
+            }
         }
     }
     free(h);

@@ -279,8 +279,9 @@ pen_status pen__optim_checkpoint_load(pen_context *ctx, const char *path,
         if (!r.ok) {
             s = pen__error(ctx, PEN_ERROR_PARSE, "%s: truncated checkpoint", path);
         } else if (iteration < 0 || t != iteration ||
-                   (recorded != iteration && recorded != iteration + 1) || best_it < -1 ||
-                   best_it >= recorded || (best_it < 0 && recorded > 0) ||
+                   /* widened: iteration + 1 overflows on a damaged INT32_MAX */
+                   (recorded != iteration && (int64_t)recorded != (int64_t)iteration + 1) ||
+                   best_it < -1 ||                   best_it >= recorded || (best_it < 0 && recorded > 0) ||
                    !(seconds >= 0.0) || !isfinite(seconds)) {
             s = pen__error(ctx, PEN_ERROR_PARSE,
                            "%s: damaged checkpoint (iteration %d, %d losses, best %d, Adam step "

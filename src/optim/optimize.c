@@ -31,6 +31,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 
 static const double DEG_PER_RAD = 180.0 / PEN_PI;
 
@@ -409,6 +410,37 @@ static pen_status evaluate(pen_context *ctx, const pen_optim_task *t, const floa
                                         : pen_loss_l2(ctx, img, &t->target, loss, d_img);
 }
 
+/* Every group asked for must have something to move: ["spheres"] on a scene whose objects have
+ * no spheres would otherwise run with zero parameters, change nothing and report success.
+ * Called once the {"fit": N} sphere sets exist. */
+static pen_status check_groups_have_parameters(pen_context *ctx, const pen_optim_task *t) {
+    const char *name = t->path ? t->path : "task";
+    const pen_scene *sc = &t->scene;
+    long spheres = 0;
+    for (int o = 0; o < sc->object_count; ++o)
+        spheres += sc->objects[o].spheres.count;
+    static const struct {
+        unsigned group;
+        const char *name;
+    } groups[] = {{PEN_OPTIM_ALBEDO, "albedo"}, {PEN_OPTIM_POSE, "pose"},
+                  {PEN_OPTIM_SPHERES, "spheres"}, {PEN_OPTIM_DEFORMATION, "deformation"}};
+    for (size_t g = 0; g < sizeof groups / sizeof groups[0]; ++g) {
+        if (!(t->optimize & groups[g].group)) continue;
+        const int by_spheres = groups[g].group & (PEN_OPTIM_SPHERES | PEN_OPTIM_DEFORMATION);
+        if (sc->object_count == 0)
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "%s: optimize: \"%s\": the scene has no objects, nothing to optimise",
+                              name, groups[g].name);
+        if (by_spheres && spheres == 0)
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "%s: optimize: \"%s\": no object of the scene has spheres, nothing "
+                              "to optimise (give an object \"spheres\": a file, a list or "
+                              "{\"fit\": N})",
+                              name, groups[g].name);
+    }
+    return PEN_OK;
+}
+
 static pen_status check_task(pen_context *ctx, const pen_optim_task *t) {
     const char *name = t->path ? t->path : "task";
     if (!t->optimize || (t->optimize & ~(unsigned)(PEN_OPTIM_LIGHTING | PEN_OPTIM_ALBEDO |
@@ -488,25 +520,78 @@ static pen__optim_identity identity(const pen_optim_task *t, const pen_optim_set
     return id;
 }
 
-static pen_status save_checkpoint(pen_context *ctx, const pen_optim_settings *set,
+/* The files and folders this run created in OUTDIR (those that did not exist before it wrote
+ * them), newest last: a run that fails removes them again, so that it leaves the folder as it
+ * found it (snapshots of a failed run are not results). A finished or interrupted run keeps
+ * them; files that existed before are never removed. */
+typedef struct created {
+    char **path;
+    int count, cap;
+} created;
+
+static int exists(const char *path) {
+    struct stat st;
+    return stat(path, &st) == 0;
+}
+
+/* Records `path` (a copy) when it did not exist before (`existed`); best effort: a path that
+ * cannot be recorded is only not removed. */
+static void created_add(created *c, const char *path, int existed) {
+    if (existed) return;
+    if (c->count == c->cap) {
+        const int cap = c->cap ? 2 * c->cap : 16;
+        char **grown = realloc(c->path, (size_t)cap * sizeof *grown);
+        if (!grown) return;
+        c->path = grown;
+        c->cap = cap;
+    }
+    const size_t n = strlen(path) + 1;
+    char *copy = malloc(n);
+    if (copy) c->path[c->count++] = memcpy(copy, path, n);
+}
+
+/* Removes (when `undo`) and forgets the recorded paths, newest first, so that folders are empty
+ * when their turn comes (remove() deletes an empty folder; a folder holding older files stays). */
+static void created_finish(created *c, int undo) {
+    for (int i = c->count - 1; i >= 0; --i) {
+        if (undo) remove(c->path[i]);
+        free(c->path[i]);
+    }
+    free(c->path);
+    memset(c, 0, sizeof *c);
+}
+
+/* pen__optim_make_dir, recording a folder it creates. */
+static pen_status make_dir(pen_context *ctx, created *c, const char *dir) {
+    const int existed = exists(dir);
+    pen_status s = pen__optim_make_dir(ctx, dir);
+    if (!s) created_add(c, dir, existed);
+    return s;
+}
+
+static pen_status save_checkpoint(pen_context *ctx, const pen_optim_settings *set, created *c,
                                   const pen__optim_identity *id, const pen__optim_state *st) {
-    pen_status s = pen__optim_make_dir(ctx, set->outdir);
+    pen_status s = make_dir(ctx, c, set->outdir);
     char *path = s ? NULL : pen__optim_join(ctx, set->outdir, "checkpoint.bin");
     if (!s && !path) s = PEN_ERROR_MEMORY;
+    const int existed = path && exists(path);
     if (!s) s = pen__optim_checkpoint_save(ctx, path, id, st);
+    if (!s) created_add(c, path, existed);
     free(path);
     return s;
 }
 
 /* OUTDIR/snapshots/iter_NNNNN.png: the render of the parameters after `iteration` steps. */
-static pen_status save_snapshot(pen_context *ctx, const pen_optim_settings *set, int iteration,
-                                const pen_image *img) {
+static pen_status save_snapshot(pen_context *ctx, const pen_optim_settings *set, created *c,
+                                int iteration, const pen_image *img) {
     char name[64];
     snprintf(name, sizeof name, "snapshots/iter_%05d.png", iteration);
     char *dir = pen__optim_join(ctx, set->outdir, "snapshots"), *path = pen__optim_join(ctx, set->outdir, name);
-    pen_status s = dir && path ? pen__optim_make_dir(ctx, set->outdir) : PEN_ERROR_MEMORY;
-    if (!s) s = pen__optim_make_dir(ctx, dir);
+    pen_status s = dir && path ? make_dir(ctx, c, set->outdir) : PEN_ERROR_MEMORY;
+    if (!s) s = make_dir(ctx, c, dir);
+    const int existed = path && exists(path);
     if (!s) s = pen_image_save(ctx, path, img);
+    if (!s) created_add(c, path, existed);
     free(dir);
     free(path);
     return s;
@@ -533,6 +618,7 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
     memset(&grad, 0, sizeof grad);
     pen__adam adam = {0, NULL, NULL, 0, 0.0, 0.0, 0.0};
     pen_image img = {0, 0, 0, NULL}, d_img = {0, 0, 0, NULL};
+    created made = {NULL, 0, 0};
     const int w = t->scene.camera.width, h = t->scene.camera.height;
     pen_status s = pen_render_state_create(ctx, &state);
     if (!s) s = pen_render_grad_create(ctx, &t->scene, &grad);
@@ -566,14 +652,14 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
             st.best_iteration = res->best_iteration;
             st.best_loss = best;
             st.seconds = before + (omp_get_wtime() - t0);
-            s = save_checkpoint(ctx, set, &id, &st);
+            s = save_checkpoint(ctx, set, &made, &id, &st);
             if (s) break;
         }
         double loss = 0.0;
         s = solve_lighting(ctx, t, &opt, r);
         if (!s) s = pen_render_fwd(ctx, &t->scene, &opt, state, &img);
         if (!s) s = evaluate(ctx, t, r->weight, &img, &loss, &d_img);
-        if (!s && S > 0 && i % S == 0) s = save_snapshot(ctx, set, i, &img);
+        if (!s && S > 0 && i % S == 0) s = save_snapshot(ctx, set, &made, i, &img);
         if (s) break;
         loss += regularisers(r);
         shown = i;
@@ -621,7 +707,7 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
         st.best_iteration = res->best_iteration;
         st.best_loss = best;
         st.seconds = res->seconds;
-        s = save_checkpoint(ctx, set, &id, &st);
+        s = save_checkpoint(ctx, set, &made, &id, &st);
     }
     /* The recovered scene is the best iterate: Adam's constant step makes the last one wander
      * around the optimum by about a learning rate. */
@@ -636,6 +722,7 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
         res->final = img;
         img.data = NULL;
     }
+    created_finish(&made, s != PEN_OK);
     pen_image_free(&img);
     pen_image_free(&d_img);
     pen__optim_adam_free(&adam);
@@ -724,6 +811,8 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
         s = pen_scene_fit_spheres(ctx, &task->ground_truth);
         if (s) return s;
     }
+    s = check_groups_have_parameters(ctx, task);
+    if (s) return s;
     /* Overlap weights of the initial spheres, held fixed while spheres, deformation or pose move
      * (an in-memory set without them would otherwise get them recomputed every frame). */
     for (int o = 0; o < task->scene.object_count && !s; ++o)

@@ -2,8 +2,10 @@
  * side-by-side picture and the loss curve.
  *
  * All or nothing: each file is written atomically (temporary file + rename) and the paths
- * written so far are remembered; if a later write fails they are removed again. result.json is
- * written last, so a folder holding a result.json holds the whole set of that run.
+ * written so far are remembered, with a second name (hard link) for a file of an earlier run that
+ * a path held; if a later write fails the new files are removed and the earlier ones put back, so
+ * a failed write leaves the folder as it found it. result.json is written last, so a folder
+ * holding a result.json holds the whole set of that run.
  *
  * Pictures: compare.png shows target | initial | result | error side by side, all with one
  * exposure (1 / the 99th percentile of the target's largest channel when that exceeds 1, so HDR
@@ -18,12 +20,14 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 #define MAX_OUTPUTS 64
 
 typedef struct outputs {
     const char *dir;
     char *written[MAX_OUTPUTS];
+    char *kept[MAX_OUTPUTS]; /* the earlier file's second name, NULL if the path was free */
     int count;
 } outputs;
 
@@ -34,20 +38,44 @@ char *pen__optim_join(pen_context *ctx, const char *dir, const char *name) {
     return p;
 }
 
-/* Takes ownership of path (freed on failure). */
+/* Called before writing `path` (taking ownership of it: freed on failure): remembers it, and
+ * gives a file already there a second name "<path>.previous" so that it can be put back. */
 static pen_status remember(pen_context *ctx, outputs *o, char *path) {
     if (o->count == MAX_OUTPUTS) {
         free(path);
         return pen__error(ctx, PEN_ERROR_INTERNAL, "%s: too many output files", o->dir);
     }
-    o->written[o->count++] = path;
+    char *kept = NULL;
+    struct stat st;
+    if (stat(path, &st) == 0) {
+        const size_t n = strlen(path) + sizeof ".previous";
+        kept = pen__malloc(ctx, n, 1, "output path");
+        if (kept) snprintf(kept, n, "%s.previous", path);
+        if (kept) remove(kept); /* a leftover of a crashed run */
+        if (!kept || link(path, kept) != 0) {
+            pen_status s = pen__error(ctx, PEN_ERROR_IO, "%s: cannot keep the earlier file: %s",
+                                      path, strerror(errno));
+            free(kept);
+            free(path);
+            return s;
+        }
+    }
+    o->written[o->count] = path;
+    o->kept[o->count++] = kept;
     return PEN_OK;
 }
 
-static void outputs_finish(outputs *o, int remove_files) {
-    for (int i = 0; i < o->count; ++i) {
-        if (remove_files) remove(o->written[i]);
+/* Success: drops the second names. Failure: removes the new files and puts the earlier back. */
+static void outputs_finish(outputs *o, int failed) {
+    for (int i = o->count - 1; i >= 0; --i) {
+        if (o->kept[i] && failed)
+            rename(o->kept[i], o->written[i]); /* atomic: the earlier file is back whole */
+        else if (o->kept[i])
+            remove(o->kept[i]);
+        else if (failed)
+            remove(o->written[i]);
         free(o->written[i]);
+        free(o->kept[i]);
     }
     o->count = 0;
 }
@@ -55,23 +83,15 @@ static void outputs_finish(outputs *o, int remove_files) {
 static pen_status save_image(pen_context *ctx, outputs *o, const char *name, const pen_image *img) {
     char *path = pen__optim_join(ctx, o->dir, name);
     if (!path) return PEN_ERROR_MEMORY;
-    pen_status s = pen_image_save(ctx, path, img);
-    if (s) {
-        free(path);
-        return s;
-    }
-    return remember(ctx, o, path);
+    pen_status s = remember(ctx, o, path);
+    return s ? s : pen_image_save(ctx, path, img);
 }
 
 static pen_status save_text(pen_context *ctx, outputs *o, const char *name, const char *text) {
     char *path = pen__optim_join(ctx, o->dir, name);
     if (!path) return PEN_ERROR_MEMORY;
-    pen_status s = pen__io_write_file(ctx, path, text, strlen(text));
-    if (s) {
-        free(path);
-        return s;
-    }
-    return remember(ctx, o, path);
+    pen_status s = remember(ctx, o, path);
+    return s ? s : pen__io_write_file(ctx, path, text, strlen(text));
 }
 
 /* ---- The recovered scene --------------------------------------------------------------------- */
@@ -94,11 +114,8 @@ static pen_status save_scene(pen_context *ctx, outputs *o, const pen_optim_task 
             char name[64];
             snprintf(name, sizeof name, "mesh_%d.obj", i);
             char *path = pen__optim_join(ctx, o->dir, name);
-            s = path ? pen_mesh_save_obj(ctx, path, &sc->objects[i].mesh) : PEN_ERROR_MEMORY;
-            if (!s)
-                s = remember(ctx, o, path);
-            else
-                free(path);
+            s = path ? remember(ctx, o, path) : PEN_ERROR_MEMORY;
+            if (!s) s = pen_mesh_save_obj(ctx, path, &sc->objects[i].mesh);
             if (!s) meshes[i] = pen__io_strdup(ctx, o->written[o->count - 1]);
             if (!s && !meshes[i]) s = PEN_ERROR_MEMORY;
             if (s) break;
@@ -116,12 +133,8 @@ static pen_status save_scene(pen_context *ctx, outputs *o, const pen_optim_task 
     }
     char *path = s ? NULL : pen__optim_join(ctx, o->dir, "scene.json");
     if (!s && !path) s = PEN_ERROR_MEMORY;
+    if (!s) s = remember(ctx, o, path);
     if (!s) s = pen_scene_save_ex(ctx, path, &copy, PEN_SCENE_SAVE_SH_LIGHTING);
-    if (!s) {
-        s = remember(ctx, o, path);
-    } else {
-        free(path);
-    }
     for (int i = 0; textures && i < sc->object_count; ++i)
         free(textures[i]);
     for (int i = 0; meshes && i < sc->object_count; ++i)
