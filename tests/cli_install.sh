@@ -58,7 +58,10 @@ sed -n 's/^PEN_API [^(]*[ *]\(pen_[a-z0-9_]*\)(.*/\1/p' "$P"/include/penumbra/*.
 [ -s "$T/declared" ] || fail "no PEN_API declaration in the installed headers"
 missing=$(comm -23 "$T/declared" "$T/exported")
 [ -z "$missing" ] || fail "declared PEN_API but not exported: $(echo $missing)"
-extra=$(comm -13 "$T/declared" "$T/exported")
+# Every exported name of the library's own is a PEN_API declaration. (Weak C++ template instances
+# of OpenEXR's headers, which src/io/exr.cpp instantiates, can appear in unoptimised builds; they
+# are not ours to name.)
+extra=$(grep '^_*pen' "$T/exported" | comm -13 "$T/declared" -)
 [ -z "$extra" ] || fail "exported but not declared PEN_API in a public header: $(echo $extra)"
 sh "$SRC/scripts/pen_api.sh" --check "$SRC/include/penumbra" || fail "pen_api.sh --check"
 # The Python binding calls only exported functions (the names its ctypes declarations use).
