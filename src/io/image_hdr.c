@@ -163,15 +163,24 @@ pen_status pen__hdr_decode(pen_context *ctx, const char *name, const unsigned ch
     long long w = 0, h = 0;
     pen_status s = read_header(&r, &w, &h);
     if (!s) s = pen__image_check_size(ctx, name, w, h);
-    if (!s) s = pen_image_create(ctx, (int)w, (int)h, 3, out);
     if (s) return s;
     int width = (int)w;
     size_t row_bytes = 4 * (size_t)width;
+    /* Run-length rows exist only for widths 8..32767; a row whose first bytes are 2, 2 and a
+     * 15-bit count is one, anything else is flat. The shortest row is flat below width 8, else
+     * run-length with runs of 127 (2 bytes each per channel): a file too short for its header's
+     * size is refused before the image is allocated. */
+    int rle_width = width >= 8 && width < 32768;
+    size_t shortest = rle_width ? 4 + 8 * (((size_t)width + 126) / 127) : row_bytes;
+    if ((size_t)h * shortest > size - r.pos)
+        return pen__error(ctx, PEN_ERROR_PARSE,
+                          "%s: the %zu bytes of pixel data from byte offset %zu cannot hold %lld "
+                          "scanlines of %d pixels (at least %zu bytes)",
+                          name, size - r.pos, r.pos, h, width, (size_t)h * shortest);
+    s = pen_image_create(ctx, width, (int)h, 3, out);
+    if (s) return s;
     unsigned char *rgbe = pen__malloc(ctx, row_bytes, 1, "HDR scanline");
     if (!rgbe) s = PEN_ERROR_MEMORY;
-    /* Run-length rows exist only for widths 8..32767; a row whose first bytes are 2, 2 and a
-     * 15-bit count is one, anything else is flat. */
-    int rle_width = width >= 8 && width < 32768;
     for (int y = 0; !s && y < (int)h; ++y) {
         const unsigned char *b = bytes + r.pos;
         if (rle_width && size - r.pos >= 4 && b[0] == 2 && b[1] == 2 && b[2] < 128) {

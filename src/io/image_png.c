@@ -44,7 +44,11 @@ static void on_warning(png_structp png, png_const_charp message) {}
 
 static void on_read(png_structp png, png_bytep dst, size_t n) {
     png_job *job = png_get_io_ptr(png);
-    if (n > job->size - job->pos) png_error(png, "file truncated");
+    if (n > job->size - job->pos) {
+        snprintf(job->message, sizeof job->message, "file truncated (%zu bytes wanted, %zu left)",
+                 n, job->size - job->pos);
+        png_longjmp(png, 1);
+    }
     memcpy(dst, job->bytes + job->pos, n);
     job->pos += n;
 }
