@@ -723,7 +723,7 @@ static void test_render_jpeg_texture(void) {
     for (size_t i = 0; i < n; ++i)
         codes[i] = (unsigned char)lround(255.0 * (double)tex.data[i]);
     unsigned long size;
-    unsigned char *jpg = jpeg_write(tex.width, tex.height, 3, JCS_RGB, 0, codes, &size);
+    unsigned char *jpg = jpeg_write(tex.width, tex.height, 3, JCS_RGB, 1, codes, &size);
     fixture_write("spot.jpg", jpg, size);
     free(jpg);
     free(codes);

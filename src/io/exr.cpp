@@ -45,9 +45,9 @@ extern "C" pen_status pen__exr_load(pen_context *ctx, const char *path, pen_imag
         const Imf::Header &h = file.header();
         Imath::Box2i dw = h.dataWindow();
         long long w = (long long)dw.max.x - dw.min.x + 1, hh = (long long)dw.max.y - dw.min.y + 1;
-        if (w < 1 || hh < 1 || w > PEN_IMAGE_MAX_DIM || hh > PEN_IMAGE_MAX_DIM)
-            return pen__error(ctx, PEN_ERROR_PARSE, "%s: image size %lld x %lld outside [1, %d]",
-                              path, w, hh, PEN_IMAGE_MAX_DIM);
+        /* Each side and the pixel budget, like every decoder, before the pixels exist. */
+        pen_status size_status = pen__image_check_size(ctx, path, w, hh);
+        if (size_status) return size_status;
         const Imf::ChannelList &ch = h.channels();
         const char *names[3] = {"R", "G", "B"};
         bool rgb = ch.findChannel("R") && ch.findChannel("G") && ch.findChannel("B");
