@@ -712,6 +712,25 @@ static void test_jpeg(void) {
     CHECK(!pen_image_path_supported("x.jpg"));
 }
 
+/* EXR from memory (the fuzzers' way in): the same pixels as from the file; cut anywhere, refused
+ * with the file named. */
+static void test_exr_from_memory(void) {
+    pen_image a = random_image(6, 5, 3, 0.0, 4.0, 11), from_file, im;
+    const char *p = fixture_path("mem.exr");
+    CHECK(pen_image_save(ctx, p, &a) == PEN_OK);
+    CHECK(pen_image_load(ctx, p, &from_file) == PEN_OK);
+    bytes b = slurp(p);
+    CHECK_MSG(pen__image_decode(ctx, "mem.exr", b.p, b.n, 0, &im) == PEN_OK, "%s",
+              pen_context_error(ctx));
+    CHECK(im.data && from_file.data && memcmp(im.data, from_file.data, 6 * 5 * 3 * 4) == 0 &&
+          memcmp(im.data, a.data, 6 * 5 * 3 * 4) == 0);
+    pen_image_free(&im);
+    pen_image_free(&from_file);
+    pen_image_free(&a);
+    check_every_prefix_refused("mem.exr", &b, 0);
+    free(b.p);
+}
+
 /* `penumbra render` with a JPEG texture: Spot's texture re-encoded as JPEG renders like the PNG. */
 static void test_render_jpeg_texture(void) {
     char png_path[512];
@@ -760,4 +779,4 @@ static void test_render_jpeg_texture(void) {
 RUN_TESTS(TEST(test_create), TEST(test_png_round_trip), TEST(test_png_layouts),
           TEST(test_hdr_exr_round_trip), TEST(test_bundled_envmaps), TEST(test_malformed),
           TEST(test_hdr_decoder), TEST(test_png_decoder), TEST(test_jpeg),
-          TEST(test_render_jpeg_texture))
+          TEST(test_exr_from_memory), TEST(test_render_jpeg_texture))

@@ -9,11 +9,11 @@
  *  - PNG: libpng (image_png.c), which verifies chunk CRCs and the zlib checksum; palette indices
  *    are checked there. stb checks neither.
  *  - JPEG: libjpeg-turbo (image_jpeg.c) with its error exits caught and its warnings fatal.
- *  - OpenEXR: OpenEXR's C++ library (exr.cpp), which validates its own structure.
+ *  - OpenEXR: OpenEXR's C++ library (exr.cpp), its exceptions turned into one error line.
  * Every decoder checks the header's size against PEN_IMAGE_MAX_DIM and PEN__IMAGE_MAX_PIXELS
  * before it allocates pixels, the magic bytes must match the extension, and loaded values must
  * be finite. Loading always yields 3 channels (grey is replicated, alpha dropped).
- * pen__image_decode takes the bytes from memory, so a fuzzer needs no files.
+ * pen__image_decode takes the bytes from memory (every format), so a fuzzer needs no files.
  *
  * Writing: PNG and HDR through stb_image_write (it only ever sees our own checked pixels), EXR
  * through exr.cpp. Saving refuses NaN/Inf and writes a temporary file that is renamed into place.
@@ -55,11 +55,21 @@ static int is_jpeg_name(const char *name) {
     return pen__io_has_ext(name, "jpg") || pen__io_has_ext(name, "jpeg");
 }
 
+/* The extensions pen_image_load reads; anything else is refused before the file is read. */
+static pen_status check_readable(pen_context *ctx, const char *name) {
+    if (pen__io_has_ext(name, "png") || pen__io_has_ext(name, "hdr") ||
+        pen__io_has_ext(name, "exr") || is_jpeg_name(name))
+        return PEN_OK;
+    return pen__error(ctx, PEN_ERROR_UNSUPPORTED,
+                      "%s: unknown image format (expected .png, .hdr, .exr, .jpg or .jpeg)", name);
+}
+
 pen_status pen__image_decode(pen_context *ctx, const char *name, const unsigned char *bytes,
                              size_t size, unsigned flags, pen_image *out) {
     memset(out, 0, sizeof *out);
     int raw = (flags & PEN_IMAGE_LOAD_RAW) != 0;
-    pen_status s;
+    pen_status s = check_readable(ctx, name);
+    if (s) return s;
     if (pen__io_has_ext(name, "png"))
         s = pen__png_decode(ctx, name, bytes, size, raw, out);
     else if (pen__io_has_ext(name, "hdr"))
@@ -67,9 +77,7 @@ pen_status pen__image_decode(pen_context *ctx, const char *name, const unsigned 
     else if (is_jpeg_name(name))
         s = pen__jpeg_decode(ctx, name, bytes, size, raw, out);
     else
-        return pen__error(ctx, PEN_ERROR_UNSUPPORTED,
-                          "%s: unknown image format (expected .png, .hdr, .jpg or .jpeg here)",
-                          name);
+        s = pen__exr_decode(ctx, name, bytes, size, out);
     if (!s) s = check_finite(ctx, PEN_ERROR_PARSE, name, out);
     if (s) pen_image_free(out);
     return s;
@@ -89,14 +97,12 @@ static pen_status exr_load(pen_context *ctx, const char *path, pen_image *out) {
 
 pen_status pen_image_load_ex(pen_context *ctx, const char *path, unsigned flags, pen_image *out) {
     memset(out, 0, sizeof *out);
+    pen_status s = check_readable(ctx, path);
+    if (s) return s;
     if (pen__io_has_ext(path, "exr")) return exr_load(ctx, path, out);
-    if (!(pen__io_has_ext(path, "png") || pen__io_has_ext(path, "hdr") || is_jpeg_name(path)))
-        return pen__error(ctx, PEN_ERROR_UNSUPPORTED,
-                          "%s: unknown image format (expected .png, .hdr, .exr, .jpg or .jpeg)",
-                          path);
     char *data = NULL;
     size_t size = 0;
-    pen_status s = pen__io_read_file(ctx, path, IMAGE_MAX_FILE_BYTES, &data, &size);
+    s = pen__io_read_file(ctx, path, IMAGE_MAX_FILE_BYTES, &data, &size);
     if (!s) s = pen__image_decode(ctx, path, (const unsigned char *)data, size, flags, out);
     free(data);
     return s;

@@ -130,9 +130,9 @@ pen_status pen__png_decode(pen_context *ctx, const char *name, const unsigned ch
 pen_status pen__jpeg_decode(pen_context *ctx, const char *name, const unsigned char *bytes,
                             size_t size, int raw, pen_image *out);
 /* Decodes an image file held in memory, the format chosen by the extension of `name` (.png,
- * .hdr, .jpg/.jpeg; the magic bytes must agree), as pen_image_load_ex does with a file (flags:
- * PEN_IMAGE_LOAD_RAW), including the check that every value is finite. For fuzzers and for
- * pen_image_load_ex; OpenEXR is read from files only (PEN_ERROR_UNSUPPORTED here). */
+ * .hdr, .jpg/.jpeg, .exr; the magic bytes must agree), as pen_image_load_ex does with a file
+ * (flags: PEN_IMAGE_LOAD_RAW), including the check that every value is finite. For fuzzers, and
+ * for pen_image_load_ex but for EXR, which it hands OpenEXR as a file. */
 pen_status pen__image_decode(pen_context *ctx, const char *name, const unsigned char *bytes,
                              size_t size, unsigned flags, pen_image *out);
 
@@ -143,6 +143,9 @@ pen_status pen__image_decode(pen_context *ctx, const char *name, const unsigned 
 
 /* Loads R, G, B (or Y as grey) as 32-bit floats into a 3-channel image; A is ignored. */
 pen_status pen__exr_load(pen_context *ctx, const char *path, pen_image *out);
+/* The same from a file held in memory (`name` for messages): for pen__image_decode. */
+pen_status pen__exr_decode(pen_context *ctx, const char *name, const unsigned char *bytes,
+                           size_t size, pen_image *out);
 /* Writes 32-bit float channels (1: Y, 2: Y A, 3: R G B, 4: R G B A) with ZIP compression to
  * file_name; messages name `path` (the caller writes a temporary file and renames it). */
 pen_status pen__exr_save(pen_context *ctx, const char *path, const char *file_name,
