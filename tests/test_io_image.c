@@ -460,17 +460,18 @@ static size_t png_chunk(const bytes *b, const char *type) {
 static void png_quiet(png_structp png, png_const_charp message) {}
 
 /* A w x h PNG written by libpng: palette (with `ncolours` entries of `palette`, bit depth
- * `depth`) when palette is non-NULL, else 8-bit RGB; interlaced on request. px: one byte per
- * index or three per pixel. */
+ * `depth`) when palette is non-NULL, else 8-bit RGB, or grey of bit depth `depth` when ncolours
+ * is -1; interlaced on request. px: one byte per index or grey value, three per RGB pixel. */
 static const char *png_write(const char *name, int w, int h, const unsigned char *palette,
                              int ncolours, int depth, int interlaced, const unsigned char *px) {
+    int grey = ncolours == -1;
     const char *path = fixture_path(name);
     FILE *f = fopen(path, "wb");
     png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, NULL, NULL, png_quiet);
     png_infop info = png_create_info_struct(png);
     png_init_io(png, f);
-    png_set_IHDR(png, info, (png_uint_32)w, (png_uint_32)h, palette ? depth : 8,
-                 palette ? PNG_COLOR_TYPE_PALETTE : PNG_COLOR_TYPE_RGB,
+    png_set_IHDR(png, info, (png_uint_32)w, (png_uint_32)h, palette || grey ? depth : 8,
+                 palette ? PNG_COLOR_TYPE_PALETTE : grey ? PNG_COLOR_TYPE_GRAY : PNG_COLOR_TYPE_RGB,
                  interlaced ? PNG_INTERLACE_ADAM7 : PNG_INTERLACE_NONE,
                  PNG_COMPRESSION_TYPE_DEFAULT, PNG_FILTER_TYPE_DEFAULT);
     if (palette) {
@@ -481,9 +482,9 @@ static const char *png_write(const char *name, int w, int h, const unsigned char
         png_set_check_for_invalid_index(png, 0); /* let an index past the palette through */
     }
     png_write_info(png, info);
-    if (palette && depth < 8) png_set_packing(png);
+    if ((palette || grey) && depth < 8) png_set_packing(png);
     int passes = png_set_interlace_handling(png);
-    size_t stride = (size_t)w * (palette ? 1 : 3);
+    size_t stride = (size_t)w * (palette || grey ? 1 : 3);
     for (int pass = 0; pass < passes; ++pass)
         for (int y = 0; y < h; ++y)
             png_write_row(png, px + (size_t)y * stride);
@@ -514,6 +515,14 @@ static void test_png_decoder(void) {
                     "pixel (2, 1) has palette index 7, the palette has 3 entries");
         idx[6] = 1;
     }
+    /* 2-bit grey: values 0..3 scaled to the 8-bit codes 0, 85, 170, 255. */
+    const unsigned char grey2[4] = {0, 1, 2, 3};
+    pen_image g;
+    CHECK(pen_image_load(ctx, png_write("grey2.png", 4, 1, NULL, -1, 2, 0, grey2), &g) == PEN_OK);
+    for (int i = 0; i < 4 && g.data; ++i)
+        for (int c = 0; c < 3; ++c)
+            CHECK(g.data[3 * i + c] == table[85 * i]);
+    pen_image_free(&g);
     /* Interlaced (Adam7) RGB: the same pixels as written. */
     unsigned char rgb[9 * 7 * 3];
     for (size_t i = 0; i < sizeof rgb; ++i)

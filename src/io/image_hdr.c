@@ -61,9 +61,8 @@ static long long parse_count(const char **p, const char *end) {
 static pen_status read_header(hdr_reader *r, long long *width, long long *height) {
     const char *line;
     size_t len;
-    if (!next_line(r, &line, &len) ||
-        !((len == 10 && memcmp(line, "#?RADIANCE", 10) == 0) ||
-          (len == 6 && memcmp(line, "#?RGBE", 6) == 0)))
+    if (!next_line(r, &line, &len) || !((len == 10 && memcmp(line, "#?RADIANCE", 10) == 0) ||
+                                        (len == 6 && memcmp(line, "#?RGBE", 6) == 0)))
         return pen__error(r->ctx, PEN_ERROR_PARSE, "%s: not a Radiance HDR file (bad magic bytes)",
                           r->name);
     for (int lineno = 2;; ++lineno) {

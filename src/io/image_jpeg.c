@@ -73,8 +73,8 @@ static pen_status decode(jpeg_job *job) {
     cinfo->progress = &job->progress;
     jpeg_mem_src(cinfo, job->bytes, (unsigned long)job->size);
     jpeg_read_header(cinfo, TRUE);
-    pen_status s = pen__image_check_size(job->ctx, job->name, cinfo->image_width,
-                                         cinfo->image_height);
+    pen_status s =
+        pen__image_check_size(job->ctx, job->name, cinfo->image_width, cinfo->image_height);
     if (s) return s;
     if (cinfo->jpeg_color_space == JCS_GRAYSCALE) {
         cinfo->out_color_space = JCS_GRAYSCALE;
@@ -122,8 +122,7 @@ pen_status pen__jpeg_decode(pen_context *ctx, const char *name, const unsigned c
     memset(out, 0, sizeof *out);
     if (size < 3 || bytes[0] != 0xff || bytes[1] != 0xd8 || bytes[2] != 0xff)
         return pen__error(ctx, PEN_ERROR_PARSE, "%s: not a JPEG file (bad magic bytes)", name);
-    if (size > (size_t)ULONG_MAX)
-        return pen__error(ctx, PEN_ERROR_IO, "%s: file too large", name);
+    if (size > (size_t)ULONG_MAX) return pen__error(ctx, PEN_ERROR_IO, "%s: file too large", name);
     jpeg_job *job = pen__malloc(ctx, 1, sizeof *job, "JPEG decoder");
     if (!job) return PEN_ERROR_MEMORY;
     memset(job, 0, sizeof *job);

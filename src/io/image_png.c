@@ -28,10 +28,10 @@ typedef struct png_job {
     pen_image *out;
     png_structp png;
     png_infop info;
-    unsigned char *pixels;  /* decoded rows: one row, or all of them for an interlaced file */
+    unsigned char *pixels; /* decoded rows: one row, or all of them for an interlaced file */
     png_bytep *row_pointers;
-    unsigned char *rgb;     /* a palette row expanded to RGB */
-    char message[256];      /* libpng's error */
+    unsigned char *rgb; /* a palette row expanded to RGB */
+    char message[256];  /* libpng's error */
 } png_job;
 
 static void on_error(png_structp png, png_const_charp message) {
