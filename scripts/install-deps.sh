@@ -3,7 +3,7 @@
 # Called by `make`; safe to run again. Needs root (or sudo) only when something is missing.
 set -e
 PKGS="build-essential cmake pkg-config libembree-dev libcjson-dev libstb-dev libopenexr-dev \
-zlib1g-dev libpng-dev"
+zlib1g-dev libpng-dev libjpeg-dev"
 # The Python binding and its tests run on Debian's own Python 3 (/usr/bin/python3).
 PKGS="$PKGS python3 python3-numpy python3-torch"
 missing=""

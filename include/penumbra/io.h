@@ -61,14 +61,15 @@ PEN_API pen_status pen_mesh_save(pen_context *ctx, const char *path, const pen_m
 PEN_API pen_status pen_mesh_save_obj(pen_context *ctx, const char *path, const pen_mesh *mesh);
 /* ---- Images ---------------------------------------------------------------------------------- */
 
-/* Loads .png (8- or 16-bit), .hdr or .exr (by extension) into 3 channels (RGB), linear: grey is
- * replicated, alpha dropped. The size must be within PEN_IMAGE_MAX_DIM and every value finite
- * (PEN_ERROR_PARSE otherwise). EXR channels R, G, B (or Y) are read as 32-bit floats whatever
+/* Loads .png (8- or 16-bit), .jpg/.jpeg (8-bit), .hdr or .exr (by extension) into 3 channels
+ * (RGB), linear: grey is replicated, alpha dropped. Each side must be within PEN_IMAGE_MAX_DIM,
+ * the whole within 2^27 pixels (checked before decoding), the file intact (PNG CRCs, complete
+ * data) and every value finite (PEN_ERROR_PARSE otherwise; docs/file-formats.md). EXR channels R, G, B (or Y) are read as 32-bit floats whatever
  * their stored type or compression; values are loaded as stored (an EXR may hold small negative
  * values from lossy compression: clamping them is the user's business, see pen_envmap_to_sh).
  * On failure *out is zeroed. */
 PEN_API pen_status pen_image_load(pen_context *ctx, const char *path, pen_image *out);
-/* PNG values as stored, v / 255 (or / 65535), without sRGB decoding: for data maps. */
+/* PNG and JPEG values as stored, v / 255 (or / 65535), without sRGB decoding: for data maps. */
 #define PEN_IMAGE_LOAD_RAW 1u
 PEN_API pen_status pen_image_load_ex(pen_context *ctx, const char *path, unsigned flags,
                                      pen_image *out);
@@ -78,7 +79,8 @@ PEN_API pen_status pen_image_load_ex(pen_context *ctx, const char *path, unsigne
  * renames it, so a failure never leaves a partial file. NaN/Inf pixels are an error
  * (PEN_ERROR_ARGUMENT naming the pixel). */
 PEN_API pen_status pen_image_save(pen_context *ctx, const char *path, const pen_image *image);
-/* 1 if path ends in an image extension pen_image_load/save handle (.png, .hdr, .exr; any case). */
+/* 1 if path ends in an image extension pen_image_load and pen_image_save both handle (.png, .hdr,
+ * .exr; any case): the formats an output may have. JPEG is read only. */
 PEN_API int pen_image_path_supported(const char *path);
 
 /* ---- Sphere sets (the JSON of spheres.h) ----------------------------------------------------- */

@@ -22,7 +22,9 @@ extern "C" {
 #include <ImfInputFile.h>
 #include <ImfOutputFile.h>
 
+#include <cstring>
 #include <exception>
+#include <stdexcept>
 #include <string>
 
 namespace {
@@ -36,50 +38,100 @@ char *slice_base(float *data, int x0, int y0, int width, int channels, int c) {
                                     offset * (ptrdiff_t)sizeof(float));
 }
 
+/* A file held in memory as an OpenEXR input stream: reads past the end throw, as a truncated
+ * file does. */
+class MemoryStream : public Imf::IStream {
+  public:
+    MemoryStream(const char *name, const unsigned char *bytes, size_t size)
+        : Imf::IStream(name), bytes_(bytes), size_(size), pos_(0) {}
+    bool read(char c[], int n) override {
+        if (n < 0 || pos_ > size_ || (uint64_t)n > size_ - pos_)
+            throw std::runtime_error("unexpected end of file at byte offset " +
+                                     std::to_string(pos_));
+        memcpy(c, bytes_ + pos_, (size_t)n);
+        pos_ += (uint64_t)n;
+        return pos_ < size_;
+    }
+    uint64_t tellg() override { return pos_; }
+    void seekg(uint64_t pos) override { pos_ = pos; }
+
+  private:
+    const unsigned char *bytes_;
+    uint64_t size_, pos_;
+};
+
+/* R, G, B (or Y) of an opened file into out; `path` names it in messages. OpenEXR errors are
+ * thrown (the callers catch them). */
+pen_status read_rgb(pen_context *ctx, const char *path, Imf::InputFile &file,
+               pen_image *out) {
+    const Imf::Header &h = file.header();
+    Imath::Box2i dw = h.dataWindow();
+    long long w = (long long)dw.max.x - dw.min.x + 1, hh = (long long)dw.max.y - dw.min.y + 1;
+    /* Each side and the pixel budget, like every decoder, before the pixels exist. */
+    pen_status size_status = pen__image_check_size(ctx, path, w, hh);
+    if (size_status) return size_status;
+    const Imf::ChannelList &ch = h.channels();
+    const char *names[3] = {"R", "G", "B"};
+    bool rgb = ch.findChannel("R") && ch.findChannel("G") && ch.findChannel("B");
+    if (!rgb && !ch.findChannel("Y"))
+        return pen__error(ctx, PEN_ERROR_UNSUPPORTED, "%s: no R, G, B or Y channels", path);
+    for (Imf::ChannelList::ConstIterator it = ch.begin(); it != ch.end(); ++it)
+        if (it.channel().xSampling != 1 || it.channel().ySampling != 1)
+            return pen__error(ctx, PEN_ERROR_UNSUPPORTED,
+                              "%s: channel %s is subsampled (not supported)", path, it.name());
+    pen_status s = pen_image_create(ctx, (int)w, (int)hh, 3, out);
+    if (s) return s;
+    /* A frame buffer holds one slice per channel name, so grey is read into the first
+     * channel and copied to the others afterwards. */
+    Imf::FrameBuffer fb;
+    const size_t xs = 3 * sizeof(float), ys = xs * (size_t)w;
+    for (int c = 0; c < (rgb ? 3 : 1); ++c)
+        fb.insert(rgb ? names[c] : "Y",
+                  Imf::Slice(Imf::FLOAT,
+                             slice_base(out->data, dw.min.x, dw.min.y, (int)w, 3, c), xs, ys, 1,
+                             1, 0.0));
+    file.setFrameBuffer(fb);
+    file.readPixels(dw.min.y, dw.max.y);
+    if (!rgb)
+        for (size_t i = 0; i < (size_t)w * (size_t)hh; ++i)
+            out->data[3 * i + 1] = out->data[3 * i + 2] = out->data[3 * i];
+    return PEN_OK;
+}
+
+/* Called inside a catch-all handler: rethrows the exception being handled to record it as one
+ * error line, and frees the partial image. */
+pen_status caught(pen_context *ctx, const char *path, pen_image *out) {
+    pen_image_free(out);
+    try {
+        throw;
+    } catch (const std::exception &e) {
+        return pen__error(ctx, PEN_ERROR_PARSE, "%s: OpenEXR: %s", path, e.what());
+    } catch (...) {
+        return pen__error(ctx, PEN_ERROR_INTERNAL, "%s: OpenEXR failed", path);
+    }
+}
+
 } // namespace
 
 extern "C" pen_status pen__exr_load(pen_context *ctx, const char *path, pen_image *out) {
     *out = pen_image{};
     try {
         Imf::InputFile file(path);
-        const Imf::Header &h = file.header();
-        Imath::Box2i dw = h.dataWindow();
-        long long w = (long long)dw.max.x - dw.min.x + 1, hh = (long long)dw.max.y - dw.min.y + 1;
-        if (w < 1 || hh < 1 || w > PEN_IMAGE_MAX_DIM || hh > PEN_IMAGE_MAX_DIM)
-            return pen__error(ctx, PEN_ERROR_PARSE, "%s: image size %lld x %lld outside [1, %d]",
-                              path, w, hh, PEN_IMAGE_MAX_DIM);
-        const Imf::ChannelList &ch = h.channels();
-        const char *names[3] = {"R", "G", "B"};
-        bool rgb = ch.findChannel("R") && ch.findChannel("G") && ch.findChannel("B");
-        if (!rgb && !ch.findChannel("Y"))
-            return pen__error(ctx, PEN_ERROR_UNSUPPORTED, "%s: no R, G, B or Y channels", path);
-        for (Imf::ChannelList::ConstIterator it = ch.begin(); it != ch.end(); ++it)
-            if (it.channel().xSampling != 1 || it.channel().ySampling != 1)
-                return pen__error(ctx, PEN_ERROR_UNSUPPORTED,
-                                  "%s: channel %s is subsampled (not supported)", path, it.name());
-        pen_status s = pen_image_create(ctx, (int)w, (int)hh, 3, out);
-        if (s) return s;
-        /* A frame buffer holds one slice per channel name, so grey is read into the first
-         * channel and copied to the others afterwards. */
-        Imf::FrameBuffer fb;
-        const size_t xs = 3 * sizeof(float), ys = xs * (size_t)w;
-        for (int c = 0; c < (rgb ? 3 : 1); ++c)
-            fb.insert(rgb ? names[c] : "Y",
-                      Imf::Slice(Imf::FLOAT,
-                                 slice_base(out->data, dw.min.x, dw.min.y, (int)w, 3, c), xs, ys, 1,
-                                 1, 0.0));
-        file.setFrameBuffer(fb);
-        file.readPixels(dw.min.y, dw.max.y);
-        if (!rgb)
-            for (size_t i = 0; i < (size_t)w * (size_t)hh; ++i)
-                out->data[3 * i + 1] = out->data[3 * i + 2] = out->data[3 * i];
-        return PEN_OK;
-    } catch (const std::exception &e) {
-        pen_image_free(out);
-        return pen__error(ctx, PEN_ERROR_PARSE, "%s: OpenEXR: %s", path, e.what());
+        return read_rgb(ctx, path, file, out);
     } catch (...) {
-        pen_image_free(out);
-        return pen__error(ctx, PEN_ERROR_INTERNAL, "%s: OpenEXR failed", path);
+        return caught(ctx, path, out);
+    }
+}
+
+extern "C" pen_status pen__exr_decode(pen_context *ctx, const char *name,
+                                      const unsigned char *bytes, size_t size, pen_image *out) {
+    *out = pen_image{};
+    try {
+        MemoryStream stream(name, bytes, size);
+        Imf::InputFile file(stream);
+        return read_rgb(ctx, name, file, out);
+    } catch (...) {
+        return caught(ctx, name, out);
     }
 }
 

@@ -98,6 +98,44 @@ int pen__json_add(cJSON *obj, const char *name, cJSON *item);
 cJSON *pen__json_float(float value);
 cJSON *pen__json_float_array(const float *v, int n);
 
+/* ---- Image decoders (src/io/image_*.c) ------------------------------------------------------
+ * Each decoder reads a whole file held in memory, distrusts every byte, checks the size against
+ * the limits below before it allocates pixels, and names `name` and the place (byte offset,
+ * scanline or pixel) in its one error line. They yield 3 linear channels like pen_image_load;
+ * *out is zeroed on failure. src/io/image.c picks the decoder (pen__image_decode). */
+
+/* Pixel budget of a loaded image: 2^27 = 16384 x 8192 pixels (a 16k equirectangular map), 1.5 GiB
+ * as 3 floats, on top of each side's PEN_IMAGE_MAX_DIM. */
+#define PEN__IMAGE_MAX_PIXELS (1ll << 27)
+
+/* PEN_OK if 1 <= width, height <= PEN_IMAGE_MAX_DIM and width * height <= PEN__IMAGE_MAX_PIXELS;
+ * otherwise one PEN_ERROR_PARSE line naming `name` and the size. */
+pen_status pen__image_check_size(pen_context *ctx, const char *name, long long width,
+                                 long long height);
+/* The 256 values of 8-bit codes: code / 255, sRGB-decoded unless raw. */
+void pen__image_code_table(int raw, float table[256]);
+/* Converts n pixels of `comp` interleaved samples (1 grey, 2 grey + alpha, 3 RGB, 4 RGBA) of 8
+ * bits (through table8, from pen__image_code_table) or 16 bits (big-endian, as PNG stores them)
+ * into 3 floats each: grey replicated, alpha dropped, sRGB decoded unless raw. */
+void pen__image_samples_to_rgb(const unsigned char *src, int bits, int comp, size_t n,
+                               const float table8[256], int raw, float *dst);
+
+/* Radiance RGBE (.hdr): src/io/image_hdr.c. */
+pen_status pen__hdr_decode(pen_context *ctx, const char *name, const unsigned char *bytes,
+                           size_t size, pen_image *out);
+/* PNG through libpng: src/io/image_png.c. */
+pen_status pen__png_decode(pen_context *ctx, const char *name, const unsigned char *bytes,
+                           size_t size, int raw, pen_image *out);
+/* JPEG (baseline, progressive, arithmetic; grey or YCbCr) through libjpeg: src/io/image_jpeg.c. */
+pen_status pen__jpeg_decode(pen_context *ctx, const char *name, const unsigned char *bytes,
+                            size_t size, int raw, pen_image *out);
+/* Decodes an image file held in memory, the format chosen by the extension of `name` (.png,
+ * .hdr, .jpg/.jpeg, .exr; the magic bytes must agree), as pen_image_load_ex does with a file
+ * (flags: PEN_IMAGE_LOAD_RAW), including the check that every value is finite. For fuzzers, and
+ * for pen_image_load_ex but for EXR, which it hands OpenEXR as a file. */
+pen_status pen__image_decode(pen_context *ctx, const char *name, const unsigned char *bytes,
+                             size_t size, unsigned flags, pen_image *out);
+
 /* ---- OpenEXR (src/io/exr.cpp) -------------------------------------------------------------
  * C++ because the bundled maps use DWAB compression, which OpenEXR 3.1 decodes only in its C++
  * library (OpenEXRCore's C decoder stops at "not yet implemented"), and its C RGBA interface
@@ -105,6 +143,9 @@ cJSON *pen__json_float_array(const float *v, int n);
 
 /* Loads R, G, B (or Y as grey) as 32-bit floats into a 3-channel image; A is ignored. */
 pen_status pen__exr_load(pen_context *ctx, const char *path, pen_image *out);
+/* The same from a file held in memory (`name` for messages): for pen__image_decode. */
+pen_status pen__exr_decode(pen_context *ctx, const char *name, const unsigned char *bytes,
+                           size_t size, pen_image *out);
 /* Writes 32-bit float channels (1: Y, 2: Y A, 3: R G B, 4: R G B A) with ZIP compression to
  * file_name; messages name `path` (the caller writes a temporary file and renames it). */
 pen_status pen__exr_save(pen_context *ctx, const char *path, const char *file_name,
