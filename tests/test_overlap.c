@@ -268,11 +268,11 @@ static void test_file_errors(void) {
         const char *text, *key, *what;
     } cases[] = {
         {"{\"spheres\": [{\"center\": [0,0,0], \"radius\": 1, \"weight\": -0.1}]}",
-         "spheres[0].weight", "a number >= 0"},
+         "spheres[0].weight", "a number in [0, 1e6]"},
         {"{\"spheres\": [{\"center\": [0,0,0], \"radius\": 1, \"weight\": \"1\"}]}",
-         "spheres[0].weight", "a number >= 0"},
+         "spheres[0].weight", "a number in [0, 1e6]"},
         {"{\"spheres\": [{\"center\": [0,0,0], \"radius\": 1, \"weight\": 1e999}]}",
-         "spheres[0].weight", "a number >= 0"},
+         "spheres[0].weight", "a number in [0, 1e6]"},
         {"{\"spheres\": [{\"center\": [0,0,0], \"radius\": 1, \"weight\": 1},"
          " {\"center\": [1,0,0], \"radius\": 1}]}",
          "spheres[1]", "missing weight"},
