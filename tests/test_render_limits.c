@@ -1,6 +1,7 @@
 /* The renderer at the edges of what the loaders accept: scenes that are valid but extreme
  * (spheres stacked at one place without overlap weights, the largest blocker depth, the largest
- * object count) render finite images and gradients. */
+ * object count) render finite images and gradients; the largest camera is refused by the frame's
+ * memory budget before allocating. */
 #include "render_scenes.h"
 
 static unsigned long long seed = 4242;
@@ -87,5 +88,28 @@ static void test_many_objects(void) {
     pen_scene_free(&sc);
 }
 
+/* The largest camera the JSON accepts (16384 x 16384) would need tens of GB: refused before
+ * anything is allocated, naming the size and the bytes. */
+static void test_camera_memory_budget(void) {
+    pen_scene sc = rs_ball_scene(16, 0, &seed);
+    sc.camera.width = sc.camera.height = PEN_IMAGE_MAX_DIM;
+    pen_context *ctx = pen_context_create();
+    pen_render_state *st = NULL;
+    CHECK(pen_render_state_create(ctx, &st) == PEN_OK);
+    pen_image img;
+    memset(&img, 0, sizeof img);
+    for (int with_state = 0; with_state < 2; ++with_state) {
+        pen_status s = pen_render_fwd(ctx, &sc, NULL, with_state ? st : NULL, &img);
+        CHECK(s == PEN_ERROR_ARGUMENT);
+        const char *e = pen_context_error(ctx);
+        CHECK_MSG(strstr(e, "camera 16384 x 16384 needs about") && strstr(e, "GB (limit 17.2 GB"),
+                  "%s", e);
+        CHECK(img.data == NULL);
+    }
+    pen_render_state_free(st);
+    pen_context_destroy(ctx);
+    pen_scene_free(&sc);
+}
+
 RUN_TESTS(TEST(test_stacked_spheres_without_weights), TEST(test_largest_epsilon),
-          TEST(test_many_objects))
+          TEST(test_many_objects), TEST(test_camera_memory_budget))
