@@ -6,37 +6,67 @@
 
 static unsigned long long seed = 4242;
 
+/* Renders with both kernels and runs the backward of a loss that pulls every pixel up: finite
+ * pixels and gradients, and the two kernels agree (they share the saturation of sh.h, written
+ * once per kernel). */
 static void check_finite_render(const pen_scene *sc, const char *what) {
     pen_context *ctx = pen_context_create();
     pen_context_set_threads(ctx, 2);
     pen_render_state *st = NULL;
-    pen_image img;
-    memset(&img, 0, sizeof img);
     CHECK(pen_render_state_create(ctx, &st) == PEN_OK);
     pen_render_options opt = pen_render_options_default();
+    pen_image img[2];
+    pen_render_grad g[2];
+    memset(img, 0, sizeof img);
+    memset(g, 0, sizeof g);
+    size_t n = 0;
     for (int kernel = 0; kernel < 2; ++kernel) {
         opt.kernel = kernel ? PEN_RENDER_KERNEL_SCALAR : PEN_RENDER_KERNEL_FAST;
-        pen_status s = pen_render_fwd(ctx, sc, &opt, st, &img);
+        pen_status s = pen_render_fwd(ctx, sc, &opt, st, &img[kernel]);
         CHECK_MSG(s == PEN_OK, "%s: %s", what, pen_context_error(ctx));
         if (s) break;
-        size_t n = (size_t)img.width * (size_t)img.height * (size_t)img.channels;
-        CHECK_MSG(rs_all_finite(img.data, n), "%s (kernel %d): non-finite pixel", what, kernel);
-        /* The backward of a loss that pulls every pixel up: finite gradients. */
+        n = (size_t)img[kernel].width * (size_t)img[kernel].height * 3;
+        CHECK_MSG(rs_all_finite(img[kernel].data, n), "%s (kernel %d): non-finite pixel", what,
+                  kernel);
         pen_image d_img;
-        pen_render_grad g;
-        CHECK(pen_image_create(ctx, img.width, img.height, 3, &d_img) == PEN_OK);
+        CHECK(pen_image_create(ctx, img[kernel].width, img[kernel].height, 3, &d_img) == PEN_OK);
         for (size_t i = 0; i < n; ++i)
             d_img.data[i] = 1.0f;
-        CHECK(pen_render_grad_create(ctx, sc, &g) == PEN_OK);
-        CHECK(pen_render_bwd(ctx, sc, &opt, st, &d_img, PEN_GRAD_ALL, &g) == PEN_OK);
-        CHECK_MSG(rs_all_finite(&g.sh[0][0], 3 * PEN_SH_MAX_COEFFS), "%s: d lighting", what);
-        for (int o = 0; o < g.object_count; ++o)
-            CHECK_MSG(rs_all_finite(g.objects[o].spheres, 4 * (size_t)g.objects[o].sphere_count),
+        CHECK(pen_render_grad_create(ctx, sc, &g[kernel]) == PEN_OK);
+        CHECK(pen_render_bwd(ctx, sc, &opt, st, &d_img, PEN_GRAD_ALL, &g[kernel]) == PEN_OK);
+        CHECK_MSG(rs_all_finite(&g[kernel].sh[0][0], 3 * PEN_SH_MAX_COEFFS), "%s: d lighting",
+                  what);
+        for (int o = 0; o < g[kernel].object_count; ++o)
+            CHECK_MSG(rs_all_finite(g[kernel].objects[o].spheres,
+                                    4 * (size_t)g[kernel].objects[o].sphere_count),
                       "%s: object %d: d spheres", what, o);
-        pen_render_grad_free(&g);
         pen_image_free(&d_img);
     }
-    pen_image_free(&img);
+    if (img[0].data && img[1].data) {
+        double worst = 0, scale = 1e-6;
+        for (size_t i = 0; i < n; ++i) {
+            worst = fmax(worst, fabs((double)img[0].data[i] - (double)img[1].data[i]));
+            scale = fmax(scale, fabs((double)img[1].data[i]));
+        }
+        CHECK_MSG(worst <= 1e-3 * scale, "%s: kernels differ by %g (scale %g)", what, worst, scale);
+        double gw = 0, gs = 1e-6;
+        for (int k = 0; k < PEN_SH_MAX_COEFFS; ++k)
+            for (int ch = 0; ch < 3; ++ch) {
+                gw = fmax(gw, fabs((double)g[0].sh[k][ch] - (double)g[1].sh[k][ch]));
+                gs = fmax(gs, fabs((double)g[1].sh[k][ch]));
+            }
+        CHECK_MSG(gw <= 1e-3 * gs, "%s: d lighting differs by %g (scale %g)", what, gw, gs);
+        /* Through the exponential's backward (and its saturation): the sphere gradients. */
+        double sw = 0, ss = 1e-6;
+        for (int o = 0; o < g[0].object_count; ++o)
+            for (int i = 0; i < 4 * g[0].objects[o].sphere_count; ++i) {
+                const double a = g[0].objects[o].spheres[i], b = g[1].objects[o].spheres[i];
+                sw = fmax(sw, fabs(a - b)), ss = fmax(ss, fabs(b));
+            }
+        CHECK_MSG(sw <= 1e-2 * ss, "%s: d spheres differ by %g (scale %g)", what, sw, ss);
+    }
+    for (int k = 0; k < 2; ++k)
+        pen_image_free(&img[k]), pen_render_grad_free(&g[k]);
     pen_render_state_free(st);
     pen_context_destroy(ctx);
 }
