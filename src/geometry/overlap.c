@@ -36,8 +36,10 @@
  * The solve needs G only through products (G kappa)_i: small sets assemble G (cheap per sweep),
  * larger ones (above GRAM_MAX_SPHERES) sum over the lines through sphere i instead, since a line
  * through a compact set crosses a fair part of it and G fills up (2000 spheres: 0.8 N^2 entries,
- * 20000: gigabytes). Time and memory are then linear in the total hit count, N K times the hits
- * per line, plus N K log N for the tree.
+ * 20000: gigabytes). Memory and the time of one sweep are then linear in the total hit count, N K
+ * times the hits per line (plus N K log N for the tree); the number of sweeps grows with N too
+ * (about 20 for 32 spheres, 165 for 2000), which is why sets above PEN_SPHERES_OVERLAP_MAX (fit.h)
+ * are refused rather than left to run for minutes.
  */
 #include "core/internal.h"
 #include "core/random.h"
