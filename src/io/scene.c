@@ -14,7 +14,6 @@
 #include "penumbra/envmap.h"
 #include "penumbra/io.h"
 
-#include <float.h>
 #include <stdlib.h>
 #include <string.h>
 

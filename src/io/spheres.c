@@ -11,7 +11,6 @@
 #include "penumbra/io.h"
 #include "penumbra/scene.h"
 
-#include <float.h>
 #include <stdlib.h>
 #include <string.h>
 
