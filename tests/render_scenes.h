@@ -121,6 +121,20 @@ static inline pen_mesh rs_octasphere(int level, float radius, int uv) {
     return m;
 }
 
+/* A small triangle far out of view (x, z = 50): for objects that only cast shadows through their
+ * spheres. */
+static inline pen_mesh rs_far_triangle(void) {
+    pen_mesh tri;
+    memset(&tri, 0, sizeof tri);
+    tri.vertex_count = 3, tri.triangle_count = 1;
+    tri.positions = calloc(9, sizeof(float));
+    tri.indices = malloc(3 * sizeof(uint32_t));
+    const float P[9] = {50, 0, 50, 51, 0, 50, 50, 1, 50};
+    memcpy(tri.positions, P, sizeof P);
+    tri.indices[0] = 0, tri.indices[1] = 1, tri.indices[2] = 2;
+    return tri;
+}
+
 /* ---- Scenes ---------------------------------------------------------------------------------- */
 
 /* Lighting: a bright overhead lobe with a side component and some colour, 4 bands. */

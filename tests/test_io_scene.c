@@ -247,7 +247,7 @@ static void test_malformed(void) {
          PEN_ERROR_PARSE, "camera.width", "got a string"},
         {"{\"camera\": {\"width\": 8, \"height\": 8, \"fov_y_deg\": 40, \"eye\": [0, 1e999, 3], "
          "\"target\": [0, 0, 0]}, " LIGHT ", " OBJ "}",
-         PEN_ERROR_PARSE, "camera.eye[1]: expected a finite number", "inf"},
+         PEN_ERROR_PARSE, "camera.eye[1]: expected a number in [-1e+06, 1e+06]", "inf"},
         {"{\"camera\": {\"width\": 8, \"height\": 8, \"fov_y_deg\": 40, \"eye\": [0, NaN, 3], "
          "\"target\": [0, 0, 0]}, " LIGHT ", " OBJ "}",
          PEN_ERROR_PARSE, "bad.json:1:", "invalid JSON"},
@@ -295,7 +295,7 @@ static void test_malformed(void) {
         {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", \"spheres\": "
          "\"../assets/bad_spheres.json\"}]}",
          PEN_ERROR_PARSE, "objects[0].spheres: ",
-         "bad_spheres.json: spheres[1].radius: expected a positive number, got -1"},
+         "bad_spheres.json: spheres[1].radius: expected a number in [1e-9, 1e6], got -1"},
         {"{" CAM ", " LIGHT
          ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", \"spheres\": {\"fit\": 0}}]}",
          PEN_ERROR_PARSE, "objects[0].spheres.fit", "[1, 4096]"},
@@ -303,7 +303,7 @@ static void test_malformed(void) {
          PEN_ERROR_PARSE, "objects[0].spheres", "{\"fit\": N}"},
         {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", \"spheres\": "
          "[{\"center\": [0, 0, 0], \"radius\": 0}]}]}",
-         PEN_ERROR_PARSE, "objects[0].spheres[0].radius", "positive"},
+         PEN_ERROR_PARSE, "objects[0].spheres[0].radius", "[1e-9, 1e6]"},
         {"{" CAM ", " LIGHT ", " OBJ ", \"background\": \"sky\"}", PEN_ERROR_PARSE, "background",
          "'sky'"},
         {"{" CAM ", " LIGHT ", " OBJ ", \"background\": \"envmap\"}", PEN_ERROR_PARSE, "background",
@@ -311,12 +311,12 @@ static void test_malformed(void) {
         {"{" CAM ", " LIGHT ", " OBJ ", \"background\": [1, -1, 0]}", PEN_ERROR_PARSE,
          "background[1]", "got -1"},
         {"{" CAM ", " LIGHT ", " OBJ ", \"ground\": {\"half_size\": 0}}", PEN_ERROR_PARSE,
-         "ground.half_size", "positive"},
+         "ground.half_size", "[1e-6, 1e6]"},
         {"{" CAM ", " LIGHT ", " OBJ ", \"ground\": 5}", PEN_ERROR_PARSE, "ground",
          "expected an object"},
         {"{" CAM ", " LIGHT
          ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", \"pose\": {\"scale\": -1}}]}",
-         PEN_ERROR_PARSE, "objects[0].pose.scale", "positive"},
+         PEN_ERROR_PARSE, "objects[0].pose.scale", "[1e-6, 1e6]"},
         {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/quad.obj\", \"albedo\": [1, 1, "
          "1], \"albedo_texture\": \"../assets/tex.png\"}]}",
          PEN_ERROR_PARSE, "objects[0]", "not both"},
@@ -384,12 +384,12 @@ static void test_spheres(void) {
          "{\"spheres\": [{\"center\": [0,0,0], \"radius\": 1}, {\"center\": [0,0,0], \"radius\": "
          "1},"
          " {\"center\": [0,0,0], \"radius\": 1}, {\"center\": [0,0,0], \"radius\": -2}]}",
-         "r.json: spheres[3].radius: expected a positive number", "got -2"},
+         "r.json: spheres[3].radius: expected a number in [1e-9, 1e6]", "got -2"},
         {"c.json", "{\"spheres\": [{\"radius\": 1}]}", "c.json: spheres[0].center", "missing"},
         {"n.json", "{\"spheres\": [{\"center\": [0, 1e400, 0], \"radius\": 1}]}",
-         "spheres[0].center[1]", "finite"},
+         "spheres[0].center[1]", "got inf"},
         {"f.json", "{\"spheres\": [{\"center\": [0, 1e39, 0], \"radius\": 1}]}",
-         "spheres[0].center[1]", "float range"},
+         "spheres[0].center[1]", "got 1e+39"},
         {"k.json", "{\"spheres\": [{\"center\": [0, 0, 0], \"radius\": 1, \"radus\": 2}]}",
          "spheres[0].radus", "unknown key"},
         {"m.json", "{\"balls\": []}", "m.json: spheres", "missing"},
@@ -452,5 +452,101 @@ static void test_paths(void) {
           !pen__io_has_ext("mesh.objx", "obj"));
 }
 
+/* ---- Value ranges ------------------------------------------------------------------------------ */
+
+/* Finite values that would overflow downstream (penumbra/scene.h's ranges) are refused where they
+ * enter, naming the key (and the file, vertex or pixel); the largest accepted values load. */
+static void test_value_ranges(void) {
+    write_assets();
+    fixture_text("assets/huge.obj", "v 0 0 0\nv 1e30 0 0\nv 0 1 0\nf 1 2 3\n");
+    fixture_text("assets/huge.ply", "ply\nformat ascii 1.0\nelement vertex 3\n"
+                                    "property float x\nproperty float y\nproperty float z\n"
+                                    "element face 1\nproperty list uchar int vertex_indices\n"
+                                    "end_header\n0 0 0\n1 0 0\n0 -2e7 0\n3 0 1 2\n");
+    fixture_text("assets/edge.obj", "v 0 0 0\nv 1e6 0 0\nv 0 -1e6 0\nf 1 2 3\n");
+    pen_image im;
+    CHECK(pen_image_create(ctx, 8, 4, 3, &im) == PEN_OK);
+    for (int i = 0; i < 96; ++i)
+        im.data[i] = 0.5f;
+    im.data[3 * (2 * 8 + 5) + 1] = 3e37f;
+    CHECK(pen_image_save(ctx, fixture_path("assets/hot.exr"), &im) == PEN_OK);
+    pen_image_free(&im);
+    typedef struct {
+        const char *text, *key, *what;
+    } bad;
+    static const bad cases[] = {
+        {"{\"camera\": {\"width\": 8, \"height\": 8, \"fov_y_deg\": 40, \"eye\": [0, 0, 1e30], "
+         "\"target\": [0, 0, 0]}, " LIGHT ", " OBJ "}",
+         "camera.eye[2]", "got 1e+30"},
+        {"{\"camera\": {\"width\": 8, \"height\": 8, \"fov_y_deg\": 40, \"eye\": [0, 0, 3], "
+         "\"target\": [-2e6, 0, 0]}, " LIGHT ", " OBJ "}",
+         "camera.target[0]", "[-1e+06, 1e+06]"},
+        {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", \"pose\": "
+         "{\"scale\": 1e30}}]}",
+         "objects[0].pose.scale", "got 1e+30"},
+        {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", \"pose\": "
+         "{\"translation\": [0, 3e38, 0]}}]}",
+         "objects[0].pose.translation[1]", "got 3e+38"},
+        {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", \"spheres\": "
+         "[{\"center\": [0, 0, 0], \"radius\": 1e30}]}]}",
+         "objects[0].spheres[0].radius", "got 1e+30"},
+        {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", \"spheres\": "
+         "[{\"center\": [0, 0, 0], \"radius\": 1e-12}]}]}",
+         "objects[0].spheres[0].radius", "got 1e-12"},
+        {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", \"spheres\": "
+         "[{\"center\": [1e7, 0, 0], \"radius\": 1}]}]}",
+         "objects[0].spheres[0].center[0]", "got 1e+07"},
+        {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/nouv.obj\", \"spheres\": "
+         "[{\"center\": [0, 0, 0], \"radius\": 1, \"weight\": 1e30}]}]}",
+         "objects[0].spheres[0].weight", "got 1e+30"},
+        {"{" CAM ", " LIGHT ", " OBJ ", \"ground\": {\"half_size\": 1e30}}", "ground.half_size",
+         "got 1e+30"},
+        {"{" CAM ", " LIGHT ", " OBJ ", \"ground\": {\"height\": -1e9}}", "ground.height",
+         "got -1e+09"},
+        {"{" CAM ", " LIGHT ", " OBJ ", \"shadow\": {\"epsilon\": 1e7}}", "shadow.epsilon",
+         "got 1e+07"},
+        {"{" CAM ", \"lighting\": {\"sh\": [[1, 1e30, 1]]}, \"sh_bands\": 1, " OBJ "}",
+         "lighting.sh[0][1]", "got 1e+30"},
+        {"{" CAM ", \"lighting\": {\"envmap\": \"../assets/sky.exr\", \"scale\": 1e30}, " OBJ "}",
+         "lighting.scale", "got 1e+30"},
+        {"{" CAM ", \"lighting\": {\"envmap\": \"../assets/hot.exr\"}, " OBJ "}",
+         "lighting.envmap: ", "hot.exr: pixel (5, 2) channel 1: 3e+37 outside [-1e+09, 1e+09]"},
+        {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/quad.obj\", "
+         "\"albedo_texture\": \"../assets/hot.exr\"}]}",
+         "objects[0].albedo_texture: ", "hot.exr: pixel (5, 2) channel 1: 3e+37 outside"},
+        {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/huge.obj\"}]}",
+         "objects[0].mesh: ", "huge.obj: vertex 2: coordinate 1: 1e+30 outside [-1e+06, 1e+06]"},
+        {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/huge.ply\"}]}",
+         "objects[0].mesh: ", "huge.ply: vertex 3: coordinate 2: -2e+07 outside"},
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; ++i) {
+        const char *p = fixture_text("scenes/bad.json", cases[i].text);
+        pen_scene sc;
+        pen_status s = pen_scene_load(ctx, p, &sc);
+        CHECK_MSG(s != PEN_OK, "case %zu loaded", i);
+        CHECK_ERROR(ctx, s, PEN_ERROR_PARSE, cases[i].key, cases[i].what);
+    }
+    /* The edges themselves load. */
+    const char *edge =
+        "{\"camera\": {\"width\": 8, \"height\": 8, \"fov_y_deg\": 40, \"eye\": [0, 0, 1e6], "
+        "\"target\": [0, 0, -1e6]}, \"lighting\": {\"envmap\": \"../assets/sky.exr\", \"scale\": "
+        "1e3}, \"shadow\": {\"epsilon\": 1e6}, \"ground\": {\"height\": -1e6, \"half_size\": "
+        "1e6}, \"objects\": [{\"mesh\": \"../assets/edge.obj\", \"pose\": {\"scale\": 1e6, "
+        "\"translation\": [1e6, -1e6, 1e6]}, \"spheres\": [{\"center\": [1e6, 0, -1e6], \"radius\": "
+        "1e6, \"weight\": 1e6}, {\"center\": [0, 0, 0], \"radius\": 1e-9, \"weight\": 0}]}]}";
+    pen_scene sc;
+    pen_status s = pen_scene_load(ctx, fixture_text("scenes/edge.json", edge), &sc);
+    CHECK_MSG(s == PEN_OK, "%s", pen_context_error(ctx));
+    if (s) return;
+    /* ... and render finite (the camera looks along the sphere's and the mesh's 1e12 extent). */
+    pen_image img = {0};
+    s = pen_render_fwd(ctx, &sc, NULL, NULL, &img);
+    CHECK_MSG(s == PEN_OK, "%s", pen_context_error(ctx));
+    for (int i = 0; !s && i < img.width * img.height * img.channels; ++i)
+        CHECK_MSG(isfinite(img.data[i]), "edge scene: value %d is %g", i, (double)img.data[i]);
+    pen_image_free(&img);
+    pen_scene_free(&sc);
+}
+
 RUN_TESTS(TEST(test_paths), TEST(test_full_scene), TEST(test_defaults_and_parse),
-          TEST(test_malformed), TEST(test_spheres))
+          TEST(test_malformed), TEST(test_spheres), TEST(test_value_ranges))

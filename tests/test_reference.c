@@ -644,6 +644,22 @@ static void test_errors(void) {
     CHECK(pen_reference_create(ctx, &t.scene, PEN_REFERENCE_LIGHTING_SH, &ref) ==
           PEN_ERROR_ARGUMENT);
     t.scene.sh_bands = 1;
+    /* huge but finite coordinates (past the loaders' ranges, possible in memory): an error naming
+     * the extent instead of Embree's abort on the first ray */
+    t.scene.objects[0].pose.scale = 1e20f;
+    CHECK(pen_reference_create(ctx, &t.scene, PEN_REFERENCE_LIGHTING_SH, &ref) ==
+          PEN_ERROR_ARGUMENT);
+    CHECK_MSG(ref == NULL && strstr(pen_context_error(ctx), "world-space coordinates up to"),
+              "%s", pen_context_error(ctx));
+    t.scene.objects[0].pose.scale = 1.0f;
+    t.scene.ground.half_size = 3e18f;
+    CHECK(pen_reference_create(ctx, &t.scene, PEN_REFERENCE_LIGHTING_SH, &ref) ==
+          PEN_ERROR_ARGUMENT);
+    t.scene.ground.half_size = 4.0f;
+    t.scene.camera.eye[1] = 1e19f;
+    CHECK(pen_reference_create(ctx, &t.scene, PEN_REFERENCE_LIGHTING_SH, &ref) ==
+          PEN_ERROR_ARGUMENT);
+    t.scene.camera.eye[1] = 3.0f;
     /* spp out of range */
     ref = make_ref(ctx, &t.scene, PEN_REFERENCE_LIGHTING_SH);
     pen_image img;

@@ -120,16 +120,8 @@ static pen_scene occluder_scene(float height, float radius) {
     memset(sc.lighting.sh, 0, sizeof sc.lighting.sh);
     for (int ch = 0; ch < 3; ++ch)
         sc.lighting.sh[0][ch] = (float)sqrt(4 * M_PI);
-    pen_mesh tri;
-    memset(&tri, 0, sizeof tri);
-    tri.vertex_count = 3, tri.triangle_count = 1;
-    tri.positions = calloc(9, sizeof(float));
-    tri.indices = malloc(3 * sizeof(uint32_t));
-    const float P[9] = {50, 0, 50, 51, 0, 50, 50, 1, 50};
-    memcpy(tri.positions, P, sizeof P);
-    tri.indices[0] = 0, tri.indices[1] = 1, tri.indices[2] = 2;
     const float s[4] = {0, height, 0, radius};
-    rs_add_object(&sc, tri, 1, s);
+    rs_add_object(&sc, rs_far_triangle(), 1, s);
     return sc;
 }
 

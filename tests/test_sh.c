@@ -496,10 +496,11 @@ static void check_exp_fd(pen_sh_exp_method method, int L, double norm) {
 
 static void test_exp_bwd_fd(void) {
     const pen_sh_exp_method methods[] = {PEN_SH_EXP_PAPER, PEN_SH_EXP_EXACT, PEN_SH_EXP_CALIBRATED};
-    /* Norms chosen away from the powers of two where PAPER and EXACT change their squarings. */
-    const double norms[] = {0.03, 0.7, 5.3, 23.0};
+    /* Norms chosen away from the powers of two where PAPER and EXACT change their squarings;
+     * 23 and 300 are past the saturation's knee (sh.h), 300 where the models alone overflow. */
+    const double norms[] = {0.03, 0.7, 5.3, 23.0, 300.0};
     for (int mi = 0; mi < 3; ++mi)
-        for (int a = 0; a < 4; ++a)
+        for (int a = 0; a < 5; ++a)
             for (int L = 3; L <= 5; ++L) check_exp_fd(methods[mi], L, norms[a]);
 }
 

@@ -135,7 +135,11 @@ PEN_API int pen_fit_json(const pen_fit_settings *settings, const pen_fit_metrics
  * depth however many of its overlapping proxy spheres it crosses. Deterministic (fixed seed,
  * independent of the thread count); a single sphere gets exactly the target, disjoint spheres
  * about the target, k coincident copies about target / k each. Invariant under a pose (computed
- * in object space). Fails on a radius <= 0 or a non-finite value. */
+ * in object space). Fails on a radius <= 0 or a non-finite value, and on a set of more than
+ * PEN_SPHERES_OVERLAP_MAX spheres (the time grows about linearly with the count, from a fraction
+ * of a second for 32 spheres to about 15 s for 4096 on two cores, and faster than linearly beyond:
+ * give such a set weights in its file, or render it with "overlap": "none"). */
+#define PEN_SPHERES_OVERLAP_MAX 4096
 PEN_API pen_status pen_spheres_overlap_weights(pen_context *ctx, const pen_spheres *spheres,
                                                float *kappa);
 /* Computes spheres->weight when it is NULL (allocating it); leaves existing weights alone. */

@@ -50,7 +50,8 @@ PEN_API pen_status pen_scene_save_ex(pen_context *ctx, const char *path, const p
 
 /* Loads a mesh by extension (.obj, .ply). Polygons are triangulated as fans; OBJ negative
  * (relative) indices are resolved; zero and out-of-range indices, NaN/Inf coordinates,
- * truncated files and absurd counts are errors naming the file and line (or byte offset).
+ * truncated files and absurd counts are errors naming the file and line (or byte offset); so
+ * is a vertex coordinate beyond +-PEN_SCENE_MAX_COORD (penumbra/scene.h), naming the vertex.
  * On success *out owns the arrays; on failure *out is zeroed. */
 PEN_API pen_status pen_mesh_load(pen_context *ctx, const char *path, pen_mesh *out);
 PEN_API pen_status pen_mesh_load_obj(pen_context *ctx, const char *path, pen_mesh *out);

@@ -55,6 +55,11 @@ typedef enum pen_reference_lighting {
 
 /* Largest samples per pixel (or per point) any call accepts. */
 #define PEN_REFERENCE_MAX_SPP (1 << 20)
+/* The largest |world-space coordinate| (posed vertices, ground, camera eye) pen_reference_create
+ * accepts: Embree aborts on rays with coordinates beyond about 1.8e18, so a scene past this is
+ * refused with an error instead. Scenes within the loaders' ranges (penumbra/scene.h) stay below
+ * about 2e12. */
+#define PEN_REFERENCE_MAX_EXTENT 1e15
 
 /* Opaque: the Embree scene of the posed meshes and the ground quad, world-space vertex normals,
  * and the envmap's sampling tables. It borrows `scene` (textures, envmap, camera, SH), which

@@ -53,6 +53,12 @@ extern "C" {
 #define PEN_RENDER_KERNEL_FAST 0
 #define PEN_RENDER_KERNEL_SCALAR 1
 
+/* The memory a frame may need (16 GiB). pen_render_fwd computes it from the camera size before
+ * allocating (about 190 bytes per pixel, plus 8 bands^2 with a state for the backward and shadows
+ * on: 256 at 4 bands, so about 8192 x 8192 at most) and refuses a larger camera with an error
+ * naming the size and the bytes. */
+#define PEN_RENDER_MAX_BYTES 17179869184.0
+
 typedef struct pen_render_options {
     int shadows;   /* 1: SH visibility from the sphere sets; 0: V == 1 (`--no-shadows`) */
     int antialias; /* 1: analytic silhouette antialiasing (needed for silhouette gradients) */

@@ -25,6 +25,23 @@
 extern "C" {
 #endif
 
+/* Ranges the loaders (scene JSON, sphere JSON, OBJ/PLY through pen_mesh_load) accept, so that
+ * every finite value they accept stays finite through the renderer, its backward and the Embree
+ * reference (docs/file-formats.md, "Value ranges"). They are generous: a scene in millimetres or
+ * in kilometres fits. World-space coordinates stay below about 2e12 (1e6 scale times 1e6
+ * coordinates plus 1e6 translation), far from Embree's limit near 1.8e18, and squared distances
+ * below 1e25 in float. The lighting bounds leave the shaded radiance below about 1e34. */
+#define PEN_SCENE_MAX_COORD 1e6    /* |coordinate|: mesh vertices, sphere centres, camera eye,
+                                      target and up, pose translation, ground height */
+#define PEN_SCENE_MIN_SIZE 1e-6    /* pose scale, ground half size: at least this */
+#define PEN_SCENE_MAX_SIZE 1e6     /* pose scale, sphere radius, ground half size: at most */
+#define PEN_SCENE_MIN_RADIUS 1e-9  /* sphere radius: at least (1 / r^2 stays finite) */
+#define PEN_SCENE_MAX_WEIGHT 1e6   /* sphere overlap weight */
+#define PEN_SCENE_MAX_RADIANCE 1e9 /* |environment map value|, background value */
+#define PEN_SCENE_MAX_LIGHT_SCALE 1e3 /* lighting.scale */
+#define PEN_SCENE_MAX_SH 1e13      /* |lighting SH coefficient|, given or projected */
+#define PEN_SCENE_MAX_ALBEDO 1e6   /* |texture value| (constant albedos are in [0, 1]) */
+
 typedef struct pen_camera {
     int width, height;
     float fov_y_deg;

@@ -131,7 +131,17 @@ PEN_API void pen_sh_logvis_bwd_d(int bands, const double x[3], const double c[3]
  *   PEN_SH_EXP_CALIBRATED the default: a(x) = exp(a1 x + a2 x^2), b(x) = exp(b1 x + b2 x^2) with a
  *                         fixed number of squarings (so it is smooth in F), a per-band window
  *                         on F^ and a log-visibility depth eps, all fitted against ray-traced
- *                         irradiance (see docs/sh-accuracy.md). */
+ *                         irradiance (see docs/sh-accuracy.md).
+ * Saturation (all methods): a windowed |F^| above PEN_SH_EXP_KNEE is replaced, direction kept, by
+ *   K + W u / (W + u) (u = |F^| - K, K = PEN_SH_EXP_KNEE, W = PEN_SH_EXP_NORM_MAX - K), which is
+ *   continuous with slope 1 at K and approaches PEN_SH_EXP_NORM_MAX. The linear models grow like
+ *   exp(c |F^|^2) and overflow a float near |F^| = 100 (calibrated) or 500 (paper, exact), which a
+ *   valid scene reaches: a hundred spheres stacked at one place without overlap weights, thousands
+ *   of objects above one ground, or a large shadow.epsilon. The DC factor carries the depth: it
+ *   still goes to 0 as F_0 does, so deep shadows stay black. The bundled scenes stay below
+ *   |F^| = 4.1, where nothing changes (the models are fitted for |F^| of a few units). */
+#define PEN_SH_EXP_KNEE 12.0
+#define PEN_SH_EXP_NORM_MAX 24.0
 typedef enum pen_sh_exp_method {
     PEN_SH_EXP_CALIBRATED = 0,
     PEN_SH_EXP_PAPER = 1,

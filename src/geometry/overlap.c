@@ -29,8 +29,17 @@
  *   (sparse: spheres that never share a line do not interact) plus the ridge's diagonal, by
  *   projected Gauss-Seidel (cyclic coordinate descent with clamping at 0), which converges for
  *   this convex box-constrained quadratic; it starts from kappa0.
- * Cost: N * K lines, each tested against the N spheres (K = lines per sphere), so O(N^2 K); the
- * line count per sphere shrinks for large sets to keep the work bounded.
+ * Cost: N * K lines (K = lines per sphere, fewer for large sets). Each line finds the spheres it
+ * crosses through a bounding-volume tree over the spheres' boxes (O(log N + hits) per line rather
+ * than N tests), and its hit list is sorted by sphere index, so the lists, and every sum over
+ * them, are exactly those of testing every sphere in order: the weights do not depend on the tree.
+ * The solve needs G only through products (G kappa)_i: small sets assemble G (cheap per sweep),
+ * larger ones (above GRAM_MAX_SPHERES) sum over the lines through sphere i instead, since a line
+ * through a compact set crosses a fair part of it and G fills up (2000 spheres: 0.8 N^2 entries,
+ * 20000: gigabytes). Memory and the time of one sweep are then linear in the total hit count, N K
+ * times the hits per line (plus N K log N for the tree); the number of sweeps grows with N too
+ * (about 20 for 32 spheres, 165 for 2000), which is why sets above PEN_SPHERES_OVERLAP_MAX (fit.h)
+ * are refused rather than left to run for minutes.
  */
 #include "core/internal.h"
 #include "core/random.h"
@@ -44,6 +53,8 @@
 /* Work bound: line-sphere tests at most about this many for large sets. */
 #define MAX_TESTS 2.0e8
 #define MIN_LINES 64
+/* Sets up to this size solve with the assembled Gram matrix (solve_gram), larger ones without. */
+#define GRAM_MAX_SPHERES 1024
 
 /* The settings pen_spheres_overlap_weights uses (docs/fit-spheres.md has the measurements). */
 typedef struct overlap_settings {
@@ -90,18 +101,168 @@ static int line_hits(const double p[3], const double d[3], const float *s4) {
     return d2 < (double)s4[3] * (double)s4[3];
 }
 
-/* The spheres line (i, k) crosses, written to out (if not NULL); returns their count. The
- * proposal's own sphere always counts (the line was drawn through its disk). */
-static int line_hit_list(const overlap_settings *s, const float *sph, int n, int i, int k,
-                         int *out) {
-    double p[3], d[3];
-    sample_line(s, sph, i, k, p, d);
-    int h = 0;
-    for (int j = 0; j < n; ++j)
-        if (j == i || line_hits(p, d, sph + 4 * (size_t)j)) {
-            if (out) out[h] = j;
-            ++h;
+/* ---- Bounding-volume tree over the spheres' boxes ---------------------------------------- */
+
+/* A node: its box, and either two children (left = node + 1, right = `right`) or a leaf's range
+ * [first, first + count) of `order`. */
+typedef struct bvh_node {
+    double lo[3], hi[3];
+    int right, first, count; /* count 0: inner node */
+} bvh_node;
+
+typedef struct bvh {
+    bvh_node *nodes;
+    int *order;    /* sphere indices, leaves' ranges */
+    double extent; /* the largest |centre coordinate| + radius */
+    int node_count;
+} bvh;
+
+#define BVH_LEAF 4
+
+/* The box of sphere j, widened so that a line the exact test counts as a hit never misses the
+ * box through rounding: line_hits' d2 = |q|^2 - t^2 carries an error of about 2^-52 |q|^2
+ * (|q| <= 2 extent), which moves the distance it compares with r by that over 2 r; the slab test
+ * rounds at about 2^-52 extent. */
+static void sphere_box(const float *sph, int j, double extent, double lo[3], double hi[3]) {
+    const float *c = sph + 4 * (size_t)j;
+    const double r = (double)c[3];
+    const double pad = 1e-9 * r + 1e-12 * extent + 1e-15 * extent * (extent / r);
+    for (int a = 0; a < 3; ++a)
+        lo[a] = (double)c[a] - r - pad, hi[a] = (double)c[a] + r + pad;
+}
+
+/* Builds the subtree over order[first, first + count) at node `at`; returns the next free node. */
+static int bvh_build_node(bvh *B, const float *sph, int first, int count, int at) {
+    bvh_node *nd = &B->nodes[at];
+    double clo[3] = {HUGE_VAL, HUGE_VAL, HUGE_VAL}, chi[3] = {-HUGE_VAL, -HUGE_VAL, -HUGE_VAL};
+    for (int a = 0; a < 3; ++a) nd->lo[a] = HUGE_VAL, nd->hi[a] = -HUGE_VAL;
+    for (int e = first; e < first + count; ++e) {
+        double lo[3], hi[3];
+        const int j = B->order[e];
+        sphere_box(sph, j, B->extent, lo, hi);
+        for (int a = 0; a < 3; ++a) {
+            const double c = (double)sph[4 * (size_t)j + a];
+            nd->lo[a] = fmin(nd->lo[a], lo[a]), nd->hi[a] = fmax(nd->hi[a], hi[a]);
+            clo[a] = fmin(clo[a], c), chi[a] = fmax(chi[a], c);
         }
+    }
+    if (count <= BVH_LEAF) {
+        nd->first = first, nd->count = count, nd->right = -1;
+        return at + 1;
+    }
+    /* Split at the median centre along the widest extent of the centres. */
+    int axis = 0;
+    for (int a = 1; a < 3; ++a)
+        if (chi[a] - clo[a] > chi[axis] - clo[axis]) axis = a;
+    const int half = count / 2;
+    int *o = B->order + first;
+    /* Partial selection (quickselect) of the median by centre coordinate, ties by index. */
+    int lo = 0, hi = count - 1;
+    while (lo < hi) {
+        const int piv = o[(lo + hi) / 2];
+        const double pv = (double)sph[4 * (size_t)piv + axis];
+        int a = lo, b = hi;
+        while (a <= b) {
+            while ((double)sph[4 * (size_t)o[a] + axis] < pv ||
+                   ((double)sph[4 * (size_t)o[a] + axis] == pv && o[a] < piv))
+                ++a;
+            while ((double)sph[4 * (size_t)o[b] + axis] > pv ||
+                   ((double)sph[4 * (size_t)o[b] + axis] == pv && o[b] > piv))
+                --b;
+            if (a <= b) {
+                const int t = o[a];
+                o[a] = o[b], o[b] = t;
+                ++a, --b;
+            }
+        }
+        if (half <= b) hi = b;
+        else if (half >= a) lo = a;
+        else break;
+    }
+    nd->count = 0;
+    const int next = bvh_build_node(B, sph, first, half, at + 1);
+    B->nodes[at].right = next;
+    return bvh_build_node(B, sph, first + half, count - half, next);
+}
+
+static pen_status bvh_build(pen_context *ctx, const float *sph, int n, bvh *B) {
+    memset(B, 0, sizeof *B);
+    B->nodes = pen__malloc(ctx, 2 * (size_t)n, sizeof(bvh_node), "overlap: tree");
+    B->order = pen__malloc(ctx, (size_t)n, sizeof(int), "overlap: tree");
+    if (!B->nodes || !B->order) return PEN_ERROR_MEMORY;
+    for (int j = 0; j < n; ++j) {
+        B->order[j] = j;
+        const float *c = sph + 4 * (size_t)j;
+        const double m = fmax(fabs((double)c[0]), fmax(fabs((double)c[1]), fabs((double)c[2])));
+        B->extent = fmax(B->extent, m + (double)c[3]);
+    }
+    B->node_count = bvh_build_node(B, sph, 0, n, 0);
+    return PEN_OK;
+}
+
+static void bvh_free(bvh *B) {
+    free(B->nodes), free(B->order);
+}
+
+/* Whether the (infinite) line p + t d meets the box: the slabs' t intervals overlap. */
+static int line_meets_box(const double p[3], const double inv[3], const double lo[3],
+                          const double hi[3]) {
+    double t0 = -HUGE_VAL, t1 = HUGE_VAL;
+    for (int a = 0; a < 3; ++a) {
+        if (isinf(inv[a])) {
+            if (p[a] < lo[a] || p[a] > hi[a]) return 0;
+            continue;
+        }
+        double ta = (lo[a] - p[a]) * inv[a], tb = (hi[a] - p[a]) * inv[a];
+        if (ta > tb) {
+            const double t = ta;
+            ta = tb, tb = t;
+        }
+        t0 = ta > t0 ? ta : t0, t1 = tb < t1 ? tb : t1;
+        if (t0 > t1) return 0;
+    }
+    return 1;
+}
+
+/* The spheres line (i, k) crosses, in increasing index order, written to out (if not NULL);
+ * returns their count. The proposal's own sphere always counts (the line was drawn through its
+ * disk). `buf` has room for n indices (the hits before sorting). */
+static int line_hit_list(const overlap_settings *s, const bvh *B, const float *sph, int i, int k,
+                         int *buf, int *out) {
+    double p[3], d[3], inv[3];
+    sample_line(s, sph, i, k, p, d);
+    for (int a = 0; a < 3; ++a)
+        inv[a] = 1.0 / d[a]; /* +-inf for a zero component */
+    /* The tree splits at the median, so its depth is at most log2(n) + 1 < 33: the stack holds at
+     * most one entry per level plus one. */
+    int h = 0, own = 0, stack[64], sp = 0;
+    stack[sp++] = 0;
+    while (sp > 0) {
+        const bvh_node *nd = &B->nodes[stack[--sp]];
+        if (!line_meets_box(p, inv, nd->lo, nd->hi)) continue;
+        if (nd->count == 0) {
+            stack[sp++] = nd->right;
+            stack[sp++] = (int)(nd - B->nodes) + 1;
+            continue;
+        }
+        for (int e = nd->first; e < nd->first + nd->count; ++e) {
+            const int j = B->order[e];
+            if (j == i || line_hits(p, d, sph + 4 * (size_t)j)) {
+                buf[h++] = j;
+                own |= j == i;
+            }
+        }
+    }
+    if (!own) buf[h++] = i;
+    /* Insertion sort: hit lists are short. */
+    for (int a = 1; a < h; ++a) {
+        const int v = buf[a];
+        int b = a - 1;
+        while (b >= 0 && buf[b] > v)
+            buf[b + 1] = buf[b], --b;
+        buf[b + 1] = v;
+    }
+    if (out) memcpy(out, buf, sizeof(int) * (size_t)h);
     return h;
 }
 
@@ -125,17 +286,28 @@ static pen_status lines_build(pen_context *ctx, const overlap_settings *s, const
     L->start = pen__calloc(ctx, (size_t)L->count + 1, sizeof(long), "overlap: line offsets");
     L->omega = pen__malloc(ctx, (size_t)L->count, sizeof(double), "overlap: line weights");
     L->by_start = pen__calloc(ctx, (size_t)n + 1, sizeof(long), "overlap: sphere offsets");
-    if (!L->start || !L->omega || !L->by_start) return PEN_ERROR_MEMORY;
-        /* Pass 1: hit counts; pass 2 (after the prefix sum) regenerates the same lines and fills.
-         */
+    int *buf = pen__malloc(ctx, (size_t)threads * (size_t)n, sizeof(int), "overlap: hit lists");
+    bvh B;
+    pen_status st = bvh_build(ctx, sph, n, &B);
+    if (!st && (!L->start || !L->omega || !L->by_start || !buf)) st = PEN_ERROR_MEMORY;
+    if (st) {
+        bvh_free(&B), free(buf);
+        return st;
+    }
+    /* Pass 1: hit counts; pass 2 (after the prefix sum) regenerates the same lines and fills. */
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
-    for (int i = 0; i < n; ++i)
+    for (int i = 0; i < n; ++i) {
+        int *b = buf + (size_t)omp_get_thread_num() * (size_t)n;
         for (int k = 0; k < K; ++k)
-            L->start[(long)i * K + k + 1] = line_hit_list(s, sph, n, i, k, NULL);
+            L->start[(long)i * K + k + 1] = line_hit_list(s, &B, sph, i, k, b, NULL);
+    }
     for (long l = 0; l < L->count; ++l)
         L->start[l + 1] += L->start[l];
     L->hit = pen__malloc(ctx, (size_t)L->start[L->count], sizeof(int), "overlap: line hits");
-    if (!L->hit) return PEN_ERROR_MEMORY;
+    if (!L->hit) {
+        bvh_free(&B), free(buf);
+        return PEN_ERROR_MEMORY;
+    }
     double rmax = 0.0;
     for (int j = 0; j < n; ++j)
         rmax = fmax(rmax, (double)sph[4 * (size_t)j + 3]);
@@ -144,7 +316,8 @@ static pen_status lines_build(pen_context *ctx, const overlap_settings *s, const
         for (int k = 0; k < K; ++k) {
             const long l = (long)i * K + k;
             int *h = L->hit + L->start[l];
-            const int m = line_hit_list(s, sph, n, i, k, h);
+            const int m = line_hit_list(s, &B, sph, i, k,
+                                        buf + (size_t)omp_get_thread_num() * (size_t)n, h);
             double inv = 0.0;
             for (int q = 0; q < m; ++q) {
                 const double r = (double)sph[4 * (size_t)h[q] + 3] / rmax;
@@ -152,6 +325,7 @@ static pen_status lines_build(pen_context *ctx, const overlap_settings *s, const
             }
             L->omega[l] = 1.0 / inv;
         }
+    bvh_free(&B), free(buf);
     /* Transpose: for each sphere, the lines that cross it (in line order). */
     for (long e = 0; e < L->start[L->count]; ++e)
         L->by_start[L->hit[e] + 1]++;
@@ -191,9 +365,22 @@ static int gram_row(const lines *L, int i, double *acc, int *touched, int *idx, 
     return nt;
 }
 
-/* Projected Gauss-Seidel on (G + ridge D) kappa = W + ridge D kappa0, D = diag(W), W_i = G_ii. */
-static pen_status solve(pen_context *ctx, const overlap_settings *s, const lines *L, int n,
-                        int threads, const double *W, const double *k0, double *kappa) {
+/* One projected Gauss-Seidel step of sphere i on (G + ridge D) kappa = W + ridge D kappa0,
+ * D = diag(W), W_i = G_ii, given g = (G kappa)_i; returns the change of kappa_i. */
+static double gs_step(const overlap_settings *s, double g, double W, double k0, double *kappa) {
+    const double lam = s->ridge;
+    const double grad = g - W + lam * W * (*kappa - k0);
+    const double next = fmax(0.0, *kappa - grad / ((1.0 + lam) * W));
+    const double change = next - *kappa;
+    *kappa = next;
+    return change;
+}
+
+/* The solve with G assembled as sparse rows: cheaper per sweep while the rows are short. A line
+ * through a compact set crosses a good part of it, so the rows fill up as the set grows (about
+ * 0.8 n^2 entries for 2000 spheres filling a cube): larger sets use solve_lines. */
+static pen_status solve_gram(pen_context *ctx, const overlap_settings *s, const lines *L, int n,
+                             int threads, const double *W, const double *k0, double *kappa) {
     long *rs = pen__calloc(ctx, (size_t)n + 1, sizeof(long), "overlap: Gram offsets");
     double *acc = pen__calloc(ctx, (size_t)threads * (size_t)n, sizeof(double), "overlap: rows");
     int *touched = pen__malloc(ctx, (size_t)threads * (size_t)n, sizeof(int), "overlap: rows");
@@ -221,7 +408,6 @@ static pen_status solve(pen_context *ctx, const overlap_settings *s, const lines
     free(acc), free(touched);
     for (int i = 0; i < n; ++i)
         kappa[i] = k0[i];
-    const double lam = s->ridge;
     for (int sweep = 0; sweep < s->max_sweeps && !st; ++sweep) {
         double change = 0.0;
         for (int i = 0; i < n; ++i) {
@@ -229,15 +415,47 @@ static pen_status solve(pen_context *ctx, const overlap_settings *s, const lines
             double g = 0.0; /* (G kappa)_i */
             for (long e = rs[i]; e < rs[i + 1]; ++e)
                 g += val[e] * kappa[idx[e]];
-            const double grad = g - W[i] + lam * W[i] * (kappa[i] - k0[i]);
-            const double next = fmax(0.0, kappa[i] - grad / ((1.0 + lam) * W[i]));
-            change = fmax(change, fabs(next - kappa[i]));
-            kappa[i] = next;
+            change = fmax(change, fabs(gs_step(s, g, W[i], k0[i], &kappa[i])));
         }
         if (change < 1e-9) break;
     }
     free(rs), free(idx), free(val);
     return st;
+}
+
+/* The same iteration without G: (G kappa)_i = sum over the lines l through i of omega_l S_l with
+ * S_l = sum of kappa over the spheres l crosses, kept current as kappa_i changes. A sweep costs
+ * the total hit count (n K times the mean hits per line) and the memory is one double per line,
+ * both linear in n; the sums differ from solve_gram's in rounding only. */
+static pen_status solve_lines(pen_context *ctx, const overlap_settings *s, const lines *L, int n,
+                              const double *W, const double *k0, double *kappa) {
+    double *S = pen__malloc(ctx, (size_t)L->count, sizeof(double), "overlap: line sums");
+    if (!S) return PEN_ERROR_MEMORY;
+    for (int i = 0; i < n; ++i)
+        kappa[i] = k0[i];
+    for (long l = 0; l < L->count; ++l) {
+        double sum = 0.0;
+        for (long e = L->start[l]; e < L->start[l + 1]; ++e)
+            sum += kappa[L->hit[e]];
+        S[l] = sum;
+    }
+    for (int sweep = 0; sweep < s->max_sweeps; ++sweep) {
+        double change = 0.0;
+        for (int i = 0; i < n; ++i) {
+            if (!(W[i] > 0.0)) continue;
+            double g = 0.0;
+            for (long e = L->by_start[i]; e < L->by_start[i + 1]; ++e)
+                g += L->omega[L->by_line[e]] * S[L->by_line[e]];
+            const double d = gs_step(s, g, W[i], k0[i], &kappa[i]);
+            if (d != 0.0)
+                for (long e = L->by_start[i]; e < L->by_start[i + 1]; ++e)
+                    S[L->by_line[e]] += d;
+            change = fmax(change, fabs(d));
+        }
+        if (change < 1e-9) break;
+    }
+    free(S);
+    return PEN_OK;
 }
 
 pen_status pen_spheres_overlap_weights(pen_context *ctx, const pen_spheres *spheres, float *kappa) {
@@ -246,6 +464,11 @@ pen_status pen_spheres_overlap_weights(pen_context *ctx, const pen_spheres *sphe
     if (!spheres || n < 0 || (n > 0 && (!spheres->data || !kappa)))
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "overlap weights: invalid arguments");
     if (n == 0) return PEN_OK;
+    if (n > PEN_SPHERES_OVERLAP_MAX)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "overlap weights: %d spheres (limit %d); give the set weights in its "
+                          "file or use \"overlap\": \"none\"",
+                          n, PEN_SPHERES_OVERLAP_MAX);
     for (int i = 0; i < n; ++i) {
         const float *d = spheres->data + 4 * (size_t)i;
         if (!pen__finite3(d) || !isfinite(d[3]) || !(d[3] > 0.0f))
@@ -277,7 +500,8 @@ pen_status pen_spheres_overlap_weights(pen_context *ctx, const pen_spheres *sphe
             W[i] = a;
             k0[i] = a > 0.0 ? b / a : 1.0;
         }
-        st = solve(ctx, s, &L, n, threads, W, k0, out);
+        st = n <= GRAM_MAX_SPHERES ? solve_gram(ctx, s, &L, n, threads, W, k0, out)
+                                   : solve_lines(ctx, s, &L, n, W, k0, out);
     }
     lines_free(&L);
     /* Solved for a count of 1; the objective is quadratic, so the solution for the target T is

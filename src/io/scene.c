@@ -14,7 +14,6 @@
 #include "penumbra/envmap.h"
 #include "penumbra/io.h"
 
-#include <float.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -24,6 +23,9 @@ static const float DEFAULT_ALBEDO = 0.8f;
 static const float DEFAULT_GROUND_HALF_SIZE = 4.0f;
 
 typedef pen__json_where where;
+
+/* The bound on every coordinate (penumbra/scene.h), short for the many uses below. */
+#define COORD PEN_SCENE_MAX_COORD
 
 /* Reads an optional member: absent leaves *out as is (the default). */
 static const cJSON *member(const cJSON *obj, const char *name) {
@@ -65,6 +67,24 @@ static pen_status opt_floats(pen_context *ctx, const where *w, const cJSON *obj,
 
 /* ---- Loading --------------------------------------------------------------------------------- */
 
+/* Every value of an image the scene references (an environment map, a texture) finite and at
+ * most `limit` in magnitude: a value near FLT_MAX would overflow in the SH projection or the
+ * shading. The caller prefixes the key. */
+static pen_status check_values(pen_context *ctx, const char *path, const pen_image *img,
+                               double limit) {
+    const size_t n = (size_t)img->width * (size_t)img->height * (size_t)img->channels;
+    for (size_t i = 0; i < n; ++i) {
+        const float v = img->data[i];
+        if (isfinite(v) && fabs((double)v) <= limit) continue;
+        const size_t px = i / (size_t)img->channels;
+        return pen__error(ctx, PEN_ERROR_PARSE,
+                          "%s: pixel (%zu, %zu) channel %zu: %g outside [-%g, %g]", path,
+                          px % (size_t)img->width, px / (size_t)img->width,
+                          i % (size_t)img->channels, (double)v, limit, limit);
+    }
+    return PEN_OK;
+}
+
 static pen_status parse_camera(pen_context *ctx, const where *top, const cJSON *root,
                                pen_camera *cam) {
     where w = at(top, "camera");
@@ -84,11 +104,10 @@ static pen_status parse_camera(pen_context *ctx, const where *top, const cJSON *
         s = pen__json_number(ctx, &wf, member(o, "fov_y_deg"), 1e-3, 179.999,
                              "a number of degrees in (0, 180)", &fov);
     cam->fov_y_deg = (float)fov;
-    if (!s) s = pen__json_floats(ctx, &we, member(o, "eye"), 3, -HUGE_VAL, HUGE_VAL, cam->eye);
-    if (!s)
-        s = pen__json_floats(ctx, &wt, member(o, "target"), 3, -HUGE_VAL, HUGE_VAL, cam->target);
+    if (!s) s = pen__json_floats(ctx, &we, member(o, "eye"), 3, -COORD, COORD, cam->eye);
+    if (!s) s = pen__json_floats(ctx, &wt, member(o, "target"), 3, -COORD, COORD, cam->target);
     cam->up[0] = 0.0f, cam->up[1] = 1.0f, cam->up[2] = 0.0f;
-    if (!s) s = opt_floats(ctx, &w, o, "up", -HUGE_VAL, HUGE_VAL, cam->up);
+    if (!s) s = opt_floats(ctx, &w, o, "up", -COORD, COORD, cam->up);
     if (s) return s;
     /* A frame must exist: a viewing direction, and an up vector not along it. */
     double f[3], u[3], x[3];
@@ -128,7 +147,9 @@ static pen_status parse_lighting(pen_context *ctx, const char *path, const where
         where we = at(&w, "envmap");
         const char *rel;
         s = pen__json_string(ctx, &we, env, &rel);
-        if (!s) s = opt_number(ctx, &w, o, "scale", 0.0, FLT_MAX, "a number >= 0", &L->scale);
+        if (!s)
+            s = opt_number(ctx, &w, o, "scale", 0.0, PEN_SCENE_MAX_LIGHT_SCALE,
+                           "a number in [0, 1e3]", &L->scale);
         if (!s)
             s = opt_number(ctx, &w, o, "rotation_y_deg", -1e6, 1e6, "a number of degrees",
                            &L->rotation_y_deg);
@@ -136,6 +157,7 @@ static pen_status parse_lighting(pen_context *ctx, const char *path, const where
         L->envmap_path = pen__io_path_resolve(ctx, path, rel);
         if (!L->envmap_path) return PEN_ERROR_MEMORY;
         s = pen_image_load(ctx, L->envmap_path, &L->envmap);
+        if (!s) s = check_values(ctx, L->envmap_path, &L->envmap, PEN_SCENE_MAX_RADIANCE);
         if (!s && !sh)
             s = pen_envmap_to_sh(ctx, &L->envmap, bands, L->rotation_y_deg, L->scale, L->sh);
         if (s) return pen__json_wrap(ctx, s, &we);
@@ -156,7 +178,7 @@ static pen_status parse_lighting(pen_context *ctx, const char *path, const where
         cJSON_ArrayForEach(row, sh) {
             where wr;
             pen__json_index(&ws, i, &wr);
-            s = pen__json_floats(ctx, &wr, row, 3, -HUGE_VAL, HUGE_VAL, L->sh[i++]);
+            s = pen__json_floats(ctx, &wr, row, 3, -PEN_SCENE_MAX_SH, PEN_SCENE_MAX_SH, L->sh[i++]);
             if (s) return s;
         }
     }
@@ -219,10 +241,10 @@ static pen_status parse_pose(pen_context *ctx, const where *w, const cJSON *o, p
     if (!s)
         s = opt_floats(ctx, w, o, "rotation_axis_angle_deg", -1e6, 1e6,
                        pose->rotation_axis_angle_deg);
-    if (!s) s = opt_floats(ctx, w, o, "translation", -HUGE_VAL, HUGE_VAL, pose->translation);
+    if (!s) s = opt_floats(ctx, w, o, "translation", -COORD, COORD, pose->translation);
     if (!s)
-        s = opt_number(ctx, w, o, "scale", (double)FLT_MIN, (double)FLT_MAX, "a positive number",
-                       &pose->scale);
+        s = opt_number(ctx, w, o, "scale", PEN_SCENE_MIN_SIZE, PEN_SCENE_MAX_SIZE,
+                       "a number in [1e-6, 1e6]", &pose->scale);
     return s;
 }
 
@@ -296,6 +318,7 @@ static pen_status parse_object(pen_context *ctx, const char *path, const where *
             return pen__json_error(ctx, PEN_ERROR_PARSE, wtex,
                                    "a texture needs a mesh with texture coordinates");
         s = pen_image_load(ctx, obj->texture_path, &obj->texture);
+        if (!s) s = check_values(ctx, obj->texture_path, &obj->texture, PEN_SCENE_MAX_ALBEDO);
         if (s) return pen__json_wrap(ctx, s, wtex);
     }
     return parse_spheres(ctx, path, &ws, member(o, "spheres"), obj);
@@ -340,11 +363,12 @@ static pen_status parse_ground(pen_context *ctx, const where *top, const cJSON *
     for (int k = 0; k < 3; ++k)
         g->albedo[k] = DEFAULT_ALBEDO;
     g->half_size = DEFAULT_GROUND_HALF_SIZE;
-    if (!s) s = opt_number(ctx, &w, o, "height", -FLT_MAX, FLT_MAX, "a finite number", &g->height);
+    if (!s)
+        s = opt_number(ctx, &w, o, "height", -COORD, COORD, "a number in [-1e6, 1e6]", &g->height);
     if (!s) s = opt_floats(ctx, &w, o, "albedo", 0.0, 1.0, g->albedo);
     if (!s)
-        s = opt_number(ctx, &w, o, "half_size", (double)FLT_MIN, FLT_MAX, "a positive number",
-                       &g->half_size);
+        s = opt_number(ctx, &w, o, "half_size", PEN_SCENE_MIN_SIZE, PEN_SCENE_MAX_SIZE,
+                       "a number in [1e-6, 1e6]", &g->half_size);
     return s;
 }
 
@@ -371,7 +395,7 @@ static pen_status parse_background(pen_context *ctx, const where *top, const cJS
                                cJSON_IsString(b) ? "'" : "",
                                cJSON_IsString(b) ? b->valuestring : pen__json_type_name(b),
                                cJSON_IsString(b) ? "'" : "");
-    return pen__json_floats(ctx, &w, b, 3, 0.0, FLT_MAX, sc->background);
+    return pen__json_floats(ctx, &w, b, 3, 0.0, PEN_SCENE_MAX_RADIANCE, sc->background);
 }
 
 static pen_status parse_scene(pen_context *ctx, const char *path, const cJSON *root,

@@ -2,12 +2,15 @@
  *     {"spheres": [{"center": [x, y, z], "radius": r, "weight": k}, ...], "metrics": {...}, ...}
  * (or a bare array of sphere objects). Other top-level members are kept by writers and ignored
  * by the reader; inside a sphere object only "center", "radius", the optional overlap "weight"
- * (finite, >= 0; given for every sphere or for none) and "_comments" may appear. */
+ * (finite, >= 0; given for every sphere or for none) and "_comments" may appear. Values are
+ * range-checked as the scene's are (penumbra/scene.h): centre coordinates within
+ * +-PEN_SCENE_MAX_COORD, radius in [PEN_SCENE_MIN_RADIUS, PEN_SCENE_MAX_SIZE], weight at most
+ * PEN_SCENE_MAX_WEIGHT. */
 #include "io/io_internal.h"
 #include "io/spheres_json.h"
 #include "penumbra/io.h"
+#include "penumbra/scene.h"
 
-#include <float.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -35,11 +38,12 @@ pen_status pen__spheres_from_json(pen_context *ctx, const pen__json_where *w, co
         if (!s) s = pen__json_known_keys(ctx, &wi, e, known);
         if (!s)
             s = pen__json_floats(ctx, &wc, cJSON_GetObjectItemCaseSensitive(e, "center"), 3,
-                                 -HUGE_VAL, HUGE_VAL, out->data + 4 * (size_t)i);
-        /* The smallest positive float keeps a radius positive after rounding to float. */
+                                 -PEN_SCENE_MAX_COORD, PEN_SCENE_MAX_COORD,
+                                 out->data + 4 * (size_t)i);
         if (!s)
             s = pen__json_number(ctx, &wr, cJSON_GetObjectItemCaseSensitive(e, "radius"),
-                                 (double)FLT_TRUE_MIN, (double)FLT_MAX, "a positive number", &r);
+                                 PEN_SCENE_MIN_RADIUS, PEN_SCENE_MAX_SIZE,
+                                 "a number in [1e-9, 1e6]", &r);
         /* Weights: all spheres or none, so that a partly weighted set is not silently mixed. */
         const cJSON *wt = cJSON_IsObject(e) ? cJSON_GetObjectItemCaseSensitive(e, "weight") : NULL;
         if (!s && i > 0 && (wt != NULL) != (out->weight != NULL))
@@ -49,7 +53,9 @@ pen_status pen__spheres_from_json(pen_context *ctx, const pen__json_where *w, co
         if (!s && wt && !out->weight &&
             !(out->weight = pen__calloc(ctx, (size_t)out->count, sizeof(float), "weights")))
             s = PEN_ERROR_MEMORY;
-        if (!s && wt) s = pen__json_number(ctx, &ww, wt, 0.0, (double)FLT_MAX, "a number >= 0", &k);
+        if (!s && wt)
+            s = pen__json_number(ctx, &ww, wt, 0.0, PEN_SCENE_MAX_WEIGHT, "a number in [0, 1e6]",
+                                 &k);
         if (s) {
             pen_spheres_free(out);
             return s;

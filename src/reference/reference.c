@@ -515,6 +515,15 @@ pen_status pen_reference_create(pen_context *ctx, const pen_scene *scene,
         st = pose_object(ctx, &scene->objects[o], o, &ref->positions[o], &ref->normals[o], &extent);
     if (!st && scene->ground.enabled)
         extent = fmaxf(extent, fmaxf(fabsf(scene->ground.height), scene->ground.half_size));
+    for (int k = 0; k < 3 && !st; ++k)
+        extent = fmaxf(extent, fabsf(scene->camera.eye[k]));
+    /* Embree asserts (aborts) on ray coordinates beyond about 1.8e18; the loaders' ranges keep
+     * world space below about 2e12 (penumbra/scene.h), but a scene built in memory may not. */
+    if (!st && !((double)extent <= PEN_REFERENCE_MAX_EXTENT))
+        st = pen__error(ctx, PEN_ERROR_ARGUMENT,
+                        "reference: world-space coordinates up to %g (posed meshes, ground, camera "
+                        "eye), beyond the %g the ray tracer handles",
+                        (double)extent, PEN_REFERENCE_MAX_EXTENT);
     /* Float positions carry about 1e-7 relative error and Embree's hit points a few ulps more:
      * 1e-5 of the extent clears them with a margin while staying far below visible detail. */
     ref->eps = 1e-5f * fmaxf(extent, 1.0f);

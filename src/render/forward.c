@@ -199,6 +199,24 @@ static void shade_tile_fwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
     }
 }
 
+/* Refuses a camera whose frame would need more than PEN_RENDER_MAX_BYTES, before anything is
+ * allocated (a size outside the camera's range is left to the scene's validation). */
+static pen_status check_frame_memory(pen_context *ctx, const pen_scene *sc,
+                                     const pen_render_options *opt, int store) {
+    if (!sc) return PEN_OK;
+    const pen_camera *c = &sc->camera;
+    if (c->width < 1 || c->height < 1 || c->width > PEN_IMAGE_MAX_DIM ||
+        c->height > PEN_IMAGE_MAX_DIM || sc->sh_bands < 1 || sc->sh_bands > PEN_SH_MAX_BANDS)
+        return PEN_OK;
+    const double need = (double)c->width * (double)c->height *
+                        (double)pen__render_pixel_bytes(sc->sh_bands, store && opt->shadows);
+    if (need <= PEN_RENDER_MAX_BYTES) return PEN_OK;
+    return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                      "render: camera %d x %d needs about %.1f GB (limit %.1f GB, "
+                      "PEN_RENDER_MAX_BYTES); lower camera.width and camera.height",
+                      c->width, c->height, need / 1e9, PEN_RENDER_MAX_BYTES / 1e9);
+}
+
 pen_status pen_render_fwd(pen_context *ctx, const pen_scene *sc, const pen_render_options *opt,
                           pen_render_state *state, pen_image *image) {
     pen_render_options def = pen_render_options_default();
@@ -213,6 +231,7 @@ pen_status pen_render_fwd(pen_context *ctx, const pen_scene *sc, const pen_rende
         s = pen__error(ctx, PEN_ERROR_ARGUMENT, "render: unknown kernel %d", opt->kernel);
         goto done;
     }
+    if ((s = check_frame_memory(ctx, sc, opt, own == NULL))) goto done;
     pen_render_state *st = state;
     st->valid = 0;
     pen_render_timings *tm = &st->timings;

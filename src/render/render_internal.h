@@ -259,6 +259,9 @@ struct pen_render_state {
 uint64_t pen__render_hash32(const void *data, size_t n);
 /* Sizes the per-pixel buffers for n pixels and the per-object arrays for `objects` objects. */
 pen_status pen__render_state_reserve(pen_context *ctx, pen_render_state *st, size_t n, int objects);
+/* Bytes per pixel a frame allocates (state.c's pixel buffers, G-buffer, output image), with the
+ * store the backward reads when `store` (its scalar-kernel size, the larger). */
+size_t pen__render_pixel_bytes(int bands, int store);
 /* Sizes one object's buffers for V vertices and T triangles. */
 pen_status pen__render_object_reserve(pen_context *ctx, pen__object_buf *b, size_t V, size_t T);
 /* b->adjacency for the mesh, rebuilt only when its topology changed. */

@@ -64,6 +64,15 @@ static void pixel_buffers(pen_render_state *st, pen__buf_float *px[PIXEL_BUFFERS
     memcpy(px, all, sizeof all);
 }
 
+size_t pen__render_pixel_bytes(int bands, int store) {
+    /* The pixel buffers above, the G-buffer (surface, triangle, 2 barycentrics, depth), the
+     * output image, and the backward's store at its larger (scalar kernel) size: F and V. */
+    const size_t gbuffer = 2 * sizeof(int32_t) + 3 * sizeof(float);
+    size_t b = PIXEL_BUFFERS * 3 * sizeof(float) + gbuffer + 3 * sizeof(float);
+    if (store) b += 2 * (size_t)bands * (size_t)bands * sizeof(float);
+    return b;
+}
+
 /* ---- Create, free, timings ------------------------------------------------------------------- */
 
 void pen_render_state_timings(const pen_render_state *st, pen_render_timings *out) {
