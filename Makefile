@@ -30,9 +30,9 @@ test-asan: deps
 	@cmake --build $(BUILD)-asan -j $(JOBS)
 	@cd $(BUILD)-asan && ASAN_OPTIONS=detect_leaks=1 PEN_TEST_QUICK=1 ctest --output-on-failure -j $(JOBS)
 
-# libFuzzer harnesses (fuzz/README.md), built with clang + ASan + UBSan in their own tree, each run
-# for FUZZ_SECONDS; FUZZ_PATHS picks the harnesses. The replays of the stored inputs are part of
-# `make test` (ctest -R fuzz_).
+# libFuzzer harnesses (docs/reliability.md), built with clang + ASan + UBSan in their own tree,
+# each run for FUZZ_SECONDS; FUZZ_PATHS picks the harnesses. The replays of the stored inputs
+# are part of `make test` (ctest -R fuzz_).
 FUZZ_SECONDS ?= 60
 FUZZ_PATHS   ?= obj ply png hdr exr scene spheres task checkpoint
 fuzz:

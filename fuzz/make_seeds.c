@@ -1,4 +1,4 @@
-/* Writes the binary seeds of fuzz/corpus that only the library can make (see fuzz/README.md):
+/* Writes the binary seeds of fuzz/corpus that only the library can make (see docs/reliability.md):
  * downsampled copies of the bundled maps and textures (the bundled files are 0.1 to 1.5 MB;
  * the corpus stays small) and checkpoints of the checkpoint harness's fixed identity.
  *     build/fuzz/fuzz_make_seeds SOURCE_DIR    (writes into SOURCE_DIR/fuzz/corpus)

@@ -1,5 +1,6 @@
 #!/bin/sh
-# Runs each libFuzzer harness of a PEN_FUZZ build for a set time (`make fuzz`; fuzz/README.md).
+# Runs each libFuzzer harness of a PEN_FUZZ build for a set time (`make fuzz`,
+# docs/reliability.md).
 #     sh scripts/fuzz.sh BUILD_DIR SECONDS PATH...
 # Each fuzzer starts from the committed seeds (fuzz/corpus/<path>, fuzz/regressions/<path>) and
 # writes the inputs it finds interesting into BUILD_DIR/fuzz-corpus/<path>, so the repository's
@@ -13,20 +14,31 @@ mkdir -p "$build/fuzz-logs"
 failed=""
 for path in "$@"; do
     exe="$build/fuzz/fuzz_$path"
-    [ -x "$exe" ] || { echo "fuzz: $exe missing (build with PEN_FUZZ=ON)"; failed="$failed $path"; continue; }
+    if [ ! -x "$exe" ]; then
+        echo "fuzz: $exe missing (build with PEN_FUZZ=ON)"
+        failed="$failed $path"
+        continue
+    fi
     dicts=""
     [ -f "$src/fuzz/dict/$path.dict" ] && dicts="-dict=$src/fuzz/dict/$path.dict"
     mkdir -p "$build/fuzz-corpus/$path" "$build/fuzz-findings/$path"
     log="$build/fuzz-logs/$path.log"
     echo "fuzz: $path for ${seconds} s (log $log)"
-    # -jobs=1: one process, the machine may be shared; -timeout: a hang is an input over 10 s.
-    "$exe" "$build/fuzz-corpus/$path" "$src/fuzz/corpus/$path" "$src/fuzz/regressions/$path" \
-        $dicts -max_total_time="$seconds" -timeout=10 -rss_limit_mb=2048 -print_final_stats=1 \
+    # -fork=1: one child process at a time (the machine may be shared) that is restarted after
+    # a finding, so one run collects every finding instead of stopping at the first;
+    # -timeout: a hang is an input over 10 s.
+    before=$(ls "$build/fuzz-findings/$path" | wc -l)
+    seeds="$src/fuzz/corpus/$path"
+    [ -d "$src/fuzz/regressions/$path" ] && seeds="$seeds $src/fuzz/regressions/$path"
+    "$exe" "$build/fuzz-corpus/$path" $seeds \
+        $dicts -fork=1 -ignore_crashes=1 -ignore_timeouts=1 -ignore_ooms=1 \
+        -max_total_time="$seconds" -timeout=10 -rss_limit_mb=2048 \
         -artifact_prefix="$build/fuzz-findings/$path/" >"$log" 2>&1
     rc=$?
-    grep -E '^#[0-9]+ +(DONE|INITED)|stat::number_of_executed_units|stat::peak_rss_mb' "$log" | sed 's/^/    /'
-    if [ $rc -ne 0 ]; then
-        echo "fuzz: $path FAILED (exit $rc): see $log and $build/fuzz-findings/$path/"
+    tail -n 1 "$log" | sed 's/^/    /'
+    after=$(ls "$build/fuzz-findings/$path" | wc -l)
+    if [ $rc -ne 0 ] || [ "$after" -gt "$before" ]; then
+        echo "fuzz: $path: $((after - before)) new finding(s) (exit $rc): $build/fuzz-findings/$path/"
         failed="$failed $path"
     fi
 done
