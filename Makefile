@@ -1,13 +1,13 @@
 # penumbra: the two commands of the README, and a few more for developers.
 #   make demo   install missing Debian packages, build, run the main job on the bundled data
 #   make test   install missing Debian packages, build, run the whole test suite (ctest)
-# Developers: make build | make test-asan | make bench | make generate | make clean
+# Developers: make build | make test-asan | make fuzz | make bench | make generate | make clean
 #   make install [PREFIX=/usr/local] [DESTDIR=...]   cmake --install of the build (README "Install")
 JOBS   ?= $(shell nproc)
 BUILD  ?= build
 PREFIX ?= /usr/local
 
-.PHONY: all deps build demo test test-asan bench generate install clean
+.PHONY: all deps build demo test test-asan fuzz bench generate install clean
 
 all: build
 
@@ -29,6 +29,18 @@ test-asan: deps
 	@cmake -S . -B $(BUILD)-asan -DCMAKE_BUILD_TYPE=RelWithDebInfo -DPEN_SANITIZE=ON >/dev/null
 	@cmake --build $(BUILD)-asan -j $(JOBS)
 	@cd $(BUILD)-asan && ASAN_OPTIONS=detect_leaks=1 PEN_TEST_QUICK=1 ctest --output-on-failure -j $(JOBS)
+
+# libFuzzer harnesses (docs/reliability.md), built with clang + ASan + UBSan in their own tree,
+# each run for FUZZ_SECONDS; FUZZ_PATHS picks the harnesses. The replays of the stored inputs
+# are part of `make test` (ctest -R fuzz_).
+FUZZ_SECONDS ?= 60
+FUZZ_PATHS   ?= obj ply png hdr exr scene spheres task checkpoint
+fuzz:
+	@sh scripts/install-deps.sh --fuzz
+	@cmake -S . -B $(BUILD)-fuzz -DCMAKE_C_COMPILER=clang-14 -DCMAKE_CXX_COMPILER=clang++-14 \
+	    -DCMAKE_BUILD_TYPE=RelWithDebInfo -DPEN_FUZZ=ON -DPEN_TESTS=OFF >/dev/null
+	@cmake --build $(BUILD)-fuzz -j $(JOBS) --target fuzzers
+	@sh scripts/fuzz.sh $(BUILD)-fuzz $(FUZZ_SECONDS) $(FUZZ_PATHS)
 
 bench: build
 	@$(BUILD)/penumbra bench
@@ -52,4 +64,4 @@ install: build
 	@cmake --install $(BUILD) --prefix $(PREFIX)
 
 clean:
-	rm -rf $(BUILD) $(BUILD)-asan
+	rm -rf $(BUILD) $(BUILD)-asan $(BUILD)-fuzz

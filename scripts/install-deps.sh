@@ -1,11 +1,13 @@
 #!/bin/sh
 # Installs the Debian packages penumbra builds and tests with, only those that are missing.
 # Called by `make`; safe to run again. Needs root (or sudo) only when something is missing.
+# `install-deps.sh --fuzz` (called by `make fuzz`) adds clang and its libFuzzer runtime.
 set -e
 PKGS="build-essential cmake pkg-config libembree-dev libcjson-dev libstb-dev libopenexr-dev \
 zlib1g-dev libpng-dev libjpeg-dev"
 # The Python binding and its tests run on Debian's own Python 3 (/usr/bin/python3).
 PKGS="$PKGS python3 python3-numpy python3-torch"
+[ "${1:-}" = "--fuzz" ] && PKGS="$PKGS clang-14 libclang-rt-14-dev"
 missing=""
 for p in $PKGS; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing="$missing $p"

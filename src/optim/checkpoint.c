@@ -209,6 +209,14 @@ static pen_status check_identity(pen_context *ctx, const char *path, reader *r,
         weights[k] = get_f64(r);
     const uint64_t target = get_u64(r), init = get_u64(r);
     if (!r->ok) return pen__error(ctx, PEN_ERROR_PARSE, "%s: truncated checkpoint", path);
+    /* Flags outside their enums would be reported below as if they were valid settings ("made
+     * with shadows, this run is with shadows"): a file that holds one is damaged. */
+    if ((loss != PEN_OPTIM_LOSS_L2 && loss != PEN_OPTIM_LOSS_L1) ||
+        (shadows != 0 && shadows != 1) ||
+        (solver != PEN_OPTIM_LIGHTING_ADAM && solver != PEN_OPTIM_LIGHTING_LEAST_SQUARES))
+        return pen__error(ctx, PEN_ERROR_PARSE,
+                          "%s: damaged checkpoint (loss %d, shadows %d, lighting solver %d)", path,
+                          loss, shadows, solver);
     if (groups != id->groups)
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "%s: made for another task: optimised groups 0x%x, this task's 0x%x",
