@@ -9,7 +9,8 @@ static const pen_command commands[] = {
     {"reference", "ray-traced Monte-Carlo ground truth of a scene (Embree)", pen_cmd_reference},
     {"fit-spheres", "fit a sphere set to a closed mesh", pen_cmd_fit_spheres},
     {"compare", "image error (rmse, rel_rmse, psnr) as JSON", pen_cmd_compare},
-    {"optimize", "recover lighting, albedo or pose from an image (inverse problem)", pen_cmd_optimize},
+    {"optimize", "recover lighting, albedo, pose, shape or spheres from an image (inverse problem)",
+     pen_cmd_optimize},
     {"bench", "performance suite: forward/backward timings and the reference ratio", pen_cmd_bench},
     {"sh-accuracy", "irradiance error of SH visibility against ray-tested truth", pen_cmd_sh_accuracy},
 };
