@@ -8,7 +8,9 @@
  * Camera: pinhole; image row 0 is the top; pixel (px, py) covers [px, px+1) x [py, py+1) and its
  * centre is (px + 0.5, py + 0.5). fov_y_deg is the full vertical field of view.
  * Lighting: SH coefficients per colour channel, sh[i][ch] for i < sh_bands^2 (index l*l + l + m),
- * radiance units; projected from an equirectangular environment map or given in the JSON.
+ * radiance units; projected from an equirectangular environment map or given in the JSON. On top
+ * of it, up to PEN_SCENE_MAX_LIGHTS distant disk lights (suns, lamps), each with its own shadow
+ * (docs/design.md §6).
  * Equirectangular maps: column u in [0,1) is the azimuth, row v in [0,1) the polar angle from +Y
  * (row 0 = zenith, image centre = -Z); see pen_envmap_direction (penumbra/envmap.h).
  */
@@ -41,6 +43,10 @@ extern "C" {
 #define PEN_SCENE_MAX_LIGHT_SCALE 1e3 /* lighting.scale */
 #define PEN_SCENE_MAX_SH 1e13      /* |lighting SH coefficient|, given or projected */
 #define PEN_SCENE_MAX_ALBEDO 1e6   /* |texture value| (constant albedos are in [0, 1]) */
+#define PEN_SCENE_MAX_LIGHTS 16    /* disk lights in one scene */
+#define PEN_SCENE_MIN_LIGHT_RADIUS_DEG 0.01 /* a disk light's angular radius: at least */
+#define PEN_SCENE_MAX_LIGHT_RADIUS_DEG 45.0 /* ... and at most */
+#define PEN_SCENE_MAX_IRRADIANCE 1e9 /* |disk light irradiance| */
 
 typedef struct pen_camera {
     int width, height;
@@ -105,8 +111,29 @@ typedef struct pen_ground {
     float half_size;        /* a square [-h, h] x [-h, h] in x and z */
 } pen_ground;
 
+/* A distant disk light: a uniformly bright disk on the sky (the sun, a lamp, a window seen from
+ * afar). Its radiance is irradiance / (solid angle of the disk), so a surface facing it, with
+ * nothing in the way, receives `irradiance` (per colour channel, linear). */
+typedef struct pen_light {
+    float direction[3];        /* from the scene towards the light's centre, unit length */
+    float angular_radius_deg;  /* half the apex angle of the disk, in
+                                  [PEN_SCENE_MIN_LIGHT_RADIUS_DEG, PEN_SCENE_MAX_LIGHT_RADIUS_DEG] */
+    float irradiance[3];
+} pen_light;
+
+/* Where a scene's disk lights come from (lighting.lights in the JSON). */
+typedef enum pen_lights_mode {
+    PEN_LIGHTS_AUTO = 0,  /* found in the environment map (up to lights_max), none without one */
+    PEN_LIGHTS_NONE = 1,  /* "none": SH lighting only */
+    PEN_LIGHTS_GIVEN = 2  /* listed in the JSON (or set by the caller) */
+} pen_lights_mode;
+
 typedef struct pen_lighting {
     float sh[PEN_SH_MAX_COEFFS][3]; /* the lighting used for shading, sh_bands^2 rows */
+    int light_count;                /* disk lights in use, <= PEN_SCENE_MAX_LIGHTS */
+    pen_light lights[PEN_SCENE_MAX_LIGHTS];
+    pen_lights_mode lights_mode;
+    int lights_max;                 /* PEN_LIGHTS_AUTO: at most this many lights are extracted */
     pen_image envmap;       /* raw map as loaded (not rotated or scaled); data == NULL if none */
     char *envmap_path;
     float scale;            /* applied to the map (projection and lookups); 1 without a map */
