@@ -10,7 +10,7 @@
  * Lighting: SH coefficients per colour channel, sh[i][ch] for i < sh_bands^2 (index l*l + l + m),
  * radiance units; projected from an equirectangular environment map or given in the JSON. On top
  * of it, up to PEN_SCENE_MAX_LIGHTS distant disk lights (suns, lamps), each with its own shadow
- * (docs/design.md §6).
+ * (docs/design.md §1.13).
  * Equirectangular maps: column u in [0,1) is the azimuth, row v in [0,1) the polar angle from +Y
  * (row 0 = zenith, image centre = -Z); see pen_envmap_direction (penumbra/envmap.h).
  */
