@@ -345,7 +345,7 @@ static void test_area_derivative(void) {
     }
     double area = 0.5 * fabs((S[1][0] - S[0][0]) * (S[2][1] - S[0][1]) -
                              (S[2][0] - S[0][0]) * (S[1][1] - S[0][1]));
-    double px_per_unit = view.focal / 3.0;
+    double px_per_unit = view.focal[1] / 3.0;
     /* Per edge, the scheme sums one term per pixel row (column) that the edge crosses instead
      * of integrating over its projected length; the two differ by less than one row, and each
      * term is at most one pixel of motion per pixel of translation (|slope| <= 1). So the

@@ -89,9 +89,8 @@ static void test_projection_roundtrip(void) {
     CHECK_NEAR(s[2], sqrt(0.09 + 0.64 + 9.0), 1e-5);
 }
 
-static void test_projection_jacobian_fd(void) {
-    pen_camera cam = ru_camera(40, 30, 55.0f, 0.3f, 1.2f, 3.0f, 0.0f, 0.4f, 0.0f);
-    pen_view view = ru_view(&cam);
+static void projection_jacobian_fd(const pen_camera *cam) {
+    pen_view view = ru_view(cam);
     unsigned long long seed = 12;
     const double h = 1e-6;
     for (int k = 0; k < 20; ++k) {
@@ -113,6 +112,15 @@ static void test_projection_jacobian_fd(void) {
         pen_view_project_bwd(&view, pf, ds, dp);
         for (int j = 0; j < 3; ++j)
             CHECK_REL(dp[j] - 1, J[j] * 0.3 - J[3 + j] * 0.7 + J[6 + j] * 0.2, 1e-5, 1e-2);
+    }
+}
+
+/* A look-at camera, and a calibrated one (fx != fy, principal point off the centre). */
+static void test_projection_jacobian_fd(void) {
+    for (int calibrated = 0; calibrated < 2; ++calibrated) {
+        pen_camera cam = ru_camera(40, 30, 55.0f, 0.3f, 1.2f, 3.0f, 0.0f, 0.4f, 0.0f);
+        if (calibrated) cam.fx = 41.0f, cam.fy = 29.5f, cam.cx = 23.25f, cam.cy = 12.5f;
+        projection_jacobian_fd(&cam);
     }
 }
 

@@ -35,7 +35,7 @@ typedef struct test_scene {
 static void scene_ground(test_scene *t, int w, int h, float rho) {
     memset(t, 0, sizeof *t);
     pen_scene *s = &t->scene;
-    s->camera = (pen_camera){w, h, 40.0f, {0, 3, 0}, {0, 0, 0}, {0, 0, -1}};
+    s->camera = (pen_camera){w, h, 40.0f, {0, 3, 0}, {0, 0, 0}, {0, 0, -1}, 0, 0, 0, 0};
     s->sh_bands = 3;
     s->lighting.scale = 1.0f;
     s->ground = (pen_ground){1, 0.0f, {rho, rho, rho}, 4.0f};
@@ -406,7 +406,7 @@ static void test_textured_quad(void) {
     test_scene t;
     scene_ground(&t, 16, 16, 1.0f);
     t.scene.ground.enabled = 0;
-    t.scene.camera = (pen_camera){16, 16, 30.0f, {0, 0, 3}, {0, 0, 0}, {0, 1, 0}};
+    t.scene.camera = (pen_camera){16, 16, 30.0f, {0, 0, 3}, {0, 0, 0}, {0, 1, 0}, 0, 0, 0, 0};
     const double L = 1.0;
     t.scene.sh_bands = 1;
     constant_sh(&t.scene, L);
@@ -483,7 +483,7 @@ static void test_textured_quad(void) {
 /* A square casting a shadow on the ground under a map with a bright "sun" and a dim sky. */
 static void scene_shadow(test_scene *t, pen_image *env, int size) {
     scene_ground(t, size, size, 0.8f);
-    t->scene.camera = (pen_camera){size, size, 45.0f, {0, 2.5f, 2.5f}, {0, 0, 0}, {0, 1, 0}};
+    t->scene.camera = (pen_camera){size, size, 45.0f, {0, 2.5f, 2.5f}, {0, 0, 0}, {0, 1, 0}, 0, 0, 0, 0};
     add_square(t, 0, 0.5f, 0.6f, 0.6f);
     for (int y = 0; y < env->height; ++y)
         for (int x = 0; x < env->width; ++x) {
@@ -597,7 +597,7 @@ static void test_agrees_with_render(void) {
             o->pose.scale = 1.0f;
             t.scene.object_count = 1;
             t.scene.ground.enabled = 0;
-            t.scene.camera = (pen_camera){16, 12, 40.0f, {0, 0, 4}, {0, 0, 0}, {0, 1, 0}};
+            t.scene.camera = (pen_camera){16, 12, 40.0f, {0, 0, 4}, {0, 0, 0}, {0, 1, 0}, 0, 0, 0, 0};
         }
         pen_reference *ref = make_ref(ctx, &t.scene, PEN_REFERENCE_LIGHTING_SH);
         pen_image a, b = {0, 0, 0, NULL};

@@ -72,6 +72,7 @@ typedef struct pen_flat_scene {
     int width, height; /* camera: pinhole, row 0 at the top */
     float fov_y_deg;
     float eye[3], target[3], up[3];
+    float fx, fy, cx, cy; /* calibrated intrinsics in pixels (pen_camera); all 0: fov_y_deg */
     int sh_bands;    /* 1 .. PEN_SH_MAX_BANDS */
     const float *sh; /* 3 * sh_bands^2: sh[3 i + channel] */
     float epsilon;   /* log-visibility depth; <= 0: the exponential model's */

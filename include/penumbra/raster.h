@@ -47,13 +47,14 @@ extern "C" {
 
 /* ---- Camera ---------------------------------------------------------------------------------- */
 
-/* A camera prepared for projection: orthonormal frame, focal length in pixels, near plane. */
+/* A camera prepared for projection: orthonormal frame, focal lengths in pixels, near plane. */
 typedef struct pen_view {
     int width, height;
     double eye[3];
     double right[3], up[3], forward[3]; /* orthonormal, right-handed: right x up = -forward */
-    double focal;                       /* pixels: height / (2 tan(fov_y / 2)) */
-    double cx, cy;                      /* principal point: width / 2, height / 2 */
+    double focal[2];                    /* pixels, x and y: height / (2 tan(fov_y / 2)) each,
+                                           or the camera's calibrated fx, fy */
+    double cx, cy;                      /* principal point: width / 2, height / 2, or cx, cy */
     double near_plane;                  /* depth below which geometry is clipped */
 } pen_view;
 
@@ -63,7 +64,7 @@ typedef struct pen_view {
  * direction another axis is used, as pen_camera_frame does. */
 PEN_API pen_status pen_view_init(pen_context *ctx, const pen_camera *cam, pen_view *view);
 
-/* World point -> (sx, sy, depth): sx = cx + f (d.right)/(d.forward), sy = cy - f
+/* World point -> (sx, sy, depth): sx = cx + fx (d.right)/(d.forward), sy = cy - fy
  * (d.up)/(d.forward), depth = d.forward with d = p - eye. Points at depth <= 0 give non-finite
  * screen coordinates; callers test depth against near_plane first. */
 PEN_API void pen_view_project_fwd(const pen_view *view, const float p[3], float s[3]);

@@ -48,14 +48,27 @@ extern "C" {
 #define PEN_SCENE_MAX_LIGHT_RADIUS_DEG 45.0 /* ... and at most */
 #define PEN_SCENE_MAX_IRRADIANCE 1e9 /* |disk light irradiance| */
 
+/* A pinhole camera. Extrinsics: eye, target and up (a calibrated world-to-camera pose R, t is
+ * converted to these by the loader: docs/file-formats.md). Intrinsics: fov_y_deg with square
+ * pixels and the principal point at the image centre, or, when fx > 0, the calibrated focal
+ * lengths and principal point in pixels (fx, fy, cx, cy), measured from the image's top-left
+ * corner with pixel centres at +0.5 (COLMAP's convention; OpenCV's cx, cy are 0.5 smaller).
+ * With fx > 0, fov_y_deg is informational (2 atan(height / (2 fy)), set by the loader). */
 typedef struct pen_camera {
     int width, height;
     float fov_y_deg;
     float eye[3], target[3], up[3];
+    float fx, fy, cx, cy;   /* all 0: from fov_y_deg (the look-at camera) */
 } pen_camera;
 
-/* Checks a camera: size in [1, PEN_IMAGE_MAX_DIM] each way, fov_y_deg in (0, 180), finite eye,
- * target and up, eye != target. Messages begin with "camera: ". */
+/* Most focal length in pixels, and most distance of the principal point from the image. */
+#define PEN_CAMERA_MAX_FOCAL 1e7
+#define PEN_CAMERA_MAX_PRINCIPAL 1e6
+
+/* Checks a camera: size in [1, PEN_IMAGE_MAX_DIM] each way; fov_y_deg in (0, 180) for a look-at
+ * camera, or fx, fy in (0, PEN_CAMERA_MAX_FOCAL] and finite cx, cy within
+ * PEN_CAMERA_MAX_PRINCIPAL pixels of the image; finite eye, target and up, eye != target.
+ * Messages begin with "camera: ". */
 PEN_API pen_status pen_camera_validate(pen_context *ctx, const pen_camera *cam);
 /* Orthonormal camera frame: right, up (true up), forward (towards target). */
 PEN_API void pen_camera_frame(const pen_camera *cam, float right[3], float up[3], float forward[3]);

@@ -57,7 +57,8 @@ def load_scene(path, fit_spheres=True, threads=0):
 
 
 def _scene_from_flat(f):
-    camera = Camera(f.width, f.height, f.fov_y_deg, tuple(f.eye), tuple(f.target), tuple(f.up))
+    camera = Camera(f.width, f.height, f.fov_y_deg, tuple(f.eye), tuple(f.target), tuple(f.up),
+                    f.fx, f.fy, f.cx, f.cy)
     objects = []
     for i in range(f.object_count):
         o = f.objects[i]

@@ -33,7 +33,10 @@ GROUND_MODES = {"occludes": 0, "receiver": 1}
 
 @dataclasses.dataclass
 class Camera:
-    """Pinhole camera (Y up); the image is height x width, row 0 at the top."""
+    """Pinhole camera (Y up); the image is height x width, row 0 at the top.
+
+    fx, fy, cx, cy: calibrated intrinsics in pixels (pixel centres at +0.5, as in COLMAP); all 0:
+    the field of view fov_y_deg with square pixels and the principal point at the centre."""
 
     width: int = 64
     height: int = 64
@@ -41,6 +44,10 @@ class Camera:
     eye: Sequence[float] = (0.0, 1.0, 3.0)
     target: Sequence[float] = (0.0, 0.5, 0.0)
     up: Sequence[float] = (0.0, 1.0, 0.0)
+    fx: float = 0.0
+    fy: float = 0.0
+    cx: float = 0.0
+    cy: float = 0.0
 
 
 @dataclasses.dataclass
@@ -347,6 +354,7 @@ def _flat(spec, sh, ground_albedo, obj):
     s.width, s.height, s.fov_y_deg = int(cam.width), int(cam.height), float(cam.fov_y_deg)
     s.eye[:], s.target[:], s.up[:] = (tuple(float(x) for x in v)
                                       for v in (cam.eye, cam.target, cam.up))
+    s.fx, s.fy, s.cx, s.cy = (float(v) for v in (cam.fx, cam.fy, cam.cx, cam.cy))
     s.sh_bands = _sh_bands(sh)
     s.sh = _lib.fptr(sh)
     s.epsilon, s.exp_method = spec.epsilon, spec.exp

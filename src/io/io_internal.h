@@ -6,6 +6,7 @@
 
 #include "core/internal.h"
 #include "penumbra/image.h"
+#include "penumbra/scene.h"
 
 #include <cjson/cJSON.h>
 #include <stdio.h>
@@ -85,6 +86,11 @@ pen_status pen__json_string(pen_context *ctx, const pen__json_where *w, const cJ
  * naming the place and listing the choices ('unknown <what> "x" (expected "a", "b" or "c")'). */
 pen_status pen__json_choice(pen_context *ctx, const pen__json_where *w, const cJSON *item,
                             const char *what, const char *const names[], int *index);
+/* Member `name` of obj, or NULL (absent, or obj not an object). */
+const cJSON *pen__json_member(const cJSON *obj, const char *name);
+/* PEN_OK if item is an object; else "missing (expected an object)" or "expected an object, got
+ * <type>" at w. */
+pen_status pen__json_need_object(pen_context *ctx, const pen__json_where *w, const cJSON *item);
 /* Fails on any member of object `obj` whose name is not in the NULL-terminated list `known`
  * (members whose names start with '_' are comments and allowed). */
 pen_status pen__json_known_keys(pen_context *ctx, const pen__json_where *w, const cJSON *obj,
@@ -97,6 +103,14 @@ int pen__json_add(cJSON *obj, const char *name, cJSON *item);
  * (so 0.3f is written 0.3, not 0.30000001192092896). NULL on exhaustion. */
 cJSON *pen__json_float(float value);
 cJSON *pen__json_float_array(const float *v, int n);
+
+/* ---- The camera in JSON (src/io/camera.c) -------------------------------------------------- */
+
+/* Reads the scene's "camera" object o (at key path w) into *cam (zeroed first). */
+pen_status pen__io_camera_parse(pen_context *ctx, const pen__json_where *w, const cJSON *o,
+                                pen_camera *cam);
+/* The "camera" object of a scene file; NULL on exhaustion. */
+cJSON *pen__io_camera_json(const pen_camera *cam);
 
 /* ---- Image decoders (src/io/image_*.c) ------------------------------------------------------
  * Each decoder reads a whole file held in memory, distrusts every byte, checks the size against

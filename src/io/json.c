@@ -181,6 +181,17 @@ pen_status pen__json_choice(pen_context *ctx, const pen__json_where *w, const cJ
                            list);
 }
 
+const cJSON *pen__json_member(const cJSON *obj, const char *name) {
+    return cJSON_GetObjectItemCaseSensitive(obj, name);
+}
+
+pen_status pen__json_need_object(pen_context *ctx, const pen__json_where *w, const cJSON *item) {
+    if (cJSON_IsObject(item)) return PEN_OK;
+    if (!item) return pen__json_error(ctx, PEN_ERROR_PARSE, w, "missing (expected an object)");
+    return pen__json_error(ctx, PEN_ERROR_PARSE, w, "expected an object, got %s",
+                           pen__json_type_name(item));
+}
+
 pen_status pen__json_known_keys(pen_context *ctx, const pen__json_where *w, const cJSON *obj,
                                 const char *const *known) {
     const cJSON *e;

@@ -85,49 +85,6 @@ static pen_status check_values(pen_context *ctx, const char *path, const pen_ima
     return PEN_OK;
 }
 
-static pen_status parse_camera(pen_context *ctx, const where *top, const cJSON *root,
-                               pen_camera *cam) {
-    where w = at(top, "camera");
-    const cJSON *o = member(root, "camera");
-    static const char *const known[] = {"width",  "height", "fov_y_deg", "eye",
-                                        "target", "up",     NULL};
-    pen_status s = need_object(ctx, &w, o);
-    if (!s) s = pen__json_known_keys(ctx, &w, o, known);
-    where ww = at(&w, "width"), wh = at(&w, "height"), wf = at(&w, "fov_y_deg");
-    where we = at(&w, "eye"), wt = at(&w, "target"), wu = at(&w, "up");
-    const char *dim = "a positive integer (at most 16384)";
-    double fov = 0;
-    if (!s) s = pen__json_int(ctx, &ww, member(o, "width"), 1, PEN_IMAGE_MAX_DIM, dim, &cam->width);
-    if (!s)
-        s = pen__json_int(ctx, &wh, member(o, "height"), 1, PEN_IMAGE_MAX_DIM, dim, &cam->height);
-    if (!s)
-        s = pen__json_number(ctx, &wf, member(o, "fov_y_deg"), 1e-3, 179.999,
-                             "a number of degrees in (0, 180)", &fov);
-    cam->fov_y_deg = (float)fov;
-    if (!s) s = pen__json_floats(ctx, &we, member(o, "eye"), 3, -COORD, COORD, cam->eye);
-    if (!s) s = pen__json_floats(ctx, &wt, member(o, "target"), 3, -COORD, COORD, cam->target);
-    cam->up[0] = 0.0f, cam->up[1] = 1.0f, cam->up[2] = 0.0f;
-    if (!s) s = opt_floats(ctx, &w, o, "up", -COORD, COORD, cam->up);
-    if (s) return s;
-    /* A frame must exist: a viewing direction, and an up vector not along it. */
-    double f[3], u[3], x[3];
-    for (int k = 0; k < 3; ++k)
-        f[k] = (double)cam->target[k] - (double)cam->eye[k];
-    for (int k = 0; k < 3; ++k)
-        u[k] = cam->up[k];
-    x[0] = f[1] * u[2] - f[2] * u[1];
-    x[1] = f[2] * u[0] - f[0] * u[2];
-    x[2] = f[0] * u[1] - f[1] * u[0];
-    double nf = sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]);
-    double nu = sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
-    double nx = sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]);
-    if (!(nf > 0.0)) return pen__json_error(ctx, PEN_ERROR_PARSE, &wt, "equals camera.eye");
-    if (!(nx > 1e-6 * nf * nu))
-        return pen__json_error(ctx, PEN_ERROR_PARSE, &wu,
-                               "zero or parallel to the viewing direction");
-    return PEN_OK;
-}
-
 static pen_status parse_lighting(pen_context *ctx, const char *path, const where *top,
                                  const cJSON *root, int bands, pen_lighting *L) {
     where w = at(top, "lighting");
@@ -412,7 +369,10 @@ static pen_status parse_scene(pen_context *ctx, const char *path, const cJSON *r
     if (!s && member(root, "sh_bands"))
         s = pen__json_int(ctx, &wb, member(root, "sh_bands"), 1, PEN_SH_MAX_BANDS,
                           "an integer in [1, 8]", &sc->sh_bands);
-    if (!s) s = parse_camera(ctx, &top, root, &sc->camera);
+    if (!s) {
+        where wc = at(&top, "camera");
+        s = pen__io_camera_parse(ctx, &wc, member(root, "camera"), &sc->camera);
+    }
     if (!s) s = parse_shadow(ctx, &top, root, sc->sh_bands, &sc->shadow);
     if (!s) s = parse_ground(ctx, &top, root, &sc->ground);
     if (!s) s = parse_lighting(ctx, path, &top, root, sc->sh_bands, &sc->lighting);
@@ -459,18 +419,6 @@ static int add_path(pen_context *ctx, cJSON *obj, const char *name, const char *
     int ok = rel && pen__json_add(obj, name, cJSON_CreateString(rel));
     free(rel);
     return ok;
-}
-
-static cJSON *camera_json(const pen_camera *c) {
-    cJSON *o = cJSON_CreateObject();
-    int ok = o && pen__json_add(o, "width", cJSON_CreateNumber(c->width)) &&
-             pen__json_add(o, "height", cJSON_CreateNumber(c->height)) &&
-             pen__json_add(o, "fov_y_deg", pen__json_float(c->fov_y_deg)) &&
-             pen__json_add(o, "eye", pen__json_float_array(c->eye, 3)) &&
-             pen__json_add(o, "target", pen__json_float_array(c->target, 3)) &&
-             pen__json_add(o, "up", pen__json_float_array(c->up, 3));
-    if (!ok) cJSON_Delete(o);
-    return ok ? o : NULL;
 }
 
 static cJSON *lighting_json(pen_context *ctx, const char *path, const pen_scene *sc,
@@ -586,7 +534,7 @@ pen_status pen_scene_save_ex(pen_context *ctx, const char *path, const pen_scene
     if (s) return s;
     /* Each member is built inside its pen__json_add call, so nothing is left unowned on failure. */
     cJSON *root = cJSON_CreateObject();
-    int ok = root && pen__json_add(root, "camera", camera_json(&sc->camera)) &&
+    int ok = root && pen__json_add(root, "camera", pen__io_camera_json(&sc->camera)) &&
              pen__json_add(root, "lighting", lighting_json(ctx, path, sc, flags)) &&
              pen__json_add(root, "sh_bands", cJSON_CreateNumber(sc->sh_bands)) &&
              pen__json_add(root, "shadow", shadow_json(&sc->shadow)) &&

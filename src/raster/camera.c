@@ -4,11 +4,12 @@
  * The camera looks from eye towards target. Its frame is right = normalize(forward x up),
  * true up = right x forward, so (right, up, -forward) is a right-handed basis. With
  * d = p - eye and depth z = d.forward, a point projects to
- *     sx = cx + f (d.right) / z,   sy = cy - f (d.up) / z,     f = H / (2 tan(fov_y / 2)),
- * with (cx, cy) = (W/2, H/2): row 0 is the top, pixel centres sit at +0.5, and pixels are square
- * (the horizontal field of view follows from the aspect W/H). The ray through image point
- * (px, py) is eye + z * (rx right + ry up + forward) with rx = (px - cx)/f, ry = (cy - py)/f, so
- * a ray's parameter is the view depth itself. Everything is computed in double; the float
+ *     sx = cx + fx (d.right) / z,   sy = cy - fy (d.up) / z,
+ * with fx = fy = H / (2 tan(fov_y / 2)) and (cx, cy) = (W/2, H/2) for a look-at camera (square
+ * pixels; the horizontal field of view follows from the aspect W/H), or a calibrated camera's
+ * own fx, fy, cx, cy. Row 0 is the top and pixel centres sit at +0.5. The ray through image
+ * point (px, py) is eye + z * (rx right + ry up + forward) with rx = (px - cx)/fx,
+ * ry = (cy - py)/fy, so a ray's parameter is the view depth itself. Everything is computed in double; the float
  * entry points convert at the boundary.
  */
 #include "scene/camera.h"
@@ -24,7 +25,7 @@ static void view_setup(const pen_camera *cam, pen_view *view) {
     view->height = cam->height;
     pen__load3_d(cam->eye, view->eye);
     pen__camera_frame_d(cam, view->right, view->up, view->forward);
-    pen__camera_intrinsics_d(cam, &view->focal, &view->cx, &view->cy);
+    pen__camera_intrinsics_d(cam, view->focal, &view->cx, &view->cy);
     double d[3];
     pen__load3_d(cam->target, d);
     pen__sub_d(d, view->eye, d);
@@ -52,15 +53,15 @@ void pen__raster_project_d(const pen_view *view, const double p[3], double s[3],
     pen__sub_d(p, view->eye, d);
     double x = pen__dot_d(d, view->right), y = pen__dot_d(d, view->up);
     double z = pen__dot_d(d, view->forward);
-    double iz = 1.0 / z, f = view->focal;
-    s[0] = view->cx + f * x * iz;
-    s[1] = view->cy - f * y * iz;
+    double iz = 1.0 / z, fx = view->focal[0], fy = view->focal[1];
+    s[0] = view->cx + fx * x * iz;
+    s[1] = view->cy - fy * y * iz;
     s[2] = z;
     if (!J) return;
     /* d(x/z)/dp = (right - (x/z) forward) / z, likewise for y. */
     for (int i = 0; i < 3; ++i) {
-        J[i] = f * iz * (view->right[i] - x * iz * view->forward[i]);
-        J[3 + i] = -f * iz * (view->up[i] - y * iz * view->forward[i]);
+        J[i] = fx * iz * (view->right[i] - x * iz * view->forward[i]);
+        J[3 + i] = -fy * iz * (view->up[i] - y * iz * view->forward[i]);
         J[6 + i] = view->forward[i];
     }
 }

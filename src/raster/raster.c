@@ -146,8 +146,8 @@ static int tri_bounds(const pen_view *view, const double v[3][3], int *x0, int *
     if (count == 0) return 0;
     double lo[2] = {INFINITY, INFINITY}, hi[2] = {-INFINITY, -INFINITY};
     for (int k = 0; k < count; ++k) {
-        double sx = view->cx + view->focal * poly[k][0] / poly[k][2];
-        double sy = view->cy - view->focal * poly[k][1] / poly[k][2];
+        double sx = view->cx + view->focal[0] * poly[k][0] / poly[k][2];
+        double sy = view->cy - view->focal[1] * poly[k][1] / poly[k][2];
         lo[0] = fmin(lo[0], sx), hi[0] = fmax(hi[0], sx);
         lo[1] = fmin(lo[1], sy), hi[1] = fmax(hi[1], sy);
     }
@@ -300,9 +300,9 @@ pen_status pen_raster_gbuffer(pen_context *ctx, const pen_view *view, const pen_
     }
     double *ry = rx + W;
     for (int x = 0; x < W; ++x)
-        rx[x] = (x + 0.5 - view->cx) / view->focal;
+        rx[x] = (x + 0.5 - view->cx) / view->focal[0];
     for (int y = 0; y < H; ++y)
-        ry[y] = (view->cy - (y + 0.5)) / view->focal;
+        ry[y] = (view->cy - (y + 0.5)) / view->focal[1];
 
     /* Setup, mesh by mesh (camera-space vertices shared by a mesh's triangles). */
     size_t base = 0;

@@ -136,6 +136,7 @@ static pen_status scene_view(pen_context *ctx, const pen_flat_scene *f, pen_obje
     memcpy(c->eye, f->eye, sizeof c->eye);
     memcpy(c->target, f->target, sizeof c->target);
     memcpy(c->up, f->up, sizeof c->up);
+    c->fx = f->fx, c->fy = f->fy, c->cx = f->cx, c->cy = f->cy;
     sc->sh_bands = f->sh_bands;
     memcpy(sc->lighting.sh, f->sh, 3 * sizeof(float) * (size_t)(f->sh_bands * f->sh_bands));
     pen_status s = image_view(ctx, "envmap", f->envmap_width, f->envmap_height, f->envmap,
@@ -393,6 +394,7 @@ static pen_status flatten(pen_context *ctx, pen_flat_loaded *l) {
     memcpy(f->eye, sc->camera.eye, sizeof f->eye);
     memcpy(f->target, sc->camera.target, sizeof f->target);
     memcpy(f->up, sc->camera.up, sizeof f->up);
+    f->fx = sc->camera.fx, f->fy = sc->camera.fy, f->cx = sc->camera.cx, f->cy = sc->camera.cy;
     f->sh_bands = sc->sh_bands;
     memcpy(l->sh, sc->lighting.sh, sizeof l->sh);
     f->sh = l->sh;

@@ -2,7 +2,8 @@
  * an image point (pen_camera_frame, pen_camera_ray; conventions in penumbra/scene.h and
  * src/raster/camera.c). The frame is right = normalize(forward x up), true up = right x forward;
  * the focal length in pixels is f = H / (2 tan(fov_y / 2)) with the principal point at the image
- * centre. Computed in double; the float entry points convert at the boundary. */
+ * centre, or the calibrated fx, fy, cx, cy. Computed in double; the float entry points convert at
+ * the boundary. */
 #include "scene/camera.h"
 #include "core/internal.h"
 #include "core/vec.h"
@@ -44,11 +45,16 @@ void pen__camera_frame_d(const pen_camera *cam, double right[3], double up[3], d
         right[i] = r[i], fwd[i] = f[i];
 }
 
-void pen__camera_intrinsics_d(const pen_camera *cam, double *focal, double *cx, double *cy) {
+void pen__camera_intrinsics_d(const pen_camera *cam, double focal[2], double *cx, double *cy) {
+    if (cam->fx > 0.0f) {
+        focal[0] = (double)cam->fx, focal[1] = (double)cam->fy;
+        *cx = (double)cam->cx, *cy = (double)cam->cy;
+        return;
+    }
     double h = cam->height > 0 ? (double)cam->height : 1.0;
     double fov = (double)cam->fov_y_deg;
     if (!(fov > 0.0 && fov < 180.0)) fov = 60.0; /* only reachable without pen_view_init */
-    *focal = h / (2.0 * tan(fov * (PEN_PI / 360.0)));
+    focal[0] = focal[1] = h / (2.0 * tan(fov * (PEN_PI / 360.0)));
     *cx = 0.5 * (double)cam->width;
     *cy = 0.5 * h;
 }
@@ -58,9 +64,21 @@ pen_status pen_camera_validate(pen_context *ctx, const pen_camera *cam) {
         cam->height > PEN_IMAGE_MAX_DIM)
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "camera: size %dx%d outside [1, %d]", cam->width,
                           cam->height, PEN_IMAGE_MAX_DIM);
-    if (!(cam->fov_y_deg > 0.0f && cam->fov_y_deg < 180.0f))
+    if (cam->fx != 0.0f || cam->fy != 0.0f || cam->cx != 0.0f || cam->cy != 0.0f) {
+        const double F = PEN_CAMERA_MAX_FOCAL, P = PEN_CAMERA_MAX_PRINCIPAL;
+        const double fx = cam->fx, fy = cam->fy, cx = cam->cx, cy = cam->cy;
+        if (!(fx > 0.0 && fx <= F && fy > 0.0 && fy <= F))
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "camera: focal lengths fx %g, fy %g outside (0, %g] pixels",
+                              fx, fy, F);
+        if (!(cx >= -P && cx <= cam->width + P && cy >= -P && cy <= cam->height + P))
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "camera: principal point (%g, %g) more than %g pixels off the image",
+                              cx, cy, P);
+    } else if (!(cam->fov_y_deg > 0.0f && cam->fov_y_deg < 180.0f)) {
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "camera: fov_y_deg %g outside (0, 180)",
                           (double)cam->fov_y_deg);
+    }
     if (!pen__finite3(cam->eye) || !pen__finite3(cam->target) || !pen__finite3(cam->up))
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "camera: non-finite eye, target or up");
     if (cam->eye[0] == cam->target[0] && cam->eye[1] == cam->target[1] &&
@@ -77,9 +95,9 @@ void pen_camera_frame(const pen_camera *cam, float right[3], float up[3], float 
 }
 
 void pen_camera_ray(const pen_camera *cam, float px, float py, float dir[3]) {
-    double r[3], u[3], f[3], focal, cx, cy, d[3];
+    double r[3], u[3], f[3], focal[2], cx, cy, d[3];
     pen__camera_frame_d(cam, r, u, f);
-    pen__camera_intrinsics_d(cam, &focal, &cx, &cy);
+    pen__camera_intrinsics_d(cam, focal, &cx, &cy);
     pen__camera_ray_d(r, u, f, focal, cx, cy, (double)px, (double)py, d);
     normalize_d(d);
     dir[0] = (float)d[0], dir[1] = (float)d[1], dir[2] = (float)d[2];
