@@ -21,6 +21,7 @@ int pen_cmd_reference(int argc, char **argv);
 int pen_cmd_compare(int argc, char **argv);
 int pen_cmd_optimize(int argc, char **argv);
 int pen_cmd_bench(int argc, char **argv);
+int pen_cmd_import_cameras(int argc, char **argv);
 
 /* ---- Helpers (cli/common.c) ---- */
 

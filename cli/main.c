@@ -11,6 +11,8 @@ static const pen_command commands[] = {
     {"compare", "image error (rmse, rel_rmse, psnr) as JSON", pen_cmd_compare},
     {"optimize", "recover lighting, albedo, pose, shape or spheres from an image (inverse problem)",
      pen_cmd_optimize},
+    {"import-cameras", "calibrated cameras of a COLMAP model or transforms.json as a views file",
+     pen_cmd_import_cameras},
     {"bench", "performance suite: forward/backward timings and the reference ratio", pen_cmd_bench},
     {"sh-accuracy", "irradiance error of SH visibility against ray-tested truth", pen_cmd_sh_accuracy},
 };

@@ -1,6 +1,6 @@
-/* penumbra/io.h -- the file formats: scene JSON, meshes (OBJ, PLY), images (PNG, Radiance HDR,
- * OpenEXR) and sphere sets, read into and written from the model types of scene.h, mesh.h,
- * image.h and spheres.h. Implemented in src/io, which computes nothing beyond parsing: a scene's
+/* penumbra/io.h -- the file formats: scene JSON, meshes (OBJ, PLY), images (PNG, JPEG, Radiance
+ * HDR, OpenEXR), sphere sets and sets of calibrated views (views JSON, COLMAP, transforms.json),
+ * read into and written from the model types of scene.h, mesh.h, image.h and spheres.h. Implemented in src/io, which computes nothing beyond parsing: a scene's
  * overlap weights, for instance, are not solved at load (the renderer computes them when a sphere
  * set has none; pen_spheres_ensure_weights in fit.h does it explicitly).
  *
@@ -20,6 +20,36 @@
 #ifdef __cplusplus
 extern "C" {
 #endif
+
+/* ---- Sets of calibrated views ----------------------------------------------------------------- */
+
+/* One camera per observed image, with the image's path: what a multi-view task reads
+ * (docs/file-formats.md, "Views"). */
+typedef struct pen_camera_set {
+    int count;
+    pen_camera *cameras; /* calibrated: fx > 0, pose as eye/target/up (pen_camera) */
+    char **images;       /* the image of each view, resolved */
+} pen_camera_set;
+#define PEN_CAMERA_SET_MAX 100000 /* views in one set */
+
+/* Imports a COLMAP text model: model_dir/cameras.txt (PINHOLE or SIMPLE_PINHOLE; other models
+ * are refused: undistort first) and model_dir/images.txt; image names are resolved against
+ * images_dir (NULL: model_dir). Views sorted by image name. */
+PEN_API pen_status pen_camera_set_load_colmap(pen_context *ctx, const char *model_dir,
+                                              const char *images_dir, pen_camera_set *out);
+/* Imports a NeRF-style transforms.json (camera-to-world matrices in OpenGL axes; fl_x/fl_y or
+ * camera_angle_x/y, cx, cy, w, h per frame or at the top; see docs/file-formats.md). Image paths
+ * relative to the file. Views in file order. */
+PEN_API pen_status pen_camera_set_load_transforms(pen_context *ctx, const char *path,
+                                                  pen_camera_set *out);
+/* Reads and writes the views JSON: {"views": [{"camera": {...}, "target": "image"}, ...]}, each
+ * camera as in a scene file; image paths relative to the JSON file. Writing is atomic. */
+PEN_API pen_status pen_camera_set_load_views(pen_context *ctx, const char *path,
+                                             pen_camera_set *out);
+PEN_API pen_status pen_camera_set_save_views(pen_context *ctx, const char *path,
+                                             const pen_camera_set *set);
+/* Frees a set's arrays and zeroes it; NULL is a no-op. */
+PEN_API void pen_camera_set_free(pen_camera_set *set);
 
 /* ---- Scenes ---------------------------------------------------------------------------------- */
 

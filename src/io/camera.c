@@ -18,6 +18,7 @@
 #include "io/io_internal.h"
 
 #include <math.h>
+#include <stdio.h>
 #include <string.h>
 
 typedef pen__json_where where;
@@ -37,6 +38,35 @@ static double orthonormality_error(const double R[9], double *det) {
     *det = R[0] * (R[4] * R[8] - R[5] * R[7]) - R[1] * (R[3] * R[8] - R[5] * R[6]) +
            R[2] * (R[3] * R[7] - R[4] * R[6]);
     return err;
+}
+
+int pen__io_camera_pose(const double R[9], const double t[3], pen_camera *cam, char *why,
+                        size_t why_size) {
+    double det, err = orthonormality_error(R, &det);
+    if (!(err <= 1e-3)) {
+        snprintf(why, why_size, "R is not a rotation (|R R^T - I| = %.3g, tolerance 1e-3)", err);
+        return 0;
+    }
+    if (!(det > 0.0)) {
+        snprintf(why, why_size, "R has determinant %.3g: a reflection, not a rotation", det);
+        return 0;
+    }
+    double eye[3], dist = 0.0;
+    for (int k = 0; k < 3; ++k) {
+        eye[k] = -(R[k] * t[0] + R[3 + k] * t[1] + R[6 + k] * t[2]);
+        dist += eye[k] * eye[k];
+    }
+    dist = dist > 0.0 ? sqrt(dist) : 1.0;
+    for (int k = 0; k < 3; ++k) {
+        if (!(fabs(eye[k]) <= COORD)) {
+            snprintf(why, why_size, "the camera centre -R^T t lies beyond %g", COORD);
+            return 0;
+        }
+        cam->eye[k] = (float)eye[k];
+        cam->target[k] = (float)(eye[k] + dist * R[6 + k]);
+        cam->up[k] = (float)-R[3 + k];
+    }
+    return 1;
 }
 
 /* n rows of n_cols finite numbers each (a matrix given as an array of rows). */
@@ -87,27 +117,9 @@ static pen_status parse_world_to_camera(pen_context *ctx, const where *w, const 
             t[i] = M[4 * i + 3];
         }
     }
-    double det, err = orthonormality_error(R, &det);
-    if (!(err <= 1e-3))
-        return pen__json_error(ctx, PEN_ERROR_PARSE, w,
-                               "R is not a rotation (|R R^T - I| = %.3g, tolerance 1e-3)", err);
-    if (!(det > 0.0))
-        return pen__json_error(ctx, PEN_ERROR_PARSE, w,
-                               "R has determinant %.3g: a reflection, not a rotation", det);
-    double eye[3], dist = 0.0;
-    for (int k = 0; k < 3; ++k) {
-        eye[k] = -(R[k] * t[0] + R[3 + k] * t[1] + R[6 + k] * t[2]);
-        dist += eye[k] * eye[k];
-    }
-    dist = dist > 0.0 ? sqrt(dist) : 1.0;
-    for (int k = 0; k < 3; ++k) {
-        if (!(fabs(eye[k]) <= COORD))
-            return pen__json_error(ctx, PEN_ERROR_PARSE, w,
-                                   "the camera centre -R^T t lies beyond %g", COORD);
-        cam->eye[k] = (float)eye[k];
-        cam->target[k] = (float)(eye[k] + dist * R[6 + k]);
-        cam->up[k] = (float)-R[3 + k];
-    }
+    char why[160];
+    if (!pen__io_camera_pose(R, t, cam, why, sizeof why))
+        return pen__json_error(ctx, PEN_ERROR_PARSE, w, "%s", why);
     return PEN_OK;
 }
 

@@ -109,6 +109,11 @@ cJSON *pen__json_float_array(const float *v, int n);
 /* Reads the scene's "camera" object o (at key path w) into *cam (zeroed first). */
 pen_status pen__io_camera_parse(pen_context *ctx, const pen__json_where *w, const cJSON *o,
                                 pen_camera *cam);
+/* Sets eye, target and up of *cam from a world-to-camera pose x_cam = R x + t in OpenCV axes
+ * (x right, y down, z forward), as src/io/camera.c describes. Returns 1, or 0 with the reason in
+ * `why` (R not a rotation, or the centre out of range). */
+int pen__io_camera_pose(const double R[9], const double t[3], pen_camera *cam, char *why,
+                        size_t why_size);
 /* The "camera" object of a scene file; NULL on exhaustion. */
 cJSON *pen__io_camera_json(const pen_camera *cam);
 
