@@ -1,8 +1,9 @@
 /* penumbra/io.h -- the file formats: scene JSON, meshes (OBJ, PLY), images (PNG, JPEG, Radiance
  * HDR, OpenEXR), sphere sets and sets of calibrated views (views JSON, COLMAP, transforms.json),
- * read into and written from the model types of scene.h, mesh.h, image.h and spheres.h. Implemented in src/io, which computes nothing beyond parsing: a scene's
- * overlap weights, for instance, are not solved at load (the renderer computes them when a sphere
- * set has none; pen_spheres_ensure_weights in fit.h does it explicitly).
+ * read into and written from the model types of scene.h, mesh.h, image.h and spheres.h.
+ * Implemented in src/io, which computes nothing beyond parsing: a scene's overlap weights, for
+ * instance, are not solved at load (the renderer computes them when a sphere set has none;
+ * pen_spheres_ensure_weights in fit.h does it explicitly).
  *
  * Every loader zeroes *out on failure and names the file and the place (line, byte offset or
  * JSON key path) in the context's message. Every writer is atomic: it writes a temporary file in
