@@ -34,7 +34,7 @@ test-asan: deps
 # each run for FUZZ_SECONDS; FUZZ_PATHS picks the harnesses. The replays of the stored inputs
 # are part of `make test` (ctest -R fuzz_).
 FUZZ_SECONDS ?= 60
-FUZZ_PATHS   ?= obj ply png jpeg hdr exr scene spheres task checkpoint
+FUZZ_PATHS   ?= obj ply png jpeg hdr exr scene spheres task checkpoint cameras
 fuzz:
 	@sh scripts/install-deps.sh --fuzz
 	@cmake -S . -B $(BUILD)-fuzz -DCMAKE_C_COMPILER=clang-14 -DCMAKE_CXX_COMPILER=clang++-14 \
