@@ -72,15 +72,16 @@ typedef enum pen_mesh_albedo_kind {
     PEN_MESH_ALBEDO_DEFAULT = 0,  /* nothing in the mesh says: the object's constant albedo */
     PEN_MESH_ALBEDO_CONSTANT = 1, /* the faces use one material, with a Kd and no map */
     PEN_MESH_ALBEDO_TEXTURE = 2,  /* the faces use one material with a map_Kd: the mesh's UVs
-                                     into mesh->texture_path, as they are */
+                                     into that texture, as they are */
     PEN_MESH_ALBEDO_BAKE = 3      /* several materials used, or vertex colours: bake an atlas */
 } pen_mesh_albedo_kind;
 
 /* Decides how a mesh's albedo is rendered: BAKE when it has vertex colours, or its faces use two
- * or more materials (a face with no material counts as one more when others have one), TEXTURE
- * when they all use one material with a map_Kd, CONSTANT (kd set to its Kd) when they all use one
- * material with a Kd and no map, DEFAULT otherwise. kd may be NULL. */
-PEN_API pen_mesh_albedo_kind pen_mesh_albedo_plan(const pen_mesh *mesh, float kd[3]);
+ * or more materials (faces without one count as one more); when all faces use one material,
+ * *material (may be NULL) is set to its index (else -1) and the result is TEXTURE if it has a
+ * map_Kd, CONSTANT if it has a Kd only, DEFAULT otherwise. A mesh without materials but with a
+ * texture_path (built in memory) gives TEXTURE. */
+PEN_API pen_mesh_albedo_kind pen_mesh_albedo_plan(const pen_mesh *mesh, int *material);
 
 /* Bakes the albedo of a mesh's materials or vertex colours into one texture and rewrites the
  * mesh's UVs to address it, so that one bilinear, repeat-wrapped lookup per point (the

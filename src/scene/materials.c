@@ -34,19 +34,19 @@
 #define CONST_TILE 4 /* a constant tile's side; its centre lies between four equal texels */
 #define BLOCK 4      /* a vertex-colour block's side */
 
-pen_mesh_albedo_kind pen_mesh_albedo_plan(const pen_mesh *mesh, float kd[3]) {
+pen_mesh_albedo_kind pen_mesh_albedo_plan(const pen_mesh *mesh, int *material) {
+    if (material) *material = -1;
     if (mesh->colors) return PEN_MESH_ALBEDO_BAKE;
     if (mesh->material_count <= 0 || !mesh->triangle_materials || mesh->triangle_count <= 0)
-        return PEN_MESH_ALBEDO_DEFAULT;
+        return mesh->texture_path ? PEN_MESH_ALBEDO_TEXTURE : PEN_MESH_ALBEDO_DEFAULT;
     const int32_t first = mesh->triangle_materials[0];
     for (int t = 1; t < mesh->triangle_count; ++t)
         if (mesh->triangle_materials[t] != first) return PEN_MESH_ALBEDO_BAKE;
     if (first < 0) return PEN_MESH_ALBEDO_DEFAULT;
+    if (material) *material = first;
     const pen_mesh_material *m = &mesh->materials[first];
     if (m->texture_path) return PEN_MESH_ALBEDO_TEXTURE;
-    if (!m->has_kd) return PEN_MESH_ALBEDO_DEFAULT;
-    if (kd) memcpy(kd, m->kd, sizeof m->kd);
-    return PEN_MESH_ALBEDO_CONSTANT;
+    return m->has_kd ? PEN_MESH_ALBEDO_CONSTANT : PEN_MESH_ALBEDO_DEFAULT;
 }
 
 /* One tile of the atlas: a material's (or, last, the faces without one). */
