@@ -35,9 +35,9 @@ const char *fuzz_message(void) {
 /* ---- Scratch folder and assets ---------------------------------------------------------- */
 
 static const char *const asset_names[] = {
-    "tri.obj",   "tri.ply",   "spheres.json", "tex.png",   "env.hdr",    "env.exr",
-    "target.exr", "two.mtl",  "two.obj",      "input.obj", "input.ply",  "input.png",
-    "input.hdr", "input.exr", "input.jpg",    "input.json", "input.bin", NULL};
+    "tri.obj",    "tri.ply",   "spheres.json", "tex.png",    "env.hdr",   "env.exr",
+    "target.exr", "two.mtl",   "two.obj",      "input.obj",  "input.ply", "input.png",
+    "input.hdr",  "input.exr", "input.jpg",    "input.json", "input.bin", NULL};
 
 static void remove_dir(void) {
     char path[700];
@@ -139,7 +139,8 @@ void fuzz_check_mesh(const pen_mesh *m) {
     if (m->uv_count) check_indices(m->uv_indices, m->triangle_count, m->uv_count, "mesh: uv index");
     if (m->normal_count)
         check_indices(m->normal_indices, m->triangle_count, m->normal_count, "mesh: normal index");
-    if (m->material_count < 0 || (m->material_count > 0 && (!m->materials || !m->triangle_materials)))
+    if (m->material_count < 0 ||
+        (m->material_count > 0 && (!m->materials || !m->triangle_materials)))
         fuzz_fail("mesh: material arrays");
     for (int i = 0; i < m->material_count; ++i) {
         const pen_mesh_material *mt = &m->materials[i];
@@ -154,7 +155,8 @@ void fuzz_check_mesh(const pen_mesh *m) {
     if (m->colors) {
         fuzz_check_floats(m->colors, 3 * (size_t)m->vertex_count, "mesh: non-finite colour");
         for (size_t i = 0; i < 3 * (size_t)m->vertex_count; ++i)
-            if (m->colors[i] < 0.0f || m->colors[i] > 1.0f) fuzz_fail("mesh: colour outside [0, 1]");
+            if (m->colors[i] < 0.0f || m->colors[i] > 1.0f)
+                fuzz_fail("mesh: colour outside [0, 1]");
     }
 }
 
@@ -235,7 +237,7 @@ int fuzz_image(const uint8_t *data, size_t size, const char *ext) {
  * texture, so no file is read) and checks the atlas and the rewritten UVs. */
 static void fuzz_bake(pen_mesh *mesh) {
     if (pen_mesh_albedo_plan(mesh, NULL) != PEN_MESH_ALBEDO_BAKE) return;
-    static float texels[18] = {0.1f, 0.2f, 0.3f, 0.9f, 0.8f, 0.7f, 0.5f, 0.5f, 0.5f,
+    static float texels[18] = {0.1f, 0.2f, 0.3f, 0.9f, 0.8f, 0.7f, 0.5f,  0.5f, 0.5f,
                                0.0f, 1.0f, 0.0f, 1.0f, 0.0f, 1.0f, 0.25f, 0.5f, 0.75f};
     pen_image *tex = NULL;
     if (mesh->material_count > 0) {

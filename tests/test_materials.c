@@ -219,9 +219,16 @@ static void test_bake_materials(void) {
     pen_mesh_material mats[3] = {{.name = "a"}, {.name = "b"}, {.name = "c"}};
     mats[2].has_kd = 1;
     mats[2].kd[0] = 0.1f, mats[2].kd[1] = 0.7f, mats[2].kd[2] = 0.2f;
-    pen_mesh m = {.vertex_count = 4, .triangle_count = 5, .positions = pos, .indices = idx,
-                  .uv_count = 9, .uvs = uvs, .uv_indices = uv_idx, .material_count = 3,
-                  .materials = mats, .triangle_materials = tm};
+    pen_mesh m = {.vertex_count = 4,
+                  .triangle_count = 5,
+                  .positions = pos,
+                  .indices = idx,
+                  .uv_count = 9,
+                  .uvs = uvs,
+                  .uv_indices = uv_idx,
+                  .material_count = 3,
+                  .materials = mats,
+                  .triangle_materials = tm};
     pen_image tex[3] = {{0}};
     random_image(5, 3, &tex[0]);
     random_image(4, 6, &tex[1]);
@@ -262,9 +269,16 @@ static void test_bake_materials(void) {
     /* A face spanning 20 periods: its tile stops at PEN_MESH_BAKE_MAX_REPEATS, UVs clamped. */
     float wide[] = {0, 0, 20, 0, 0, 1};
     uint32_t wide_idx[] = {0, 1, 2};
-    pen_mesh one = {.vertex_count = 4, .triangle_count = 1, .positions = pos, .indices = idx,
-                    .uv_count = 3, .uvs = malloc(sizeof wide), .uv_indices = malloc(12),
-                    .material_count = 2, .materials = mats, .triangle_materials = tm};
+    pen_mesh one = {.vertex_count = 4,
+                    .triangle_count = 1,
+                    .positions = pos,
+                    .indices = idx,
+                    .uv_count = 3,
+                    .uvs = malloc(sizeof wide),
+                    .uv_indices = malloc(12),
+                    .material_count = 2,
+                    .materials = mats,
+                    .triangle_materials = tm};
     memcpy(one.uvs, wide, sizeof wide);
     memcpy(one.uv_indices, wide_idx, sizeof wide_idx);
     CHECK(pen_mesh_bake_albedo(ctx, &one, tex, def, &atlas) == PEN_OK);
@@ -285,8 +299,13 @@ static void test_bake_materials(void) {
     free(one.uvs);
     free(one.uv_indices);
     /* A textured material without UVs. */
-    pen_mesh nouv = {.vertex_count = 4, .triangle_count = 1, .positions = pos, .indices = idx,
-                     .material_count = 2, .materials = mats, .triangle_materials = tm};
+    pen_mesh nouv = {.vertex_count = 4,
+                     .triangle_count = 1,
+                     .positions = pos,
+                     .indices = idx,
+                     .material_count = 2,
+                     .materials = mats,
+                     .triangle_materials = tm};
     CHECK_ERROR(ctx, pen_mesh_bake_albedo(ctx, &nouv, tex, def, &atlas), PEN_ERROR_ARGUMENT,
                 "material 'a'", "no texture coordinates");
     pen_image_free(&tex[0]);
@@ -304,8 +323,8 @@ static void test_bake_colors(void) {
     uint32_t idx[3 * T];
     for (int i = 0; i < 3 * T; ++i)
         idx[i] = (uint32_t)((i * 5 + i / 3) % V);
-    pen_mesh m = {.vertex_count = V, .triangle_count = T, .positions = pos, .indices = idx,
-                  .colors = col};
+    pen_mesh m = {
+        .vertex_count = V, .triangle_count = T, .positions = pos, .indices = idx, .colors = col};
     const float def[3] = {0.8f, 0.8f, 0.8f};
     pen_image atlas;
     CHECK(pen_mesh_albedo_plan(&m, NULL) == PEN_MESH_ALBEDO_BAKE);
@@ -402,7 +421,8 @@ static void test_ply_colors(void) {
                                            "property float x\nproperty float y\nproperty float z\n"
                                            "property uchar red\nproperty uchar green\n"
                                            "property uchar blue\nproperty uchar alpha\n"
-                                           "element face 1\nproperty list uchar int vertex_indices\n"
+                                           "element face 1\n"
+                                           "property list uchar int vertex_indices\n"
                                            "end_header\n"
                                            "0 0 0 255 0 128 255\n1 0 0 0 255 0 255\n"
                                            "0 1 0 10 20 30 255\n3 0 1 2\n");

@@ -32,9 +32,9 @@ extern "C" {
 /* One OBJ material, as its MTL file gives it. */
 typedef struct pen_mesh_material {
     char *name;
-    float kd[3];        /* diffuse colour (linear, as written); meaningful when has_kd */
+    float kd[3]; /* diffuse colour (linear, as written); meaningful when has_kd */
     int has_kd;
-    char *texture_path; /* map_Kd, resolved relative to the .mtl file, or NULL */
+    char *texture_path;   /* map_Kd, resolved relative to the .mtl file, or NULL */
     char *texture_source; /* "file.mtl:line" of that map_Kd statement (for messages), or NULL */
 } pen_mesh_material;
 
@@ -52,10 +52,10 @@ typedef struct pen_mesh {
     char *texture_path;        /* map_Kd of the first material a face uses that has one (resolved
                                   path), or NULL */
     int material_count;        /* 0 without materials */
-    pen_mesh_material *materials;  /* material_count entries */
-    int32_t *triangle_materials;   /* triangle_count entries in [-1, material_count), or NULL when
-                                      material_count == 0 */
-    float *colors;             /* 3 * vertex_count, linear RGB in [0, 1]; NULL without colours */
+    pen_mesh_material *materials; /* material_count entries */
+    int32_t *triangle_materials;  /* triangle_count entries in [-1, material_count), or NULL when
+                                     material_count == 0 */
+    float *colors;                /* 3 * vertex_count, linear RGB in [0, 1]; NULL without colours */
 } pen_mesh;
 
 /* Checks a mesh (loaded, or built in memory): positive counts within the loaders' cap, finite
@@ -102,9 +102,8 @@ PEN_API pen_mesh_albedo_kind pen_mesh_albedo_plan(const pen_mesh *mesh, int *mat
  * have no UVs; messages begin with "bake: ". On failure the mesh is unchanged. The atlas is
  * allocated (3 channels); free it with pen_image_free. */
 #define PEN_MESH_BAKE_MAX_REPEATS 8
-PEN_API pen_status pen_mesh_bake_albedo(pen_context *ctx, pen_mesh *mesh,
-                                        const pen_image *textures, const float default_albedo[3],
-                                        pen_image *atlas);
+PEN_API pen_status pen_mesh_bake_albedo(pen_context *ctx, pen_mesh *mesh, const pen_image *textures,
+                                        const float default_albedo[3], pen_image *atlas);
 
 #ifdef __cplusplus
 }

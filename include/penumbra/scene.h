@@ -91,12 +91,12 @@ PEN_API void pen_pose_points_bwd(const pen_pose *pose, int n, const float *p, co
 
 /* How an object's albedo texture relates to its mesh file (pen_object.texture_layout). */
 typedef enum pen_texture_layout {
-    PEN_TEXTURE_LAYOUT_FILE = 0,  /* addressed by the mesh file's own UVs */
-    PEN_TEXTURE_LAYOUT_BAKED = 1  /* an atlas pen_mesh_bake_albedo made from the mesh file's
-                                     materials or vertex colours; the mesh holds the atlas UVs.
-                                     Saved scenes name the mesh file only (it is baked again on
-                                     loading), or, when texture_path is set (an optimised atlas),
-                                     also the texture with "albedo_texture_layout": "baked" */
+    PEN_TEXTURE_LAYOUT_FILE = 0, /* addressed by the mesh file's own UVs */
+    PEN_TEXTURE_LAYOUT_BAKED = 1 /* an atlas pen_mesh_bake_albedo made from the mesh file's
+                                    materials or vertex colours; the mesh holds the atlas UVs.
+                                    Saved scenes name the mesh file only (it is baked again on
+                                    loading), or, when texture_path is set (an optimised atlas),
+                                    also the texture with "albedo_texture_layout": "baked" */
 } pen_texture_layout;
 
 typedef struct pen_object {

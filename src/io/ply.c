@@ -4,9 +4,10 @@
  * type and an item type). penumbra reads the `vertex` element's x, y, z, optional texture
  * coordinates (s/t, u/v, texture_u/texture_v or texture_s/texture_t), normals (nx, ny, nz) and
  * colours (red, green, blue or diffuse_red, ...: uchar and ushort as sRGB codes, decoded to
- * linear like textures; float and double as linear values, clamped to [0, 1]), and the `face` element's vertex_indices (or vertex_index) list; every other element and
- * property is read and skipped, so their layout must still be valid. Polygons are triangulated as
- * fans. Per-vertex UVs and normals share the position indices.
+ * linear like textures; float and double as linear values, clamped to [0, 1]), and the `face`
+ * element's vertex_indices (or vertex_index) list; every other element and property is read and
+ * skipped, so their layout must still be valid. Polygons are triangulated as fans. Per-vertex
+ * UVs, normals and colours share the position indices.
  *
  * Distrust: element counts are capped (PEN_MAX_ELEMENTS) and checked against the bytes left in
  * the file before anything is allocated, so an absurd header fails at once instead of asking for
@@ -372,8 +373,9 @@ static pen_status find_colors(ply_reader *r, const ply_element *e, int ic[3]) {
             const ply_property *pr = &e->props[ic[c]];
             const ply_type t = pr->type;
             if (pr->count_type != T_NONE || (t != T_U8 && t != T_U16 && !is_float_type(t)))
-                return ply_error(r, "vertex property %s: a colour must be a uchar, ushort, float "
-                                    "or double scalar",
+                return ply_error(r,
+                                 "vertex property %s: a colour must be a uchar, ushort, float "
+                                 "or double scalar",
                                  pr->name);
         }
         return PEN_OK;

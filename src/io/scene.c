@@ -342,8 +342,8 @@ static pen_status parse_albedo(pen_context *ctx, const char *path, const where *
     if (baked_pixels && plan != PEN_MESH_ALBEDO_BAKE)
         return pen__json_error(ctx, PEN_ERROR_PARSE, &wl,
                                "\"baked\" needs a mesh with several materials or vertex colours");
-    if (plan == PEN_MESH_ALBEDO_CONSTANT) memcpy(obj->albedo, obj->mesh.materials[material].kd,
-                                                 sizeof obj->albedo);
+    if (plan == PEN_MESH_ALBEDO_CONSTANT)
+        memcpy(obj->albedo, obj->mesh.materials[material].kd, sizeof obj->albedo);
     if (plan == PEN_MESH_ALBEDO_BAKE) {
         s = bake_object(ctx, obj);
         if (s) return pen__json_wrap(ctx, s, &wm);
@@ -371,7 +371,7 @@ static pen_status parse_albedo(pen_context *ctx, const char *path, const where *
     if (!s && baked_pixels &&
         (img.width != obj->texture.width || img.height != obj->texture.height))
         s = pen__error(ctx, PEN_ERROR_PARSE,
-                       "%s: %d x %d pixels, but the atlas baked from the mesh is %d x %d", 
+                       "%s: %d x %d pixels, but the atlas baked from the mesh is %d x %d",
                        obj->texture_path, img.width, img.height, obj->texture.width,
                        obj->texture.height);
     if (s) {

@@ -96,6 +96,11 @@ static pen_status plan_tiles(pen_context *ctx, const pen_mesh *m, const pen_imag
             tl->textured = mi >= 0 && textures && textures[mi].data;
             const float *c = mi >= 0 && m->materials[mi].has_kd ? m->materials[mi].kd : def;
             memcpy(tl->rgb, c, sizeof tl->rgb);
+            const pen_image *tx = tl->textured ? &textures[mi] : NULL;
+            if (tx && (tx->width < 1 || tx->height < 1 || tx->channels < 1 || tx->channels > 4))
+                return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                                  "bake: material '%s': texture of %d x %d pixels, %d channels",
+                                  m->materials[mi].name, tx->width, tx->height, tx->channels);
             if (tl->textured && m->uv_count == 0)
                 return pen__error(ctx, PEN_ERROR_ARGUMENT,
                                   "bake: material '%s' has a texture but the mesh has no texture "
@@ -111,8 +116,8 @@ static pen_status plan_tiles(pen_context *ctx, const pen_mesh *m, const pen_imag
                 hi = c > hi ? c : hi;
             }
             const double extent = hi - floor(lo);
-            int reps = extent > PEN_MESH_BAKE_MAX_REPEATS ? PEN_MESH_BAKE_MAX_REPEATS
-                                                          : (int)ceil(extent);
+            int reps =
+                extent > PEN_MESH_BAKE_MAX_REPEATS ? PEN_MESH_BAKE_MAX_REPEATS : (int)ceil(extent);
             int *r = axis == 0 ? &tl->reps_u : &tl->reps_v;
             *r = reps > *r ? reps : *r;
         }
@@ -195,7 +200,8 @@ static void fill_tile(const tile *tl, const pen_image *tex, pen_image *atlas) {
         const int j = mod_int((long)y - GUTTER, tex->height);
         for (int x = 0; x < tl->w; ++x) {
             const int i = mod_int((long)x - GUTTER, tex->width);
-            const float *src = tex->data + ((size_t)j * (size_t)tex->width + (size_t)i) * (size_t)nch;
+            const size_t at = (size_t)j * (size_t)tex->width + (size_t)i;
+            const float *src = tex->data + at * (size_t)nch;
             for (int ch = 0; ch < 3; ++ch)
                 row[3 * x + ch] = src[ch < nch ? ch : nch - 1];
         }
@@ -205,7 +211,7 @@ static void fill_tile(const tile *tl, const pen_image *tex, pen_image *atlas) {
 /* The atlas UVs of triangle t's corners (6 floats). A face whose UVs span more than
  * PEN_MESH_BAKE_MAX_REPEATS periods has them clamped to the tile. */
 static void tile_uvs(const pen_mesh *m, int t, const tile *tl, const pen_image *tex,
-                    const atlas_size *as, float *out) {
+                     const atlas_size *as, float *out) {
     double shift[2] = {0.0, 0.0};
     if (tl->textured)
         for (int axis = 0; axis < 2; ++axis) {
@@ -246,7 +252,7 @@ static pen_status bake_materials(pen_context *ctx, const pen_mesh *m, const pen_
         const int32_t mi = m->triangle_materials ? m->triangle_materials[t] : -1;
         const int slot = mi < 0 ? n : mi;
         tile_uvs(m, t, &tiles[slot], tiles[slot].textured ? &textures[slot] : NULL, &as,
-                            uvs + 6 * (size_t)t);
+                 uvs + 6 * (size_t)t);
     }
     free(tiles);
     return s;

@@ -88,9 +88,8 @@ static pen_status check_materials(pen_context *ctx, const pen_mesh *mesh) {
 static pen_status check_colors(pen_context *ctx, const pen_mesh *mesh) {
     for (size_t i = 0; i < 3 * (size_t)mesh->vertex_count; ++i)
         if (!(mesh->colors[i] >= 0.0f && mesh->colors[i] <= 1.0f))
-            return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                              "mesh: vertex %zu: colour %g outside [0, 1]", i / 3,
-                              (double)mesh->colors[i]);
+            return pen__error(ctx, PEN_ERROR_ARGUMENT, "mesh: vertex %zu: colour %g outside [0, 1]",
+                              i / 3, (double)mesh->colors[i]);
     return PEN_OK;
 }
 
