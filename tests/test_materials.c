@@ -382,6 +382,12 @@ static void test_obj_materials(void) {
     CHECK(pen_mesh_albedo_plan(&m, NULL) == PEN_MESH_ALBEDO_BAKE);
     pen_mesh_free(&m);
 
+    /* usemtl before the mtllib that defines it: the libraries are read first. */
+    p = fixture_text("late.obj", "usemtl grey\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"
+                                 "mtllib three.mtl\n");
+    CHECK(pen_mesh_load(ctx, p, &m) == PEN_OK);
+    CHECK(m.material_count == 4 && m.triangle_materials[0] == 2);
+    pen_mesh_free(&m);
     /* One Kd-only material for every face: a constant albedo. */
     p = fixture_text("green.obj", "mtllib three.mtl\nusemtl grey\nv 0 0 0\nv 1 0 0\nv 0 1 0\n"
                                   "f 1 2 3\n");
@@ -447,6 +453,32 @@ static void test_ply_colors(void) {
                                "element face 1\nproperty list uchar int vertex_indices\n"
                                "end_header\n0 0 0 1 1 1\n1 0 0 0 1 0\n0 1 0 1 1 1\n3 0 1 2\n");
     CHECK_ERROR(ctx, pen_mesh_load(ctx, p, &m), PEN_ERROR_PARSE, "ic.ply", "red", "uchar");
+    /* Binary: a NaN float colour is refused, naming the vertex; ushort codes are sRGB. */
+    const char *head = "ply\nformat binary_little_endian 1.0\nelement vertex 3\n"
+                       "property float x\nproperty float y\nproperty float z\n"
+                       "property float red\nproperty float green\nproperty float blue\n"
+                       "element face 1\nproperty list uchar int vertex_indices\nend_header\n";
+    unsigned char buf[512];
+    size_t n = strlen(head);
+    memcpy(buf, head, n);
+    float rows[3][6] = {{0, 0, 0, 0.5f, 0.5f, 0.5f}, {1, 0, 0, 0, 0, 0}, {0, 1, 0, 0, NAN, 0}};
+    memcpy(buf + n, rows, sizeof rows);
+    n += sizeof rows;
+    const unsigned char face[13] = {3, 0, 0, 0, 0, 1, 0, 0, 0, 2, 0, 0, 0};
+    memcpy(buf + n, face, sizeof face);
+    p = fixture_write("nan.ply", buf, n + sizeof face);
+    CHECK_ERROR(ctx, pen_mesh_load(ctx, p, &m), PEN_ERROR_PARSE, "nan.ply", "vertex 2", "green",
+                "not finite");
+    p = fixture_text("us.ply", "ply\nformat ascii 1.0\nelement vertex 3\n"
+                               "property float x\nproperty float y\nproperty float z\n"
+                               "property ushort diffuse_red\nproperty ushort diffuse_green\n"
+                               "property ushort diffuse_blue\nelement face 1\n"
+                               "property list uchar int vertex_indices\nend_header\n"
+                               "0 0 0 65535 0 32768\n1 0 0 0 0 0\n0 1 0 0 0 0\n3 0 1 2\n");
+    CHECK(pen_mesh_load(ctx, p, &m) == PEN_OK);
+    CHECK(m.colors && m.colors[0] == 1.0f && m.colors[1] == 0.0f);
+    CHECK(fabsf(m.colors[2] - 0.2140411f) < 1e-4f); /* sRGB 32768 / 65535 */
+    pen_mesh_free(&m);
 }
 
 /* ---- The scene loader ------------------------------------------------------------------------ */
