@@ -408,6 +408,18 @@ static void test_obj_materials(void) {
     fixture_text("bad.mtl", "newmtl a\nKd 0.1 0.2 0.3 0.4\n");
     CHECK_ERROR(ctx, pen_mesh_load(ctx, p, &m), PEN_ERROR_PARSE, "bad.mtl:2", "1 or 3");
 
+    /* An OBJ repeating `mtllib` without end is stopped by the libraries' byte budget. */
+    fixture_text("tiny.mtl", "newmtl t\nKd 1 0 0\n");
+    const char *line = "mtllib tiny.mtl\n";
+    size_t n = strlen(line), lines = 20000;
+    char *big = malloc(n * lines + 64);
+    for (size_t i = 0; i < lines; ++i)
+        memcpy(big + i * n, line, n);
+    strcpy(big + n * lines, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+    p = fixture_text("many.obj", big);
+    free(big);
+    CHECK_ERROR(ctx, pen_mesh_load(ctx, p, &m), PEN_ERROR_PARSE, "tiny.mtl", "64 MiB");
+
     /* OBJ vertex colours: sRGB-encoded values, decoded; only when every vertex has one. */
     p = fixture_text("col.obj", "v 0 0 0 1 0 0.5\nv 1 0 0 0 1 0\nv 0 1 0 0.2 0.2 0.2\nf 1 2 3\n");
     CHECK(pen_mesh_load(ctx, p, &m) == PEN_OK);

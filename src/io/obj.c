@@ -31,6 +31,9 @@
 #include <string.h>
 
 #define OBJ_MAX_BYTES ((size_t)1 << 32)
+/* All the .mtl files of one OBJ together: a bound on the work an OBJ repeating `mtllib` lines
+ * can cause, far above real libraries (kilobytes). */
+#define MTL_MAX_BYTES ((size_t)64 << 20)
 
 /* A line of the file: [p, end), with its 1-based number. */
 typedef struct line {
@@ -91,7 +94,8 @@ static char *rest_of_line(pen_context *ctx, const char *p, const char *end) {
 typedef struct materials {
     pen_mesh_material *items;
     int count, cap;
-    int *sorted; /* indices into items by name; among equal names the later definition first */
+    int *sorted;  /* indices into items by name; among equal names the later definition first */
+    size_t bytes; /* read from the libraries so far (MTL_MAX_BYTES in all) */
 } materials;
 
 static void materials_free(materials *m) {
@@ -248,8 +252,14 @@ static pen_status mtl_read(pen_context *ctx, const char *mtl_path, materials *m)
     fclose(probe);
     char *text = NULL;
     size_t size = 0;
-    pen_status s = pen__io_read_file(ctx, mtl_path, (size_t)64 << 20, &text, &size);
+    if (m->bytes >= MTL_MAX_BYTES)
+        return pen__error(ctx, PEN_ERROR_PARSE,
+                          "%s: the material libraries of the mesh exceed %zu MiB in all "
+                          "(counting each file read 4 KiB more)",
+                          mtl_path, MTL_MAX_BYTES >> 20);
+    pen_status s = pen__io_read_file(ctx, mtl_path, MTL_MAX_BYTES - m->bytes, &text, &size);
     if (s) return s;
+    m->bytes += size + 4096; /* each file counts 4 KiB more: many empty ones are work too */
     const char *cursor = text;
     line ln = {0};
     const int first = m->count; /* Kd and map_Kd before any newmtl of this file are ignored */
