@@ -1,7 +1,8 @@
 /* Fuzz harness: scene JSON through pen_scene_parse, from memory. The text is parsed as if it
- * were fuzz_dir()/scene.json, so its references reach the fixed assets there (tri.obj,
- * tri.ply, spheres.json, tex.png, env.hdr, env.exr): the fuzzer explores the scene's own keys
- * with files that load. An accepted scene must hold finite values throughout. */
+ * were fuzz_dir()/scene.json, so its references reach the fixed assets there (tri.obj, two.obj
+ * with its two.mtl materials, tri.ply, spheres.json, tex.png, env.hdr, env.exr): the fuzzer
+ * explores the scene's own keys with files that load. An accepted scene must hold finite values
+ * throughout. */
 #include "fuzz.h"
 
 #include <stdio.h>

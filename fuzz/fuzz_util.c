@@ -34,10 +34,10 @@ const char *fuzz_message(void) {
 
 /* ---- Scratch folder and assets ---------------------------------------------------------- */
 
-static const char *const asset_names[] = {"tri.obj", "tri.ply",  "spheres.json", "tex.png",
-                                          "env.hdr", "env.exr",  "target.exr",   "input.obj",
-                                          "input.ply", "input.png", "input.hdr", "input.exr",
-                                          "input.jpg", "input.json", "input.bin", NULL};
+static const char *const asset_names[] = {
+    "tri.obj",    "tri.ply",   "spheres.json", "tex.png",    "env.hdr",   "env.exr",
+    "target.exr", "two.mtl",   "two.obj",      "input.obj",  "input.ply", "input.png",
+    "input.hdr",  "input.exr", "input.jpg",    "input.json", "input.bin", NULL};
 
 static void remove_dir(void) {
     char path[700];
@@ -83,6 +83,15 @@ const char *fuzz_dir(void) {
                           "0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n");
     write_text("spheres.json", "{\"spheres\": [{\"center\": [0.2, 0.2, 0.2], \"radius\": 0.2},"
                                " {\"center\": [0.5, 0.1, 0.1], \"radius\": 0.1}]}\n");
+    /* Materials: a fuzzed OBJ with `mtllib two.mtl` and `usemtl red|blue|tiled` reaches the
+     * per-face materials (and, through fuzz_mesh, the baker); two.obj brings them to scenes. */
+    write_text("two.mtl", "newmtl red\nKd 0.8 0.1 0.1\nmap_Kd tex.png\n"
+                          "newmtl blue\nKd 0.1 0.2 0.8\n"
+                          "newmtl tiled\nmap_Kd -s 2 2 1 tex.png\n");
+    write_text("two.obj", "mtllib two.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 2 0 0\n"
+                          "v 2 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nvt 2.5 -1\n"
+                          "usemtl red\nf 1/1 2/2 3/3 4/4\nusemtl blue\nf -5/-5 -2/-4 -1/-3 -4/-2\n"
+                          "usemtl tiled\nf 1/5 3/3 4/4\n");
     write_image("tex.png", 4, 4);
     write_image("env.hdr", 8, 4);
     write_image("env.exr", 8, 4);
@@ -130,6 +139,25 @@ void fuzz_check_mesh(const pen_mesh *m) {
     if (m->uv_count) check_indices(m->uv_indices, m->triangle_count, m->uv_count, "mesh: uv index");
     if (m->normal_count)
         check_indices(m->normal_indices, m->triangle_count, m->normal_count, "mesh: normal index");
+    if (m->material_count < 0 ||
+        (m->material_count > 0 && (!m->materials || !m->triangle_materials)))
+        fuzz_fail("mesh: material arrays");
+    for (int i = 0; i < m->material_count; ++i) {
+        const pen_mesh_material *mt = &m->materials[i];
+        if (!mt->name) fuzz_fail("mesh: material without a name");
+        for (int k = 0; mt->has_kd && k < 3; ++k)
+            if (!(mt->kd[k] >= 0.0f && mt->kd[k] <= 1.0f)) fuzz_fail("mesh: Kd outside [0, 1]");
+        if (mt->texture_path && !mt->texture_source) fuzz_fail("mesh: map_Kd without its source");
+    }
+    for (int t = 0; m->material_count > 0 && t < m->triangle_count; ++t)
+        if (m->triangle_materials[t] < -1 || m->triangle_materials[t] >= m->material_count)
+            fuzz_fail("mesh: material index");
+    if (m->colors) {
+        fuzz_check_floats(m->colors, 3 * (size_t)m->vertex_count, "mesh: non-finite colour");
+        for (size_t i = 0; i < 3 * (size_t)m->vertex_count; ++i)
+            if (m->colors[i] < 0.0f || m->colors[i] > 1.0f)
+                fuzz_fail("mesh: colour outside [0, 1]");
+    }
 }
 
 void fuzz_check_image(const pen_image *im) {
@@ -205,12 +233,41 @@ int fuzz_image(const uint8_t *data, size_t size, const char *ext) {
 
 /* ---- Meshes --------------------------------------------------------------------------------- */
 
+/* Bakes an accepted mesh's materials or colours (every map_Kd stands for one fixed 3 x 2
+ * texture, so no file is read) and checks the atlas and the rewritten UVs. */
+static void fuzz_bake(pen_mesh *mesh) {
+    if (pen_mesh_albedo_plan(mesh, NULL) != PEN_MESH_ALBEDO_BAKE) return;
+    static float texels[18] = {0.1f, 0.2f, 0.3f, 0.9f, 0.8f, 0.7f, 0.5f,  0.5f, 0.5f,
+                               0.0f, 1.0f, 0.0f, 1.0f, 0.0f, 1.0f, 0.25f, 0.5f, 0.75f};
+    pen_image *tex = NULL;
+    if (mesh->material_count > 0) {
+        tex = calloc((size_t)mesh->material_count, sizeof *tex);
+        if (!tex) fuzz_fail("out of memory");
+        for (int i = 0; i < mesh->material_count; ++i)
+            if (mesh->materials[i].texture_path) tex[i] = (pen_image){3, 2, 3, texels};
+    }
+    const float def[3] = {0.8f, 0.8f, 0.8f};
+    pen_image atlas;
+    pen_context *ctx = fuzz_context();
+    if (pen_mesh_bake_albedo(ctx, mesh, tex, def, &atlas) == PEN_OK) {
+        fuzz_check_image(&atlas);
+        fuzz_check_mesh(mesh);
+        if (mesh->uv_count != 3 * mesh->triangle_count) fuzz_fail("bake: UV count");
+        fuzz_check_floats(mesh->uvs, 2 * (size_t)mesh->uv_count, "bake: UVs");
+        pen_image_free(&atlas);
+    } else if (atlas.data) {
+        fuzz_fail("bake: refused but not zeroed");
+    }
+    free(tex);
+}
+
 int fuzz_mesh(const uint8_t *data, size_t size, const char *ext,
               pen_status (*load)(pen_context *, const char *, pen_mesh *)) {
     const char *path = fuzz_write(data, size, ext);
     pen_mesh mesh;
     if (load(fuzz_context(), path, &mesh) == PEN_OK) {
         fuzz_check_mesh(&mesh);
+        fuzz_bake(&mesh);
         pen_mesh_free(&mesh);
     } else if (mesh.positions || mesh.indices) {
         fuzz_fail("mesh: refused but not zeroed");

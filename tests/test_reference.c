@@ -418,8 +418,13 @@ static void test_textured_quad(void) {
     memcpy(t.uvs, uv, sizeof uv);
     memcpy(t.uv_indices, idx, sizeof idx);
     pen_object *o = &t.objects[0];
-    o->mesh =
-        (pen_mesh){4, 2, t.positions[0], t.indices[0], 4, t.uvs, t.uv_indices, 0, NULL, NULL, NULL};
+    o->mesh = (pen_mesh){.vertex_count = 4,
+                         .triangle_count = 2,
+                         .positions = t.positions[0],
+                         .indices = t.indices[0],
+                         .uv_count = 4,
+                         .uvs = t.uvs,
+                         .uv_indices = t.uv_indices};
     o->pose.scale = 1.0f;
     t.scene.object_count = 1;
     pen_image tex;

@@ -23,6 +23,9 @@ typedef struct pen_image {
 
 /* Largest width or height of an image (pen_image_create and every loader). */
 #define PEN_IMAGE_MAX_DIM 16384
+/* Largest pixel count of an image a loader reads or the albedo baker makes: 2^27 = 16384 x 8192
+ * (a 16k equirectangular map), 1.5 GiB as 3 floats. */
+#define PEN_IMAGE_MAX_PIXELS (1ll << 27)
 
 /* Allocates a zeroed image (width, height in [1, PEN_IMAGE_MAX_DIM], channels in [1, 4]). */
 PEN_API pen_status pen_image_create(pen_context *ctx, int width, int height, int channels,

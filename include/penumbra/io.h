@@ -61,14 +61,21 @@ PEN_API void pen_camera_set_free(pen_camera_set *set);
  * JSON key path, e.g. "scene.json: camera.width: expected a positive integer, got -3"; errors of
  * a referenced file are prefixed with the key that named it. Unknown keys are errors (keys
  * starting with '_' are comments). Sphere sets keep the overlap weights their JSON gives and get
- * none otherwise (pen_spheres.weight NULL: computed when needed). On failure *out is zeroed. */
+ * none otherwise (pen_spheres.weight NULL: computed when needed). An object's albedo is its
+ * "albedo_texture", else its "albedo", else what its mesh's materials or vertex colours give
+ * (pen_mesh_albedo_plan; several materials or colours are baked into one texture with
+ * pen_mesh_bake_albedo, pen_object.texture_layout PEN_TEXTURE_LAYOUT_BAKED). On failure *out is
+ * zeroed. */
 PEN_API pen_status pen_scene_load(pen_context *ctx, const char *path, pen_scene *out);
 /* The same from JSON text (e.g. a scene embedded in a task file, printed back to text): `path`
  * names the text in messages and is the base of its relative paths. */
 PEN_API pen_status pen_scene_parse(pen_context *ctx, const char *json_text, const char *path,
                                    pen_scene *out);
 /* Writes a scene JSON that pen_scene_load reads back to the same scene (paths relative to the
- * new file where possible; the referenced files are not written). Atomic. */
+ * new file where possible; the referenced files are not written). A baked albedo atlas is
+ * written as the mesh alone while its texture_path is NULL (loading bakes it again), else as its
+ * file with "albedo_texture_layout": "baked" (set texture_path after saving changed pixels).
+ * Atomic. */
 PEN_API pen_status pen_scene_save(pen_context *ctx, const char *path, const pen_scene *scene);
 /* Flags of pen_scene_save_ex. PEN_SCENE_SAVE_SH_LIGHTING writes the SH coefficients as "sh" even
  * when there is an envmap (which is then written too, for the background): for lighting that was
@@ -83,11 +90,14 @@ PEN_API pen_status pen_scene_save_ex(pen_context *ctx, const char *path, const p
  * (relative) indices are resolved; zero and out-of-range indices, NaN/Inf coordinates,
  * truncated files and absurd counts are errors naming the file and line (or byte offset); so
  * is a vertex coordinate beyond +-PEN_SCENE_MAX_COORD (penumbra/scene.h), naming the vertex.
+ * OBJ materials (every mtllib: newmtl, Kd, map_Kd; usemtl per face) and vertex colours (OBJ
+ * `v x y z r g b`, PLY red/green/blue) are kept (penumbra/mesh.h); texture files are not opened.
  * On success *out owns the arrays; on failure *out is zeroed. */
 PEN_API pen_status pen_mesh_load(pen_context *ctx, const char *path, pen_mesh *out);
 PEN_API pen_status pen_mesh_load_obj(pen_context *ctx, const char *path, pen_mesh *out);
 PEN_API pen_status pen_mesh_load_ply(pen_context *ctx, const char *path, pen_mesh *out);
-/* Writes a Wavefront OBJ (v, vt, vn, f with 1-based v/vt/vn references; no material). Atomic:
+/* Writes a Wavefront OBJ (v, vt, vn, f with 1-based v/vt/vn references; no material or vertex
+ * colour). Atomic:
  * temporary file + rename. pen_mesh_save picks the format by extension (.obj only). */
 PEN_API pen_status pen_mesh_save(pen_context *ctx, const char *path, const pen_mesh *mesh);
 PEN_API pen_status pen_mesh_save_obj(pen_context *ctx, const char *path, const pen_mesh *mesh);

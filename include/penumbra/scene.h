@@ -102,6 +102,16 @@ PEN_API void pen_pose_points_fwd(const pen_pose *pose, int n, const float *p, fl
 PEN_API void pen_pose_points_bwd(const pen_pose *pose, int n, const float *p, const float *d_out,
                                  pen_pose_grad *d_pose, float *d_p);
 
+/* How an object's albedo texture relates to its mesh file (pen_object.texture_layout). */
+typedef enum pen_texture_layout {
+    PEN_TEXTURE_LAYOUT_FILE = 0, /* addressed by the mesh file's own UVs */
+    PEN_TEXTURE_LAYOUT_BAKED = 1 /* an atlas pen_mesh_bake_albedo made from the mesh file's
+                                    materials or vertex colours; the mesh holds the atlas UVs.
+                                    Saved scenes name the mesh file only (it is baked again on
+                                    loading), or, when texture_path is set (an optimised atlas),
+                                    also the texture with "albedo_texture_layout": "baked" */
+} pen_texture_layout;
+
 typedef struct pen_object {
     pen_mesh mesh;          /* object space */
     pen_image texture;      /* albedo texture (linear RGB), data == NULL if constant albedo */
@@ -111,7 +121,8 @@ typedef struct pen_object {
                                the loader leaves `spheres` empty for the fitter to fill */
     pen_pose pose;
     char *mesh_path;        /* as resolved when loading, for messages and saving */
-    char *texture_path;     /* NULL for a constant albedo */
+    char *texture_path;     /* NULL for a constant albedo, and for a baked atlas as baked */
+    pen_texture_layout texture_layout;
     char *spheres_path;     /* NULL when the spheres were inline, fitted or absent; clear it (free
                                and set NULL) after changing the spheres so that pen_scene_save
                                writes them inline instead of referencing the old file */

@@ -125,6 +125,10 @@ class Mesh(ctypes.Structure):
         ("normals", c_float_p),
         ("normal_indices", c_uint32_p),
         ("texture_path", ctypes.c_char_p),
+        ("material_count", ctypes.c_int),
+        ("materials", ctypes.c_void_p),  # pen_mesh_material *: not read by the package
+        ("triangle_materials", ctypes.POINTER(ctypes.c_int32)),
+        ("colors", c_float_p),
     ]
 
 

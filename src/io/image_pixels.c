@@ -23,13 +23,13 @@ pen_status pen__image_check_size(pen_context *ctx, const char *name, long long w
     return PEN_OK;
 }
 
-static double srgb_to_linear(double c) {
+double pen__srgb_to_linear(double c) {
     return c <= 0.04045 ? c / 12.92 : pow((c + 0.055) / 1.055, 2.4);
 }
 
 void pen__image_code_table(int raw, float table[256]) {
     for (int i = 0; i < 256; ++i)
-        table[i] = raw ? (float)(i / 255.0) : (float)srgb_to_linear(i / 255.0);
+        table[i] = raw ? (float)(i / 255.0) : (float)pen__srgb_to_linear(i / 255.0);
 }
 
 void pen__image_samples_to_rgb(const unsigned char *src, int bits, int comp, size_t n,
@@ -41,7 +41,7 @@ void pen__image_samples_to_rgb(const unsigned char *src, int bits, int comp, siz
             float v;
             if (bits == 16) {
                 double x = ((unsigned)src[2 * k] << 8 | src[2 * k + 1]) / 65535.0;
-                v = (float)(raw ? x : srgb_to_linear(x));
+                v = (float)(raw ? x : pen__srgb_to_linear(x));
             } else {
                 v = table8[src[k]];
             }

@@ -123,14 +123,15 @@ cJSON *pen__io_camera_json(const pen_camera *cam);
  * scanline or pixel) in its one error line. They yield 3 linear channels like pen_image_load;
  * *out is zeroed on failure. src/io/image.c picks the decoder (pen__image_decode). */
 
-/* Pixel budget of a loaded image: 2^27 = 16384 x 8192 pixels (a 16k equirectangular map), 1.5 GiB
- * as 3 floats, on top of each side's PEN_IMAGE_MAX_DIM. */
-#define PEN__IMAGE_MAX_PIXELS (1ll << 27)
+/* Pixel budget of a loaded image, on top of each side's PEN_IMAGE_MAX_DIM (penumbra/image.h). */
+#define PEN__IMAGE_MAX_PIXELS PEN_IMAGE_MAX_PIXELS
 
 /* PEN_OK if 1 <= width, height <= PEN_IMAGE_MAX_DIM and width * height <= PEN__IMAGE_MAX_PIXELS;
  * otherwise one PEN_ERROR_PARSE line naming `name` and the size. */
 pen_status pen__image_check_size(pen_context *ctx, const char *name, long long width,
                                  long long height);
+/* The sRGB transfer curve (IEC 61966-2-1) decoded: an encoded value in [0, 1] to linear. */
+double pen__srgb_to_linear(double c);
 /* The 256 values of 8-bit codes: code / 255, sRGB-decoded unless raw. */
 void pen__image_code_table(int raw, float table[256]);
 /* Converts n pixels of `comp` interleaved samples (1 grey, 2 grey + alpha, 3 RGB, 4 RGBA) of 8

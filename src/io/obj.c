@@ -9,9 +9,19 @@
  * the same kind of reference (v, v/vt, v//vn or v/vt/vn): a mesh has one UV and one normal
  * index per triangle corner or none at all.
  *
- * Materials: the texture of the first `usemtl` material (in file order) whose MTL entry has a
- * `map_Kd` becomes mesh.texture_path, resolved relative to the .mtl file. A missing .mtl file is
- * not an error (OBJ files often travel without theirs): the mesh simply has no texture path.
+ * Materials: every `mtllib` (several are allowed) is read in the first pass, so that a `usemtl`
+ * may name a material of any of them; their newmtl / Kd / map_Kd statements become
+ * mesh.materials (map_Kd resolved relative to its .mtl file, with its "file:line" kept for later
+ * messages), and each triangle gets the material of the last `usemtl` before its face (the
+ * triangles of an ngon share it), -1 before any `usemtl` or after one naming an unknown material
+ * (like OBJ viewers, which draw such faces with a default material). A name defined twice means
+ * its later definition. The texture of the first `usemtl` material whose entry has a `map_Kd`
+ * also becomes mesh.texture_path, as before materials were kept per face. A missing .mtl file is
+ * not an error (OBJ files often travel without theirs): the mesh simply has no materials;
+ * texture files are not opened here. Kd takes 1 (grey) or 3 numbers in [0, 1].
+ * Vertex colours (`v x y z r g b`, a common extension) are kept when every vertex has one; they
+ * are the sRGB-encoded 8-bit colours / 255 in the files that write them, and are decoded to
+ * linear like 8-bit textures.
  * Every statement other than v, vt, vn, f, mtllib and usemtl is ignored. */
 #include "io/io_internal.h"
 #include "penumbra/io.h"
@@ -21,6 +31,9 @@
 #include <string.h>
 
 #define OBJ_MAX_BYTES ((size_t)1 << 32)
+/* All the .mtl files of one OBJ together: a bound on the work an OBJ repeating `mtllib` lines
+ * can cause, far above real libraries (kilobytes). */
+#define MTL_MAX_BYTES ((size_t)64 << 20)
 
 /* A line of the file: [p, end), with its 1-based number. */
 typedef struct line {
@@ -77,40 +90,87 @@ static char *rest_of_line(pen_context *ctx, const char *p, const char *end) {
 
 /* ---- MTL ------------------------------------------------------------------------------------- */
 
-typedef struct material {
-    char *name;
-    char *map_kd; /* resolved path, or NULL */
-} material;
-
+/* The materials of every mtllib, in file order, and their names sorted for usemtl lookups. */
 typedef struct materials {
-    material *items;
+    pen_mesh_material *items;
     int count, cap;
+    int *sorted;  /* indices into items by name; among equal names the later definition first */
+    size_t bytes; /* read from the libraries so far (MTL_MAX_BYTES in all) */
 } materials;
 
 static void materials_free(materials *m) {
     for (int i = 0; i < m->count; ++i) {
         free(m->items[i].name);
-        free(m->items[i].map_kd);
+        free(m->items[i].texture_path);
+        free(m->items[i].texture_source);
     }
     free(m->items);
+    free(m->sorted);
     memset(m, 0, sizeof *m);
 }
 
-static pen_status materials_add(pen_context *ctx, materials *m, char *name) {
+static pen_status materials_add(pen_context *ctx, const char *mtl_path, int number, materials *m,
+                                char *name) {
+    if (m->count == PEN_MESH_MAX_MATERIALS) {
+        free(name);
+        return pen__error(ctx, PEN_ERROR_PARSE, "%s:%d: more than %d materials", mtl_path, number,
+                          PEN_MESH_MAX_MATERIALS);
+    }
     if (m->count == m->cap) {
         int cap = m->cap ? 2 * m->cap : 8;
-        material *grown = cap > (1 << 20) ? NULL : realloc(m->items, (size_t)cap * sizeof *grown);
+        pen_mesh_material *grown = realloc(m->items, (size_t)cap * sizeof *grown);
         if (!grown) {
             free(name);
-            return pen__error(ctx, PEN_ERROR_MEMORY, "too many materials");
+            return pen__error(ctx, PEN_ERROR_MEMORY, "%s: too many materials", mtl_path);
         }
         m->items = grown;
         m->cap = cap;
     }
-    m->items[m->count].name = name;
-    m->items[m->count].map_kd = NULL;
-    ++m->count;
+    memset(&m->items[m->count], 0, sizeof m->items[0]);
+    m->items[m->count++].name = name;
     return PEN_OK;
+}
+
+/* qsort has no context argument: the items travel with the indices. */
+typedef struct named {
+    const char *name;
+    int index;
+} named;
+
+static int by_name(const void *a, const void *b) {
+    const named *x = a, *y = b;
+    int c = strcmp(x->name, y->name);
+    return c ? c : y->index - x->index; /* later definitions first: they override */
+}
+
+static pen_status materials_sort(pen_context *ctx, materials *m) {
+    if (m->count == 0) return PEN_OK;
+    named *tmp = pen__malloc(ctx, (size_t)m->count, sizeof *tmp, "materials");
+    m->sorted = pen__malloc(ctx, (size_t)m->count, sizeof *m->sorted, "materials");
+    if (!tmp || !m->sorted) {
+        free(tmp);
+        return PEN_ERROR_MEMORY;
+    }
+    for (int i = 0; i < m->count; ++i)
+        tmp[i] = (named){m->items[i].name, i};
+    qsort(tmp, (size_t)m->count, sizeof *tmp, by_name);
+    for (int i = 0; i < m->count; ++i)
+        m->sorted[i] = tmp[i].index;
+    free(tmp);
+    return PEN_OK;
+}
+
+/* The index of the material called `name` (the last definition of it), or -1. */
+static int materials_find(const materials *m, const char *name) {
+    int lo = 0, hi = m->count; /* the first sorted entry >= name */
+    while (lo < hi) {
+        int mid = lo + (hi - lo) / 2;
+        if (strcmp(m->items[m->sorted[mid]].name, name) < 0)
+            lo = mid + 1;
+        else
+            hi = mid;
+    }
+    return lo < m->count && strcmp(m->items[m->sorted[lo]].name, name) == 0 ? m->sorted[lo] : -1;
 }
 
 /* Skips the options of a map_Kd statement ("-s 1 1 1 -clamp on file.png"): each option is
@@ -148,25 +208,72 @@ static void skip_map_options(const char **p, const char *end) {
     }
 }
 
-/* Reads the newmtl / map_Kd pairs of an MTL file into m. A file that cannot be opened adds
- * nothing (see the design note above). */
+/* Kd r [g b]: one number stands for grey (as the MTL format has it); each in [0, 1]. */
+static pen_status parse_kd(pen_context *ctx, const char *mtl_path, const line *ln, const char *p,
+                           float kd[3]) {
+    double v[4];
+    int n = 0;
+    const char *t;
+    size_t len;
+    while ((len = next_token(&p, ln->end, &t)) > 0) {
+        char *stop = NULL;
+        double x = n < 3 ? strtod(t, &stop) : 0.0;
+        if (n == 3 || stop != t + len)
+            return pen__error(ctx, PEN_ERROR_PARSE,
+                              "%s:%d: Kd expects 1 or 3 numbers in [0, 1], got '%.*s'", mtl_path,
+                              ln->number, (int)(ln->end - ln->p), ln->p);
+        if (!(x >= 0.0 && x <= 1.0))
+            return pen__error(ctx, PEN_ERROR_PARSE, "%s:%d: Kd value '%.*s' is not in [0, 1]",
+                              mtl_path, ln->number, (int)len, t);
+        v[n++] = x;
+    }
+    if (n != 1 && n != 3)
+        return pen__error(ctx, PEN_ERROR_PARSE, "%s:%d: Kd expects 1 or 3 numbers, got %d",
+                          mtl_path, ln->number, n);
+    for (int k = 0; k < 3; ++k)
+        kd[k] = (float)v[n == 1 ? 0 : k];
+    return PEN_OK;
+}
+
+/* "path:line" of a statement, for later messages. */
+static char *source_of(pen_context *ctx, const char *path, int number) {
+    size_t n = strlen(path) + 16;
+    char *s = pen__malloc(ctx, n, 1, "OBJ name");
+    if (s) snprintf(s, n, "%s:%d", path, number);
+    return s;
+}
+
+/* Reads the newmtl, Kd and map_Kd statements of an MTL file into m. A file that cannot be opened
+ * adds nothing (see the design note above); the texture files are not opened here (a mesh with a
+ * missing texture still has geometry; the scene loader names the map_Kd line if it needs it). */
 static pen_status mtl_read(pen_context *ctx, const char *mtl_path, materials *m) {
     FILE *probe = fopen(mtl_path, "rb");
     if (!probe) return PEN_OK;
     fclose(probe);
     char *text = NULL;
     size_t size = 0;
-    pen_status s = pen__io_read_file(ctx, mtl_path, (size_t)64 << 20, &text, &size);
+    if (m->bytes >= MTL_MAX_BYTES)
+        return pen__error(ctx, PEN_ERROR_PARSE,
+                          "%s: the material libraries of the mesh exceed %zu MiB in all "
+                          "(counting each file read 4 KiB more)",
+                          mtl_path, MTL_MAX_BYTES >> 20);
+    pen_status s = pen__io_read_file(ctx, mtl_path, MTL_MAX_BYTES - m->bytes, &text, &size);
     if (s) return s;
+    m->bytes += size + 4096; /* each file counts 4 KiB more: many empty ones are work too */
     const char *cursor = text;
     line ln = {0};
+    const int first = m->count; /* Kd and map_Kd before any newmtl of this file are ignored */
     while (s == PEN_OK && next_line(&cursor, text + size, &ln)) {
         const char *p = ln.p, *t;
         size_t n = next_token(&p, ln.end, &t);
+        pen_mesh_material *cur = m->count > first ? &m->items[m->count - 1] : NULL;
         if (token_is(t, n, "newmtl")) {
             char *name = rest_of_line(ctx, p, ln.end);
-            s = name ? materials_add(ctx, m, name) : PEN_ERROR_MEMORY;
-        } else if (token_is(t, n, "map_Kd") && m->count > 0) {
+            s = name ? materials_add(ctx, mtl_path, ln.number, m, name) : PEN_ERROR_MEMORY;
+        } else if (token_is(t, n, "Kd") && cur) {
+            s = parse_kd(ctx, mtl_path, &ln, p, cur->kd);
+            cur->has_kd = 1;
+        } else if (token_is(t, n, "map_Kd") && cur) {
             skip_map_options(&p, ln.end);
             char *file = rest_of_line(ctx, p, ln.end);
             if (!file) {
@@ -175,15 +282,27 @@ static pen_status mtl_read(pen_context *ctx, const char *mtl_path, materials *m)
                 s = pen__error(ctx, PEN_ERROR_PARSE, "%s:%d: map_Kd without a file name", mtl_path,
                                ln.number);
             } else {
-                material *cur = &m->items[m->count - 1];
-                free(cur->map_kd);
-                cur->map_kd = pen__io_path_resolve(ctx, mtl_path, file);
-                if (!cur->map_kd) s = PEN_ERROR_MEMORY;
+                free(cur->texture_path);
+                free(cur->texture_source);
+                cur->texture_path = pen__io_path_resolve(ctx, mtl_path, file);
+                cur->texture_source = source_of(ctx, mtl_path, ln.number);
+                if (!cur->texture_path || !cur->texture_source) s = PEN_ERROR_MEMORY;
             }
             free(file);
         }
     }
     free(text);
+    return s;
+}
+
+/* Reads the MTL file named by an mtllib statement (relative to the OBJ file). */
+static pen_status mtllib(pen_context *ctx, const char *obj_path, const line *ln, const char *p,
+                         materials *m) {
+    char *name = rest_of_line(ctx, p, ln->end);
+    char *mtl = name ? pen__io_path_resolve(ctx, obj_path, name) : NULL;
+    pen_status s = mtl ? mtl_read(ctx, mtl, m) : PEN_ERROR_MEMORY;
+    free(name);
+    free(mtl);
     return s;
 }
 
@@ -197,6 +316,8 @@ typedef struct obj_state {
     long seen_v, seen_vt, seen_vn;
     long tri;           /* triangles written so far */
     int has_vt, has_vn; /* -1: not decided yet (no face seen) */
+    long colored_v;     /* v statements with a colour (pass 1) */
+    int material;       /* the current usemtl's index, -1 for none */
     materials mats;
 } obj_state;
 
@@ -311,6 +432,7 @@ static pen_status parse_corner(obj_state *st, const line *ln, const char *t, siz
 
 static void put_triangle(obj_state *st, const corner *a, const corner *b, const corner *c) {
     pen_mesh *m = st->mesh;
+    if (m->triangle_materials) m->triangle_materials[st->tri] = st->material;
     size_t o = 3 * (size_t)st->tri++;
     const corner *k[3] = {a, b, c};
     for (int i = 0; i < 3; ++i) {
@@ -349,6 +471,10 @@ static pen_status count_elements(obj_state *st, const char *text, size_t size, l
         size_t n = next_token(&p, ln.end, &t);
         if (token_is(t, n, "v")) {
             ++st->nv;
+            int numbers = 0;
+            while (next_token(&p, ln.end, &t) > 0)
+                ++numbers;
+            st->colored_v += numbers == 6;
         } else if (token_is(t, n, "vt")) {
             ++st->nvt;
         } else if (token_is(t, n, "vn")) {
@@ -358,6 +484,9 @@ static pen_status count_elements(obj_state *st, const char *text, size_t size, l
             while (next_token(&p, ln.end, &t) > 0)
                 ++corners;
             if (corners > 2) *tris += corners - 2;
+        } else if (token_is(t, n, "mtllib")) {
+            pen_status s = mtllib(st->ctx, st->path, &ln, p, &st->mats);
+            if (s) return s;
         }
         if ((size_t)st->nv > PEN_MAX_ELEMENTS || (size_t)st->nvt > PEN_MAX_ELEMENTS ||
             (size_t)st->nvn > PEN_MAX_ELEMENTS || (size_t)*tris > PEN_MAX_ELEMENTS)
@@ -366,25 +495,42 @@ static pen_status count_elements(obj_state *st, const char *text, size_t size, l
     }
     if (st->nv == 0) return pen__error(st->ctx, PEN_ERROR_PARSE, "%s: no vertices", st->path);
     if (*tris == 0) return pen__error(st->ctx, PEN_ERROR_PARSE, "%s: no faces", st->path);
+    return materials_sort(st->ctx, &st->mats);
+}
+
+/* usemtl: later faces get the named material (-1 if no MTL file defines it: they keep the
+ * object's default albedo, like faces before any usemtl). mesh.texture_path keeps its meaning
+ * from before materials were kept per face: the first usemtl'd material with a map_Kd. */
+static pen_status use_material(obj_state *st, const line *ln, const char *p) {
+    char *name = rest_of_line(st->ctx, p, ln->end);
+    if (!name) return PEN_ERROR_MEMORY;
+    st->material = materials_find(&st->mats, name);
+    free(name);
+    const pen_mesh_material *mt = st->material >= 0 ? &st->mats.items[st->material] : NULL;
+    if (!st->mesh->texture_path && mt && mt->texture_path) {
+        st->mesh->texture_path = pen__io_strdup(st->ctx, mt->texture_path);
+        if (!st->mesh->texture_path) return PEN_ERROR_MEMORY;
+    }
     return PEN_OK;
 }
 
-static pen_status use_material(obj_state *st, const line *ln, const char *p) {
-    if (st->mesh->texture_path) return PEN_OK;
-    char *name = rest_of_line(st->ctx, p, ln->end);
-    if (!name) return PEN_ERROR_MEMORY;
-    for (int i = 0; i < st->mats.count; ++i) {
-        const material *mt = &st->mats.items[i];
-        if (mt->map_kd && strcmp(mt->name, name) == 0) {
-            st->mesh->texture_path = pen__io_strdup(st->ctx, mt->map_kd);
-            if (!st->mesh->texture_path) {
-                free(name);
-                return PEN_ERROR_MEMORY;
-            }
-            break;
-        }
+/* v x y z [w] or v x y z r g b: the colour, written as sRGB-encoded values in [0, 1] by the tools
+ * that write it (MeshLab, Open3D: the 8-bit colour / 255), is decoded to linear. */
+static pen_status parse_vertex(obj_state *st, const line *ln, const char *p) {
+    pen_mesh *m = st->mesh;
+    float v[6];
+    const size_t i = (size_t)st->seen_v++;
+    pen_status s = parse_floats(st, ln, p, m->colors ? 6 : 3, m->colors ? 6 : 3, v);
+    if (s) return s;
+    memcpy(m->positions + 3 * i, v, 3 * sizeof(float));
+    for (int k = 0; m->colors && k < 3; ++k) {
+        if (!(v[3 + k] >= 0.0f && v[3 + k] <= 1.0f))
+            return pen__error(st->ctx, PEN_ERROR_PARSE,
+                              "%s:%d: vertex colour %g is not in [0, 1] (colours after x y z are "
+                              "read as r g b in [0, 1])",
+                              st->path, ln->number, (double)v[3 + k]);
+        m->colors[3 * i + (size_t)k] = (float)pen__srgb_to_linear(v[3 + k]);
     }
-    free(name);
     return PEN_OK;
 }
 
@@ -398,19 +544,13 @@ static pen_status parse_elements(obj_state *st, const char *text, size_t size) {
         const char *p = ln.p, *t;
         size_t n = next_token(&p, ln.end, &t);
         if (token_is(t, n, "v")) {
-            s = parse_floats(st, &ln, p, 3, 3, m->positions + 3 * st->seen_v++);
+            s = parse_vertex(st, &ln, p);
         } else if (token_is(t, n, "vt")) {
             s = parse_floats(st, &ln, p, 1, 2, m->uvs + 2 * st->seen_vt++);
         } else if (token_is(t, n, "vn")) {
             s = parse_floats(st, &ln, p, 3, 3, m->normals + 3 * st->seen_vn++);
         } else if (token_is(t, n, "f")) {
             s = parse_face(st, &ln, p);
-        } else if (token_is(t, n, "mtllib")) {
-            char *name = rest_of_line(st->ctx, p, ln.end);
-            char *mtl = name ? pen__io_path_resolve(st->ctx, st->path, name) : NULL;
-            s = mtl ? mtl_read(st->ctx, mtl, &st->mats) : PEN_ERROR_MEMORY;
-            free(name);
-            free(mtl);
         } else if (token_is(t, n, "usemtl")) {
             s = use_material(st, &ln, p);
         }
@@ -424,7 +564,8 @@ pen_status pen_mesh_load_obj(pen_context *ctx, const char *path, pen_mesh *out) 
     size_t size = 0;
     pen_status s = pen__io_read_file(ctx, path, OBJ_MAX_BYTES, &text, &size);
     if (s) return s;
-    obj_state st = {.ctx = ctx, .path = path, .mesh = out, .has_vt = -1, .has_vn = -1};
+    obj_state st = {
+        .ctx = ctx, .path = path, .mesh = out, .has_vt = -1, .has_vn = -1, .material = -1};
     long tris = 0;
     s = count_elements(&st, text, size, &tris);
     if (!s) {
@@ -439,9 +580,25 @@ pen_status pen_mesh_load_obj(pen_context *ctx, const char *path, pen_mesh *out) 
         if (!out->positions || !out->indices || !out->uvs || !out->uv_indices || !out->normals ||
             !out->normal_indices)
             s = PEN_ERROR_MEMORY;
+        /* Colours only when every vertex has one: a file that colours some vertices only is
+         * read for its geometry. */
+        if (!s && st.colored_v == st.nv) {
+            out->colors = pen__malloc(ctx, 3 * (size_t)st.nv, sizeof(float), path);
+            if (!out->colors) s = PEN_ERROR_MEMORY;
+        }
+        if (!s && st.mats.count > 0) {
+            out->triangle_materials = pen__malloc(ctx, (size_t)tris, sizeof(int32_t), path);
+            if (!out->triangle_materials) s = PEN_ERROR_MEMORY;
+        }
     }
     if (!s) s = parse_elements(&st, text, size);
     free(text);
+    if (!s && st.mats.count > 0) { /* the mesh takes the materials over */
+        out->materials = st.mats.items;
+        out->material_count = st.mats.count;
+        st.mats.items = NULL;
+        st.mats.count = 0;
+    }
     materials_free(&st.mats);
     if (s) {
         pen_mesh_free(out);

@@ -2,10 +2,12 @@
  *
  * The header declares elements (name, count) and their properties (scalar, or list with a count
  * type and an item type). penumbra reads the `vertex` element's x, y, z, optional texture
- * coordinates (s/t, u/v, texture_u/texture_v or texture_s/texture_t) and normals (nx, ny, nz),
- * and the `face` element's vertex_indices (or vertex_index) list; every other element and
- * property is read and skipped, so their layout must still be valid. Polygons are triangulated as
- * fans. Per-vertex UVs and normals share the position indices.
+ * coordinates (s/t, u/v, texture_u/texture_v or texture_s/texture_t), normals (nx, ny, nz) and
+ * colours (red, green, blue or diffuse_red, ...: uchar and ushort as sRGB codes, decoded to
+ * linear like textures; float and double as linear values, clamped to [0, 1]), and the `face`
+ * element's vertex_indices (or vertex_index) list; every other element and property is read and
+ * skipped, so their layout must still be valid. Polygons are triangulated as fans. Per-vertex
+ * UVs, normals and colours share the position indices.
  *
  * Distrust: element counts are capped (PEN_MAX_ELEMENTS) and checked against the bytes left in
  * the file before anything is allocated, so an absurd header fails at once instead of asking for
@@ -354,6 +356,48 @@ static int find_property(const ply_element *e, const char *name) {
     return -1;
 }
 
+/* The vertex colour properties (red, green, blue, or diffuse_red, ...): ic[] their indices, all -1
+ * without colours. uchar and ushort hold sRGB-encoded codes (decoded to linear like 8- and
+ * 16-bit textures); float and double hold linear values (clamped to [0, 1]). */
+static pen_status find_colors(ply_reader *r, const ply_element *e, int ic[3]) {
+    static const char *const names[][3] = {{"red", "green", "blue"},
+                                           {"diffuse_red", "diffuse_green", "diffuse_blue"}};
+    for (size_t k = 0; k < sizeof names / sizeof names[0]; ++k) {
+        for (int c = 0; c < 3; ++c)
+            ic[c] = find_property(e, names[k][c]);
+        if (ic[0] < 0 || ic[1] < 0 || ic[2] < 0) {
+            ic[0] = ic[1] = ic[2] = -1;
+            continue;
+        }
+        for (int c = 0; c < 3; ++c) {
+            const ply_property *pr = &e->props[ic[c]];
+            const ply_type t = pr->type;
+            if (pr->count_type != T_NONE || (t != T_U8 && t != T_U16 && !is_float_type(t)))
+                return ply_error(r,
+                                 "vertex property %s: a colour must be a uchar, ushort, float "
+                                 "or double scalar",
+                                 pr->name);
+        }
+        return PEN_OK;
+    }
+    return PEN_OK;
+}
+
+/* A colour value as linear in [0, 1] (see find_colors). */
+static pen_status color_value(ply_reader *r, const ply_property *pr, size_t vertex, double v,
+                              const float table8[256], double *out) {
+    if (pr->type == T_U8) {
+        *out = table8[(int)v];
+    } else if (pr->type == T_U16) {
+        *out = pen__srgb_to_linear(v / 65535.0);
+    } else {
+        if (!isfinite(v))
+            return ply_error(r, "vertex %zu: colour %s is not finite", vertex, pr->name);
+        *out = v < 0.0 ? 0.0 : v > 1.0 ? 1.0 : v;
+    }
+    return PEN_OK;
+}
+
 static pen_status read_vertices(ply_reader *r, const ply_element *e, pen_mesh *m) {
     int ix = find_property(e, "x"), iy = find_property(e, "y"), iz = find_property(e, "z");
     if (ix < 0 || iy < 0 || iz < 0) return ply_error(r, "vertex element lacks x, y or z");
@@ -367,6 +411,9 @@ static pen_status read_vertices(ply_reader *r, const ply_element *e, pen_mesh *m
     }
     int inx = find_property(e, "nx"), iny = find_property(e, "ny"), inz = find_property(e, "nz");
     int has_n = inx >= 0 && iny >= 0 && inz >= 0;
+    int ic[3];
+    pen_status cs = find_colors(r, e, ic);
+    if (cs) return cs;
     size_t n = e->count;
     m->vertex_count = (int)n;
     m->positions = pen__malloc(r->ctx, 3 * n, sizeof(float), r->path);
@@ -380,6 +427,12 @@ static pen_status read_vertices(ply_reader *r, const ply_element *e, pen_mesh *m
         m->normals = pen__malloc(r->ctx, 3 * n, sizeof(float), r->path);
         if (!m->normals) return PEN_ERROR_MEMORY;
         m->normal_count = (int)n;
+    }
+    float table8[256];
+    if (ic[0] >= 0) {
+        m->colors = pen__malloc(r->ctx, 3 * n, sizeof(float), r->path);
+        if (!m->colors) return PEN_ERROR_MEMORY;
+        pen__image_code_table(0, table8);
     }
     for (size_t i = 0; i < n; ++i) {
         begin_row(r, "vertex", i);
@@ -400,6 +453,11 @@ static pen_status read_vertices(ply_reader *r, const ply_element *e, pen_mesh *m
                 dst = m->uvs + 2 * i + (k == iu ? 0 : 1);
             else if (has_n && (k == inx || k == iny || k == inz))
                 dst = m->normals + 3 * i + (k == inx ? 0 : k == iny ? 1 : 2);
+            else if (k == ic[0] || k == ic[1] || k == ic[2]) {
+                s = color_value(r, pr, i, v, table8, &v);
+                if (s) return s;
+                dst = m->colors + 3 * i + (k == ic[0] ? 0 : k == ic[1] ? 1 : 2);
+            }
             if (!dst) continue;
             if (!isfinite(v) || !isfinite((float)v))
                 return ply_error(r, "vertex %zu: %s is not a finite float", i, pr->name);

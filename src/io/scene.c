@@ -234,23 +234,121 @@ static pen_status parse_spheres(pen_context *ctx, const char *path, const where 
                            pen__json_type_name(item));
 }
 
-static pen_status parse_object(pen_context *ctx, const char *path, const where *w, const cJSON *o,
+/* Several materials or vertex colours: the textures of the materials the faces use, loaded with
+ * the checks of any texture, baked with the Kd colours and vertex colours into one atlas. */
+static pen_status bake_object(pen_context *ctx, pen_object *obj) {
+    pen_mesh *m = &obj->mesh;
+    pen_image *tex = NULL;
+    pen_status s = PEN_OK;
+    if (m->material_count > 0 && !m->colors) {
+        tex = pen__calloc(ctx, (size_t)m->material_count, sizeof *tex, "textures");
+        if (!tex) return PEN_ERROR_MEMORY;
+    }
+    for (int t = 0; tex && !s && t < m->triangle_count; ++t) {
+        const int mi = m->triangle_materials[t];
+        const pen_mesh_material *mat = mi >= 0 ? &m->materials[mi] : NULL;
+        if (!mat || !mat->texture_path || tex[mi].data) continue;
+        s = pen_image_load(ctx, mat->texture_path, &tex[mi]);
+        if (!s) s = check_values(ctx, mat->texture_path, &tex[mi], PEN_SCENE_MAX_ALBEDO);
+        if (s)
+            s = pen__error_prefix(ctx, s, "%s: map_Kd of material '%s': ",
+                                  mat->texture_source ? mat->texture_source : obj->mesh_path,
+                                  mat->name);
+    }
+    if (!s) {
+        s = pen_mesh_bake_albedo(ctx, m, tex, obj->albedo, &obj->texture);
+        if (s) s = pen__error_prefix(ctx, s, "%s: ", obj->mesh_path);
+    }
+    for (int i = 0; tex && i < m->material_count; ++i)
+        pen_image_free(&tex[i]);
+    free(tex);
+    if (!s) obj->texture_layout = PEN_TEXTURE_LAYOUT_BAKED;
+    return s;
+}
+
+/* The albedo of an object, by precedence: "albedo_texture" (with the mesh's UVs, or, with
+ * "albedo_texture_layout": "baked", the pixels of an atlas baked from the mesh), "albedo", then
+ * what the mesh's materials and vertex colours say (pen_mesh_albedo_plan), then the default. */
+static pen_status parse_albedo(pen_context *ctx, const char *path, const where *w, const cJSON *o,
                                pen_object *obj) {
-    static const char *const known[] = {"mesh",    "albedo_texture", "albedo",
-                                        "spheres", "pose",           NULL};
-    pen_status s = need_object(ctx, w, o);
-    if (!s) s = pen__json_known_keys(ctx, w, o, known);
-    where wm = at(w, "mesh"), wt = at(w, "albedo_texture");
-    const char *mesh_rel = NULL, *tex_rel = NULL;
-    if (!s) s = pen__json_string(ctx, &wm, member(o, "mesh"), &mesh_rel);
-    if (!s && member(o, "albedo_texture"))
+    where wm = at(w, "mesh"), wt = at(w, "albedo_texture"), wl = at(w, "albedo_texture_layout");
+    const char *tex_rel = NULL;
+    int baked_pixels = 0;
+    pen_status s = PEN_OK;
+    if (member(o, "albedo_texture"))
         s = pen__json_string(ctx, &wt, member(o, "albedo_texture"), &tex_rel);
+    if (!s && member(o, "albedo_texture_layout")) {
+        static const char *const layouts[] = {"mesh", "baked", NULL};
+        s = pen__json_choice(ctx, &wl, member(o, "albedo_texture_layout"), "texture layout",
+                             layouts, &baked_pixels);
+        if (!s && !tex_rel)
+            s = pen__json_error(ctx, PEN_ERROR_PARSE, &wl, "needs \"albedo_texture\"");
+    }
     if (!s && tex_rel && member(o, "albedo"))
         s = pen__json_error(ctx, PEN_ERROR_PARSE, w,
                             "give \"albedo_texture\" or \"albedo\", not both");
     for (int k = 0; k < 3; ++k)
         obj->albedo[k] = DEFAULT_ALBEDO;
     if (!s) s = opt_floats(ctx, w, o, "albedo", 0.0, 1.0, obj->albedo);
+    if (s) return s;
+
+    int material = -1;
+    pen_mesh_albedo_kind plan = PEN_MESH_ALBEDO_DEFAULT;
+    if (baked_pixels || (!tex_rel && !member(o, "albedo")))
+        plan = pen_mesh_albedo_plan(&obj->mesh, &material);
+    if (baked_pixels && plan != PEN_MESH_ALBEDO_BAKE)
+        return pen__json_error(ctx, PEN_ERROR_PARSE, &wl,
+                               "\"baked\" needs a mesh with several materials or vertex colours");
+    if (plan == PEN_MESH_ALBEDO_CONSTANT)
+        memcpy(obj->albedo, obj->mesh.materials[material].kd, sizeof obj->albedo);
+    if (plan == PEN_MESH_ALBEDO_BAKE) {
+        s = bake_object(ctx, obj);
+        if (s) return pen__json_wrap(ctx, s, &wm);
+    }
+
+    /* The texture: given, or the one material's map_Kd. */
+    const where *wtex = &wt;
+    if (tex_rel) {
+        obj->texture_path = pen__io_path_resolve(ctx, path, tex_rel);
+        if (!obj->texture_path) return PEN_ERROR_MEMORY;
+    } else if (plan == PEN_MESH_ALBEDO_TEXTURE) {
+        const char *map =
+            material >= 0 ? obj->mesh.materials[material].texture_path : obj->mesh.texture_path;
+        obj->texture_path = pen__io_strdup(ctx, map);
+        if (!obj->texture_path) return PEN_ERROR_MEMORY;
+        wtex = &wm;
+    }
+    if (!obj->texture_path) return PEN_OK;
+    if (obj->mesh.uv_count == 0)
+        return pen__json_error(ctx, PEN_ERROR_PARSE, wtex,
+                               "a texture needs a mesh with texture coordinates");
+    pen_image img = {0};
+    s = pen_image_load(ctx, obj->texture_path, &img);
+    if (!s) s = check_values(ctx, obj->texture_path, &img, PEN_SCENE_MAX_ALBEDO);
+    if (!s && baked_pixels &&
+        (img.width != obj->texture.width || img.height != obj->texture.height))
+        s = pen__error(ctx, PEN_ERROR_PARSE,
+                       "%s: %d x %d pixels, but the atlas baked from the mesh is %d x %d",
+                       obj->texture_path, img.width, img.height, obj->texture.width,
+                       obj->texture.height);
+    if (s) {
+        pen_image_free(&img);
+        return pen__json_wrap(ctx, s, wtex);
+    }
+    pen_image_free(&obj->texture);
+    obj->texture = img;
+    return PEN_OK;
+}
+
+static pen_status parse_object(pen_context *ctx, const char *path, const where *w, const cJSON *o,
+                               pen_object *obj) {
+    static const char *const known[] = {
+        "mesh", "albedo_texture", "albedo_texture_layout", "albedo", "spheres", "pose", NULL};
+    pen_status s = need_object(ctx, w, o);
+    if (!s) s = pen__json_known_keys(ctx, w, o, known);
+    where wm = at(w, "mesh");
+    const char *mesh_rel = NULL;
+    if (!s) s = pen__json_string(ctx, &wm, member(o, "mesh"), &mesh_rel);
     where wp = at(w, "pose"), ws = at(w, "spheres");
     if (!s) s = parse_pose(ctx, &wp, member(o, "pose"), &obj->pose);
     if (s) return s;
@@ -259,26 +357,8 @@ static pen_status parse_object(pen_context *ctx, const char *path, const where *
     if (!obj->mesh_path) return PEN_ERROR_MEMORY;
     s = pen_mesh_load(ctx, obj->mesh_path, &obj->mesh);
     if (s) return pen__json_wrap(ctx, s, &wm);
-
-    /* The texture: given, or the mesh material's map_Kd when no constant albedo is given. */
-    const where *wtex = &wt;
-    if (tex_rel) {
-        obj->texture_path = pen__io_path_resolve(ctx, path, tex_rel);
-        if (!obj->texture_path) return PEN_ERROR_MEMORY;
-    } else if (!member(o, "albedo") && obj->mesh.texture_path) {
-        obj->texture_path = pen__io_strdup(ctx, obj->mesh.texture_path);
-        if (!obj->texture_path) return PEN_ERROR_MEMORY;
-        wtex = &wm;
-    }
-    if (obj->texture_path) {
-        if (obj->mesh.uv_count == 0)
-            return pen__json_error(ctx, PEN_ERROR_PARSE, wtex,
-                                   "a texture needs a mesh with texture coordinates");
-        s = pen_image_load(ctx, obj->texture_path, &obj->texture);
-        if (!s) s = check_values(ctx, obj->texture_path, &obj->texture, PEN_SCENE_MAX_ALBEDO);
-        if (s) return pen__json_wrap(ctx, s, wtex);
-    }
-    return parse_spheres(ctx, path, &ws, member(o, "spheres"), obj);
+    s = parse_albedo(ctx, path, w, o, obj);
+    return s ? s : parse_spheres(ctx, path, &ws, member(o, "spheres"), obj);
 }
 
 static pen_status parse_objects(pen_context *ctx, const char *path, const where *top,
@@ -444,9 +524,11 @@ static cJSON *lighting_json(pen_context *ctx, const char *path, const pen_scene 
 static cJSON *object_json(pen_context *ctx, const char *path, const pen_object *obj) {
     cJSON *o = cJSON_CreateObject();
     int ok = o && add_path(ctx, o, "mesh", path, obj->mesh_path);
+    const int baked = obj->texture.data && obj->texture_layout == PEN_TEXTURE_LAYOUT_BAKED;
     if (ok && obj->texture.data && obj->texture_path)
-        ok = add_path(ctx, o, "albedo_texture", path, obj->texture_path);
-    else if (ok)
+        ok = add_path(ctx, o, "albedo_texture", path, obj->texture_path) &&
+             (!baked || pen__json_add(o, "albedo_texture_layout", cJSON_CreateString("baked")));
+    else if (ok && !baked) /* a baked atlas as baked: the mesh file says it all */
         ok = pen__json_add(o, "albedo", pen__json_float_array(obj->albedo, 3));
     if (ok && obj->spheres_path) {
         ok = add_path(ctx, o, "spheres", path, obj->spheres_path);
@@ -486,7 +568,7 @@ static pen_status check_saveable(pen_context *ctx, const char *path, const pen_s
         if (!o->mesh_path)
             return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: no mesh path (save the mesh first)",
                               what);
-        if (o->texture.data && !o->texture_path)
+        if (o->texture.data && !o->texture_path && o->texture_layout != PEN_TEXTURE_LAYOUT_BAKED)
             return pen__error(ctx, PEN_ERROR_ARGUMENT,
                               "%s: no texture path (save the texture first)", what);
         pen_status s = pen__spheres_check(ctx, what, &o->spheres);

@@ -97,7 +97,9 @@ static pen_status save_text(pen_context *ctx, outputs *o, const char *name, cons
 /* ---- The recovered scene --------------------------------------------------------------------- */
 
 /* Optimised textures are written beside the scene; the scene is saved from a shallow copy whose
- * objects point at them, with SH lighting written inline and optimised spheres inline. */
+ * objects point at them, with SH lighting written inline and optimised spheres inline. An
+ * unchanged baked atlas is not written (the scene names the mesh, whose materials bake it
+ * again). */
 static pen_status save_scene(pen_context *ctx, outputs *o, const pen_optim_task *t) {
     const pen_scene *sc = &t->scene;
     pen_scene copy = *sc;
@@ -121,9 +123,17 @@ static pen_status save_scene(pen_context *ctx, outputs *o, const pen_optim_task 
             if (s) break;
             copy.objects[i].mesh_path = meshes[i];
         }
-        if (!(t->optimize & PEN_OPTIM_ALBEDO) || !sc->objects[i].texture.data) continue;
+        /* A baked atlas (several materials, vertex colours) is written when it changed, and
+         * when the mesh was written: the written mesh carries the atlas UVs, not the materials
+         * to bake again. As EXR: lossless, and vertex-colour blocks hold values outside [0, 1]
+         * that a PNG would clip. */
+        const int baked = sc->objects[i].texture_layout == PEN_TEXTURE_LAYOUT_BAKED;
+        const int deformed = (t->optimize & PEN_OPTIM_DEFORMATION) != 0;
+        const int changed = (t->optimize & PEN_OPTIM_ALBEDO) != 0;
+        if (!sc->objects[i].texture.data || !(changed || (baked && deformed))) continue;
+        if (baked && deformed) copy.objects[i].texture_layout = PEN_TEXTURE_LAYOUT_FILE;
         char name[64];
-        snprintf(name, sizeof name, "texture_%d.png", i);
+        snprintf(name, sizeof name, baked ? "texture_%d.exr" : "texture_%d.png", i);
         s = save_image(ctx, o, name, &sc->objects[i].texture);
         if (!s) {
             textures[i] = pen__io_strdup(ctx, o->written[o->count - 1]);

@@ -101,6 +101,10 @@ static const pen_flat_abi_field table[] = {
     FIELD(pen_mesh, normals),
     FIELD(pen_mesh, normal_indices),
     FIELD(pen_mesh, texture_path),
+    FIELD(pen_mesh, material_count),
+    FIELD(pen_mesh, materials),
+    FIELD(pen_mesh, triangle_materials),
+    FIELD(pen_mesh, colors),
 
     SIZE_ROW(pen_spheres),
     FIELD(pen_spheres, count),

@@ -15,6 +15,14 @@ void pen_mesh_free(pen_mesh *mesh) {
     free(mesh->normals);
     free(mesh->normal_indices);
     free(mesh->texture_path);
+    for (int i = 0; mesh->materials && i < mesh->material_count; ++i) {
+        free(mesh->materials[i].name);
+        free(mesh->materials[i].texture_path);
+        free(mesh->materials[i].texture_source);
+    }
+    free(mesh->materials);
+    free(mesh->triangle_materials);
+    free(mesh->colors);
     memset(mesh, 0, sizeof *mesh);
 }
 
@@ -52,6 +60,39 @@ static pen_status check_finite(pen_context *ctx, const float *v, int count, int 
     return PEN_OK;
 }
 
+/* Material entries with names, Kd in [0, 1] when given, and every triangle's index in
+ * [-1, material_count). */
+static pen_status check_materials(pen_context *ctx, const pen_mesh *mesh) {
+    if (mesh->material_count < 0 || mesh->material_count > PEN_MESH_MAX_MATERIALS ||
+        (mesh->material_count > 0 && (!mesh->materials || !mesh->triangle_materials)))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "mesh: material count %d or its arrays invalid",
+                          mesh->material_count);
+    for (int i = 0; i < mesh->material_count; ++i) {
+        const pen_mesh_material *m = &mesh->materials[i];
+        if (!m->name)
+            return pen__error(ctx, PEN_ERROR_ARGUMENT, "mesh: material %d has no name", i);
+        for (int k = 0; m->has_kd && k < 3; ++k)
+            if (!(m->kd[k] >= 0.0f && m->kd[k] <= 1.0f))
+                return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                                  "mesh: material %d (%s): Kd %g outside [0, 1]", i, m->name,
+                                  (double)m->kd[k]);
+    }
+    for (int t = 0; mesh->material_count > 0 && t < mesh->triangle_count; ++t)
+        if (mesh->triangle_materials[t] < -1 || mesh->triangle_materials[t] >= mesh->material_count)
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "mesh: triangle %d: material index %d out of range [-1, %d)", t,
+                              (int)mesh->triangle_materials[t], mesh->material_count);
+    return PEN_OK;
+}
+
+static pen_status check_colors(pen_context *ctx, const pen_mesh *mesh) {
+    for (size_t i = 0; i < 3 * (size_t)mesh->vertex_count; ++i)
+        if (!(mesh->colors[i] >= 0.0f && mesh->colors[i] <= 1.0f))
+            return pen__error(ctx, PEN_ERROR_ARGUMENT, "mesh: vertex %zu: colour %g outside [0, 1]",
+                              i / 3, (double)mesh->colors[i]);
+    return PEN_OK;
+}
+
 pen_status pen_mesh_validate(pen_context *ctx, const pen_mesh *mesh) {
     if (!mesh || mesh->vertex_count <= 0 || mesh->triangle_count <= 0 || !mesh->positions ||
         !mesh->indices)
@@ -80,5 +121,7 @@ pen_status pen_mesh_validate(pen_context *ctx, const pen_mesh *mesh) {
             s = check_indices(ctx, mesh->normal_indices, mesh->triangle_count, mesh->normal_count,
                               "normal");
     }
+    if (!s) s = check_materials(ctx, mesh);
+    if (!s && mesh->colors) s = check_colors(ctx, mesh);
     return s;
 }
