@@ -171,7 +171,11 @@ void pen__optim_views_free(pen_optim_view *views, int count);
 /* Of the views' cameras, weights, targets and masks (checkpoint identity). */
 uint64_t pen__optim_views_hash(const pen_optim_view *views, int count);
 /* The scene seen by another camera (a shallow copy: it shares the scene's arrays). */
-pen_scene pen__optim_view_scene(const pen_scene *sc, const pen_camera *camera);
+static inline pen_scene pen__optim_view_scene(const pen_scene *sc, const pen_camera *camera) {
+    pen_scene v = *sc;
+    v.camera = *camera;
+    return v;
+}
 
 /* The loop's per-view state. factor[i] = weight_i / (the sum of view i's pixel weights): 0 for a
  * view left out (weight 0 or empty mask), which is neither rendered nor differentiated. */
@@ -210,12 +214,6 @@ pen_status pen__optim_views_finish(pen_context *ctx, const pen_scene *sc,
                                    const pen_optim_view *views, int count,
                                    pen_optim_view_metrics **metrics, pen_image **finals,
                                    double sq[2]);
-/* views.png: per view (at most 64) a row target | result | 4x error, 96 pixels a panel. */
-pen_status pen__optim_views_sheet(pen_context *ctx, const pen_optim_view *views, int count,
-                                  const pen_image *finals, pen_image *sheet);
-/* The per-view array of result.json; NULL on exhaustion. */
-cJSON *pen__optim_views_json(const pen_optim_view *views, int count,
-                             const pen_optim_view_metrics *m);
 
 /* ---- Checkpoints (src/optim/checkpoint.c) ---------------------------------------------------- */
 
@@ -259,10 +257,6 @@ pen_status pen__optim_checkpoint_load(pen_context *ctx, const char *path,
                                       pen__optim_state *st);
 
 /* ---- Output folder (src/optim/output.c) ------------------------------------------------------ */
-
-/* The pictures' exposure for a target: 1, or 1 / the 99th percentile of its largest channel when
- * that exceeds 1. */
-float pen__optim_exposure(pen_context *ctx, const pen_image *target);
 
 /* dir/name, malloc'd (NULL on exhaustion, recorded in ctx). */
 char *pen__optim_join(pen_context *ctx, const char *dir, const char *name);

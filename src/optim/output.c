@@ -10,7 +10,12 @@
  * Pictures: compare.png shows target | initial | result | error side by side, all with one
  * exposure (1 / the 99th percentile of the target's largest channel when that exceeds 1, so HDR
  * targets are not clipped flat), the error panel being 4x the mean absolute difference over the
- * channels, in grey. loss.svg plots log10(loss) against the iteration. */
+ * channels, in grey. loss.svg plots log10(loss) against the iteration.
+ *
+ * A multi-view task (views.c) adds final_<i>.exr per view and validation_<i>.exr per held-back
+ * view (the task's order), views.png (a small contact sheet, target | result | 4x error, a row a
+ * view, each row at its target's exposure) and per-view metrics in result.json; compare.png and
+ * final.exr show the first view. */
 #define _POSIX_C_SOURCE 200809L
 #include "io/io_internal.h"
 #include "optim/optim_internal.h"
@@ -161,7 +166,7 @@ static int cmp_float(const void *a, const void *b) {
     return (x > y) - (x < y);
 }
 
-float pen__optim_exposure(pen_context *ctx, const pen_image *target) {
+static float exposure(pen_context *ctx, const pen_image *target) {
     const size_t n = (size_t)target->width * (size_t)target->height;
     float *v = pen__malloc(ctx, n, sizeof(float), "exposure");
     if (!v) return 1.0f; /* a picture with clipped highlights is still a picture */
@@ -188,7 +193,7 @@ static pen_status compare_picture(pen_context *ctx, const pen_optim_task *t,
     if (s) return s;
     for (size_t i = 0; i < (size_t)out->width * (size_t)out->height * 3; ++i)
         out->data[i] = 1.0f; /* white gaps */
-    const float e = pen__optim_exposure(ctx, target);
+    const float e = exposure(ctx, target);
     const pen_image *panels[3] = {target, &r->initial, &r->final};
     for (int y = 0; y < h; ++y)
         for (int x = 0; x < w; ++x) {
@@ -204,6 +209,75 @@ static pen_status compare_picture(pen_context *ctx, const pen_optim_task *t,
             }
         }
     return PEN_OK;
+}
+
+/* ---- The contact sheet ----------------------------------------------------------------------- */
+
+/* Nearest-neighbour scaling of one panel into the sheet at (x0, y0), size pw x ph. */
+static void blit(pen_image *sheet, int x0, int y0, int pw, int ph, const pen_image *src,
+                 const pen_image *err_of, float gain) {
+    for (int y = 0; y < ph; ++y)
+        for (int x = 0; x < pw; ++x) {
+            const int sx = (int)(((long)x * src->width) / pw), sy = (int)(((long)y * src->height) / ph);
+            const size_t i = 3 * ((size_t)sy * (size_t)src->width + (size_t)sx);
+            float *d = sheet->data + 3 * ((size_t)(y0 + y) * (size_t)sheet->width + (size_t)(x0 + x));
+            if (err_of) { /* 4x the mean absolute difference, grey */
+                float e = 0.0f;
+                for (int c = 0; c < 3; ++c)
+                    e += fabsf(src->data[i + (size_t)c] - err_of->data[i + (size_t)c]) / 3.0f;
+                d[0] = d[1] = d[2] = 4.0f * e * gain;
+            } else {
+                for (int c = 0; c < 3; ++c)
+                    d[c] = src->data[i + (size_t)c] * gain;
+            }
+        }
+}
+
+static pen_status views_sheet(pen_context *ctx, const pen_optim_view *views, int count,
+                                  const pen_image *finals, pen_image *sheet) {
+    enum { PANEL = 96, GAP = 4, MAX_ROWS = 64 }; /* small: a look at every view, not a render */
+    const int rows = count < MAX_ROWS ? count : MAX_ROWS;
+    pen_status s = pen_image_create(ctx, 3 * PANEL + 2 * GAP, rows * PANEL + (rows - 1) * GAP, 3,
+                                    sheet);
+    if (s) return s;
+    for (int i = 0; i < rows; ++i) {
+        const pen_image *t = &views[i].target;
+        const int big = t->width > t->height ? t->width : t->height;
+        const int pw = t->width * PANEL / big > 0 ? t->width * PANEL / big : 1;
+        const int ph = t->height * PANEL / big > 0 ? t->height * PANEL / big : 1;
+        const float gain = exposure(ctx, t);
+        const int y0 = i * (PANEL + GAP);
+        blit(sheet, 0, y0, pw, ph, t, NULL, gain);
+        blit(sheet, PANEL + GAP, y0, pw, ph, &finals[i], NULL, gain);
+        blit(sheet, 2 * (PANEL + GAP), y0, pw, ph, &finals[i], t, gain);
+    }
+    return PEN_OK;
+}
+
+/* A metric, or null where it does not apply (NaN). */
+static cJSON *number_or_null(double v) {
+    return isfinite(v) ? cJSON_CreateNumber(v) : cJSON_CreateNull();
+}
+
+/* The "views" (or "validation_views") array of result.json. */
+static cJSON *views_json(const pen_optim_view *views, int count,
+                             const pen_optim_view_metrics *m) {
+    cJSON *a = cJSON_CreateArray();
+    for (int i = 0; a && i < count; ++i) {
+        cJSON *o = cJSON_CreateObject();
+        const char *target = views[i].target_path ? views[i].target_path : "";
+        const int ok = o && pen__json_add(o, "target", cJSON_CreateString(target)) &&
+                       pen__json_add(o, "weight", cJSON_CreateNumber(views[i].weight)) &&
+                       pen__json_add(o, "loss", number_or_null(m[i].loss)) &&
+                       pen__json_add(o, "image_rmse", number_or_null(m[i].rmse)) &&
+                       pen__json_add(o, "image_rel_rmse", number_or_null(m[i].rel_rmse));
+        if (!ok || !cJSON_AddItemToArray(a, o)) {
+            cJSON_Delete(o);
+            cJSON_Delete(a);
+            return NULL;
+        }
+    }
+    return a;
 }
 
 /* ---- loss.svg -------------------------------------------------------------------------------- */
@@ -402,10 +476,10 @@ pen_status pen_optim_result_json(pen_context *ctx, const pen_optim_task *t,
                                                                : "iteration_limit")) &&
              (!r->views ||
               pen__json_add(root, "views",
-                            pen__optim_views_json(t->views, r->view_count, r->views))) &&
+                            views_json(t->views, r->view_count, r->views))) &&
              (!r->validation ||
               pen__json_add(root, "validation_views",
-                            pen__optim_views_json(t->validation, r->validation_count,
+                            views_json(t->validation, r->validation_count,
                                                   r->validation))) &&
              pen__json_add(root, "losses", losses);
     char *text = ok ? cJSON_Print(root) : NULL;
@@ -452,7 +526,7 @@ static pen_status view_outputs(pen_context *ctx, outputs *o, const pen_optim_tas
     }
     if (s || !r->view_finals) return s;
     pen_image sheet = {0, 0, 0, NULL};
-    s = pen__optim_views_sheet(ctx, t->views, r->view_count, r->view_finals, &sheet);
+    s = views_sheet(ctx, t->views, r->view_count, r->view_finals, &sheet);
     if (!s) s = save_image(ctx, o, "views.png", &sheet);
     pen_image_free(&sheet);
     return s;

@@ -151,12 +151,6 @@ uint64_t pen__optim_views_hash(const pen_optim_view *views, int count) {
 
 /* ---- The objective over the views ------------------------------------------------------------ */
 
-pen_scene pen__optim_view_scene(const pen_scene *sc, const pen_camera *camera) {
-    pen_scene v = *sc; /* shallow: only the camera differs */
-    v.camera = *camera;
-    return v;
-}
-
 void pen__optim_views_free_run(pen__optim_views *V) {
     for (int i = 0; i < V->count; ++i) {
         if (V->state) pen_render_state_free(V->state[i]);
@@ -316,73 +310,4 @@ pen_status pen__optim_views_finish(pen_context *ctx, const pen_scene *sc,
         }
     }
     return PEN_OK;
-}
-
-/* ---- The contact sheet ----------------------------------------------------------------------- */
-
-/* Nearest-neighbour scaling of one panel into the sheet at (x0, y0), size pw x ph. */
-static void blit(pen_image *sheet, int x0, int y0, int pw, int ph, const pen_image *src,
-                 const pen_image *err_of, float gain) {
-    for (int y = 0; y < ph; ++y)
-        for (int x = 0; x < pw; ++x) {
-            const int sx = (int)(((long)x * src->width) / pw), sy = (int)(((long)y * src->height) / ph);
-            const size_t i = 3 * ((size_t)sy * (size_t)src->width + (size_t)sx);
-            float *d = sheet->data + 3 * ((size_t)(y0 + y) * (size_t)sheet->width + (size_t)(x0 + x));
-            if (err_of) { /* 4x the mean absolute difference, grey */
-                float e = 0.0f;
-                for (int c = 0; c < 3; ++c)
-                    e += fabsf(src->data[i + (size_t)c] - err_of->data[i + (size_t)c]) / 3.0f;
-                d[0] = d[1] = d[2] = 4.0f * e * gain;
-            } else {
-                for (int c = 0; c < 3; ++c)
-                    d[c] = src->data[i + (size_t)c] * gain;
-            }
-        }
-}
-
-pen_status pen__optim_views_sheet(pen_context *ctx, const pen_optim_view *views, int count,
-                                  const pen_image *finals, pen_image *sheet) {
-    enum { PANEL = 96, GAP = 4, MAX_ROWS = 64 }; /* small: a look at every view, not a render */
-    const int rows = count < MAX_ROWS ? count : MAX_ROWS;
-    pen_status s = pen_image_create(ctx, 3 * PANEL + 2 * GAP, rows * PANEL + (rows - 1) * GAP, 3,
-                                    sheet);
-    if (s) return s;
-    for (int i = 0; i < rows; ++i) {
-        const pen_image *t = &views[i].target;
-        const int big = t->width > t->height ? t->width : t->height;
-        const int pw = t->width * PANEL / big > 0 ? t->width * PANEL / big : 1;
-        const int ph = t->height * PANEL / big > 0 ? t->height * PANEL / big : 1;
-        const float gain = pen__optim_exposure(ctx, t);
-        const int y0 = i * (PANEL + GAP);
-        blit(sheet, 0, y0, pw, ph, t, NULL, gain);
-        blit(sheet, PANEL + GAP, y0, pw, ph, &finals[i], NULL, gain);
-        blit(sheet, 2 * (PANEL + GAP), y0, pw, ph, &finals[i], t, gain);
-    }
-    return PEN_OK;
-}
-
-/* A metric, or null where it does not apply (NaN). */
-static cJSON *number_or_null(double v) {
-    return isfinite(v) ? cJSON_CreateNumber(v) : cJSON_CreateNull();
-}
-
-/* The "views" (or "validation_views") array of result.json. */
-cJSON *pen__optim_views_json(const pen_optim_view *views, int count,
-                             const pen_optim_view_metrics *m) {
-    cJSON *a = cJSON_CreateArray();
-    for (int i = 0; a && i < count; ++i) {
-        cJSON *o = cJSON_CreateObject();
-        const char *target = views[i].target_path ? views[i].target_path : "";
-        const int ok = o && pen__json_add(o, "target", cJSON_CreateString(target)) &&
-                       pen__json_add(o, "weight", cJSON_CreateNumber(views[i].weight)) &&
-                       pen__json_add(o, "loss", number_or_null(m[i].loss)) &&
-                       pen__json_add(o, "image_rmse", number_or_null(m[i].rmse)) &&
-                       pen__json_add(o, "image_rel_rmse", number_or_null(m[i].rel_rmse));
-        if (!ok || !cJSON_AddItemToArray(a, o)) {
-            cJSON_Delete(o);
-            cJSON_Delete(a);
-            return NULL;
-        }
-    }
-    return a;
 }
