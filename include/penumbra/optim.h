@@ -273,7 +273,8 @@ typedef struct pen_optim_metrics {
 
 /* The recovered scene seen from one view (over the view's mask). */
 typedef struct pen_optim_view_metrics {
-    double loss;     /* the view's image loss (the task's kind, before its weight) */
+    double loss;     /* the view's image loss over the mask (the task's kind; before the view's
+                        weight and without shadow weights) */
     double rmse;     /* final render vs target, over the mask's pixels and all channels */
     double rel_rmse; /* rmse / the target's RMS over those pixels */
 } pen_optim_view_metrics;
