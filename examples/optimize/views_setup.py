@@ -4,9 +4,10 @@ Spot under the city map (spot_truth.json), seen by cameras on a circle around it
 and distance of the scene's own camera; 128x128. The view lists grow as 1, 2 (opposite), 4 (every
 90 degrees); one held-back view between them (45 degrees on, a little higher) is the validation
 view of every task. Writes into OUT: cam_<i>.json (the truth scene with camera i, paths made
-absolute, for `penumbra reference`), views_<n>.json, views_val.json, task_<n>_<solver>.json
-(solver: ls = least squares with the default ridge 1e-2, ls1e-4 = ridge 1e-4, adam_fit = Adam
-from the unshadowed least-squares fit over the same views, at most 300 iterations).
+absolute, for `penumbra reference`), views_<n>[_sh].json, views_val[_sh].json,
+task_<n>_<solver>[_sh].json (solver: ls = least squares with the default ridge 1e-2, ls1e-4 =
+ridge 1e-4, adam_fit = Adam from the unshadowed least-squares fit over the same views, at most
+300 iterations; _sh: the targets lit by the map's 4-band projection, least squares only).
 Usage: python3 views_setup.py OUT
 """
 import json
@@ -54,20 +55,26 @@ for name, cam in cameras.items():
         json.dump(scene, f, indent=1)
 
 
-def views(names):
-    return {"views": [{"camera": cameras[n], "target": "t_%s.exr" % n} for n in names]}
+def views(names, suffix):
+    return {"views": [{"camera": cameras[n], "target": "t_%s%s.exr" % (n, suffix)} for n in names]}
 
 
-for n in (1, 2, 4):
-    with open(os.path.join(OUT, "views_%d.json" % n), "w") as f:
-        json.dump(views([str(i) for i in range(n)]), f, indent=1)
-    for solver, extra in (("ls", {"lighting_solver": "least_squares"}),
-                          ("ls1e-4", {"lighting_solver": "least_squares", "lighting_ridge": 1e-4}),
-                          ("adam_fit", {"init": "fit", "iterations": 300})):
-        task = {"scene": TRUTH, "ground_truth": TRUTH, "optimize": ["lighting"],
-                "views": "views_%d.json" % n, "validation_views": "views_val.json"}
-        task.update(extra)
-        with open(os.path.join(OUT, "task_%d_%s.json" % (n, solver)), "w") as f:
-            json.dump(task, f, indent=1)
-with open(os.path.join(OUT, "views_val.json"), "w") as f:
-    json.dump(views(["val"]), f, indent=1)
+# suffix "": targets lit by the map itself; "_sh": by its 4-band projection, which the model
+# represents exactly (what is left is the proxies' and SH visibility's error)
+for suffix in ("", "_sh"):
+    for n in (1, 2, 4):
+        with open(os.path.join(OUT, "views_%d%s.json" % (n, suffix)), "w") as f:
+            json.dump(views([str(i) for i in range(n)], suffix), f, indent=1)
+        solvers = [("ls", {"lighting_solver": "least_squares"}),
+                   ("ls1e-4", {"lighting_solver": "least_squares", "lighting_ridge": 1e-4})]
+        if not suffix:
+            solvers.append(("adam_fit", {"init": "fit", "iterations": 300}))
+        for solver, extra in solvers:
+            task = {"scene": TRUTH, "ground_truth": TRUTH, "optimize": ["lighting"],
+                    "views": "views_%d%s.json" % (n, suffix),
+                    "validation_views": "views_val%s.json" % suffix}
+            task.update(extra)
+            with open(os.path.join(OUT, "task_%d_%s%s.json" % (n, solver, suffix)), "w") as f:
+                json.dump(task, f, indent=1)
+    with open(os.path.join(OUT, "views_val%s.json" % suffix), "w") as f:
+        json.dump(views(["val"], suffix), f, indent=1)
