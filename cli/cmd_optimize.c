@@ -68,7 +68,9 @@ static void usage(FILE *f) {
             "lighting solved exactly with \"lighting_solver\": \"least_squares\"), and\n"
             "writes OUTDIR/result.json (iterations, timing, losses, metrics against the ground\n"
             "truth), scene.json (the recovered scene), final.exr/.png, compare.png, loss.svg,\n"
-            "checkpoint.bin and snapshots/iter_NNNNN.png. See docs/optimize.md.\n\n"
+            "checkpoint.bin and snapshots/iter_NNNNN.png. A task with \"views\" (several\n"
+            "cameras and images) also writes final_<i>.exr per view and views.png, and\n"
+            "validation_<i>.exr per \"validation_views\" entry. See docs/optimize.md.\n\n"
             "Options:\n"
             "  -o, --output DIR    output folder (created if missing; required)\n"
             "  --no-shadows        optimise without shadows (visibility 1: the baseline)\n"
@@ -180,6 +182,7 @@ int pen_cmd_optimize(int argc, char **argv) {
                                : (res.converged ? "converged" : "iteration limit"),
                res.seconds, res.losses[0], res.final_loss);
         if (res.resumed_from > 0) printf(", resumed at %d", res.resumed_from);
+        if (res.view_count > 0) printf(", %d views", res.view_count);
         const pen_optim_metrics *m = &res.metrics;
         print_metric("lighting_rel_error", m->lighting_rel_error);
         print_metric("albedo_psnr_db", m->albedo_psnr_db);
@@ -189,6 +192,9 @@ int pen_cmd_optimize(int argc, char **argv) {
         print_metric("sphere_iou", m->sphere_iou);
         print_metric("sphere_chamfer", m->sphere_chamfer);
         print_metric("shadow_iou", m->shadow_iou);
+        if (res.validation_count > 0) printf(", validation_rel_rmse"); /* the held-back views' */
+        for (int i = 0; i < res.validation_count; ++i)
+            printf(" %.4g", res.validation[i].rel_rmse);
         printf("\n");
     }
     rc = res.interrupted ? 130 : 0;

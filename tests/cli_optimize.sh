@@ -271,6 +271,32 @@ grep -q -- "small.exr: the image is 16x32" "$T/err" || fail "--target error: $(c
 printf '{"scene": "truth.json", "optimize": ["lighting"], "iterations": 2}\n' > "$T/notarget.json"
 "$BIN" optimize "$T/notarget.json" -o "$T/retarget3" --target "$T/target.exr" -q ||
     fail "--target for a task without a target"
+# Several views: two cameras of the truth (targets rendered by penumbra), a views file as
+# import-cameras writes it, a held-back view; per-view outputs and result.json arrays.
+sed 's/"eye": \[2.5, 1.8, 3.0\]/"eye": [-2.5, 1.8, -3.0]/' "$T/truth.json" > "$T/truth_back.json"
+"$BIN" render "$T/truth.json" -o "$T/v0.exr" > /dev/null || fail "render view 0"
+"$BIN" render "$T/truth_back.json" -o "$T/v1.exr" > /dev/null || fail "render view 1"
+cam() { # eye
+    printf '{"width": 32, "height": 32, "fov_y_deg": 40, "eye": %s, "target": [0, 0.5, 0]}' "$1"
+}
+printf '{"views": [{"camera": %s, "target": "v0.exr"}, {"camera": %s, "target": "v1.exr", "weight": 0.5}]}\n' \
+    "$(cam '[2.5, 1.8, 3.0]')" "$(cam '[-2.5, 1.8, -3.0]')" > "$T/views.json"
+printf '{"scene": "truth.json", "views": "views.json", "optimize": ["lighting"], "lighting_solver": "least_squares", "validation_views": [{"camera": %s, "target": "v1.exr"}], "ground_truth": "truth.json"}\n' \
+    "$(cam '[-2.5, 1.8, -3.0]')" > "$T/views_task.json"
+"$BIN" optimize "$T/views_task.json" -o "$T/views_out" > "$T/views_stdout" 2>"$T/err" ||
+    fail "multi-view task: $(cat "$T/err")"
+grep -q "2 views" "$T/views_stdout" || fail "multi-view summary: $(cat "$T/views_stdout")"
+for f in final_0.exr final_1.exr validation_0.exr views.png result.json compare.png; do
+    [ -f "$T/views_out/$f" ] || fail "multi-view output $f missing"
+done
+for key in '"views"' '"validation_views"' '"image_rel_rmse"' '"stop_reason"'; do
+    grep -q "$key" "$T/views_out/result.json" || fail "multi-view result.json lacks $key"
+done
+printf '{"scene": "truth.json", "views": "views.json", "target": "v0.exr", "optimize": ["lighting"]}\n' > "$T/both.json"
+"$BIN" optimize "$T/both.json" -o "$T/both_out" 2>"$T/err" >/dev/null && fail "views and target accepted"
+grep -q 'both.json: views: a task has either "views" or a "target", not both' "$T/err" ||
+    fail "views + target error: $(cat "$T/err")"
+[ -e "$T/both_out" ] && fail "output folder left after a views error"
 # Usage errors exit 2.
 "$BIN" optimize "$T/task.json" 2>/dev/null
 [ $? -eq 2 ] || fail "missing -o is not a usage error"

@@ -134,10 +134,21 @@ typedef enum pen_optim_lighting_solver {
     PEN_OPTIM_LIGHTING_LEAST_SQUARES = 1
 } pen_optim_lighting_solver;
 
+/* One observed view of a multi-view task (task key "views", docs/optimize.md): a camera of its
+ * own, the image it saw, which of its pixels count and how much the view counts. */
+typedef struct pen_optim_view {
+    pen_camera camera;  /* look-at or calibrated; its own size */
+    pen_image target;   /* 3 channels, linear (.exr/.hdr), the camera's size */
+    char *target_path;
+    float *mask;        /* one per pixel, 1 (counts) or 0; NULL: every pixel counts */
+    char *mask_path;    /* NULL without a mask */
+    double weight;      /* >= 0 (default 1) */
+} pen_optim_view;
+
 typedef struct pen_optim_task {
     char *path;         /* the task file (messages, relative paths) */
     pen_scene scene;    /* the initial guess; pen_optim_run leaves the recovered scene here */
-    pen_image target;   /* 3 channels, the camera's size */
+    pen_image target;   /* 3 channels, the camera's size; empty in a multi-view task */
     char *target_path;
     unsigned optimize;  /* PEN_OPTIM_* */
     int iterations;     /* at most this many Adam steps (default 500) */
@@ -156,6 +167,14 @@ typedef struct pen_optim_task {
     double lighting_ridge; /* least squares: the ridge, relative (default 1e-2), below */
     int has_ground_truth;
     pen_scene ground_truth; /* zeroed when has_ground_truth == 0 */
+    /* Multi-view ("views"): the loss is sum_v weight_v * loss_v, loss_v the view's loss over its
+     * mask's pixels (a view whose weight is 0 or whose mask is empty adds nothing); the scene's
+     * own camera is then not rendered except by the ground-truth metrics. view_count 0: the
+     * single-view task of "target" and the scene's camera. */
+    int view_count;            /* 0 .. PEN_CAMERA_SET_MAX (penumbra/io.h) */
+    pen_optim_view *views;
+    int validation_count;      /* "validation_views": rendered at the end, not in the loss */
+    pen_optim_view *validation;
 } pen_optim_task;
 
 /* A task holding the defaults pen_optim_task_load starts from (500 iterations, the lr above,
@@ -252,6 +271,14 @@ typedef struct pen_optim_metrics {
                                    without one), on a 256^2 grid; what a shadow determines */
 } pen_optim_metrics;
 
+/* The recovered scene seen from one view (over the view's mask). */
+typedef struct pen_optim_view_metrics {
+    double loss;     /* the view's image loss over the mask (the task's kind; before the view's
+                        weight and without shadow weights) */
+    double rmse;     /* final render vs target, over the mask's pixels and all channels */
+    double rel_rmse; /* rmse / the target's RMS over those pixels */
+} pen_optim_view_metrics;
+
 typedef struct pen_optim_result {
     int iterations;       /* Adam steps taken */
     double seconds;       /* the optimisation loop (renders, backward passes, updates) */
@@ -261,9 +288,15 @@ typedef struct pen_optim_result {
     int interrupted;      /* 1: the progress callback asked to stop */
     int resumed_from;     /* the iteration the run continued from a checkpoint (0: none) */
     double *losses;       /* iterations + 1 losses: losses[i] of the parameters after i steps */
-    pen_image initial;    /* render of the initial guess (after the init rule) */
-    pen_image final;      /* render of the recovered scene */
-    pen_optim_metrics metrics;
+    pen_image initial;    /* render of the initial guess (after the init rule); view 0's */
+    pen_image final;      /* render of the recovered scene; view 0's in a multi-view task */
+    pen_optim_metrics metrics; /* multi-view: image_rmse over every view's mask pixels */
+    int view_count;       /* the task's views (0: single view) */
+    pen_optim_view_metrics *views;
+    pen_image *view_finals; /* the final render of each view */
+    int validation_count; /* the task's validation views */
+    pen_optim_view_metrics *validation;
+    pen_image *validation_finals;
 } pen_optim_result;
 
 /* Runs the task: fits sphere sets the scene asks for ({"fit": N}, cached as pen_spheres_fit_cached says; only

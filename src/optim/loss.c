@@ -78,31 +78,40 @@ static int solve_spd(double *A, double *b, int n) {
     return 1;
 }
 
-/* Per channel c, the coefficients L_c (nb of them, into sh) minimising
- *     sum_p w_p (base_pc + sum_k L_kc cols[k]_pc - target_pc)^2 + mu_c |L_c|^2,
- * w_p = weight[p] (NULL: 1). mu[c] < 0 on entry: mu_c = ridge * (the largest diagonal entry of
- * channel c's normal equations), written back to mu[c]; mu[c] >= 0: taken as it is (a fixed
- * objective across calls). base: the render with zero lighting; cols[k]: the render with
- * coefficient k = 1 in every channel, minus base. Summed in double in pixel order. */
-static pen_status fit_coefficients(pen_context *ctx, const pen_image *target,
-                                   const pen_image *base, const pen_image *cols, int nb,
-                                   const float *weight, double ridge, double mu[3],
-                                   float (*sh)[3]) {
+/* The normal equations of the lighting fit, per channel c (G: 3 nb x nb lower triangles, b: 3
+ * nb), summed over images: accumulate() adds one image's
+ *     sum_p f w_p (base_pc + sum_k L_kc cols[k]_pc - target_pc)^2,
+ * w_p = weight[p] (NULL: 1), f = factor; base: the render with zero lighting; cols[k]: the
+ * render with coefficient k = 1 in every channel, minus base. Summed in double in pixel order. */
+typedef struct normal_eqs {
+    int nb;
+    double *G, *b, *a; /* a: one row of the design matrix */
+} normal_eqs;
+
+static pen_status eqs_alloc(pen_context *ctx, normal_eqs *q, int nb) {
+    q->nb = nb;
+    q->G = pen__calloc(ctx, 3 * (size_t)nb * (size_t)nb, sizeof(double), "lighting fit");
+    q->b = pen__calloc(ctx, 3 * (size_t)nb, sizeof(double), "lighting fit");
+    q->a = pen__calloc(ctx, (size_t)nb, sizeof(double), "lighting fit");
+    return q->G && q->b && q->a ? PEN_OK : PEN_ERROR_MEMORY;
+}
+
+static void eqs_free(normal_eqs *q) {
+    free(q->G);
+    free(q->b);
+    free(q->a);
+    memset(q, 0, sizeof *q);
+}
+
+static void accumulate(normal_eqs *q, const pen_image *target, const pen_image *base,
+                       const pen_image *cols, const float *weight, double factor) {
     const size_t pixels = (size_t)target->width * (size_t)target->height;
-    double *G = pen__malloc(ctx, (size_t)nb * (size_t)nb, sizeof(double), "lighting fit");
-    double *b = pen__malloc(ctx, (size_t)nb, sizeof(double), "lighting fit");
-    double *a = pen__malloc(ctx, (size_t)nb, sizeof(double), "lighting fit");
-    if (!G || !b || !a) {
-        free(G);
-        free(b);
-        free(a);
-        return PEN_ERROR_MEMORY;
-    }
+    const int nb = q->nb;
+    double *a = q->a;
     for (int c = 0; c < 3; ++c) {
-        memset(G, 0, sizeof(double) * (size_t)nb * (size_t)nb);
-        memset(b, 0, sizeof(double) * (size_t)nb);
+        double *G = q->G + (size_t)c * (size_t)nb * (size_t)nb, *b = q->b + (size_t)c * (size_t)nb;
         for (size_t p = 0; p < pixels; ++p) {
-            const double wp = weight ? (double)weight[p] : 1.0;
+            const double wp = (weight ? (double)weight[p] : 1.0) * factor;
             if (wp == 0.0) continue;
             const size_t i = 3 * p + (size_t)c;
             const double r = (double)target->data[i] - (double)base->data[i];
@@ -116,6 +125,17 @@ static pen_status fit_coefficients(pen_context *ctx, const pen_image *target,
                     G[j * nb + k] += wa * a[k];
             }
         }
+    }
+}
+
+/* Per channel c, the coefficients L_c (nb of them, into sh) minimising the accumulated sum +
+ * mu_c |L_c|^2. mu[c] < 0 on entry: mu_c = ridge * (the largest diagonal entry of channel c's
+ * normal equations), written back to mu[c]; mu[c] >= 0: taken as it is (a fixed objective across
+ * calls). Consumes the equations (solved in place). */
+static void solve_eqs(normal_eqs *q, double ridge, double mu[3], float (*sh)[3]) {
+    const int nb = q->nb;
+    for (int c = 0; c < 3; ++c) {
+        double *G = q->G + (size_t)c * (size_t)nb * (size_t)nb, *b = q->b + (size_t)c * (size_t)nb;
         double scale = 0.0;
         for (int j = 0; j < nb; ++j)
             scale = fmax(scale, G[j * nb + j]);
@@ -130,10 +150,6 @@ static pen_status fit_coefficients(pen_context *ctx, const pen_image *target,
         for (int k = 0; k < nb; ++k)
             sh[k][c] = ok ? (float)b[k] : 0.0f;
     }
-    free(G);
-    free(b);
-    free(a);
-    return PEN_OK;
 }
 
 /* base + sum_k sh[k] cols[k], per channel. */
@@ -175,29 +191,84 @@ static void basis_free(pen_image *base, pen_image *cols, int nb) {
     pen_image_free(base);
 }
 
-pen_status pen__optim_fit_lighting(pen_context *ctx, const pen_scene *sc, const pen_image *target,
-                                   double ridge, float (*sh)[3]) {
+/* The basis of one eye: its camera's view of the scene. */
+static pen_status eye_basis(pen_context *ctx, const pen_scene *sc, const pen_render_options *opt,
+                            const pen__optim_eye *e, pen_image *base, pen_image *cols) {
+    const pen_scene v = e->camera ? pen__optim_view_scene(sc, e->camera) : *sc;
+    return lighting_basis(ctx, &v, opt, e->state, base, cols);
+}
+
+/* The unshadowed fit, then the refit over each image's lit pixels (the first fit's shadow mask
+ * m < 0.1, times the image's own weights). The basis of each image is rendered again for the
+ * refit (renders are deterministic), so that only one image's basis is held at a time. */
+pen_status pen__optim_fit_lighting_eyes(pen_context *ctx, const pen_scene *sc,
+                                        const pen__optim_eye *eyes, int n, double ridge,
+                                        float (*sh)[3]) {
     pen_render_options opt = pen_render_options_default();
     opt.shadows = 0;
     const int nb = sc->sh_bands * sc->sh_bands;
-    const size_t pixels = (size_t)target->width * (size_t)target->height;
     pen_image base = {0, 0, 0, NULL};
     pen_image *cols = pen__calloc(ctx, (size_t)nb, sizeof *cols, "lighting fit");
-    float *model = pen__malloc(ctx, 3 * pixels, sizeof(float), "lighting fit");
-    float *mask = pen__malloc(ctx, pixels, sizeof(float), "lighting fit");
-    pen_status s = cols && model && mask ? PEN_OK : PEN_ERROR_MEMORY;
-    if (!s) s = lighting_basis(ctx, sc, &opt, NULL, &base, cols);
-    if (!s) s = fit_coefficients(ctx, target, &base, cols, nb, NULL, ridge, NULL, sh);
-    if (!s) {
-        model_image(&base, cols, nb, (const float(*)[3])sh, model);
-        mask_from(target, model, mask);
-        for (size_t p = 0; p < pixels; ++p) /* refit over the lit pixels */
-            mask[p] = mask[p] < 0.1f ? 1.0f : 0.0f;
-        s = fit_coefficients(ctx, target, &base, cols, nb, mask, ridge, NULL, sh);
+    normal_eqs q;
+    memset(&q, 0, sizeof q);
+    pen_status s = cols ? eqs_alloc(ctx, &q, nb) : PEN_ERROR_MEMORY;
+    for (int pass = 0; pass < 2 && !s; ++pass) {
+        float fitted[PEN_SH_MAX_COEFFS][3];
+        memcpy(fitted, sh, sizeof fitted[0] * (size_t)nb);
+        for (int e = 0; e < n && !s; ++e) {
+            const size_t pixels = (size_t)eyes[e].target->width * (size_t)eyes[e].target->height;
+            float *model = NULL, *mask = NULL;
+            s = eye_basis(ctx, sc, &opt, &eyes[e], &base, cols);
+            if (!s && pass == 1) {
+                model = pen__malloc(ctx, 3 * pixels, sizeof(float), "lighting fit");
+                mask = pen__malloc(ctx, pixels, sizeof(float), "lighting fit");
+                if (!model || !mask) s = PEN_ERROR_MEMORY;
+            }
+            if (!s && pass == 1) {
+                model_image(&base, cols, nb, (const float(*)[3])fitted, model);
+                mask_from(eyes[e].target, model, mask);
+                for (size_t p = 0; p < pixels; ++p) /* refit over the lit pixels */
+                    mask[p] = (mask[p] < 0.1f ? 1.0f : 0.0f) *
+                              (eyes[e].weight ? eyes[e].weight[p] : 1.0f);
+            }
+            if (!s)
+                accumulate(&q, eyes[e].target, &base, cols, pass ? mask : eyes[e].weight,
+                           eyes[e].factor);
+            free(model);
+            free(mask);
+        }
+        if (!s) solve_eqs(&q, ridge, NULL, sh);
+        if (!s) memset(q.G, 0, sizeof(double) * 3 * (size_t)nb * (size_t)nb);
+        if (!s) memset(q.b, 0, sizeof(double) * 3 * (size_t)nb);
     }
     basis_free(&base, cols, nb);
-    free(model);
-    free(mask);
+    eqs_free(&q);
+    return s;
+}
+
+pen_status pen__optim_fit_lighting(pen_context *ctx, const pen_scene *sc, const pen_image *target,
+                                   double ridge, float (*sh)[3]) {
+    const pen__optim_eye eye = {NULL, target, NULL, 1.0, NULL};
+    return pen__optim_fit_lighting_eyes(ctx, sc, &eye, 1, ridge, sh);
+}
+
+pen_status pen__optim_solve_lighting_eyes(pen_context *ctx, const pen_scene *sc,
+                                          const pen_render_options *opt,
+                                          const pen__optim_eye *eyes, int n, double ridge,
+                                          double mu[3], float (*sh)[3]) {
+    const int nb = sc->sh_bands * sc->sh_bands;
+    pen_image base = {0, 0, 0, NULL};
+    pen_image *cols = pen__calloc(ctx, (size_t)nb, sizeof *cols, "lighting solve");
+    normal_eqs q;
+    memset(&q, 0, sizeof q);
+    pen_status s = cols ? eqs_alloc(ctx, &q, nb) : PEN_ERROR_MEMORY;
+    for (int e = 0; e < n && !s; ++e) {
+        s = eye_basis(ctx, sc, opt, &eyes[e], &base, cols);
+        if (!s) accumulate(&q, eyes[e].target, &base, cols, eyes[e].weight, eyes[e].factor);
+    }
+    if (!s) solve_eqs(&q, ridge, mu, sh);
+    basis_free(&base, cols, nb);
+    eqs_free(&q);
     return s;
 }
 
@@ -206,13 +277,8 @@ pen_status pen__optim_solve_lighting(pen_context *ctx, const pen_scene *sc,
                                      const pen_image *target,
                                      const float *weight, double ridge, double mu[3],
                                      float (*sh)[3]) {
-    const int nb = sc->sh_bands * sc->sh_bands;
-    pen_image base = {0, 0, 0, NULL};
-    pen_image *cols = pen__calloc(ctx, (size_t)nb, sizeof *cols, "lighting solve");
-    pen_status s = cols ? lighting_basis(ctx, sc, opt, state, &base, cols) : PEN_ERROR_MEMORY;
-    if (!s) s = fit_coefficients(ctx, target, &base, cols, nb, weight, ridge, mu, sh);
-    basis_free(&base, cols, nb);
-    return s;
+    const pen__optim_eye eye = {NULL, target, weight, 1.0, state};
+    return pen__optim_solve_lighting_eyes(ctx, sc, opt, &eye, 1, ridge, mu, sh);
 }
 
 pen_status pen__optim_shadow_mask(pen_context *ctx, const pen_scene *sc, const pen_image *target,

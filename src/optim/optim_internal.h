@@ -4,6 +4,7 @@
 #define PEN_OPTIM_INTERNAL_H
 
 #include "core/internal.h"
+#include "io/io_internal.h"
 #include "penumbra/io.h"
 #include "penumbra/mesh.h"
 #include "penumbra/optim.h"
@@ -135,6 +136,85 @@ pen_status pen__optim_solve_lighting(pen_context *ctx, const pen_scene *sc,
 pen_status pen__optim_shadow_mask(pen_context *ctx, const pen_scene *sc, const pen_image *target,
                                   int fit_lighting, float *mask);
 
+/* One image a least-squares lighting problem is fitted to: a camera (NULL: the scene's), its
+ * target, per-pixel weights (NULL: 1), a factor on them (the view's share of the objective) and
+ * a render state for its renders (may be NULL). */
+typedef struct pen__optim_eye {
+    const pen_camera *camera;
+    const pen_image *target;
+    const float *weight;
+    double factor;
+    pen_render_state *state;
+} pen__optim_eye;
+/* pen__optim_fit_lighting and pen__optim_solve_lighting over several images: the normal
+ * equations are summed over the eyes in order (ridges relative to the summed ones). With one eye
+ * of factor 1 and the scene's camera they give the single-image functions' results bit for
+ * bit. */
+pen_status pen__optim_fit_lighting_eyes(pen_context *ctx, const pen_scene *sc,
+                                        const pen__optim_eye *eyes, int n, double ridge,
+                                        float (*sh)[3]);
+pen_status pen__optim_solve_lighting_eyes(pen_context *ctx, const pen_scene *sc,
+                                          const pen_render_options *opt,
+                                          const pen__optim_eye *eyes, int n, double ridge,
+                                          double mu[3], float (*sh)[3]);
+
+/* ---- Views (src/optim/views.c) --------------------------------------------------------------- */
+
+/* Reads the task's "views" (or "validation_views") member at w: an array of {"camera", "target",
+ * "mask", "weight"} (paths relative to the task file) or the path of a views file holding
+ * {"views": [...]} (paths relative to it). On failure what was read is left in *views, *count
+ * for pen__optim_views_free. */
+pen_status pen__optim_views_parse(pen_context *ctx, const char *task_path,
+                                  const pen__json_where *w, const cJSON *item,
+                                  pen_optim_view **views, int *count);
+void pen__optim_views_free(pen_optim_view *views, int count);
+/* Of the views' cameras, weights, targets and masks (checkpoint identity). */
+uint64_t pen__optim_views_hash(const pen_optim_view *views, int count);
+/* The scene seen by another camera (a shallow copy: it shares the scene's arrays). */
+static inline pen_scene pen__optim_view_scene(const pen_scene *sc, const pen_camera *camera) {
+    pen_scene v = *sc;
+    v.camera = *camera;
+    return v;
+}
+
+/* The loop's per-view state. factor[i] = weight_i / (the sum of view i's pixel weights): 0 for a
+ * view left out (weight 0 or empty mask), which is neither rendered nor differentiated. */
+typedef struct pen__optim_views {
+    int count;
+    const pen_optim_view *views;
+    pen_render_state **state;       /* per view: the loop's renders */
+    pen_render_state **solve_state; /* per view: the least-squares lighting's renders */
+    float **weight;  /* per view: mask x shadow weights per pixel; NULL: every pixel 1 */
+    double *factor;
+    pen_image *img, *d_img; /* the last render and its loss gradient, per view */
+    size_t max_pixels;
+} pen__optim_views;
+
+/* Allocates the per-view state for the task's views; shadow_weight > 0: each view's loss weights
+ * 1 + s m (pen__optim_shadow_mask of the scene as it is now, fit_lighting as there). */
+pen_status pen__optim_views_init(pen_context *ctx, pen__optim_views *V, const pen_optim_task *t,
+                                 double shadow_weight, int fit_lighting);
+void pen__optim_views_free_run(pen__optim_views *V);
+/* The views taking part, as least-squares eyes (states: the solve's when `solve`); returns how
+ * many were written (eyes: room for V->count). */
+int pen__optim_views_eyes(const pen__optim_views *V, int solve, pen__optim_eye *eyes);
+/* Renders every view taking part, *loss = sum_v w_v E_v; with grad also each view's d_img. */
+pen_status pen__optim_views_fwd(pen_context *ctx, pen__optim_views *V, const pen_scene *sc,
+                                const pen_render_options *opt, pen_optim_loss kind, int grad,
+                                double *loss);
+/* Adds every view's gradient (of the last pen__optim_views_fwd with grad) into grad, in order. */
+pen_status pen__optim_views_bwd(pen_context *ctx, pen__optim_views *V, const pen_scene *sc,
+                                const pen_render_options *opt, unsigned wrt,
+                                pen_render_grad *grad);
+/* Renders the scene from every view (finals, count of them) and measures it over each view's
+ * mask (metrics); sq (may be NULL) accumulates the squared error and the value count over the
+ * views of positive weight. Both arrays are allocated (also on failure: free them). */
+pen_status pen__optim_views_finish(pen_context *ctx, const pen_scene *sc,
+                                   const pen_render_options *opt, pen_optim_loss kind,
+                                   const pen_optim_view *views, int count,
+                                   pen_optim_view_metrics **metrics, pen_image **finals,
+                                   double sq[2]);
+
 /* ---- Checkpoints (src/optim/checkpoint.c) ---------------------------------------------------- */
 
 /* What a checkpoint belongs to; a resumed run must match all of it. */
@@ -182,6 +262,13 @@ pen_status pen__optim_checkpoint_load(pen_context *ctx, const char *path,
 char *pen__optim_join(pen_context *ctx, const char *dir, const char *name);
 /* Creates the folder `dir` if it does not exist (its parent must). */
 pen_status pen__optim_make_dir(pen_context *ctx, const char *dir);
+
+/* ---- Task checks (src/optim/task.c) ---------------------------------------------------------- */
+
+/* The task's own consistency (groups, weights, target or views, rates), before a run. */
+pen_status pen__optim_task_check(pen_context *ctx, const pen_optim_task *t);
+/* Every group asked for has something to move (once the {"fit": N} sphere sets exist). */
+pen_status pen__optim_task_check_groups(pen_context *ctx, const pen_optim_task *t);
 
 /* ---- Metrics (src/optim/evaluate.c) ---------------------------------------------------------- */
 

@@ -72,6 +72,8 @@ typedef struct run {
     float *solved_for;        /* the parameters the lighting in x was solved for */
     pen_render_state *solve_state; /* the solves' renders (kept: see solve_lighting) */
     int solved;               /* solved_for is valid */
+    int multi;                /* the task has "views" (views.c): the loss runs over them */
+    pen__optim_views views;
 } run;
 
 pen_optim_settings pen_optim_settings_default(void) {
@@ -171,6 +173,7 @@ static void run_free(run *r) {
     free(r->weight);
     free(r->solved_for);
     pen_render_state_free(r->solve_state);
+    pen__optim_views_free_run(&r->views);
     for (int o = 0; r->deform && o < r->sc->object_count; ++o) {
         object_deform *D = &r->deform[o];
         pen__optim_deform_free(&D->graph);
@@ -380,9 +383,18 @@ static pen_status solve_lighting(pen_context *ctx, const pen_optim_task *t,
     const size_t nl = 3 * (size_t)r->sc->sh_bands * (size_t)r->sc->sh_bands;
     const size_t rest = r->n - nl; /* the lighting segment comes first (layout) */
     if (r->solved && memcmp(r->solved_for, r->x + nl, sizeof(float) * rest) == 0) return PEN_OK;
-    pen_status s = pen__optim_solve_lighting(ctx, r->sc, opt, r->solve_state, &t->target,
-                                             r->weight, t->lighting_ridge, r->mu,
-                                             r->sc->lighting.sh);
+    pen_status s;
+    if (r->multi) { /* one system over every view (views.c) */
+        pen__optim_eye *eyes = pen__calloc(ctx, (size_t)r->views.count, sizeof *eyes, "views");
+        s = eyes ? pen__optim_solve_lighting_eyes(ctx, r->sc, opt, eyes,
+                                                  pen__optim_views_eyes(&r->views, 1, eyes),
+                                                  t->lighting_ridge, r->mu, r->sc->lighting.sh)
+                 : PEN_ERROR_MEMORY;
+        free(eyes);
+    } else {
+        s = pen__optim_solve_lighting(ctx, r->sc, opt, r->solve_state, &t->target, r->weight,
+                                      t->lighting_ridge, r->mu, r->sc->lighting.sh);
+    }
     if (s) return s;
     for (size_t k = 0; k < nl; ++k)
         r->x[r->lighting + k] = r->sc->lighting.sh[k / 3][k % 3];
@@ -408,85 +420,6 @@ static pen_status evaluate(pen_context *ctx, const pen_optim_task *t, const floa
     }
     return t->loss == PEN_OPTIM_LOSS_L1 ? pen_loss_l1(ctx, img, &t->target, loss, d_img)
                                         : pen_loss_l2(ctx, img, &t->target, loss, d_img);
-}
-
-/* Every group asked for must have something to move: ["spheres"] on a scene whose objects have
- * no spheres would otherwise run with zero parameters, change nothing and report success.
- * Called once the {"fit": N} sphere sets exist. */
-static pen_status check_groups_have_parameters(pen_context *ctx, const pen_optim_task *t) {
-    const char *name = t->path ? t->path : "task";
-    const pen_scene *sc = &t->scene;
-    long spheres = 0;
-    for (int o = 0; o < sc->object_count; ++o)
-        spheres += sc->objects[o].spheres.count;
-    static const struct {
-        unsigned group;
-        const char *name;
-    } groups[] = {{PEN_OPTIM_ALBEDO, "albedo"}, {PEN_OPTIM_POSE, "pose"},
-                  {PEN_OPTIM_SPHERES, "spheres"}, {PEN_OPTIM_DEFORMATION, "deformation"}};
-    for (size_t g = 0; g < sizeof groups / sizeof groups[0]; ++g) {
-        if (!(t->optimize & groups[g].group)) continue;
-        const int by_spheres = groups[g].group & (PEN_OPTIM_SPHERES | PEN_OPTIM_DEFORMATION);
-        if (sc->object_count == 0)
-            return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                              "%s: optimize: \"%s\": the scene has no objects, nothing to optimise",
-                              name, groups[g].name);
-        if (by_spheres && spheres == 0)
-            return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                              "%s: optimize: \"%s\": no object of the scene has spheres, nothing "
-                              "to optimise (give an object \"spheres\": a file, a list or "
-                              "{\"fit\": N})",
-                              name, groups[g].name);
-    }
-    return PEN_OK;
-}
-
-static pen_status check_task(pen_context *ctx, const pen_optim_task *t) {
-    const char *name = t->path ? t->path : "task";
-    if (!t->optimize || (t->optimize & ~(unsigned)(PEN_OPTIM_LIGHTING | PEN_OPTIM_ALBEDO |
-                                                   PEN_OPTIM_POSE | PEN_OPTIM_SPHERES |
-                                                   PEN_OPTIM_DEFORMATION)) ||
-        ((t->optimize & PEN_OPTIM_SPHERES) && (t->optimize & PEN_OPTIM_DEFORMATION)))
-        return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                          "%s: optimize: no group, an unknown one, or both spheres and "
-                          "deformation",
-                          name);
-    if ((t->optimize & PEN_OPTIM_DEFORMATION) &&
-        (t->deformation.k < 1 || !(t->deformation.w_rot >= 0.0) || !(t->deformation.w_reg >= 0.0)))
-        return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                          "%s: deformation: k must be positive, the weights >= 0", name);
-    if ((t->optimize & PEN_OPTIM_SPHERES) &&
-        (!(t->spheres.w_smooth >= 0.0) || !isfinite(t->spheres.w_smooth) ||
-         (t->spheres.w_smooth > 0.0 && t->spheres.k < 1)))
-        return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                          "%s: spheres: k must be positive, w_smooth a finite number >= 0", name);
-    if (!t->target.data || t->target.channels != 3 || t->target.width != t->scene.camera.width ||
-        t->target.height != t->scene.camera.height)
-        return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                          "%s: target: expected a 3-channel image of the camera's size %dx%d",
-                          name, t->scene.camera.width, t->scene.camera.height);
-    if (t->iterations < 1 || t->window < 1 || !(t->tolerance >= 0.0))
-        return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                          "%s: iterations and window must be positive, tolerance >= 0", name);
-    if (!(t->shadow_weight >= 0.0) || !isfinite(t->shadow_weight))
-        return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: shadow_weight must be a finite number >= 0",
-                          name);
-    if (t->lighting_solver == PEN_OPTIM_LIGHTING_LEAST_SQUARES &&
-        (!(t->optimize & PEN_OPTIM_LIGHTING) || t->loss != PEN_OPTIM_LOSS_L2))
-        return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                          "%s: lighting_solver: \"least_squares\" needs \"lighting\" in optimize "
-                          "and the l2 loss",
-                          name);
-    if (!(t->lighting_ridge >= 0.0) || !isfinite(t->lighting_ridge))
-        return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                          "%s: lighting_ridge must be a finite number >= 0", name);
-    const float lr[7] = {t->lr.lighting, t->lr.albedo,  t->lr.rotation,
-                         t->lr.translation, t->lr.spheres, t->lr.deformation_rotation,
-                         t->lr.deformation_translation};
-    for (int k = 0; k < 7; ++k)
-        if (!(lr[k] > 0.0f) || !isfinite(lr[k]))
-            return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: lr: rates must be positive", name);
-    return PEN_OK;
 }
 
 /* ---- Checkpoints and snapshots --------------------------------------------------------------- */
@@ -516,6 +449,11 @@ static pen__optim_identity identity(const pen_optim_task *t, const pen_optim_set
     }
     id.target_hash = pen__fnv1a(PEN__FNV1A_SEED, t->target.data,
                                      sizeof(float) * 3 * (size_t)id.width * (size_t)id.height);
+    if (r->multi) { /* the views stand for the target: cameras, images, masks, weights */
+        id.width = t->views[0].camera.width;
+        id.height = t->views[0].camera.height;
+        id.target_hash = pen__optim_views_hash(t->views, t->view_count);
+    }
     id.init_hash = pen__fnv1a(PEN__FNV1A_SEED, r->x, sizeof(float) * r->n);
     return id;
 }
@@ -610,6 +548,27 @@ static pen_status resume(pen_context *ctx, const pen_optim_task *t, const pen_op
     return s;
 }
 
+/* The objective's image term at the current parameters. Single view: the render into img (with
+ * `state`) and the loss, with d_img also its gradient image; multi-view: every view's (views.c),
+ * img untouched. */
+static pen_status image_term(pen_context *ctx, const pen_optim_task *t, run *r,
+                             pen_render_state *state, pen_image *img, double *loss,
+                             pen_image *d_img) {
+    if (r->multi)
+        return pen__optim_views_fwd(ctx, &r->views, r->sc, &r->opt, t->loss, d_img != NULL, loss);
+    pen_status s = pen_render_fwd(ctx, &t->scene, &r->opt, state, img);
+    return s ? s : evaluate(ctx, t, r->weight, img, loss, d_img);
+}
+
+/* The picture of the current parameters (initial, final, snapshots): the scene's camera, or the
+ * first view's in a multi-view task. */
+static pen_status picture(pen_context *ctx, const pen_optim_task *t, const run *r,
+                          pen_image *img) {
+    const pen_scene v =
+        r->multi ? pen__optim_view_scene(&t->scene, &t->views[0].camera) : t->scene;
+    return pen_render_fwd(ctx, &v, &r->opt, NULL, img);
+}
+
 static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_settings *set,
                            run *r, pen_optim_result *res) {
     const pen_render_options opt = r->opt;
@@ -628,7 +587,7 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
         res->losses = pen__calloc(ctx, (size_t)t->iterations + 1, sizeof(double), "loss curve");
         if (!res->losses) s = PEN_ERROR_MEMORY;
     }
-    if (!s) s = pen_render_fwd(ctx, &t->scene, &opt, NULL, &res->initial);
+    if (!s) s = picture(ctx, t, r, &res->initial);
     /* (the hashes read the target and the parameters: only checkpoints need them) */
     pen__optim_identity id;
     memset(&id, 0, sizeof id);
@@ -640,7 +599,8 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
     res->best_iteration = st.best_iteration;
     double best = st.best_loss;
     const double before = st.seconds; /* spent by the runs this one continues */
-    const float scale = 3.0f * (float)w * (float)h;
+    const float scale =
+        r->multi ? 3.0f * (float)r->views.max_pixels : 3.0f * (float)w * (float)h;
     const unsigned wrt = grad_mask(r->groups, r->solve);
     const int K = set->outdir ? set->checkpoint_every : 0;
     const int S = set->outdir ? set->snapshot_every : 0;
@@ -657,8 +617,8 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
         }
         double loss = 0.0;
         s = solve_lighting(ctx, t, &opt, r);
-        if (!s) s = pen_render_fwd(ctx, &t->scene, &opt, state, &img);
-        if (!s) s = evaluate(ctx, t, r->weight, &img, &loss, &d_img);
+        if (!s) s = image_term(ctx, t, r, state, &img, &loss, &d_img);
+        if (!s && S > 0 && i % S == 0 && r->multi) s = picture(ctx, t, r, &img);
         if (!s && S > 0 && i % S == 0) s = save_snapshot(ctx, set, &made, i, &img);
         if (s) break;
         loss += regularisers(r);
@@ -680,7 +640,8 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
             break;
         }
         pen_render_grad_zero(&grad);
-        s = pen_render_bwd(ctx, &t->scene, &opt, state, &d_img, wrt, &grad);
+        s = r->multi ? pen__optim_views_bwd(ctx, &r->views, &t->scene, &opt, wrt, &grad)
+                     : pen_render_bwd(ctx, &t->scene, &opt, state, &d_img, wrt, &grad);
         if (s) break;
         gather(r, &grad, scale);
         pen__optim_adam_step(&adam, r->segments, r->segment_count, r->x, r->g);
@@ -690,8 +651,7 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
     res->iterations = i;
     if (!s && shown < 0) { /* the iteration limit: the loss after the last step */
         s = solve_lighting(ctx, t, &opt, r);
-        if (!s) s = pen_render_fwd(ctx, &t->scene, &opt, NULL, &img);
-        if (!s) s = evaluate(ctx, t, r->weight, &img, &res->losses[i], NULL);
+        if (!s) s = image_term(ctx, t, r, NULL, &img, &res->losses[i], NULL);
         if (!s) res->losses[i] += regularisers(r);
         if (!s && res->losses[i] < best) {
             best = res->losses[i];
@@ -714,9 +674,11 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
     if (!s && shown != res->best_iteration) {
         memcpy(r->x, r->best, sizeof(float) * r->n);
         transfer(r, 1);
-        s = pen_render_fwd(ctx, &t->scene, &opt, NULL, &img);
+        if (!r->multi) s = pen_render_fwd(ctx, &t->scene, &opt, NULL, &img);
     }
-    if (!s) s = evaluate(ctx, t, r->weight, &img, &res->final_loss, NULL);
+    if (!s && r->multi) s = picture(ctx, t, r, &img);
+    if (!s && r->multi) s = image_term(ctx, t, r, NULL, &img, &res->final_loss, NULL);
+    if (!s && !r->multi) s = evaluate(ctx, t, r->weight, &img, &res->final_loss, NULL);
     if (!s) res->final_loss += regularisers(r);
     if (!s) {
         res->final = img;
@@ -755,8 +717,26 @@ static pen_status shadow_weights(pen_context *ctx, const pen_optim_task *t, run 
 
 /* "init": "fit": the lighting starts at the unshadowed least-squares fit to the target. */
 static pen_status fitted_lighting(pen_context *ctx, const pen_optim_task *t, run *r) {
-    pen_status s = pen__optim_fit_lighting(ctx, &t->scene, &t->target, PEN__OPTIM_RIDGE_INIT,
-                                          r->sc->lighting.sh);
+    if (!r->multi) {
+        pen_status s = pen__optim_fit_lighting(ctx, &t->scene, &t->target, PEN__OPTIM_RIDGE_INIT,
+                                              r->sc->lighting.sh);
+        if (!s) transfer(r, 0);
+        return s;
+    }
+    /* every view taking part, weighted as in the loss (its weight over its mask's size) */
+    pen__optim_eye *eyes = pen__calloc(ctx, (size_t)t->view_count, sizeof *eyes, "views");
+    if (!eyes) return PEN_ERROR_MEMORY;
+    int n = 0;
+    for (int i = 0; i < t->view_count; ++i) {
+        const pen_optim_view *v = &t->views[i];
+        const size_t pixels = (size_t)v->camera.width * (size_t)v->camera.height;
+        const double count = pen__loss_weight_sum(v->mask, pixels);
+        if (v->weight > 0.0 && count > 0.0)
+            eyes[n++] = (pen__optim_eye){&v->camera, &v->target, v->mask, v->weight / count, NULL};
+    }
+    pen_status s = pen__optim_fit_lighting_eyes(ctx, &t->scene, eyes, n, PEN__OPTIM_RIDGE_INIT,
+                                                r->sc->lighting.sh);
+    free(eyes);
     if (!s) transfer(r, 0);
     return s;
 }
@@ -764,8 +744,9 @@ static pen_status fitted_lighting(pen_context *ctx, const pen_optim_task *t, run
 /* Least-squares lighting: the ridge is fixed at the initial guess, whose lighting is then solved
  * for (so the first render, the loss curve's start, shows the solved lighting). */
 static pen_status lighting_solver_init(pen_context *ctx, const pen_optim_task *t, run *r) {
-    r->weight_sum =
-        pen__loss_weight_sum(r->weight, (size_t)t->target.width * (size_t)t->target.height);
+    r->weight_sum = r->multi ? 1.0 /* the views' factors normalise (views.c) */
+                             : pen__loss_weight_sum(r->weight, (size_t)t->target.width *
+                                                                   (size_t)t->target.height);
     r->mu[0] = r->mu[1] = r->mu[2] = -1.0;
     r->solved_for = pen__calloc(ctx, r->n + 1, sizeof(float), "lighting solve");
     if (!r->solved_for) return PEN_ERROR_MEMORY;
@@ -789,7 +770,7 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
     memset(out, 0, sizeof *out);
     metrics_none(&out->metrics);
     pen_optim_settings set = settings ? *settings : pen_optim_settings_default();
-    pen_status s = check_task(ctx, task);
+    pen_status s = pen__optim_task_check(ctx, task);
     if (!s) s = check_settings(ctx, &set);
     /* The scene as the renderer takes it (the renderer's own checks and messages), before the
      * checks against the ground truth, the sphere fit and the layout read its arrays. */
@@ -811,7 +792,7 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
         s = pen_scene_fit_spheres(ctx, &task->ground_truth);
         if (s) return s;
     }
-    s = check_groups_have_parameters(ctx, task);
+    s = pen__optim_task_check_groups(ctx, task);
     if (s) return s;
     /* Overlap weights of the initial spheres, held fixed while spheres, deformation or pose move
      * (an in-memory set without them would otherwise get them recomputed every frame). */
@@ -825,6 +806,7 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
     r.opt.shadows = set.shadows;
     r.groups = task->optimize;
     r.solve = task->lighting_solver == PEN_OPTIM_LIGHTING_LEAST_SQUARES;
+    r.multi = task->view_count > 0;
     s = layout(ctx, &r, task);
     if (!s) {
         transfer(&r, 0);
@@ -833,13 +815,31 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
         pen__optim_project(r.segments, r.segment_count, r.x);
         transfer(&r, 1);
         if (task->init_fit && r.lighting != SIZE_MAX) s = fitted_lighting(ctx, task, &r);
-        if (!s && task->shadow_weight > 0.0) s = shadow_weights(ctx, task, &r);
+        if (!s && r.multi)
+            s = pen__optim_views_init(ctx, &r.views, task, task->shadow_weight,
+                                      (task->optimize & PEN_OPTIM_LIGHTING) != 0);
+        else if (!s && task->shadow_weight > 0.0)
+            s = shadow_weights(ctx, task, &r);
         if (!s && r.solve) s = lighting_solver_init(ctx, task, &r);
     }
     if (!s) s = optimise(ctx, task, &set, &r, out);
     if (!s) {
         pen_image_error e = {0.0, 0.0, 0.0, 0};
-        s = pen_image_compare(ctx, &out->final, &task->target, NULL, &e, NULL);
+        if (r.multi) { /* every view of the recovered scene; image_rmse over all of them */
+            double sq[2] = {0.0, 0.0};
+            out->view_count = task->view_count;
+            s = pen__optim_views_finish(ctx, &task->scene, &r.opt, task->loss, task->views,
+                                        task->view_count, &out->views, &out->view_finals, sq);
+            e.rmse = sq[1] > 0.0 ? sqrt(sq[0] / sq[1]) : (double)NAN;
+        } else {
+            s = pen_image_compare(ctx, &out->final, &task->target, NULL, &e, NULL);
+        }
+        if (!s && task->validation_count > 0) { /* held back: rendered, never in the loss */
+            out->validation_count = task->validation_count;
+            s = pen__optim_views_finish(ctx, &task->scene, &r.opt, task->loss, task->validation,
+                                        task->validation_count, &out->validation,
+                                        &out->validation_finals, NULL);
+        }
         if (!s && task->has_ground_truth) s = pen__optim_metrics(ctx, task, &out->metrics);
         out->metrics.image_rmse = s ? (double)NAN : e.rmse;
     }
@@ -853,6 +853,14 @@ void pen_optim_result_free(pen_optim_result *result) {
     free(result->losses);
     pen_image_free(&result->initial);
     pen_image_free(&result->final);
+    for (int i = 0; result->view_finals && i < result->view_count; ++i)
+        pen_image_free(&result->view_finals[i]);
+    for (int i = 0; result->validation_finals && i < result->validation_count; ++i)
+        pen_image_free(&result->validation_finals[i]);
+    free(result->views);
+    free(result->view_finals);
+    free(result->validation);
+    free(result->validation_finals);
     memset(result, 0, sizeof *result);
     metrics_none(&result->metrics);
 }

@@ -10,7 +10,12 @@
  * Pictures: compare.png shows target | initial | result | error side by side, all with one
  * exposure (1 / the 99th percentile of the target's largest channel when that exceeds 1, so HDR
  * targets are not clipped flat), the error panel being 4x the mean absolute difference over the
- * channels, in grey. loss.svg plots log10(loss) against the iteration. */
+ * channels, in grey. loss.svg plots log10(loss) against the iteration.
+ *
+ * A multi-view task (views.c) adds final_<i>.exr per view and validation_<i>.exr per held-back
+ * view (the task's order), views.png (a small contact sheet, target | result | 4x error, a row a
+ * view, each row at its target's exposure) and per-view metrics in result.json; compare.png and
+ * final.exr show the first view. */
 #define _POSIX_C_SOURCE 200809L
 #include "io/io_internal.h"
 #include "optim/optim_internal.h"
@@ -22,13 +27,11 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
-#define MAX_OUTPUTS 64
-
 typedef struct outputs {
     const char *dir;
-    char *written[MAX_OUTPUTS];
-    char *kept[MAX_OUTPUTS]; /* the earlier file's second name, NULL if the path was free */
-    int count;
+    char **written;
+    char **kept; /* the earlier file's second name, NULL if the path was free */
+    int count, cap;
 } outputs;
 
 char *pen__optim_join(pen_context *ctx, const char *dir, const char *name) {
@@ -41,9 +44,17 @@ char *pen__optim_join(pen_context *ctx, const char *dir, const char *name) {
 /* Called before writing `path` (taking ownership of it: freed on failure): remembers it, and
  * gives a file already there a second name "<path>.previous" so that it can be put back. */
 static pen_status remember(pen_context *ctx, outputs *o, char *path) {
-    if (o->count == MAX_OUTPUTS) {
-        free(path);
-        return pen__error(ctx, PEN_ERROR_INTERNAL, "%s: too many output files", o->dir);
+    if (o->count == o->cap) { /* (one final render per view: no fixed bound) */
+        const int cap = o->cap ? 2 * o->cap : 64;
+        char **w = realloc(o->written, (size_t)cap * sizeof *w);
+        if (w) o->written = w;
+        char **k = w ? realloc(o->kept, (size_t)cap * sizeof *k) : NULL;
+        if (k) o->kept = k;
+        if (!w || !k) {
+            free(path);
+            return pen__error(ctx, PEN_ERROR_MEMORY, "%s: out of memory", o->dir);
+        }
+        o->cap = cap;
     }
     char *kept = NULL;
     struct stat st;
@@ -77,7 +88,10 @@ static void outputs_finish(outputs *o, int failed) {
         free(o->written[i]);
         free(o->kept[i]);
     }
-    o->count = 0;
+    free(o->written);
+    free(o->kept);
+    o->written = o->kept = NULL;
+    o->count = o->cap = 0;
 }
 
 static pen_status save_image(pen_context *ctx, outputs *o, const char *name, const pen_image *img) {
@@ -176,21 +190,27 @@ static float exposure(pen_context *ctx, const pen_image *target) {
     return p99 > 1.0f ? 1.0f / p99 : 1.0f;
 }
 
+/* The image compare.png and result.json's size describe: the first view's in a multi-view task. */
+static const pen_image *main_target(const pen_optim_task *t) {
+    return t->view_count > 0 ? &t->views[0].target : &t->target;
+}
+
 static pen_status compare_picture(pen_context *ctx, const pen_optim_task *t,
                                   const pen_optim_result *r, pen_image *out) {
-    const int w = t->target.width, h = t->target.height, gap = 4;
+    const pen_image *target = main_target(t);
+    const int w = target->width, h = target->height, gap = 4;
     pen_status s = pen_image_create(ctx, 4 * w + 3 * gap, h, 3, out);
     if (s) return s;
     for (size_t i = 0; i < (size_t)out->width * (size_t)out->height * 3; ++i)
         out->data[i] = 1.0f; /* white gaps */
-    const float e = exposure(ctx, &t->target);
-    const pen_image *panels[3] = {&t->target, &r->initial, &r->final};
+    const float e = exposure(ctx, target);
+    const pen_image *panels[3] = {target, &r->initial, &r->final};
     for (int y = 0; y < h; ++y)
         for (int x = 0; x < w; ++x) {
             const size_t src = 3 * ((size_t)y * (size_t)w + (size_t)x);
             float err = 0.0f;
             for (int ch = 0; ch < 3; ++ch)
-                err += fabsf(r->final.data[src + ch] - t->target.data[src + ch]) / 3.0f;
+                err += fabsf(r->final.data[src + ch] - target->data[src + ch]) / 3.0f;
             for (int p = 0; p < 4; ++p) {
                 float *dst =
                     out->data + 3 * ((size_t)y * (size_t)out->width + (size_t)(p * (w + gap) + x));
@@ -199,6 +219,75 @@ static pen_status compare_picture(pen_context *ctx, const pen_optim_task *t,
             }
         }
     return PEN_OK;
+}
+
+/* ---- The contact sheet ----------------------------------------------------------------------- */
+
+/* Nearest-neighbour scaling of one panel into the sheet at (x0, y0), size pw x ph. */
+static void blit(pen_image *sheet, int x0, int y0, int pw, int ph, const pen_image *src,
+                 const pen_image *err_of, float gain) {
+    for (int y = 0; y < ph; ++y)
+        for (int x = 0; x < pw; ++x) {
+            const int sx = (int)(((long)x * src->width) / pw), sy = (int)(((long)y * src->height) / ph);
+            const size_t i = 3 * ((size_t)sy * (size_t)src->width + (size_t)sx);
+            float *d = sheet->data + 3 * ((size_t)(y0 + y) * (size_t)sheet->width + (size_t)(x0 + x));
+            if (err_of) { /* 4x the mean absolute difference, grey */
+                float e = 0.0f;
+                for (int c = 0; c < 3; ++c)
+                    e += fabsf(src->data[i + (size_t)c] - err_of->data[i + (size_t)c]) / 3.0f;
+                d[0] = d[1] = d[2] = 4.0f * e * gain;
+            } else {
+                for (int c = 0; c < 3; ++c)
+                    d[c] = src->data[i + (size_t)c] * gain;
+            }
+        }
+}
+
+static pen_status views_sheet(pen_context *ctx, const pen_optim_view *views, int count,
+                                  const pen_image *finals, pen_image *sheet) {
+    enum { PANEL = 96, GAP = 4, MAX_ROWS = 64 }; /* small: a look at every view, not a render */
+    const int rows = count < MAX_ROWS ? count : MAX_ROWS;
+    pen_status s = pen_image_create(ctx, 3 * PANEL + 2 * GAP, rows * PANEL + (rows - 1) * GAP, 3,
+                                    sheet);
+    if (s) return s;
+    for (int i = 0; i < rows; ++i) {
+        const pen_image *t = &views[i].target;
+        const int big = t->width > t->height ? t->width : t->height;
+        const int pw = t->width * PANEL / big > 0 ? t->width * PANEL / big : 1;
+        const int ph = t->height * PANEL / big > 0 ? t->height * PANEL / big : 1;
+        const float gain = exposure(ctx, t);
+        const int y0 = i * (PANEL + GAP);
+        blit(sheet, 0, y0, pw, ph, t, NULL, gain);
+        blit(sheet, PANEL + GAP, y0, pw, ph, &finals[i], NULL, gain);
+        blit(sheet, 2 * (PANEL + GAP), y0, pw, ph, &finals[i], t, gain);
+    }
+    return PEN_OK;
+}
+
+/* A metric, or null where it does not apply (NaN). */
+static cJSON *number_or_null(double v) {
+    return isfinite(v) ? cJSON_CreateNumber(v) : cJSON_CreateNull();
+}
+
+/* The "views" (or "validation_views") array of result.json. */
+static cJSON *views_json(const pen_optim_view *views, int count,
+                             const pen_optim_view_metrics *m) {
+    cJSON *a = cJSON_CreateArray();
+    for (int i = 0; a && i < count; ++i) {
+        cJSON *o = cJSON_CreateObject();
+        const char *target = views[i].target_path ? views[i].target_path : "";
+        const int ok = o && pen__json_add(o, "target", cJSON_CreateString(target)) &&
+                       pen__json_add(o, "weight", cJSON_CreateNumber(views[i].weight)) &&
+                       pen__json_add(o, "loss", number_or_null(m[i].loss)) &&
+                       pen__json_add(o, "image_rmse", number_or_null(m[i].rmse)) &&
+                       pen__json_add(o, "image_rel_rmse", number_or_null(m[i].rel_rmse));
+        if (!ok || !cJSON_AddItemToArray(a, o)) {
+            cJSON_Delete(o);
+            cJSON_Delete(a);
+            return NULL;
+        }
+    }
+    return a;
 }
 
 /* ---- loss.svg -------------------------------------------------------------------------------- */
@@ -389,8 +478,19 @@ pen_status pen_optim_result_json(pen_context *ctx, const pen_optim_task *t,
                             graph_json(t->spheres.k, sphere_names, &t->spheres.w_smooth, 1))) &&
              pen__json_add(root, "tolerance", cJSON_CreateNumber(t->tolerance)) &&
              pen__json_add(root, "window", cJSON_CreateNumber(t->window)) &&
-             pen__json_add(root, "width", cJSON_CreateNumber(t->target.width)) &&
-             pen__json_add(root, "height", cJSON_CreateNumber(t->target.height)) &&
+             pen__json_add(root, "width", cJSON_CreateNumber(main_target(t)->width)) &&
+             pen__json_add(root, "height", cJSON_CreateNumber(main_target(t)->height)) &&
+             pen__json_add(root, "stop_reason",
+                           cJSON_CreateString(r->converged     ? "converged"
+                                              : r->interrupted ? "interrupted"
+                                                               : "iteration_limit")) &&
+             (!r->views ||
+              pen__json_add(root, "views",
+                            views_json(t->views, r->view_count, r->views))) &&
+             (!r->validation ||
+              pen__json_add(root, "validation_views",
+                            views_json(t->validation, r->validation_count,
+                                                  r->validation))) &&
              pen__json_add(root, "losses", losses);
     char *text = ok ? cJSON_Print(root) : NULL;
     cJSON_Delete(root);
@@ -420,6 +520,28 @@ pen_status pen__optim_make_dir(pen_context *ctx, const char *dir) {
     return PEN_OK;
 }
 
+/* Multi-view and validation views: final_<i>.exr and validation_<i>.exr (the task's order),
+ * and views.png, the contact sheet of the views (views.c). */
+static pen_status view_outputs(pen_context *ctx, outputs *o, const pen_optim_task *t,
+                               const pen_optim_result *r) {
+    pen_status s = PEN_OK;
+    char name[64];
+    for (int i = 0; !s && r->view_finals && i < r->view_count; ++i) {
+        snprintf(name, sizeof name, "final_%d.exr", i);
+        s = save_image(ctx, o, name, &r->view_finals[i]);
+    }
+    for (int i = 0; !s && r->validation_finals && i < r->validation_count; ++i) {
+        snprintf(name, sizeof name, "validation_%d.exr", i);
+        s = save_image(ctx, o, name, &r->validation_finals[i]);
+    }
+    if (s || !r->view_finals) return s;
+    pen_image sheet = {0, 0, 0, NULL};
+    s = views_sheet(ctx, t->views, r->view_count, r->view_finals, &sheet);
+    if (!s) s = save_image(ctx, o, "views.png", &sheet);
+    pen_image_free(&sheet);
+    return s;
+}
+
 pen_status pen_optim_write(pen_context *ctx, const char *outdir, const pen_optim_task *task,
                            const pen_optim_settings *settings, const pen_optim_result *result) {
     if (!result->final.data || !result->initial.data || !result->losses)
@@ -437,6 +559,7 @@ pen_status pen_optim_write(pen_context *ctx, const char *outdir, const pen_optim
     if (!s) s = save_image(ctx, &o, "final.png", &result->final);
     if (!s) s = compare_picture(ctx, task, result, &side);
     if (!s) s = save_image(ctx, &o, "compare.png", &side);
+    if (!s) s = view_outputs(ctx, &o, task, result);
     if (!s) s = loss_svg(ctx, result, shadows, &svg);
     if (!s) s = save_text(ctx, &o, "loss.svg", svg);
     if (!s) s = pen_optim_result_json(ctx, task, settings, result, &json);

@@ -91,6 +91,9 @@ static pen_status parse_scene_ref(pen_context *ctx, const char *path, const wher
 }
 
 pen_status pen_optim_task_set_target(pen_context *ctx, pen_optim_task *task, const char *path) {
+    if (task->view_count > 0)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "\"%s\": the task has \"views\": a target replaces no view's image", path);
     if (!pen__io_has_ext(path, "exr") && !pen__io_has_ext(path, "hdr"))
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "\"%s\": expected a linear image (.exr or .hdr)",
                           path);
@@ -321,16 +324,27 @@ static pen_status parse_task(pen_context *ctx, const char *path, const cJSON *ro
                                         "lr",    "loss",      "tolerance", "window",
                                         "init",  "deformation", "spheres", "ground_truth",
                                         "shadow_weight", "lighting_solver",
-                                        "lighting_ridge", NULL};
+                                        "lighting_ridge", "views", "validation_views", NULL};
     pen_status s = pen__json_known_keys(ctx, &top, root, known);
+    const cJSON *views = cJSON_GetObjectItemCaseSensitive(root, "views");
+    const cJSON *validation = cJSON_GetObjectItemCaseSensitive(root, "validation_views");
+    where wv = at(&top, "views"), wval = at(&top, "validation_views");
+    if (!s && views && (target || cJSON_GetObjectItemCaseSensitive(root, "target")))
+        s = pen__json_error(ctx, PEN_ERROR_PARSE, &wv,
+                            "a task has either \"views\" or a \"target\", not both");
     if (!s) s = parse_groups(ctx, &top, root, &t->optimize);
     if (!s) s = parse_options(ctx, &top, root, t);
     if (!s) s = parse_scene_ref(ctx, path, &top, root, "scene", &t->scene);
-    if (!s && target) {
+    if (!s && views) {
+        s = pen__optim_views_parse(ctx, path, &wv, views, &t->views, &t->view_count);
+    } else if (!s && target) {
         s = pen_optim_task_set_target(ctx, t, target);
     } else if (!s) {
         s = parse_target(ctx, path, &top, root, t);
     }
+    if (!s && validation)
+        s = pen__optim_views_parse(ctx, path, &wval, validation, &t->validation,
+                                   &t->validation_count);
     if (!s && cJSON_GetObjectItemCaseSensitive(root, "ground_truth")) {
         s = parse_scene_ref(ctx, path, &top, root, "ground_truth", &t->ground_truth);
         t->has_ground_truth = s == PEN_OK;
@@ -381,5 +395,114 @@ void pen_optim_task_free(pen_optim_task *task) {
     pen_image_free(&task->target);
     free(task->target_path);
     pen_scene_free(&task->ground_truth);
+    pen__optim_views_free(task->views, task->view_count);
+    pen__optim_views_free(task->validation, task->validation_count);
     memset(task, 0, sizeof *task);
+}
+
+/* ---- Checks before a run --------------------------------------------------------------------- */
+
+/* Every group asked for must have something to move: ["spheres"] on a scene whose objects have
+ * no spheres would otherwise run with zero parameters, change nothing and report success.
+ * Called once the {"fit": N} sphere sets exist. */
+pen_status pen__optim_task_check_groups(pen_context *ctx, const pen_optim_task *t) {
+    const char *name = t->path ? t->path : "task";
+    const pen_scene *sc = &t->scene;
+    long spheres = 0;
+    for (int o = 0; o < sc->object_count; ++o)
+        spheres += sc->objects[o].spheres.count;
+    static const struct {
+        unsigned group;
+        const char *name;
+    } groups[] = {{PEN_OPTIM_ALBEDO, "albedo"}, {PEN_OPTIM_POSE, "pose"},
+                  {PEN_OPTIM_SPHERES, "spheres"}, {PEN_OPTIM_DEFORMATION, "deformation"}};
+    for (size_t g = 0; g < sizeof groups / sizeof groups[0]; ++g) {
+        if (!(t->optimize & groups[g].group)) continue;
+        const int by_spheres = groups[g].group & (PEN_OPTIM_SPHERES | PEN_OPTIM_DEFORMATION);
+        if (sc->object_count == 0)
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "%s: optimize: \"%s\": the scene has no objects, nothing to optimise",
+                              name, groups[g].name);
+        if (by_spheres && spheres == 0)
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "%s: optimize: \"%s\": no object of the scene has spheres, nothing "
+                              "to optimise (give an object \"spheres\": a file, a list or "
+                              "{\"fit\": N})",
+                              name, groups[g].name);
+    }
+    return PEN_OK;
+}
+
+pen_status pen__optim_task_check(pen_context *ctx, const pen_optim_task *t) {
+    const char *name = t->path ? t->path : "task";
+    if (!t->optimize || (t->optimize & ~(unsigned)(PEN_OPTIM_LIGHTING | PEN_OPTIM_ALBEDO |
+                                                   PEN_OPTIM_POSE | PEN_OPTIM_SPHERES |
+                                                   PEN_OPTIM_DEFORMATION)) ||
+        ((t->optimize & PEN_OPTIM_SPHERES) && (t->optimize & PEN_OPTIM_DEFORMATION)))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: optimize: no group, an unknown one, or both spheres and "
+                          "deformation",
+                          name);
+    if ((t->optimize & PEN_OPTIM_DEFORMATION) &&
+        (t->deformation.k < 1 || !(t->deformation.w_rot >= 0.0) || !(t->deformation.w_reg >= 0.0)))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: deformation: k must be positive, the weights >= 0", name);
+    if ((t->optimize & PEN_OPTIM_SPHERES) &&
+        (!(t->spheres.w_smooth >= 0.0) || !isfinite(t->spheres.w_smooth) ||
+         (t->spheres.w_smooth > 0.0 && t->spheres.k < 1)))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: spheres: k must be positive, w_smooth a finite number >= 0", name);
+    if (t->view_count < 0 || t->view_count > PEN_CAMERA_SET_MAX || (t->view_count && !t->views) ||
+        t->validation_count < 0 || t->validation_count > PEN_CAMERA_SET_MAX ||
+        (t->validation_count && !t->validation))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: views: expected 0 .. %d views", name,
+                          PEN_CAMERA_SET_MAX);
+    for (int i = 0; i < t->view_count + t->validation_count; ++i) {
+        const int val = i >= t->view_count;
+        const pen_optim_view *v = val ? &t->validation[i - t->view_count] : &t->views[i];
+        const char *key = val ? "validation_views" : "views";
+        const int k = val ? i - t->view_count : i;
+        if (pen_camera_validate(ctx, &v->camera))
+            return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: %s[%d].%s", name, key, k,
+                              pen_context_error(ctx));
+        if (!v->target.data || v->target.channels != 3 || v->target.width != v->camera.width ||
+            v->target.height != v->camera.height)
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "%s: %s[%d].target: expected a 3-channel image of the camera's "
+                              "size %dx%d",
+                              name, key, k, v->camera.width, v->camera.height);
+        if (!(v->weight >= 0.0) || !isfinite(v->weight))
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "%s: %s[%d].weight: expected a finite number >= 0", name, key, k);
+    }
+    if (t->view_count > 0 && t->target.data)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: views and a target: choose one", name);
+    if (t->view_count == 0 &&
+        (!t->target.data || t->target.channels != 3 || t->target.width != t->scene.camera.width ||
+         t->target.height != t->scene.camera.height))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: target: expected a 3-channel image of the camera's size %dx%d",
+                          name, t->scene.camera.width, t->scene.camera.height);
+    if (t->iterations < 1 || t->window < 1 || !(t->tolerance >= 0.0))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: iterations and window must be positive, tolerance >= 0", name);
+    if (!(t->shadow_weight >= 0.0) || !isfinite(t->shadow_weight))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: shadow_weight must be a finite number >= 0",
+                          name);
+    if (t->lighting_solver == PEN_OPTIM_LIGHTING_LEAST_SQUARES &&
+        (!(t->optimize & PEN_OPTIM_LIGHTING) || t->loss != PEN_OPTIM_LOSS_L2))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: lighting_solver: \"least_squares\" needs \"lighting\" in optimize "
+                          "and the l2 loss",
+                          name);
+    if (!(t->lighting_ridge >= 0.0) || !isfinite(t->lighting_ridge))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: lighting_ridge must be a finite number >= 0", name);
+    const float lr[7] = {t->lr.lighting, t->lr.albedo,  t->lr.rotation,
+                         t->lr.translation, t->lr.spheres, t->lr.deformation_rotation,
+                         t->lr.deformation_translation};
+    for (int k = 0; k < 7; ++k)
+        if (!(lr[k] > 0.0f) || !isfinite(lr[k]))
+            return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: lr: rates must be positive", name);
+    return PEN_OK;
 }

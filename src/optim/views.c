@@ -1,0 +1,313 @@
+/* Multi-view tasks (docs/optimize.md, "Several views"; docs/design.md sec. 3.5): one scene seen
+ * by N calibrated cameras, each with its observed image, an optional pixel mask and a weight.
+ *
+ * The objective is E = sum_v w_v E_v, E_v the task's loss of view v (a mean over its mask's
+ * pixels, weighted by the shadow weights when the task has them). A weighted sum rather than a
+ * weighted mean, so that a view's weight is what it says and the gradient of E is exactly the
+ * sum of the views' weighted gradients; the regularisers keep their own scale, so with many views
+ * they count relatively less (as they would with a larger image). A view whose weight is 0 or
+ * whose mask holds no pixel contributes nothing and is not even rendered in the loop.
+ *
+ * Determinism: the views are rendered, differentiated and summed in the task's order, one after
+ * the other, each with its own render state (kept across iterations: a view's antialiasing
+ * adjacency and background do not change); pen_render_bwd adds each view's gradient into one
+ * gradient struct, so the sum runs in a fixed order and the result is bitwise reproducible for
+ * a given thread count.
+ *
+ * The least-squares lighting ("lighting_solver": "least_squares", "init": "fit") sees every view:
+ * its normal equations sum the views' with factor w_v / sum_p m_vp (loss.c), the same weighting
+ * as E, so the solve minimises the objective the loop reports. */
+#include "optim/optim_internal.h"
+
+#include "penumbra/metrics.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+typedef pen__json_where where;
+
+/* ---- Parsing --------------------------------------------------------------------------------- */
+
+/* A linear image of the camera's size at `rel` (relative to base), into *img and *name. */
+static pen_status load_image(pen_context *ctx, const where *w, const char *base, const char *rel,
+                             const pen_camera *cam, int linear, pen_image *img, char **name) {
+    if (linear && !pen__io_has_ext(rel, "exr") && !pen__io_has_ext(rel, "hdr"))
+        return pen__json_error(ctx, PEN_ERROR_PARSE, w,
+                               "\"%s\": expected a linear image (.exr or .hdr)", rel);
+    *name = pen__io_path_resolve(ctx, base, rel);
+    if (!*name) return PEN_ERROR_MEMORY;
+    pen_status s = pen_image_load_ex(ctx, *name, linear ? 0u : PEN_IMAGE_LOAD_RAW, img);
+    if (s) return pen__json_wrap(ctx, s, w);
+    if (img->width != cam->width || img->height != cam->height)
+        return pen__json_error(ctx, PEN_ERROR_PARSE, w,
+                               "%s: the image is %dx%d but the view's camera is %dx%d", rel,
+                               img->width, img->height, cam->width, cam->height);
+    return PEN_OK;
+}
+
+static pen_status parse_view(pen_context *ctx, const char *base, const where *w, const cJSON *o,
+                             pen_optim_view *v) {
+    static const char *const known[] = {"camera", "target", "mask", "weight", NULL};
+    where wc, wt, wm, ww;
+    pen__json_child(w, "camera", &wc);
+    pen__json_child(w, "target", &wt);
+    pen__json_child(w, "mask", &wm);
+    pen__json_child(w, "weight", &ww);
+    v->weight = 1.0;
+    pen_status s = pen__json_need_object(ctx, w, o);
+    if (!s) s = pen__json_known_keys(ctx, w, o, known);
+    if (!s) s = pen__io_camera_parse(ctx, &wc, pen__json_member(o, "camera"), &v->camera);
+    const char *rel = NULL;
+    if (!s) s = pen__json_string(ctx, &wt, pen__json_member(o, "target"), &rel);
+    if (!s) s = load_image(ctx, &wt, base, rel, &v->camera, 1, &v->target, &v->target_path);
+    const cJSON *m = pen__json_member(o, "mask");
+    if (!s && m) {
+        pen_image mask = {0, 0, 0, NULL};
+        s = pen__json_string(ctx, &wm, m, &rel);
+        if (!s) s = load_image(ctx, &wm, base, rel, &v->camera, 0, &mask, &v->mask_path);
+        const size_t pixels = (size_t)v->camera.width * (size_t)v->camera.height;
+        if (!s && !(v->mask = pen__malloc(ctx, pixels, sizeof(float), "mask")))
+            s = PEN_ERROR_MEMORY;
+        for (size_t p = 0; !s && p < pixels; ++p) { /* a pixel counts above 0.5 */
+            const float *c = mask.data + 3 * p;
+            v->mask[p] = (c[0] + c[1] + c[2]) / 3.0f > 0.5f ? 1.0f : 0.0f;
+        }
+        pen_image_free(&mask);
+    }
+    const cJSON *e = pen__json_member(o, "weight");
+    if (!s && e) s = pen__json_number(ctx, &ww, e, 0.0, 1e6, "a weight in [0, 1e6]", &v->weight);
+    return s;
+}
+
+/* The array of views at w (paths relative to base). */
+static pen_status parse_array(pen_context *ctx, const char *base, const where *w, const cJSON *a,
+                              pen_optim_view **views, int *count) {
+    if (!cJSON_IsArray(a) || cJSON_GetArraySize(a) < 1 ||
+        cJSON_GetArraySize(a) > PEN_CAMERA_SET_MAX)
+        return pen__json_error(ctx, PEN_ERROR_PARSE, w,
+                               "expected an array of 1 .. %d views (or a views file), got %s",
+                               PEN_CAMERA_SET_MAX,
+                               cJSON_IsArray(a) ? "an array of another length"
+                                                : pen__json_type_name(a));
+    const int n = cJSON_GetArraySize(a);
+    *views = pen__calloc(ctx, (size_t)n, sizeof **views, "views");
+    if (!*views) return PEN_ERROR_MEMORY;
+    int i = 0;
+    const cJSON *o;
+    pen_status s = PEN_OK;
+    cJSON_ArrayForEach(o, a) {
+        where wi;
+        pen__json_index(w, i, &wi);
+        *count = ++i; /* (freed with the rest on failure) */
+        s = parse_view(ctx, base, &wi, o, &(*views)[i - 1]);
+        if (s) break;
+    }
+    return s;
+}
+
+pen_status pen__optim_views_parse(pen_context *ctx, const char *task_path, const where *w,
+                                  const cJSON *item, pen_optim_view **views, int *count) {
+    *views = NULL;
+    *count = 0;
+    if (!cJSON_IsString(item)) return parse_array(ctx, task_path, w, item, views, count);
+    char *file = pen__io_path_resolve(ctx, task_path, item->valuestring);
+    if (!file) return PEN_ERROR_MEMORY;
+    cJSON *root = NULL;
+    static const char *const known[] = {"views", NULL};
+    where top = {file, ""}, wv;
+    pen__json_child(&top, "views", &wv);
+    pen_status s = pen__json_load(ctx, file, &root);
+    if (!s) s = pen__json_need_object(ctx, &top, root);
+    if (!s) s = pen__json_known_keys(ctx, &top, root, known);
+    if (!s) s = parse_array(ctx, file, &wv, pen__json_member(root, "views"), views, count);
+    cJSON_Delete(root);
+    free(file);
+    return s ? pen__json_wrap(ctx, s, w) : PEN_OK;
+}
+
+void pen__optim_views_free(pen_optim_view *views, int count) {
+    for (int i = 0; views && i < count; ++i) {
+        pen_image_free(&views[i].target);
+        free(views[i].target_path);
+        free(views[i].mask);
+        free(views[i].mask_path);
+    }
+    free(views);
+}
+
+uint64_t pen__optim_views_hash(const pen_optim_view *views, int count) {
+    uint64_t h = pen__fnv1a(PEN__FNV1A_SEED, &count, sizeof count);
+    for (int i = 0; i < count; ++i) {
+        const pen_optim_view *v = &views[i];
+        const size_t pixels = (size_t)v->camera.width * (size_t)v->camera.height;
+        h = pen__fnv1a(h, &v->camera, sizeof v->camera); /* ints and floats: no padding */
+        h = pen__fnv1a(h, &v->weight, sizeof v->weight);
+        h = pen__fnv1a(h, v->target.data, 3 * pixels * sizeof(float));
+        if (v->mask) h = pen__fnv1a(h, v->mask, pixels * sizeof(float));
+    }
+    return h;
+}
+
+/* ---- The objective over the views ------------------------------------------------------------ */
+
+void pen__optim_views_free_run(pen__optim_views *V) {
+    for (int i = 0; i < V->count; ++i) {
+        if (V->state) pen_render_state_free(V->state[i]);
+        if (V->solve_state) pen_render_state_free(V->solve_state[i]);
+        if (V->weight) free(V->weight[i]);
+        if (V->img) pen_image_free(&V->img[i]);
+        if (V->d_img) pen_image_free(&V->d_img[i]);
+    }
+    free(V->state);
+    free(V->solve_state);
+    free(V->weight);
+    free(V->factor);
+    free(V->img);
+    free(V->d_img);
+    memset(V, 0, sizeof *V);
+}
+
+pen_status pen__optim_views_init(pen_context *ctx, pen__optim_views *V, const pen_optim_task *t,
+                                 double shadow_weight, int fit_lighting) {
+    const int n = t->view_count;
+    memset(V, 0, sizeof *V);
+    V->count = n;
+    V->views = t->views;
+    V->state = pen__calloc(ctx, (size_t)n, sizeof *V->state, "views");
+    V->solve_state = pen__calloc(ctx, (size_t)n, sizeof *V->solve_state, "views");
+    V->weight = pen__calloc(ctx, (size_t)n, sizeof *V->weight, "views");
+    V->factor = pen__calloc(ctx, (size_t)n, sizeof *V->factor, "views");
+    V->img = pen__calloc(ctx, (size_t)n, sizeof *V->img, "views");
+    V->d_img = pen__calloc(ctx, (size_t)n, sizeof *V->d_img, "views");
+    pen_status s = V->state && V->solve_state && V->weight && V->factor && V->img && V->d_img
+                       ? PEN_OK
+                       : PEN_ERROR_MEMORY;
+    for (int i = 0; !s && i < n; ++i) {
+        const pen_optim_view *v = &t->views[i];
+        const size_t pixels = (size_t)v->camera.width * (size_t)v->camera.height;
+        if (pixels > V->max_pixels) V->max_pixels = pixels;
+        s = pen_render_state_create(ctx, &V->state[i]);
+        if (!s) s = pen_render_state_create(ctx, &V->solve_state[i]);
+        if (!s) s = pen_image_create(ctx, v->camera.width, v->camera.height, 3, &V->d_img[i]);
+        if (s || (!v->mask && shadow_weight == 0.0)) {
+            if (!s) V->factor[i] = v->weight / (double)pixels;
+            continue;
+        }
+        float *w = V->weight[i] = pen__malloc(ctx, pixels, sizeof(float), "view weights");
+        if (!w) s = PEN_ERROR_MEMORY;
+        if (!s && shadow_weight > 0.0) { /* 1 + s m, m the view's shadow mask (loss.c) */
+            const pen_scene vs = pen__optim_view_scene(&t->scene, &v->camera);
+            s = pen__optim_shadow_mask(ctx, &vs, &v->target, fit_lighting, w);
+            for (size_t p = 0; !s && p < pixels; ++p)
+                w[p] = 1.0f + (float)shadow_weight * w[p];
+        } else if (!s) {
+            for (size_t p = 0; p < pixels; ++p)
+                w[p] = 1.0f;
+        }
+        for (size_t p = 0; !s && v->mask && p < pixels; ++p)
+            w[p] *= v->mask[p];
+        const double sum = s ? 0.0 : pen__loss_weight_sum(w, pixels);
+        V->factor[i] = sum > 0.0 ? v->weight / sum : 0.0; /* empty mask: the view is out */
+    }
+    int taking_part = 0;
+    for (int i = 0; !s && i < n; ++i)
+        taking_part += V->factor[i] > 0.0;
+    if (!s && taking_part == 0)
+        s = pen__error(ctx, PEN_ERROR_ARGUMENT,
+                       "%s: views: every view has weight 0 or an empty mask: nothing to fit",
+                       t->path ? t->path : "task");
+    return s;
+}
+
+int pen__optim_views_eyes(const pen__optim_views *V, int solve, pen__optim_eye *eyes) {
+    int n = 0;
+    for (int i = 0; i < V->count; ++i) {
+        if (!(V->factor[i] > 0.0)) continue;
+        pen__optim_eye *e = &eyes[n++];
+        e->camera = &V->views[i].camera;
+        e->target = &V->views[i].target;
+        e->weight = V->weight[i];
+        e->factor = V->factor[i];
+        e->state = solve ? V->solve_state[i] : NULL;
+    }
+    return n;
+}
+
+pen_status pen__optim_views_fwd(pen_context *ctx, pen__optim_views *V, const pen_scene *sc,
+                                const pen_render_options *opt, pen_optim_loss kind, int grad,
+                                double *loss) {
+    double sum = 0.0;
+    for (int i = 0; i < V->count; ++i) {
+        if (!(V->factor[i] > 0.0)) continue;
+        const pen_optim_view *v = &V->views[i];
+        const pen_scene vs = pen__optim_view_scene(sc, &v->camera);
+        double e = 0.0;
+        pen_status s = pen_render_fwd(ctx, &vs, opt, V->state[i], &V->img[i]);
+        if (!s) s = pen__optim_loss_fwd(ctx, kind, &V->img[i], &v->target, V->weight[i], &e);
+        if (s) return s;
+        sum += v->weight * e;
+        if (!grad) continue;
+        pen_image *d = &V->d_img[i];
+        memset(d->data, 0, sizeof(float) * 3 * (size_t)d->width * (size_t)d->height);
+        pen__optim_loss_bwd(kind, &V->img[i], &v->target, V->weight[i], v->weight, d);
+    }
+    *loss = sum;
+    return PEN_OK;
+}
+
+pen_status pen__optim_views_bwd(pen_context *ctx, pen__optim_views *V, const pen_scene *sc,
+                                const pen_render_options *opt, unsigned wrt,
+                                pen_render_grad *grad) {
+    for (int i = 0; i < V->count; ++i) {
+        if (!(V->factor[i] > 0.0)) continue;
+        const pen_scene vs = pen__optim_view_scene(sc, &V->views[i].camera);
+        pen_status s = pen_render_bwd(ctx, &vs, opt, V->state[i], &V->d_img[i], wrt, grad);
+        if (s) return s;
+    }
+    return PEN_OK;
+}
+
+/* ---- The recovered scene from each view ------------------------------------------------------ */
+
+pen_status pen__optim_views_finish(pen_context *ctx, const pen_scene *sc,
+                                   const pen_render_options *opt, pen_optim_loss kind,
+                                   const pen_optim_view *views, int count,
+                                   pen_optim_view_metrics **metrics, pen_image **finals,
+                                   double sq[2]) {
+    *metrics = pen__calloc(ctx, (size_t)count + 1, sizeof **metrics, "view metrics");
+    *finals = pen__calloc(ctx, (size_t)count + 1, sizeof **finals, "view renders");
+    if (!*metrics || !*finals) return PEN_ERROR_MEMORY;
+    for (int i = 0; i < count; ++i) {
+        const pen_optim_view *v = &views[i];
+        const pen_scene vs = pen__optim_view_scene(sc, &v->camera);
+        pen_image *img = &(*finals)[i];
+        pen_status s = pen_render_fwd(ctx, &vs, opt, NULL, img);
+        if (s) return s;
+        const size_t pixels = (size_t)img->width * (size_t)img->height;
+        double err = 0.0, ref = 0.0, counted = 0.0;
+        for (size_t p = 0; p < pixels; ++p) { /* in pixel order, double */
+            if (v->mask && v->mask[p] == 0.0f) continue;
+            counted += 1.0;
+            for (int c = 0; c < 3; ++c) {
+                const double a = (double)img->data[3 * p + (size_t)c];
+                const double b = (double)v->target.data[3 * p + (size_t)c];
+                err += (a - b) * (a - b);
+                ref += b * b;
+            }
+        }
+        pen_optim_view_metrics *m = &(*metrics)[i];
+        m->loss = m->rmse = m->rel_rmse = (double)NAN;
+        if (counted > 0.0) {
+            s = pen__optim_loss_fwd(ctx, kind, img, &v->target, v->mask, &m->loss);
+            if (s) return s;
+            m->rmse = sqrt(err / (3.0 * counted));
+            m->rel_rmse = ref > 0.0 ? sqrt(err / ref) : (double)NAN;
+        }
+        if (sq && v->weight > 0.0) {
+            sq[0] += err;
+            sq[1] += 3.0 * counted;
+        }
+    }
+    return PEN_OK;
+}
