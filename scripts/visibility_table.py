@@ -2,7 +2,8 @@
 """Self-shadowing accuracy of `penumbra render` on the development meshes (issue 19).
 
 Usage: python3 scripts/visibility_table.py PENUMBRA_BIN OUTDIR [--size S] [--spp N]
-                                          [--meshes a,b] [--maps a,b] [--no-proxy]
+                                          [--meshes a,b] [--maps a,b] [--no-proxy] [--suffix S]
+                                          [--plain]
 
 For every mesh x map cell (data/meshes x data/envmaps/*.exr) it renders the scene with
 `penumbra render` and measures rel. RMSE against `penumbra reference --lighting sh` (exact
@@ -24,6 +25,10 @@ Per cell:
 Spheres are fitted once per mesh and count with `penumbra fit-spheres -n N` (default settings,
 the same as "spheres": {"fit": N}) into OUTDIR/spheres and used as files.
 
+--plain gives every object the constant albedo 0.7 instead of its texture (Spot's, and Bob's from
+its material): the rasterizer samples a texture once per pixel, the reference box-filters it,
+which shows as error along texture edges that is not visibility's.
+
 Pose: each mesh is rotated 140 degrees about y as in examples/scenes/spot_city.json, scaled so
 that its longest side is 1.7 units (Spot and Bob keep scale 1, as in the bundled scenes), centred
 on the y axis and lifted so that its lowest point is at y = 0. The camera is spot_city's offset
@@ -39,7 +44,9 @@ missing occlusion); and the captured shadow sum(U - R) / sum(U - T).
 Writes OUTDIR/scenes, OUTDIR/img (EXR), OUTDIR/maps (PNG error maps: truth | render | signed
 error, red = render too bright, blue = too dark, saturating at 30% of the object's mean),
 OUTDIR/results.tsv and markdown tables on stdout. Existing images are reused (delete OUTDIR/img
-to start over).
+to start over). --suffix S names the `render` images, maps and OUTDIR/resultsS.tsv with S, so that
+a second run into the same OUTDIR with another binary (a candidate change of the renderer) reuses
+the truths, masks and sphere fits and compares its renders with the same truths.
 """
 import json
 import math
@@ -191,12 +198,16 @@ def pose_and_camera(mesh):
 
 def scene_json(path, size, mesh_path, spheres, pose, cam, env, scale, shadow=None, ground=True,
                background="envmap", albedo=None):
+    """Writes a scene; albedo is a texture path, an [r, g, b] constant or None (the mesh's own
+    material, else the default)."""
     s, t = pose
     eye, target = cam
     obj = {"mesh": mesh_path, "spheres": spheres,
            "pose": {"rotation_axis_angle_deg": [0, 140, 0], "translation": t, "scale": s}}
-    if albedo:
+    if isinstance(albedo, str):
         obj["albedo_texture"] = albedo
+    elif albedo:
+        obj["albedo"] = albedo
     sc = {"camera": {"width": size, "height": size, "fov_y_deg": 35, "eye": eye,
                      "target": target, "up": [0, 1, 0]},
           "lighting": {"envmap": os.path.join(DATA, "envmaps", env + ".exr"), "scale": scale,
@@ -299,18 +310,20 @@ def main():
         sys.exit(__doc__)
     bin_, out = os.path.abspath(args[0]), os.path.abspath(args[1])
     opts = {"--size": "160", "--spp": "1024", "--meshes": ",".join(MESHES),
-            "--maps": ",".join(MAPS)}
-    proxy = True
+            "--maps": ",".join(MAPS), "--suffix": ""}
+    proxy, plain = True, False
     i = 2
     while i < len(args):
-        if args[i] == "--no-proxy":
-            proxy = False
+        if args[i] in ("--no-proxy", "--plain"):
+            proxy = proxy and args[i] != "--no-proxy"
+            plain = plain or args[i] == "--plain"
             i += 1
         else:
             opts[args[i]] = args[i + 1]
             i += 2
     size, spp = int(opts["--size"]), int(opts["--spp"])
     meshes, maps = opts["--meshes"].split(","), opts["--maps"].split(",")
+    suffix = opts["--suffix"]
     for d in ("scenes", "img", "maps", "spheres"):
         os.makedirs(os.path.join(out, d), exist_ok=True)
     th = ["--threads", "2"]
@@ -325,6 +338,7 @@ def main():
         return img(name)
 
     def render(scene, name, flags=()):
+        name += suffix
         if not os.path.exists(img(name)):
             run([bin_, "render", scene, "-o", img(name), "-q"] + th + list(flags))
         return img(name)
@@ -342,7 +356,7 @@ def main():
         scales[env] = float("%.3g" % (0.45 / (sum(vals) / len(vals))))
 
     rows = []
-    tsv = open(os.path.join(out, "results.tsv"), "w")
+    tsv = open(os.path.join(out, "results%s.tsv" % suffix), "w")
     tsv.write("mesh\tmap\tkind\trel_image\trel_object\n")
 
     def row(m, e, kind, v):
@@ -354,7 +368,7 @@ def main():
     setup = {}
     for mesh in meshes:  # fits first, then the cells map by map (city, night, courtyard first)
         mpath = os.path.join(DATA, "meshes", mesh + ".obj")
-        albedo = os.path.join(DATA, "meshes", "spot_texture.png") \
+        albedo = [0.7, 0.7, 0.7] if plain else os.path.join(DATA, "meshes", "spot_texture.png") \
             if mesh == "spot_triangulated" else None
         sph = {}
         for n in COUNTS:
@@ -396,7 +410,7 @@ def main():
                         compare(bin_, render(sc("n%d" % n, spheres=sph[n]),
                                              cell + "_render%d" % n), truth, objcov))
             analysis[(mesh, env)] = analyse(truth, r32, uns, objcov,
-                                            os.path.join(out, "maps", cell + ".png"))
+                                            os.path.join(out, "maps", cell + suffix + ".png"))
             a = analysis[(mesh, env)]
             tsv.write("%s\t%s\tanalysis\t%s\n" % (mesh, env, json.dumps(a)))
             if proxy:
@@ -414,22 +428,23 @@ def main():
                     compare(bin_, render(sc("proxy_none", spheres=sph[32], mp=union, alb=None,
                                             shadow={"overlap": "none"}),
                                          cell + "_proxy_overlap_none"), ptruth, pcov))
-                pa = analyse(ptruth, img(cell + "_proxy_render"), img(cell + "_proxy_noshadows"),
-                             pcov, os.path.join(out, "maps", cell + "_proxy.png"))
+                pa = analyse(ptruth, img(cell + "_proxy_render" + suffix),
+                             img(cell + "_proxy_noshadows" + suffix), pcov,
+                             os.path.join(out, "maps", cell + "_proxy" + suffix + ".png"))
                 analysis[(mesh, env, "proxy")] = pa
                 tsv.write("%s\t%s\tproxy_analysis\t%s\n" % (mesh, env, json.dumps(pa)))
             print("done %s (%.3f / %.3f)" % (cell, *dict(((r[0], r[1], r[2]), r[3])
                                                           for r in rows)[(mesh, env, "render")]),
                   file=sys.stderr, flush=True)
     tsv.close()
-    report(rows, analysis, meshes, maps, scales, spp, size, proxy)
+    report(rows, analysis, meshes, maps, scales, spp, size, proxy, suffix)
 
 
-def report(rows, analysis, meshes, maps, scales, spp, size, proxy):
+def report(rows, analysis, meshes, maps, scales, spp, size, proxy, suffix):
     v = {(m, e, k): x for m, e, k, x in rows}
     print("Map scales: " + ", ".join("%s %g" % (e, scales[e]) for e in maps))
-    print("\n## Before: rel. RMSE of render (32 spheres) vs reference --lighting sh "
-          "(%d spp, %dx%d), image / object\n" % (spp, size, size))
+    print("\n## render%s (32 spheres) vs reference --lighting sh (%d spp, %dx%d): rel. RMSE, "
+          "image / object\n" % (suffix, spp, size, size))
     print("| mesh | " + " | ".join(maps) + " | RMS over maps |")
     print("|---|" + "---|" * (len(maps) + 1))
     for m in meshes:
