@@ -24,7 +24,7 @@ static double seconds_now(void) {
     return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
 }
 
-/* ---- Group 1: overlap weights at 2000, 4096 and 20000 spheres ---------------------------------- */
+/* ---- Group 1: overlap weights at 2000, 4096 and 20000 spheres -------------------------------- */
 
 /* n spheres filling a unit cube, radii 0.3 to 0.9 n^(-1/3) (about 1.1 sphere volumes per unit
  * volume): the sets docs/fit-spheres.md times. */
@@ -96,7 +96,7 @@ static void test_render_above_overlap_cap(void) {
     pen_scene_free(&sc);
 }
 
-/* ---- Group 2: the Embree reference at the largest accepted coordinates ------------------------- */
+/* ---- Group 2: the Embree reference at the largest accepted coordinates ----------------------- */
 
 /* Scene JSON around `parts` (camera, objects, ground), SH lighting, through the loader. */
 static pen_status load_scene(const char *name, const char *camera, const char *objects,
@@ -136,8 +136,8 @@ static void test_reference_at_accepted_extremes(void) {
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; ++i) {
         pen_scene sc;
-        pen_status s = load_scene("extreme.json", cases[i].camera, cases[i].objects,
-                                  cases[i].ground, &sc);
+        pen_status s =
+            load_scene("extreme.json", cases[i].camera, cases[i].objects, cases[i].ground, &sc);
         CHECK_MSG(s == PEN_OK, "%s: %s", cases[i].what, pen_context_error(ctx));
         if (s) continue;
         pen_reference *ref = NULL;
@@ -157,7 +157,7 @@ static void test_reference_at_accepted_extremes(void) {
     }
 }
 
-/* ---- Group 4: the largest accepted values render finite ----------------------------------------- */
+/* ---- Group 4: the largest accepted values render finite -------------------------------------- */
 
 /* Forward and backward with a loss that pulls every pixel up: finite pixels and gradients. */
 static void check_finite_frame(const pen_scene *sc, const char *what) {
@@ -250,18 +250,17 @@ static void test_largest_lighting_and_texture(void) {
     }
     /* FLT_MAX as an envmap and as a texture: refused where it enters. */
     char text[2048], o[512];
-    snprintf(text, sizeof text, "{%s, \"lighting\": {\"envmap\": \"flt_max.exr\"}, \"objects\": []}",
-             cam);
+    snprintf(text, sizeof text,
+             "{%s, \"lighting\": {\"envmap\": \"flt_max.exr\"}, \"objects\": []}", cam);
     pen_scene sc;
     CHECK_ERROR(ctx, pen_scene_load(ctx, fixture_text("hot_env.json", text), &sc), PEN_ERROR_PARSE,
                 "hot_env.json: lighting.envmap: ", "flt_max.exr: pixel (0, 0) channel 0");
     snprintf(o, sizeof o, obj, "flt_max.exr");
     snprintf(text, sizeof text,
-             "{%s, \"lighting\": {\"sh\": [[1, 1, 1]]}, \"sh_bands\": 1, \"objects\": [%s]}",
-             cam, o);
-    CHECK_ERROR(ctx, pen_scene_load(ctx, fixture_text("hot_tex.json", text), &sc),
-                PEN_ERROR_PARSE, "hot_tex.json: objects[0].albedo_texture: ",
-                "flt_max.exr: pixel (0, 0) channel 0");
+             "{%s, \"lighting\": {\"sh\": [[1, 1, 1]]}, \"sh_bands\": 1, \"objects\": [%s]}", cam,
+             o);
+    CHECK_ERROR(ctx, pen_scene_load(ctx, fixture_text("hot_tex.json", text), &sc), PEN_ERROR_PARSE,
+                "hot_tex.json: objects[0].albedo_texture: ", "flt_max.exr: pixel (0, 0) channel 0");
 }
 
 /* The documented maximum object count (4096) through the scene JSON: loads and renders finite;
@@ -303,15 +302,22 @@ static void test_object_count_limit(void) {
     }
 }
 
-/* ---- Group 6: a checkpoint at INT32_MAX ----------------------------------------------------------- */
+/* ---- Group 6: a checkpoint at INT32_MAX ------------------------------------------------------ */
 
 enum { CK_N = 4, CK_LOSSES = 16 };
 static const pen__optim_segment ck_segments[] = {{0, CK_N, 1.0f, PEN__BOUND_NONE}};
-static const pen__optim_identity ck_identity = {
-    .n = CK_N, .segments = ck_segments, .segment_count = 1, .groups = PEN_OPTIM_LIGHTING,
-    .loss = PEN_OPTIM_LOSS_L2, .shadows = 1, .width = 4, .height = 4,
-    .lighting_solver = PEN_OPTIM_LIGHTING_ADAM, .lighting_ridge = 1e-2, .target_hash = 0xabcu,
-    .init_hash = 0xdefu};
+static const pen__optim_identity ck_identity = {.n = CK_N,
+                                                .segments = ck_segments,
+                                                .segment_count = 1,
+                                                .groups = PEN_OPTIM_LIGHTING,
+                                                .loss = PEN_OPTIM_LOSS_L2,
+                                                .shadows = 1,
+                                                .width = 4,
+                                                .height = 4,
+                                                .lighting_solver = PEN_OPTIM_LIGHTING_ADAM,
+                                                .lighting_ridge = 1e-2,
+                                                .target_hash = 0xabcu,
+                                                .init_hash = 0xdefu};
 
 /* Loads `path` against ck_identity into fresh buffers. */
 static pen_status ck_load(const char *path) {
@@ -330,8 +336,15 @@ static void test_checkpoint_int32_max(void) {
     float x[CK_N] = {1, 2, 3, 4}, best[CK_N] = {1, 2, 3, 4}, m[CK_N] = {0}, v[CK_N] = {0};
     double losses[6] = {6, 5, 4, 3, 2, 1};
     pen__adam adam = {.n = CK_N, .m = m, .v = v, .t = 5};
-    pen__optim_state st = {.iteration = 5, .recorded = 6, .best_iteration = 5, .best_loss = 1.0,
-                           .seconds = 2.0, .x = x, .best = best, .adam = &adam, .losses = losses};
+    pen__optim_state st = {.iteration = 5,
+                           .recorded = 6,
+                           .best_iteration = 5,
+                           .best_loss = 1.0,
+                           .seconds = 2.0,
+                           .x = x,
+                           .best = best,
+                           .adam = &adam,
+                           .losses = losses};
     const char *path = fixture_path("ck.bin");
     CHECK(pen__optim_checkpoint_save(ctx, path, &ck_identity, &st) == PEN_OK);
     CHECK_MSG(ck_load(path) == PEN_OK, "%s", pen_context_error(ctx));
@@ -374,7 +387,7 @@ static void test_checkpoint_int32_max(void) {
     }
 }
 
-/* ---- Group 8: a 780 KB PNG of 16384 x 16384 ------------------------------------------------------- */
+/* ---- Group 8: a 780 KB PNG of 16384 x 16384 -------------------------------------------------- */
 
 static void put_be32(unsigned char *p, uint32_t v) {
     p[0] = (unsigned char)(v >> 24), p[1] = (unsigned char)(v >> 16);
