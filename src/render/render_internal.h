@@ -13,6 +13,7 @@
 #include "penumbra/fit.h"    /* overlap weights, computed when a sphere set has none */
 #include "penumbra/image.h"
 #include "penumbra/sh.h"
+#include "render/lights_internal.h" /* the disk lights' per-pixel term */
 #include "scene/texture.h" /* the albedo lookup shading uses */
 
 /* Everything about a frame's shading that is the same for every pixel. */
@@ -211,6 +212,10 @@ typedef struct pen__object_buf {
     double horizon[PEN_SH_MAX_COEFFS * PEN_SH_MAX_COEFFS];
     float seen[PEN_SH_MAX_COEFFS][3];
     double d_seen_dh[PEN_SH_MAX_COEFFS][3];
+    /* ... and the fraction of each disk light above its horizon (pen__lights_horizon), with its
+     * derivatives by the object's height, the light's unit direction and its radius. */
+    double light_G[PEN_SCENE_MAX_LIGHTS], light_G_dh[PEN_SCENE_MAX_LIGHTS];
+    double light_G_dw[PEN_SCENE_MAX_LIGHTS][3], light_G_db[PEN_SCENE_MAX_LIGHTS];
     /* What adjacency was built from (the topology, which optimisers do not change): sorting
      * the half-edges every frame cost about 0.5 ms at the headline. */
     int adj_valid, adj_vertices, adj_triangles;
@@ -224,6 +229,7 @@ struct pen_render_state {
     pen_view view;
     pen_gbuffer gb;
     pen__shade_params params;
+    pen__lights lights; /* the frame's disk lights (lights.c) */
     int object_count, object_cap; /* obj, meshes: object_cap each; sphere_first: object_cap + 1 */
     pen__object_buf *obj;
     pen_raster_mesh *meshes;
@@ -352,7 +358,8 @@ void pen__background_pixel(const pen_scene *sc, const pen_render_state *st, int 
 
 /* ---- ground.c ---- */
 
-/* Sets st->ground_occludes and, when set, each object's `seen` lighting and its derivative. */
+/* Sets st->ground_occludes and, when set, each object's `seen` lighting and its derivative, and
+ * (st->lights initialised) each object's horizon factors of the disk lights. */
 void pen__ground_occlusion_prepare(const pen_scene *sc, const pen_render_options *opt,
                                    pen_render_state *st);
 /* Backward of the objects' `seen` lightings, d_seen: per object, 3 bands^2 doubles. Adds
@@ -360,5 +367,10 @@ void pen__ground_occlusion_prepare(const pen_scene *sc, const pen_render_options
  * gradients into their pose translation[1]. Only with st->ground_occludes. */
 void pen__ground_occlusion_bwd(const pen_scene *sc, const pen_render_state *st,
                                const double *d_seen, double (*d_sh)[3], pen_render_grad *grad);
+/* Backward of the objects' horizon factors, d_G: per object, one double per light. Adds into
+ * d_lights (PEN_LIGHT_GRAD_DOUBLES per light, may be NULL) and, when grad is not NULL, the
+ * objects' height gradients into their pose translation[1]. Only with st->ground_occludes. */
+void pen__ground_lights_bwd(const pen_scene *sc, const pen_render_state *st, const double *d_G,
+                            double *d_lights, pen_render_grad *grad);
 
 #endif
