@@ -4,6 +4,7 @@
  * differences in double, and lighting.lights in the scene JSON (forms, errors, round trip). */
 #include "io_fixtures.h" /* first: it sets the feature-test macros */
 
+#include "optim/optim_internal.h"
 #include "render/lights_internal.h"
 #include "render_scenes.h"
 
@@ -345,6 +346,95 @@ static void test_one_blocker_raycast(void) {
     }
 }
 
+/* ---- In the frame ---------------------------------------------------------------------------- */
+
+/* The ball scene with a sun (elevation 50 deg) and a light across the horizon. */
+static pen_scene lit_scene(int size) {
+    pen_scene sc = rs_ball_scene(size, 0, &seed);
+    const double el[2] = {50.0, -5.0}, az[2] = {-150.0, 150.0}, rad[2] = {3.0, 8.0};
+    for (int l = 0; l < 2; ++l) {
+        pen_light *L = &sc.lighting.lights[l];
+        const double e = el[l] * M_PI / 180, a = az[l] * M_PI / 180;
+        L->direction[0] = (float)(cos(e) * cos(a)), L->direction[1] = (float)sin(e);
+        L->direction[2] = (float)(cos(e) * sin(a));
+        L->angular_radius_deg = (float)rad[l];
+        L->irradiance[0] = 2.0f, L->irradiance[1] = 1.8f, L->irradiance[2] = 1.4f;
+    }
+    sc.lighting.light_count = 2;
+    sc.lighting.lights_mode = PEN_LIGHTS_GIVEN;
+    return sc;
+}
+
+/* Both kernels give the same light term; a ground pixel far from the ball gets exactly
+ * rho / pi E sin(elevation) from the sun; a scene whose lights are off renders as before. */
+static void test_frame(void) {
+    pen_scene sc = lit_scene(48);
+    pen_render_options opt = pen_render_options_default();
+    pen_image fast, scalar, none;
+    CHECK(rs_render(&sc, &opt, 2, &fast) == PEN_OK);
+    opt.kernel = PEN_RENDER_KERNEL_SCALAR;
+    CHECK(rs_render(&sc, &opt, 2, &scalar) == PEN_OK);
+    double worst = 0, peak = 0;
+    for (int i = 0; i < 3 * 48 * 48; ++i) {
+        worst = fmax(worst, fabs((double)fast.data[i] - (double)scalar.data[i]));
+        peak = fmax(peak, fabs((double)fast.data[i]));
+    }
+    CHECK_MSG(worst <= 1e-4 * peak, "fast vs scalar with lights: %g of %g", worst, peak);
+    /* the difference the lights make on the ground, far from the ball, without shadows */
+    opt.kernel = PEN_RENDER_KERNEL_FAST, opt.shadows = 0;
+    pen_image lit, dark;
+    CHECK(rs_render(&sc, &opt, 1, &lit) == PEN_OK);
+    const int count = sc.lighting.light_count;
+    sc.lighting.light_count = 0;
+    CHECK(rs_render(&sc, &opt, 1, &dark) == PEN_OK);
+    opt.shadows = 1;
+    CHECK(rs_render(&sc, &opt, 1, &none) == PEN_OK);
+    sc.lighting.light_count = count;
+    /* bottom-left pixel: ground, lit by the sun (50 deg) and by the horizon light's upper part */
+    const size_t i = 3 * (size_t)(47 * 48 + 0);
+    const double Dsun = sin(50 * M_PI / 180);
+    const double Dlow = pen__disk_clamped_cosine(sin(-5 * M_PI / 180), 8 * M_PI / 180, NULL, NULL);
+    const double want = 0.7 / M_PI * 2.0 * (Dsun + Dlow);
+    CHECK_MSG(fabs((double)(lit.data[i] - dark.data[i]) - want) < 1e-5 * want,
+              "ground pixel: lights add %.7g, expected %.7g", (double)(lit.data[i] - dark.data[i]),
+              want);
+    pen_image_free(&fast), pen_image_free(&scalar), pen_image_free(&lit), pen_image_free(&dark);
+    pen_image_free(&none);
+    pen_scene_free(&sc);
+}
+
+/* The least-squares lighting solver (src/optim/loss.c) on an image with lights: the render is
+ * affine in the SH coefficients (the lights are in its SH = 0 base), so it recovers them. */
+static void test_optim_solver_with_lights(void) {
+    pen_scene sc = lit_scene(40);
+    pen_context *ctx = pen_context_create();
+    pen_render_options opt = pen_render_options_default();
+    pen_image target = {0, 0, 0, NULL};
+    CHECK(pen_render_fwd(ctx, &sc, &opt, NULL, &target) == PEN_OK);
+    float want[PEN_SH_MAX_COEFFS][3], got[PEN_SH_MAX_COEFFS][3];
+    memcpy(want, sc.lighting.sh, sizeof want);
+    memset(sc.lighting.sh, 0, sizeof sc.lighting.sh);
+    double mu[3] = {-1, -1, -1};
+    CHECK(pen__optim_solve_lighting(ctx, &sc, &opt, NULL, &target, NULL, 1e-12, mu, got) ==
+          PEN_OK);
+    /* the image it predicts matches the target (coefficients the image does not see may differ) */
+    memcpy(sc.lighting.sh, got, sizeof got);
+    pen_image back = {0, 0, 0, NULL};
+    CHECK(pen_render_fwd(ctx, &sc, &opt, NULL, &back) == PEN_OK);
+    double err = 0, ref = 0;
+    for (int k = 0; k < 3 * 40 * 40; ++k) {
+        const double e = (double)back.data[k] - (double)target.data[k];
+        err += e * e;
+        ref += (double)target.data[k] * (double)target.data[k];
+    }
+    CHECK_MSG(sqrt(err / ref) < 1e-4, "solved lighting misses the target by %g", sqrt(err / ref));
+    CHECK_MSG(fabs(got[0][0] - want[0][0]) < 1e-3 * fabs(want[0][0]), "DC %g vs %g",
+              (double)got[0][0], (double)want[0][0]);
+    pen_image_free(&target), pen_image_free(&back);
+    pen_context_destroy(ctx);
+    pen_scene_free(&sc);
+}
+
 /* ---- JSON ------------------------------------------------------------------------------------ */
 
 #define J_CAM                                                                                      \
@@ -443,4 +533,5 @@ static void test_json(void) {
 }
 
 RUN_TESTS(TEST(test_disk_clamped_cosine), TEST(test_cap_overlap), TEST(test_pixel_grad),
-          TEST(test_one_blocker_raycast), TEST(test_json))
+          TEST(test_one_blocker_raycast), TEST(test_frame), TEST(test_optim_solver_with_lights),
+          TEST(test_json))
