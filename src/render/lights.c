@@ -217,18 +217,22 @@ double pen__lights_horizon(const pen__lights *L, int l, double t, double *d_t, d
 
 /* ---- Per pixel ------------------------------------------------------------------------------- */
 
-/* What a receiver (x, n) sees of sphere (c, r), as the SH path (sh.h, shade_ops.inc): unit
- * direction d and distance D of the centre, the cap's half-angle a with cos a = sqrt(t),
- * t = 1 - r^2/D^2, continued by its tangent line below PEN_SH_CAP_T0 and clamped at a = pi; the
- * self-shadowing weight w(h), h = n . (c - x) / r; and the derivatives the backward needs. */
+/* What a receiver (x, n) sees of sphere (c, r), as the SH path (sh.h, shade_ops.inc): v = c - x,
+ * the self-shadowing weight w(h), h = n . v / r (sphere_view_weight, cheap, first); then, for
+ * spheres that may reach a disk (sphere_view_reaches), the unit direction d and distance D of the
+ * centre and the cap's half-angle a with cos a = sqrt(t), t = 1 - r^2/D^2, continued by its tangent
+ * line below PEN_SH_CAP_T0 and clamped at a = pi (sphere_view_cap); and the derivatives the
+ * backward needs. */
 typedef struct sphere_view {
-    double v[3], d[3], D, r, h, w, dw_dh;
-    double a, cos_a, sin_a, da_dD, da_dr;
+    double v[3], D2, r, h, w, dw_dh;
+    double d[3], D, a, cos_a, sin_a, da_dD, da_dr;
+    double tangent; /* sqrt(D^2 - r^2) when t >= t0 (-1: not computed yet) */
+    int cap;        /* sphere_view_cap has run */
 } sphere_view;
 
-/* Fills sv; returns 0 when the sphere's weight is 0 (it hides nothing and has no gradient). */
-static int sphere_view_of(const double x[3], const double n[3], const double c[3], double r,
-                          sphere_view *sv) {
+/* Fills v, D2, h, w; returns 0 when the sphere's weight is 0 (it hides nothing, no gradient). */
+static int sphere_view_weight(const double x[3], const double n[3], const double c[3], double r,
+                              sphere_view *sv) {
     for (int k = 0; k < 3; ++k)
         sv->v[k] = c[k] - x[k];
     sv->r = r;
@@ -241,13 +245,35 @@ static int sphere_view_of(const double x[3], const double n[3], const double c[3
     } else {
         sv->w = u * u * (3.0 - 2.0 * u), sv->dw_dh = 6.0 * u * (1.0 - u) / span;
     }
-    const double D = sqrt(sv->v[0] * sv->v[0] + sv->v[1] * sv->v[1] + sv->v[2] * sv->v[2]);
+    sv->D2 = sv->v[0] * sv->v[0] + sv->v[1] * sv->v[1] + sv->v[2] * sv->v[2];
+    sv->tangent = -1.0;
+    sv->cap = 0;
+    return 1;
+}
+
+/* Whether the sphere's cap may overlap light l's disk: 0 only when certainly disjoint
+ * (g >= a + b, i.e. cos g <= cos a cos b - sin a sin b, multiplied by D: no square root of D and
+ * no inverse trigonometry); receivers close to the sphere (t < t0) always pass. */
+static int sphere_view_reaches(const pen__lights *L, int l, sphere_view *sv) {
+    const double r2 = sv->r * sv->r;
+    if (sv->D2 * (1.0 - PEN_SH_CAP_T0) < r2) return 1;
+    if (sv->tangent < 0.0) sv->tangent = sqrt(sv->D2 - r2);
+    const double *w = L->w[l];
+    const double vw = sv->v[0] * w[0] + sv->v[1] * w[1] + sv->v[2] * w[2];
+    return vw > sv->tangent * L->cos_b[l] - sv->r * L->sin_b[l];
+}
+
+/* The cap: d, D, a and its derivatives by D and r. */
+static void sphere_view_cap(sphere_view *sv) {
+    if (sv->cap) return;
+    sv->cap = 1;
+    const double D = sqrt(sv->D2), r = sv->r;
     sv->da_dD = sv->da_dr = 0.0;
     if (!(D > 1e-6 * r)) { /* the floor of sh.h: then the whole sphere is blocked */
         sv->D = 1e-6 * r;
         sv->d[0] = 0.0, sv->d[1] = 1.0, sv->d[2] = 0.0;
         sv->a = PEN_PI, sv->cos_a = -1.0, sv->sin_a = 0.0;
-        return 1;
+        return;
     }
     sv->D = D;
     for (int k = 0; k < 3; ++k)
@@ -261,7 +287,7 @@ static int sphere_view_of(const double x[3], const double n[3], const double c[3
         sv->cos_a = s0 + (t - t0) * (0.5 / s0);
         if (sv->cos_a <= -1.0) {
             sv->a = PEN_PI, sv->cos_a = -1.0, sv->sin_a = 0.0;
-            return 1;
+            return;
         }
         sv->sin_a = sqrt((1.0 - sv->cos_a) * (1.0 + sv->cos_a));
         const double da_dt = -(0.5 / s0) / sv->sin_a;
@@ -269,21 +295,18 @@ static int sphere_view_of(const double x[3], const double n[3], const double c[3
         sv->da_dr = da_dt * -2.0 * r / (D * D);
     }
     sv->a = atan2(sv->sin_a, sv->cos_a);
-    return 1;
 }
 
 /* The fraction of light l's disk inside the sphere's cap, and (when fd is not NULL) its partials
  * by a, b and the angle g between d and w_l; *g_out and *sin_g the angle and its sine. */
-static double disk_fraction(const pen__lights *L, int l, const sphere_view *sv, double fd[3],
+static double disk_fraction(const pen__lights *L, int l, sphere_view *sv, double fd[3],
                             double *sin_g) {
+    *sin_g = 0.0;
+    if (fd) fd[0] = fd[1] = fd[2] = 0.0;
+    if (!sphere_view_reaches(L, l, sv)) return 0.0;
+    sphere_view_cap(sv);
     const double *w = L->w[l], *d = sv->d;
     const double cg = d[0] * w[0] + d[1] * w[1] + d[2] * w[2];
-    *sin_g = 0.0;
-    /* disjoint when g >= a + b: cheap test before any inverse trigonometry */
-    if (sv->a + L->b[l] < PEN_PI && cg <= sv->cos_a * L->cos_b[l] - sv->sin_a * L->sin_b[l]) {
-        if (fd) fd[0] = fd[1] = fd[2] = 0.0;
-        return 0.0;
-    }
     const double cx = d[1] * w[2] - d[2] * w[1], cy = d[2] * w[0] - d[0] * w[2],
                  cz = d[0] * w[1] - d[1] * w[0];
     const double sg = sqrt(cx * cx + cy * cy + cz * cz), g = atan2(sg, cg);
