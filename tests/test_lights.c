@@ -152,7 +152,7 @@ typedef struct px_case {
 
 static double px_loss(const px_case *c, const double q[3]) {
     double rgb[3] = {0, 0, 0};
-    pen__lights_fwd_d(&c->L, c->use_G ? c->G : NULL, c->S, c->sph, c->kappa, c->x, c->n, c->rho,
+    pen__lights_fwd_d(&c->L, c->use_G ? c->G : NULL, c->S, c->sph, c->kappa, NULL, c->x, c->n, c->rho,
                       rgb);
     return q[0] * rgb[0] + q[1] * rgb[1] + q[2] * rgb[2];
 }
@@ -183,7 +183,7 @@ static void px_check(px_case *c, const char *what) {
     const double q[3] = {0.7, 1.1, 0.4};
     double d_sph[4 * 6] = {0}, d_x[3] = {0}, d_n[3] = {0}, d_rho[3] = {0};
     double d_l[PEN_LIGHT_GRAD_DOUBLES * PEN_SCENE_MAX_LIGHTS] = {0}, d_G[PEN_SCENE_MAX_LIGHTS] = {0};
-    pen__lights_bwd_d(&c->L, c->use_G ? c->G : NULL, c->S, c->sph, c->kappa, c->x, c->n, c->rho, q,
+    pen__lights_bwd_d(&c->L, c->use_G ? c->G : NULL, c->S, c->sph, c->kappa, NULL, c->x, c->n, c->rho, q,
                       d_sph, d_x, d_n, d_rho, d_l, d_G);
     const double base = px_loss(c, q);
     CHECK_MSG(isfinite(base), "%s: loss %g", what, base);
@@ -325,8 +325,8 @@ static void test_one_blocker_raycast(void) {
             sph[a] = D * L.w[0][a] + off * e1[a];
         sph[3] = r;
         double rgb[3] = {0, 0, 0}, rgb0[3] = {0, 0, 0};
-        pen__lights_fwd_d(&L, NULL, 1, sph, NULL, x, n, rho, rgb);
-        pen__lights_fwd_d(&L, NULL, 0, sph, NULL, x, n, rho, rgb0);
+        pen__lights_fwd_d(&L, NULL, 1, sph, NULL, NULL, x, n, rho, rgb);
+        pen__lights_fwd_d(&L, NULL, 0, sph, NULL, NULL, x, n, rho, rgb0);
         /* ray cast: the fraction of cosine-weighted disk directions that hit the sphere */
         const int N = 200000;
         double hit = 0, all = 0;
@@ -344,6 +344,52 @@ static void test_one_blocker_raycast(void) {
         CHECK_MSG(fabs(model - ref) < 5e-3, "offset %g: model V %.5f ray cast %.5f", off, model,
                   ref);
     }
+}
+
+/* The tile cull is conservative: over random boxes, spheres and lights, the light term at random
+ * receivers in the box is the same (bitwise) over the culled list as over every sphere. */
+static void test_cull(void) {
+    int kept = 0, total = 0;
+    for (int trial = 0; trial < 200; ++trial) {
+        pen__lights L;
+        memset(&L, 0, sizeof L);
+        L.eps = 3.0, L.shadows = 1;
+        for (int l = 0; l < 3; ++l) {
+            double d[3];
+            rs_unit_vector(&seed, d);
+            d[1] = fabs(d[1]) + 0.1;
+            set_light(&L, l, d, rs_uniform(&seed, 0.05, 20.0), 1.0);
+        }
+        double lo[3], hi[3];
+        for (int a = 0; a < 3; ++a) {
+            lo[a] = rs_uniform(&seed, -1, 1);
+            hi[a] = lo[a] + rs_uniform(&seed, 0.0, 0.3);
+        }
+        float sph[4 * 40];
+        double sphd[4 * 40];
+        for (int i = 0; i < 40; ++i) {
+            for (int a = 0; a < 3; ++a)
+                sph[4 * i + a] = (float)rs_uniform(&seed, -2, 2);
+            sph[4 * i + 3] = (float)rs_uniform(&seed, 0.02, 0.4);
+            for (int k = 0; k < 4; ++k)
+                sphd[4 * i + k] = (double)sph[4 * i + k];
+        }
+        int idx[40];
+        const int n = pen__lights_cull(&L, 40, sph, lo, hi, idx);
+        kept += n, total += 40;
+        for (int p = 0; p < 20; ++p) {
+            double x[3], nrm[3], rho[3] = {1, 1, 1}, all[3] = {0, 0, 0}, some[3] = {0, 0, 0};
+            for (int a = 0; a < 3; ++a)
+                x[a] = rs_uniform(&seed, lo[a], hi[a]);
+            rs_unit_vector(&seed, nrm);
+            nrm[1] = fabs(nrm[1]);
+            pen__lights_fwd_d(&L, NULL, 40, sphd, NULL, NULL, x, nrm, rho, all);
+            pen__lights_fwd_d(&L, NULL, n, sphd, NULL, idx, x, nrm, rho, some);
+            CHECK_MSG(all[0] == some[0] && all[1] == some[1] && all[2] == some[2],
+                      "trial %d: culled %.17g, all %.17g", trial, some[0], all[0]);
+        }
+    }
+    CHECK_MSG(kept < total / 2, "the cull kept %d of %d spheres", kept, total);
 }
 
 /* ---- In the frame ---------------------------------------------------------------------------- */
@@ -533,5 +579,5 @@ static void test_json(void) {
 }
 
 RUN_TESTS(TEST(test_disk_clamped_cosine), TEST(test_cap_overlap), TEST(test_pixel_grad),
-          TEST(test_one_blocker_raycast), TEST(test_frame), TEST(test_optim_solver_with_lights),
+          TEST(test_one_blocker_raycast), TEST(test_cull), TEST(test_frame), TEST(test_optim_solver_with_lights),
           TEST(test_json))

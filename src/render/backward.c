@@ -165,6 +165,7 @@ static void shade_tile_bwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
                 d_x[a] = d_nraw[a] = d_rho[a] = 0.0f;
             d_uv[0] = d_uv[1] = 0.0f;
         }
+    const int ncull = st->lights.count ? pen__tile_lights_cull(st, t, ws) : 0;
     for (int r = 0; r < st->groups.data[t].runs; ++r) {
         const int *pix;
         int cnt;
@@ -196,8 +197,8 @@ static void shade_tile_bwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
                                geom ? st->d_x.data + 3 * i : NULL, geom ? d_n : NULL,
                                need_rho ? st->d_rho.data + 3 * i : NULL);
                 if (st->lights.count)
-                    pen__lights_bwd(&st->lights, G, S, st->spheres.data, st->kappa.data,
-                                    st->x.data + 3 * i, st->n.data + 3 * i, st->rho.data + 3 * i,
+                    pen__lights_bwd(&st->lights, G, ncull, st->spheres.data, st->kappa.data,
+                                    ws->cull, st->x.data + 3 * i, st->n.data + 3 * i, st->rho.data + 3 * i,
                                     dc, d_sph, geom ? st->d_x.data + 3 * i : NULL,
                                     geom ? d_n : NULL, need_rho ? st->d_rho.data + 3 * i : NULL,
                                     d_lights, d_G);
@@ -220,8 +221,8 @@ static void shade_tile_bwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
         for (int k = 0; st->lights.count && k < cnt; ++k) {
             const size_t i = (size_t)ws->idx[k];
             const int geom = g != 0 && bw->geom; /* ground pixels: no d_x, d_n wanted */
-            pen__lights_bwd(&st->lights, G, S, st->spheres.data, st->kappa.data, ws->x + 3 * k,
-                            ws->n + 3 * k, ws->rho + 3 * k, st->d_color.data + 3 * i, d_sph,
+            pen__lights_bwd(&st->lights, G, ncull, st->spheres.data, st->kappa.data, ws->cull,
+                            ws->x + 3 * k, ws->n + 3 * k, ws->rho + 3 * k, st->d_color.data + 3 * i, d_sph,
                             geom ? ws->dx + 3 * k : NULL, geom ? ws->dn + 3 * k : NULL,
                             ws->drho + 3 * k, d_lights, d_G);
         }

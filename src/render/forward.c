@@ -164,12 +164,14 @@ static const double *group_horizon(const pen_render_state *st, int g) {
     return o >= 0 ? st->obj[o].light_G : NULL;
 }
 
-/* Adds the disk lights to the run's pixels (the same per-pixel term after either kernel). */
-static void shade_lights_fwd(pen_render_state *st, int g, const int *pix, int cnt) {
+/* Adds the disk lights to the run's pixels (the same per-pixel term after either kernel), over
+ * the tile's ncull spheres ws->cull. */
+static void shade_lights_fwd(pen_render_state *st, const pen__tile_ws *ws, int ncull, int g,
+                             const int *pix, int cnt) {
     const double *G = group_horizon(st, g);
     for (int k = 0; k < cnt; ++k) {
         const size_t i = (size_t)pix[k];
-        pen__lights_fwd(&st->lights, G, st->sphere_count, st->spheres.data, st->kappa.data,
+        pen__lights_fwd(&st->lights, G, ncull, st->spheres.data, st->kappa.data, ws->cull,
                         st->x.data + 3 * i, st->n.data + 3 * i, st->rho.data + 3 * i,
                         st->color.data + 3 * i);
     }
@@ -194,6 +196,7 @@ static void shade_tile_fwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
             else
                 surface_attributes(sc, st, i, surf);
         }
+    const int ncull = st->lights.count ? pen__tile_lights_cull(st, t, ws) : 0;
     for (int r = 0; r < st->groups.data[t].runs; ++r) {
         const int *pix;
         int cnt;
@@ -206,7 +209,7 @@ static void shade_tile_fwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
                                st->x.data + 3 * i, st->n.data + 3 * i, st->rho.data + 3 * i,
                                st->color.data + 3 * i, job->store ? job->store + nfv * i : NULL);
             }
-            if (st->lights.count) shade_lights_fwd(st, g, pix, cnt);
+            if (st->lights.count) shade_lights_fwd(st, ws, ncull, g, pix, cnt);
             continue;
         }
         for (int k = 0; k < cnt; ++k)
@@ -217,7 +220,7 @@ static void shade_tile_fwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
         if (store) store += pen__shade_fast_store_floats(&st->params, cnt);
         for (int k = 0; k < cnt; ++k)
             memcpy(st->color.data + 3 * (size_t)ws->idx[k], ws->out + 3 * k, 3 * sizeof(float));
-        if (st->lights.count) shade_lights_fwd(st, g, pix, cnt);
+        if (st->lights.count) shade_lights_fwd(st, ws, ncull, g, pix, cnt);
     }
 }
 

@@ -226,8 +226,7 @@ double pen__lights_horizon(const pen__lights *L, int l, double t, double *d_t, d
 typedef struct sphere_view {
     double v[3], D2, r, h, w, dw_dh;
     double d[3], D, a, cos_a, sin_a, da_dD, da_dr;
-    double tangent; /* sqrt(D^2 - r^2) when t >= t0 (-1: not computed yet) */
-    int cap;        /* sphere_view_cap has run */
+    int cap; /* sphere_view_cap has run */
 } sphere_view;
 
 /* Fills v, D2, h, w; returns 0 when the sphere's weight is 0 (it hides nothing, no gradient). */
@@ -236,7 +235,9 @@ static int sphere_view_weight(const double x[3], const double n[3], const double
     for (int k = 0; k < 3; ++k)
         sv->v[k] = c[k] - x[k];
     sv->r = r;
-    sv->h = (n[0] * sv->v[0] + n[1] * sv->v[1] + n[2] * sv->v[2]) / r;
+    const double nv = n[0] * sv->v[0] + n[1] * sv->v[1] + n[2] * sv->v[2];
+    if (nv <= PEN_RENDER_SELF_H0 * r) return 0; /* h <= -1, without the division */
+    sv->h = nv / r;
     const double span = PEN_RENDER_SELF_H1 - PEN_RENDER_SELF_H0;
     const double u = (sv->h - PEN_RENDER_SELF_H0) / span;
     if (u <= 0.0) return 0;
@@ -246,21 +247,52 @@ static int sphere_view_weight(const double x[3], const double n[3], const double
         sv->w = u * u * (3.0 - 2.0 * u), sv->dw_dh = 6.0 * u * (1.0 - u) / span;
     }
     sv->D2 = sv->v[0] * sv->v[0] + sv->v[1] * sv->v[1] + sv->v[2] * sv->v[2];
-    sv->tangent = -1.0;
     sv->cap = 0;
     return 1;
 }
 
-/* Whether the sphere's cap may overlap light l's disk: 0 only when certainly disjoint
- * (g >= a + b, i.e. cos g <= cos a cos b - sin a sin b, multiplied by D: no square root of D and
- * no inverse trigonometry); receivers close to the sphere (t < t0) always pass. */
-static int sphere_view_reaches(const pen__lights *L, int l, sphere_view *sv) {
-    const double r2 = sv->r * sv->r;
-    if (sv->D2 * (1.0 - PEN_SH_CAP_T0) < r2) return 1;
-    if (sv->tangent < 0.0) sv->tangent = sqrt(sv->D2 - r2);
-    const double *w = L->w[l];
-    const double vw = sv->v[0] * w[0] + sv->v[1] * w[1] + sv->v[2] * w[2];
-    return vw > sv->tangent * L->cos_b[l] - sv->r * L->sin_b[l];
+/* Whether a sphere (v = c - x, |v|^2 = D2, radius r) seen from x may overlap a disk (w, b) with
+ * its cap: 0 only when certainly disjoint, g >= a + b. With T = sqrt(D2 - r^2) = D cos a and
+ * r = D sin a, cos g <= cos(a + b) reads v . w + r sin b <= T cos b, tested without the square
+ * root: true when the left side is <= 0, else compared squared. Receivers so close that the cap is
+ * continued (t < t0) always pass. */
+static int cap_may_reach(const double v[3], double D2, double r, const double w[3], double sin_b,
+                         double cos_b) {
+    const double r2 = r * r;
+    if (D2 * (1.0 - PEN_SH_CAP_T0) <= r2) return 1;
+    const double lhs = v[0] * w[0] + v[1] * w[1] + v[2] * w[2] + r * sin_b;
+    if (lhs <= 0.0) return 0;
+    return lhs * lhs > (D2 - r2) * cos_b * cos_b;
+}
+
+static int sphere_view_reaches(const pen__lights *L, int l, const sphere_view *sv) {
+    return cap_may_reach(sv->v, sv->D2, sv->r, L->w[l], L->sin_b[l], L->cos_b[l]);
+}
+
+/* Every receiver x within R of the centre m sees sphere (c, r) inside the cap that (c, r + R)
+ * covers seen from m (a ray from x that hits the sphere, shifted to start at m, passes within
+ * r + R of c), unless x may be close enough for the continued cap (|c - m| - R below
+ * r / sqrt(1 - t0)): then the sphere is kept. */
+int pen__lights_cull(const pen__lights *L, int sphere_count, const float *spheres,
+                     const double lo[3], const double hi[3], int *idx) {
+    double m[3], R2 = 0.0;
+    for (int a = 0; a < 3; ++a) {
+        m[a] = 0.5 * (lo[a] + hi[a]);
+        R2 += 0.25 * (hi[a] - lo[a]) * (hi[a] - lo[a]);
+    }
+    const double R = sqrt(R2) * (1.0 + 1e-6) + 1e-9 * (fabs(m[0]) + fabs(m[1]) + fabs(m[2]));
+    int n = 0;
+    for (int i = 0; i < sphere_count; ++i) {
+        const float *s = spheres + 4 * (size_t)i;
+        const double v[3] = {(double)s[0] - m[0], (double)s[1] - m[1], (double)s[2] - m[2]};
+        const double D2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2], r = (double)s[3];
+        const double near = 1.01 * r + R;
+        int keep = D2 <= near * near;
+        for (int l = 0; l < L->count && !keep; ++l)
+            keep = cap_may_reach(v, D2, r + R, L->w[l], L->sin_b[l], L->cos_b[l]);
+        if (keep) idx[n++] = i;
+    }
+    return n;
 }
 
 /* The cap: d, D, a and its derivatives by D and r. */

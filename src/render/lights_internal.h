@@ -44,25 +44,35 @@ void pen__lights_init(pen__lights *L, const pen_lighting *lighting, double eps, 
 double pen__lights_horizon(const pen__lights *L, int l, double t, double *d_t, double d_w[3],
                            double *d_b);
 
+/* The spheres that may shadow any of the lights at some receiver in the box [lo, hi] (a tile's
+ * points): their indices into idx (room for sphere_count), their count returned. Conservative:
+ * a sphere left out has f = 0 for every light at every receiver of the box. */
+int pen__lights_cull(const pen__lights *L, int sphere_count, const float *spheres,
+                     const double lo[3], const double hi[3], int *idx);
+
 /* Adds the lights' radiance at a receiver (x, n, rho) into rgb:
  *   rgb[ch] += rho[ch] / pi * sum_l E_l[ch] D(n . w_l, b_l) G_l V_l(x),
  *   V_l = prod_i (1 - (1 - exp(-eps w_i kappa_i)) f_il),
  * f_il the fraction of disk l inside sphere i's cap, w_i the self-shadowing weight. G: per light
- * (the object's horizon factor), NULL for 1. spheres/kappa as pen__shade_fwd. */
+ * (the object's horizon factor), NULL for 1. spheres/kappa as pen__shade_fwd; idx (may be
+ * NULL: spheres 0 .. sphere_count - 1) lists the sphere_count spheres to visit
+ * (pen__lights_cull), by their index into spheres, kappa and d_spheres. */
 void pen__lights_fwd(const pen__lights *L, const double *G, int sphere_count, const float *spheres,
-                     const float *kappa, const float x[3], const float n[3], const float rho[3],
+                     const float *kappa, const int *idx, const float x[3], const float n[3], const float rho[3],
                      float rgb[3]);
 void pen__lights_fwd_d(const pen__lights *L, const double *G, int sphere_count,
-                       const double *spheres, const double *kappa, const double x[3],
+                       const double *spheres, const double *kappa, const int *idx,
+                       const double x[3],
                        const double n[3], const double rho[3], double rgb[3]);
 /* Backward: adds into d_spheres (4 per sphere), d_x, d_n, d_rho, d_lights (per light
  * PEN_LIGHT_GRAD_DOUBLES) and d_G (per light); any may be NULL. */
 void pen__lights_bwd(const pen__lights *L, const double *G, int sphere_count, const float *spheres,
-                     const float *kappa, const float x[3], const float n[3], const float rho[3],
+                     const float *kappa, const int *idx, const float x[3], const float n[3], const float rho[3],
                      const float d_rgb[3], double *d_spheres, float d_x[3], float d_n[3],
                      float d_rho[3], double *d_lights, double *d_G);
 void pen__lights_bwd_d(const pen__lights *L, const double *G, int sphere_count,
-                       const double *spheres, const double *kappa, const double x[3],
+                       const double *spheres, const double *kappa, const int *idx,
+                       const double x[3],
                        const double n[3], const double rho[3], const double d_rgb[3],
                        double *d_spheres, double d_x[3], double d_n[3], double d_rho[3],
                        double *d_lights, double *d_G);

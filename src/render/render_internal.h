@@ -287,6 +287,7 @@ double pen__render_ms_since(double t0);
 typedef struct pen__tile_ws {
     int *idx;
     float *x, *n, *rho, *out, *dx, *dn, *drho; /* 3 floats per compacted pixel */
+    int *cull; /* the spheres that may shadow a disk light in the tile (pen__tile_lights_cull) */
     void *kernel;
 } pen__tile_ws;
 
@@ -303,6 +304,9 @@ static inline void pen__tile_ws_push(pen__tile_ws *ws, int j, const pen_render_s
 }
 
 int pen__tile_count(const pen_render_state *st);
+/* The spheres that may shadow a disk light at some shaded pixel of tile t (pen__lights_cull over
+ * the box of the pixels' points), into ws->cull; returns their count. */
+int pen__tile_lights_cull(const pen_render_state *st, int t, pen__tile_ws *ws);
 /* Pixel rectangle [x0, x1) x [y0, y1) of tile t. */
 void pen__tile_rect(const pen_render_state *st, int t, int *x0, int *y0, int *x1, int *y1);
 
