@@ -113,6 +113,8 @@ static void test_cap_overlap(void) {
         const double area = 4 * M_PI * sin(b / 2) * sin(b / 2);
         double d[3];
         const double f = pen__cap_overlap(a, b, g, d) / area;
+        CHECK_MSG(fabs(pen__cap_overlap(a, b, g, NULL) / area - f) < 1e-12,
+                  "case %zu: value and dual paths differ", c);
         const double ref = overlap_mc(a, b, g, N, &seed);
         const double sd = sqrt(ref * (1 - ref) / N) + 1.0 / N;
         CHECK_MSG(fabs(f - ref) < 5 * sd, "case %zu (%g, %g, %g): f %.6f mc %.6f", c, cases[c][0],
@@ -175,7 +177,16 @@ static void set_light(pen__lights *L, int l, const double dir[3], double b_deg, 
     }
     L->len[l] = 1.0;
     L->b[l] = b_deg * M_PI / 180, L->sin_b[l] = sin(L->b[l]), L->cos_b[l] = cos(L->b[l]);
+    L->area[l] = 4 * M_PI * sin(L->b[l] / 2) * sin(L->b[l] / 2);
     if (l + 1 > L->count) L->count = l + 1;
+}
+
+/* The radius's derived values after a change of b. */
+static void sync_b(pen__lights *L) {
+    for (int l = 0; l < L->count; ++l) {
+        L->sin_b[l] = sin(L->b[l]), L->cos_b[l] = cos(L->b[l]);
+        L->area[l] = 4 * M_PI * sin(L->b[l] / 2) * sin(L->b[l] / 2);
+    }
 }
 
 /* Checks every derivative of one case; `what` names it. */
@@ -215,16 +226,13 @@ static void px_check(px_case *c, const char *what) {
     for (int k = 0; k < np; ++k) {
         const double h = 1e-7, v = *params[k];
         *params[k] = v + h;
-        c->L.sin_b[0] = sin(c->L.b[0]), c->L.cos_b[0] = cos(c->L.b[0]);
-        if (c->L.count > 1) c->L.sin_b[1] = sin(c->L.b[1]), c->L.cos_b[1] = cos(c->L.b[1]);
+        sync_b(&c->L);
         const double lp = px_loss(c, q);
         *params[k] = v - h;
-        c->L.sin_b[0] = sin(c->L.b[0]), c->L.cos_b[0] = cos(c->L.b[0]);
-        if (c->L.count > 1) c->L.sin_b[1] = sin(c->L.b[1]), c->L.cos_b[1] = cos(c->L.b[1]);
+        sync_b(&c->L);
         const double lm = px_loss(c, q);
         *params[k] = v;
-        c->L.sin_b[0] = sin(c->L.b[0]), c->L.cos_b[0] = cos(c->L.b[0]);
-        if (c->L.count > 1) c->L.sin_b[1] = sin(c->L.b[1]), c->L.cos_b[1] = cos(c->L.b[1]);
+        sync_b(&c->L);
         const double fd = (lp - lm) / (2 * h);
         CHECK_MSG(fabs(fd - grads[k]) <= 1e-5 * fmax(fabs(fd), 1e-3 * gmax) + 1e-10,
                   "%s: d %s analytic %.9g fd %.9g", what, names[k], grads[k], fd);

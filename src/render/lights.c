@@ -143,6 +143,20 @@ static dual cap_area(dual h) {
  * half-angle and L'Huilier formulas, which take only sines and tangents of s - a, s - b, s - g. */
 double pen__cap_overlap(double a, double b, double g, double d[3]) {
     const double s = 0.5 * (a + b + g);
+    if (!d) {
+        /* the same in plain doubles: the forward's (hot) path */
+        if (s - g <= 0.0) return 0.0;
+        const double hb = sin(0.5 * b), ha = sin(0.5 * a);
+        if (s - a <= 0.0) return 4.0 * PEN_PI * hb * hb;
+        if (s - b <= 0.0) return 4.0 * PEN_PI * ha * ha;
+        if (s >= PEN_PI) return 4.0 * PEN_PI * (ha * ha + hb * hb - 1.0);
+        const double ss = sin(s), ssa = sin(s - a), ssb = sin(s - b), ssg = sin(s - g);
+        const double pa = 2.0 * atan(sqrt(ssa * ssg / (ss * ssb)));
+        const double pb = 2.0 * atan(sqrt(ssb * ssg / (ss * ssa)));
+        const double t =
+            tan(0.5 * s) * tan(0.5 * (s - a)) * tan(0.5 * (s - b)) * tan(0.5 * (s - g));
+        return 4.0 * (pa * ha * ha + pb * hb * hb) - 8.0 * atan(sqrt(t));
+    }
     dual r;
     const dual A = dvar(a, 0), B = dvar(b, 1), G = dvar(g, 2);
     if (s - g <= 0.0) {
@@ -190,6 +204,7 @@ void pen__lights_init(pen__lights *L, const pen_lighting *lighting, double eps, 
         L->b[l] = (double)s->angular_radius_deg * (PEN_PI / 180.0);
         L->sin_b[l] = sin(L->b[l]);
         L->cos_b[l] = cos(L->b[l]);
+        L->area[l] = 4.0 * PEN_PI * sin(0.5 * L->b[l]) * sin(0.5 * L->b[l]);
     }
 }
 
@@ -343,7 +358,7 @@ static double disk_fraction(const pen__lights *L, int l, sphere_view *sv, double
                  cz = d[0] * w[1] - d[1] * w[0];
     const double sg = sqrt(cx * cx + cy * cy + cz * cz), g = atan2(sg, cg);
     *sin_g = sg;
-    const double area = 4.0 * PEN_PI * sin(0.5 * L->b[l]) * sin(0.5 * L->b[l]);
+    const double area = L->area[l];
     const double f = pen__cap_overlap(sv->a, L->b[l], g, fd) / area;
     if (fd) {
         fd[0] /= area;

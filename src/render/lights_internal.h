@@ -34,6 +34,7 @@ typedef struct pen__lights {
     double len[PEN_SCENE_MAX_LIGHTS];     /* |direction| as stored */
     double b[PEN_SCENE_MAX_LIGHTS];       /* angular radius, radians */
     double sin_b[PEN_SCENE_MAX_LIGHTS], cos_b[PEN_SCENE_MAX_LIGHTS];
+    double area[PEN_SCENE_MAX_LIGHTS];    /* the disk's solid angle, 4 pi sin^2(b/2) */
     double E[PEN_SCENE_MAX_LIGHTS][3];    /* irradiance */
 } pen__lights;
 
