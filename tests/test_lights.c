@@ -155,7 +155,7 @@ typedef struct px_case {
 static double px_loss(const px_case *c, const double q[3]) {
     double rgb[3] = {0, 0, 0};
     pen__lights_fwd_d(&c->L, c->use_G ? c->G : NULL, c->S, c->sph, c->kappa, NULL, c->x, c->n, c->rho,
-                      rgb);
+                      rgb, NULL);
     return q[0] * rgb[0] + q[1] * rgb[1] + q[2] * rgb[2];
 }
 
@@ -194,7 +194,7 @@ static void px_check(px_case *c, const char *what) {
     const double q[3] = {0.7, 1.1, 0.4};
     double d_sph[4 * 6] = {0}, d_x[3] = {0}, d_n[3] = {0}, d_rho[3] = {0};
     double d_l[PEN_LIGHT_GRAD_DOUBLES * PEN_SCENE_MAX_LIGHTS] = {0}, d_G[PEN_SCENE_MAX_LIGHTS] = {0};
-    pen__lights_bwd_d(&c->L, c->use_G ? c->G : NULL, c->S, c->sph, c->kappa, NULL, c->x, c->n, c->rho, q,
+    pen__lights_bwd_d(&c->L, c->use_G ? c->G : NULL, c->S, c->sph, c->kappa, NULL, c->x, c->n, c->rho, q, NULL,
                       d_sph, d_x, d_n, d_rho, d_l, d_G);
     const double base = px_loss(c, q);
     CHECK_MSG(isfinite(base), "%s: loss %g", what, base);
@@ -333,8 +333,8 @@ static void test_one_blocker_raycast(void) {
             sph[a] = D * L.w[0][a] + off * e1[a];
         sph[3] = r;
         double rgb[3] = {0, 0, 0}, rgb0[3] = {0, 0, 0};
-        pen__lights_fwd_d(&L, NULL, 1, sph, NULL, NULL, x, n, rho, rgb);
-        pen__lights_fwd_d(&L, NULL, 0, sph, NULL, NULL, x, n, rho, rgb0);
+        pen__lights_fwd_d(&L, NULL, 1, sph, NULL, NULL, x, n, rho, rgb, NULL);
+        pen__lights_fwd_d(&L, NULL, 0, sph, NULL, NULL, x, n, rho, rgb0, NULL);
         /* ray cast: the fraction of cosine-weighted disk directions that hit the sphere */
         const int N = 200000;
         double hit = 0, all = 0;
@@ -391,8 +391,8 @@ static void test_cull(void) {
                 x[a] = rs_uniform(&seed, lo[a], hi[a]);
             rs_unit_vector(&seed, nrm);
             nrm[1] = fabs(nrm[1]);
-            pen__lights_fwd_d(&L, NULL, 40, sphd, NULL, NULL, x, nrm, rho, all);
-            pen__lights_fwd_d(&L, NULL, n, sphd, NULL, idx, x, nrm, rho, some);
+            pen__lights_fwd_d(&L, NULL, 40, sphd, NULL, NULL, x, nrm, rho, all, NULL);
+            pen__lights_fwd_d(&L, NULL, n, sphd, NULL, idx, x, nrm, rho, some, NULL);
             CHECK_MSG(all[0] == some[0] && all[1] == some[1] && all[2] == some[2],
                       "trial %d: culled %.17g, all %.17g", trial, some[0], all[0]);
         }

@@ -141,6 +141,11 @@ static void pixel_bwd_tail(const pen_scene *sc, pen_render_state *st, const bwd_
     pen_normalize_bwd(1, st->nraw.data + 3 * i, d_n, st->d_nraw.data + 3 * i);
 }
 
+/* The disk lights' visibilities the forward kept for pixel i, or NULL. */
+static const float *lights_V(const pen_render_state *st, size_t i) {
+    return st->lights_V_valid ? st->lights_V.data + (size_t)st->lights.count * i : NULL;
+}
+
 /* Backward of tile t into the tile's double accumulators and the per-pixel gradients d_x,
  * d_nraw, d_uv, d_rho (zeroed here for every pixel of the tile), in the forward's groups. */
 static void shade_tile_bwd(const void *job_, int t, pen__tile_ws *ws, pen__shade_fast_ticks *tk) {
@@ -198,8 +203,8 @@ static void shade_tile_bwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
                                need_rho ? st->d_rho.data + 3 * i : NULL);
                 if (st->lights.count)
                     pen__lights_bwd(&st->lights, G, ncull, st->spheres.data, st->kappa.data,
-                                    ws->cull, st->x.data + 3 * i, st->n.data + 3 * i, st->rho.data + 3 * i,
-                                    dc, d_sph, geom ? st->d_x.data + 3 * i : NULL,
+                                    ws->cull, st->x.data + 3 * i, st->n.data + 3 * i,
+                                    st->rho.data + 3 * i, dc, lights_V(st, i), d_sph, geom ? st->d_x.data + 3 * i : NULL,
                                     geom ? d_n : NULL, need_rho ? st->d_rho.data + 3 * i : NULL,
                                     d_lights, d_G);
                 pixel_bwd_tail(sc, st, bw, row, i, surf, d_n);
@@ -222,7 +227,8 @@ static void shade_tile_bwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
             const size_t i = (size_t)ws->idx[k];
             const int geom = g != 0 && bw->geom; /* ground pixels: no d_x, d_n wanted */
             pen__lights_bwd(&st->lights, G, ncull, st->spheres.data, st->kappa.data, ws->cull,
-                            ws->x + 3 * k, ws->n + 3 * k, ws->rho + 3 * k, st->d_color.data + 3 * i, d_sph,
+                            ws->x + 3 * k, ws->n + 3 * k, ws->rho + 3 * k, st->d_color.data + 3 * i,
+                            lights_V(st, i), d_sph,
                             geom ? ws->dx + 3 * k : NULL, geom ? ws->dn + 3 * k : NULL,
                             ws->drho + 3 * k, d_lights, d_G);
         }

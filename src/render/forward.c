@@ -171,9 +171,10 @@ static void shade_lights_fwd(pen_render_state *st, const pen__tile_ws *ws, int n
     const double *G = group_horizon(st, g);
     for (int k = 0; k < cnt; ++k) {
         const size_t i = (size_t)pix[k];
+        float *V = st->lights_V_valid ? st->lights_V.data + (size_t)st->lights.count * i : NULL;
         pen__lights_fwd(&st->lights, G, ncull, st->spheres.data, st->kappa.data, ws->cull,
                         st->x.data + 3 * i, st->n.data + 3 * i, st->rho.data + 3 * i,
-                        st->color.data + 3 * i);
+                        st->color.data + 3 * i, V);
     }
 }
 
@@ -233,8 +234,12 @@ static pen_status check_frame_memory(pen_context *ctx, const pen_scene *sc,
     if (c->width < 1 || c->height < 1 || c->width > PEN_IMAGE_MAX_DIM ||
         c->height > PEN_IMAGE_MAX_DIM || sc->sh_bands < 1 || sc->sh_bands > PEN_SH_MAX_BANDS)
         return PEN_OK;
-    const double need = (double)c->width * (double)c->height *
-                        (double)pen__render_pixel_bytes(sc->sh_bands, store && opt->shadows);
+    const double lights = store && opt->shadows && sc->lighting.light_count > 0
+                              ? 4.0 * (double)sc->lighting.light_count
+                              : 0.0; /* the lights' visibilities kept for the backward */
+    const double need =
+        (double)c->width * (double)c->height *
+        ((double)pen__render_pixel_bytes(sc->sh_bands, store && opt->shadows) + lights);
     if (need <= PEN_RENDER_MAX_BYTES) return PEN_OK;
     return pen__error(ctx, PEN_ERROR_ARGUMENT,
                       "render: camera %d x %d needs about %.1f GB (limit %.1f GB, "
@@ -299,6 +304,15 @@ pen_status pen_render_fwd(pen_context *ctx, const pen_scene *sc, const pen_rende
         fv_all = st->fv.data;
     }
     st->fv_valid = fv_all != NULL;
+    /* The disk lights' visibilities per pixel, for the backward (K floats per pixel). */
+    st->lights_V_valid = 0;
+    if (own == NULL && opt->shadows && st->lights.count > 0) {
+        if ((s = PEN__BUF_RESERVE(ctx, st->lights_V,
+                                  (size_t)st->lights.count * (size_t)W * (size_t)H,
+                                  "light visibility buffer")))
+            goto done;
+        st->lights_V_valid = 1;
+    }
     st->fast = fast;
     const pen__tile_job job = {sc, st, NULL, fv_all, fast ? st->tile_off.data : NULL};
     pen__background_prepare(ctx, sc, st);

@@ -136,6 +136,11 @@ static dual cap_area(dual h) {
     return dscale(dmul(s, s), 4.0 * PEN_PI);
 }
 
+/* tan(x/2) from sin x and cos x, x in [0, pi], without cancellation at either end. */
+static double half_tan(double sx, double cx) {
+    return cx >= 0.0 ? sx / (1.0 + cx) : (1.0 - cx) / sx;
+}
+
 /* The lens, by Gauss-Bonnet: the sectors of the two caps spanned by the lens's corners
  * (azimuths 2 phi_a, 2 phi_b around the centres, areas 4 phi sin^2(h/2)) overlap in the kite of
  * the two triangles (centre a, centre b, corner), each of excess E; lens = sectors - 2E. In the
@@ -150,11 +155,12 @@ double pen__cap_overlap(double a, double b, double g, double d[3]) {
         if (s - a <= 0.0) return 4.0 * PEN_PI * hb * hb;
         if (s - b <= 0.0) return 4.0 * PEN_PI * ha * ha;
         if (s >= PEN_PI) return 4.0 * PEN_PI * (ha * ha + hb * hb - 1.0);
+        /* sine and cosine of each (one sincos each) give the half-angle tangents */
         const double ss = sin(s), ssa = sin(s - a), ssb = sin(s - b), ssg = sin(s - g);
         const double pa = 2.0 * atan(sqrt(ssa * ssg / (ss * ssb)));
         const double pb = 2.0 * atan(sqrt(ssb * ssg / (ss * ssa)));
-        const double t =
-            tan(0.5 * s) * tan(0.5 * (s - a)) * tan(0.5 * (s - b)) * tan(0.5 * (s - g));
+        const double t = half_tan(ss, cos(s)) * half_tan(ssa, cos(s - a)) *
+                         half_tan(ssb, cos(s - b)) * half_tan(ssg, cos(s - g));
         return 4.0 * (pa * ha * ha + pb * hb * hb) - 8.0 * atan(sqrt(t));
     }
     dual r;

@@ -57,25 +57,28 @@ int pen__lights_cull(const pen__lights *L, int sphere_count, const float *sphere
  * f_il the fraction of disk l inside sphere i's cap, w_i the self-shadowing weight. G: per light
  * (the object's horizon factor), NULL for 1. spheres/kappa as pen__shade_fwd; idx (may be
  * NULL: spheres 0 .. sphere_count - 1) lists the sphere_count spheres to visit
- * (pen__lights_cull), by their index into spheres, kappa and d_spheres. */
+ * (pen__lights_cull), by their index into spheres, kappa and d_spheres. V_out (may be NULL)
+ * receives V_l of every light (1 where the disk is below the horizon) for the backward. */
 void pen__lights_fwd(const pen__lights *L, const double *G, int sphere_count, const float *spheres,
-                     const float *kappa, const int *idx, const float x[3], const float n[3], const float rho[3],
-                     float rgb[3]);
+                     const float *kappa, const int *idx, const float x[3], const float n[3],
+                     const float rho[3], float rgb[3], float *V_out);
 void pen__lights_fwd_d(const pen__lights *L, const double *G, int sphere_count,
                        const double *spheres, const double *kappa, const int *idx,
-                       const double x[3],
-                       const double n[3], const double rho[3], double rgb[3]);
+                       const double x[3], const double n[3], const double rho[3], double rgb[3],
+                       double *V_out);
 /* Backward: adds into d_spheres (4 per sphere), d_x, d_n, d_rho, d_lights (per light
- * PEN_LIGHT_GRAD_DOUBLES) and d_G (per light); any may be NULL. */
+ * PEN_LIGHT_GRAD_DOUBLES) and d_G (per light); any may be NULL. V_in: the forward's V_out for
+ * this pixel (one per light), or NULL to recompute the visibilities. */
 void pen__lights_bwd(const pen__lights *L, const double *G, int sphere_count, const float *spheres,
-                     const float *kappa, const int *idx, const float x[3], const float n[3], const float rho[3],
-                     const float d_rgb[3], double *d_spheres, float d_x[3], float d_n[3],
-                     float d_rho[3], double *d_lights, double *d_G);
+                     const float *kappa, const int *idx, const float x[3], const float n[3],
+                     const float rho[3], const float d_rgb[3], const float *V_in,
+                     double *d_spheres, float d_x[3], float d_n[3], float d_rho[3],
+                     double *d_lights, double *d_G);
 void pen__lights_bwd_d(const pen__lights *L, const double *G, int sphere_count,
                        const double *spheres, const double *kappa, const int *idx,
-                       const double x[3],
-                       const double n[3], const double rho[3], const double d_rgb[3],
-                       double *d_spheres, double d_x[3], double d_n[3], double d_rho[3],
-                       double *d_lights, double *d_G);
+                       const double x[3], const double n[3], const double rho[3],
+                       const double d_rgb[3], const double *V_in, double *d_spheres,
+                       double d_x[3], double d_n[3], double d_rho[3], double *d_lights,
+                       double *d_G);
 
 #endif

@@ -248,6 +248,8 @@ struct pen_render_state {
     PEN__BUF(pen__tile_groups) groups; /* per tile, of the last forward */
     pen__buf_float fv; /* scalar kernel: F and V per pixel (2 bands^2); fast: its store, per tile */
     int fv_valid;      /* the forward kept fv (only with shadows on: without, nothing is kept) */
+    pen__buf_float lights_V; /* the disk lights' visibilities, lights.count per pixel */
+    int lights_V_valid;      /* the forward kept lights_V (a state, shadows on, lights) */
     int fast;          /* the forward used the fast kernel */
     PEN__BUF(double) rows;      /* the backward's double accumulators, one block per tile */
     PEN__BUF(unsigned char) ws; /* per-thread workspaces (pen__tile_ws) */
