@@ -142,10 +142,11 @@ int pen__shade_fast_use(int v);
 const pen__shade_fast_ops *pen__shade_fast_current(void);
 
 /* ---- Frame: what the files of the full frame share --------------------------------------------
- * Who calls whom: forward.c calls state.c, tiles.c, background.c and ground.c;
- * backward.c calls state.c, tiles.c and ground.c; background.c calls tiles.c and state.c; tiles.c
- * calls state.c (pen__buf_grow, behind PEN__BUF_RESERVE, is state.c's); state.c and ground.c
- * call no other file of the frame. */
+ * Who calls whom: forward.c calls state.c, tiles.c, background.c, ground.c and lights.c;
+ * backward.c calls state.c, tiles.c, ground.c and lights.c; background.c calls tiles.c and
+ * state.c; tiles.c calls state.c (pen__buf_grow, behind PEN__BUF_RESERVE, is state.c's) and
+ * lights.c (the tile's sphere cull); ground.c calls lights.c (the disks' horizon factors);
+ * state.c and lights.c call no other file of the frame. */
 #include "penumbra/render.h" /* the state's options, view, G-buffer and timings */
 
 #include <stddef.h>
