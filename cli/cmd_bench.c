@@ -455,8 +455,8 @@ static double ratio(double num, double den) {
 
 static void print_json(const bench_config *cfg, const bench_case *c, const bench_result *r) {
     printf("{\"name\": \"%s\", \"width\": %d, \"height\": %d, \"spheres\": %d, \"bands\": %d, "
-           "\"threads\": %d, \"repeat\": %d, \"quick\": %s",
-           c->name, c->width, c->height, c->spheres, c->bands, r->threads, cfg->repeat,
+           "\"lights\": %d, \"threads\": %d, \"repeat\": %d, \"quick\": %s",
+           c->name, c->width, c->height, c->spheres, c->bands, c->lights, r->threads, cfg->repeat,
            cfg->quick ? "true" : "false");
     json_num("forward_ms", r->forward_ms, "%.3f");
     json_num("backward_ms", r->backward_ms, "%.3f");

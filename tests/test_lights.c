@@ -398,6 +398,7 @@ static void test_cull(void) {
         }
     }
     CHECK_MSG(kept < total / 2, "the cull kept %d of %d spheres", kept, total);
+    if (getenv("PEN_TEST_VERBOSE")) printf("  the cull kept %d of %d spheres\n", kept, total);
 }
 
 /* ---- In the frame ---------------------------------------------------------------------------- */
@@ -495,34 +496,36 @@ static void test_optim_solver_with_lights(void) {
     "\"camera\": {\"width\": 8, \"height\": 8, \"fov_y_deg\": 40, \"eye\": [0, 0, 3], "           \
     "\"target\": [0, 0, 0]}, \"sh_bands\": 1, \"objects\": [{\"mesh\": \"tri.obj\"}]"
 
+/* A scene whose lighting ends with `extra` loads with the given mode and max, and so does its
+ * saved copy. */
+static void json_mode(pen_context *ctx, const char *extra, pen_lights_mode mode, int max) {
+    char t[1024];
+    snprintf(t, sizeof t, "{" J_CAM ", \"lighting\": {\"sh\": [[1, 1, 1]]%s}}", extra);
+    pen_scene sc;
+    for (int pass = 0; pass < 2; ++pass) {
+        const pen_status s = pass ? pen_scene_load(ctx, fixture_path("mode.json"), &sc)
+                                  : pen_scene_parse(ctx, t, fixture_path("a.json"), &sc);
+        CHECK_MSG(s == PEN_OK, "%s", pen_context_error(ctx));
+        if (s) return;
+        CHECK_MSG(sc.lighting.lights_mode == mode && sc.lighting.lights_max == max &&
+                      sc.lighting.light_count == 0,
+                  "%s (pass %d): mode %d max %d", extra, pass, (int)sc.lighting.lights_mode,
+                  sc.lighting.lights_max);
+        if (!pass) CHECK(pen_scene_save(ctx, fixture_path("mode.json"), &sc) == PEN_OK);
+        pen_scene_free(&sc);
+    }
+}
+
 static void test_json(void) {
     fixture_text("tri.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
     pen_context *ctx = pen_context_create();
     pen_scene sc;
-    /* absent: AUTO with the default max */
-    const char *t = "{" J_CAM ", \"lighting\": {\"sh\": [[1, 1, 1]]}}";
-    CHECK(pen_scene_parse(ctx, t, fixture_path("a.json"), &sc) == PEN_OK);
-    CHECK(sc.lighting.lights_mode == PEN_LIGHTS_AUTO &&
-          sc.lighting.lights_max == PEN_LIGHTS_DEFAULT_MAX && sc.lighting.light_count == 0);
-    pen_scene_free(&sc);
-    t = "{" J_CAM ", \"lighting\": {\"sh\": [[1, 1, 1]], \"lights\": \"none\"}}";
-    CHECK(pen_scene_parse(ctx, t, fixture_path("a.json"), &sc) == PEN_OK);
-    CHECK(sc.lighting.lights_mode == PEN_LIGHTS_NONE && sc.lighting.light_count == 0);
-    CHECK(pen_scene_save(ctx, fixture_path("none.json"), &sc) == PEN_OK);
-    pen_scene_free(&sc);
-    CHECK(pen_scene_load(ctx, fixture_path("none.json"), &sc) == PEN_OK);
-    CHECK(sc.lighting.lights_mode == PEN_LIGHTS_NONE);
-    pen_scene_free(&sc);
-    t = "{" J_CAM ", \"lighting\": {\"sh\": [[1, 1, 1]], \"lights\": {\"max\": 2}}}";
-    CHECK(pen_scene_parse(ctx, t, fixture_path("a.json"), &sc) == PEN_OK);
-    CHECK(sc.lighting.lights_mode == PEN_LIGHTS_AUTO && sc.lighting.lights_max == 2);
-    CHECK(pen_scene_save(ctx, fixture_path("max.json"), &sc) == PEN_OK);
-    pen_scene_free(&sc);
-    CHECK(pen_scene_load(ctx, fixture_path("max.json"), &sc) == PEN_OK);
-    CHECK(sc.lighting.lights_mode == PEN_LIGHTS_AUTO && sc.lighting.lights_max == 2);
-    pen_scene_free(&sc);
+    /* absent: AUTO with the default max; "none"; {"max": 2}; each saved and loaded back */
+    json_mode(ctx, "", PEN_LIGHTS_AUTO, PEN_LIGHTS_DEFAULT_MAX);
+    json_mode(ctx, ", \"lights\": \"none\"", PEN_LIGHTS_NONE, 0);
+    json_mode(ctx, ", \"lights\": {\"max\": 2}", PEN_LIGHTS_AUTO, 2);
     /* given: normalised directions, round trip */
-    t = "{" J_CAM ", \"lighting\": {\"sh\": [[1, 1, 1]], \"lights\": ["
+    const char *t = "{" J_CAM ", \"lighting\": {\"sh\": [[1, 1, 1]], \"lights\": ["
         "{\"direction\": [0, 2, 0], \"angular_radius_deg\": 0.27, \"irradiance\": [3, 2, 1]},"
         "{\"direction\": [1, 1, 0], \"angular_radius_deg\": 10, \"irradiance\": [0, 0.5, 1]}]}}";
     CHECK_MSG(pen_scene_parse(ctx, t, fixture_path("a.json"), &sc) == PEN_OK, "%s",
