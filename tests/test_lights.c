@@ -351,6 +351,8 @@ static void test_one_blocker_raycast(void) {
         const double ref = 1 - hit / all, model = rgb[0] / rgb0[0];
         CHECK_MSG(fabs(model - ref) < 5e-3, "offset %g: model V %.5f ray cast %.5f", off, model,
                   ref);
+        if (getenv("PEN_TEST_VERBOSE"))
+            printf("  offset %+.2f: model V %.5f, ray cast %.5f\n", off, model, ref);
     }
 }
 
