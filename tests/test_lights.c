@@ -460,6 +460,40 @@ static void test_frame(void) {
     pen_scene_free(&sc);
 }
 
+/* Images and gradients (the lights' included) are bitwise the same for 1 and 3 threads. */
+static void test_threads(void) {
+    pen_scene sc = lit_scene(80); /* above PEN_RENDER_PARALLEL_MIN_PIXELS */
+    pen_image img[2];
+    pen_render_grad g[2];
+    for (int k = 0; k < 2; ++k) {
+        pen_context *ctx = pen_context_create();
+        pen_context_set_threads(ctx, k ? 3 : 1);
+        pen_render_state *st = NULL;
+        pen_render_state_create(ctx, &st);
+        memset(&img[k], 0, sizeof img[k]);
+        CHECK(pen_render_fwd(ctx, &sc, NULL, st, &img[k]) == PEN_OK);
+        pen_image d = {0, 0, 0, NULL};
+        pen_image_create(ctx, 80, 80, 3, &d);
+        for (int i = 0; i < 3 * 80 * 80; ++i)
+            d.data[i] = (float)(0.5 + 0.5 * sin(0.37 * i));
+        CHECK(pen_render_grad_create(ctx, &sc, &g[k]) == PEN_OK);
+        CHECK(pen_render_bwd(ctx, &sc, NULL, st, &d, PEN_GRAD_ALL, &g[k]) == PEN_OK);
+        pen_image_free(&d);
+        pen_render_state_free(st);
+        pen_context_destroy(ctx);
+    }
+    CHECK(memcmp(img[0].data, img[1].data, sizeof(float) * 3 * 80 * 80) == 0);
+    CHECK(memcmp(g[0].lights, g[1].lights, sizeof g[0].lights) == 0);
+    CHECK(memcmp(g[0].objects[0].spheres, g[1].objects[0].spheres, 8 * sizeof(float)) == 0);
+    CHECK(memcmp(&g[0].objects[0].pose, &g[1].objects[0].pose, sizeof(pen_pose)) == 0);
+    CHECK(g[0].lights[0].irradiance[0] != 0.0f && g[0].lights[1].angular_radius_deg != 0.0f);
+    for (int k = 0; k < 2; ++k) {
+        pen_image_free(&img[k]);
+        pen_render_grad_free(&g[k]);
+    }
+    pen_scene_free(&sc);
+}
+
 /* The least-squares lighting solver (src/optim/loss.c) on an image with lights: the render is
  * affine in the SH coefficients (the lights are in its SH = 0 base), so it recovers them. */
 static void test_optim_solver_with_lights(void) {
@@ -592,5 +626,6 @@ static void test_json(void) {
 }
 
 RUN_TESTS(TEST(test_disk_clamped_cosine), TEST(test_cap_overlap), TEST(test_pixel_grad),
-          TEST(test_one_blocker_raycast), TEST(test_cull), TEST(test_frame), TEST(test_optim_solver_with_lights),
+          TEST(test_one_blocker_raycast), TEST(test_cull), TEST(test_frame), TEST(test_threads),
+          TEST(test_optim_solver_with_lights),
           TEST(test_json))
