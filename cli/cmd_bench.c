@@ -43,6 +43,8 @@ static const char *const SCENE_REL = "examples/scenes/spot_city.json";
 
 /* Gradient groups of the headline contract: everything but per-vertex positions. */
 #define BENCH_WRT (PEN_GRAD_LIGHTING | PEN_GRAD_ALBEDO | PEN_GRAD_SPHERES | PEN_GRAD_POSE)
+/* ... and the disk lights' own group in the cases that have lights. */
+#define BENCH_WRT_LIGHTS (BENCH_WRT | PEN_GRAD_LIGHTS)
 #define MAX_CASES 16
 #define MAX_REPEAT 1000
 #define TRUTH_SEED 7u
@@ -60,7 +62,9 @@ static void usage(FILE *f) {
             "Cases (name: size, spheres, bands):\n"
             "  headline: 512x512, 32, 4    res256, res1024: the size sweep\n"
             "  spheres8, spheres128: the sphere sweep    bands3, bands5, bands6: the band sweep\n"
-            "  (the headline is the middle point of all three sweeps)\n\n"
+            "  (the headline is the middle point of all three sweeps)\n"
+            "  lights1, lights3: the headline with 1 and 3 disk lights on top of its SH lighting\n"
+            "  (a sun; two lamps), gradients of the lights too; no reference comparison\n\n"
             "Options:\n"
             "  --json           one JSON object per case and line (fields in docs/bench.md)\n"
             "  --quick          seconds instead of minutes: sizes / 8 (headline 64x64), 3 timed\n"
@@ -85,6 +89,7 @@ static void usage(FILE *f) {
 typedef struct bench_case {
     char name[32];
     int width, height, spheres, bands;
+    int lights; /* disk lights added to the scene's own (bench_lights) */
 } bench_case;
 
 typedef struct bench_config {
@@ -104,6 +109,7 @@ static void add_case(bench_case *cases, int *count, const char *prefix, int valu
     c->width = c->height = size;
     c->spheres = spheres;
     c->bands = bands;
+    c->lights = 0;
 }
 
 /* The headline first, then each sweep without repeating the headline point. */
@@ -118,6 +124,10 @@ static int make_cases(int quick, bench_case *cases) {
     add_case(cases, &n, "spheres", 128, size, 128, bands);
     for (int b = 3; b <= 6; ++b)
         if (b != bands) add_case(cases, &n, "bands", b, size, spheres, b);
+    for (int k = 1; k <= 3; k += 2) {
+        add_case(cases, &n, "lights", k, size, spheres, bands);
+        cases[n - 1].lights = k;
+    }
     return n;
 }
 
@@ -205,7 +215,22 @@ typedef struct truth_cache {
  * the new count (replacing explicit "sh" rows too when the scene also names a map; without a map
  * the rows are kept, cut or zero-padded) and epsilon becomes the exponential model's default for
  * that count, replacing an explicit "epsilon". At the scene's own count both stay as loaded. */
+/* The lights cases' disk lights: a sun (0.27 degrees) high enough for a shadow in view, and two
+ * lamps of 5 and 10 degrees lower down; irradiances about the SH lighting's own. */
+static void bench_lights(pen_scene *sc, int count) {
+    static const float dir[3][3] = {{0.5f, 0.8f, 0.35f}, {-0.7f, 0.4f, 0.5f}, {0.2f, 0.3f, -0.9f}};
+    static const float radius[3] = {0.27f, 5.0f, 10.0f}, E[3] = {3.0f, 1.0f, 0.5f};
+    for (int l = 0; l < count && sc->lighting.light_count < PEN_SCENE_MAX_LIGHTS; ++l) {
+        pen_light *L = &sc->lighting.lights[sc->lighting.light_count++];
+        for (int a = 0; a < 3; ++a)
+            L->direction[a] = dir[l][a], L->irradiance[a] = E[l];
+        L->angular_radius_deg = radius[l];
+    }
+    sc->lighting.lights_mode = PEN_LIGHTS_GIVEN;
+}
+
 static pen_status configure(pen_context *ctx, pen_scene *sc, const bench_case *c) {
+    if (c->lights) bench_lights(sc, c->lights);
     sc->camera.width = c->width;
     sc->camera.height = c->height;
     if (c->bands != sc->sh_bands) {
@@ -260,6 +285,7 @@ static pen_status render_target(pen_context *ctx, pen_scene *sc, const pen_rende
  * forward (of the unperturbed scene) for the reference comparison. */
 static pen_status time_steps(pen_context *ctx, const bench_config *cfg, const pen_scene *sc,
                              const pen_image *target, pen_image *image, bench_result *r) {
+    const unsigned wrt = sc->lighting.light_count > 0 ? BENCH_WRT_LIGHTS : BENCH_WRT;
     const pen_render_options opt = pen_render_options_default();
     const int n = cfg->repeat, per = 3 + STAGE_COUNT; /* forward, backward, total, stages */
     double *samples = calloc((size_t)n * (size_t)per + (size_t)n, sizeof(double));
@@ -281,7 +307,7 @@ static pen_status time_steps(pen_context *ctx, const bench_config *cfg, const pe
         if ((s = pen_loss_l2(ctx, image, target, &r->loss, &d_image))) goto done;
         pen_render_grad_zero(&grad);
         const double t2 = omp_get_wtime();
-        if ((s = pen_render_bwd(ctx, sc, &opt, st, &d_image, BENCH_WRT, &grad))) goto done;
+        if ((s = pen_render_bwd(ctx, sc, &opt, st, &d_image, wrt, &grad))) goto done;
         const double t3 = omp_get_wtime();
         if (it < cfg->warmup) continue;
         double *row = samples + (size_t)(it - cfg->warmup) * (size_t)per;
@@ -404,7 +430,7 @@ static pen_status run_case(pen_context *ctx, const bench_config *cfg, const benc
     pen_image target = {0, 0, 0, NULL}, image = target;
     pen_status s;
     if (!(s = configure(ctx, &sc, c)) && !(s = render_target(ctx, &sc, &opt, &target)) &&
-        !(s = time_steps(ctx, cfg, &sc, &target, &image, r)) && cfg->reference)
+        !(s = time_steps(ctx, cfg, &sc, &target, &image, r)) && cfg->reference && !c->lights)
         s = compare_reference(ctx, cfg, cache, &sc, &image, r);
     pen_image_free(&image);
     pen_image_free(&target);
@@ -429,8 +455,8 @@ static double ratio(double num, double den) {
 
 static void print_json(const bench_config *cfg, const bench_case *c, const bench_result *r) {
     printf("{\"name\": \"%s\", \"width\": %d, \"height\": %d, \"spheres\": %d, \"bands\": %d, "
-           "\"threads\": %d, \"repeat\": %d, \"quick\": %s",
-           c->name, c->width, c->height, c->spheres, c->bands, r->threads, cfg->repeat,
+           "\"lights\": %d, \"threads\": %d, \"repeat\": %d, \"quick\": %s",
+           c->name, c->width, c->height, c->spheres, c->bands, c->lights, r->threads, cfg->repeat,
            cfg->quick ? "true" : "false");
     json_num("forward_ms", r->forward_ms, "%.3f");
     json_num("backward_ms", r->backward_ms, "%.3f");

@@ -17,7 +17,10 @@
  * What is rendered (docs/renderer.md): per pixel, the visible surface point x of an object or the
  * ground plane, its unit normal n and albedo rho; the visibility V = exp*(sum_i w_i f_i) over all
  * spheres of all objects (posed), with the self-shadowing weight w_i (smoothstep of
- * n . (c_i - x) / r_i from -1 to +1); the radiance rho / pi * sum_k L_k (V * H_n)_k. Background
+ * n . (c_i - x) / r_i from -1 to +1); the radiance rho / pi * sum_k L_k (V * H_n)_k, plus for
+ * each disk light l (lighting.lights) rho / pi * E_l * D(n . w_l, b_l) * V_l(x), D the disk's
+ * horizon-clipped clamped cosine and V_l the fraction of the disk the spheres leave visible
+ * (docs/design.md sec. 1.13). Background
  * pixels show the constant background or the environment map in the ray direction. Silhouettes
  * are antialiased analytically (pen_antialias_fwd) so that the image is continuous in the vertex
  * positions. The image is linear RGB, 3 channels, the camera's size, row 0 at the top.
@@ -82,7 +85,8 @@ PEN_API int pen_render_fast_lanes(void);
 #define PEN_GRAD_SPHERES 4u   /* sphere centres and radii (object space) */
 #define PEN_GRAD_POSE 8u      /* rigid pose of each object (moves vertices and spheres) */
 #define PEN_GRAD_VERTICES 16u /* vertex positions (object space), incl. silhouettes */
-#define PEN_GRAD_ALL 31u
+#define PEN_GRAD_LIGHTS 32u   /* disk lights: direction, angular radius, irradiance */
+#define PEN_GRAD_ALL 63u
 
 typedef struct pen_object_grad {
     float albedo[3]; /* d constant albedo (objects without a texture) */
@@ -95,12 +99,19 @@ typedef struct pen_object_grad {
     int vertex_count;
 } pen_object_grad;
 
+/* Gradient of a disk light: the fields of pen_light holding d/d(field). `direction` is the
+ * gradient of the vector as stored (the renderer normalises it, so it is orthogonal to a unit
+ * direction); angular_radius_deg per degree. */
+typedef pen_light pen_light_grad;
+
 typedef struct pen_render_grad {
     int bands;
     float sh[PEN_SH_MAX_COEFFS][3]; /* d lighting coefficient [i][channel] */
     float ground_albedo[3];
     int object_count;
     pen_object_grad *objects;
+    int light_count;                             /* the scene's lighting.light_count */
+    pen_light_grad lights[PEN_SCENE_MAX_LIGHTS]; /* d lighting.lights[l] */
 } pen_render_grad;
 
 /* Allocates a zeroed gradient shaped like the scene. On failure *out is zeroed. */

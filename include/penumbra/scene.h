@@ -47,6 +47,7 @@ extern "C" {
 #define PEN_SCENE_MIN_LIGHT_RADIUS_DEG 0.01 /* a disk light's angular radius: at least */
 #define PEN_SCENE_MAX_LIGHT_RADIUS_DEG 45.0 /* ... and at most */
 #define PEN_SCENE_MAX_IRRADIANCE 1e9 /* |disk light irradiance| */
+#define PEN_LIGHTS_DEFAULT_MAX 4    /* lights_max when lighting.lights is absent (PEN_LIGHTS_AUTO) */
 
 /* A pinhole camera. Extrinsics: eye, target and up (a calibrated world-to-camera pose R, t is
  * converted to these by the loader: docs/file-formats.md). Intrinsics: fov_y_deg with square
@@ -136,10 +137,13 @@ typedef struct pen_ground {
 } pen_ground;
 
 /* A distant disk light: a uniformly bright disk on the sky (the sun, a lamp, a window seen from
- * afar). Its radiance is irradiance / (solid angle of the disk), so a surface facing it, with
- * nothing in the way, receives `irradiance` (per colour channel, linear). */
+ * afar). Its radiance is irradiance / (pi sin^2 b), b the angular radius (the disk's projected
+ * solid angle seen face on; about its solid angle for small disks), so a surface facing it, with
+ * nothing in the way, receives exactly `irradiance` (per colour channel, linear). */
 typedef struct pen_light {
-    float direction[3];        /* from the scene towards the light's centre, unit length */
+    float direction[3];        /* from the scene towards the light's centre, unit length (the
+                                  renderer normalises any non-zero vector; its gradient is of
+                                  the vector as stored) */
     float angular_radius_deg;  /* half the apex angle of the disk, in
                                   [PEN_SCENE_MIN_LIGHT_RADIUS_DEG, PEN_SCENE_MAX_LIGHT_RADIUS_DEG] */
     float irradiance[3];

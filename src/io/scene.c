@@ -11,6 +11,7 @@
  * computes them explicitly, as the optimizer and the flat API do). */
 #include "io/io_internal.h"
 #include "io/spheres_json.h"
+#include "scene/validate.h"
 #include "penumbra/envmap.h"
 #include "penumbra/io.h"
 
@@ -85,13 +86,93 @@ static pen_status check_values(pen_context *ctx, const char *path, const pen_ima
     return PEN_OK;
 }
 
+/* One disk light, lighting.lights[i]: the direction is normalised here (any non-zero finite
+ * length is accepted, docs/file-formats.md). */
+static pen_status parse_light(pen_context *ctx, const where *w, const cJSON *o, pen_light *l) {
+    static const char *const known[] = {"direction", "angular_radius_deg", "irradiance", NULL};
+    pen_status s = need_object(ctx, w, o);
+    if (!s) s = pen__json_known_keys(ctx, w, o, known);
+    if (s) return s;
+    static const char *const need[] = {"direction", "angular_radius_deg", "irradiance"};
+    for (int k = 0; k < 3; ++k)
+        if (!member(o, need[k])) {
+            where wk = at(w, need[k]);
+            return pen__json_error(ctx, PEN_ERROR_PARSE, &wk, "missing");
+        }
+    where wd = at(w, "direction");
+    s = pen__json_floats(ctx, &wd, member(o, "direction"), 3, -COORD, COORD, l->direction);
+    if (s) return s;
+    const double len = sqrt((double)l->direction[0] * (double)l->direction[0] +
+                            (double)l->direction[1] * (double)l->direction[1] +
+                            (double)l->direction[2] * (double)l->direction[2]);
+    if (!(len > 1e-12))
+        return pen__json_error(ctx, PEN_ERROR_PARSE, &wd, "must not be the zero vector");
+    for (int a = 0; a < 3; ++a)
+        l->direction[a] = (float)((double)l->direction[a] / len);
+    s = opt_number(ctx, w, o, "angular_radius_deg", PEN_SCENE_MIN_LIGHT_RADIUS_DEG,
+                   PEN_SCENE_MAX_LIGHT_RADIUS_DEG, "a number of degrees in [0.01, 45]",
+                   &l->angular_radius_deg);
+    if (!s) s = opt_floats(ctx, w, o, "irradiance", 0.0, PEN_SCENE_MAX_IRRADIANCE, l->irradiance);
+    return s;
+}
+
+/* lighting.lights: an array of lights (GIVEN), "none", or {"max": K} (AUTO); absent: AUTO with
+ * PEN_LIGHTS_DEFAULT_MAX. */
+static pen_status parse_lights(pen_context *ctx, const where *wl, const cJSON *o, pen_lighting *L) {
+    const cJSON *item = member(o, "lights");
+    where w = at(wl, "lights");
+    L->light_count = 0;
+    L->lights_mode = PEN_LIGHTS_AUTO;
+    L->lights_max = PEN_LIGHTS_DEFAULT_MAX;
+    if (!item) return PEN_OK;
+    if (cJSON_IsString(item)) {
+        if (strcmp(item->valuestring, "none") != 0)
+            return pen__json_error(ctx, PEN_ERROR_PARSE, &w,
+                                   "unknown value \"%s\" (expected an array of lights, \"none\" "
+                                   "or {\"max\": K})",
+                                   item->valuestring);
+        L->lights_mode = PEN_LIGHTS_NONE;
+        L->lights_max = 0;
+        return PEN_OK;
+    }
+    if (cJSON_IsObject(item)) {
+        static const char *const known[] = {"max", NULL};
+        pen_status s = pen__json_known_keys(ctx, &w, item, known);
+        if (s || !member(item, "max")) return s;
+        where wm = at(&w, "max");
+        return pen__json_int(ctx, &wm, member(item, "max"), 0, PEN_SCENE_MAX_LIGHTS,
+                             "an integer in [0, 16]", &L->lights_max);
+    }
+    if (!cJSON_IsArray(item))
+        return pen__json_error(ctx, PEN_ERROR_PARSE, &w,
+                               "expected an array of lights, \"none\" or {\"max\": K}, got %s",
+                               pen__json_type_name(item));
+    const int n = cJSON_GetArraySize(item);
+    if (n > PEN_SCENE_MAX_LIGHTS)
+        return pen__json_error(ctx, PEN_ERROR_PARSE, &w, "%d lights, at most %d", n,
+                               PEN_SCENE_MAX_LIGHTS);
+    L->lights_mode = PEN_LIGHTS_GIVEN;
+    L->lights_max = 0;
+    int i = 0;
+    const cJSON *e;
+    cJSON_ArrayForEach(e, item) {
+        where wi;
+        pen__json_index(&w, i, &wi);
+        pen_status s = parse_light(ctx, &wi, e, &L->lights[i]);
+        if (s) return s;
+        L->light_count = ++i;
+    }
+    return PEN_OK;
+}
+
 static pen_status parse_lighting(pen_context *ctx, const char *path, const where *top,
                                  const cJSON *root, int bands, pen_lighting *L) {
     where w = at(top, "lighting");
     const cJSON *o = member(root, "lighting");
-    static const char *const known[] = {"envmap", "scale", "rotation_y_deg", "sh", NULL};
+    static const char *const known[] = {"envmap", "scale", "rotation_y_deg", "sh", "lights", NULL};
     pen_status s = need_object(ctx, &w, o);
     if (!s) s = pen__json_known_keys(ctx, &w, o, known);
+    if (!s) s = parse_lights(ctx, &w, o, L);
     if (s) return s;
     const cJSON *env = member(o, "envmap"), *sh = member(o, "sh");
     L->scale = 1.0f;
@@ -501,6 +582,33 @@ static int add_path(pen_context *ctx, cJSON *obj, const char *name, const char *
     return ok;
 }
 
+/* lighting.lights as parse_lights reads it: GIVEN as the array, NONE as "none", AUTO as
+ * {"max": K} unless K is the default (then nothing). Returns 0 on exhaustion. */
+static int lights_json(const pen_lighting *L, cJSON *o) {
+    if (L->lights_mode == PEN_LIGHTS_NONE)
+        return pen__json_add(o, "lights", cJSON_CreateString("none"));
+    if (L->lights_mode == PEN_LIGHTS_AUTO) {
+        if (L->lights_max == PEN_LIGHTS_DEFAULT_MAX) return 1;
+        cJSON *m = cJSON_CreateObject();
+        return pen__json_add(o, "lights", m) &&
+               pen__json_add(m, "max", cJSON_CreateNumber(L->lights_max));
+    }
+    cJSON *arr = cJSON_CreateArray();
+    int ok = pen__json_add(o, "lights", arr);
+    for (int i = 0; ok && i < L->light_count; ++i) {
+        const pen_light *l = &L->lights[i];
+        cJSON *e = cJSON_CreateObject();
+        if (!e || !cJSON_AddItemToArray(arr, e)) {
+            cJSON_Delete(e);
+            return 0;
+        }
+        ok = pen__json_add(e, "direction", pen__json_float_array(l->direction, 3)) &&
+             pen__json_add(e, "angular_radius_deg", pen__json_float(l->angular_radius_deg)) &&
+             pen__json_add(e, "irradiance", pen__json_float_array(l->irradiance, 3));
+    }
+    return ok;
+}
+
 static cJSON *lighting_json(pen_context *ctx, const char *path, const pen_scene *sc,
                             unsigned flags) {
     const pen_lighting *L = &sc->lighting;
@@ -517,6 +625,7 @@ static cJSON *lighting_json(pen_context *ctx, const char *path, const pen_scene 
         for (int i = 0; ok && i < sc->sh_bands * sc->sh_bands; ++i)
             ok = cJSON_AddItemToArray(rows, pen__json_float_array(L->sh[i], 3));
     }
+    if (ok) ok = lights_json(L, o);
     if (!ok) cJSON_Delete(o);
     return ok ? o : NULL;
 }
@@ -561,6 +670,8 @@ static pen_status check_saveable(pen_context *ctx, const char *path, const pen_s
     if (sc->background_envmap && !sc->lighting.envmap.data)
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "%s: background shows an envmap but there is none", path);
+    pen_status sl = pen__lights_validate(ctx, &sc->lighting, path);
+    if (sl) return sl;
     for (int i = 0; i < sc->object_count; ++i) {
         const pen_object *o = &sc->objects[i];
         char what[64];

@@ -1,5 +1,6 @@
 /* The backward of the full differentiable frame (forward.c): from the image's gradient into the
- * lighting, albedos and texels, spheres, poses and vertex positions; and the gradient struct.
+ * lighting, the disk lights, albedos and texels, spheres, poses and vertex positions; and the
+ * gradient struct.
  *
  * Design
  * - Antialiasing backward gives d_colour (and silhouette vertex gradients); a parallel pass over
@@ -28,6 +29,7 @@
 pen_status pen_render_grad_create(pen_context *ctx, const pen_scene *sc, pen_render_grad *out) {
     memset(out, 0, sizeof *out);
     out->bands = sc->sh_bands;
+    out->light_count = sc->lighting.light_count;
     if (sc->object_count <= 0) return PEN_OK;
     out->objects =
         pen__calloc(ctx, (size_t)sc->object_count, sizeof *out->objects, "gradient objects");
@@ -60,6 +62,7 @@ fail:
 void pen_render_grad_zero(pen_render_grad *g) {
     memset(g->sh, 0, sizeof g->sh);
     memset(g->ground_albedo, 0, sizeof g->ground_albedo);
+    memset(g->lights, 0, sizeof g->lights);
     for (int o = 0; o < g->object_count; ++o) {
         pen_object_grad *og = &g->objects[o];
         memset(og->albedo, 0, sizeof og->albedo);
@@ -85,20 +88,22 @@ void pen_render_grad_free(pen_render_grad *g) {
 
 /* Layout of one tile's double accumulators (the backward's small dense gradients). */
 typedef struct row_layout {
-    size_t sh, sh_obj, ground, albedo, spheres, stride;
+    size_t sh, sh_obj, ground, albedo, spheres, lights, light_G, stride;
 } row_layout;
 
 /* sh: the lighting gradient of pixels shaded with the scene's lighting; sh_obj (with ground
  * occlusion, `seen` objects, else none): per object, of its pixels shaded with its `seen`, mapped
  * back after the reduction. */
-static row_layout rows_layout(int bands, int objects, int seen, int spheres) {
+static row_layout rows_layout(int bands, int objects, int seen, int spheres, int lights) {
     row_layout r;
     r.sh = 0;
     r.sh_obj = r.sh + 3 * (size_t)bands * (size_t)bands;
     r.ground = r.sh_obj + 3 * (size_t)bands * (size_t)bands * (size_t)seen;
     r.albedo = r.ground + 3;
     r.spheres = r.albedo + 3 * (size_t)objects;
-    r.stride = r.spheres + 4 * (size_t)spheres;
+    r.lights = r.spheres + 4 * (size_t)spheres;            /* PEN_LIGHT_GRAD_DOUBLES per light */
+    r.light_G = r.lights + PEN_LIGHT_GRAD_DOUBLES * (size_t)lights; /* per `seen` object, light */
+    r.stride = r.light_G + (size_t)seen * (size_t)lights;
     return r;
 }
 
@@ -107,6 +112,8 @@ typedef struct pen__bwd_want {
     int geom, spheres, light, albedo;
     int seen; /* the gradient of each object's `seen` lighting (for the lighting or the pose) */
     row_layout rl;
+    int lights;  /* the disk lights' own gradient */
+    int light_G; /* the gradient of the objects' horizon factors (for the lights or the pose) */
 } bwd_want;
 
 /* After the kernel's backward of surface pixel i: its albedo gradient into the tile's sums (ground,
@@ -134,6 +141,11 @@ static void pixel_bwd_tail(const pen_scene *sc, pen_render_state *st, const bwd_
     pen_normalize_bwd(1, st->nraw.data + 3 * i, d_n, st->d_nraw.data + 3 * i);
 }
 
+/* The disk lights' visibilities the forward kept for pixel i, or NULL. */
+static const float *lights_V(const pen_render_state *st, size_t i) {
+    return st->lights_V_valid ? st->lights_V.data + (size_t)st->lights.count * i : NULL;
+}
+
 /* Backward of tile t into the tile's double accumulators and the per-pixel gradients d_x,
  * d_nraw, d_uv, d_rho (zeroed here for every pixel of the tile), in the forward's groups. */
 static void shade_tile_bwd(const void *job_, int t, pen__tile_ws *ws, pen__shade_fast_ticks *tk) {
@@ -158,6 +170,7 @@ static void shade_tile_bwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
                 d_x[a] = d_nraw[a] = d_rho[a] = 0.0f;
             d_uv[0] = d_uv[1] = 0.0f;
         }
+    const int ncull = st->lights.count ? pen__tile_lights_cull(st, t, ws) : 0;
     for (int r = 0; r < st->groups.data[t].runs; ++r) {
         const int *pix;
         int cnt;
@@ -168,6 +181,12 @@ static void shade_tile_bwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
         double(*d_sh)[3] =
             own >= 0 ? (bw->seen ? (double(*)[3])(row + bw->rl.sh_obj + nsh * (size_t)own) : NULL)
                      : (bw->light ? (double(*)[3])(row + bw->rl.sh) : NULL);
+        /* the disk lights: their horizon factors (objects with ground occlusion) and gradients */
+        const double *G = own >= 0 ? st->obj[own].light_G : NULL;
+        double *d_G = own >= 0 && bw->light_G
+                          ? row + bw->rl.light_G + (size_t)own * (size_t)st->lights.count
+                          : NULL;
+        double *d_lights = bw->lights ? row + bw->rl.lights : NULL;
         if (!st->fast) {
             for (int k = 0; k < cnt; ++k) {
                 const size_t i = (size_t)pix[k];
@@ -182,6 +201,12 @@ static void shade_tile_bwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
                                job->store ? job->store + nfv * i : NULL, d_sh, d_sph,
                                geom ? st->d_x.data + 3 * i : NULL, geom ? d_n : NULL,
                                need_rho ? st->d_rho.data + 3 * i : NULL);
+                if (st->lights.count)
+                    pen__lights_bwd(&st->lights, G, ncull, st->spheres.data, st->kappa.data,
+                                    ws->cull, st->x.data + 3 * i, st->n.data + 3 * i,
+                                    st->rho.data + 3 * i, dc, lights_V(st, i), d_sph, geom ? st->d_x.data + 3 * i : NULL,
+                                    geom ? d_n : NULL, need_rho ? st->d_rho.data + 3 * i : NULL,
+                                    d_lights, d_G);
                 pixel_bwd_tail(sc, st, bw, row, i, surf, d_n);
             }
             continue;
@@ -198,6 +223,15 @@ static void shade_tile_bwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
                             d_sh, d_sph, bw->geom ? ws->dx : NULL, bw->geom ? ws->dn : NULL,
                             ws->drho, tk);
         if (store) store += pen__shade_fast_store_floats(&st->params, cnt);
+        for (int k = 0; st->lights.count && k < cnt; ++k) {
+            const size_t i = (size_t)ws->idx[k];
+            const int geom = g != 0 && bw->geom; /* ground pixels: no d_x, d_n wanted */
+            pen__lights_bwd(&st->lights, G, ncull, st->spheres.data, st->kappa.data, ws->cull,
+                            ws->x + 3 * k, ws->n + 3 * k, ws->rho + 3 * k, st->d_color.data + 3 * i,
+                            lights_V(st, i), d_sph,
+                            geom ? ws->dx + 3 * k : NULL, geom ? ws->dn + 3 * k : NULL,
+                            ws->drho + 3 * k, d_lights, d_G);
+        }
         for (int k = 0; k < cnt; ++k) {
             const size_t i = (size_t)ws->idx[k];
             const int surf = st->gb.surface[i];
@@ -212,7 +246,8 @@ static void shade_tile_bwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
 
 static pen_status check_grad_shape(pen_context *ctx, const pen_scene *sc,
                                    const pen_render_grad *g) {
-    if (g->object_count != sc->object_count || g->bands != sc->sh_bands)
+    if (g->object_count != sc->object_count || g->bands != sc->sh_bands ||
+        g->light_count != sc->lighting.light_count)
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "render backward: gradient struct does not match the scene");
     for (int o = 0; o < sc->object_count; ++o) {
@@ -260,6 +295,8 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     const int want_sph = (wrt & (PEN_GRAD_SPHERES | PEN_GRAD_POSE)) != 0;
     const int want_light = (wrt & PEN_GRAD_LIGHTING) != 0;
     const int want_albedo = (wrt & PEN_GRAD_ALBEDO) != 0;
+    const int want_lights = (wrt & PEN_GRAD_LIGHTS) != 0 && st->lights.count > 0;
+    const int K = st->lights.count;
 
     /* World-space vertex gradient buffers. */
     float **d_world = NULL;
@@ -296,7 +333,7 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
 
     /* Per-pixel backward, tiles in parallel, each tile into its own accumulators. */
     const int seen = st->ground_occludes ? O : 0;
-    const row_layout rl = rows_layout(sc->sh_bands, O, seen, S);
+    const row_layout rl = rows_layout(sc->sh_bands, O, seen, S, K);
     const int ntiles = pen__tile_count(st);
     if ((s = PEN__BUF_RESERVE(ctx, st->rows, rl.stride * (size_t)ntiles,
                               "tile gradient buffers"))) {
@@ -311,8 +348,14 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
         return s;
     }
     const int want_height = (wrt & PEN_GRAD_POSE) != 0 && st->ground_occludes;
-    const bwd_want bw = {
-        want_geom, want_sph, want_light, want_albedo, seen > 0 && (want_light || want_height), rl};
+    const bwd_want bw = {want_geom,
+                         want_sph,
+                         want_light,
+                         want_albedo,
+                         seen > 0 && (want_light || want_height),
+                         rl,
+                         want_lights,
+                         seen > 0 && K > 0 && (want_lights || want_height)};
     float *fv_all = st->fv_valid ? st->fv.data : NULL;
     const pen__tile_job job = {sc, st, &bw, fv_all, st->fast ? st->tile_off.data : NULL};
     t0 = omp_get_wtime();
@@ -345,6 +388,23 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
         for (int k = 0; k < nc; ++k)
             for (int ch = 0; ch < 3; ++ch)
                 grad->sh[k][ch] += (float)d_sh[k][ch];
+    /* Disk lights: the pixels' share and the horizon factors' (ground.c), then through the
+     * normalisation of the stored direction and degrees. */
+    if (bw.light_G)
+        pen__ground_lights_bwd(sc, st, sum + rl.light_G, want_lights ? sum + rl.lights : NULL,
+                               want_height ? grad : NULL);
+    if (want_lights)
+        for (int l = 0; l < K; ++l) {
+            const double *dl = sum + rl.lights + PEN_LIGHT_GRAD_DOUBLES * (size_t)l;
+            const double *w = st->lights.w[l];
+            const double wd = w[0] * dl[0] + w[1] * dl[1] + w[2] * dl[2];
+            pen_light_grad *lg = &grad->lights[l];
+            for (int a = 0; a < 3; ++a) {
+                lg->direction[a] += (float)((dl[a] - w[a] * wd) / st->lights.len[l]);
+                lg->irradiance[a] += (float)dl[4 + a];
+            }
+            lg->angular_radius_deg += (float)(dl[3] * (PEN_PI / 180.0));
+        }
     if (want_albedo) {
         for (int ch = 0; ch < 3; ++ch)
             grad->ground_albedo[ch] += (float)sum[rl.ground + ch];

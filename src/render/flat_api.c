@@ -232,7 +232,9 @@ static void scatter_object(const pen_object_grad *src, const pen_object *ob,
 
 /* Whether g is shaped like sc (as pen_render_grad_create would make it). */
 static int grad_fits(const pen_render_grad *g, const pen_scene *sc) {
-    if (g->bands != sc->sh_bands || g->object_count != sc->object_count) return 0;
+    if (g->bands != sc->sh_bands || g->object_count != sc->object_count ||
+        g->light_count != sc->lighting.light_count)
+        return 0;
     for (int o = 0; o < sc->object_count; ++o) {
         const pen_object *ob = &sc->objects[o];
         const pen_object_grad *og = &g->objects[o];

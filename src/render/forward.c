@@ -16,6 +16,8 @@
  *   kernel (shade_ops.inc), as pen_render_options.kernel and the kernel's coverage decide;
  *   background pixels show the constant background or the environment map (background.c).
  *   Antialiasing blends colours across silhouettes last.
+ * - Disk lights (lights.c) are added per pixel after the kernel's SH shading, by the same
+ *   scalar function whichever kernel ran (no SIMD version yet: bench/NOTES.md).
  * - What the backward needs stays in the state (state.c): the per-pixel attributes, the groups,
  *   and the kernel's store (F, or F and V, per pixel), kept only when the caller passed a state
  *   and shadows are on.
@@ -109,6 +111,7 @@ static pen_status prepare(pen_context *ctx, const pen_scene *sc, const pen_rende
     if (!st->params.gaunt)
         return pen__error(ctx, PEN_ERROR_INTERNAL, "render: no product table for %d bands",
                           sc->sh_bands);
+    pen__lights_init(&st->lights, &sc->lighting, st->params.epsilon, opt->shadows);
     pen__ground_occlusion_prepare(sc, opt, st);
     return PEN_OK;
 }
@@ -155,8 +158,28 @@ static void surface_attributes(const pen_scene *sc, pen_render_state *st, size_t
 
 /* ---- Shading and the pass -------------------------------------------------------------------- */
 
+/* The disk lights' horizon factors of group g's pixels (NULL: 1). */
+static const double *group_horizon(const pen_render_state *st, int g) {
+    const int o = pen__tile_group_object(st, g);
+    return o >= 0 ? st->obj[o].light_G : NULL;
+}
+
+/* Adds the disk lights to the run's pixels (the same per-pixel term after either kernel), over
+ * the tile's ncull spheres ws->cull. */
+static void shade_lights_fwd(pen_render_state *st, const pen__tile_ws *ws, int ncull, int g,
+                             const int *pix, int cnt) {
+    const double *G = group_horizon(st, g);
+    for (int k = 0; k < cnt; ++k) {
+        const size_t i = (size_t)pix[k];
+        float *V = st->lights_V_valid ? st->lights_V.data + (size_t)st->lights.count * i : NULL;
+        pen__lights_fwd(&st->lights, G, ncull, st->spheres.data, st->kappa.data, ws->cull,
+                        st->x.data + 3 * i, st->n.data + 3 * i, st->rho.data + 3 * i,
+                        st->color.data + 3 * i, V);
+    }
+}
+
 /* Shades tile t: background pixels directly, surface pixels through the fast kernel (compacted
- * into ws, one call per group) or the scalar kernel one by one. */
+ * into ws, one call per group) or the scalar kernel one by one, then the disk lights. */
 static void shade_tile_fwd(const void *job_, int t, pen__tile_ws *ws, pen__shade_fast_ticks *tk) {
     const pen__tile_job *job = job_;
     const pen_scene *sc = job->sc;
@@ -174,6 +197,7 @@ static void shade_tile_fwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
             else
                 surface_attributes(sc, st, i, surf);
         }
+    const int ncull = st->lights.count ? pen__tile_lights_cull(st, t, ws) : 0;
     for (int r = 0; r < st->groups.data[t].runs; ++r) {
         const int *pix;
         int cnt;
@@ -186,6 +210,7 @@ static void shade_tile_fwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
                                st->x.data + 3 * i, st->n.data + 3 * i, st->rho.data + 3 * i,
                                st->color.data + 3 * i, job->store ? job->store + nfv * i : NULL);
             }
+            if (st->lights.count) shade_lights_fwd(st, ws, ncull, g, pix, cnt);
             continue;
         }
         for (int k = 0; k < cnt; ++k)
@@ -196,6 +221,7 @@ static void shade_tile_fwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
         if (store) store += pen__shade_fast_store_floats(&st->params, cnt);
         for (int k = 0; k < cnt; ++k)
             memcpy(st->color.data + 3 * (size_t)ws->idx[k], ws->out + 3 * k, 3 * sizeof(float));
+        if (st->lights.count) shade_lights_fwd(st, ws, ncull, g, pix, cnt);
     }
 }
 
@@ -208,8 +234,12 @@ static pen_status check_frame_memory(pen_context *ctx, const pen_scene *sc,
     if (c->width < 1 || c->height < 1 || c->width > PEN_IMAGE_MAX_DIM ||
         c->height > PEN_IMAGE_MAX_DIM || sc->sh_bands < 1 || sc->sh_bands > PEN_SH_MAX_BANDS)
         return PEN_OK;
-    const double need = (double)c->width * (double)c->height *
-                        (double)pen__render_pixel_bytes(sc->sh_bands, store && opt->shadows);
+    const double lights = store && opt->shadows && sc->lighting.light_count > 0
+                              ? 4.0 * (double)sc->lighting.light_count
+                              : 0.0; /* the lights' visibilities kept for the backward */
+    const double need =
+        (double)c->width * (double)c->height *
+        ((double)pen__render_pixel_bytes(sc->sh_bands, store && opt->shadows) + lights);
     if (need <= PEN_RENDER_MAX_BYTES) return PEN_OK;
     return pen__error(ctx, PEN_ERROR_ARGUMENT,
                       "render: camera %d x %d needs about %.1f GB (limit %.1f GB, "
@@ -274,6 +304,15 @@ pen_status pen_render_fwd(pen_context *ctx, const pen_scene *sc, const pen_rende
         fv_all = st->fv.data;
     }
     st->fv_valid = fv_all != NULL;
+    /* The disk lights' visibilities per pixel, for the backward (K floats per pixel). */
+    st->lights_V_valid = 0;
+    if (own == NULL && opt->shadows && st->lights.count > 0) {
+        if ((s = PEN__BUF_RESERVE(ctx, st->lights_V,
+                                  (size_t)st->lights.count * (size_t)W * (size_t)H,
+                                  "light visibility buffer")))
+            goto done;
+        st->lights_V_valid = 1;
+    }
     st->fast = fast;
     const pen__tile_job job = {sc, st, NULL, fv_all, fast ? st->tile_off.data : NULL};
     pen__background_prepare(ctx, sc, st);

@@ -17,6 +17,10 @@
  *   dM/dt dt/dh into the pose's vertical translation. It takes the per-object gradients of
  *   `seen` that the tiles summed (the pixels of object o shade with its own `seen`: tiles.c's
  *   lighting groups).
+ * - Disk lights (docs/design.md sec. 1.13): an object receives the fraction of each disk above
+ *   the same horizon y > -t (the overlap of the disk with the cap of half-angle acos(-t) around
+ *   +Y, continuous as the sun sets), one factor per object and light, with its derivatives by the
+ *   height and by the light's direction and radius for the backward.
  */
 #include "core/internal.h"
 #include "render/render_internal.h"
@@ -48,6 +52,33 @@ void pen__ground_occlusion_prepare(const pen_scene *sc, const pen_render_options
                 b->seen[j][ch] = (float)v;
                 b->d_seen_dh[j][ch] = dv * dt_dh;
             }
+        /* The disk lights: the part of each disk above the same horizon y > -t. */
+        for (int l = 0; l < st->lights.count; ++l) {
+            double d_t;
+            b->light_G[l] = pen__lights_horizon(&st->lights, l, t, &d_t, b->light_G_dw[l],
+                                                &b->light_G_db[l]);
+            b->light_G_dh[l] = d_t * dt_dh;
+        }
+    }
+}
+
+void pen__ground_lights_bwd(const pen_scene *sc, const pen_render_state *st, const double *d_G,
+                            double *d_lights, pen_render_grad *grad) {
+    if (!st->ground_occludes) return;
+    const int K = st->lights.count;
+    for (int o = 0; o < sc->object_count; ++o) {
+        const pen__object_buf *b = &st->obj[o];
+        double dh = 0.0;
+        for (int l = 0; l < K; ++l) {
+            const double g = d_G[(size_t)o * (size_t)K + (size_t)l];
+            dh += g * b->light_G_dh[l];
+            if (!d_lights) continue;
+            double *dl = d_lights + PEN_LIGHT_GRAD_DOUBLES * l;
+            for (int a = 0; a < 3; ++a)
+                dl[a] += g * b->light_G_dw[l][a];
+            dl[3] += g * b->light_G_db[l];
+        }
+        if (grad) grad->objects[o].pose.translation[1] += (float)dh;
     }
 }
 

@@ -13,6 +13,7 @@
 #include "penumbra/fit.h"    /* overlap weights, computed when a sphere set has none */
 #include "penumbra/image.h"
 #include "penumbra/sh.h"
+#include "render/lights_internal.h" /* the disk lights' per-pixel term */
 #include "scene/texture.h" /* the albedo lookup shading uses */
 
 /* Everything about a frame's shading that is the same for every pixel. */
@@ -141,10 +142,11 @@ int pen__shade_fast_use(int v);
 const pen__shade_fast_ops *pen__shade_fast_current(void);
 
 /* ---- Frame: what the files of the full frame share --------------------------------------------
- * Who calls whom: forward.c calls state.c, tiles.c, background.c and ground.c;
- * backward.c calls state.c, tiles.c and ground.c; background.c calls tiles.c and state.c; tiles.c
- * calls state.c (pen__buf_grow, behind PEN__BUF_RESERVE, is state.c's); state.c and ground.c
- * call no other file of the frame. */
+ * Who calls whom: forward.c calls state.c, tiles.c, background.c, ground.c and lights.c;
+ * backward.c calls state.c, tiles.c, ground.c and lights.c; background.c calls tiles.c and
+ * state.c; tiles.c calls state.c (pen__buf_grow, behind PEN__BUF_RESERVE, is state.c's) and
+ * lights.c (the tile's sphere cull); ground.c calls lights.c (the disks' horizon factors);
+ * state.c and lights.c call no other file of the frame. */
 #include "penumbra/render.h" /* the state's options, view, G-buffer and timings */
 
 #include <stddef.h>
@@ -211,6 +213,10 @@ typedef struct pen__object_buf {
     double horizon[PEN_SH_MAX_COEFFS * PEN_SH_MAX_COEFFS];
     float seen[PEN_SH_MAX_COEFFS][3];
     double d_seen_dh[PEN_SH_MAX_COEFFS][3];
+    /* ... and the fraction of each disk light above its horizon (pen__lights_horizon), with its
+     * derivatives by the object's height, the light's unit direction and its radius. */
+    double light_G[PEN_SCENE_MAX_LIGHTS], light_G_dh[PEN_SCENE_MAX_LIGHTS];
+    double light_G_dw[PEN_SCENE_MAX_LIGHTS][3], light_G_db[PEN_SCENE_MAX_LIGHTS];
     /* What adjacency was built from (the topology, which optimisers do not change): sorting
      * the half-edges every frame cost about 0.5 ms at the headline. */
     int adj_valid, adj_vertices, adj_triangles;
@@ -224,6 +230,7 @@ struct pen_render_state {
     pen_view view;
     pen_gbuffer gb;
     pen__shade_params params;
+    pen__lights lights; /* the frame's disk lights (lights.c) */
     int object_count, object_cap; /* obj, meshes: object_cap each; sphere_first: object_cap + 1 */
     pen__object_buf *obj;
     pen_raster_mesh *meshes;
@@ -242,6 +249,8 @@ struct pen_render_state {
     PEN__BUF(pen__tile_groups) groups; /* per tile, of the last forward */
     pen__buf_float fv; /* scalar kernel: F and V per pixel (2 bands^2); fast: its store, per tile */
     int fv_valid;      /* the forward kept fv (only with shadows on: without, nothing is kept) */
+    pen__buf_float lights_V; /* the disk lights' visibilities, lights.count per pixel */
+    int lights_V_valid;      /* the forward kept lights_V (a state, shadows on, lights) */
     int fast;          /* the forward used the fast kernel */
     PEN__BUF(double) rows;      /* the backward's double accumulators, one block per tile */
     PEN__BUF(unsigned char) ws; /* per-thread workspaces (pen__tile_ws) */
@@ -281,6 +290,7 @@ double pen__render_ms_since(double t0);
 typedef struct pen__tile_ws {
     int *idx;
     float *x, *n, *rho, *out, *dx, *dn, *drho; /* 3 floats per compacted pixel */
+    int *cull; /* the spheres that may shadow a disk light in the tile (pen__tile_lights_cull) */
     void *kernel;
 } pen__tile_ws;
 
@@ -297,6 +307,9 @@ static inline void pen__tile_ws_push(pen__tile_ws *ws, int j, const pen_render_s
 }
 
 int pen__tile_count(const pen_render_state *st);
+/* The spheres that may shadow a disk light at some shaded pixel of tile t (pen__lights_cull over
+ * the box of the pixels' points), into ws->cull; returns their count. */
+int pen__tile_lights_cull(const pen_render_state *st, int t, pen__tile_ws *ws);
 /* Pixel rectangle [x0, x1) x [y0, y1) of tile t. */
 void pen__tile_rect(const pen_render_state *st, int t, int *x0, int *y0, int *x1, int *y1);
 
@@ -352,7 +365,8 @@ void pen__background_pixel(const pen_scene *sc, const pen_render_state *st, int 
 
 /* ---- ground.c ---- */
 
-/* Sets st->ground_occludes and, when set, each object's `seen` lighting and its derivative. */
+/* Sets st->ground_occludes and, when set, each object's `seen` lighting and its derivative, and
+ * (st->lights initialised) each object's horizon factors of the disk lights. */
 void pen__ground_occlusion_prepare(const pen_scene *sc, const pen_render_options *opt,
                                    pen_render_state *st);
 /* Backward of the objects' `seen` lightings, d_seen: per object, 3 bands^2 doubles. Adds
@@ -360,5 +374,10 @@ void pen__ground_occlusion_prepare(const pen_scene *sc, const pen_render_options
  * gradients into their pose translation[1]. Only with st->ground_occludes. */
 void pen__ground_occlusion_bwd(const pen_scene *sc, const pen_render_state *st,
                                const double *d_seen, double (*d_sh)[3], pen_render_grad *grad);
+/* Backward of the objects' horizon factors, d_G: per object, one double per light. Adds into
+ * d_lights (PEN_LIGHT_GRAD_DOUBLES per light, may be NULL) and, when grad is not NULL, the
+ * objects' height gradients into their pose translation[1]. Only with st->ground_occludes. */
+void pen__ground_lights_bwd(const pen_scene *sc, const pen_render_state *st, const double *d_G,
+                            double *d_lights, pen_render_grad *grad);
 
 #endif

@@ -18,6 +18,7 @@
 #include "core/internal.h"
 #include "render/render_internal.h"
 
+#include <math.h>
 #include <omp.h>
 #include <string.h>
 
@@ -29,6 +30,7 @@ double pen__render_ms_since(double t0) {
 
 static size_t tile_ws_bytes(const pen__shade_params *p, int spheres) {
     const size_t b = sizeof(int) * PEN_TILE_PX + 7 * 3 * sizeof(float) * PEN_TILE_PX +
+                     sizeof(int) * (size_t)spheres +
                      pen__shade_fast_scratch_bytes(p, spheres, PEN_TILE_PX);
     return (b + 127) & ~(size_t)127; /* threads' blocks on separate cache lines */
 }
@@ -40,7 +42,7 @@ pen_status pen__tile_ws_reserve(pen_context *ctx, pen_render_state *st, int thre
 }
 
 /* The calling thread's workspace. */
-static pen__tile_ws tile_ws_at(pen_render_state *st, size_t bytes) {
+static pen__tile_ws tile_ws_at(pen_render_state *st, size_t bytes, int spheres) {
     const int tid = omp_get_thread_num();
     unsigned char *b = st->ws.data + bytes * (size_t)tid;
     pen__tile_ws w;
@@ -48,7 +50,8 @@ static pen__tile_ws tile_ws_at(pen_render_state *st, size_t bytes) {
     float *f = (float *)(b + sizeof(int) * PEN_TILE_PX);
     w.x = f, w.n = f + 3 * PEN_TILE_PX, w.rho = f + 6 * PEN_TILE_PX, w.out = f + 9 * PEN_TILE_PX;
     w.dx = f + 12 * PEN_TILE_PX, w.dn = f + 15 * PEN_TILE_PX, w.drho = f + 18 * PEN_TILE_PX;
-    w.kernel = f + 21 * PEN_TILE_PX;
+    w.cull = (int *)(f + 21 * PEN_TILE_PX);
+    w.kernel = w.cull + spheres; /* the kernel's scratch is float data: 4-byte alignment */
     return w;
 }
 
@@ -59,6 +62,21 @@ void pen__tile_rect(const pen_render_state *st, int t, int *x0, int *y0, int *x1
     *x0 = (t % tiles_x) * PEN_TILE, *y0 = (t / tiles_x) * PEN_TILE;
     *x1 = *x0 + PEN_TILE < st->width ? *x0 + PEN_TILE : st->width;
     *y1 = *y0 + PEN_TILE < st->height ? *y0 + PEN_TILE : st->height;
+}
+
+int pen__tile_lights_cull(const pen_render_state *st, int t, pen__tile_ws *ws) {
+    const pen__tile_groups *tg = &st->groups.data[t];
+    const int n = tg->runs ? tg->end[tg->runs - 1] : 0;
+    if (n == 0) return 0;
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (int k = 0; k < n; ++k) {
+        const float *x = st->x.data + 3 * (size_t)tg->pix[k];
+        for (int a = 0; a < 3; ++a) {
+            lo[a] = fmin(lo[a], (double)x[a]);
+            hi[a] = fmax(hi[a], (double)x[a]);
+        }
+    }
+    return pen__lights_cull(&st->lights, st->sphere_count, st->spheres.data, lo, hi, ws->cull);
 }
 
 int pen__tile_count(const pen_render_state *st) {
@@ -85,7 +103,7 @@ pen__loop_ticks pen__tiles_run(pen_render_state *st, int threads, size_t ws_byte
 #pragma omp parallel num_threads(threads) if (st->width * st->height >=                            \
                                               PEN_RENDER_PARALLEL_MIN_PIXELS)
     {
-        pen__tile_ws ws = tile_ws_at(st, ws_bytes);
+        pen__tile_ws ws = tile_ws_at(st, ws_bytes, st->sphere_count);
         pen__shade_fast_ticks tk = {0, 0};
         const unsigned long long start = pen__shade_fast_now();
 #pragma omp for schedule(dynamic, 1) nowait

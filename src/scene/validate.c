@@ -42,6 +42,41 @@ static const char *object_name(const pen_object *ob) {
     return ob->mesh_path ? ob->mesh_path : "in memory";
 }
 
+pen_status pen__lights_validate(pen_context *ctx, const pen_lighting *L, const char *who) {
+    if (L->lights_mode != PEN_LIGHTS_AUTO && L->lights_mode != PEN_LIGHTS_NONE &&
+        L->lights_mode != PEN_LIGHTS_GIVEN)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: lighting.lights: unknown mode %d", who,
+                          (int)L->lights_mode);
+    if (L->lights_max < 0 || L->lights_max > PEN_SCENE_MAX_LIGHTS)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: lighting.lights: max %d outside [0, %d]",
+                          who, L->lights_max, PEN_SCENE_MAX_LIGHTS);
+    if (L->light_count < 0 || L->light_count > PEN_SCENE_MAX_LIGHTS)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: lighting.lights: %d lights, at most %d",
+                          who, L->light_count, PEN_SCENE_MAX_LIGHTS);
+    for (int i = 0; i < L->light_count; ++i) {
+        const pen_light *l = &L->lights[i];
+        const double len2 = (double)l->direction[0] * (double)l->direction[0] +
+                            (double)l->direction[1] * (double)l->direction[1] +
+                            (double)l->direction[2] * (double)l->direction[2];
+        if (!finite_n(l->direction, 3) || !(len2 > 1e-24))
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "%s: lighting.lights[%d]: direction must be finite and non-zero", who,
+                              i);
+        const double b = (double)l->angular_radius_deg;
+        if (!(b >= PEN_SCENE_MIN_LIGHT_RADIUS_DEG && b <= PEN_SCENE_MAX_LIGHT_RADIUS_DEG))
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "%s: lighting.lights[%d]: angular_radius_deg %g outside [%g, %g]",
+                              who, i, b, PEN_SCENE_MIN_LIGHT_RADIUS_DEG,
+                              PEN_SCENE_MAX_LIGHT_RADIUS_DEG);
+        for (int ch = 0; ch < 3; ++ch)
+            if (!(l->irradiance[ch] >= 0.0f && (double)l->irradiance[ch] <= PEN_SCENE_MAX_IRRADIANCE))
+                return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                                  "%s: lighting.lights[%d]: irradiance %g outside [0, %g]", who, i,
+                                  (double)l->irradiance[ch], PEN_SCENE_MAX_IRRADIANCE);
+    }
+    return PEN_OK;
+}
+
 pen_status pen__scene_validate(pen_context *ctx, const pen_scene *sc, const char *who) {
     if (sc->sh_bands < 1 || sc->sh_bands > PEN_SH_MAX_BANDS)
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: sh_bands %d out of range [1, %d]", who,
@@ -49,6 +84,8 @@ pen_status pen__scene_validate(pen_context *ctx, const pen_scene *sc, const char
     const int nc = sc->sh_bands * sc->sh_bands;
     if (!finite_n(&sc->lighting.sh[0][0], 3 * (size_t)nc))
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: lighting: non-finite SH coefficient", who);
+    pen_status sl = pen__lights_validate(ctx, &sc->lighting, who);
+    if (sl) return sl;
     if (sc->shadow.exp != PEN_SH_EXP_CALIBRATED && sc->shadow.exp != PEN_SH_EXP_PAPER &&
         sc->shadow.exp != PEN_SH_EXP_EXACT)
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: shadow.exp: unknown method %d", who,

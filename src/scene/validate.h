@@ -7,4 +7,10 @@
 
 pen_status pen__scene_validate(pen_context *ctx, const pen_scene *sc, const char *who);
 
+/* The disk lights alone (part of pen__scene_validate; the scene saver runs it too): a count in
+ * [0, PEN_SCENE_MAX_LIGHTS], each direction finite and non-zero, the angular radius and the
+ * irradiance in their ranges (penumbra/scene.h), a known mode and lights_max. Messages name the
+ * light: "render: lighting.lights[1]: angular_radius_deg 90 outside [0.01, 45]". */
+pen_status pen__lights_validate(pen_context *ctx, const pen_lighting *L, const char *who);
+
 #endif

@@ -1,0 +1,387 @@
+/* Distant disk lights on top of the SH lighting (docs/design.md sec. 1.13): the disk's
+ * clamped-cosine integral, the overlap of a sphere's cap with the disk, and the per-pixel light
+ * term with its backward (lights_ops.inc, compiled for float and double inputs).
+ *
+ * Design
+ * - A light is a uniform disk of angular radius b around the unit direction w, scaled so that a
+ *   receiver facing it gets its irradiance E. A diffuse receiver gets rho/pi E D(n . w, b) V:
+ *   D is the exact clamped-cosine integral over the disk (the horizon included: a disk half below
+ *   a receiver's tangent plane lights it with the part above), V the disk's visibility.
+ * - Visibility reuses the SH path's per-sphere quantities: the cap half-angle alpha_i (with the
+ *   tangent-line continuation of sh.h, so a receiver on or in a sphere sees up to the whole
+ *   sphere), its direction d_i, the self-shadowing weight w_i and the overlap weight kappa_i.
+ *   Sphere i hides the fraction f_i of the disk that its cap covers (the two caps' intersection in
+ *   closed form) with the opacity 1 - exp(-eps w_i kappa_i), so the product over spheres is exact
+ *   for one blocker, reaches the SH model's full-shadow limit exp(-eps sum w kappa) when every
+ *   sphere covers the disk, and widens its penumbra with b. Products of independent coverages
+ *   count the overlap of two blockers' caps as if they were uncorrelated (the documented limit).
+ * - Precision. A sun is 0.27 deg across: its solid angle is 2e-5 and the overlap of a cap with it
+ *   is a difference of O(1) angles in the textbook formula. Here every angle comes from atan2 or
+ *   half-angle forms of differences of the sides (s - a, s - b, s - g), the lens is two sectors
+ *   minus the kite of two triangles (L'Huilier's formula), so the overlap keeps about 1e-12 of its
+ *   relative precision down to the smallest radius accepted (0.01 deg).
+ * - Derivatives of the two closed forms come from forward-mode dual numbers (3 partials) over the
+ *   same expressions, so the derivative is the derivative of the value that was computed.
+ */
+#include "render/lights_internal.h"
+
+#include "core/internal.h"
+#include "penumbra/sh.h"
+#include "render/render_internal.h"
+
+#include <math.h>
+#include <string.h>
+
+/* ---- Dual numbers (value and 3 partials) ---------------------------------------------------- */
+
+typedef struct dual {
+    double v, d[3];
+} dual;
+
+static dual dconst(double v) {
+    dual r = {v, {0.0, 0.0, 0.0}};
+    return r;
+}
+static dual dvar(double v, int k) {
+    dual r = dconst(v);
+    r.d[k] = 1.0;
+    return r;
+}
+/* f(x) with f'(x) = df. */
+static dual dchain(dual x, double f, double df) {
+    dual r = {f, {df * x.d[0], df * x.d[1], df * x.d[2]}};
+    return r;
+}
+static dual dadd(dual a, dual b) {
+    dual r = {a.v + b.v, {a.d[0] + b.d[0], a.d[1] + b.d[1], a.d[2] + b.d[2]}};
+    return r;
+}
+static dual dsub(dual a, dual b) {
+    dual r = {a.v - b.v, {a.d[0] - b.d[0], a.d[1] - b.d[1], a.d[2] - b.d[2]}};
+    return r;
+}
+static dual dmul(dual a, dual b) {
+    dual r;
+    r.v = a.v * b.v;
+    for (int k = 0; k < 3; ++k)
+        r.d[k] = a.d[k] * b.v + a.v * b.d[k];
+    return r;
+}
+static dual ddiv(dual a, dual b) {
+    dual r;
+    r.v = a.v / b.v;
+    for (int k = 0; k < 3; ++k)
+        r.d[k] = (a.d[k] - r.v * b.d[k]) / b.v;
+    return r;
+}
+static dual dscale(dual a, double s) {
+    return dchain(a, s * a.v, s);
+}
+static dual dsin(dual a) {
+    return dchain(a, sin(a.v), cos(a.v));
+}
+static dual dcos(dual a) {
+    return dchain(a, cos(a.v), -sin(a.v));
+}
+static dual dtan(dual a) {
+    const double t = tan(a.v);
+    return dchain(a, t, 1.0 + t * t);
+}
+static dual dsqrt(dual a) {
+    const double s = sqrt(a.v);
+    return dchain(a, s, s > 0.0 ? 0.5 / s : 0.0);
+}
+static dual datan(dual a) {
+    return dchain(a, atan(a.v), 1.0 / (1.0 + a.v * a.v));
+}
+static dual dacos(dual a) {
+    const double q = 1.0 - a.v * a.v;
+    return dchain(a, acos(a.v), q > 0.0 ? -1.0 / sqrt(q) : 0.0);
+}
+
+/* ---- The disk's clamped cosine -------------------------------------------------------------- */
+
+/* Partial visibility above the horizon (Snyder's closed form for a sphere light against a plane;
+ * here normalised by the unclipped value pi sin^2 b): with x = cot b, y = -x cot(theta),
+ *   I = sin^2 b (cos(theta) acos(y) - x sin(theta) sqrt(1 - y^2)) + atan(sin(theta) sqrt(1 - y^2) / x),
+ * which meets pi sin^2 b cos(theta) at theta = pi/2 - b (y = -1) and 0 at pi/2 + b (y = 1). */
+double pen__disk_clamped_cosine(double c, double b, double *dD_dc, double *dD_db) {
+    const double sb = sin(b);
+    double D, dc = 0.0, db = 0.0;
+    if (c >= sb) {
+        D = c, dc = 1.0;
+    } else if (c <= -sb) {
+        D = 0.0;
+    } else {
+        const dual C = dvar(c, 0), B = dvar(b, 1);
+        const dual sin_b = dsin(B), sin2 = dmul(sin_b, sin_b);
+        const dual x = ddiv(dcos(B), sin_b);
+        const dual st = dsqrt(dsub(dconst(1.0), dmul(C, C)));
+        const dual y = dscale(ddiv(dmul(x, C), st), -1.0);
+        const dual q = dmul(st, dsqrt(dmul(dsub(dconst(1.0), y), dadd(dconst(1.0), y))));
+        const dual I = dadd(dmul(sin2, dsub(dmul(C, dacos(y)), dmul(x, q))), datan(ddiv(q, x)));
+        const dual R = ddiv(I, dscale(sin2, PEN_PI));
+        D = R.v, dc = R.d[0], db = R.d[1];
+    }
+    if (dD_dc) *dD_dc = dc;
+    if (dD_db) *dD_db = db;
+    return D;
+}
+
+/* ---- Overlap of two caps --------------------------------------------------------------------- */
+
+/* 4 pi sin^2(h/2): a cap's solid angle from its half-angle h, without cancellation. */
+static dual cap_area(dual h) {
+    const dual s = dsin(dscale(h, 0.5));
+    return dscale(dmul(s, s), 4.0 * PEN_PI);
+}
+
+/* tan(x/2) from sin x and cos x, x in [0, pi], without cancellation at either end. */
+static double half_tan(double sx, double cx) {
+    return cx >= 0.0 ? sx / (1.0 + cx) : (1.0 - cx) / sx;
+}
+
+/* The lens, by Gauss-Bonnet: the sectors of the two caps spanned by the lens's corners
+ * (azimuths 2 phi_a, 2 phi_b around the centres, areas 4 phi sin^2(h/2)) overlap in the kite of
+ * the two triangles (centre a, centre b, corner), each of excess E; lens = sectors - 2E. In the
+ * triangle with sides a, b, g and half-perimeter s, phi_a (opposite b) and E come from the
+ * half-angle and L'Huilier formulas, which take only sines and tangents of s - a, s - b, s - g. */
+double pen__cap_overlap(double a, double b, double g, double d[3]) {
+    const double s = 0.5 * (a + b + g);
+    if (!d) {
+        /* the same in plain doubles: the forward's (hot) path */
+        if (s - g <= 0.0) return 0.0;
+        const double hb = sin(0.5 * b), ha = sin(0.5 * a);
+        if (s - a <= 0.0) return 4.0 * PEN_PI * hb * hb;
+        if (s - b <= 0.0) return 4.0 * PEN_PI * ha * ha;
+        if (s >= PEN_PI) return 4.0 * PEN_PI * (ha * ha + hb * hb - 1.0);
+        /* sine and cosine of each (one sincos each) give the half-angle tangents */
+        const double ss = sin(s), ssa = sin(s - a), ssb = sin(s - b), ssg = sin(s - g);
+        const double pa = 2.0 * atan(sqrt(ssa * ssg / (ss * ssb)));
+        const double pb = 2.0 * atan(sqrt(ssb * ssg / (ss * ssa)));
+        const double t = half_tan(ss, cos(s)) * half_tan(ssa, cos(s - a)) *
+                         half_tan(ssb, cos(s - b)) * half_tan(ssg, cos(s - g));
+        return 4.0 * (pa * ha * ha + pb * hb * hb) - 8.0 * atan(sqrt(t));
+    }
+    dual r;
+    const dual A = dvar(a, 0), B = dvar(b, 1), G = dvar(g, 2);
+    if (s - g <= 0.0) {
+        r = dconst(0.0); /* disjoint */
+    } else if (s - a <= 0.0) {
+        r = cap_area(B); /* the disk inside the cap */
+    } else if (s - b <= 0.0) {
+        r = cap_area(A); /* the cap inside the disk */
+    } else if (s >= PEN_PI) {
+        /* both larger than the other's complement: a band, the whole sphere minus two caps */
+        r = dsub(dadd(cap_area(A), cap_area(B)), dconst(4.0 * PEN_PI));
+    } else {
+        const dual S = dscale(dadd(dadd(A, B), G), 0.5);
+        const dual sa = dsub(S, A), sb = dsub(S, B), sg = dsub(S, G);
+        const dual ss = dsin(S), ssa = dsin(sa), ssb = dsin(sb), ssg = dsin(sg);
+        const dual pa = dscale(datan(dsqrt(ddiv(dmul(ssa, ssg), dmul(ss, ssb)))), 2.0);
+        const dual pb = dscale(datan(dsqrt(ddiv(dmul(ssb, ssg), dmul(ss, ssa)))), 2.0);
+        const dual t = dmul(dmul(dtan(dscale(S, 0.5)), dtan(dscale(sa, 0.5))),
+                            dmul(dtan(dscale(sb, 0.5)), dtan(dscale(sg, 0.5))));
+        const dual E = dscale(datan(dsqrt(t)), 4.0);
+        const dual ha = dsin(dscale(A, 0.5)), hb = dsin(dscale(B, 0.5));
+        r = dsub(dadd(dscale(dmul(pa, dmul(ha, ha)), 4.0), dscale(dmul(pb, dmul(hb, hb)), 4.0)),
+                 dscale(E, 2.0));
+    }
+    if (d) memcpy(d, r.d, sizeof r.d);
+    return r.v;
+}
+
+/* ---- A frame's lights ------------------------------------------------------------------------ */
+
+void pen__lights_init(pen__lights *L, const pen_lighting *lighting, double eps, int shadows) {
+    memset(L, 0, sizeof *L);
+    L->count = lighting->light_count;
+    L->shadows = shadows;
+    L->eps = eps;
+    for (int l = 0; l < L->count; ++l) {
+        const pen_light *s = &lighting->lights[l];
+        const double v[3] = {(double)s->direction[0], (double)s->direction[1],
+                             (double)s->direction[2]};
+        L->len[l] = sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+        for (int a = 0; a < 3; ++a) {
+            L->w[l][a] = v[a] / L->len[l];
+            L->E[l][a] = (double)s->irradiance[a];
+        }
+        L->b[l] = (double)s->angular_radius_deg * (PEN_PI / 180.0);
+        L->sin_b[l] = sin(L->b[l]);
+        L->cos_b[l] = cos(L->b[l]);
+        L->area[l] = 4.0 * PEN_PI * sin(0.5 * L->b[l]) * sin(0.5 * L->b[l]);
+    }
+}
+
+/* The directions y > -t are the cap of half-angle acos(-t) around +Y. */
+double pen__lights_horizon(const pen__lights *L, int l, double t, double *d_t, double d_w[3],
+                           double *d_b) {
+    const double *w = L->w[l];
+    const double sg = sqrt(w[0] * w[0] + w[2] * w[2]), g = atan2(sg, w[1]);
+    const double a = acos(t < -1.0 ? -1.0 : t > 1.0 ? 1.0 : -t);
+    double d[3];
+    const double area = 4.0 * PEN_PI * sin(0.5 * L->b[l]) * sin(0.5 * L->b[l]);
+    const double G = pen__cap_overlap(a, L->b[l], g, d) / area;
+    const double st = sqrt(fmax(1.0 - t * t, 1e-300));
+    if (d_t) *d_t = d[0] / area / st; /* da/dt = 1 / sqrt(1 - t^2) */
+    if (d_b) *d_b = (d[1] - G * 2.0 * PEN_PI * sin(L->b[l])) / area;
+    if (d_w) {
+        /* g = angle(w, +Y): dg/dw = -(Y - cos g w) / sin g (0 on the axis, where f is even) */
+        const double k = sg > 1e-12 ? d[2] / area / sg : 0.0;
+        d_w[0] = k * w[1] * w[0];
+        d_w[1] = -k * (1.0 - w[1] * w[1]);
+        d_w[2] = k * w[1] * w[2];
+    }
+    return G;
+}
+
+/* ---- Per pixel ------------------------------------------------------------------------------- */
+
+/* What a receiver (x, n) sees of sphere (c, r), as the SH path (sh.h, shade_ops.inc): v = c - x,
+ * the self-shadowing weight w(h), h = n . v / r (sphere_view_weight, cheap, first); then, for
+ * spheres that may reach a disk (sphere_view_reaches), the unit direction d and distance D of the
+ * centre and the cap's half-angle a with cos a = sqrt(t), t = 1 - r^2/D^2, continued by its tangent
+ * line below PEN_SH_CAP_T0 and clamped at a = pi (sphere_view_cap); and the derivatives the
+ * backward needs. */
+typedef struct sphere_view {
+    double v[3], D2, r, h, w, dw_dh;
+    double d[3], D, a, cos_a, sin_a, da_dD, da_dr;
+    int cap; /* sphere_view_cap has run */
+} sphere_view;
+
+/* Fills v, D2, h, w; returns 0 when the sphere's weight is 0 (it hides nothing, no gradient). */
+static int sphere_view_weight(const double x[3], const double n[3], const double c[3], double r,
+                              sphere_view *sv) {
+    for (int k = 0; k < 3; ++k)
+        sv->v[k] = c[k] - x[k];
+    sv->r = r;
+    const double nv = n[0] * sv->v[0] + n[1] * sv->v[1] + n[2] * sv->v[2];
+    if (nv <= PEN_RENDER_SELF_H0 * r) return 0; /* h <= -1, without the division */
+    sv->h = nv / r;
+    const double span = PEN_RENDER_SELF_H1 - PEN_RENDER_SELF_H0;
+    const double u = (sv->h - PEN_RENDER_SELF_H0) / span;
+    if (u <= 0.0) return 0;
+    if (u >= 1.0) {
+        sv->w = 1.0, sv->dw_dh = 0.0;
+    } else {
+        sv->w = u * u * (3.0 - 2.0 * u), sv->dw_dh = 6.0 * u * (1.0 - u) / span;
+    }
+    sv->D2 = sv->v[0] * sv->v[0] + sv->v[1] * sv->v[1] + sv->v[2] * sv->v[2];
+    sv->cap = 0;
+    return 1;
+}
+
+/* Whether a sphere (v = c - x, |v|^2 = D2, radius r) seen from x may overlap a disk (w, b) with
+ * its cap: 0 only when certainly disjoint, g >= a + b. With T = sqrt(D2 - r^2) = D cos a and
+ * r = D sin a, cos g <= cos(a + b) reads v . w + r sin b <= T cos b, tested without the square
+ * root: true when the left side is <= 0, else compared squared. Receivers so close that the cap is
+ * continued (t < t0) always pass. */
+static int cap_may_reach(const double v[3], double D2, double r, const double w[3], double sin_b,
+                         double cos_b) {
+    const double r2 = r * r;
+    if (D2 * (1.0 - PEN_SH_CAP_T0) <= r2) return 1;
+    const double lhs = v[0] * w[0] + v[1] * w[1] + v[2] * w[2] + r * sin_b;
+    if (lhs <= 0.0) return 0;
+    return lhs * lhs > (D2 - r2) * cos_b * cos_b;
+}
+
+static int sphere_view_reaches(const pen__lights *L, int l, const sphere_view *sv) {
+    return cap_may_reach(sv->v, sv->D2, sv->r, L->w[l], L->sin_b[l], L->cos_b[l]);
+}
+
+/* Every receiver x within R of the centre m sees sphere (c, r) inside the cap that (c, r + R)
+ * covers seen from m (a ray from x that hits the sphere, shifted to start at m, passes within
+ * r + R of c), unless x may be close enough for the continued cap (|c - m| - R below
+ * r / sqrt(1 - t0)): then the sphere is kept. */
+int pen__lights_cull(const pen__lights *L, int sphere_count, const float *spheres,
+                     const double lo[3], const double hi[3], int *idx) {
+    double m[3], R2 = 0.0;
+    for (int a = 0; a < 3; ++a) {
+        m[a] = 0.5 * (lo[a] + hi[a]);
+        R2 += 0.25 * (hi[a] - lo[a]) * (hi[a] - lo[a]);
+    }
+    const double R = sqrt(R2) * (1.0 + 1e-6) + 1e-9 * (fabs(m[0]) + fabs(m[1]) + fabs(m[2]));
+    int n = 0;
+    for (int i = 0; i < sphere_count; ++i) {
+        const float *s = spheres + 4 * (size_t)i;
+        const double v[3] = {(double)s[0] - m[0], (double)s[1] - m[1], (double)s[2] - m[2]};
+        const double D2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2], r = (double)s[3];
+        const double near = 1.01 * r + R;
+        int keep = D2 <= near * near;
+        for (int l = 0; l < L->count && !keep; ++l)
+            keep = cap_may_reach(v, D2, r + R, L->w[l], L->sin_b[l], L->cos_b[l]);
+        if (keep) idx[n++] = i;
+    }
+    return n;
+}
+
+/* The cap: d, D, a and its derivatives by D and r. */
+static void sphere_view_cap(sphere_view *sv) {
+    if (sv->cap) return;
+    sv->cap = 1;
+    const double D = sqrt(sv->D2), r = sv->r;
+    sv->da_dD = sv->da_dr = 0.0;
+    if (!(D > 1e-6 * r)) { /* the floor of sh.h: then the whole sphere is blocked */
+        sv->D = 1e-6 * r;
+        sv->d[0] = 0.0, sv->d[1] = 1.0, sv->d[2] = 0.0;
+        sv->a = PEN_PI, sv->cos_a = -1.0, sv->sin_a = 0.0;
+        return;
+    }
+    sv->D = D;
+    for (int k = 0; k < 3; ++k)
+        sv->d[k] = sv->v[k] / D;
+    const double t = 1.0 - (r * r) / (D * D), t0 = PEN_SH_CAP_T0, s0 = sqrt(t0);
+    if (t >= t0) {
+        sv->cos_a = sqrt(t), sv->sin_a = r / D;
+        sv->da_dD = -(r / (D * D)) / sv->cos_a;
+        sv->da_dr = (1.0 / D) / sv->cos_a;
+    } else {
+        sv->cos_a = s0 + (t - t0) * (0.5 / s0);
+        if (sv->cos_a <= -1.0) {
+            sv->a = PEN_PI, sv->cos_a = -1.0, sv->sin_a = 0.0;
+            return;
+        }
+        sv->sin_a = sqrt((1.0 - sv->cos_a) * (1.0 + sv->cos_a));
+        const double da_dt = -(0.5 / s0) / sv->sin_a;
+        sv->da_dD = da_dt * 2.0 * r * r / (D * D * D);
+        sv->da_dr = da_dt * -2.0 * r / (D * D);
+    }
+    sv->a = atan2(sv->sin_a, sv->cos_a);
+}
+
+/* The fraction of light l's disk inside the sphere's cap, and (when fd is not NULL) its partials
+ * by a, b and the angle g between d and w_l; *g_out and *sin_g the angle and its sine. */
+static double disk_fraction(const pen__lights *L, int l, sphere_view *sv, double fd[3],
+                            double *sin_g) {
+    *sin_g = 0.0;
+    if (fd) fd[0] = fd[1] = fd[2] = 0.0;
+    if (!sphere_view_reaches(L, l, sv)) return 0.0;
+    sphere_view_cap(sv);
+    const double *w = L->w[l], *d = sv->d;
+    const double cg = d[0] * w[0] + d[1] * w[1] + d[2] * w[2];
+    const double cx = d[1] * w[2] - d[2] * w[1], cy = d[2] * w[0] - d[0] * w[2],
+                 cz = d[0] * w[1] - d[1] * w[0];
+    const double sg = sqrt(cx * cx + cy * cy + cz * cz), g = atan2(sg, cg);
+    *sin_g = sg;
+    const double area = L->area[l];
+    const double f = pen__cap_overlap(sv->a, L->b[l], g, fd) / area;
+    if (fd) {
+        fd[0] /= area;
+        fd[1] = (fd[1] - f * 2.0 * PEN_PI * L->sin_b[l]) / area;
+        fd[2] /= area;
+    }
+    return f;
+}
+
+#define IN float
+#define SUF(name) name
+#include "render/lights_ops.inc"
+#undef IN
+#undef SUF
+
+#define IN double
+#define SUF(name) name##_d
+#include "render/lights_ops.inc"
+#undef IN
+#undef SUF

@@ -1,0 +1,84 @@
+/* Internal interface of the disk lights (src/render/lights.c, docs/design.md sec. 1.13): the
+ * disk's clamped-cosine integral, the overlap of a sphere's cap with a disk, a frame's lights,
+ * and the per-pixel light term with its backward. Everything is computed in double; the
+ * per-pixel pair exists for float inputs (the renderer) and double inputs (`_d`, the gradient
+ * checks). Both shading kernels (scalar and fast) call the same per-pixel functions, so they give
+ * the same light term. */
+#ifndef PEN_RENDER_LIGHTS_INTERNAL_H
+#define PEN_RENDER_LIGHTS_INTERNAL_H
+
+#include "penumbra/scene.h"
+
+/* Doubles per light of the backward's light gradient: d unit direction (3, before the
+ * normalisation's backward), d angular radius (radians), d irradiance (3). */
+#define PEN_LIGHT_GRAD_DOUBLES 7
+
+/* D(c, b): the integral of max(n . omega, 0) over a uniform disk of angular radius b whose centre
+ * is at cos(theta) = c from the normal n, divided by pi sin^2 b. D = c when the disk is wholly
+ * above the horizon (c >= sin b), 0 wholly below (c <= -sin b), the exact horizon-clipped integral
+ * in between (C1 in c). dD_dc and dD_db may be NULL. */
+double pen__disk_clamped_cosine(double c, double b, double *dD_dc, double *dD_db);
+
+/* The solid angle of the intersection of two caps of angular radii a and b in [0, pi] whose
+ * centres are g in [0, pi] apart (closed form from the triangle of the two centres and a corner
+ * of the lens, evaluated without cancellation for tiny caps), and its partials d[0..2] by a, b,
+ * g (d may be NULL). */
+double pen__cap_overlap(double a, double b, double g, double d[3]);
+
+/* A frame's disk lights, as the per-pixel functions use them. */
+typedef struct pen__lights {
+    int count;
+    int shadows;                          /* 0: V_l == 1 (no-shadows mode) */
+    double eps;                           /* log-visibility depth of a sphere (as the SH path) */
+    double w[PEN_SCENE_MAX_LIGHTS][3];    /* unit directions */
+    double len[PEN_SCENE_MAX_LIGHTS];     /* |direction| as stored */
+    double b[PEN_SCENE_MAX_LIGHTS];       /* angular radius, radians */
+    double sin_b[PEN_SCENE_MAX_LIGHTS], cos_b[PEN_SCENE_MAX_LIGHTS];
+    double area[PEN_SCENE_MAX_LIGHTS];    /* the disk's solid angle, 4 pi sin^2(b/2) */
+    double E[PEN_SCENE_MAX_LIGHTS][3];    /* irradiance */
+} pen__lights;
+
+void pen__lights_init(pen__lights *L, const pen_lighting *lighting, double eps, int shadows);
+
+/* The fraction of light l's disk above the horizon y > -t that a ground which occludes leaves an
+ * object (ground.c's t), with its partials by t, by the light's unit direction (3) and by b. */
+double pen__lights_horizon(const pen__lights *L, int l, double t, double *d_t, double d_w[3],
+                           double *d_b);
+
+/* The spheres that may shadow any of the lights at some receiver in the box [lo, hi] (a tile's
+ * points): their indices into idx (room for sphere_count), their count returned. Conservative:
+ * a sphere left out has f = 0 for every light at every receiver of the box. */
+int pen__lights_cull(const pen__lights *L, int sphere_count, const float *spheres,
+                     const double lo[3], const double hi[3], int *idx);
+
+/* Adds the lights' radiance at a receiver (x, n, rho) into rgb:
+ *   rgb[ch] += rho[ch] / pi * sum_l E_l[ch] D(n . w_l, b_l) G_l V_l(x),
+ *   V_l = prod_i (1 - (1 - exp(-eps w_i kappa_i)) f_il),
+ * f_il the fraction of disk l inside sphere i's cap, w_i the self-shadowing weight. G: per light
+ * (the object's horizon factor), NULL for 1. spheres/kappa as pen__shade_fwd; idx (may be
+ * NULL: spheres 0 .. sphere_count - 1) lists the sphere_count spheres to visit
+ * (pen__lights_cull), by their index into spheres, kappa and d_spheres. V_out (may be NULL)
+ * receives V_l of every light (1 where the disk is below the horizon) for the backward. */
+void pen__lights_fwd(const pen__lights *L, const double *G, int sphere_count, const float *spheres,
+                     const float *kappa, const int *idx, const float x[3], const float n[3],
+                     const float rho[3], float rgb[3], float *V_out);
+void pen__lights_fwd_d(const pen__lights *L, const double *G, int sphere_count,
+                       const double *spheres, const double *kappa, const int *idx,
+                       const double x[3], const double n[3], const double rho[3], double rgb[3],
+                       double *V_out);
+/* Backward: adds into d_spheres (4 per sphere), d_x, d_n, d_rho, d_lights (per light
+ * PEN_LIGHT_GRAD_DOUBLES) and d_G (per light); any may be NULL. V_in: the forward's V_out for
+ * this pixel (one per light), or NULL to recompute the visibilities. */
+void pen__lights_bwd(const pen__lights *L, const double *G, int sphere_count, const float *spheres,
+                     const float *kappa, const int *idx, const float x[3], const float n[3],
+                     const float rho[3], const float d_rgb[3], const float *V_in,
+                     double *d_spheres, float d_x[3], float d_n[3], float d_rho[3],
+                     double *d_lights, double *d_G);
+void pen__lights_bwd_d(const pen__lights *L, const double *G, int sphere_count,
+                       const double *spheres, const double *kappa, const int *idx,
+                       const double x[3], const double n[3], const double rho[3],
+                       const double d_rgb[3], const double *V_in, double *d_spheres,
+                       double d_x[3], double d_n[3], double d_rho[3], double *d_lights,
+                       double *d_G);
+
+#endif
