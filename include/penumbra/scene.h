@@ -44,6 +44,7 @@ extern "C" {
 #define PEN_SCENE_MAX_SH 1e13      /* |lighting SH coefficient|, given or projected */
 #define PEN_SCENE_MAX_ALBEDO 1e6   /* |texture value| (constant albedos are in [0, 1]) */
 #define PEN_SCENE_MAX_LIGHTS 16    /* disk lights in one scene */
+#define PEN_LIGHTS_DEFAULT_MAX 4   /* lights found in an envmap when the JSON does not say */
 #define PEN_SCENE_MIN_LIGHT_RADIUS_DEG 0.01 /* a disk light's angular radius: at least */
 #define PEN_SCENE_MAX_LIGHT_RADIUS_DEG 45.0 /* ... and at most */
 #define PEN_SCENE_MAX_IRRADIANCE 1e9 /* |disk light irradiance| */
