@@ -1,8 +1,12 @@
 /* Lights found in environment maps (pen_envmap_extract_lights, docs/design.md sec. 1.14): a
  * synthetic sun is found where it is, with its size and irradiance; the residual plus the lights
  * carry the map's SH (the DC exactly); a map without a compact source gives none; max_lights 0
- * is the plain projection bit for bit; and the bundled city map's sun is found. */
+ * is the plain projection bit for bit; the bundled city map's sun is found; loading a scene with
+ * a map finds it (lights AUTO); and the SH-only lighting ("lights": "none") renders the bundled
+ * scene exactly as before lights existed (its recorded golden hash). */
 #include "io_fixtures.h"
+
+#include <stdint.h>
 
 #define ctx fixture_ctx()
 
@@ -157,4 +161,68 @@ static void test_bundled_city(void) {
     pen_image_free(&im);
 }
 
-RUN_TESTS(TEST(test_synthetic_sun), TEST(test_no_lights), TEST(test_bundled_city))
+typedef struct golden {
+    const char *name;
+    uint64_t hash;
+    int fast;
+} golden;
+static const golden recorded[] = {
+#include "golden_table.inc"
+    {NULL, 0, 0},
+};
+
+static void test_scene_auto_and_none(void) {
+    char path[512];
+    snprintf(path, sizeof path, "%s/examples/scenes/spot_city.json", PEN_SOURCE_DIR);
+    pen_context *c2 = pen_context_create();
+    pen_context_set_threads(c2, 2); /* as test_golden recorded it */
+    pen_scene sc;
+    CHECK(pen_scene_load(c2, path, &sc) == PEN_OK);
+    /* AUTO (no "lights" key): the sun, and the residual's projection. */
+    const pen_lighting *L = &sc.lighting;
+    CHECK(L->lights_mode == PEN_LIGHTS_AUTO && L->lights_max == PEN_LIGHTS_DEFAULT_MAX);
+    CHECK(L->light_count == 1);
+    float sh[PEN_SH_MAX_COEFFS][3], full[PEN_SH_MAX_COEFFS][3];
+    pen_light found[PEN_SCENE_MAX_LIGHTS];
+    int n = 0;
+    CHECK(pen_envmap_lighting(c2, &L->envmap, sc.sh_bands, L->rotation_y_deg, L->scale,
+                              L->lights_max, sh, found, &n) == PEN_OK);
+    CHECK(n == 1 && memcmp(found, L->lights, sizeof(pen_light)) == 0);
+    CHECK(memcmp(sh, L->sh, sizeof(float) * 3 * (size_t)(sc.sh_bands * sc.sh_bands)) == 0);
+    /* "none": what the loader does for it (the whole map's projection, no lights) renders the
+     * image test_golden recorded before lights existed, bit for bit. */
+    CHECK(pen_envmap_lighting(c2, &L->envmap, sc.sh_bands, L->rotation_y_deg, L->scale, 0, full,
+                              found, &n) == PEN_OK);
+    CHECK(n == 0);
+    memcpy(sc.lighting.sh, full, sizeof full);
+    sc.lighting.light_count = 0;
+    sc.lighting.lights_mode = PEN_LIGHTS_NONE;
+    sc.camera.width = sc.camera.height = 96;
+    pen_object *ob = &sc.objects[0];
+    pen_fit_settings fs;
+    pen_fit_settings_default(&fs);
+    CHECK(pen_spheres_fit(c2, &ob->mesh, ob->fit_spheres, &fs, &ob->spheres, NULL) == PEN_OK);
+    ob->fit_spheres = 0;
+    pen_render_options opt = pen_render_options_default();
+    opt.kernel = PEN_RENDER_KERNEL_SCALAR;
+    pen_image img = {0, 0, 0, NULL};
+    CHECK(pen_render_fwd(c2, &sc, &opt, NULL, &img) == PEN_OK);
+    uint64_t h = 0xcbf29ce484222325ull;
+    const unsigned char *p = (const unsigned char *)img.data;
+    for (size_t i = 0; i < sizeof(float) * 3 * 96 * 96; ++i)
+        h = (h ^ p[i]) * 0x100000001b3ull;
+    int seen = 0;
+    for (size_t i = 0; recorded[i].name; ++i)
+        if (strcmp(recorded[i].name, "scenes/spot_city.json scalar shadows image") == 0) {
+            seen = 1;
+            CHECK_MSG(recorded[i].hash == h, "hash 0x%016llx, recorded 0x%016llx",
+                      (unsigned long long)h, (unsigned long long)recorded[i].hash);
+        }
+    CHECK(seen);
+    pen_image_free(&img);
+    pen_scene_free(&sc);
+    pen_context_destroy(c2);
+}
+
+RUN_TESTS(TEST(test_synthetic_sun), TEST(test_no_lights), TEST(test_bundled_city),
+          TEST(test_scene_auto_and_none))

@@ -128,6 +128,17 @@ static pen_status parse_camera(pen_context *ctx, const where *top, const cJSON *
     return PEN_OK;
 }
 
+/* The SH lighting of a map (no "sh" given): with lights AUTO, the lights found in it and the
+ * projection of the rest (docs/design.md sec. 1.14); with "none" or given lights, the
+ * projection of the whole map, as before lights existed. Runs after the whole "lighting" object
+ * is read, so that the lights' mode and maximum are known. */
+static pen_status envmap_lighting(pen_context *ctx, int bands, pen_lighting *L) {
+    if (L->lights_mode != PEN_LIGHTS_AUTO || L->lights_max <= 0)
+        return pen_envmap_to_sh(ctx, &L->envmap, bands, L->rotation_y_deg, L->scale, L->sh);
+    return pen_envmap_lighting(ctx, &L->envmap, bands, L->rotation_y_deg, L->scale, L->lights_max,
+                               L->sh, L->lights, &L->light_count);
+}
+
 static pen_status parse_lighting(pen_context *ctx, const char *path, const where *top,
                                  const cJSON *root, int bands, pen_lighting *L) {
     where w = at(top, "lighting");
@@ -139,6 +150,7 @@ static pen_status parse_lighting(pen_context *ctx, const char *path, const where
     const cJSON *env = member(o, "envmap"), *sh = member(o, "sh");
     L->scale = 1.0f;
     L->rotation_y_deg = 0.0f;
+    L->lights_max = PEN_LIGHTS_DEFAULT_MAX;
     if (!env && !sh) return pen__json_error(ctx, PEN_ERROR_PARSE, &w, "needs \"envmap\" or \"sh\"");
     if (!env && (member(o, "scale") || member(o, "rotation_y_deg")))
         return pen__json_error(ctx, PEN_ERROR_PARSE, &w,
@@ -158,8 +170,6 @@ static pen_status parse_lighting(pen_context *ctx, const char *path, const where
         if (!L->envmap_path) return PEN_ERROR_MEMORY;
         s = pen_image_load(ctx, L->envmap_path, &L->envmap);
         if (!s) s = check_values(ctx, L->envmap_path, &L->envmap, PEN_SCENE_MAX_RADIANCE);
-        if (!s && !sh)
-            s = pen_envmap_to_sh(ctx, &L->envmap, bands, L->rotation_y_deg, L->scale, L->sh);
         if (s) return pen__json_wrap(ctx, s, &we);
     }
     if (sh) {
@@ -181,6 +191,11 @@ static pen_status parse_lighting(pen_context *ctx, const char *path, const where
             s = pen__json_floats(ctx, &wr, row, 3, -PEN_SCENE_MAX_SH, PEN_SCENE_MAX_SH, L->sh[i++]);
             if (s) return s;
         }
+    }
+    if (env && !sh) {
+        where we = at(&w, "envmap");
+        s = envmap_lighting(ctx, bands, L);
+        if (s) return pen__json_wrap(ctx, s, &we);
     }
     return PEN_OK;
 }
