@@ -78,9 +78,9 @@ PEN_API void pen_envmap_eval(const pen_image *env, float rotation_y_deg, float s
 PEN_API pen_status pen_envmap_extract_lights(pen_context *ctx, const pen_image *env,
                                              float rotation_y_deg, float scale, int max_lights,
                                              pen_light *lights, int *count, pen_image *residual);
-/* The lighting a scene takes from a map: with max_lights == 0 exactly pen_envmap_to_sh (and
- * *count = 0); otherwise the lights pen_envmap_extract_lights finds and the SH projection of its
- * residual. */
+/* The lighting a scene takes from a map: with max_lights == 0 exactly pen_envmap_to_sh, lights
+ * and *count left as they are (a scene's own lights, or none); otherwise the lights
+ * pen_envmap_extract_lights finds and the SH projection of its residual. */
 PEN_API pen_status pen_envmap_lighting(pen_context *ctx, const pen_image *env, int bands,
                                        float rotation_y_deg, float scale, int max_lights,
                                        float sh[][3], pen_light *lights, int *count);

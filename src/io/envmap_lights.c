@@ -462,7 +462,6 @@ done:
 pen_status pen_envmap_lighting(pen_context *ctx, const pen_image *env, int bands,
                                float rotation_y_deg, float scale, int max_lights, float sh[][3],
                                pen_light *lights, int *count) {
-    if (count) *count = 0;
     if (max_lights == 0) return pen_envmap_to_sh(ctx, env, bands, rotation_y_deg, scale, sh);
     pen_image residual;
     pen_status s = pen_envmap_extract_lights(ctx, env, rotation_y_deg, scale, max_lights, lights,

@@ -133,10 +133,9 @@ static pen_status parse_camera(pen_context *ctx, const where *top, const cJSON *
  * projection of the whole map, as before lights existed. Runs after the whole "lighting" object
  * is read, so that the lights' mode and maximum are known. */
 static pen_status envmap_lighting(pen_context *ctx, int bands, pen_lighting *L) {
-    if (L->lights_mode != PEN_LIGHTS_AUTO || L->lights_max <= 0)
-        return pen_envmap_to_sh(ctx, &L->envmap, bands, L->rotation_y_deg, L->scale, L->sh);
-    return pen_envmap_lighting(ctx, &L->envmap, bands, L->rotation_y_deg, L->scale, L->lights_max,
-                               L->sh, L->lights, &L->light_count);
+    int max = L->lights_mode == PEN_LIGHTS_AUTO && L->lights_max > 0 ? L->lights_max : 0;
+    return pen_envmap_lighting(ctx, &L->envmap, bands, L->rotation_y_deg, L->scale, max, L->sh,
+                               L->lights, &L->light_count);
 }
 
 static pen_status parse_lighting(pen_context *ctx, const char *path, const where *top,

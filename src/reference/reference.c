@@ -526,7 +526,7 @@ static int sh_is_projection(pen_context *ctx, const pen_scene *sc) {
     if (sc->sh_bands < 1 || sc->sh_bands > PEN_SH_MAX_BANDS) return 1; /* check_scene reports */
     float proj[PEN_SH_MAX_COEFFS][3];
     pen_light found[PEN_SCENE_MAX_LIGHTS];
-    int count, max = lt->lights_mode == PEN_LIGHTS_AUTO ? lt->lights_max : 0;
+    int count = 0, max = lt->lights_mode == PEN_LIGHTS_AUTO ? lt->lights_max : 0;
     max = max < 0 ? 0 : max > PEN_SCENE_MAX_LIGHTS ? PEN_SCENE_MAX_LIGHTS : max;
     pen_status st = pen_envmap_lighting(ctx, &lt->envmap, sc->sh_bands, lt->rotation_y_deg,
                                         lt->scale, max, proj, found, &count);
