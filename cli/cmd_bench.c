@@ -237,10 +237,11 @@ static pen_status configure(pen_context *ctx, pen_scene *sc, const bench_case *c
         const int old = sc->sh_bands * sc->sh_bands, nc = c->bands * c->bands;
         for (int k = old; k < nc; ++k)
             sc->lighting.sh[k][0] = sc->lighting.sh[k][1] = sc->lighting.sh[k][2] = 0.0f;
-        if (sc->lighting.envmap.data) {
-            pen_status s = pen_envmap_to_sh(ctx, &sc->lighting.envmap, c->bands,
-                                            sc->lighting.rotation_y_deg, sc->lighting.scale,
-                                            sc->lighting.sh);
+        if (sc->lighting.envmap.data) { /* as the loader does: lights found, the rest projected */
+            pen_lighting *L = &sc->lighting;
+            int max = L->lights_mode == PEN_LIGHTS_AUTO && L->lights_max > 0 ? L->lights_max : 0;
+            pen_status s = pen_envmap_lighting(ctx, &L->envmap, c->bands, L->rotation_y_deg,
+                                               L->scale, max, L->sh, L->lights, &L->light_count);
             if (s) return s;
         }
         sc->sh_bands = c->bands;

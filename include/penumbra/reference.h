@@ -14,6 +14,10 @@
  *                                  unclamped (negative lobes stay negative, as in the SH
  *                                  renderer); the unoccluded irradiance in closed form minus a
  *                                  cosine-sampled estimate of the light blockers remove.
+ * Disk lights (lighting.lights, radiance E / (pi sin^2 b) over each disk) are rendered exactly,
+ * one cone sample per light, combined with the other samples by the balance heuristic. ENVMAP
+ * adds only lights the scene gives (PEN_LIGHTS_GIVEN): lights found in the map are in it already.
+ * SH adds every light: it is the lighting `render` uses (docs/design.md sec. 2).
  * Surfaces: meshes are shaded with smooth area-weighted vertex normals (interpolated, renormalised)
  * and lit from the side the camera sees (two-sided); the ground plane has normal +Y. Albedo is
  * the constant or a bilinear, wrapping texture lookup (v up; image row 0 is v = 1).
@@ -47,8 +51,9 @@ extern "C" {
 
 typedef enum pen_reference_lighting {
     PEN_REFERENCE_LIGHTING_AUTO = 0, /* the envmap if the scene has one and its SH lighting is
-                                        the map's projection; else SH (a scene may give "sh"
-                                        next to a map that is only its background) */
+                                        the map's projection (of its residual when lights were
+                                        found in it); else SH (a scene may give "sh" next to a
+                                        map that is only its background) */
     PEN_REFERENCE_LIGHTING_ENVMAP = 1,
     PEN_REFERENCE_LIGHTING_SH = 2
 } pen_reference_lighting;

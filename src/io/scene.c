@@ -165,6 +165,16 @@ static pen_status parse_lights(pen_context *ctx, const where *wl, const cJSON *o
     return PEN_OK;
 }
 
+/* The SH lighting of a map (no "sh" given): with lights AUTO, the lights found in it and the
+ * projection of the rest (docs/design.md sec. 1.14); with "none" or given lights, the
+ * projection of the whole map, as before lights existed. Runs after the whole "lighting" object
+ * is read, so that the lights' mode and maximum are known. */
+static pen_status envmap_lighting(pen_context *ctx, int bands, pen_lighting *L) {
+    int max = L->lights_mode == PEN_LIGHTS_AUTO && L->lights_max > 0 ? L->lights_max : 0;
+    return pen_envmap_lighting(ctx, &L->envmap, bands, L->rotation_y_deg, L->scale, max, L->sh,
+                               L->lights, &L->light_count);
+}
+
 static pen_status parse_lighting(pen_context *ctx, const char *path, const where *top,
                                  const cJSON *root, int bands, pen_lighting *L) {
     where w = at(top, "lighting");
@@ -196,8 +206,6 @@ static pen_status parse_lighting(pen_context *ctx, const char *path, const where
         if (!L->envmap_path) return PEN_ERROR_MEMORY;
         s = pen_image_load(ctx, L->envmap_path, &L->envmap);
         if (!s) s = check_values(ctx, L->envmap_path, &L->envmap, PEN_SCENE_MAX_RADIANCE);
-        if (!s && !sh)
-            s = pen_envmap_to_sh(ctx, &L->envmap, bands, L->rotation_y_deg, L->scale, L->sh);
         if (s) return pen__json_wrap(ctx, s, &we);
     }
     if (sh) {
@@ -219,6 +227,11 @@ static pen_status parse_lighting(pen_context *ctx, const char *path, const where
             s = pen__json_floats(ctx, &wr, row, 3, -PEN_SCENE_MAX_SH, PEN_SCENE_MAX_SH, L->sh[i++]);
             if (s) return s;
         }
+    }
+    if (env && !sh) {
+        where we = at(&w, "envmap");
+        s = envmap_lighting(ctx, bands, L);
+        if (s) return pen__json_wrap(ctx, s, &we);
     }
     return PEN_OK;
 }
@@ -583,11 +596,13 @@ static int add_path(pen_context *ctx, cJSON *obj, const char *name, const char *
 }
 
 /* lighting.lights as parse_lights reads it: GIVEN as the array, NONE as "none", AUTO as
- * {"max": K} unless K is the default (then nothing). Returns 0 on exhaustion. */
-static int lights_json(const pen_lighting *L, cJSON *o) {
+ * {"max": K} unless K is the default (then nothing). Lights found in the map are written as an
+ * array too when the coefficients are written (`sh_written`): a file with "sh" finds no lights on
+ * load, so they would be lost. Returns 0 on exhaustion. */
+static int lights_json(const pen_lighting *L, int sh_written, cJSON *o) {
     if (L->lights_mode == PEN_LIGHTS_NONE)
         return pen__json_add(o, "lights", cJSON_CreateString("none"));
-    if (L->lights_mode == PEN_LIGHTS_AUTO) {
+    if (L->lights_mode == PEN_LIGHTS_AUTO && !(sh_written && L->light_count > 0)) {
         if (L->lights_max == PEN_LIGHTS_DEFAULT_MAX) return 1;
         cJSON *m = cJSON_CreateObject();
         return pen__json_add(o, "lights", m) &&
@@ -619,13 +634,14 @@ static cJSON *lighting_json(pen_context *ctx, const char *path, const pen_scene 
         ok = add_path(ctx, o, "envmap", path, L->envmap_path) &&
              pen__json_add(o, "scale", pen__json_float(L->scale)) &&
              pen__json_add(o, "rotation_y_deg", pen__json_float(L->rotation_y_deg));
-    if (ok && (!has_env || (flags & PEN_SCENE_SAVE_SH_LIGHTING))) {
+    const int sh_written = !has_env || (flags & PEN_SCENE_SAVE_SH_LIGHTING);
+    if (ok && sh_written) {
         cJSON *rows = cJSON_CreateArray();
         ok = pen__json_add(o, "sh", rows);
         for (int i = 0; ok && i < sc->sh_bands * sc->sh_bands; ++i)
             ok = cJSON_AddItemToArray(rows, pen__json_float_array(L->sh[i], 3));
     }
-    if (ok) ok = lights_json(L, o);
+    if (ok) ok = lights_json(L, sh_written, o);
     if (!ok) cJSON_Delete(o);
     return ok ? o : NULL;
 }

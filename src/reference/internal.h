@@ -1,10 +1,11 @@
 /* Internal pieces of the reference renderer shared by its files: the counter-based random
- * numbers and the environment map's importance-sampling tables. */
+ * numbers, the environment map's importance-sampling tables and the disk lights' sampling. */
 #ifndef PEN_REFERENCE_INTERNAL_H
 #define PEN_REFERENCE_INTERNAL_H
 
 #include "core/random.h"
 #include "penumbra/image.h"
+#include "penumbra/scene.h"
 
 #include <stdint.h>
 
@@ -70,5 +71,28 @@ static inline float pen__texel(const pen_image *img, int x, int y, int ch) {
     return img
         ->data[((size_t)y * (size_t)img->width + (size_t)x) * (size_t)img->channels + (size_t)c];
 }
+
+/* ---- Disk lights (src/reference/lights.c) ------------------------------------------------------
+ * Each light as a disk of uniform radiance E / (pi sin^2 b), sampled uniformly in solid angle. */
+typedef struct pen__ref_light {
+    double d[3], t[3], s[3]; /* unit direction and a basis around it */
+    double one_minus_cos;    /* 1 - cos b, as 2 sin^2(b / 2) */
+    double sin2;             /* sin^2 b */
+    double pdf;              /* cone sampling's density, 1 / (2 pi (1 - cos b)) */
+    double radiance[3];
+} pen__ref_light;
+
+typedef struct pen__ref_lights {
+    int count;
+    pen__ref_light l[PEN_SCENE_MAX_LIGHTS];
+} pen__ref_lights;
+
+/* The lights in use (count of them; a light without a direction or size is skipped). */
+void pen__ref_lights_init(const pen_light *lights, int count, pen__ref_lights *out);
+/* The summed radiance of the lights whose disks hold the unit direction w, into L; returns the
+ * sum of their cone-sampling densities (0 when w is in none). */
+double pen__ref_lights_eval(const pen__ref_lights *ls, const float w[3], float L[3]);
+/* A direction uniform in solid angle over light l's disk, from r1, r2 in [0, 1). */
+void pen__ref_light_sample(const pen__ref_light *l, float r1, float r2, float w[3]);
 
 #endif

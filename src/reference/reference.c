@@ -63,6 +63,7 @@ struct pen_reference {
     int sh_bands;
     float cosine_zonal[PEN_SH_MAX_BANDS]; /* clamped cosine as a zonal function, SH lighting */
     pen__envmap_sampler sampler;          /* ENVMAP lighting only */
+    pen__ref_lights lights;               /* the disk lights rendered (see lights_in_use) */
 };
 
 /* ---- Lighting -------------------------------------------------------------------------------
@@ -150,11 +151,55 @@ static float sample_cosine(const float n[3], float r1, float r2, float w[3]) {
     return cos_t;
 }
 
+/* The map's radiance along world direction w (its texel, as the light strategy sees it) and
+ * the light strategy's density there. */
+static float map_lookup(const pen_reference *ref, const float w[3], float L[3]) {
+    float m[3], u, v;
+    int tx, ty;
+    world_to_map(ref, w, m);
+    pen_envmap_uv(m, &u, &v);
+    pen__envmap_texel(&ref->scene->lighting.envmap, u, v, &tx, &ty);
+    float sin_t = sqrtf(fmaxf(0.0f, 1.0f - m[1] * m[1]));
+    envmap_texel_radiance(ref, tx, ty, L);
+    return pen__envmap_sampler_pdf(&ref->sampler, tx, ty, sin_t);
+}
+
+/* Adds the disk lights' radiance along w to L; returns their cone-sampling densities' sum. */
+static float add_lights(const pen_reference *ref, const float w[3], float L[3]) {
+    float Ld[3];
+    float p = (float)pen__ref_lights_eval(&ref->lights, w, Ld);
+    for (int ch = 0; ch < 3; ++ch)
+        L[ch] += Ld[ch];
+    return p;
+}
+
+/* One cone sample per disk light, in the same balance heuristic as the other strategies: the
+ * integrand is the lights' radiance (plus the map's when with_map) times V cos, over the sum of
+ * every strategy's density (the map's when with_map, the cosine's, each light's). */
+static void light_samples(const pen_reference *ref, const float org[3], const float n[3],
+                          int with_map, pen__rng *rng, float E[3]) {
+    const pen__ref_lights *ls = &ref->lights;
+    for (int k = 0; k < ls->count; ++k) {
+        float r1 = pen__rng_next(rng), r2 = pen__rng_next(rng), w[3], L[3];
+        pen__ref_light_sample(&ls->l[k], r1, r2, w);
+        float c = pen__dot_f(n, w);
+        if (!(c > 0)) continue;
+        float p = c / PEN_PI_F;
+        if (with_map) p += map_lookup(ref, w, L);
+        else L[0] = L[1] = L[2] = 0.0f;
+        p += add_lights(ref, w, L);
+        if (occluded(ref, org, w)) continue;
+        for (int ch = 0; ch < 3; ++ch)
+            E[ch] += L[ch] * (c / p);
+    }
+}
+
 /* One sample (pair) of the irradiance estimator at origin `org` (already off the surface) with
- * unit normal n; adds to E. */
+ * unit normal n, plus one sample per disk light in use; adds to E. */
 static void irradiance_sample(const pen_reference *ref, const float org[3], const float n[3],
                               pen__rng *rng, float E[3]) {
     float w[3], L[3];
+    const int lights = ref->lights.count;
     if (ref->lighting == PEN_REFERENCE_LIGHTING_SH) {
         /* Control variate: the unoccluded irradiance is known in closed form, so only the light
          * that blockers remove is estimated; unshadowed points get no noise at all. */
@@ -166,13 +211,19 @@ static void irradiance_sample(const pen_reference *ref, const float org[3], cons
                 E[ch] += ref->scene->lighting.sh[k][ch] * a[k];
         float r1 = pen__rng_next(rng), r2 = pen__rng_next(rng);
         float c = sample_cosine(n, r1, r2, w);
-        if (!(c > 0) || !occluded(ref, org, w)) return;
-        sh_radiance(ref, w, L);
-        for (int ch = 0; ch < 3; ++ch)
-            E[ch] -= PEN_PI_F * L[ch];
+        if (c > 0 && occluded(ref, org, w)) {
+            sh_radiance(ref, w, L);
+            for (int ch = 0; ch < 3; ++ch)
+                E[ch] -= PEN_PI_F * L[ch];
+        } else if (c > 0 && lights) { /* the cosine sample as a strategy for the lights */
+            float p = (float)pen__ref_lights_eval(&ref->lights, w, L);
+            if (p > 0)
+                for (int ch = 0; ch < 3; ++ch)
+                    E[ch] += L[ch] * (c / (p + c / PEN_PI_F));
+        }
+        if (lights) light_samples(ref, org, n, 0, rng, E);
         return;
     }
-    const pen_image *env = &ref->scene->lighting.envmap;
     float m[3], u, v;
     int tx, ty;
     if (ref->sampler.total > 0) { /* light strategy */
@@ -187,6 +238,7 @@ static void irradiance_sample(const pen_reference *ref, const float org[3], cons
         float pl = pen__envmap_sampler_pdf(&ref->sampler, tx, ty, sinf(PEN_PI_F * v));
         if (c > 0 && pl > 0 && !occluded(ref, org, w)) {
             envmap_texel_radiance(ref, tx, ty, L);
+            if (lights) pl += add_lights(ref, w, L); /* given on top of the map */
             float k = c / (pl + c / PEN_PI_F);
             for (int ch = 0; ch < 3; ++ch)
                 E[ch] += L[ch] * k;
@@ -195,17 +247,15 @@ static void irradiance_sample(const pen_reference *ref, const float org[3], cons
     { /* cosine strategy */
         float r1 = pen__rng_next(rng), r2 = pen__rng_next(rng);
         float c = sample_cosine(n, r1, r2, w);
-        if (!(c > 0) || occluded(ref, org, w)) return;
-        world_to_map(ref, w, m);
-        pen_envmap_uv(m, &u, &v);
-        pen__envmap_texel(env, u, v, &tx, &ty);
-        float sin_t = sqrtf(fmaxf(0.0f, 1.0f - m[1] * m[1]));
-        float pl = pen__envmap_sampler_pdf(&ref->sampler, tx, ty, sin_t);
-        envmap_texel_radiance(ref, tx, ty, L);
-        float k = c / (pl + c / PEN_PI_F);
-        for (int ch = 0; ch < 3; ++ch)
-            E[ch] += L[ch] * k;
+        if (c > 0 && !occluded(ref, org, w)) {
+            float pl = map_lookup(ref, w, L);
+            if (lights) pl += add_lights(ref, w, L);
+            float k = c / (pl + c / PEN_PI_F);
+            for (int ch = 0; ch < 3; ++ch)
+                E[ch] += L[ch] * k;
+        }
     }
+    if (lights) light_samples(ref, org, n, 1, rng, E);
 }
 
 /* ---- Surfaces ---------------------------------------------------------------------------------
@@ -335,6 +385,20 @@ static pen_status check_scene(pen_context *ctx, const pen_scene *sc, int need_sh
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "reference: lighting: bad scale or rotation");
     if (sc->lighting.envmap.data && check_image(ctx, &sc->lighting.envmap, "envmap", 0))
         return PEN_ERROR_ARGUMENT;
+    if (sc->lighting.light_count < 0 || sc->lighting.light_count > PEN_SCENE_MAX_LIGHTS)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "reference: %d lights, expected [0, %d]",
+                          sc->lighting.light_count, PEN_SCENE_MAX_LIGHTS);
+    for (int k = 0; k < sc->lighting.light_count; ++k) {
+        const pen_light *l = &sc->lighting.lights[k];
+        if (!pen__finite3(l->direction) || !pen__finite3(l->irradiance) ||
+            !(pen__dot_f(l->direction, l->direction) > 0) ||
+            !(l->angular_radius_deg >= (float)PEN_SCENE_MIN_LIGHT_RADIUS_DEG &&
+              l->angular_radius_deg <= (float)PEN_SCENE_MAX_LIGHT_RADIUS_DEG))
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "reference: lighting.lights[%d]: needs a finite nonzero direction, "
+                              "a finite irradiance and an angular radius in [%g, %g] degrees",
+                              k, PEN_SCENE_MIN_LIGHT_RADIUS_DEG, PEN_SCENE_MAX_LIGHT_RADIUS_DEG);
+    }
     if (sc->object_count < 0 || (sc->object_count > 0 && !sc->objects))
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "reference: bad object count %d",
                           sc->object_count);
@@ -451,16 +515,21 @@ static pen_status build_embree(pen_context *ctx, pen_reference *ref) {
     return embree_status(ctx, ref->device, "building the scene");
 }
 
-/* Whether the scene's SH lighting is its envmap's projection. A scene may give "sh" next to an
- * envmap (optimized lighting saved with PEN_SCENE_SAVE_SH_LIGHTING): then the SH is the lighting
- * `render` uses and the map only the background, so AUTO must not light with the map. The
- * projection is deterministic, so a scene loaded from an envmap matches it to rounding. */
+/* Whether the scene's SH lighting is its envmap's projection (with lights found in the map, the
+ * projection of what they leave: pen_envmap_lighting, as the loader does). A scene may give "sh"
+ * next to an envmap (optimized lighting saved with PEN_SCENE_SAVE_SH_LIGHTING): then the SH is
+ * the lighting `render` uses and the map only the background, so AUTO must not light with the
+ * map. The projection is deterministic, so a scene loaded from an envmap matches it to
+ * rounding. */
 static int sh_is_projection(pen_context *ctx, const pen_scene *sc) {
     const pen_lighting *lt = &sc->lighting;
     if (sc->sh_bands < 1 || sc->sh_bands > PEN_SH_MAX_BANDS) return 1; /* check_scene reports */
     float proj[PEN_SH_MAX_COEFFS][3];
-    pen_status st =
-        pen_envmap_to_sh(ctx, &lt->envmap, sc->sh_bands, lt->rotation_y_deg, lt->scale, proj);
+    pen_light found[PEN_SCENE_MAX_LIGHTS];
+    int count = 0, max = lt->lights_mode == PEN_LIGHTS_AUTO ? lt->lights_max : 0;
+    max = max < 0 ? 0 : max > PEN_SCENE_MAX_LIGHTS ? PEN_SCENE_MAX_LIGHTS : max;
+    pen_status st = pen_envmap_lighting(ctx, &lt->envmap, sc->sh_bands, lt->rotation_y_deg,
+                                        lt->scale, max, proj, found, &count);
     if (st) {
         pen_context_clear_error(ctx); /* a broken map is reported by the envmap checks */
         return 1;
@@ -529,6 +598,11 @@ pen_status pen_reference_create(pen_context *ctx, const pen_scene *scene,
     ref->eps = 1e-5f * fmaxf(extent, 1.0f);
     if (!st && lighting == PEN_REFERENCE_LIGHTING_ENVMAP)
         st = pen__envmap_sampler_init(ctx, &scene->lighting.envmap, &ref->sampler);
+    /* The full map already holds the lights found in it: only given ones are added to it. The
+     * SH lighting is render's, the SH part plus every light (docs/design.md sec. 2). */
+    if (!st && (lighting == PEN_REFERENCE_LIGHTING_SH ||
+                scene->lighting.lights_mode == PEN_LIGHTS_GIVEN))
+        pen__ref_lights_init(scene->lighting.lights, scene->lighting.light_count, &ref->lights);
     if (!st) st = build_embree(ctx, ref);
     if (st) {
         pen_reference_destroy(ref);

@@ -1,0 +1,228 @@
+/* Lights found in environment maps (pen_envmap_extract_lights, docs/design.md sec. 1.14): a
+ * synthetic sun is found where it is, with its size and irradiance; the residual plus the lights
+ * carry the map's SH (the DC exactly); a map without a compact source gives none; max_lights 0
+ * is the plain projection bit for bit; the bundled city map's sun is found; loading a scene with
+ * a map finds it (lights AUTO); and the SH-only lighting ("lights": "none") renders the bundled
+ * scene exactly as before lights existed (its recorded golden hash). */
+#include "io_fixtures.h"
+
+#include <stdint.h>
+
+#define ctx fixture_ctx()
+
+static const double DEG = 3.14159265358979323846 / 180.0;
+
+/* A W x H sky of radiance `sky` with a disk of radius r_deg around dir of radiance sun (RGB). */
+static pen_image sun_map(int W, int H, const double dir[3], double r_deg, const double sun[3],
+                         double sky) {
+    pen_image im;
+    CHECK(pen_image_create(ctx, W, H, 3, &im) == PEN_OK);
+    for (int y = 0; y < H; ++y)
+        for (int x = 0; x < W; ++x) {
+            float d[3];
+            pen_envmap_direction((x + 0.5f) / (float)W, (y + 0.5f) / (float)H, d);
+            double c = (double)d[0] * dir[0] + (double)d[1] * dir[1] + (double)d[2] * dir[2];
+            for (int ch = 0; ch < 3; ++ch)
+                im.data[3 * ((size_t)y * W + x) + ch] =
+                    (float)(sky + (c >= cos(r_deg * DEG) ? sun[ch] : 0.0));
+        }
+    return im;
+}
+
+/* The integral of channel ch of a map over the sphere (exact texel solid angles). */
+static double map_integral(const pen_image *im, int ch) {
+    double s = 0.0;
+    for (int y = 0; y < im->height; ++y) {
+        double om = 2.0 * 3.14159265358979323846 / im->width *
+                    (cos(3.14159265358979323846 * y / im->height) -
+                     cos(3.14159265358979323846 * (y + 1) / im->height));
+        for (int x = 0; x < im->width; ++x)
+            s += om * fmax(0.0, im->data[3 * ((size_t)y * im->width + x) + ch]);
+    }
+    return s;
+}
+
+static double angle_deg(const float a[3], const double b[3]) {
+    double c = ((double)a[0] * b[0] + (double)a[1] * b[1] + (double)a[2] * b[2]) /
+               sqrt((double)(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]));
+    return acos(fmin(1.0, fmax(-1.0, c))) / DEG;
+}
+
+static void test_synthetic_sun(void) {
+    const double el = 35 * DEG, az = 0.8;
+    const double dir[3] = {cos(el) * sin(az), sin(el), cos(el) * cos(az)};
+    const double sun[3] = {2000.0, 1500.0, 900.0}, r = 2.0;
+    pen_image im = sun_map(512, 256, dir, r, sun, 1.0);
+    pen_light L[4];
+    int n = -1;
+    pen_image res;
+    CHECK(pen_envmap_extract_lights(ctx, &im, 0.0f, 1.0f, 4, L, &n, &res) == PEN_OK);
+    CHECK(n == 1);
+    CHECK(angle_deg(L[0].direction, dir) < 0.2);
+    CHECK_NEAR(L[0].angular_radius_deg, r, 0.25);
+    /* The disk's excess over the sky: sun times its solid angle (up to the texel raster), and
+     * the residual is the sky. */
+    const double omega = 2.0 * 3.14159265358979323846 * (1.0 - cos(r * DEG));
+    for (int ch = 0; ch < 3; ++ch)
+        CHECK_REL(L[0].irradiance[ch], sun[ch] * omega, 0.05, 0.0);
+    for (size_t i = 0; i < 3 * (size_t)res.width * (size_t)res.height; ++i)
+        CHECK_NEAR(res.data[i], 1.0, 1e-5);
+    /* Energy: residual + light = map in every channel, through the irradiance convention. */
+    for (int ch = 0; ch < 3; ++ch) {
+        double b = (double)L[0].angular_radius_deg * DEG;
+        double light = 2.0 * (double)L[0].irradiance[ch] / (1.0 + cos(b));
+        CHECK_REL(map_integral(&res, ch) + light, map_integral(&im, ch), 1e-5, 0.0);
+    }
+    /* SH: the residual's projection plus the light's is the map's (DC to rounding, the other
+     * coefficients up to the disk-versus-raster shape, a small fraction of the sun's). */
+    float sm[64][3], sr[64][3], sl[64][3];
+    CHECK(pen_envmap_to_sh(ctx, &im, 8, 0.0f, 1.0f, sm) == PEN_OK);
+    CHECK(pen_envmap_to_sh(ctx, &res, 8, 0.0f, 1.0f, sr) == PEN_OK);
+    pen_light_to_sh(8, &L[0], sl);
+    for (int ch = 0; ch < 3; ++ch) {
+        CHECK_REL(sr[0][ch] + sl[0][ch], sm[0][ch], 1e-5, 0.0);
+        for (int i = 1; i < 64; ++i)
+            CHECK_NEAR(sr[i][ch] + sl[i][ch], sm[i][ch], 0.01 * (double)sm[0][ch]);
+    }
+    /* A rotated, scaled map: the light turns with it and scales; the residual is in map space. */
+    pen_light Lr[4];
+    int nr = -1;
+    CHECK(pen_envmap_extract_lights(ctx, &im, 40.0f, 2.0f, 4, Lr, &nr, NULL) == PEN_OK);
+    CHECK(nr == 1);
+    const double a = 40 * DEG;
+    const double wdir[3] = {cos(a) * dir[0] + sin(a) * dir[2], dir[1],
+                            -sin(a) * dir[0] + cos(a) * dir[2]};
+    CHECK(angle_deg(Lr[0].direction, wdir) < 0.2);
+    for (int ch = 0; ch < 3; ++ch)
+        CHECK_REL(Lr[0].irradiance[ch], 2.0 * (double)L[0].irradiance[ch], 1e-5, 0.0);
+    /* Deterministic. */
+    pen_light L2[4];
+    int n2 = -1;
+    CHECK(pen_envmap_extract_lights(ctx, &im, 0.0f, 1.0f, 4, L2, &n2, NULL) == PEN_OK);
+    CHECK(n2 == n && memcmp(L, L2, sizeof(pen_light) * (size_t)n) == 0);
+    pen_image_free(&res);
+    pen_image_free(&im);
+}
+
+static void test_no_lights(void) {
+    /* A smooth sky (a gradient with no compact peak) has none; the residual is the map. */
+    pen_image im;
+    CHECK(pen_image_create(ctx, 64, 32, 3, &im) == PEN_OK);
+    for (int y = 0; y < 32; ++y)
+        for (int x = 0; x < 64; ++x)
+            for (int ch = 0; ch < 3; ++ch)
+                im.data[3 * (y * 64 + x) + ch] = (float)(1.0 + 0.5 * ch + 3.0 * (32 - y) / 32.0);
+    pen_light L[4];
+    int n = -1;
+    pen_image res;
+    CHECK(pen_envmap_extract_lights(ctx, &im, 0.0f, 1.0f, 4, L, &n, &res) == PEN_OK);
+    CHECK(n == 0);
+    CHECK(memcmp(res.data, im.data, sizeof(float) * 3 * 64 * 32) == 0);
+    pen_image_free(&res);
+    /* max_lights 0: the plain projection, bit for bit, and no lights. */
+    const double dir[3] = {0.0, 0.6, 0.8}, sun[3] = {500, 500, 500};
+    pen_image sm = sun_map(128, 64, dir, 3.0, sun, 0.5);
+    float a[16][3], b[16][3];
+    CHECK(pen_envmap_to_sh(ctx, &sm, 4, 20.0f, 1.5f, a) == PEN_OK);
+    n = 7; /* a scene's own count: left alone */
+    CHECK(pen_envmap_lighting(ctx, &sm, 4, 20.0f, 1.5f, 0, b, L, &n) == PEN_OK);
+    CHECK(n == 7 && memcmp(a, b, sizeof a) == 0);
+    /* ... and with lights, the residual's projection with the light found. */
+    CHECK(pen_envmap_lighting(ctx, &sm, 4, 20.0f, 1.5f, 2, b, L, &n) == PEN_OK);
+    CHECK(n == 1);
+    CHECK(b[0][0] < 0.8f * a[0][0] && b[0][0] > 0.4f * a[0][0]); /* the sun holds about 40% */
+    /* Errors. */
+    CHECK_ERROR(ctx, pen_envmap_extract_lights(ctx, &sm, 0.0f, 1.0f, 17, L, &n, NULL),
+                PEN_ERROR_ARGUMENT, "max_lights 17");
+    CHECK_ERROR(ctx, pen_envmap_extract_lights(ctx, &sm, 0.0f, -1.0f, 1, L, &n, NULL),
+                PEN_ERROR_ARGUMENT, "scale");
+    sm.data[7] = NAN;
+    CHECK_ERROR(ctx, pen_envmap_extract_lights(ctx, &sm, 0.0f, 1.0f, 1, L, &n, NULL),
+                PEN_ERROR_ARGUMENT, "not finite");
+    pen_image_free(&sm);
+    pen_image_free(&im);
+}
+
+static void test_bundled_city(void) {
+    /* The city map's sun: u, v = 0.600, 0.235 (data/README.md), about 48 degrees up. */
+    char path[512];
+    snprintf(path, sizeof path, "%s/data/envmaps/city.exr", PEN_SOURCE_DIR);
+    pen_image im;
+    CHECK(pen_image_load(ctx, path, &im) == PEN_OK);
+    pen_light L[PEN_LIGHTS_DEFAULT_MAX];
+    int n = -1;
+    CHECK(pen_envmap_extract_lights(ctx, &im, 0.0f, 1.0f, PEN_LIGHTS_DEFAULT_MAX, L, &n, NULL) ==
+          PEN_OK);
+    CHECK(n >= 1);
+    float want[3];
+    pen_envmap_direction(0.600f, 0.235f, want);
+    double w[3] = {want[0], want[1], want[2]};
+    CHECK(angle_deg(L[0].direction, w) < 1.0);
+    CHECK(L[0].angular_radius_deg < 2.0f);
+    pen_image_free(&im);
+}
+
+typedef struct golden {
+    const char *name;
+    uint64_t hash;
+    int fast;
+} golden;
+static const golden recorded[] = {
+#include "golden_table.inc"
+    {NULL, 0, 0},
+};
+
+static void test_scene_auto_and_none(void) {
+    char path[512];
+    snprintf(path, sizeof path, "%s/examples/scenes/spot_city.json", PEN_SOURCE_DIR);
+    pen_context *c2 = pen_context_create();
+    pen_context_set_threads(c2, 2); /* as test_golden recorded it */
+    pen_scene sc;
+    CHECK(pen_scene_load(c2, path, &sc) == PEN_OK);
+    /* AUTO (no "lights" key): the sun, and the residual's projection. */
+    const pen_lighting *L = &sc.lighting;
+    CHECK(L->lights_mode == PEN_LIGHTS_AUTO && L->lights_max == PEN_LIGHTS_DEFAULT_MAX);
+    CHECK(L->light_count == 1);
+    float sh[PEN_SH_MAX_COEFFS][3], full[PEN_SH_MAX_COEFFS][3];
+    pen_light found[PEN_SCENE_MAX_LIGHTS];
+    int n = 0;
+    CHECK(pen_envmap_lighting(c2, &L->envmap, sc.sh_bands, L->rotation_y_deg, L->scale,
+                              L->lights_max, sh, found, &n) == PEN_OK);
+    CHECK(n == 1 && memcmp(found, L->lights, sizeof(pen_light)) == 0);
+    CHECK(memcmp(sh, L->sh, sizeof(float) * 3 * (size_t)(sc.sh_bands * sc.sh_bands)) == 0);
+    /* "none": what the loader does for it (the whole map's projection, no lights) renders the
+     * image test_golden recorded before lights existed, bit for bit. */
+    CHECK(pen_envmap_lighting(c2, &L->envmap, sc.sh_bands, L->rotation_y_deg, L->scale, 0, full,
+                              found, &n) == PEN_OK);
+    memcpy(sc.lighting.sh, full, sizeof full);
+    sc.lighting.light_count = 0;
+    sc.lighting.lights_mode = PEN_LIGHTS_NONE;
+    sc.camera.width = sc.camera.height = 96;
+    pen_object *ob = &sc.objects[0];
+    pen_fit_settings fs;
+    pen_fit_settings_default(&fs);
+    CHECK(pen_spheres_fit(c2, &ob->mesh, ob->fit_spheres, &fs, &ob->spheres, NULL) == PEN_OK);
+    ob->fit_spheres = 0;
+    pen_render_options opt = pen_render_options_default();
+    opt.kernel = PEN_RENDER_KERNEL_SCALAR;
+    pen_image img = {0, 0, 0, NULL};
+    CHECK(pen_render_fwd(c2, &sc, &opt, NULL, &img) == PEN_OK);
+    uint64_t h = 0xcbf29ce484222325ull;
+    const unsigned char *p = (const unsigned char *)img.data;
+    for (size_t i = 0; i < sizeof(float) * 3 * 96 * 96; ++i)
+        h = (h ^ p[i]) * 0x100000001b3ull;
+    int seen = 0;
+    for (size_t i = 0; recorded[i].name; ++i)
+        if (strcmp(recorded[i].name, "scenes/spot_city.json scalar shadows image") == 0) {
+            seen = 1;
+            CHECK_MSG(recorded[i].hash == h, "hash 0x%016llx, recorded 0x%016llx",
+                      (unsigned long long)h, (unsigned long long)recorded[i].hash);
+        }
+    CHECK(seen);
+    pen_image_free(&img);
+    pen_scene_free(&sc);
+    pen_context_destroy(c2);
+}
+
+RUN_TESTS(TEST(test_synthetic_sun), TEST(test_no_lights), TEST(test_bundled_city),
+          TEST(test_scene_auto_and_none))
