@@ -202,7 +202,15 @@ pen_status pen__render_overlap_weights(pen_context *ctx, const pen_scene *sc,
         } else if (sp->weight) {
             memcpy(k, sp->weight, sizeof(float) * (size_t)sp->count);
         } else {
-            if ((s = pen_spheres_overlap_weights(ctx, sp, k))) return s;
+            /* Name the input at fault: the scene file, the object and its sphere file. */
+            if ((s = pen_spheres_overlap_weights(ctx, sp, k))) {
+                const pen_object *ob = &sc->objects[o];
+                return pen__error_prefix(ctx, s, "%s: objects[%d].spheres%s%s%s: ",
+                                         sc->path ? sc->path : "scene", o,
+                                         ob->spheres_path ? " (" : "",
+                                         ob->spheres_path ? ob->spheres_path : "",
+                                         ob->spheres_path ? ")" : "");
+            }
             memcpy(key, sp->data, sizeof(float) * nkey);
         }
     }
