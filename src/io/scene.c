@@ -28,11 +28,6 @@ typedef pen__json_where where;
 /* The bound on every coordinate (penumbra/scene.h), short for the many uses below. */
 #define COORD PEN_SCENE_MAX_COORD
 
-/* Reads an optional member: absent leaves *out as is (the default). */
-static const cJSON *member(const cJSON *obj, const char *name) {
-    return cJSON_GetObjectItemCaseSensitive(obj, name);
-}
-
 /* The key path of member `name` of the object at `w`. */
 static where at(const where *w, const char *name) {
     where c;
@@ -40,16 +35,9 @@ static where at(const where *w, const char *name) {
     return c;
 }
 
-static pen_status need_object(pen_context *ctx, const where *w, const cJSON *item) {
-    if (cJSON_IsObject(item)) return PEN_OK;
-    if (!item) return pen__json_error(ctx, PEN_ERROR_PARSE, w, "missing (expected an object)");
-    return pen__json_error(ctx, PEN_ERROR_PARSE, w, "expected an object, got %s",
-                           pen__json_type_name(item));
-}
-
 static pen_status opt_number(pen_context *ctx, const where *w, const cJSON *obj, const char *name,
                              double lo, double hi, const char *what, float *out) {
-    const cJSON *item = member(obj, name);
+    const cJSON *item = pen__json_member(obj, name);
     if (!item) return PEN_OK;
     where wk = at(w, name);
     double v;
@@ -60,7 +48,7 @@ static pen_status opt_number(pen_context *ctx, const where *w, const cJSON *obj,
 
 static pen_status opt_floats(pen_context *ctx, const where *w, const cJSON *obj, const char *name,
                              double lo, double hi, float *out) {
-    const cJSON *item = member(obj, name);
+    const cJSON *item = pen__json_member(obj, name);
     if (!item) return PEN_OK;
     where wk = at(w, name);
     return pen__json_floats(ctx, &wk, item, 3, lo, hi, out);
@@ -90,17 +78,17 @@ static pen_status check_values(pen_context *ctx, const char *path, const pen_ima
  * length is accepted, docs/file-formats.md). */
 static pen_status parse_light(pen_context *ctx, const where *w, const cJSON *o, pen_light *l) {
     static const char *const known[] = {"direction", "angular_radius_deg", "irradiance", NULL};
-    pen_status s = need_object(ctx, w, o);
+    pen_status s = pen__json_need_object(ctx, w, o);
     if (!s) s = pen__json_known_keys(ctx, w, o, known);
     if (s) return s;
     static const char *const need[] = {"direction", "angular_radius_deg", "irradiance"};
     for (int k = 0; k < 3; ++k)
-        if (!member(o, need[k])) {
+        if (!pen__json_member(o, need[k])) {
             where wk = at(w, need[k]);
             return pen__json_error(ctx, PEN_ERROR_PARSE, &wk, "missing");
         }
     where wd = at(w, "direction");
-    s = pen__json_floats(ctx, &wd, member(o, "direction"), 3, -COORD, COORD, l->direction);
+    s = pen__json_floats(ctx, &wd, pen__json_member(o, "direction"), 3, -COORD, COORD, l->direction);
     if (s) return s;
     const double len = sqrt((double)l->direction[0] * (double)l->direction[0] +
                             (double)l->direction[1] * (double)l->direction[1] +
@@ -119,7 +107,7 @@ static pen_status parse_light(pen_context *ctx, const where *w, const cJSON *o, 
 /* lighting.lights: an array of lights (GIVEN), "none", or {"max": K} (AUTO); absent: AUTO with
  * PEN_LIGHTS_DEFAULT_MAX. */
 static pen_status parse_lights(pen_context *ctx, const where *wl, const cJSON *o, pen_lighting *L) {
-    const cJSON *item = member(o, "lights");
+    const cJSON *item = pen__json_member(o, "lights");
     where w = at(wl, "lights");
     L->light_count = 0;
     L->lights_mode = PEN_LIGHTS_AUTO;
@@ -138,9 +126,9 @@ static pen_status parse_lights(pen_context *ctx, const where *wl, const cJSON *o
     if (cJSON_IsObject(item)) {
         static const char *const known[] = {"max", NULL};
         pen_status s = pen__json_known_keys(ctx, &w, item, known);
-        if (s || !member(item, "max")) return s;
+        if (s || !pen__json_member(item, "max")) return s;
         where wm = at(&w, "max");
-        return pen__json_int(ctx, &wm, member(item, "max"), 0, PEN_SCENE_MAX_LIGHTS,
+        return pen__json_int(ctx, &wm, pen__json_member(item, "max"), 0, PEN_SCENE_MAX_LIGHTS,
                              "an integer in [0, 16]", &L->lights_max);
     }
     if (!cJSON_IsArray(item))
@@ -178,17 +166,17 @@ static pen_status envmap_lighting(pen_context *ctx, int bands, pen_lighting *L) 
 static pen_status parse_lighting(pen_context *ctx, const char *path, const where *top,
                                  const cJSON *root, int bands, pen_lighting *L) {
     where w = at(top, "lighting");
-    const cJSON *o = member(root, "lighting");
+    const cJSON *o = pen__json_member(root, "lighting");
     static const char *const known[] = {"envmap", "scale", "rotation_y_deg", "sh", "lights", NULL};
-    pen_status s = need_object(ctx, &w, o);
+    pen_status s = pen__json_need_object(ctx, &w, o);
     if (!s) s = pen__json_known_keys(ctx, &w, o, known);
     if (!s) s = parse_lights(ctx, &w, o, L);
     if (s) return s;
-    const cJSON *env = member(o, "envmap"), *sh = member(o, "sh");
+    const cJSON *env = pen__json_member(o, "envmap"), *sh = pen__json_member(o, "sh");
     L->scale = 1.0f;
     L->rotation_y_deg = 0.0f;
     if (!env && !sh) return pen__json_error(ctx, PEN_ERROR_PARSE, &w, "needs \"envmap\" or \"sh\"");
-    if (!env && (member(o, "scale") || member(o, "rotation_y_deg")))
+    if (!env && (pen__json_member(o, "scale") || pen__json_member(o, "rotation_y_deg")))
         return pen__json_error(ctx, PEN_ERROR_PARSE, &w,
                                "\"scale\" and \"rotation_y_deg\" apply to an \"envmap\" only");
     if (env) {
@@ -239,14 +227,14 @@ static pen_status parse_lighting(pen_context *ctx, const char *path, const where
 static pen_status parse_shadow(pen_context *ctx, const where *top, const cJSON *root, int bands,
                                pen_shadow *sh) {
     where w = at(top, "shadow");
-    const cJSON *o = member(root, "shadow");
+    const cJSON *o = pen__json_member(root, "shadow");
     sh->exp = PEN_SH_EXP_CALIBRATED;
     pen_status s = PEN_OK;
     if (o) {
         static const char *const known[] = {"epsilon", "exp", "overlap", "ground", NULL};
-        s = need_object(ctx, &w, o);
+        s = pen__json_need_object(ctx, &w, o);
         if (!s) s = pen__json_known_keys(ctx, &w, o, known);
-        const cJSON *e = member(o, "exp");
+        const cJSON *e = pen__json_member(o, "exp");
         if (!s && e) {
             where we = at(&w, "exp");
             const char *name;
@@ -262,13 +250,13 @@ static pen_status parse_shadow(pen_context *ctx, const where *top, const cJSON *
         static const char *const overlaps[] = {"weights", "none", NULL};
         static const char *const grounds[] = {"occludes", "receiver", NULL};
         int k = 0;
-        const cJSON *v = member(o, "overlap");
+        const cJSON *v = pen__json_member(o, "overlap");
         if (!s && v) {
             where wv = at(&w, "overlap");
             s = pen__json_choice(ctx, &wv, v, "overlap mode", overlaps, &k);
             sh->overlap = k == 1 ? PEN_OVERLAP_NONE : PEN_OVERLAP_WEIGHTS;
         }
-        const cJSON *g = member(o, "ground");
+        const cJSON *g = pen__json_member(o, "ground");
         if (!s && g) {
             where wg = at(&w, "ground");
             s = pen__json_choice(ctx, &wg, g, "ground mode", grounds, &k);
@@ -287,7 +275,7 @@ static pen_status parse_pose(pen_context *ctx, const where *w, const cJSON *o, p
     pose->scale = 1.0f;
     if (!o) return PEN_OK;
     static const char *const known[] = {"rotation_axis_angle_deg", "translation", "scale", NULL};
-    pen_status s = need_object(ctx, w, o);
+    pen_status s = pen__json_need_object(ctx, w, o);
     if (!s) s = pen__json_known_keys(ctx, w, o, known);
     if (!s)
         s = opt_floats(ctx, w, o, "rotation_axis_angle_deg", -1e6, 1e6,
@@ -319,7 +307,7 @@ static pen_status parse_spheres(pen_context *ctx, const char *path, const where 
         where wf = at(w, "fit");
         pen_status s = pen__json_known_keys(ctx, w, item, known);
         if (!s)
-            s = pen__json_int(ctx, &wf, member(item, "fit"), 1, SCENE_MAX_FIT_SPHERES,
+            s = pen__json_int(ctx, &wf, pen__json_member(item, "fit"), 1, SCENE_MAX_FIT_SPHERES,
                               "a sphere count in [1, 4096]", &obj->fit_spheres);
         return s;
     }
@@ -369,16 +357,16 @@ static pen_status parse_albedo(pen_context *ctx, const char *path, const where *
     const char *tex_rel = NULL;
     int baked_pixels = 0;
     pen_status s = PEN_OK;
-    if (member(o, "albedo_texture"))
-        s = pen__json_string(ctx, &wt, member(o, "albedo_texture"), &tex_rel);
-    if (!s && member(o, "albedo_texture_layout")) {
+    if (pen__json_member(o, "albedo_texture"))
+        s = pen__json_string(ctx, &wt, pen__json_member(o, "albedo_texture"), &tex_rel);
+    if (!s && pen__json_member(o, "albedo_texture_layout")) {
         static const char *const layouts[] = {"mesh", "baked", NULL};
-        s = pen__json_choice(ctx, &wl, member(o, "albedo_texture_layout"), "texture layout",
+        s = pen__json_choice(ctx, &wl, pen__json_member(o, "albedo_texture_layout"), "texture layout",
                              layouts, &baked_pixels);
         if (!s && !tex_rel)
             s = pen__json_error(ctx, PEN_ERROR_PARSE, &wl, "needs \"albedo_texture\"");
     }
-    if (!s && tex_rel && member(o, "albedo"))
+    if (!s && tex_rel && pen__json_member(o, "albedo"))
         s = pen__json_error(ctx, PEN_ERROR_PARSE, w,
                             "give \"albedo_texture\" or \"albedo\", not both");
     for (int k = 0; k < 3; ++k)
@@ -388,7 +376,7 @@ static pen_status parse_albedo(pen_context *ctx, const char *path, const where *
 
     int material = -1;
     pen_mesh_albedo_kind plan = PEN_MESH_ALBEDO_DEFAULT;
-    if (baked_pixels || (!tex_rel && !member(o, "albedo")))
+    if (baked_pixels || (!tex_rel && !pen__json_member(o, "albedo")))
         plan = pen_mesh_albedo_plan(&obj->mesh, &material);
     if (baked_pixels && plan != PEN_MESH_ALBEDO_BAKE)
         return pen__json_error(ctx, PEN_ERROR_PARSE, &wl,
@@ -438,13 +426,13 @@ static pen_status parse_object(pen_context *ctx, const char *path, const where *
                                pen_object *obj) {
     static const char *const known[] = {
         "mesh", "albedo_texture", "albedo_texture_layout", "albedo", "spheres", "pose", NULL};
-    pen_status s = need_object(ctx, w, o);
+    pen_status s = pen__json_need_object(ctx, w, o);
     if (!s) s = pen__json_known_keys(ctx, w, o, known);
     where wm = at(w, "mesh");
     const char *mesh_rel = NULL;
-    if (!s) s = pen__json_string(ctx, &wm, member(o, "mesh"), &mesh_rel);
+    if (!s) s = pen__json_string(ctx, &wm, pen__json_member(o, "mesh"), &mesh_rel);
     where wp = at(w, "pose"), ws = at(w, "spheres");
-    if (!s) s = parse_pose(ctx, &wp, member(o, "pose"), &obj->pose);
+    if (!s) s = parse_pose(ctx, &wp, pen__json_member(o, "pose"), &obj->pose);
     if (s) return s;
 
     obj->mesh_path = pen__io_path_resolve(ctx, path, mesh_rel);
@@ -452,13 +440,13 @@ static pen_status parse_object(pen_context *ctx, const char *path, const where *
     s = pen_mesh_load(ctx, obj->mesh_path, &obj->mesh);
     if (s) return pen__json_wrap(ctx, s, &wm);
     s = parse_albedo(ctx, path, w, o, obj);
-    return s ? s : parse_spheres(ctx, path, &ws, member(o, "spheres"), obj);
+    return s ? s : parse_spheres(ctx, path, &ws, pen__json_member(o, "spheres"), obj);
 }
 
 static pen_status parse_objects(pen_context *ctx, const char *path, const where *top,
                                 const cJSON *root, pen_scene *sc) {
     where w = at(top, "objects");
-    const cJSON *list = member(root, "objects");
+    const cJSON *list = pen__json_member(root, "objects");
     if (!cJSON_IsArray(list))
         return pen__json_error(ctx, PEN_ERROR_PARSE, &w, "%s (expected an array of objects)",
                                list ? pen__json_type_name(list) : "missing");
@@ -484,11 +472,11 @@ static pen_status parse_objects(pen_context *ctx, const char *path, const where 
 static pen_status parse_ground(pen_context *ctx, const where *top, const cJSON *root,
                                pen_ground *g) {
     where w = at(top, "ground");
-    const cJSON *o = member(root, "ground");
+    const cJSON *o = pen__json_member(root, "ground");
     memset(g, 0, sizeof *g);
     if (!o || cJSON_IsNull(o)) return PEN_OK;
     static const char *const known[] = {"height", "albedo", "half_size", NULL};
-    pen_status s = need_object(ctx, &w, o);
+    pen_status s = pen__json_need_object(ctx, &w, o);
     if (!s) s = pen__json_known_keys(ctx, &w, o, known);
     g->enabled = 1;
     for (int k = 0; k < 3; ++k)
@@ -506,7 +494,7 @@ static pen_status parse_ground(pen_context *ctx, const where *top, const cJSON *
 static pen_status parse_background(pen_context *ctx, const where *top, const cJSON *root,
                                    pen_scene *sc) {
     where w = at(top, "background");
-    const cJSON *b = member(root, "background");
+    const cJSON *b = pen__json_member(root, "background");
     int has_env = sc->lighting.envmap.data != NULL;
     memset(sc->background, 0, sizeof sc->background);
     sc->background_envmap = 0;
@@ -540,12 +528,12 @@ static pen_status parse_scene(pen_context *ctx, const char *path, const cJSON *r
     pen_status s = pen__json_known_keys(ctx, &top, root, known);
     sc->sh_bands = 4;
     where wb = at(&top, "sh_bands");
-    if (!s && member(root, "sh_bands"))
-        s = pen__json_int(ctx, &wb, member(root, "sh_bands"), 1, PEN_SH_MAX_BANDS,
+    if (!s && pen__json_member(root, "sh_bands"))
+        s = pen__json_int(ctx, &wb, pen__json_member(root, "sh_bands"), 1, PEN_SH_MAX_BANDS,
                           "an integer in [1, 8]", &sc->sh_bands);
     if (!s) {
         where wc = at(&top, "camera");
-        s = pen__io_camera_parse(ctx, &wc, member(root, "camera"), &sc->camera);
+        s = pen__io_camera_parse(ctx, &wc, pen__json_member(root, "camera"), &sc->camera);
     }
     if (!s) s = parse_shadow(ctx, &top, root, sc->sh_bands, &sc->shadow);
     if (!s) s = parse_ground(ctx, &top, root, &sc->ground);
