@@ -41,22 +41,8 @@ def main():
     size, spp, suffix = int(opts["--size"]), int(opts["--spp"]), opts["--suffix"]
     for d in ("scenes", "img"):
         os.makedirs(os.path.join(out, d), exist_ok=True)
-    th = ["--threads", "2"]
-
-    def img(name):
-        return os.path.join(out, "img", name + ".exr")
-
-    def ref(scene, name, n, seed, cov=None):
-        if not os.path.exists(img(name)):
-            vt.run([bin_, "reference", scene, "-o", img(name), "--spp", str(n), "--seed",
-                    str(seed), "--lighting", "envmap"] + th + (["--coverage", cov] if cov else []))
-        return img(name)
-
-    def render(scene, name, flags=()):
-        name += suffix
-        if not os.path.exists(img(name)):
-            vt.run([bin_, "render", scene, "-o", img(name), "-q"] + th + list(flags))
-        return img(name)
+    images = vt.Images(bin_, out, suffix, "envmap")
+    img, ref, render = images.img, images.ref, images.render
 
     def err(a, b, mask):
         j = json.loads(vt.run([bin_, "compare", a, b, "--mask", mask]))

@@ -169,6 +169,32 @@ def compare(bin_, a, b, mask):
     return j["rel_rmse"], j["mask"]["rel_rmse"]
 
 
+class Images:
+    """The images of a run in OUTDIR/img, made once and reused: references with the given
+    --lighting, and renders whose names carry the run's suffix (so that another binary's renders
+    compare with the same truths). Two threads each."""
+
+    def __init__(self, bin_, out, suffix, lighting):
+        self.bin, self.out, self.suffix, self.lighting = bin_, out, suffix, lighting
+        self.th = ["--threads", "2"]
+
+    def img(self, name):
+        return os.path.join(self.out, "img", name + ".exr")
+
+    def ref(self, scene, name, n, seed, cov=None):
+        if not os.path.exists(self.img(name)):
+            run([self.bin, "reference", scene, "-o", self.img(name), "--spp", str(n), "--seed",
+                 str(seed), "--lighting", self.lighting] + self.th +
+                (["--coverage", cov] if cov else []))
+        return self.img(name)
+
+    def render(self, scene, name, flags=()):
+        name += self.suffix
+        if not os.path.exists(self.img(name)):
+            run([self.bin, "render", scene, "-o", self.img(name), "-q"] + self.th + list(flags))
+        return self.img(name)
+
+
 def mesh_bounds(path):
     lo, hi = [math.inf] * 3, [-math.inf] * 3
     with open(path) as f:
@@ -326,22 +352,8 @@ def main():
     suffix = opts["--suffix"]
     for d in ("scenes", "img", "maps", "spheres"):
         os.makedirs(os.path.join(out, d), exist_ok=True)
-    th = ["--threads", "2"]
-
-    def img(name):
-        return os.path.join(out, "img", name + ".exr")
-
-    def ref(scene, name, n, seed, cov=None):
-        if not os.path.exists(img(name)):
-            run([bin_, "reference", scene, "-o", img(name), "--spp", str(n), "--seed", str(seed),
-                 "--lighting", "sh"] + th + (["--coverage", cov] if cov else []))
-        return img(name)
-
-    def render(scene, name, flags=()):
-        name += suffix
-        if not os.path.exists(img(name)):
-            run([bin_, "render", scene, "-o", img(name), "-q"] + th + list(flags))
-        return img(name)
+    images = Images(bin_, out, suffix, "sh")
+    img, ref, render = images.img, images.ref, images.render
 
     # Map scales: the unshadowed ground under each map at ~0.45 (Spot's scene, black background).
     scales = {}
@@ -374,7 +386,7 @@ def main():
         for n in COUNTS:
             sph[n] = os.path.join(out, "spheres", "%s_%d.json" % (mesh, n))
             if not os.path.exists(sph[n]):
-                run([bin_, "fit-spheres", mpath, "-n", str(n), "-o", sph[n]] + th)
+                run([bin_, "fit-spheres", mpath, "-n", str(n), "-o", sph[n]] + images.th)
         union = os.path.join(out, "spheres", "%s_union32.obj" % mesh)
         if proxy and not os.path.exists(union):
             sphere_union_obj(sph[32], union)
