@@ -87,7 +87,7 @@ static void test_flat_matches_render(void) {
                    d_pose[7] = {0};
     float *d_pos = calloc(3 * (size_t)V, sizeof(float)), *d_tex = calloc((size_t)nt, sizeof(float));
     pen_flat_object_grad og = {d_pos, d_tex, d_albedo, d_spheres, d_pose};
-    pen_flat_grad fg = {d_sh, d_ground, &og};
+    pen_flat_grad fg = {d_sh, d_ground, &og, NULL};
     CHECK(pen_flat_render_bwd(ctx, &f, fst, d_img, &fg) == PEN_OK);
     int same = 1;
     for (int i = 0; i < 16; ++i)
@@ -113,7 +113,7 @@ static void test_flat_matches_render(void) {
         mark[i] = 123.0f;
     memcpy(d_spheres, mark, sizeof mark);
     pen_flat_object_grad og2 = {NULL, NULL, NULL, NULL, NULL};
-    pen_flat_grad fg2 = {d_sh2, NULL, &og2};
+    pen_flat_grad fg2 = {d_sh2, NULL, &og2, NULL};
     CHECK(pen_flat_render_bwd(ctx, &f, fst, d_img, &fg2) == PEN_OK);
     for (int i = 0; i < 48; ++i)
         CHECK(d_sh2[i] == 2.0f * d_sh[i]);
@@ -280,7 +280,7 @@ static void test_flat_errors(void) {
     pen_render_state *st = NULL;
     CHECK(pen_render_state_create(ctx, &st) == PEN_OK);
     float d_sh[3 * 16] = {0};
-    pen_flat_grad g = {d_sh, NULL, NULL};
+    pen_flat_grad g = {d_sh, NULL, NULL, NULL};
     CHECK_ERROR(ctx, pen_flat_render_bwd(ctx, &f, st, d_img, &g), PEN_ERROR_ARGUMENT, "no forward");
     CHECK(pen_flat_render_fwd(ctx, &f, st, img) == PEN_OK);
     CHECK(pen_flat_render_bwd(ctx, &f, st, d_img, &g) == PEN_OK);
@@ -330,7 +330,7 @@ static void test_flat_renderer_reuse(void) {
             memset(d_pos[k], 0, nv * sizeof(float));
             memset(d_tex[k], 0, (size_t)nt * sizeof(float));
             pen_flat_object_grad og = {d_pos[k], d_tex[k], d_albedo[k], d_spheres[k], d_pose[k]};
-            pen_flat_grad fg = {d_sh[k], d_ground[k], &og};
+            pen_flat_grad fg = {d_sh[k], d_ground[k], &og, NULL};
             if (k == 0) {
                 pen_render_state *st = NULL;
                 CHECK(pen_render_state_create(ctx, &st) == PEN_OK);

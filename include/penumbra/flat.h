@@ -95,10 +95,14 @@ typedef struct pen_flat_scene {
     int overlap; /* pen_shadow_overlap: 0 overlap weights, 1 none (the plain sum) */
     int ground_occlusion; /* pen_shadow_ground: 0 the ground hides the objects' lower horizon
                              (the default), 1 it only receives shadows */
+    int light_count;      /* disk lights (scene.h pen_light), 0 .. PEN_SCENE_MAX_LIGHTS */
+    const float *lights;  /* 7 * light_count: direction towards the light (3, any non-zero
+                             length: normalised by the renderer), angular radius in degrees,
+                             irradiance (3) */
 } pen_flat_scene;
 
 /* A 64 x 64 camera at (0, 1, 3) looking at (0, 0.5, 0) with 40 degrees vertical field of view,
- * sh_bands 4 and no lighting array, the calibrated exponential with its own epsilon, overlap
+ * sh_bands 4 and no lighting array, no disk lights, the calibrated exponential with its own epsilon, overlap
  * weights on, the default ground (height 0, albedo 0.8, half size 4, occluding the objects), black
  * background, no map, shadows and antialiasing on, no objects. */
 PEN_API pen_flat_scene pen_flat_scene_default(void);
@@ -117,6 +121,8 @@ typedef struct pen_flat_grad {
     float *sh;                     /* 3 * sh_bands^2 */
     float *ground_albedo;          /* 3 */
     pen_flat_object_grad *objects; /* object_count entries, or NULL for none */
+    float *lights;                 /* 7 * light_count, laid out as pen_flat_scene.lights (the
+                                      direction's gradient is that of the unnormalised vector) */
 } pen_flat_grad;
 
 /* Renders into `image` (3 * width * height floats, caller-owned). `state` may be NULL when no
@@ -128,7 +134,7 @@ PEN_API pen_status pen_flat_render_fwd(pen_context *ctx, const pen_flat_scene *s
 /* Backward of the last pen_flat_render_fwd with this state, whose scene (arrays included) must
  * be unchanged: adds dLoss/dparameter into the non-NULL arrays of `grad`, given d_image
  * (3 * width * height). The groups computed follow from which pointers are set (lighting:
- * sh; albedo: texture, albedo, ground_albedo; spheres; pose; vertices: positions). */
+ * sh; albedo: texture, albedo, ground_albedo; spheres; pose; vertices: positions; lights). */
 PEN_API pen_status pen_flat_render_bwd(pen_context *ctx, const pen_flat_scene *scene,
                                        pen_render_state *state, const float *d_image,
                                        const pen_flat_grad *grad);
@@ -160,7 +166,7 @@ PEN_API pen_render_state *pen_flat_renderer_state(pen_flat_renderer *renderer);
 /* ---- Layout check ---------------------------------------------------------------------------- */
 
 /* Raised whenever a row of pen_flat_abi's table changes (a field added, moved or resized). */
-#define PEN_FLAT_ABI_VERSION 1
+#define PEN_FLAT_ABI_VERSION 2
 
 /* One row of the layout table. */
 typedef struct pen_flat_abi_field {

@@ -89,6 +89,8 @@ class FlatScene(ctypes.Structure):
         ("objects", ctypes.POINTER(FlatObject)),
         ("overlap", ctypes.c_int),
         ("ground_occlusion", ctypes.c_int),
+        ("light_count", ctypes.c_int),
+        ("lights", c_float_p),
     ]
 
 
@@ -107,6 +109,7 @@ class FlatGrad(ctypes.Structure):
         ("sh", c_float_p),
         ("ground_albedo", c_float_p),
         ("objects", ctypes.POINTER(FlatObjectGrad)),
+        ("lights", c_float_p),
     ]
 
 
@@ -139,7 +142,7 @@ class Spheres(ctypes.Structure):
 # ---- Layout check -------------------------------------------------------------------------------
 
 # The layout version this package's structs are written for (PEN_FLAT_ABI_VERSION in flat.h).
-ABI_VERSION = 1
+ABI_VERSION = 2
 
 # The C structs the package mirrors, by their C names.
 MIRRORS = {

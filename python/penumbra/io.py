@@ -88,7 +88,8 @@ def _scene_from_flat(f):
                  envmap=envmap, envmap_rotation_y_deg=f.envmap_rotation_y_deg,
                  envmap_scale=f.envmap_scale, epsilon=f.epsilon, exp=exp,
                  overlap={0: "weights", 1: "none"}[f.overlap],
-                 ground_occlusion={0: "occludes", 1: "receiver"}[f.ground_occlusion])
+                 ground_occlusion={0: "occludes", 1: "receiver"}[f.ground_occlusion],
+                 lights=_copy(f.lights, (f.light_count, 7)) if f.light_count > 0 else None)
 
 
 # ---- Meshes, images, spheres --------------------------------------------------------------------

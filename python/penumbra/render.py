@@ -83,7 +83,11 @@ class Scene:
     epsilon <= 0 takes the exponential model's; exp is "calibrated", "paper" or "exact"; overlap is
     "weights" (each sphere's log-visibility times its overlap weight) or "none" (the plain sum);
     ground_occlusion is "occludes" (the ground hides what lies below each object's horizon, as in
-    the ray-traced reference) or "receiver" (it only receives shadows)."""
+    the ray-traced reference) or "receiver" (it only receives shadows). lights is None or a
+    (K, 7) float32 tensor of K <= 16 distant disk lights, one row each: the direction towards the
+    light (3, any non-zero length), the angular radius in degrees and the irradiance (3) that an
+    unoccluded surface facing it receives; load_scene fills it with the lights the scene gives or
+    finds in its environment map."""
 
     camera: Camera
     sh: torch.Tensor
@@ -100,6 +104,7 @@ class Scene:
     exp: str = "calibrated"
     overlap: str = "weights"
     ground_occlusion: str = "occludes"
+    lights: Optional[torch.Tensor] = None
 
 
 def pose(rotation_axis_angle_deg=(0.0, 0.0, 0.0), translation=(0.0, 0.0, 0.0), scale=1.0):
@@ -347,9 +352,11 @@ class Renderer:
                        _lib.fptr(d_image), ctypes.byref(grad))
 
 
-def _flat(spec, sh, ground_albedo, obj):
+def _flat(spec, sh, ground_albedo, lights, obj):
     """The pen_flat_scene over the tensors' memory (the tensors must outlive its use)."""
     s = _lib.FlatScene()
+    if lights is not None:
+        s.light_count, s.lights = lights.shape[0], _lib.fptr(lights)
     cam = spec.camera
     s.width, s.height, s.fov_y_deg = int(cam.width), int(cam.height), float(cam.fov_y_deg)
     s.eye[:], s.target[:], s.up[:] = (tuple(float(x) for x in v)
@@ -393,45 +400,47 @@ def _flat(spec, sh, ground_albedo, obj):
 
 
 class RenderFunction(torch.autograd.Function):
-    """apply(spec, sh, ground_albedo, *per-object (vertices, texture, albedo, spheres, pose));
+    """apply(spec, sh, ground_albedo, lights, *per-object (vertices, texture, albedo, spheres,
+    pose)); lights may be None;
     use render() or render_scene(), which check the arguments and build spec. The backward is
     the C backward, itself not differentiable (once_differentiable)."""
 
     @staticmethod
-    def forward(ctx, spec, sh, ground_albedo, *obj):
+    def forward(ctx, spec, sh, ground_albedo, lights, *obj):
         renderer = spec.renderer if spec.renderer is not None else Renderer(spec.threads)
-        flat = _flat(spec, sh, ground_albedo, obj)
+        flat = _flat(spec, sh, ground_albedo, lights, obj)
         image = torch.empty(flat.height, flat.width, 3, dtype=torch.float32)
         ctx.token = renderer._forward(spec.threads, flat, image)
         ctx.spec, ctx.renderer = spec, renderer
-        ctx.save_for_backward(sh, ground_albedo, *obj)
+        ctx.save_for_backward(sh, ground_albedo, lights, *obj)
         return image
 
     @staticmethod
     @once_differentiable
     def backward(ctx, d_image):
         spec, need = ctx.spec, ctx.needs_input_grad
-        sh, ground_albedo, *obj = ctx.saved_tensors
-        flat = _flat(spec, sh, ground_albedo, obj)
+        sh, ground_albedo, lights, *obj = ctx.saved_tensors
+        flat = _flat(spec, sh, ground_albedo, lights, obj)
         d_image = d_image.to(torch.float32).contiguous()
 
         def zeros_if(k, t):
             return torch.zeros_like(t) if need[k] and t is not None else None
 
-        d_sh, d_ground = zeros_if(1, sh), zeros_if(2, ground_albedo)
-        d_obj = [zeros_if(3 + k, t) for k, t in enumerate(obj)]
+        d_sh, d_ground, d_lights = zeros_if(1, sh), zeros_if(2, ground_albedo), zeros_if(3, lights)
+        d_obj = [zeros_if(4 + k, t) for k, t in enumerate(obj)]
         grads = (_lib.FlatObjectGrad * max(len(spec.objects), 1))()
         for i in range(len(spec.objects)):
             for name, t in zip(("positions",) + _OBJ_FIELDS[1:], d_obj[5 * i:5 * i + 5]):
                 setattr(grads[i], name, _lib.fptr(t))
-        g = _lib.FlatGrad(_lib.fptr(d_sh), _lib.fptr(d_ground), grads)
+        g = _lib.FlatGrad(_lib.fptr(d_sh), _lib.fptr(d_ground), grads, _lib.fptr(d_lights))
         ctx.renderer._backward(ctx.token, spec.threads, flat, d_image, g)
-        return (None, d_sh, d_ground, *d_obj)
+        return (None, d_sh, d_ground, d_lights, *d_obj)
 
 
 def render_scene(scene, shadows=True, antialias=True, threads=None, renderer=None):
     """Renders a Scene; returns the (height, width, 3) float32 linear RGB image, differentiable in
-    scene.sh, scene.ground_albedo and each object's vertices, texture, albedo, spheres and pose
+    scene.sh, scene.ground_albedo, scene.lights and each object's vertices, texture, albedo,
+    spheres and pose
     (whichever are tensors with requires_grad). renderer: a Renderer to render through (its state
     and caches kept for the next call); None: a fresh one for this call. threads: None takes the
     renderer's (0 without one: all cores)."""
@@ -448,12 +457,18 @@ def render_scene(scene, shadows=True, antialias=True, threads=None, renderer=Non
     sh = _float_tensor("sh", scene.sh, (None, 3))
     _sh_bands(sh)
     ground_albedo = _float_tensor("ground_albedo", scene.ground_albedo, (3,), allow_list=True)
+    lights = None
+    if scene.lights is not None and not (isinstance(scene.lights, torch.Tensor)
+                                         and tuple(scene.lights.shape) == (0, 7)):
+        lights = _float_tensor("lights", scene.lights, (None, 7))
+        if lights.shape[0] > 16:
+            raise ValueError("penumbra: at most 16 lights, got %d" % lights.shape[0])
     tensors = []
     for i, ob in enumerate(scene.objects):
         os_, ts = _check_object(i, ob)
         spec.objects.append(os_)
         tensors += ts
-    return RenderFunction.apply(spec, sh, ground_albedo, *tensors)
+    return RenderFunction.apply(spec, sh, ground_albedo, lights, *tensors)
 
 
 def render(vertices, faces, sh, camera=None, *, uvs=None, uv_faces=None, texture=None,

@@ -13,6 +13,8 @@ Step and tolerances, per kind (the scene: tests/scenes.py ball_scene, 16 x 16), 
   spheres                      eps 1e-3, atol 2e-2, rtol 2e-2 (0.006; largest derivative 8)
   pose                         eps 1e-4, atol 8e-2, rtol 2e-2 (0.027; largest derivative 16 to 23)
   vertices                     eps 1e-4, atol 3e-2, rtol 2e-2 (0.013; largest derivative 4 to 16)
+  disk light                   eps 1e-3, atol 2e-2, rtol 2e-2 (direction, radius in degrees and
+                               irradiance of one 8-degree light whose shadow falls on the ground)
 Why these steps: the differences are of a float32 image, whose rounding (summed over the 768
 weighted values) puts noise of about 1e-6 / eps on each quotient, which favours large steps; but
 moving geometry makes the antialiased image continuous only up to isolated jumps at silhouette
@@ -94,6 +96,14 @@ class GradcheckTest(unittest.TestCase):
     def test_vertices_textured(self):
         _check(self, lambda s: _ob(s).vertices, lambda s, x: setattr(_ob(s), "vertices", x),
                1e-4, 3e-2, 2e-2, textured=True)
+
+    def test_disk_light(self):
+        def with_light(s):
+            if s.lights is None:
+                s.lights = torch.tensor([[0.5, 1.0, 0.3, 8.0, 2.0, 1.8, 1.5]])
+            return s.lights
+
+        _check(self, with_light, lambda s, x: setattr(s, "lights", x), 1e-3, 2e-2, 2e-2)
 
     # Through one kept Renderer: gradcheck's perturbed forwards replace the state between the
     # forward of the checked output and its backward, which then renders again first.

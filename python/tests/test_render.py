@@ -123,6 +123,13 @@ class LoaderTest(Temp):
         sh = penumbra.envmap_to_sh(CITY, bands=3, rotation_y_deg=40, scale=0.3)
         self.assertTrue(bool((scene.sh[0] < 0.9 * sh[0]).all() and (scene.sh[0] > 0.6 * sh[0]).all()))
         self.assertTrue(torch.equal(penumbra.envmap_to_sh(scene.envmap, 3, 40, 0.3), sh))
+        # ... and the sun is a disk light: (K, 7) rows of direction, radius, irradiance.
+        self.assertIsNotNone(scene.lights)
+        self.assertEqual(scene.lights.shape[1], 7)
+        sun = scene.lights[0]
+        self.assertGreater(float(sun[1]), 0.5 * float(sun[:3].norm()))  # about 48 degrees up
+        self.assertTrue(0.01 <= float(sun[3]) <= 20.0)
+        self.assertTrue(bool((sun[4:] > 0).all()))
 
     def test_mesh_and_texture(self):
         mesh = penumbra.load_mesh(SPOT)

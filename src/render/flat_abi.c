@@ -70,6 +70,8 @@ static const pen_flat_abi_field table[] = {
     FIELD(pen_flat_scene, objects),
     FIELD(pen_flat_scene, overlap),
     FIELD(pen_flat_scene, ground_occlusion),
+    FIELD(pen_flat_scene, light_count),
+    FIELD(pen_flat_scene, lights),
 
     SIZE_ROW(pen_flat_object_grad),
     FIELD(pen_flat_object_grad, positions),
@@ -82,6 +84,7 @@ static const pen_flat_abi_field table[] = {
     FIELD(pen_flat_grad, sh),
     FIELD(pen_flat_grad, ground_albedo),
     FIELD(pen_flat_grad, objects),
+    FIELD(pen_flat_grad, lights),
 
     SIZE_ROW(pen_image),
     FIELD(pen_image, width),

@@ -131,6 +131,20 @@ static pen_status scene_view(pen_context *ctx, const pen_flat_scene *f, pen_obje
         (f->object_count > 0 && !f->objects))
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "flat scene: bad object list (%d objects)",
                           f->object_count);
+    if (f->light_count < 0 || f->light_count > PEN_SCENE_MAX_LIGHTS ||
+        (f->light_count > 0 && !f->lights))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "flat scene: bad light list (%d lights, at most "
+                          "%d)", f->light_count, PEN_SCENE_MAX_LIGHTS);
+    /* The lights as given (the renderer validates them with the scene). */
+    sc->lighting.lights_mode = PEN_LIGHTS_GIVEN;
+    sc->lighting.light_count = f->light_count;
+    for (int l = 0; l < f->light_count; ++l) {
+        const float *v = f->lights + 7 * (size_t)l;
+        pen_light *L = &sc->lighting.lights[l];
+        memcpy(L->direction, v, sizeof L->direction);
+        L->angular_radius_deg = v[3];
+        memcpy(L->irradiance, v + 4, sizeof L->irradiance);
+    }
     pen_camera *c = &sc->camera;
     c->width = f->width, c->height = f->height, c->fov_y_deg = f->fov_y_deg;
     memcpy(c->eye, f->eye, sizeof c->eye);
@@ -204,6 +218,7 @@ static unsigned wanted(const pen_flat_scene *f, const pen_flat_grad *g) {
     unsigned wrt = 0;
     if (g->sh) wrt |= PEN_GRAD_LIGHTING;
     if (g->ground_albedo) wrt |= PEN_GRAD_ALBEDO;
+    if (g->lights && f->light_count > 0) wrt |= PEN_GRAD_LIGHTS;
     for (int o = 0; g->objects && o < f->object_count; ++o) {
         const pen_flat_object_grad *og = &g->objects[o];
         if (og->texture || og->albedo) wrt |= PEN_GRAD_ALBEDO;
@@ -271,6 +286,12 @@ static pen_status flat_bwd(pen_context *ctx, const pen_flat_scene *f, pen_render
     for (int i = 0; grad->sh && i < nc; ++i)
         add_n(grad->sh + 3 * i, g->sh[i], 3);
     if (grad->ground_albedo) add_n(grad->ground_albedo, g->ground_albedo, 3);
+    for (int l = 0; grad->lights && l < g->light_count; ++l) {
+        float *dst = grad->lights + 7 * (size_t)l;
+        add_n(dst, g->lights[l].direction, 3);
+        dst[3] += g->lights[l].angular_radius_deg;
+        add_n(dst + 4, g->lights[l].irradiance, 3);
+    }
     for (int o = 0; grad->objects && o < sc.object_count; ++o)
         scatter_object(&g->objects[o], &sc.objects[o], &grad->objects[o]);
     return PEN_OK;
@@ -339,6 +360,7 @@ struct pen_flat_loaded {
     pen_flat_scene flat;
     pen_flat_object *objects;
     float sh[3 * PEN_SH_MAX_COEFFS];
+    float lights[7 * PEN_SCENE_MAX_LIGHTS];
 };
 
 void pen_flat_loaded_free(pen_flat_loaded *l) {
@@ -400,6 +422,16 @@ static pen_status flatten(pen_context *ctx, pen_flat_loaded *l) {
     f->sh_bands = sc->sh_bands;
     memcpy(l->sh, sc->lighting.sh, sizeof l->sh);
     f->sh = l->sh;
+    /* The scene's lights, those found in its environment map included. */
+    f->light_count = sc->lighting.light_count;
+    f->lights = l->lights;
+    for (int i = 0; i < sc->lighting.light_count; ++i) {
+        const pen_light *L = &sc->lighting.lights[i];
+        float *v = l->lights + 7 * i;
+        memcpy(v, L->direction, 3 * sizeof(float));
+        v[3] = L->angular_radius_deg;
+        memcpy(v + 4, L->irradiance, 3 * sizeof(float));
+    }
     f->epsilon = sc->shadow.epsilon;
     f->exp_method = (int)sc->shadow.exp;
     f->overlap = (int)sc->shadow.overlap;
