@@ -1,6 +1,8 @@
 #!/bin/sh
 # Accuracy of `render` against the Embree reference on the bundled scenes (Spot and Bob on the
-# ground plane, city and interior maps, 512x512), and what the reference costs.
+# ground plane, city and interior maps, 512x512), and what the reference costs. The scenes use the
+# SH light alone ("lights": "none"), as the README's table was measured before disk lights;
+# scripts/lights_table.py measures the default, with the lights found in the map.
 # Usage: sh scripts/reference_table.sh PENUMBRA_BIN OUTDIR [SPP] [SIZE]
 #   SPP  samples per pixel of the ground truth (default 1024), SIZE the image side (default 512).
 #   REUSE=1 keeps the reference images (and their rows) of an earlier run into the same OUTDIR
@@ -36,7 +38,7 @@ mkdir -p "$OUT/scenes"
 scene() { # name mesh albedo-json-fragment lift env scale exp
     cat > "$OUT/scenes/$1.json" <<EOF
 { "camera": {"width": $SIZE, "height": $SIZE, "fov_y_deg": 35, "eye": [3.0, 1.9, 3.4], "target": [0, 0.5, 0.1], "up": [0, 1, 0]},
-  "lighting": {"envmap": "$DATA/envmaps/$5.hdr", "scale": $6, "rotation_y_deg": 0},
+  "lighting": {"envmap": "$DATA/envmaps/$5.hdr", "scale": $6, "rotation_y_deg": 0, "lights": "none"},
   "sh_bands": 4,
   "shadow": {"exp": "$7", "overlap": "${OVERLAP:-weights}", "ground": "${GROUND:-occludes}"},
   "objects": [ {"mesh": "$DATA/meshes/$2", $3 "spheres": {"fit": 32},
