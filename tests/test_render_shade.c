@@ -164,7 +164,7 @@ static void test_inside_rule_fd(void) {
     for (int trial = 0; trial < 6; ++trial) {
         setup S = make_setup(6);
         const double qs[6] = {urand(0.905, 0.995), urand(0.905, 0.995), urand(0.91, 0.99),
-                              urand(0.2, 0.88), urand(1.02, 1.5), urand(0.905, 0.995)};
+                              urand(0.2, 0.88),    urand(1.02, 1.5),    urand(0.905, 0.995)};
         for (int i = 0; i < 6; ++i)
             place_at(&S, i, qs[i], urand(0.2, 0.6));
         S.k = trial & 1 ? S.kappa : NULL;
@@ -198,7 +198,8 @@ static void test_inside_rule_continuous(void) {
     L[2][0] = L[2][1] = L[2][2] = 0.8;
     double n[3] = {0, 0, 1}, rho[3] = {0.5, 0.5, 0.5}, s[4] = {0, 0, 0, 0.5}, b[3];
     double prev = 0, worst = 0;
-    for (int i = 0; i <= 40000; ++i) { /* steps of 1e-5 r: slope up to 7, a jump ~0.3 */
+    /* Steps of 1e-5 r: the fade's slope gives steps below 1e-4, a jump would be about 0.3. */
+    for (int i = 0; i <= 40000; ++i) {
         const double q = 0.8 + 0.4 * i / 40000.0; /* through [0.9, 1] */
         double x[3] = {0, 0, -q * 0.5};           /* below the centre: the sphere is in front */
         pen__shade_fwd_d(&p, (const double(*)[3])L, 1, s, NULL, x, n, rho, b, NULL);
