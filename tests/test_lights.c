@@ -312,6 +312,46 @@ static void test_pixel_grad(void) {
         snprintf(what, sizeof what, "random %d", trial);
         px_check(&r2, what);
     }
+    /* The inside rule (render_internal.h): receivers in the fade band of spheres (0.9 r < |c - x|
+     * < r), deeper inside and just outside, the centres towards the lights. */
+    for (int trial = 0; trial < 20; ++trial) {
+        px_case r2;
+        memset(&r2, 0, sizeof r2);
+        r2.L.eps = rs_uniform(&seed, 0.5, 4.0), r2.L.shadows = 1;
+        double d[3];
+        r2.n[1] = 1.0;
+        for (int l = 0; l < 2; ++l) {
+            rs_unit_vector(&seed, d);
+            if (d[1] < 0) d[1] = -d[1];
+            set_light(&r2.L, l, d, rs_uniform(&seed, 0.3, 30.0), rs_uniform(&seed, 0.5, 3.0));
+        }
+        r2.S = 3;
+        const double qs[3] = {rs_uniform(&seed, 0.905, 0.995), rs_uniform(&seed, 0.2, 0.88),
+                              rs_uniform(&seed, 0.905, 1.2)};
+        for (int i = 0; i < r2.S; ++i) {
+            const double rad = rs_uniform(&seed, 0.1, 0.5);
+            rs_unit_vector(&seed, d);
+            for (int a = 0; a < 3; ++a)
+                d[a] = r2.L.w[i % 2][a] + 0.3 * d[a];
+            const double len = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+            for (int a = 0; a < 3; ++a)
+                r2.sph[4 * i + a] = qs[i] * rad * d[a] / len;
+            r2.sph[4 * i + 3] = rad;
+            r2.kappa[i] = rs_uniform(&seed, 0.2, 1.5);
+        }
+        for (int a = 0; a < 3; ++a)
+            r2.rho[a] = rs_uniform(&seed, 0.1, 0.9);
+        char what[32];
+        snprintf(what, sizeof what, "inside %d", trial);
+        px_check(&r2, what);
+        /* The sphere containing the receiver deeper than 0.9 r hides nothing: the same light as
+         * without it, bit for bit. */
+        double a3[3] = {0, 0, 0}, b3[3] = {0, 0, 0};
+        pen__lights_fwd_d(&r2.L, NULL, 1, r2.sph + 4, r2.kappa + 1, NULL, r2.x, r2.n, r2.rho, a3,
+                          NULL);
+        pen__lights_fwd_d(&r2.L, NULL, 0, NULL, NULL, NULL, r2.x, r2.n, r2.rho, b3, NULL);
+        CHECK(memcmp(a3, b3, sizeof a3) == 0);
+    }
 }
 
 /* Exactness for one blocker: with a single sphere, V = 1 - (1 - exp(-eps)) f, and f is the

@@ -94,6 +94,11 @@ static void check_random_pixels(int bands, pen_sh_exp_method method, int shadows
         if (i % 7 == 5 && S > 0) /* inside a sphere */
             for (int a = 0; a < 3; ++a)
                 x[3 * i + a] = sf[4 * (i % S) + a] + 0.3f * sf[4 * (i % S) + 3];
+        if (i % 7 == 6 && S > 0) { /* in the inside rule's fade band (0.9 r, r) of a sphere */
+            const float q = (float)urand(0.9, 1.0);
+            for (int a = 0; a < 3; ++a)
+                x[3 * i + a] = sf[4 * (i % S) + a] + q * sf[4 * (i % S) + 3] * (float)nn[a];
+        }
     }
     /* Fast kernel. */
     void *scratch = malloc(pen__shade_fast_scratch_bytes(&p, S, count));

@@ -101,11 +101,10 @@ static double loss_of(const pen__shade_params *p, const setup *S, const double q
  * (floor 1e-6) of the FD: 1e-6 for the smooth calibrated model, 1e-5 for the exact one, whose
  * series is accurate to about 1e-12 only (so its FD carries noise of 1e-12 / h). With
  * `weighted`, the spheres carry overlap weights kappa != 1 (constants of the backward). */
-static void check_fd(pen_sh_exp_method method, int shadows, double tol, int weighted) {
-    pen__shade_params p = params(4, method, shadows);
-    for (int trial = 0; trial < 4; ++trial) {
-        setup S = make_setup(6);
-        S.k = weighted ? S.kappa : NULL;
+static void fd_setup(const pen__shade_params *pp, setup *S_, double tol, const char *what) {
+    const pen__shade_params p = *pp;
+    setup S = *S_;
+    {
         double q[3] = {urand(0.5, 1.5), urand(0.5, 1.5), urand(0.5, 1.5)};
         double d_sh[16][3] = {{0}}, d_s[32] = {0}, d_x[3] = {0}, d_n[3] = {0}, d_rho[3] = {0};
         pen__shade_bwd_d(&p, (const double(*)[3])S.L, S.count, S.s, S.k, S.x, S.n, S.rho, q, NULL,
@@ -125,12 +124,89 @@ static void check_fd(pen_sh_exp_method method, int shadows, double tol, int weig
                 params_[g][i] = keep;
                 double fd = (lp - lm) / (2 * h);
                 double s = fmax(fmax(fabs(fd), fabs(grads[g][i])), 1e-6);
-                CHECK_MSG(fabs(fd - grads[g][i]) <= tol * s + 1e-9,
-                          "%s method %d shadows %d: d%s[%d] = %.10g, fd %.10g",
-                          pen_sh_exp_method_name(method), method, shadows, names[g], i, grads[g][i],
-                          fd);
+                CHECK_MSG(fabs(fd - grads[g][i]) <= tol * s + 1e-9, "%s: d%s[%d] = %.10g, fd %.10g",
+                          what, names[g], i, grads[g][i], fd);
             }
     }
+}
+
+static void check_fd(pen_sh_exp_method method, int shadows, double tol, int weighted) {
+    pen__shade_params p = params(4, method, shadows);
+    char what[64];
+    snprintf(what, sizeof what, "%s shadows %d", pen_sh_exp_method_name(method), shadows);
+    for (int trial = 0; trial < 4; ++trial) {
+        setup S = make_setup(6);
+        S.k = weighted ? S.kappa : NULL;
+        fd_setup(&p, &S, tol, what);
+    }
+}
+
+/* Sphere i of S placed so that the receiver is at q = |c - x| / r from its centre, on the side
+ * the normal faces (so the tangent-plane weight is above 0 and, for some, inside its ramp). */
+static void place_at(setup *S, int i, double q, double r) {
+    double d[3];
+    rs_unit_vector(&rng, d);
+    double dn = d[0] * S->n[0] + d[1] * S->n[1] + d[2] * S->n[2];
+    if (dn < 0)
+        for (int a = 0; a < 3; ++a)
+            d[a] -= 2 * dn * S->n[a], dn = -dn;
+    for (int a = 0; a < 3; ++a)
+        S->s[4 * i + a] = S->x[a] + q * r * d[a];
+    S->s[4 * i + 3] = r;
+}
+
+/* The inside rule (render_internal.h): finite differences in double with receivers in the fade
+ * band (0.9 r < |c - x| < r), deeper inside (weight 0, gradient 0) and outside, with and without
+ * overlap weights; then the weight's ends: a sphere containing the receiver deeper than 0.9 r
+ * shades exactly as no sphere, with exactly zero gradient. */
+static void test_inside_rule_fd(void) {
+    pen__shade_params p = params(4, PEN_SH_EXP_CALIBRATED, 1);
+    for (int trial = 0; trial < 6; ++trial) {
+        setup S = make_setup(6);
+        const double qs[6] = {urand(0.905, 0.995), urand(0.905, 0.995), urand(0.91, 0.99),
+                              urand(0.2, 0.88),    urand(1.02, 1.5),    urand(0.905, 0.995)};
+        for (int i = 0; i < 6; ++i)
+            place_at(&S, i, qs[i], urand(0.2, 0.6));
+        S.k = trial & 1 ? S.kappa : NULL;
+        fd_setup(&p, &S, 1e-6, "inside rule");
+    }
+    for (int trial = 0; trial < 4; ++trial) {
+        setup S = make_setup(2);
+        place_at(&S, 0, urand(0.0, 0.899), urand(0.2, 0.6));
+        double a[3], b[3], q[3] = {1, 1, 1};
+        pen__shade_fwd_d(&p, (const double(*)[3])S.L, 1, S.s, NULL, S.x, S.n, S.rho, a, NULL);
+        pen__shade_fwd_d(&p, (const double(*)[3])S.L, 0, NULL, NULL, S.x, S.n, S.rho, b, NULL);
+        CHECK(memcmp(a, b, sizeof a) == 0);
+        double d_sh[16][3] = {{0}}, d_s[4] = {0}, d_x[3] = {0}, d_n[3] = {0}, d_rho[3] = {0};
+        double e_sh[16][3] = {{0}}, e_x[3] = {0}, e_n[3] = {0}, e_rho[3] = {0};
+        pen__shade_bwd_d(&p, (const double(*)[3])S.L, 1, S.s, NULL, S.x, S.n, S.rho, q, NULL, d_sh,
+                         d_s, d_x, d_n, d_rho);
+        pen__shade_bwd_d(&p, (const double(*)[3])S.L, 0, NULL, NULL, S.x, S.n, S.rho, q, NULL, e_sh,
+                         NULL, e_x, e_n, e_rho);
+        CHECK(d_s[0] == 0 && d_s[1] == 0 && d_s[2] == 0 && d_s[3] == 0);
+        CHECK(memcmp(d_x, e_x, sizeof d_x) == 0 && memcmp(d_n, e_n, sizeof d_n) == 0);
+        CHECK(memcmp(d_sh, e_sh, sizeof d_sh) == 0);
+    }
+}
+
+/* Continuity across the fade: a receiver moved from the sphere's centre out through its surface
+ * changes the result by a bounded slope, and the weight's end points are exact. */
+static void test_inside_rule_continuous(void) {
+    pen__shade_params p = params(4, PEN_SH_EXP_CALIBRATED, 1);
+    double L[16][3] = {{0}};
+    L[0][0] = L[0][1] = L[0][2] = 1.0;
+    L[2][0] = L[2][1] = L[2][2] = 0.8;
+    double n[3] = {0, 0, 1}, rho[3] = {0.5, 0.5, 0.5}, s[4] = {0, 0, 0, 0.5}, b[3];
+    double prev = 0, worst = 0;
+    /* Steps of 1e-5 r: the fade's slope gives steps below 1e-4, a jump would be about 0.3. */
+    for (int i = 0; i <= 40000; ++i) {
+        const double q = 0.8 + 0.4 * i / 40000.0; /* through [0.9, 1] */
+        double x[3] = {0, 0, -q * 0.5};           /* below the centre: the sphere is in front */
+        pen__shade_fwd_d(&p, (const double(*)[3])L, 1, s, NULL, x, n, rho, b, NULL);
+        if (i) worst = fmax(worst, fabs(b[0] - prev));
+        prev = b[0];
+    }
+    CHECK_MSG(worst < 1e-4, "largest step %.3g", worst);
 }
 
 static void test_bwd_fd_calibrated(void) {
@@ -342,4 +418,5 @@ static void test_texture(void) {
 RUN_TESTS(TEST(test_irradiance_closed_form), TEST(test_bwd_fd_calibrated), TEST(test_bwd_fd_exact),
           TEST(test_bwd_fd_no_shadows), TEST(test_bwd_fd_overlap_weights),
           TEST(test_overlap_weights_linear), TEST(test_float_matches_double),
-          TEST(test_self_shadowing_rule), TEST(test_singular_inputs_finite), TEST(test_texture))
+          TEST(test_self_shadowing_rule), TEST(test_inside_rule_fd),
+          TEST(test_inside_rule_continuous), TEST(test_singular_inputs_finite), TEST(test_texture))

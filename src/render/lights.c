@@ -239,18 +239,22 @@ double pen__lights_horizon(const pen__lights *L, int l, double t, double *d_t, d
 /* ---- Per pixel ------------------------------------------------------------------------------- */
 
 /* What a receiver (x, n) sees of sphere (c, r), as the SH path (sh.h, shade_ops.inc): v = c - x,
- * the self-shadowing weight w(h), h = n . v / r (sphere_view_weight, cheap, first); then, for
+ * the self-shadowing weight w = w_h(h) g(q), h = n . v / r, q = |v| / r (sphere_view_weight,
+ * cheap, first: the tangent-plane and inside rules of render_internal.h); then, for
  * spheres that may reach a disk (sphere_view_reaches), the unit direction d and distance D of the
  * centre and the cap's half-angle a with cos a = sqrt(t), t = 1 - r^2/D^2, continued by its tangent
  * line below PEN_SH_CAP_T0 and clamped at a = pi (sphere_view_cap); and the derivatives the
  * backward needs. */
 typedef struct sphere_view {
-    double v[3], D2, r, h, w, dw_dh;
+    double v[3], D2, r, h, w, dw_dh, q, dw_dq; /* w = w_h(h) g(q), q = |v| / r (inside rule) */
     double d[3], D, a, cos_a, sin_a, da_dD, da_dr;
     int cap; /* sphere_view_cap has run */
 } sphere_view;
 
-/* Fills v, D2, h, w; returns 0 when the sphere's weight is 0 (it hides nothing, no gradient). */
+/* Fills v, D2, h, q, w and its derivatives; returns 0 when the sphere's weight and its
+ * derivatives are 0 (it hides nothing, no gradient): behind the tangent plane, or containing the
+ * receiver deeper than PEN_RENDER_INSIDE_LO r. The weight is shade_ops.inc's, so that the disk
+ * lights and the SH light see the same spheres. */
 static int sphere_view_weight(const double x[3], const double n[3], const double c[3], double r,
                               sphere_view *sv) {
     for (int k = 0; k < 3; ++k)
@@ -262,12 +266,14 @@ static int sphere_view_weight(const double x[3], const double n[3], const double
     const double span = PEN_RENDER_SELF_H1 - PEN_RENDER_SELF_H0;
     const double u = (sv->h - PEN_RENDER_SELF_H0) / span;
     if (u <= 0.0) return 0;
-    if (u >= 1.0) {
-        sv->w = 1.0, sv->dw_dh = 0.0;
-    } else {
-        sv->w = u * u * (3.0 - 2.0 * u), sv->dw_dh = 6.0 * u * (1.0 - u) / span;
-    }
     sv->D2 = sv->v[0] * sv->v[0] + sv->v[1] * sv->v[1] + sv->v[2] * sv->v[2];
+    sv->q = sqrt(sv->D2) / r;
+    const double e = (sv->q - PEN_RENDER_INSIDE_LO) / PEN_RENDER_INSIDE_WIDTH;
+    if (e <= 0.0) return 0;
+    double wh = 1.0, dwh = 0.0, g = 1.0, dg = 0.0;
+    if (u < 1.0) wh = u * u * (3.0 - 2.0 * u), dwh = 6.0 * u * (1.0 - u) / span;
+    if (e < 1.0) g = e * e * (3.0 - 2.0 * e), dg = 6.0 * e * (1.0 - e) / PEN_RENDER_INSIDE_WIDTH;
+    sv->w = wh * g, sv->dw_dh = dwh * g, sv->dw_dq = wh * dg;
     sv->cap = 0;
     return 1;
 }
