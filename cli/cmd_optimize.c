@@ -1,4 +1,4 @@
-/* penumbra optimize: solve an inverse problem (lighting, albedo, pose, deformation, spheres)
+/* penumbra optimize: solve an inverse problem (lighting, albedo, pose, deformation, spheres, lights)
  * described by a task JSON and write the results into a folder (pen_optim_run, pen_optim_write).
  *
  * On a terminal a progress line (iteration, loss, iterations per second, time left at most) is
@@ -64,9 +64,9 @@ static void usage(FILE *f) {
     fprintf(f,
             "Usage: penumbra optimize TASK.json -o OUTDIR [options]\n\n"
             "Recovers the task's parameter groups (lighting, albedo, pose, deformation,\n"
-            "spheres) from its target image by Adam through the differentiable renderer (the\n"
-            "lighting solved exactly with \"lighting_solver\": \"least_squares\"), and\n"
-            "writes OUTDIR/result.json (iterations, timing, losses, metrics against the ground\n"
+            "spheres, disk lights) from its target image by Adam through the differentiable\n"
+            "renderer (the lighting solved exactly with \"lighting_solver\": \"least_squares\"),\n"
+            "and writes OUTDIR/result.json (iterations, timing, losses, metrics against the ground\n"
             "truth), scene.json (the recovered scene), final.exr/.png, compare.png, loss.svg,\n"
             "checkpoint.bin and snapshots/iter_NNNNN.png. A task with \"views\" (several\n"
             "cameras and images) also writes final_<i>.exr per view and views.png, and\n"

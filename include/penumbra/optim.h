@@ -60,6 +60,9 @@ extern "C" {
 #define PEN_OPTIM_DEFORMATION 8u /* "deformation": every object's embedded deformation graph on
                                     its sphere centres (moves vertices and spheres) */
 #define PEN_OPTIM_SPHERES 16u    /* "spheres": every object's sphere centres and radii */
+#define PEN_OPTIM_LIGHTS 32u     /* "lights": every disk light's direction, angular radius and
+                                    irradiance (the scene must have lights: given, or found in its
+                                    map; the optimiser does not create them) */
 
 typedef enum pen_optim_loss { PEN_OPTIM_LOSS_L2 = 0, PEN_OPTIM_LOSS_L1 = 1 } pen_optim_loss;
 
@@ -72,6 +75,8 @@ typedef struct pen_optim_lr {
     float spheres;     /* scene units (object space), centres and radii */
     float deformation_rotation;    /* entries of the graph nodes' 3x3 matrices */
     float deformation_translation; /* the graph nodes' translations (object space) */
+    float lights;      /* disk lights: each direction component (a unit vector, renormalised after
+                          each step), the angular radius in degrees and the irradiance */
 } pen_optim_lr;
 
 /* 1e-2, and 1e-3 for the deformation matrices (supplement section 5.1). */

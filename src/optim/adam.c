@@ -60,6 +60,22 @@ static void project_segment(const pen__optim_segment *s, float *x) {
         for (size_t i = 3; i < s->count; i += 4)
             p[i] = fmaxf(p[i], PEN__OPTIM_MIN_RADIUS);
         break;
+    case PEN__BOUND_LIGHTS:
+        /* The renderer normalises the direction, so its length is free; kept at 1 so that the
+         * step (about the rate) stays an angle and the vector never shrinks towards zero. */
+        for (size_t i = 0; i + 7 <= s->count; i += 7) {
+            const double a = p[i], b = p[i + 1], c = p[i + 2];
+            const double n = sqrt(a * a + b * b + c * c);
+            if (n > 1e-12)
+                for (int k = 0; k < 3; ++k)
+                    p[i + (size_t)k] = (float)((double)p[i + (size_t)k] / n);
+            p[i + 3] = fminf(fmaxf(p[i + 3], (float)PEN_SCENE_MIN_LIGHT_RADIUS_DEG),
+                             (float)PEN_SCENE_MAX_LIGHT_RADIUS_DEG);
+            for (int k = 4; k < 7; ++k)
+                p[i + (size_t)k] = fminf(fmaxf(p[i + (size_t)k], 0.0f),
+                                         (float)PEN_SCENE_MAX_IRRADIANCE);
+        }
+        break;
     }
 }
 

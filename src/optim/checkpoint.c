@@ -172,7 +172,10 @@ READER_GET(get_u64, uint64_t)
 READER_GET(get_f64, double)
 
 static const char *bound_name(unsigned b) {
-    return b == PEN__BOUND_UNIT ? "unit" : b == PEN__BOUND_SPHERES ? "spheres" : "none";
+    return b == PEN__BOUND_UNIT      ? "unit"
+           : b == PEN__BOUND_SPHERES ? "spheres"
+           : b == PEN__BOUND_LIGHTS  ? "lights"
+                                     : "none";
 }
 
 /* Compares the file's identity with the run's; one line on the first difference. */

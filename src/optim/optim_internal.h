@@ -17,10 +17,16 @@
 /* ---- Adam (src/optim/adam.c) ----------------------------------------------------------------- */
 
 /* What a segment's values must satisfy after each step (a projection, applied in place). */
+/* The task's parameter groups by bit (optim.h PEN_OPTIM_*: bit k is names[k]), src/optim/task.c. */
+#define PEN__OPTIM_GROUPS 6
+extern const char *const pen__optim_group_names[PEN__OPTIM_GROUPS];
+
 typedef enum pen__optim_bound {
     PEN__BOUND_NONE = 0,
     PEN__BOUND_UNIT,   /* every value in [0, 1] (albedos) */
-    PEN__BOUND_SPHERES /* x, y, z, r per sphere: r >= PEN__OPTIM_MIN_RADIUS */
+    PEN__BOUND_SPHERES, /* x, y, z, r per sphere: r >= PEN__OPTIM_MIN_RADIUS */
+    PEN__BOUND_LIGHTS   /* per disk light: direction (renormalised to unit length), angular
+                           radius in the scene's range, irradiance >= 0 */
 } pen__optim_bound;
 
 #define PEN__OPTIM_MIN_RADIUS 1e-3f

@@ -55,6 +55,7 @@ typedef struct run {
     pen_render_options opt;   /* every render of the run (shadows or not) */
     unsigned groups;
     size_t lighting; /* offset of the SH block, SIZE_MAX if not optimised */
+    size_t lights;   /* offset of the disk lights' block (7 per light), SIZE_MAX if not */
     object_layout *objects;
     pen__optim_segment *segments;
     int segment_count;
@@ -100,7 +101,7 @@ static size_t albedo_floats(const pen_object *ob) {
 static pen_status layout(pen_context *ctx, run *r, const pen_optim_task *t) {
     const pen_scene *sc = r->sc;
     r->objects = pen__calloc(ctx, (size_t)sc->object_count + 1, sizeof *r->objects, "layout");
-    r->segments = pen__calloc(ctx, 6 * (size_t)sc->object_count + 1, sizeof *r->segments,
+    r->segments = pen__calloc(ctx, 6 * (size_t)sc->object_count + 2, sizeof *r->segments,
                               "segments");
     r->deform = pen__calloc(ctx, (size_t)sc->object_count + 1, sizeof *r->deform, "graphs");
     if (!r->objects || !r->segments || !r->deform) return PEN_ERROR_MEMORY;
@@ -111,6 +112,10 @@ static pen_status layout(pen_context *ctx, run *r, const pen_optim_task *t) {
     if (r->groups & PEN_OPTIM_LIGHTING)
         r->lighting = add_segment(r, 3 * (size_t)sc->sh_bands * (size_t)sc->sh_bands,
                                   t->lr.lighting, PEN__BOUND_NONE);
+    r->lights = SIZE_MAX; /* after the SH block, which solve_lighting expects first */
+    if ((r->groups & PEN_OPTIM_LIGHTS) && sc->lighting.light_count > 0)
+        r->lights = add_segment(r, 7 * (size_t)sc->lighting.light_count, t->lr.lights,
+                                PEN__BOUND_LIGHTS);
     for (int o = 0; o < sc->object_count; ++o) {
         const pen_object *ob = &sc->objects[o];
         object_layout *L = &r->objects[o];
@@ -209,6 +214,20 @@ static void transfer(run *r, int to_scene) {
                     x[3 * k + ch] = sc->lighting.sh[k][ch];
             }
     }
+    if (r->lights != SIZE_MAX)
+        for (int l = 0; l < sc->lighting.light_count; ++l) {
+            pen_light *li = &sc->lighting.lights[l];
+            float *x = r->x + r->lights + 7 * (size_t)l;
+            float *v[7] = {&li->direction[0],   &li->direction[1],  &li->direction[2],
+                           &li->angular_radius_deg, &li->irradiance[0], &li->irradiance[1],
+                           &li->irradiance[2]};
+            for (int k = 0; k < 7; ++k) {
+                if (to_scene)
+                    *v[k] = x[k];
+                else
+                    x[k] = *v[k];
+            }
+        }
     for (int o = 0; o < sc->object_count; ++o) {
         pen_object *ob = &sc->objects[o];
         const object_layout *L = &r->objects[o];
@@ -314,6 +333,16 @@ static void gather(run *r, const pen_render_grad *grad, float scale) {
         for (int k = 0; k < sc->sh_bands * sc->sh_bands; ++k)
             for (int ch = 0; ch < 3; ++ch)
                 r->g[r->lighting + 3 * (size_t)k + ch] = scale * grad->sh[k][ch];
+    if (r->lights != SIZE_MAX)
+        for (int l = 0; l < grad->light_count; ++l) {
+            const pen_light_grad *lg = &grad->lights[l];
+            float *g = r->g + r->lights + 7 * (size_t)l;
+            for (int k = 0; k < 3; ++k) {
+                g[k] = scale * lg->direction[k];
+                g[4 + k] = scale * lg->irradiance[k];
+            }
+            g[3] = scale * lg->angular_radius_deg;
+        }
     for (int o = 0; o < sc->object_count; ++o) {
         const pen_object_grad *og = &grad->objects[o];
         const object_layout *L = &r->objects[o];
@@ -368,6 +397,7 @@ static unsigned grad_mask(unsigned groups, int solve) {
     if (groups & PEN_OPTIM_POSE) wrt |= PEN_GRAD_POSE;
     if (groups & PEN_OPTIM_SPHERES) wrt |= PEN_GRAD_SPHERES;
     if (groups & PEN_OPTIM_DEFORMATION) wrt |= PEN_GRAD_SPHERES | PEN_GRAD_VERTICES;
+    if (groups & PEN_OPTIM_LIGHTS) wrt |= PEN_GRAD_LIGHTS;
     return wrt;
 }
 

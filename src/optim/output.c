@@ -379,10 +379,10 @@ static int add_metric(cJSON *m, const char *name, double v) {
 }
 
 static cJSON *groups_json(unsigned groups) {
-    static const char *const names[] = {"lighting", "albedo", "pose", "deformation", "spheres"};
     cJSON *a = cJSON_CreateArray();
-    for (int k = 0; a && k < 5; ++k)
-        if ((groups & (1u << k)) && !cJSON_AddItemToArray(a, cJSON_CreateString(names[k]))) {
+    for (int k = 0; a && k < PEN__OPTIM_GROUPS; ++k)
+        if ((groups & (1u << k)) &&
+            !cJSON_AddItemToArray(a, cJSON_CreateString(pen__optim_group_names[k]))) {
             cJSON_Delete(a);
             return NULL;
         }

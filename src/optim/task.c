@@ -25,7 +25,7 @@ static where at(const where *w, const char *name) {
 }
 
 pen_optim_lr pen_optim_lr_default(void) {
-    pen_optim_lr lr = {1e-2f, 1e-2f, 1e-2f, 1e-2f, 1e-2f, 1e-3f, 1e-2f};
+    pen_optim_lr lr = {1e-2f, 1e-2f, 1e-2f, 1e-2f, 1e-2f, 1e-3f, 1e-2f, 1e-2f};
     return lr;
 }
 
@@ -133,17 +133,19 @@ static pen_status parse_target(pen_context *ctx, const char *path, const where *
     return s ? pen__json_wrap(ctx, s, &w) : PEN_OK;
 }
 
+/* The task's group names, in the order of their bits (PEN_OPTIM_LIGHTING = 1 << 0, ...). */
+const char *const pen__optim_group_names[PEN__OPTIM_GROUPS] = {
+    "lighting", "albedo", "pose", "deformation", "spheres", "lights"};
+
 static pen_status parse_groups(pen_context *ctx, const where *top, const cJSON *root,
                                unsigned *groups) {
-    static const char *const names[] = {"lighting", "albedo", "pose", "deformation", "spheres"};
-    static const unsigned bits[] = {PEN_OPTIM_LIGHTING, PEN_OPTIM_ALBEDO, PEN_OPTIM_POSE,
-                                    PEN_OPTIM_DEFORMATION, PEN_OPTIM_SPHERES};
+    const char *const *names = pen__optim_group_names;
     where w = at(top, "optimize");
     const cJSON *a = cJSON_GetObjectItemCaseSensitive(root, "optimize");
     if (!cJSON_IsArray(a) || cJSON_GetArraySize(a) == 0)
         return pen__json_error(ctx, PEN_ERROR_PARSE, &w,
                                "expected a non-empty array of groups (\"lighting\", \"albedo\", "
-                               "\"pose\", \"deformation\", \"spheres\"), got %s",
+                               "\"pose\", \"deformation\", \"spheres\", \"lights\"), got %s",
                                a ? (cJSON_IsArray(a) ? "an empty array" : pen__json_type_name(a))
                                  : "nothing (missing key)");
     *groups = 0;
@@ -156,12 +158,12 @@ static pen_status parse_groups(pen_context *ctx, const where *top, const cJSON *
         pen_status s = pen__json_string(ctx, &wi, e, &name);
         if (s) return s;
         unsigned bit = 0;
-        for (int k = 0; k < 5 && !bit; ++k)
-            if (strcmp(name, names[k]) == 0) bit = bits[k];
+        for (int k = 0; k < PEN__OPTIM_GROUPS && !bit; ++k)
+            if (strcmp(name, names[k]) == 0) bit = 1u << k;
         if (!bit)
             return pen__json_error(ctx, PEN_ERROR_PARSE, &wi,
                                    "unknown group \"%s\" (expected \"lighting\", \"albedo\", "
-                                   "\"pose\", \"deformation\" or \"spheres\")",
+                                   "\"pose\", \"deformation\", \"spheres\" or \"lights\")",
                                    name);
         if (*groups & bit)
             return pen__json_error(ctx, PEN_ERROR_PARSE, &wi, "\"%s\" is listed twice", name);
@@ -186,7 +188,7 @@ static pen_status parse_lr(pen_context *ctx, const where *top, const cJSON *root
         if (!s && v <= 0.0) s = pen__json_error(ctx, PEN_ERROR_PARSE, &w, "expected %s", what);
         if (s) return s;
         lr->lighting = lr->albedo = lr->rotation = lr->translation = lr->spheres = (float)v;
-        lr->deformation_rotation = lr->deformation_translation = (float)v;
+        lr->deformation_rotation = lr->deformation_translation = lr->lights = (float)v;
         return PEN_OK;
     }
     if (!cJSON_IsObject(item))
@@ -200,6 +202,7 @@ static pen_status parse_lr(pen_context *ctx, const where *top, const cJSON *root
                                         "spheres",
                                         "deformation_rotation",
                                         "deformation_translation",
+                                        "lights",
                                         "pose",
                                         NULL};
     pen_status s = pen__json_known_keys(ctx, &w, item, known);
@@ -211,6 +214,7 @@ static pen_status parse_lr(pen_context *ctx, const where *top, const cJSON *root
                        &lr->spheres,
                        &lr->deformation_rotation,
                        &lr->deformation_translation,
+                       &lr->lights,
                        NULL};
     for (int k = 0; known[k]; ++k) {
         const cJSON *e = cJSON_GetObjectItemCaseSensitive(item, known[k]);
@@ -408,6 +412,12 @@ void pen_optim_task_free(pen_optim_task *task) {
 pen_status pen__optim_task_check_groups(pen_context *ctx, const pen_optim_task *t) {
     const char *name = t->path ? t->path : "task";
     const pen_scene *sc = &t->scene;
+    if ((t->optimize & PEN_OPTIM_LIGHTS) && sc->lighting.light_count == 0)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: optimize: \"lights\": the scene has no disk lights, nothing to "
+                          "optimise (give lighting.lights, or an envmap whose lights are found; "
+                          "the optimiser does not search for lights yet)",
+                          name);
     long spheres = 0;
     for (int o = 0; o < sc->object_count; ++o)
         spheres += sc->objects[o].spheres.count;
@@ -437,7 +447,7 @@ pen_status pen__optim_task_check(pen_context *ctx, const pen_optim_task *t) {
     const char *name = t->path ? t->path : "task";
     if (!t->optimize || (t->optimize & ~(unsigned)(PEN_OPTIM_LIGHTING | PEN_OPTIM_ALBEDO |
                                                    PEN_OPTIM_POSE | PEN_OPTIM_SPHERES |
-                                                   PEN_OPTIM_DEFORMATION)) ||
+                                                   PEN_OPTIM_DEFORMATION | PEN_OPTIM_LIGHTS)) ||
         ((t->optimize & PEN_OPTIM_SPHERES) && (t->optimize & PEN_OPTIM_DEFORMATION)))
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "%s: optimize: no group, an unknown one, or both spheres and "
@@ -498,10 +508,10 @@ pen_status pen__optim_task_check(pen_context *ctx, const pen_optim_task *t) {
     if (!(t->lighting_ridge >= 0.0) || !isfinite(t->lighting_ridge))
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "%s: lighting_ridge must be a finite number >= 0", name);
-    const float lr[7] = {t->lr.lighting, t->lr.albedo,  t->lr.rotation,
+    const float lr[8] = {t->lr.lighting, t->lr.albedo,  t->lr.rotation,
                          t->lr.translation, t->lr.spheres, t->lr.deformation_rotation,
-                         t->lr.deformation_translation};
-    for (int k = 0; k < 7; ++k)
+                         t->lr.deformation_translation, t->lr.lights};
+    for (int k = 0; k < 8; ++k)
         if (!(lr[k] > 0.0f) || !isfinite(lr[k]))
             return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: lr: rates must be positive", name);
     return PEN_OK;

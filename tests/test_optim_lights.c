@@ -1,0 +1,93 @@
+/* The optimiser's "lights" group (src/optim/optimize.c, adam.c): a disk light whose direction
+ * starts 10 degrees off the truth is moved back to within 2.6 degrees from a ray-traced target
+ * (the Embree reference of the true scene, exact visibility), with its radius and irradiance
+ * free; the Adam projection keeps the
+ * direction a unit vector and the radius and irradiance in range; a scene without lights is
+ * refused. Fixture: tests/optim_scenes.h (the ellipsoid over the ground). */
+#include "optim_scenes.h"
+
+#define SIZE 40
+
+/* The ellipsoid under a dim sky and one 3-degree sun, `azimuth_deg` turned about +Y from the
+ * fixture's low sun (35 degrees up). */
+static pen_scene lit_egg(float azimuth_deg) {
+    pen_scene sc = os_egg(SIZE, 0, 2);
+    memset(sc.lighting.sh, 0, sizeof sc.lighting.sh);
+    for (int ch = 0; ch < 3; ++ch)
+        sc.lighting.sh[0][ch] = 0.3f * sqrtf(4.0f * (float)M_PI);
+    const float el = 35.0f * (float)M_PI / 180.0f, az = azimuth_deg * (float)M_PI / 180.0f;
+    const float d0[3] = {cosf(el) * 0.95f, sinf(el), cosf(el) * 0.31f};
+    pen_light *L = &sc.lighting.lights[0];
+    L->direction[0] = cosf(az) * d0[0] + sinf(az) * d0[2];
+    L->direction[1] = d0[1];
+    L->direction[2] = -sinf(az) * d0[0] + cosf(az) * d0[2];
+    const float n = sqrtf(L->direction[0] * L->direction[0] + L->direction[1] * L->direction[1] +
+                          L->direction[2] * L->direction[2]);
+    for (int k = 0; k < 3; ++k)
+        L->direction[k] /= n;
+    L->angular_radius_deg = 3.0f;
+    L->irradiance[0] = L->irradiance[1] = L->irradiance[2] = 3.0f;
+    sc.lighting.light_count = 1;
+    sc.lighting.lights_mode = PEN_LIGHTS_GIVEN;
+    return sc;
+}
+
+static double angle_deg(const float a[3], const float b[3]) {
+    double d = 0, na = 0, nb = 0;
+    for (int k = 0; k < 3; ++k)
+        d += (double)a[k] * (double)b[k], na += (double)a[k] * (double)a[k],
+            nb += (double)b[k] * (double)b[k];
+    double c = d / sqrt(na * nb);
+    return acos(c > 1 ? 1 : c) * 180.0 / M_PI;
+}
+
+static void test_direction_recovered(void) {
+    pen_optim_task t = os_task(lit_egg(12.0f), lit_egg(0.0f), PEN_OPTIM_LIGHTS,
+                               check_quick_() ? 40 : 600);
+    t.lr.lights = 0.02f;
+    const double start = angle_deg(t.scene.lighting.lights[0].direction,
+                                   t.ground_truth.lighting.lights[0].direction);
+    CHECK(fabs(start - 10.0) < 3.0); /* 12 degrees of azimuth at 35 degrees up */
+    pen_context *ctx = pen_context_create();
+    pen_optim_settings set = pen_optim_settings_default();
+    pen_optim_result r;
+    CHECK_MSG(pen_optim_run(ctx, &t, &set, &r) == PEN_OK, "%s", pen_context_error(ctx));
+    const pen_light *got = &t.scene.lighting.lights[0];
+    const double end = angle_deg(got->direction, t.ground_truth.lighting.lights[0].direction);
+    const double dx = got->direction[0], dy = got->direction[1], dz = got->direction[2];
+    const double len = sqrt(dx * dx + dy * dy + dz * dz);
+    printf("  direction error %.2f -> %.2f deg in %d iterations, radius %.2f deg, irradiance "
+           "%.3f %.3f %.3f, loss %.4g -> %.4g\n",
+           start, end, r.iterations, (double)got->angular_radius_deg, (double)got->irradiance[0],
+           (double)got->irradiance[1], (double)got->irradiance[2], r.losses ? r.losses[0] : 0.0,
+           r.final_loss);
+    /* The loss falls to the model's own floor against exact visibility (measured 0.00198 ->
+     * 0.00100), the direction to within 2.6 degrees (3.4 after the quick run's 40 steps). The
+     * radius is not recovered: the sphere proxy's soft-edged shadow is matched by a wider disk
+     * (3 -> 11 degrees), so a task that knows the light's size should hold it fixed. */
+    CHECK(r.losses && r.final_loss < 0.7 * r.losses[0]);
+    CHECK(end < (check_quick_() ? 0.5 * start : 4.0));
+    CHECK(fabs(len - 1.0) < 1e-5); /* the projection keeps it a unit vector */
+    CHECK(got->angular_radius_deg >= (float)PEN_SCENE_MIN_LIGHT_RADIUS_DEG &&
+          got->angular_radius_deg <= (float)PEN_SCENE_MAX_LIGHT_RADIUS_DEG);
+    for (int k = 0; k < 3; ++k)
+        CHECK(got->irradiance[k] >= 0.0f);
+    pen_optim_result_free(&r);
+    pen_optim_task_free(&t);
+    pen_context_destroy(ctx);
+}
+
+static void test_no_lights_refused(void) {
+    pen_scene plain = os_egg(SIZE, 0, 2);
+    pen_optim_task t = os_task(plain, os_egg(SIZE, 0, 2), PEN_OPTIM_LIGHTS, 5);
+    pen_context *ctx = pen_context_create();
+    pen_optim_settings set = pen_optim_settings_default();
+    pen_optim_result r;
+    CHECK(pen_optim_run(ctx, &t, &set, &r) == PEN_ERROR_ARGUMENT);
+    CHECK_MSG(strstr(pen_context_error(ctx), "\"lights\": the scene has no disk lights") != NULL,
+              "%s", pen_context_error(ctx));
+    pen_optim_task_free(&t);
+    pen_context_destroy(ctx);
+}
+
+RUN_TESTS(TEST(test_direction_recovered), TEST(test_no_lights_refused))
