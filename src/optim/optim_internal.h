@@ -288,4 +288,63 @@ pen_status pen__optim_metrics(pen_context *ctx, const pen_optim_task *task, pen_
 /* The angle in degrees between two axis-angle rotations (given in degrees), in double. */
 double pen__optim_rotation_angle_deg(const float a_deg[3], const float b_deg[3]);
 
+/* ---- The parameter vector (src/optim/params.c) ----------------------------------------------- */
+
+/* Where each object's parameters sit in x (SIZE_MAX: not optimised). */
+typedef struct pen__optim_object_layout {
+    size_t albedo, rotation, translation, spheres, deform;
+    size_t albedo_count; /* texel floats, or 3 */
+} pen__optim_object_layout;
+
+/* An object's deformation graph and its double-precision work buffers. */
+typedef struct pen__optim_object_deform {
+    pen__deform_graph graph;
+    double *params, *d_params; /* 12 per node */
+    double *pos, *d_pos;       /* 3 per vertex */
+    double *centres, *d_centres; /* 3 per node */
+    double *spheres0, *spheres, *d_spheres; /* the spheres group's smoothness: 4 per sphere */
+} pen__optim_object_deform;
+
+typedef struct pen__optim_run {
+    pen_scene *sc;
+    pen_render_options opt;   /* every render of the run (shadows or not) */
+    unsigned groups;
+    size_t lighting; /* offset of the SH block, SIZE_MAX if not optimised */
+    size_t lights;   /* offset of the disk lights' block (7 per light), SIZE_MAX if not */
+    pen__optim_object_layout *objects;
+    pen__optim_segment *segments;
+    int segment_count;
+    size_t n;
+    float *x, *g;
+    float *best;              /* the parameters of the lowest loss so far */
+    pen__optim_object_deform *deform;    /* per object, when deformation is optimised */
+    double w_rot, w_reg;
+    double w_smooth;          /* the spheres group's smoothness weight */
+    float *weight;            /* per pixel loss weights (shadow_weight > 0), else NULL */
+    /* "lighting_solver": "least_squares": the lighting is solved, not stepped */
+    int solve;
+    double mu[3];             /* the ridge per channel, fixed at the initial guess */
+    double weight_sum;        /* of the loss weights (the pixel count without them) */
+    float *solved_for;        /* the parameters the lighting in x was solved for */
+    pen_render_state *solve_state; /* the solves' renders (kept: see solve_lighting) */
+    int solved;               /* solved_for is valid */
+    int multi;                /* the task has "views" (views.c): the loss runs over them */
+    pen__optim_views views;
+} pen__optim_run;
+
+
+/* Cuts x into segments for the task's groups and allocates x, g, best and the deformation
+ * graphs' buffers (r->sc, r->groups set by the caller). */
+pen_status pen__optim_layout(pen_context *ctx, pen__optim_run *r, const pen_optim_task *t);
+void pen__optim_run_free(pen__optim_run *r);
+/* to_scene 0: scene -> x; 1: x -> scene (deformed positions and sphere centres included). */
+void pen__optim_transfer(pen__optim_run *r, int to_scene);
+void pen__optim_deformation_rest(pen__optim_run *r);
+double pen__optim_regularisers(pen__optim_run *r);
+void pen__optim_initial_guess(pen__optim_run *r);
+/* r->g = scale x the render gradient in x's layout, plus the regularisers' gradients. */
+void pen__optim_gather(pen__optim_run *r, const pen_render_grad *grad, float scale);
+/* The render gradient groups the optimised groups need. */
+unsigned pen__optim_grad_mask(unsigned groups, int solve);
+
 #endif
