@@ -75,7 +75,7 @@ static void usage(FILE *f) {
             "  -o, --output DIR    output folder (created if missing; required)\n"
             "  --no-shadows        optimise without shadows (visibility 1: the baseline)\n"
             "  --iterations N      override the task's iteration limit\n"
-            "  --target IMAGE      override the task's target (.exr or .hdr)\n"
+            "  --target IMAGE      override the task's target (.exr, .hdr; .png, .jpg in sRGB)\n"
             "  --resume            continue from OUTDIR/checkpoint.bin (same result as one run)\n"
             "  --checkpoint-every K  checkpoint every K iterations (default 50; 0: at the end)\n"
             "  --snapshot-every K  render snapshot every K iterations (default 50; 0: none)\n"

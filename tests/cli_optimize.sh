@@ -188,8 +188,10 @@ expect_error 'bad.json: optimize: expected a non-empty array' \
     '{"scene": "truth.json", "target": "target.exr", "optimize": []}'
 expect_error 'bad.json: optimize\[1\]: "lighting" is listed twice' \
     '{"scene": "truth.json", "target": "target.exr", "optimize": ["lighting", "lighting"]}'
-expect_error 'bad.json: target: "target.png": expected a linear image' \
-    '{"scene": "truth.json", "target": "target.png", "optimize": ["lighting"]}'
+expect_error 'bad.json: target: .*unknown image format' \
+    '{"scene": "truth.json", "target": "target.tif", "optimize": ["lighting"]}'
+expect_error 'bad.json: target_encoding: ' \
+    '{"scene": "truth.json", "target": "target.exr", "optimize": ["lighting"], "target_encoding": "gamma"}'
 expect_error 'bad.json: target: ' \
     '{"scene": "truth.json", "target": "nosuch.exr", "optimize": ["lighting"]}'
 expect_error 'bad.json: scene: ' \

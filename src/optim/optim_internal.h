@@ -168,11 +168,12 @@ pen_status pen__optim_solve_lighting_eyes(pen_context *ctx, const pen_scene *sc,
 
 /* Reads the task's "views" (or "validation_views") member at w: an array of {"camera", "target",
  * "mask", "weight"} (paths relative to the task file) or the path of a views file holding
- * {"views": [...]} (paths relative to it). On failure what was read is left in *views, *count
- * for pen__optim_views_free. */
+ * {"views": [...]} (paths relative to it). Targets are read with pen_image_load_ex's
+ * target_flags (0: 8-bit files decoded from sRGB; PEN_IMAGE_LOAD_RAW: taken as linear). On
+ * failure what was read is left in *views, *count for pen__optim_views_free. */
 pen_status pen__optim_views_parse(pen_context *ctx, const char *task_path,
                                   const pen__json_where *w, const cJSON *item,
-                                  pen_optim_view **views, int *count);
+                                  unsigned target_flags, pen_optim_view **views, int *count);
 void pen__optim_views_free(pen_optim_view *views, int count);
 /* Of the views' cameras, weights, targets and masks (checkpoint identity). */
 uint64_t pen__optim_views_hash(const pen_optim_view *views, int count);

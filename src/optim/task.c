@@ -90,16 +90,20 @@ static pen_status parse_scene_ref(pen_context *ctx, const char *path, const wher
                            pen__json_type_name(item));
 }
 
+/* pen_image_load_ex's flags for a target: 8-bit codes decoded from sRGB unless the task says
+ * they are linear already (a PNG written from linear data, a normal-map-like capture). */
+static unsigned target_flags(const pen_optim_task *t) {
+    return t->target_linear ? PEN_IMAGE_LOAD_RAW : 0u;
+}
+
 pen_status pen_optim_task_set_target(pen_context *ctx, pen_optim_task *task, const char *path) {
     if (task->view_count > 0)
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "\"%s\": the task has \"views\": a target replaces no view's image", path);
-    if (!pen__io_has_ext(path, "exr") && !pen__io_has_ext(path, "hdr"))
-        return pen__error(ctx, PEN_ERROR_ARGUMENT, "\"%s\": expected a linear image (.exr or .hdr)",
-                          path);
     pen_image img = {0, 0, 0, NULL};
     char *name = pen__io_strdup(ctx, path);
-    pen_status s = name ? pen_image_load(ctx, path, &img) : PEN_ERROR_MEMORY;
+    pen_status s = name ? pen_image_load_ex(ctx, path, target_flags(task), &img)
+                        : PEN_ERROR_MEMORY;
     const pen_camera *c = &task->scene.camera;
     if (!s && (img.width != c->width || img.height != c->height))
         s = pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: the image is %dx%d but the scene's camera is %dx%d",
@@ -123,9 +127,6 @@ static pen_status parse_target(pen_context *ctx, const char *path, const where *
     pen_status s = pen__json_string(ctx, &w, cJSON_GetObjectItemCaseSensitive(root, "target"),
                                     &rel);
     if (s) return s;
-    if (!pen__io_has_ext(rel, "exr") && !pen__io_has_ext(rel, "hdr"))
-        return pen__json_error(ctx, PEN_ERROR_PARSE, &w,
-                               "\"%s\": expected a linear image (.exr or .hdr)", rel);
     char *full = pen__io_path_resolve(ctx, path, rel);
     if (!full) return PEN_ERROR_MEMORY;
     s = pen_optim_task_set_target(ctx, t, full);
@@ -285,6 +286,7 @@ static pen_status parse_options(pen_context *ctx, const where *top, const cJSON 
         s = pen__json_number(ctx, &w, e, 0.0, 1e6, "a ridge in [0, 1e6]", &t->lighting_ridge);
         if (s) return s;
     }
+    static const char *const encodings[] = {"srgb", "linear", NULL};
     static const char *const solvers[] = {"adam", "least_squares", NULL};
     static const char *const losses[] = {"l2", "l1", NULL};
     static const char *const inits[] = {"black", "scene", "fit", NULL};
@@ -294,6 +296,12 @@ static pen_status parse_options(pen_context *ctx, const where *top, const cJSON 
         s = pen__json_choice(ctx, &w, e, "lighting solver", solvers, &k);
         if (s) return s;
         t->lighting_solver = k == 1 ? PEN_OPTIM_LIGHTING_LEAST_SQUARES : PEN_OPTIM_LIGHTING_ADAM;
+    }
+    if ((e = cJSON_GetObjectItemCaseSensitive(root, "target_encoding"))) {
+        w = at(top, "target_encoding");
+        s = pen__json_choice(ctx, &w, e, "target encoding", encodings, &k);
+        if (s) return s;
+        t->target_linear = k == 1;
     }
     if ((e = cJSON_GetObjectItemCaseSensitive(root, "loss"))) {
         w = at(top, "loss");
@@ -328,7 +336,8 @@ static pen_status parse_task(pen_context *ctx, const char *path, const cJSON *ro
                                         "lr",    "loss",      "tolerance", "window",
                                         "init",  "deformation", "spheres", "ground_truth",
                                         "shadow_weight", "lighting_solver",
-                                        "lighting_ridge", "views", "validation_views", NULL};
+                                        "lighting_ridge", "views", "validation_views",
+                                        "target_encoding", NULL};
     pen_status s = pen__json_known_keys(ctx, &top, root, known);
     const cJSON *views = cJSON_GetObjectItemCaseSensitive(root, "views");
     const cJSON *validation = cJSON_GetObjectItemCaseSensitive(root, "validation_views");
@@ -340,15 +349,16 @@ static pen_status parse_task(pen_context *ctx, const char *path, const cJSON *ro
     if (!s) s = parse_options(ctx, &top, root, t);
     if (!s) s = parse_scene_ref(ctx, path, &top, root, "scene", &t->scene);
     if (!s && views) {
-        s = pen__optim_views_parse(ctx, path, &wv, views, &t->views, &t->view_count);
+        s = pen__optim_views_parse(ctx, path, &wv, views, target_flags(t), &t->views,
+                                   &t->view_count);
     } else if (!s && target) {
         s = pen_optim_task_set_target(ctx, t, target);
     } else if (!s) {
         s = parse_target(ctx, path, &top, root, t);
     }
     if (!s && validation)
-        s = pen__optim_views_parse(ctx, path, &wval, validation, &t->validation,
-                                   &t->validation_count);
+        s = pen__optim_views_parse(ctx, path, &wval, validation, target_flags(t),
+                                   &t->validation, &t->validation_count);
     if (!s && cJSON_GetObjectItemCaseSensitive(root, "ground_truth")) {
         s = parse_scene_ref(ctx, path, &top, root, "ground_truth", &t->ground_truth);
         t->has_ground_truth = s == PEN_OK;

@@ -29,15 +29,14 @@ typedef pen__json_where where;
 
 /* ---- Parsing --------------------------------------------------------------------------------- */
 
-/* A linear image of the camera's size at `rel` (relative to base), into *img and *name. */
+/* An image of the camera's size at `rel` (relative to base), into *img and *name; flags as
+ * pen_image_load_ex's (a target: 0, 8-bit files decoded from sRGB, or RAW for "target_encoding":
+ * "linear"; a mask: RAW). */
 static pen_status load_image(pen_context *ctx, const where *w, const char *base, const char *rel,
-                             const pen_camera *cam, int linear, pen_image *img, char **name) {
-    if (linear && !pen__io_has_ext(rel, "exr") && !pen__io_has_ext(rel, "hdr"))
-        return pen__json_error(ctx, PEN_ERROR_PARSE, w,
-                               "\"%s\": expected a linear image (.exr or .hdr)", rel);
+                             const pen_camera *cam, unsigned flags, pen_image *img, char **name) {
     *name = pen__io_path_resolve(ctx, base, rel);
     if (!*name) return PEN_ERROR_MEMORY;
-    pen_status s = pen_image_load_ex(ctx, *name, linear ? 0u : PEN_IMAGE_LOAD_RAW, img);
+    pen_status s = pen_image_load_ex(ctx, *name, flags, img);
     if (s) return pen__json_wrap(ctx, s, w);
     if (img->width != cam->width || img->height != cam->height)
         return pen__json_error(ctx, PEN_ERROR_PARSE, w,
@@ -47,7 +46,7 @@ static pen_status load_image(pen_context *ctx, const where *w, const char *base,
 }
 
 static pen_status parse_view(pen_context *ctx, const char *base, const where *w, const cJSON *o,
-                             pen_optim_view *v) {
+                             unsigned target_flags, pen_optim_view *v) {
     static const char *const known[] = {"camera", "target", "mask", "weight", NULL};
     where wc, wt, wm, ww;
     pen__json_child(w, "camera", &wc);
@@ -60,12 +59,12 @@ static pen_status parse_view(pen_context *ctx, const char *base, const where *w,
     if (!s) s = pen__io_camera_parse(ctx, &wc, pen__json_member(o, "camera"), &v->camera);
     const char *rel = NULL;
     if (!s) s = pen__json_string(ctx, &wt, pen__json_member(o, "target"), &rel);
-    if (!s) s = load_image(ctx, &wt, base, rel, &v->camera, 1, &v->target, &v->target_path);
+    if (!s) s = load_image(ctx, &wt, base, rel, &v->camera, target_flags, &v->target, &v->target_path);
     const cJSON *m = pen__json_member(o, "mask");
     if (!s && m) {
         pen_image mask = {0, 0, 0, NULL};
         s = pen__json_string(ctx, &wm, m, &rel);
-        if (!s) s = load_image(ctx, &wm, base, rel, &v->camera, 0, &mask, &v->mask_path);
+        if (!s) s = load_image(ctx, &wm, base, rel, &v->camera, PEN_IMAGE_LOAD_RAW, &mask, &v->mask_path);
         const size_t pixels = (size_t)v->camera.width * (size_t)v->camera.height;
         if (!s && !(v->mask = pen__malloc(ctx, pixels, sizeof(float), "mask")))
             s = PEN_ERROR_MEMORY;
@@ -82,7 +81,7 @@ static pen_status parse_view(pen_context *ctx, const char *base, const where *w,
 
 /* The array of views at w (paths relative to base). */
 static pen_status parse_array(pen_context *ctx, const char *base, const where *w, const cJSON *a,
-                              pen_optim_view **views, int *count) {
+                              unsigned target_flags, pen_optim_view **views, int *count) {
     if (!cJSON_IsArray(a) || cJSON_GetArraySize(a) < 1 ||
         cJSON_GetArraySize(a) > PEN_CAMERA_SET_MAX)
         return pen__json_error(ctx, PEN_ERROR_PARSE, w,
@@ -100,17 +99,19 @@ static pen_status parse_array(pen_context *ctx, const char *base, const where *w
         where wi;
         pen__json_index(w, i, &wi);
         *count = ++i; /* (freed with the rest on failure) */
-        s = parse_view(ctx, base, &wi, o, &(*views)[i - 1]);
+        s = parse_view(ctx, base, &wi, o, target_flags, &(*views)[i - 1]);
         if (s) break;
     }
     return s;
 }
 
 pen_status pen__optim_views_parse(pen_context *ctx, const char *task_path, const where *w,
-                                  const cJSON *item, pen_optim_view **views, int *count) {
+                                  const cJSON *item, unsigned target_flags,
+                                  pen_optim_view **views, int *count) {
     *views = NULL;
     *count = 0;
-    if (!cJSON_IsString(item)) return parse_array(ctx, task_path, w, item, views, count);
+    if (!cJSON_IsString(item))
+        return parse_array(ctx, task_path, w, item, target_flags, views, count);
     char *file = pen__io_path_resolve(ctx, task_path, item->valuestring);
     if (!file) return PEN_ERROR_MEMORY;
     cJSON *root = NULL;
@@ -120,7 +121,8 @@ pen_status pen__optim_views_parse(pen_context *ctx, const char *task_path, const
     pen_status s = pen__json_load(ctx, file, &root);
     if (!s) s = pen__json_need_object(ctx, &top, root);
     if (!s) s = pen__json_known_keys(ctx, &top, root, known);
-    if (!s) s = parse_array(ctx, file, &wv, pen__json_member(root, "views"), views, count);
+    if (!s) s = parse_array(ctx, file, &wv, pen__json_member(root, "views"), target_flags, views,
+                            count);
     cJSON_Delete(root);
     free(file);
     return s ? pen__json_wrap(ctx, s, w) : PEN_OK;
