@@ -1,11 +1,12 @@
-/* Real targets of a task (src/optim/task.c, src/optim/views.c): 8-bit PNG targets decoded from
- * sRGB to linear (or taken as linear with "target_encoding": "linear"), in the single-view and
- * the multi-view forms. */
+/* Real targets of a task (src/optim/task.c, src/optim/views.c, src/optim/params.c): 8-bit PNG
+ * targets decoded from sRGB to linear (or taken as linear with "target_encoding": "linear"), in
+ * the single-view and the multi-view forms; per-view exposures: the gradient of the objective
+ * with respect to log s against central differences, their recovery from photos of other
+ * exposures, the gauge (the first view's stays), result.json, and the tasks refused. */
 #define _POSIX_C_SOURCE 200809L
-#include "check.h"
+#include "optim_scenes.h"
 
 #include "optim/optim_internal.h"
-#include "penumbra/penumbra.h"
 
 #include <stdio.h>
 #include <stdlib.h>
@@ -95,10 +96,206 @@ static void test_srgb_targets(void) {
     CHECK(pen_optim_task_parse(ctx, json, path_in(dir, "task.json"), &bad) == PEN_ERROR_PARSE);
     CHECK_MSG(strstr(pen_context_error(ctx), "task.json: target_encoding: "), "%s",
               pen_context_error(ctx));
+    /* a view's exposure must be positive */
+    task_text(json, sizeof json,
+              "\"views\": [{\"camera\": {\"width\": 16, \"height\": 8, \"fov_y_deg\": 30, "
+              "\"eye\": [0, 0, 1], \"target\": [0, 0, 0]}, \"target\": \"t.png\", "
+              "\"exposure\": 0}]",
+              NULL);
+    CHECK(pen_optim_task_parse(ctx, json, path_in(dir, "task.json"), &bad) == PEN_ERROR_PARSE);
+    CHECK_MSG(strstr(pen_context_error(ctx), "task.json: views[0].exposure: expected an exposure"),
+              "%s", pen_context_error(ctx));
     pen_image_free(&lin);
     pen_context_destroy(ctx);
     remove(path_in(dir, "t.png"));
     rmdir(dir);
 }
 
-RUN_TESTS(TEST(test_srgb_targets))
+/* ---- Exposure ------------------------------------------------------------------------------- */
+
+#define ES 24 /* pixels a side */
+
+/* The ellipsoid under its low sun seen from `n` cameras on a circle; view v's target is the true
+ * scene's render times truth_exposure[v]; the task's views start at exposure 1. */
+static pen_optim_task exposure_task(int n, const double *truth_exposure, unsigned groups) {
+    pen_context *ctx = pen_context_create();
+    pen_optim_task t = pen_optim_task_default();
+    t.ground_truth = os_egg(ES, 0, 4);
+    os_sun(&t.ground_truth, 6.0f, 0.5f);
+    t.has_ground_truth = 1;
+    t.scene = os_egg(ES, 0, 4);
+    os_sun(&t.scene, 6.0f, 0.5f);
+    t.optimize = groups;
+    t.view_count = n;
+    t.views = calloc((size_t)n, sizeof *t.views);
+    for (int v = 0; v < n; ++v) {
+        pen_optim_view *w = &t.views[v];
+        const double a = 0.4 + 2.0 * M_PI * v / n;
+        w->camera = t.scene.camera;
+        w->camera.eye[0] = (float)(2.3 * sin(a));
+        w->camera.eye[1] = 1.7f;
+        w->camera.eye[2] = (float)(2.3 * cos(a));
+        w->camera.target[0] = w->camera.target[2] = 0.0f;
+        w->camera.target[1] = 0.35f;
+        w->weight = 1.0;
+        w->exposure = 1.0;
+        const pen_scene seen = pen__optim_view_scene(&t.ground_truth, &w->camera);
+        CHECK(pen_render_fwd(ctx, &seen, NULL, NULL, &w->target) == PEN_OK);
+        pen__optim_view_expose(&w->target, truth_exposure[v]);
+    }
+    pen_context_destroy(ctx);
+    return t;
+}
+
+/* The objective of the views at the task's exposures (and the gradients with grad). */
+static double views_loss(pen_context *ctx, pen__optim_views *V, pen_optim_task *t, int grad) {
+    double loss = 0.0;
+    const pen_render_options opt = pen_render_options_default();
+    CHECK(pen__optim_views_fwd(ctx, V, &t->scene, &opt, t->loss, grad, &loss) == PEN_OK);
+    return loss;
+}
+
+/* dE/d(log s_v) = sum_p dE/dJ_p J_p (J = s I, the image the loss sees) against central
+ * differences in log s (E is quadratic in s, so the only error is O(h^2) and the float image's
+ * rounding), with weights and a half mask; and the lighting gradient of an exposed view, against
+ * central differences in its DC coefficient (the render is affine in it). */
+static void test_exposure_gradient(void) {
+    const double truth[3] = {1.0, 1.6, 0.7};
+    pen_optim_task t = exposure_task(3, truth, PEN_OPTIM_LIGHTING | PEN_OPTIM_EXPOSURE);
+    t.views[1].exposure = 1.25;
+    t.views[2].exposure = 0.9;
+    t.views[2].weight = 0.5;
+    t.views[2].mask = malloc(sizeof(float) * ES * ES);
+    for (int p = 0; p < ES * ES; ++p)
+        t.views[2].mask[p] = p % ES < ES / 2 ? 1.0f : 0.0f;
+    t.scene.lighting.sh[0][0] *= 0.8f; /* off the truth: a gradient to see */
+    pen_context *ctx = pen_context_create();
+    pen__optim_views V;
+    CHECK(pen__optim_views_init(ctx, &V, &t, 0.0, 0) == PEN_OK);
+    views_loss(ctx, &V, &t, 1);
+    double analytic[3];
+    memcpy(analytic, V.d_exposure, sizeof analytic);
+    pen_render_grad g;
+    CHECK(pen_render_grad_create(ctx, &t.scene, &g) == PEN_OK);
+    pen_render_grad_zero(&g);
+    const pen_render_options opt = pen_render_options_default();
+    CHECK(pen__optim_views_bwd(ctx, &V, &t.scene, &opt, PEN_GRAD_LIGHTING, &g) == PEN_OK);
+    const double h = 1e-3;
+    for (int v = 0; v < 3; ++v) {
+        const double s0 = t.views[v].exposure;
+        t.views[v].exposure = s0 * exp(h);
+        const double up = views_loss(ctx, &V, &t, 0);
+        t.views[v].exposure = s0 * exp(-h);
+        const double down = views_loss(ctx, &V, &t, 0);
+        t.views[v].exposure = s0;
+        const double fd = (up - down) / (2.0 * h);
+        printf("  view %d: dE/dlog s %.8g, central difference %.8g\n", v, analytic[v], fd);
+        CHECK_REL(analytic[v], fd, 1e-4, 1e-9);
+    }
+    const double l0 = (double)t.scene.lighting.sh[0][0], hl = 1e-2;
+    t.scene.lighting.sh[0][0] = (float)(l0 + hl);
+    const double up = views_loss(ctx, &V, &t, 0);
+    t.scene.lighting.sh[0][0] = (float)(l0 - hl);
+    const double down = views_loss(ctx, &V, &t, 0);
+    t.scene.lighting.sh[0][0] = (float)l0;
+    const double fd = (up - down) / (2.0 * hl);
+    printf("  dE/dL00: %.8g, central difference %.8g\n", (double)g.sh[0][0], fd);
+    CHECK_REL((double)g.sh[0][0], fd, 2e-3, 1e-9);
+    pen_render_grad_free(&g);
+    pen__optim_views_free_run(&V);
+    pen_context_destroy(ctx);
+    pen_optim_task_free(&t);
+}
+
+/* Three photos of the scene at exposures 1, 1.6 and 0.7, the lighting 20% too dim to start:
+ * lighting + exposure bring views 1 and 2 to their exposures relative to view 0's (the gauge,
+ * which stays at 1) and the lighting to the truth. result.json lists the exposures and the
+ * gauge. */
+static pen_optim_task dim_task(unsigned groups) {
+    static const double truth[3] = {1.0, 1.6, 0.7};
+    pen_optim_task t = exposure_task(3, truth, groups);
+    t.init_black = 0;
+    for (int k = 0; k < 16; ++k)
+        for (int c = 0; c < 3; ++c)
+            t.scene.lighting.sh[k][c] *= 0.8f;
+    t.iterations = 200;
+    t.lr.exposure = 0.02f;
+    return t;
+}
+
+static void test_exposure_recovery(void) {
+    const double truth[3] = {1.0, 1.6, 0.7};
+    pen_context *ctx = pen_context_create();
+    pen_optim_settings set = pen_optim_settings_default();
+    pen_optim_result r;
+    /* without the group: the lighting alone cannot explain the three exposures */
+    pen_optim_task t = dim_task(PEN_OPTIM_LIGHTING);
+    CHECK(pen_optim_run(ctx, &t, &set, &r) == PEN_OK);
+    const double rmse_fixed = r.metrics.image_rmse, sky_fixed = r.metrics.lighting_rel_error_sky;
+    pen_optim_result_free(&r);
+    pen_optim_task_free(&t);
+    t = dim_task(PEN_OPTIM_LIGHTING | PEN_OPTIM_EXPOSURE);
+    pen_status s = pen_optim_run(ctx, &t, &set, &r);
+    CHECK_MSG(s == PEN_OK, "%s", pen_context_error(ctx));
+    if (s) {
+        pen_context_destroy(ctx);
+        pen_optim_task_free(&t);
+        return;
+    }
+    printf("  without the group: image RMSE %.4g, sky lighting error %.4f\n", rmse_fixed,
+           sky_fixed);
+    printf("  with it: image RMSE %.4g, sky lighting error %.4f\n", r.metrics.image_rmse,
+           r.metrics.lighting_rel_error_sky);
+    CHECK(r.metrics.image_rmse < 0.25 * rmse_fixed);
+    CHECK(r.metrics.lighting_rel_error_sky < 0.5 * sky_fixed);
+    printf("  exposures %.4f %.4f %.4f (truth 1, 1.6, 0.7), %d iterations\n", t.views[0].exposure,
+           t.views[1].exposure, t.views[2].exposure, r.iterations);
+    CHECK(t.views[0].exposure == 1.0);
+    for (int v = 1; v < 3; ++v)
+        CHECK_REL(t.views[v].exposure, truth[v], 0.03, 0.0);
+    char *json = NULL;
+    CHECK(pen_optim_result_json(ctx, &t, &set, &r, &json) == PEN_OK);
+    CHECK(json && strstr(json, "\"exposure_fixed_view\"") && strstr(json, "\"exposure\":"));
+    free(json);
+    pen_optim_result_free(&r);
+    pen_optim_task_free(&t);
+    pen_context_destroy(ctx);
+}
+
+/* The tasks the group cannot serve are refused with one line saying why. */
+static void test_exposure_refused(void) {
+    const double truth[2] = {1.0, 1.0};
+    pen_context *ctx = pen_context_create();
+    static const struct {
+        int views;
+        unsigned groups;
+        int least_squares;
+        const char *message;
+    } cases[] = {
+        {0, PEN_OPTIM_LIGHTING | PEN_OPTIM_EXPOSURE, 0, "a single-view task has none to move"},
+        {1, PEN_OPTIM_LIGHTING | PEN_OPTIM_EXPOSURE, 0, "one view has none to move"},
+        {2, PEN_OPTIM_LIGHTING | PEN_OPTIM_EXPOSURE, 1, "do not work yet with"},
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; ++i) {
+        pen_optim_task t = exposure_task(cases[i].views ? cases[i].views : 1, truth,
+                                         cases[i].groups);
+        if (!cases[i].views) { /* the single-view form of the same */
+            t.target = t.views[0].target;
+            t.views[0].target.data = NULL;
+            t.scene.camera = t.views[0].camera;
+            pen__optim_views_free(t.views, t.view_count);
+            t.views = NULL;
+            t.view_count = 0;
+        }
+        if (cases[i].least_squares) t.lighting_solver = PEN_OPTIM_LIGHTING_LEAST_SQUARES;
+        pen_optim_result r;
+        CHECK(pen_optim_run(ctx, &t, NULL, &r) == PEN_ERROR_ARGUMENT);
+        CHECK_MSG(strstr(pen_context_error(ctx), cases[i].message), "%zu: %s", i,
+                  pen_context_error(ctx));
+        pen_optim_task_free(&t);
+    }
+    pen_context_destroy(ctx);
+}
+
+RUN_TESTS(TEST(test_srgb_targets), TEST(test_exposure_gradient), TEST(test_exposure_recovery),
+          TEST(test_exposure_refused))

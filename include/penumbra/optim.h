@@ -63,6 +63,8 @@ extern "C" {
 #define PEN_OPTIM_LIGHTS 32u     /* "lights": every disk light's direction, angular radius and
                                     irradiance (the scene must have lights: given, or found in its
                                     map; the optimiser does not create them) */
+#define PEN_OPTIM_EXPOSURE 64u   /* "exposure": each view's exposure but the first's (a task with
+                                    2 or more views; the first is the gauge, below) */
 
 typedef enum pen_optim_loss { PEN_OPTIM_LOSS_L2 = 0, PEN_OPTIM_LOSS_L1 = 1 } pen_optim_loss;
 
@@ -77,6 +79,7 @@ typedef struct pen_optim_lr {
     float deformation_translation; /* the graph nodes' translations (object space) */
     float lights;      /* disk lights: each direction component (a unit vector, renormalised after
                           each step), the angular radius in degrees and the irradiance */
+    float exposure;    /* natural log of a view's exposure (1e-2: about 1% per step) */
 } pen_optim_lr;
 
 /* 1e-2, and 1e-3 for the deformation matrices (supplement section 5.1). */
@@ -140,7 +143,14 @@ typedef enum pen_optim_lighting_solver {
 } pen_optim_lighting_solver;
 
 /* One observed view of a multi-view task (task key "views", docs/optimize.md): a camera of its
- * own, the image it saw, which of its pixels count and how much the view counts. */
+ * own, the image it saw, which of its pixels count and how much the view counts.
+ *
+ * Exposure: the render of a view is multiplied by its exposure s before the loss (and in its
+ * final render and metrics): photos of one scene taken with other shutter times, apertures or
+ * gains. The group "exposure" optimises log s of every view but the first: a common factor on
+ * every exposure is the same image as that factor on the lighting (and on the lights'
+ * irradiance), so the first view's exposure stays as given and fixes the scale (the gauge);
+ * the recovered lighting is in the units the first view's exposure implies. */
 typedef struct pen_optim_view {
     pen_camera camera;  /* look-at or calibrated; its own size */
     pen_image target;   /* 3 channels, linear (see target_linear), the camera's size */
@@ -148,6 +158,8 @@ typedef struct pen_optim_view {
     float *mask;        /* one per pixel, 1 (counts) or 0; NULL: every pixel counts */
     char *mask_path;    /* NULL without a mask */
     double weight;      /* >= 0 (default 1) */
+    double exposure;    /* > 0 (default 1; 0, a view zeroed in code, stands for 1);
+                           pen_optim_run leaves the recovered ones here */
 } pen_optim_view;
 
 typedef struct pen_optim_task {

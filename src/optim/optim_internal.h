@@ -18,7 +18,7 @@
 
 /* What a segment's values must satisfy after each step (a projection, applied in place). */
 /* The task's parameter groups by bit (optim.h PEN_OPTIM_*: bit k is names[k]), src/optim/task.c. */
-#define PEN__OPTIM_GROUPS 6
+#define PEN__OPTIM_GROUPS 7
 extern const char *const pen__optim_group_names[PEN__OPTIM_GROUPS];
 
 typedef enum pen__optim_bound {
@@ -193,7 +193,9 @@ typedef struct pen__optim_views {
     pen_render_state **solve_state; /* per view: the least-squares lighting's renders */
     float **weight;  /* per view: mask x shadow weights per pixel; NULL: every pixel 1 */
     double *factor;
-    pen_image *img, *d_img; /* the last render and its loss gradient, per view */
+    pen_image *img, *d_img; /* the last render (times the exposure) and its loss gradient, per
+                               view */
+    double *d_exposure;     /* per view: d(w_v E_v)/d(log s_v) of the last render with grad */
     size_t max_pixels;
 } pen__optim_views;
 
@@ -205,7 +207,15 @@ void pen__optim_views_free_run(pen__optim_views *V);
 /* The views taking part, as least-squares eyes (states: the solve's when `solve`); returns how
  * many were written (eyes: room for V->count). */
 int pen__optim_views_eyes(const pen__optim_views *V, int solve, pen__optim_eye *eyes);
-/* Renders every view taking part, *loss = sum_v w_v E_v; with grad also each view's d_img. */
+/* A view's exposure: 0, in a view made in code before the field existed (zeroed), stands for 1. */
+static inline double pen__optim_exposure(const pen_optim_view *v) {
+    return v->exposure > 0.0 ? v->exposure : 1.0;
+}
+/* Multiplies the image by a view's exposure (nothing to do at 1). */
+void pen__optim_view_expose(pen_image *img, double exposure);
+/* Renders every view taking part, *loss = sum_v w_v E_v (each render times its view's
+ * exposure); with grad also each view's d_img (with respect to the unscaled render) and
+ * d_exposure. */
 pen_status pen__optim_views_fwd(pen_context *ctx, pen__optim_views *V, const pen_scene *sc,
                                 const pen_render_options *opt, pen_optim_loss kind, int grad,
                                 double *loss);
@@ -312,6 +322,10 @@ typedef struct pen__optim_run {
     unsigned groups;
     size_t lighting; /* offset of the SH block, SIZE_MAX if not optimised */
     size_t lights;   /* offset of the disk lights' block (7 per light), SIZE_MAX if not */
+    size_t exposure; /* offset of the views' log exposures (views 1 .., one each), SIZE_MAX if
+                        not optimised */
+    pen_optim_view *task_views; /* the task's views, where the exposures go (multi-view) */
+    int task_view_count;
     pen__optim_object_layout *objects;
     pen__optim_segment *segments;
     int segment_count;

@@ -234,7 +234,9 @@ static pen_status picture(pen_context *ctx, const pen_optim_task *t, const run *
                           pen_image *img) {
     const pen_scene v =
         r->multi ? pen__optim_view_scene(&t->scene, &t->views[0].camera) : t->scene;
-    return pen_render_fwd(ctx, &v, &r->opt, NULL, img);
+    pen_status s = pen_render_fwd(ctx, &v, &r->opt, NULL, img);
+    if (!s && r->multi) pen__optim_view_expose(img, pen__optim_exposure(&t->views[0]));
+    return s;
 }
 
 static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_settings *set,
@@ -475,6 +477,8 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
     r.groups = task->optimize;
     r.solve = task->lighting_solver == PEN_OPTIM_LIGHTING_LEAST_SQUARES;
     r.multi = task->view_count > 0;
+    r.task_views = task->views;
+    r.task_view_count = task->view_count;
     s = pen__optim_layout(ctx, &r, task);
     if (!s) {
         pen__optim_transfer(&r, 0);

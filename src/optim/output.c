@@ -278,6 +278,7 @@ static cJSON *views_json(const pen_optim_view *views, int count,
         const char *target = views[i].target_path ? views[i].target_path : "";
         const int ok = o && pen__json_add(o, "target", cJSON_CreateString(target)) &&
                        pen__json_add(o, "weight", cJSON_CreateNumber(views[i].weight)) &&
+                       pen__json_add(o, "exposure", cJSON_CreateNumber(pen__optim_exposure(&views[i]))) &&
                        pen__json_add(o, "loss", number_or_null(m[i].loss)) &&
                        pen__json_add(o, "image_rmse", number_or_null(m[i].rmse)) &&
                        pen__json_add(o, "image_rel_rmse", number_or_null(m[i].rel_rmse));
@@ -420,7 +421,8 @@ static cJSON *lr_json(const pen_optim_lr *lr) {
         pen__json_add(o, "translation", pen__json_float(lr->translation)) &&
         pen__json_add(o, "spheres", pen__json_float(lr->spheres)) &&
         pen__json_add(o, "deformation_rotation", pen__json_float(lr->deformation_rotation)) &&
-        pen__json_add(o, "deformation_translation", pen__json_float(lr->deformation_translation));
+        pen__json_add(o, "deformation_translation", pen__json_float(lr->deformation_translation)) &&
+        pen__json_add(o, "exposure", pen__json_float(lr->exposure));
     if (!ok) cJSON_Delete(o);
     return ok ? o : NULL;
 }
@@ -484,6 +486,9 @@ pen_status pen_optim_result_json(pen_context *ctx, const pen_optim_task *t,
                            cJSON_CreateString(r->converged     ? "converged"
                                               : r->interrupted ? "interrupted"
                                                                : "iteration_limit")) &&
+             /* the gauge of the exposures: the first view's stays as given (optim.h) */
+             (!(t->optimize & PEN_OPTIM_EXPOSURE) ||
+              pen__json_add(root, "exposure_fixed_view", cJSON_CreateNumber(0))) &&
              (!r->views ||
               pen__json_add(root, "views",
                             views_json(t->views, r->view_count, r->views))) &&

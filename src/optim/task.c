@@ -25,7 +25,7 @@ static where at(const where *w, const char *name) {
 }
 
 pen_optim_lr pen_optim_lr_default(void) {
-    pen_optim_lr lr = {1e-2f, 1e-2f, 1e-2f, 1e-2f, 1e-2f, 1e-3f, 1e-2f, 1e-2f};
+    pen_optim_lr lr = {1e-2f, 1e-2f, 1e-2f, 1e-2f, 1e-2f, 1e-3f, 1e-2f, 1e-2f, 1e-2f};
     return lr;
 }
 
@@ -136,7 +136,7 @@ static pen_status parse_target(pen_context *ctx, const char *path, const where *
 
 /* The task's group names, in the order of their bits (PEN_OPTIM_LIGHTING = 1 << 0, ...). */
 const char *const pen__optim_group_names[PEN__OPTIM_GROUPS] = {
-    "lighting", "albedo", "pose", "deformation", "spheres", "lights"};
+    "lighting", "albedo", "pose", "deformation", "spheres", "lights", "exposure"};
 
 static pen_status parse_groups(pen_context *ctx, const where *top, const cJSON *root,
                                unsigned *groups) {
@@ -146,7 +146,8 @@ static pen_status parse_groups(pen_context *ctx, const where *top, const cJSON *
     if (!cJSON_IsArray(a) || cJSON_GetArraySize(a) == 0)
         return pen__json_error(ctx, PEN_ERROR_PARSE, &w,
                                "expected a non-empty array of groups (\"lighting\", \"albedo\", "
-                               "\"pose\", \"deformation\", \"spheres\", \"lights\"), got %s",
+                               "\"pose\", \"deformation\", \"spheres\", \"lights\", "
+                               "\"exposure\"), got %s",
                                a ? (cJSON_IsArray(a) ? "an empty array" : pen__json_type_name(a))
                                  : "nothing (missing key)");
     *groups = 0;
@@ -164,7 +165,8 @@ static pen_status parse_groups(pen_context *ctx, const where *top, const cJSON *
         if (!bit)
             return pen__json_error(ctx, PEN_ERROR_PARSE, &wi,
                                    "unknown group \"%s\" (expected \"lighting\", \"albedo\", "
-                                   "\"pose\", \"deformation\", \"spheres\" or \"lights\")",
+                                   "\"pose\", \"deformation\", \"spheres\", \"lights\" or "
+                                   "\"exposure\")",
                                    name);
         if (*groups & bit)
             return pen__json_error(ctx, PEN_ERROR_PARSE, &wi, "\"%s\" is listed twice", name);
@@ -190,6 +192,7 @@ static pen_status parse_lr(pen_context *ctx, const where *top, const cJSON *root
         if (s) return s;
         lr->lighting = lr->albedo = lr->rotation = lr->translation = lr->spheres = (float)v;
         lr->deformation_rotation = lr->deformation_translation = lr->lights = (float)v;
+        lr->exposure = (float)v;
         return PEN_OK;
     }
     if (!cJSON_IsObject(item))
@@ -204,6 +207,7 @@ static pen_status parse_lr(pen_context *ctx, const where *top, const cJSON *root
                                         "deformation_rotation",
                                         "deformation_translation",
                                         "lights",
+                                        "exposure",
                                         "pose",
                                         NULL};
     pen_status s = pen__json_known_keys(ctx, &w, item, known);
@@ -216,6 +220,7 @@ static pen_status parse_lr(pen_context *ctx, const where *top, const cJSON *root
                        &lr->deformation_rotation,
                        &lr->deformation_translation,
                        &lr->lights,
+                       &lr->exposure,
                        NULL};
     for (int k = 0; known[k]; ++k) {
         const cJSON *e = cJSON_GetObjectItemCaseSensitive(item, known[k]);
@@ -453,11 +458,44 @@ pen_status pen__optim_task_check_groups(pen_context *ctx, const pen_optim_task *
     return PEN_OK;
 }
 
+/* The "exposure" group and the views' exposures (optim.h, pen_optim_view). */
+static pen_status check_exposure(pen_context *ctx, const pen_optim_task *t) {
+    const char *name = t->path ? t->path : "task";
+    if ((t->optimize & PEN_OPTIM_EXPOSURE) && t->view_count < 2)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: optimize: \"exposure\" needs \"views\" with at least 2 views: "
+                          "the first view's exposure is fixed (a common exposure is the lighting's "
+                          "scale), so %s has none to move",
+                          name, t->view_count ? "one view" : "a single-view task");
+    if ((t->optimize & PEN_OPTIM_EXPOSURE) && !(t->views[0].weight > 0.0))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: optimize: \"exposure\": views[0] fixes the exposures' scale and "
+                          "must take part (weight > 0)",
+                          name);
+    int exposed = (t->optimize & PEN_OPTIM_EXPOSURE) != 0;
+    for (int i = 0; i < t->view_count; ++i)
+        exposed |= pen__optim_exposure(&t->views[i]) != 1.0;
+    /* The least-squares lighting and the shadow masks fit the lighting to the targets as they
+     * are: not yet through an exposure. */
+    const int lighting_fit = t->lighting_solver == PEN_OPTIM_LIGHTING_LEAST_SQUARES ||
+                             (t->init_fit && (t->optimize & PEN_OPTIM_LIGHTING)) ||
+                             t->shadow_weight > 0.0;
+    if (exposed && lighting_fit)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: views' exposures (given or optimised) do not work yet with "
+                          "\"lighting_solver\": \"least_squares\", \"init\": \"fit\" or "
+                          "\"shadow_weight\"",
+                          name);
+    return PEN_OK;
+}
+
 pen_status pen__optim_task_check(pen_context *ctx, const pen_optim_task *t) {
     const char *name = t->path ? t->path : "task";
+    pen_status s;
     if (!t->optimize || (t->optimize & ~(unsigned)(PEN_OPTIM_LIGHTING | PEN_OPTIM_ALBEDO |
                                                    PEN_OPTIM_POSE | PEN_OPTIM_SPHERES |
-                                                   PEN_OPTIM_DEFORMATION | PEN_OPTIM_LIGHTS)) ||
+                                                   PEN_OPTIM_DEFORMATION | PEN_OPTIM_LIGHTS |
+                                                   PEN_OPTIM_EXPOSURE)) ||
         ((t->optimize & PEN_OPTIM_SPHERES) && (t->optimize & PEN_OPTIM_DEFORMATION)))
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "%s: optimize: no group, an unknown one, or both spheres and "
@@ -494,7 +532,12 @@ pen_status pen__optim_task_check(pen_context *ctx, const pen_optim_task *t) {
         if (!(v->weight >= 0.0) || !isfinite(v->weight))
             return pen__error(ctx, PEN_ERROR_ARGUMENT,
                               "%s: %s[%d].weight: expected a finite number >= 0", name, key, k);
+        if (!(v->exposure >= 0.0) || !isfinite(v->exposure)) /* (0: 1, optim.h) */
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "%s: %s[%d].exposure: expected a finite number > 0", name, key, k);
     }
+    s = check_exposure(ctx, t);
+    if (s) return s;
     if (t->view_count > 0 && t->target.data)
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: views and a target: choose one", name);
     if (t->view_count == 0 &&
@@ -518,10 +561,10 @@ pen_status pen__optim_task_check(pen_context *ctx, const pen_optim_task *t) {
     if (!(t->lighting_ridge >= 0.0) || !isfinite(t->lighting_ridge))
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "%s: lighting_ridge must be a finite number >= 0", name);
-    const float lr[8] = {t->lr.lighting, t->lr.albedo,  t->lr.rotation,
+    const float lr[9] = {t->lr.lighting, t->lr.albedo,  t->lr.rotation,
                          t->lr.translation, t->lr.spheres, t->lr.deformation_rotation,
-                         t->lr.deformation_translation, t->lr.lights};
-    for (int k = 0; k < 8; ++k)
+                         t->lr.deformation_translation, t->lr.lights, t->lr.exposure};
+    for (int k = 0; k < 9; ++k)
         if (!(lr[k] > 0.0f) || !isfinite(lr[k]))
             return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: lr: rates must be positive", name);
     return PEN_OK;

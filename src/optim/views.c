@@ -14,6 +14,11 @@
  * gradient struct, so the sum runs in a fixed order and the result is bitwise reproducible for
  * a given thread count.
  *
+ * Exposure (optim.h, pen_optim_view): a view's render is multiplied by its exposure s before the
+ * loss; the backward turns dE/dJ (J = s I) into dE/dI = s dE/dJ and dE/d(log s) = sum_p dE/dJ J,
+ * which params.c gathers for the "exposure" group. At s = 1 nothing is multiplied, so views
+ * without exposures are bitwise as before.
+ *
  * The least-squares lighting ("lighting_solver": "least_squares", "init": "fit") sees every view:
  * its normal equations sum the views' with factor w_v / sum_p m_vp (loss.c), the same weighting
  * as E, so the solve minimises the objective the loop reports. */
@@ -47,13 +52,15 @@ static pen_status load_image(pen_context *ctx, const where *w, const char *base,
 
 static pen_status parse_view(pen_context *ctx, const char *base, const where *w, const cJSON *o,
                              unsigned target_flags, pen_optim_view *v) {
-    static const char *const known[] = {"camera", "target", "mask", "weight", NULL};
-    where wc, wt, wm, ww;
+    static const char *const known[] = {"camera", "target", "mask", "weight", "exposure", NULL};
+    where wc, wt, wm, ww, we;
     pen__json_child(w, "camera", &wc);
     pen__json_child(w, "target", &wt);
     pen__json_child(w, "mask", &wm);
     pen__json_child(w, "weight", &ww);
+    pen__json_child(w, "exposure", &we);
     v->weight = 1.0;
+    v->exposure = 1.0;
     pen_status s = pen__json_need_object(ctx, w, o);
     if (!s) s = pen__json_known_keys(ctx, w, o, known);
     if (!s) s = pen__io_camera_parse(ctx, &wc, pen__json_member(o, "camera"), &v->camera);
@@ -76,6 +83,12 @@ static pen_status parse_view(pen_context *ctx, const char *base, const where *w,
     }
     const cJSON *e = pen__json_member(o, "weight");
     if (!s && e) s = pen__json_number(ctx, &ww, e, 0.0, 1e6, "a weight in [0, 1e6]", &v->weight);
+    const cJSON *x = pen__json_member(o, "exposure");
+    if (!s && x) {
+        s = pen__json_number(ctx, &we, x, 0.0, 1e6, "an exposure in (0, 1e6]", &v->exposure);
+        if (!s && !(v->exposure > 0.0))
+            s = pen__json_error(ctx, PEN_ERROR_PARSE, &we, "expected an exposure in (0, 1e6]");
+    }
     return s;
 }
 
@@ -147,11 +160,37 @@ uint64_t pen__optim_views_hash(const pen_optim_view *views, int count) {
         h = pen__fnv1a(h, &v->weight, sizeof v->weight);
         h = pen__fnv1a(h, v->target.data, 3 * pixels * sizeof(float));
         if (v->mask) h = pen__fnv1a(h, v->mask, pixels * sizeof(float));
+        /* (only when given: the checkpoints of tasks without exposures keep their identity) */
+        const double x = pen__optim_exposure(v);
+        if (x != 1.0) h = pen__fnv1a(h, &x, sizeof x);
     }
     return h;
 }
 
 /* ---- The objective over the views ------------------------------------------------------------ */
+
+void pen__optim_view_expose(pen_image *img, double exposure) {
+    if (exposure == 1.0) return; /* (the views without one stay bitwise as they were) */
+    const float k = (float)exposure;
+    const size_t n = 3 * (size_t)img->width * (size_t)img->height;
+    for (size_t i = 0; i < n; ++i)
+        img->data[i] *= k;
+}
+
+/* The exposure's part of a view's backward: J = s I is the image the loss saw and d = dE/dJ;
+ * dE/d(log s) = sum_p d_p J_p (in pixel order, double), and the render's gradient is
+ * dE/dI = s d, written over d. */
+static void expose_bwd(const pen_image *exposed, double exposure, pen_image *d, double *d_log) {
+    const size_t n = 3 * (size_t)d->width * (size_t)d->height;
+    double sum = 0.0;
+    for (size_t i = 0; i < n; ++i)
+        sum += (double)d->data[i] * (double)exposed->data[i];
+    *d_log = sum;
+    if (exposure == 1.0) return;
+    const float k = (float)exposure;
+    for (size_t i = 0; i < n; ++i)
+        d->data[i] *= k;
+}
 
 void pen__optim_views_free_run(pen__optim_views *V) {
     for (int i = 0; i < V->count; ++i) {
@@ -167,6 +206,7 @@ void pen__optim_views_free_run(pen__optim_views *V) {
     free(V->factor);
     free(V->img);
     free(V->d_img);
+    free(V->d_exposure);
     memset(V, 0, sizeof *V);
 }
 
@@ -182,7 +222,9 @@ pen_status pen__optim_views_init(pen_context *ctx, pen__optim_views *V, const pe
     V->factor = pen__calloc(ctx, (size_t)n, sizeof *V->factor, "views");
     V->img = pen__calloc(ctx, (size_t)n, sizeof *V->img, "views");
     V->d_img = pen__calloc(ctx, (size_t)n, sizeof *V->d_img, "views");
-    pen_status s = V->state && V->solve_state && V->weight && V->factor && V->img && V->d_img
+    V->d_exposure = pen__calloc(ctx, (size_t)n, sizeof *V->d_exposure, "views");
+    pen_status s = V->state && V->solve_state && V->weight && V->factor && V->img && V->d_img &&
+                           V->d_exposure
                        ? PEN_OK
                        : PEN_ERROR_MEMORY;
     for (int i = 0; !s && i < n; ++i) {
@@ -246,6 +288,7 @@ pen_status pen__optim_views_fwd(pen_context *ctx, pen__optim_views *V, const pen
         const pen_scene vs = pen__optim_view_scene(sc, &v->camera);
         double e = 0.0;
         pen_status s = pen_render_fwd(ctx, &vs, opt, V->state[i], &V->img[i]);
+        if (!s) pen__optim_view_expose(&V->img[i], pen__optim_exposure(v));
         if (!s) s = pen__optim_loss_fwd(ctx, kind, &V->img[i], &v->target, V->weight[i], &e);
         if (s) return s;
         sum += v->weight * e;
@@ -253,6 +296,7 @@ pen_status pen__optim_views_fwd(pen_context *ctx, pen__optim_views *V, const pen
         pen_image *d = &V->d_img[i];
         memset(d->data, 0, sizeof(float) * 3 * (size_t)d->width * (size_t)d->height);
         pen__optim_loss_bwd(kind, &V->img[i], &v->target, V->weight[i], v->weight, d);
+        expose_bwd(&V->img[i], pen__optim_exposure(v), d, &V->d_exposure[i]);
     }
     *loss = sum;
     return PEN_OK;
@@ -286,6 +330,7 @@ pen_status pen__optim_views_finish(pen_context *ctx, const pen_scene *sc,
         pen_image *img = &(*finals)[i];
         pen_status s = pen_render_fwd(ctx, &vs, opt, NULL, img);
         if (s) return s;
+        pen__optim_view_expose(img, pen__optim_exposure(v));
         const size_t pixels = (size_t)img->width * (size_t)img->height;
         double err = 0.0, ref = 0.0, counted = 0.0;
         for (size_t p = 0; p < pixels; ++p) { /* in pixel order, double */
