@@ -235,6 +235,14 @@ static void test_exposure_recovery(void) {
     pen_optim_result_free(&r);
     pen_optim_task_free(&t);
     t = dim_task(PEN_OPTIM_LIGHTING | PEN_OPTIM_EXPOSURE);
+    char dir[] = "/tmp/pen_exposure_XXXXXX";
+    CHECK(mkdtemp(dir) != NULL);
+    for (int v = 0; v < 3; ++v) { /* the targets as files: the views file names them */
+        char name[32];
+        snprintf(name, sizeof name, "t%d.exr", v);
+        CHECK(pen_image_save(ctx, path_in(dir, name), &t.views[v].target) == PEN_OK);
+        t.views[v].target_path = strdup(path_in(dir, name));
+    }
     pen_status s = pen_optim_run(ctx, &t, &set, &r);
     CHECK_MSG(s == PEN_OK, "%s", pen_context_error(ctx));
     if (s) {
@@ -257,9 +265,32 @@ static void test_exposure_recovery(void) {
     CHECK(pen_optim_result_json(ctx, &t, &set, &r, &json) == PEN_OK);
     CHECK(json && strstr(json, "\"exposure_fixed_view\"") && strstr(json, "\"exposure\":"));
     free(json);
+    /* views.json of the outputs: a later task reads the recovered exposures back */
+    CHECK(pen_mesh_save_obj(ctx, path_in(dir, "egg.obj"), &t.scene.objects[0].mesh) == PEN_OK);
+    t.scene.objects[0].mesh_path = strdup(path_in(dir, "egg.obj"));
+    CHECK_MSG(pen_optim_write(ctx, path_in(dir, "out"), &t, &set, &r) == PEN_OK, "%s",
+              pen_context_error(ctx));
+    pen_optim_task again;
+    s = pen_optim_task_parse(ctx,
+                             "{\"scene\": {\"camera\": {\"width\": 8, \"height\": 8, "
+                             "\"fov_y_deg\": 30, \"eye\": [0, 0, 1], \"target\": [0, 0, 0]}, "
+                             "\"sh_bands\": 1, \"lighting\": {\"sh\": [[1, 1, 1]]}, \"objects\": []}, "
+                             "\"optimize\": [\"lighting\", \"exposure\"], "
+                             "\"views\": \"out/views.json\"}",
+                             path_in(dir, "task.json"), &again);
+    CHECK_MSG(s == PEN_OK, "%s", pen_context_error(ctx));
+    for (int v = 0; !s && v < 3; ++v) {
+        CHECK_REL(again.views[v].exposure, t.views[v].exposure, 1e-14, 0.0); /* (cJSON: 15 digits) */
+        CHECK(memcmp(again.views[v].target.data, t.views[v].target.data,
+                     sizeof(float) * 3 * ES * ES) == 0);
+    }
+    if (!s) pen_optim_task_free(&again);
     pen_optim_result_free(&r);
     pen_optim_task_free(&t);
     pen_context_destroy(ctx);
+    char cmd[128];
+    snprintf(cmd, sizeof cmd, "rm -rf '%s'", dir);
+    CHECK(system(cmd) == 0);
 }
 
 /* The tasks the group cannot serve are refused with one line saying why. */
