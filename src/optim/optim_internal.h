@@ -196,6 +196,8 @@ typedef struct pen__optim_views {
     pen_image *img, *d_img; /* the last render (times the exposure) and its loss gradient, per
                                view */
     double *d_exposure;     /* per view: d(w_v E_v)/d(log s_v) of the last render with grad */
+    pen_image *eye_target;  /* per view: the target over the exposure (pen__optim_view_eye);
+                               allocated where the exposure may differ from 1 */
     size_t max_pixels;
 } pen__optim_views;
 
@@ -211,6 +213,12 @@ int pen__optim_views_eyes(const pen__optim_views *V, int solve, pen__optim_eye *
 static inline double pen__optim_exposure(const pen_optim_view *v) {
     return v->exposure > 0.0 ? v->exposure : 1.0;
 }
+/* The view as a least-squares eye (its camera, target, mask and `factor`): with an exposure
+ * s != 1 the loss w (s I - T)^2 is s^2 w (I - T/s)^2, so the target is T/s, written into
+ * *scratch (created when it has no data: ctx may be NULL when it has), and the factor is times
+ * s^2. The state is NULL. */
+pen_status pen__optim_view_eye(pen_context *ctx, const pen_optim_view *v, double factor,
+                               pen_image *scratch, pen__optim_eye *e);
 /* Multiplies the image by a view's exposure (nothing to do at 1). */
 void pen__optim_view_expose(pen_image *img, double exposure);
 /* Renders every view taking part, *loss = sum_v w_v E_v (each render times its view's

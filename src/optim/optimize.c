@@ -393,19 +393,25 @@ static pen_status fitted_lighting(pen_context *ctx, const pen_optim_task *t, run
         if (!s) pen__optim_transfer(r, 0);
         return s;
     }
-    /* every view taking part, weighted as in the loss (its weight over its mask's size) */
+    /* every view taking part, weighted as in the loss (its weight over its mask's size), each
+     * target over its exposure */
     pen__optim_eye *eyes = pen__calloc(ctx, (size_t)t->view_count, sizeof *eyes, "views");
-    if (!eyes) return PEN_ERROR_MEMORY;
+    pen_image *scratch = pen__calloc(ctx, (size_t)t->view_count, sizeof *scratch, "views");
+    pen_status s = eyes && scratch ? PEN_OK : PEN_ERROR_MEMORY;
     int n = 0;
-    for (int i = 0; i < t->view_count; ++i) {
+    for (int i = 0; !s && i < t->view_count; ++i) {
         const pen_optim_view *v = &t->views[i];
         const size_t pixels = (size_t)v->camera.width * (size_t)v->camera.height;
         const double count = pen__loss_weight_sum(v->mask, pixels);
         if (v->weight > 0.0 && count > 0.0)
-            eyes[n++] = (pen__optim_eye){&v->camera, &v->target, v->mask, v->weight / count, NULL};
+            s = pen__optim_view_eye(ctx, v, v->weight / count, &scratch[i], &eyes[n++]);
     }
-    pen_status s = pen__optim_fit_lighting_eyes(ctx, &t->scene, eyes, n, PEN__OPTIM_RIDGE_INIT,
-                                                r->sc->lighting.sh);
+    if (!s)
+        s = pen__optim_fit_lighting_eyes(ctx, &t->scene, eyes, n, PEN__OPTIM_RIDGE_INIT,
+                                         r->sc->lighting.sh);
+    for (int i = 0; scratch && i < t->view_count; ++i)
+        pen_image_free(&scratch[i]);
+    free(scratch);
     free(eyes);
     if (!s) pen__optim_transfer(r, 0);
     return s;

@@ -472,20 +472,6 @@ static pen_status check_exposure(pen_context *ctx, const pen_optim_task *t) {
                           "%s: optimize: \"exposure\": views[0] fixes the exposures' scale and "
                           "must take part (weight > 0)",
                           name);
-    int exposed = (t->optimize & PEN_OPTIM_EXPOSURE) != 0;
-    for (int i = 0; i < t->view_count; ++i)
-        exposed |= pen__optim_exposure(&t->views[i]) != 1.0;
-    /* The least-squares lighting and the shadow masks fit the lighting to the targets as they
-     * are: not yet through an exposure. */
-    const int lighting_fit = t->lighting_solver == PEN_OPTIM_LIGHTING_LEAST_SQUARES ||
-                             (t->init_fit && (t->optimize & PEN_OPTIM_LIGHTING)) ||
-                             t->shadow_weight > 0.0;
-    if (exposed && lighting_fit)
-        return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                          "%s: views' exposures (given or optimised) do not work yet with "
-                          "\"lighting_solver\": \"least_squares\", \"init\": \"fit\" or "
-                          "\"shadow_weight\"",
-                          name);
     return PEN_OK;
 }
 

@@ -16,8 +16,10 @@
  *
  * Exposure (optim.h, pen_optim_view): a view's render is multiplied by its exposure s before the
  * loss; the backward turns dE/dJ (J = s I) into dE/dI = s dE/dJ and dE/d(log s) = sum_p dE/dJ J,
- * which params.c gathers for the "exposure" group. At s = 1 nothing is multiplied, so views
- * without exposures are bitwise as before.
+ * which params.c gathers for the "exposure" group. The fits of the lighting (least squares,
+ * "init": "fit", the shadow masks) see w (s I - T)^2 as s^2 w (I - T/s)^2: the target T/s with
+ * the factor times s^2. At s = 1 nothing is multiplied or divided, so views without exposures
+ * are bitwise as before.
  *
  * The least-squares lighting ("lighting_solver": "least_squares", "init": "fit") sees every view:
  * its normal equations sum the views' with factor w_v / sum_p m_vp (loss.c), the same weighting
@@ -177,6 +179,23 @@ void pen__optim_view_expose(pen_image *img, double exposure) {
         img->data[i] *= k;
 }
 
+pen_status pen__optim_view_eye(pen_context *ctx, const pen_optim_view *v, double factor,
+                               pen_image *scratch, pen__optim_eye *e) {
+    const double x = pen__optim_exposure(v);
+    *e = (pen__optim_eye){&v->camera, &v->target, v->mask, factor, NULL};
+    if (x == 1.0) return PEN_OK;
+    if (!scratch->data) {
+        pen_status s = pen_image_create(ctx, v->target.width, v->target.height, 3, scratch);
+        if (s) return s;
+    }
+    const size_t n = 3 * (size_t)v->target.width * (size_t)v->target.height;
+    for (size_t i = 0; i < n; ++i)
+        scratch->data[i] = (float)((double)v->target.data[i] / x);
+    e->target = scratch;
+    e->factor = factor * x * x;
+    return PEN_OK;
+}
+
 /* The exposure's part of a view's backward: J = s I is the image the loss saw and d = dE/dJ;
  * dE/d(log s) = sum_p d_p J_p (in pixel order, double), and the render's gradient is
  * dE/dI = s d, written over d. */
@@ -199,6 +218,7 @@ void pen__optim_views_free_run(pen__optim_views *V) {
         if (V->weight) free(V->weight[i]);
         if (V->img) pen_image_free(&V->img[i]);
         if (V->d_img) pen_image_free(&V->d_img[i]);
+        if (V->eye_target) pen_image_free(&V->eye_target[i]);
     }
     free(V->state);
     free(V->solve_state);
@@ -207,6 +227,7 @@ void pen__optim_views_free_run(pen__optim_views *V) {
     free(V->img);
     free(V->d_img);
     free(V->d_exposure);
+    free(V->eye_target);
     memset(V, 0, sizeof *V);
 }
 
@@ -223,8 +244,9 @@ pen_status pen__optim_views_init(pen_context *ctx, pen__optim_views *V, const pe
     V->img = pen__calloc(ctx, (size_t)n, sizeof *V->img, "views");
     V->d_img = pen__calloc(ctx, (size_t)n, sizeof *V->d_img, "views");
     V->d_exposure = pen__calloc(ctx, (size_t)n, sizeof *V->d_exposure, "views");
+    V->eye_target = pen__calloc(ctx, (size_t)n, sizeof *V->eye_target, "views");
     pen_status s = V->state && V->solve_state && V->weight && V->factor && V->img && V->d_img &&
-                           V->d_exposure
+                           V->d_exposure && V->eye_target
                        ? PEN_OK
                        : PEN_ERROR_MEMORY;
     for (int i = 0; !s && i < n; ++i) {
@@ -234,6 +256,11 @@ pen_status pen__optim_views_init(pen_context *ctx, pen__optim_views *V, const pe
         s = pen_render_state_create(ctx, &V->state[i]);
         if (!s) s = pen_render_state_create(ctx, &V->solve_state[i]);
         if (!s) s = pen_image_create(ctx, v->camera.width, v->camera.height, 3, &V->d_img[i]);
+        /* the target over the exposure, for the fits of the lighting (pen__optim_view_eye) */
+        pen__optim_eye eye;
+        if (!s && ((t->optimize & PEN_OPTIM_EXPOSURE) || pen__optim_exposure(v) != 1.0))
+            s = pen_image_create(ctx, v->camera.width, v->camera.height, 3, &V->eye_target[i]);
+        if (!s) s = pen__optim_view_eye(ctx, v, 1.0, &V->eye_target[i], &eye);
         if (s || (!v->mask && shadow_weight == 0.0)) {
             if (!s) V->factor[i] = v->weight / (double)pixels;
             continue;
@@ -242,7 +269,7 @@ pen_status pen__optim_views_init(pen_context *ctx, pen__optim_views *V, const pe
         if (!w) s = PEN_ERROR_MEMORY;
         if (!s && shadow_weight > 0.0) { /* 1 + s m, m the view's shadow mask (loss.c) */
             const pen_scene vs = pen__optim_view_scene(&t->scene, &v->camera);
-            s = pen__optim_shadow_mask(ctx, &vs, &v->target, fit_lighting, w);
+            s = pen__optim_shadow_mask(ctx, &vs, eye.target, fit_lighting, w);
             for (size_t p = 0; !s && p < pixels; ++p)
                 w[p] = 1.0f + (float)shadow_weight * w[p];
         } else if (!s) {
@@ -269,10 +296,9 @@ int pen__optim_views_eyes(const pen__optim_views *V, int solve, pen__optim_eye *
     for (int i = 0; i < V->count; ++i) {
         if (!(V->factor[i] > 0.0)) continue;
         pen__optim_eye *e = &eyes[n++];
-        e->camera = &V->views[i].camera;
-        e->target = &V->views[i].target;
+        /* (cannot fail: the scratch image exists wherever an exposure may differ from 1) */
+        pen__optim_view_eye(NULL, &V->views[i], V->factor[i], &V->eye_target[i], e);
         e->weight = V->weight[i];
-        e->factor = V->factor[i];
         e->state = solve ? V->solve_state[i] : NULL;
     }
     return n;
