@@ -56,11 +56,11 @@ static void test_srgb_targets(void) {
     char json[1024];
     for (int form = 0; form < 2; ++form)
         for (int linear = 0; linear < 2; ++linear) {
-            task_text(json, sizeof json,
-                      form ? "\"views\": [{\"camera\": {\"width\": 16, \"height\": 8, \"fov_y_deg\": "
-                             "30, \"eye\": [0, 0, 1], \"target\": [0, 0, 0]}, \"target\": \"t.png\"}]"
-                           : "\"target\": \"t.png\"",
-                      linear ? "linear" : (form ? NULL : "srgb"));
+            static const char *const forms[2] = {
+                "\"target\": \"t.png\"",
+                "\"views\": [{\"camera\": {\"width\": 16, \"height\": 8, \"fov_y_deg\": 30, "
+                "\"eye\": [0, 0, 1], \"target\": [0, 0, 0]}, \"target\": \"t.png\"}]"};
+            task_text(json, sizeof json, forms[form], linear ? "linear" : (form ? NULL : "srgb"));
             pen_optim_task t;
             pen_status s = pen_optim_task_parse(ctx, json, path_in(dir, "task.json"), &t);
             CHECK_MSG(s == PEN_OK, "%s", pen_context_error(ctx));
@@ -274,13 +274,15 @@ static void test_exposure_recovery(void) {
     s = pen_optim_task_parse(ctx,
                              "{\"scene\": {\"camera\": {\"width\": 8, \"height\": 8, "
                              "\"fov_y_deg\": 30, \"eye\": [0, 0, 1], \"target\": [0, 0, 0]}, "
-                             "\"sh_bands\": 1, \"lighting\": {\"sh\": [[1, 1, 1]]}, \"objects\": []}, "
+                             "\"sh_bands\": 1, \"lighting\": {\"sh\": [[1, 1, 1]]}, "
+                             "\"objects\": []}, "
                              "\"optimize\": [\"lighting\", \"exposure\"], "
                              "\"views\": \"out/views.json\"}",
                              path_in(dir, "task.json"), &again);
     CHECK_MSG(s == PEN_OK, "%s", pen_context_error(ctx));
     for (int v = 0; !s && v < 3; ++v) {
-        CHECK_REL(again.views[v].exposure, t.views[v].exposure, 1e-14, 0.0); /* (cJSON: 15 digits) */
+        /* (cJSON writes 15 digits) */
+        CHECK_REL(again.views[v].exposure, t.views[v].exposure, 1e-14, 0.0);
         CHECK(memcmp(again.views[v].target.data, t.views[v].target.data,
                      sizeof(float) * 3 * ES * ES) == 0);
     }
@@ -295,8 +297,9 @@ static void test_exposure_recovery(void) {
 
 /* The least-squares lighting through exposures: with the exposures given as they were, the
  * solved lighting is the one solved from targets without them and the views' weights times s^2
- * (the same objective; within the float rounding of T/s); with the group, Adam moves the exposures of views 1 and 2, the lighting solved
- * afresh for each, and they come back as well as with Adam on the lighting. */
+ * (the same objective; within the float rounding of T/s); with the group, Adam moves the
+ * exposures of views 1 and 2, the lighting solved afresh for each, and they come back as well
+ * as with Adam on the lighting. */
 static void test_exposure_least_squares(void) {
     static const double truth[3] = {1.0, 1.6, 0.7}, one[3] = {1.0, 1.0, 1.0};
     pen_context *ctx = pen_context_create();

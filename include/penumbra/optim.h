@@ -206,8 +206,8 @@ PEN_API pen_optim_task pen_optim_task_default(void);
 /* Loads a task JSON; paths (scene, target, ground truth) are relative to the task file. Errors
  * name the file and the key ("task.json: optimize[1]: unknown group \"colour\""); errors inside
  * an inline scene read "task.json:scene: camera.width: ...". The target is an image of the scene
- * camera's size: linear EXR or HDR, or 8-bit PNG or JPEG decoded from sRGB (target_linear). The scene's {"fit": N} sphere requests are left for
- * pen_optim_run. On failure *out is zeroed. */
+ * camera's size: linear EXR or HDR, or 8-bit PNG or JPEG decoded from sRGB (target_linear). The
+ * scene's {"fit": N} sphere requests are left for pen_optim_run. On failure *out is zeroed. */
 PEN_API pen_status pen_optim_task_load(pen_context *ctx, const char *path, pen_optim_task *out);
 /* The same with the target image taken from `target` (a path as given, not relative to the task;
  * NULL: the task's "target") instead of the task's "target" key, which is then not read at all. */

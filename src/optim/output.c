@@ -279,7 +279,8 @@ static cJSON *views_json(const pen_optim_view *views, int count,
         const char *target = views[i].target_path ? views[i].target_path : "";
         const int ok = o && pen__json_add(o, "target", cJSON_CreateString(target)) &&
                        pen__json_add(o, "weight", cJSON_CreateNumber(views[i].weight)) &&
-                       pen__json_add(o, "exposure", cJSON_CreateNumber(pen__optim_exposure(&views[i]))) &&
+                       pen__json_add(o, "exposure",
+                                     cJSON_CreateNumber(pen__optim_exposure(&views[i]))) &&
                        pen__json_add(o, "loss", number_or_null(m[i].loss)) &&
                        pen__json_add(o, "image_rmse", number_or_null(m[i].rmse)) &&
                        pen__json_add(o, "image_rel_rmse", number_or_null(m[i].rel_rmse));

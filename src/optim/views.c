@@ -68,12 +68,16 @@ static pen_status parse_view(pen_context *ctx, const char *base, const where *w,
     if (!s) s = pen__io_camera_parse(ctx, &wc, pen__json_member(o, "camera"), &v->camera);
     const char *rel = NULL;
     if (!s) s = pen__json_string(ctx, &wt, pen__json_member(o, "target"), &rel);
-    if (!s) s = load_image(ctx, &wt, base, rel, &v->camera, target_flags, &v->target, &v->target_path);
+    if (!s)
+        s = load_image(ctx, &wt, base, rel, &v->camera, target_flags, &v->target,
+                       &v->target_path);
     const cJSON *m = pen__json_member(o, "mask");
     if (!s && m) {
         pen_image mask = {0, 0, 0, NULL};
         s = pen__json_string(ctx, &wm, m, &rel);
-        if (!s) s = load_image(ctx, &wm, base, rel, &v->camera, PEN_IMAGE_LOAD_RAW, &mask, &v->mask_path);
+        if (!s)
+            s = load_image(ctx, &wm, base, rel, &v->camera, PEN_IMAGE_LOAD_RAW, &mask,
+                           &v->mask_path);
         const size_t pixels = (size_t)v->camera.width * (size_t)v->camera.height;
         if (!s && !(v->mask = pen__malloc(ctx, pixels, sizeof(float), "mask")))
             s = PEN_ERROR_MEMORY;
