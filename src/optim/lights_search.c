@@ -188,9 +188,22 @@ static void normalise(double d[3]) {
         d[k] /= l;
 }
 
-/* One light: the lattice, then the refinements; its direction into best. */
-static pen_status find_one(pen_context *ctx, const pen_render_options *opt, search *S,
-                           eye_data *E, int n, double r0, double best[3]) {
+/* One resolution of the search: its images and normal equations. The coarse one holds the
+ * images downsampled k x k (its own cameras, targets and weights); with k = 1 it is the fine one. */
+typedef struct level {
+    search *S;
+    eye_data *E;
+    int n, k;
+    pen__optim_eye *eyes; /* k > 1: the downsampled eyes and what they point at */
+    pen_camera *cams;
+    pen_image *targets;
+    float **weights;
+} level;
+
+/* One light: the lattice on the coarse level, then the refinements on the fine one; its
+ * direction into best. */
+static pen_status find_one(pen_context *ctx, const pen_render_options *opt, level *coarse,
+                           level *fine, double r0, double best[3]) {
     const double spacing = sqrt(4.0 * PEN_PI / SEARCH_POINTS) / DEG; /* degrees */
     const double ymin = -sin(SEARCH_BELOW_DEG * DEG);
     double lowest = INFINITY;
@@ -200,11 +213,11 @@ static pen_status find_one(pen_context *ctx, const pen_render_options *opt, sear
         if (y < ymin) break; /* y falls with i */
         const double rho = sqrt(fmax(0.0, 1.0 - y * y)), phi = i * PEN_PI * (3.0 - sqrt(5.0));
         double d[3] = {rho * cos(phi), y, rho * sin(phi)}, v;
-        s = score(ctx, opt, S, E, n, d, fmax(r0, 0.5 * spacing), &v);
+        s = score(ctx, opt, coarse->S, coarse->E, coarse->n, d, fmax(r0, 0.5 * spacing), &v);
         if (!s && v < lowest) lowest = v, memcpy(best, d, sizeof d);
     }
     double step = spacing;
-    for (int level = 0; !s && level < SEARCH_LEVELS; ++level) {
+    for (int lv = 0; !s && lv < SEARCH_LEVELS; ++lv) {
         step *= 0.5;
         const double radius = fmax(r0, step);
         /* a tangent frame at the best direction */
@@ -224,7 +237,7 @@ static pen_status find_one(pen_context *ctx, const pen_render_options *opt, sear
                 d[k] = centre[k] + tn * (order[q][0] * t1[k] + order[q][1] * t2[k]);
             normalise(d);
             if (d[1] < ymin) continue;
-            s = score(ctx, opt, S, E, n, d, radius, &v);
+            s = score(ctx, opt, fine->S, fine->E, fine->n, d, radius, &v);
             if (!s && v < lowest) lowest = v, memcpy(best, d, sizeof d);
         }
     }
@@ -260,6 +273,125 @@ static pen_status eye_setup(pen_context *ctx, const pen_scene *sc, const pen_ren
     return s;
 }
 
+/* The level's SH block and residual norm, summed over its eyes in order. */
+static void level_block(level *L, int nb, double ridge) {
+    search *S = L->S;
+    eye_data *E = L->E;
+    S->nb = S->m = nb;
+    for (int c = 0; c < 3; ++c) {
+        double top = 0.0;
+        for (int j = 0; j < nb; ++j) {
+            for (int k = 0; k <= j; ++k) {
+                double g = 0.0;
+                for (int e = 0; e < L->n; ++e)
+                    g += dot(E[e].eye, E[e].cols[j].data, k == j ? NULL : E[e].cols[k].data, c);
+                S->G[c][j * MAX_COLS + k] = S->G[c][k * MAX_COLS + j] = g;
+            }
+            for (int e = 0; e < L->n; ++e)
+                S->b[c][j] += dot(E[e].eye, E[e].cols[j].data, E[e].resid, c);
+            top = fmax(top, S->G[c][j * MAX_COLS + j]);
+        }
+        S->mu[c] = ridge * top;
+        for (int e = 0; e < L->n; ++e)
+            S->rr[c] += dot(E[e].eye, E[e].resid, NULL, c);
+    }
+}
+
+/* The coarse level's factor: the largest power of 2 dividing both sides of every image whose
+ * images keep at least COARSE_MIN pixels on their shorter side (1: no coarse level). */
+#define COARSE_MIN 48
+static int coarse_factor(const pen__optim_eye *eyes, int n) {
+    int k = 1;
+    for (;;) {
+        const int k2 = 2 * k;
+        for (int e = 0; e < n; ++e) {
+            const int w = eyes[e].target->width, h = eyes[e].target->height;
+            if (w % k2 || h % k2 || (w < h ? w : h) / k2 < COARSE_MIN) return k;
+        }
+        k = k2;
+    }
+}
+
+/* The eyes downsampled k x k: cameras with 1/k the pixels (a calibrated camera's intrinsics
+ * scaled), block means of the targets and weights, factors times k^2 (a coarse pixel stands for
+ * k^2 fine ones). */
+static pen_status downsample(pen_context *ctx, const pen_scene *sc, const pen__optim_eye *eyes,
+                             int n, int k, level *L) {
+    L->k = k;
+    L->eyes = pen__calloc(ctx, (size_t)n, sizeof *L->eyes, "light search");
+    L->cams = pen__calloc(ctx, (size_t)n, sizeof *L->cams, "light search");
+    L->targets = pen__calloc(ctx, (size_t)n, sizeof *L->targets, "light search");
+    L->weights = pen__calloc(ctx, (size_t)n, sizeof *L->weights, "light search");
+    if (!L->eyes || !L->cams || !L->targets || !L->weights) return PEN_ERROR_MEMORY;
+    for (int e = 0; e < n; ++e) {
+        const pen__optim_eye *f = &eyes[e];
+        pen_camera *c = &L->cams[e];
+        *c = f->camera ? *f->camera : sc->camera;
+        c->width /= k, c->height /= k;
+        c->fx /= (float)k, c->fy /= (float)k, c->cx /= (float)k, c->cy /= (float)k;
+        const int w = c->width, h = c->height, W = f->target->width;
+        pen_status s = pen_image_create(ctx, w, h, 3, &L->targets[e]);
+        if (s) return s;
+        if (f->weight) {
+            L->weights[e] = pen__calloc(ctx, (size_t)w * (size_t)h, sizeof(float), "light search");
+            if (!L->weights[e]) return PEN_ERROR_MEMORY;
+        }
+        const float inv = 1.0f / (float)(k * k);
+        for (int y = 0; y < h; ++y)
+            for (int x = 0; x < w; ++x) {
+                float sum[4] = {0.0f, 0.0f, 0.0f, 0.0f};
+                for (int j = 0; j < k; ++j)
+                    for (int i = 0; i < k; ++i) {
+                        const size_t p = (size_t)(k * y + j) * (size_t)W + (size_t)(k * x + i);
+                        for (int ch = 0; ch < 3; ++ch)
+                            sum[ch] += f->target->data[3 * p + (size_t)ch];
+                        if (f->weight) sum[3] += f->weight[p];
+                    }
+                const size_t q = (size_t)y * (size_t)w + (size_t)x;
+                for (int ch = 0; ch < 3; ++ch)
+                    L->targets[e].data[3 * q + (size_t)ch] = sum[ch] * inv;
+                if (f->weight) L->weights[e][q] = sum[3] * inv;
+            }
+        L->eyes[e] = (pen__optim_eye){c, &L->targets[e], L->weights[e],
+                                      f->factor * (double)(k * k), NULL};
+    }
+    return PEN_OK;
+}
+
+static pen_status level_init(pen_context *ctx, const pen_scene *sc, const pen_render_options *opt,
+                             const pen__optim_eye *eyes, int n, int nb, double ridge, level *L) {
+    L->n = n;
+    L->S = pen__calloc(ctx, 1, sizeof *L->S, "light search");
+    L->E = pen__calloc(ctx, (size_t)n, sizeof *L->E, "light search");
+    pen_status s = L->S && L->E ? PEN_OK : PEN_ERROR_MEMORY;
+    for (int e = 0; !s && e < n; ++e)
+        s = eye_setup(ctx, sc, opt, &eyes[e], nb, L->S, &L->E[e]);
+    if (!s) level_block(L, nb, ridge);
+    return s;
+}
+
+static void level_free(level *L) {
+    for (int e = 0; L->E && e < L->n; ++e) {
+        for (int k = 0; L->E[e].cols && k < MAX_COLS; ++k)
+            pen_image_free(&L->E[e].cols[k]);
+        free(L->E[e].cols);
+        free(L->E[e].resid);
+        pen_image_free(&L->E[e].base);
+        pen_image_free(&L->E[e].cand);
+        pen_render_state_free(L->E[e].own);
+    }
+    for (int e = 0; L->targets && e < L->n; ++e)
+        pen_image_free(&L->targets[e]);
+    for (int e = 0; L->weights && e < L->n; ++e)
+        free(L->weights[e]);
+    free(L->E);
+    free(L->S);
+    free(L->eyes);
+    free(L->cams);
+    free(L->targets);
+    free(L->weights);
+}
+
 pen_status pen__optim_lights_search(pen_context *ctx, pen_scene *sc,
                                     const pen_render_options *opt, const pen__optim_eye *eyes,
                                     int n, int count, int solve_sh, double ridge,
@@ -270,67 +402,50 @@ pen_status pen__optim_lights_search(pen_context *ctx, pen_scene *sc,
                           "least one image",
                           PEN_SCENE_MAX_LIGHTS);
     const int nb = solve_sh ? sc->sh_bands * sc->sh_bands : 0;
-    search *S = pen__calloc(ctx, 1, sizeof *S, "light search");
-    eye_data *E = pen__calloc(ctx, (size_t)n, sizeof *E, "light search");
-    pen_status s = S && E ? PEN_OK : PEN_ERROR_MEMORY;
-    for (int e = 0; !s && e < n; ++e)
-        s = eye_setup(ctx, sc, opt, &eyes[e], nb, S, &E[e]);
-    if (!s) { /* the SH block, summed over the eyes in order */
-        S->nb = S->m = nb;
-        for (int c = 0; c < 3; ++c) {
-            double top = 0.0;
-            for (int j = 0; j < nb; ++j) {
-                for (int k = 0; k <= j; ++k) {
-                    double g = 0.0;
-                    for (int e = 0; e < n; ++e)
-                        g += dot(E[e].eye, E[e].cols[j].data, k == j ? NULL : E[e].cols[k].data,
-                                 c);
-                    S->G[c][j * MAX_COLS + k] = S->G[c][k * MAX_COLS + j] = g;
-                }
-                for (int e = 0; e < n; ++e)
-                    S->b[c][j] += dot(E[e].eye, E[e].cols[j].data, E[e].resid, c);
-                top = fmax(top, S->G[c][j * MAX_COLS + j]);
-            }
-            S->mu[c] = ridge * top;
-            for (int e = 0; e < n; ++e)
-                S->rr[c] += dot(E[e].eye, E[e].resid, NULL, c);
-        }
+    level fine, coarse_level;
+    memset(&fine, 0, sizeof fine);
+    memset(&coarse_level, 0, sizeof coarse_level);
+    fine.k = 1;
+    level *coarse = &fine;
+    pen_status s = level_init(ctx, sc, opt, eyes, n, nb, ridge, &fine);
+    const int k = coarse_factor(eyes, n);
+    if (!s && k > 1) {
+        coarse = &coarse_level;
+        coarse->n = n; /* (for level_free, also on failure) */
+        s = downsample(ctx, sc, eyes, n, k, coarse);
+        if (!s) s = level_init(ctx, sc, opt, coarse->eyes, n, nb, ridge, coarse);
     }
     double dirs[PEN_SCENE_MAX_LIGHTS][3];
     for (int l = 0; !s && l < count; ++l) { /* greedy: one light at a time */
         double v;
-        s = find_one(ctx, opt, S, E, n, radius_deg, dirs[l]);
-        if (!s) s = score(ctx, opt, S, E, n, dirs[l], radius_deg, &v); /* its column at r0 */
-        if (!s) fix_candidate(S, E, n);
+        s = find_one(ctx, opt, coarse, &fine, radius_deg, dirs[l]);
+        /* its column at the start radius joins the fixed block of both levels */
+        if (!s) s = score(ctx, opt, fine.S, fine.E, n, dirs[l], radius_deg, &v);
+        if (!s) fix_candidate(fine.S, fine.E, n);
+        if (!s && coarse != &fine)
+            s = score(ctx, opt, coarse->S, coarse->E, n, dirs[l], radius_deg, &v);
+        if (!s && coarse != &fine) fix_candidate(coarse->S, coarse->E, n);
     }
-    if (!s) { /* every light and the SH together */
+    if (!s) { /* every light and the SH together, at full resolution */
+        search *S = fine.S;
         for (int c = 0; c < 3; ++c)
             solve_channel(S, c, NULL, 0.0);
-        for (int k = 0; k < nb; ++k)
+        for (int j = 0; j < nb; ++j)
             for (int c = 0; c < 3; ++c)
-                sc->lighting.sh[k][c] = (float)S->x[c][k];
+                sc->lighting.sh[j][c] = (float)S->x[c][j];
         for (int l = 0; l < count; ++l) {
             pen_light *li = &sc->lighting.lights[l];
-            for (int k = 0; k < 3; ++k) {
-                li->direction[k] = (float)dirs[l][k];
-                li->irradiance[k] = (float)fmin(S->x[k][nb + l], PEN_SCENE_MAX_IRRADIANCE);
+            for (int c = 0; c < 3; ++c) {
+                li->direction[c] = (float)dirs[l][c];
+                li->irradiance[c] = (float)fmin(S->x[c][nb + l], PEN_SCENE_MAX_IRRADIANCE);
             }
             li->angular_radius_deg = (float)radius_deg;
         }
         sc->lighting.light_count = count;
         sc->lighting.lights_mode = PEN_LIGHTS_GIVEN;
-        if (renders) *renders = S->renders;
+        if (renders) *renders = fine.S->renders + (coarse != &fine ? coarse->S->renders : 0);
     }
-    for (int e = 0; E && e < n; ++e) {
-        for (int k = 0; E[e].cols && k < MAX_COLS; ++k)
-            pen_image_free(&E[e].cols[k]);
-        free(E[e].cols);
-        free(E[e].resid);
-        pen_image_free(&E[e].base);
-        pen_image_free(&E[e].cand);
-        pen_render_state_free(E[e].own);
-    }
-    free(E);
-    free(S);
+    level_free(&fine);
+    if (coarse != &fine) level_free(coarse);
     return s;
 }
