@@ -421,7 +421,8 @@ static cJSON *lr_json(const pen_optim_lr *lr) {
         pen__json_add(o, "translation", pen__json_float(lr->translation)) &&
         pen__json_add(o, "spheres", pen__json_float(lr->spheres)) &&
         pen__json_add(o, "deformation_rotation", pen__json_float(lr->deformation_rotation)) &&
-        pen__json_add(o, "deformation_translation", pen__json_float(lr->deformation_translation));
+        pen__json_add(o, "deformation_translation", pen__json_float(lr->deformation_translation)) &&
+        pen__json_add(o, "lights", pen__json_float(lr->lights));
     if (!ok) cJSON_Delete(o);
     return ok ? o : NULL;
 }
