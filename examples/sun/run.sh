@@ -15,31 +15,28 @@ SPP=${PEN_SUN_SPP:-256}
 ITER=${PEN_SUN_ITERATIONS:+--iterations $PEN_SUN_ITERATIONS}
 mkdir -p "$OUT"
 # The observed image and the novel view's truth: the full map (--lighting envmap), not its SH.
+# Another seed for the novel view, so that the two images' sampling noise is independent.
 nice "$PEN" reference "$HERE/sun_truth.json" -o "$OUT/target.exr" --spp "$SPP" --lighting envmap \
     > /dev/null
 nice "$PEN" reference "$HERE/sun_truth.json" -o "$OUT/target.png" --spp "$SPP" --lighting envmap \
     > /dev/null
 nice "$PEN" reference "$HERE/sun_truth_novel.json" -o "$OUT/novel.exr" --spp "$SPP" \
-    --lighting envmap > /dev/null
+    --lighting envmap --seed 2 > /dev/null
 # What the model can reach: the truth's own light (the sun found in the map + the rest in 4 SH
 # bands) rendered by penumbra from the novel view.
 nice "$PEN" render "$HERE/sun_truth_novel.json" -o "$OUT/novel_model.exr" -q
 floor=$("$PEN" compare "$OUT/novel_model.exr" "$OUT/novel.exr" |
         sed -n 's/.*"rel_rmse": \([^,]*\),.*/\1/p' | xargs printf %.4f)
+OUTABS=$(cd "$OUT" && pwd)
 for run in lights sh_only; do
-    nice "$PEN" optimize "$HERE/sun_$run.json" -o "$OUT/$run" --target "$OUT/target.exr" $ITER -q
+    # the task with its paths made absolute and its images in $OUT
+    sed -e "s|\"sun_|\"$HERE/sun_|g" -e "s|[.][.]/[.][.]/out/sun/|$OUTABS/|g" \
+        "$HERE/sun_$run.json" > "$OUT/sun_$run.json"
+    nice "$PEN" optimize "$OUT/sun_$run.json" -o "$OUT/$run" $ITER -q
 done
-# A member of a result.json ("-" when absent; the first match).
-field() { # file name
-    v=$(sed -n "s/^[[:space:]]*\"$2\":[[:space:]]*\([^,]*\),\{0,1\}$/\1/p" "$1" | head -n 1)
-    echo "${v:--}"
-}
+. "$ROOT/scripts/result_table.sh"
 row() { # label printf-format name
-    a=$(field "$OUT/lights/result.json" "$3")
-    b=$(field "$OUT/sh_only/result.json" "$3")
-    [ "$a" = - ] || a=$(printf "$2" "$a")
-    [ "$b" = - ] || b=$(printf "$2" "$b")
-    printf "   %-44s %14s %14s\n" "$1" "$a" "$b"
+    result_row "$1" "$2" "$3" "$OUT/lights" "$OUT/sh_only" 44 14
 }
 echo "== The sun found from one image: Spot under the full city map, 128x128, $SPP spp,"
 echo "   SH from black and no lights at the start (examples/sun)"
