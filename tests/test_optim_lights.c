@@ -6,7 +6,11 @@
  * one from the global search (src/optim/lights_search.c), which finds a known direction from a
  * penumbra-rendered target; "light_count" errors name the key. Fixture: tests/optim_scenes.h
  * (the ellipsoid over the ground). */
+#define _POSIX_C_SOURCE 200809L /* mkdtemp */
 #include "optim_scenes.h"
+
+#include <stdio.h>
+#include <unistd.h>
 
 #define SIZE 40
 
@@ -89,6 +93,21 @@ static pen_image rendered(const pen_scene *sc) {
     return img;
 }
 
+/* The search tests' task: the egg without lights and SH from black, its target the penumbra
+ * render of the egg under a 3-degree sun 40 degrees round from the fixture's (size x size). */
+static pen_optim_task egg_search_task(int size, int iterations) {
+    pen_scene truth = lit_egg(40.0f);
+    truth.camera.width = truth.camera.height = size;
+    pen_optim_task t = pen_optim_task_default();
+    t.scene = os_egg(size, 0, 2);
+    t.ground_truth = truth;
+    t.has_ground_truth = 1;
+    t.optimize = PEN_OPTIM_LIGHTS | PEN_OPTIM_LIGHTING;
+    t.iterations = iterations;
+    t.target = rendered(&t.ground_truth);
+    return t;
+}
+
 /* A scene without lights optimising "lights": the global search creates one and finds the
  * truth's direction from a target rendered by penumbra (96 x 96, so the lattice runs on the
  * image downsampled to 48 x 48; SH from black), within 2 degrees before any descent; the run is
@@ -97,17 +116,7 @@ static void test_search_finds_light(void) {
     float dirs[2][3];
     double losses[2];
     for (int run = 0; run < 2; ++run) {
-        pen_scene truth = lit_egg(40.0f);
-        const int size = check_quick_() ? 48 : 96; /* 48: no downsampled lattice */
-        pen_scene start = os_egg(size, 0, 2);
-        truth.camera.width = truth.camera.height = size;
-        pen_optim_task t = pen_optim_task_default();
-        t.scene = start;
-        t.ground_truth = truth;
-        t.has_ground_truth = 1;
-        t.optimize = PEN_OPTIM_LIGHTS | PEN_OPTIM_LIGHTING;
-        t.iterations = 1;
-        t.target = rendered(&t.ground_truth);
+        pen_optim_task t = egg_search_task(check_quick_() ? 48 : 96, 1); /* 48: no downsampling */
         pen_context *ctx = pen_context_create();
         pen_optim_settings set = pen_optim_settings_default();
         pen_optim_result r;
@@ -201,6 +210,39 @@ static void test_search_views(void) {
     pen_context_destroy(ctx);
 }
 
+/* A run whose lights the search created resumes exactly: the resumed run searches again (it is
+ * deterministic, so the checkpoint's identity matches) and continues to the same lights and losses
+ * as the run in one go. */
+static void test_search_resume(void) {
+    char dir[] = "/tmp/pen_sun_XXXXXX";
+    CHECK(mkdtemp(dir) != NULL);
+    pen_context *ctx = pen_context_create();
+    pen_optim_task one = egg_search_task(48, 6), part = egg_search_task(48, 3),
+                   rest = egg_search_task(48, 6);
+    pen_optim_result a, b, c;
+    pen_optim_settings set = pen_optim_settings_default();
+    CHECK_MSG(pen_optim_run(ctx, &one, &set, &a) == PEN_OK, "%s", pen_context_error(ctx));
+    set.outdir = dir;
+    CHECK_MSG(pen_optim_run(ctx, &part, &set, &b) == PEN_OK, "%s", pen_context_error(ctx));
+    set.resume = 1;
+    CHECK_MSG(pen_optim_run(ctx, &rest, &set, &c) == PEN_OK, "%s", pen_context_error(ctx));
+    CHECK(c.resumed_from == 3 && c.iterations == a.iterations);
+    CHECK(memcmp(a.losses, c.losses, sizeof(double) * (size_t)(a.iterations + 1)) == 0);
+    CHECK(memcmp(one.scene.lighting.lights, rest.scene.lighting.lights, sizeof(pen_light)) == 0);
+    CHECK(memcmp(one.scene.lighting.sh, rest.scene.lighting.sh, sizeof one.scene.lighting.sh) == 0);
+    pen_optim_result_free(&a);
+    pen_optim_result_free(&b);
+    pen_optim_result_free(&c);
+    pen_optim_task_free(&one);
+    pen_optim_task_free(&part);
+    pen_optim_task_free(&rest);
+    pen_context_destroy(ctx);
+    char path[64];
+    snprintf(path, sizeof path, "%s/checkpoint.bin", dir);
+    remove(path);
+    CHECK(rmdir(dir) == 0);
+}
+
 /* "light_count" errors name the key. */
 static void test_light_count_errors(void) {
     static const struct {
@@ -235,4 +277,4 @@ static void test_light_count_errors(void) {
 }
 
 RUN_TESTS(TEST(test_direction_recovered), TEST(test_search_finds_light),
-          TEST(test_search_views), TEST(test_light_count_errors))
+          TEST(test_search_views), TEST(test_search_resume), TEST(test_light_count_errors))

@@ -171,13 +171,6 @@ typedef struct pen_optim_task {
                              below */
     pen_optim_lighting_solver lighting_solver; /* default PEN_OPTIM_LIGHTING_ADAM */
     double lighting_ridge; /* least squares: the ridge, relative (default 1e-2), below */
-    int light_count;    /* "lights" on a scene without lights: how many the global search
-                           creates, 1 .. PEN_SCENE_MAX_LIGHTS (default 1). The search tries
-                           directions over the sky and down to 5 degrees below the horizon,
-                           each a disk of 2 degrees whose irradiance and the SH lighting (when
-                           optimised) are solved by least squares, keeps the best and refines
-                           it, adds lights greedily, and starts the descent there with the
-                           solved irradiances and SH (docs/optimize.md, "Lights") */
     int has_ground_truth;
     pen_scene ground_truth; /* zeroed when has_ground_truth == 0 */
     /* Multi-view ("views"): the loss is sum_v weight_v * loss_v, loss_v the view's loss over its
@@ -188,6 +181,13 @@ typedef struct pen_optim_task {
     pen_optim_view *views;
     int validation_count;      /* "validation_views": rendered at the end, not in the loss */
     pen_optim_view *validation;
+    int light_count;    /* "lights" on a scene without lights: how many the global search
+                           creates, 1 .. PEN_SCENE_MAX_LIGHTS (default 1). The search tries
+                           directions over the sky and down to 5 degrees below the horizon,
+                           each a disk of 2 degrees whose irradiance and the SH lighting (when
+                           optimised) are solved by least squares, keeps the best and refines
+                           it, adds lights greedily, and starts the descent there with the
+                           solved irradiances and SH (docs/optimize.md, "Lights") */
 } pen_optim_task;
 
 /* A task holding the defaults pen_optim_task_load starts from (500 iterations, the lr above,

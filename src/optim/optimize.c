@@ -7,7 +7,10 @@
  * solved by least squares rather than stepped (solve_lighting), renders (pen_render_fwd),
  * evaluates the loss against the target, runs pen_render_bwd for the groups being optimised
  * only, gathers the gradient (plus the regularisers') into the layout of x and steps. The
- * vector's layout, its copies to and from the scene and the gather are params.c.
+ * vector's layout, its copies to and from the scene and the gather are params.c. A task that
+ * optimises "lights" on a scene without lights first has them created by the global search of
+ * lights_search.c (descent cannot move a light whose shadow misses the observed one), after the
+ * initial guesses, and the vector is laid out again to hold them.
  *
  * The loss is a mean over pixels and channels; its gradient is multiplied by that count before
  * Adam sees it (the gradient of the sum). Adam is invariant to the scale of the gradient except
