@@ -61,8 +61,9 @@ extern "C" {
                                     its sphere centres (moves vertices and spheres) */
 #define PEN_OPTIM_SPHERES 16u    /* "spheres": every object's sphere centres and radii */
 #define PEN_OPTIM_LIGHTS 32u     /* "lights": every disk light's direction, angular radius and
-                                    irradiance (the scene must have lights: given, or found in its
-                                    map; the optimiser does not create them) */
+                                    irradiance: the scene's (given, or found in its map), or,
+                                    when it has none, light_count lights that a global search
+                                    over directions creates before the descent */
 
 typedef enum pen_optim_loss { PEN_OPTIM_LOSS_L2 = 0, PEN_OPTIM_LOSS_L1 = 1 } pen_optim_loss;
 
@@ -180,6 +181,13 @@ typedef struct pen_optim_task {
     pen_optim_view *views;
     int validation_count;      /* "validation_views": rendered at the end, not in the loss */
     pen_optim_view *validation;
+    int light_count;    /* "lights" on a scene without lights: how many the global search
+                           creates, 1 .. PEN_SCENE_MAX_LIGHTS (default 1). The search tries
+                           directions over the sky and down to 5 degrees below the horizon,
+                           each a disk of 2 degrees whose irradiance and the SH lighting (when
+                           optimised) are solved by least squares, keeps the best and refines
+                           it, adds lights greedily, and starts the descent there with the
+                           solved irradiances and SH (docs/optimize.md, "Lights") */
 } pen_optim_task;
 
 /* A task holding the defaults pen_optim_task_load starts from (500 iterations, the lr above,
@@ -274,6 +282,10 @@ typedef struct pen_optim_metrics {
                                    projections onto the ground along the truth's dominant light
                                    direction (the dipole of its SH lighting; straight down
                                    without one), on a 256^2 grid; what a shadow determines */
+    double light_direction_error_deg; /* the largest over the recovered disk lights of the
+                                   angle to the nearest of the truth's lights (given, or found
+                                   in its map by the default extraction); with "lights" and a
+                                   truth that has lights */
 } pen_optim_metrics;
 
 /* The recovered scene seen from one view (over the view's mask). */
@@ -302,6 +314,9 @@ typedef struct pen_optim_result {
     int validation_count; /* the task's validation views */
     pen_optim_view_metrics *validation;
     pen_image *validation_finals;
+    int lights_searched;  /* lights the global search created (0: none searched) */
+    int search_renders;   /* the renders it took */
+    double search_seconds; /* its time (not in `seconds`) */
 } pen_optim_result;
 
 /* Runs the task: fits sphere sets the scene asks for ({"fit": N}, cached as pen_spheres_fit_cached says; only

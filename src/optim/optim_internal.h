@@ -131,6 +131,9 @@ pen_status pen__optim_solve_lighting(pen_context *ctx, const pen_scene *sc,
                                      const pen_image *target,
                                      const float *weight, double ridge, double mu[3],
                                      float (*sh)[3]);
+/* Solves the symmetric positive definite n x n system A x = b in place (Cholesky on A's lower
+ * triangle; A and b are overwritten, x in b). Returns 0 if A is not positive definite. */
+int pen__optim_solve_spd(double *A, double *b, int n);
 /* Ridges (relative to the largest diagonal entry of the normal equations): the shadow mask
  * needs an unbiased fitted image, the "fit" initial guess well-conditioned coefficients. */
 #define PEN__OPTIM_RIDGE_MASK 1e-9
@@ -163,6 +166,23 @@ pen_status pen__optim_solve_lighting_eyes(pen_context *ctx, const pen_scene *sc,
                                           const pen_render_options *opt,
                                           const pen__optim_eye *eyes, int n, double ridge,
                                           double mu[3], float (*sh)[3]);
+
+/* ---- The lights' global search (src/optim/lights_search.c) ---------------------------------- */
+
+/* The angular radius (degrees) the search gives each light it creates. */
+#define PEN__OPTIM_SEARCH_RADIUS_DEG 2.0
+/* Creates `count` (1 .. PEN_SCENE_MAX_LIGHTS) disk lights in `sc`, which has none, by a global
+ * search over directions against the eyes' images (rendered with `opt`, each eye's weights and
+ * factor as in the least-squares lighting): a Fibonacci lattice over the sky and down to 5 degrees
+ * below the horizon, refined coarse to fine around the best, lights added greedily; each
+ * candidate scored by the l2 loss minimised over the SH lighting (solve_sh; ridge relative to its
+ * normal equations' largest diagonal entry) and the irradiances (>= 0). The lights get radius
+ * radius_deg and the solved irradiances; with solve_sh the scene's SH becomes the solved one.
+ * Deterministic. *renders (may be NULL): the renders it took. */
+pen_status pen__optim_lights_search(pen_context *ctx, pen_scene *sc,
+                                    const pen_render_options *opt, const pen__optim_eye *eyes,
+                                    int n, int count, int solve_sh, double ridge,
+                                    double radius_deg, int *renders);
 
 /* ---- Views (src/optim/views.c) --------------------------------------------------------------- */
 

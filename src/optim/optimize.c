@@ -7,7 +7,10 @@
  * solved by least squares rather than stepped (solve_lighting), renders (pen_render_fwd),
  * evaluates the loss against the target, runs pen_render_bwd for the groups being optimised
  * only, gathers the gradient (plus the regularisers') into the layout of x and steps. The
- * vector's layout, its copies to and from the scene and the gather are params.c.
+ * vector's layout, its copies to and from the scene and the gather are params.c. A task that
+ * optimises "lights" on a scene without lights first has them created by the global search of
+ * lights_search.c (descent cannot move a light whose shadow misses the observed one), after the
+ * initial guesses, and the vector is laid out again to hold them.
  *
  * The loss is a mean over pixels and channels; its gradient is multiplied by that count before
  * Adam sees it (the gradient of the sum). Adam is invariant to the scale of the gradient except
@@ -369,6 +372,7 @@ static void metrics_none(pen_optim_metrics *m) {
     m->rotation_error_deg = m->translation_error = m->vertex_rmse = none;
     m->translation_error_rel = none;
     m->sphere_iou = m->sphere_chamfer = m->shadow_iou = none;
+    m->light_direction_error_deg = none;
 }
 
 /* The loss weights 1 + shadow_weight * mask of the initial guess (loss.c). */
@@ -383,17 +387,9 @@ static pen_status shadow_weights(pen_context *ctx, const pen_optim_task *t, run 
     return s;
 }
 
-/* "init": "fit": the lighting starts at the unshadowed least-squares fit to the target. */
-static pen_status fitted_lighting(pen_context *ctx, const pen_optim_task *t, run *r) {
-    if (!r->multi) {
-        pen_status s = pen__optim_fit_lighting(ctx, &t->scene, &t->target, PEN__OPTIM_RIDGE_INIT,
-                                              r->sc->lighting.sh);
-        if (!s) pen__optim_transfer(r, 0);
-        return s;
-    }
-    /* every view taking part, weighted as in the loss (its weight over its mask's size) */
-    pen__optim_eye *eyes = pen__calloc(ctx, (size_t)t->view_count, sizeof *eyes, "views");
-    if (!eyes) return PEN_ERROR_MEMORY;
+/* Every view taking part, weighted as in the loss (its weight over its mask's size), as
+ * least-squares eyes; returns their number (eyes: room for every view). */
+static int view_eyes(const pen_optim_task *t, pen__optim_eye *eyes) {
     int n = 0;
     for (int i = 0; i < t->view_count; ++i) {
         const pen_optim_view *v = &t->views[i];
@@ -402,11 +398,64 @@ static pen_status fitted_lighting(pen_context *ctx, const pen_optim_task *t, run
         if (v->weight > 0.0 && count > 0.0)
             eyes[n++] = (pen__optim_eye){&v->camera, &v->target, v->mask, v->weight / count, NULL};
     }
+    return n;
+}
+
+/* "init": "fit": the lighting starts at the unshadowed least-squares fit to the target. */
+static pen_status fitted_lighting(pen_context *ctx, const pen_optim_task *t, run *r) {
+    if (!r->multi) {
+        pen_status s = pen__optim_fit_lighting(ctx, &t->scene, &t->target, PEN__OPTIM_RIDGE_INIT,
+                                              r->sc->lighting.sh);
+        if (!s) pen__optim_transfer(r, 0);
+        return s;
+    }
+    pen__optim_eye *eyes = pen__calloc(ctx, (size_t)t->view_count, sizeof *eyes, "views");
+    if (!eyes) return PEN_ERROR_MEMORY;
+    const int n = view_eyes(t, eyes);
     pen_status s = pen__optim_fit_lighting_eyes(ctx, &t->scene, eyes, n, PEN__OPTIM_RIDGE_INIT,
                                                 r->sc->lighting.sh);
     free(eyes);
     if (!s) pen__optim_transfer(r, 0);
     return s;
+}
+
+/* Lays the parameter vector out again for the scene as it now is (the lights the search
+ * created), from the scene's values: the initial guesses were applied before. */
+static pen_status relayout(pen_context *ctx, const pen_optim_task *t, run *r) {
+    const run fresh = {.sc = r->sc, .opt = r->opt, .groups = r->groups, .solve = r->solve,
+                       .multi = r->multi};
+    pen__optim_run_free(r);
+    *r = fresh;
+    pen_status s = pen__optim_layout(ctx, r, t);
+    if (s) return s;
+    pen__optim_transfer(r, 0);
+    pen__optim_deformation_rest(r);
+    pen__optim_project(r->segments, r->segment_count, r->x);
+    pen__optim_transfer(r, 1);
+    return PEN_OK;
+}
+
+/* "lights" on a scene without lights: the global search (lights_search.c) creates
+ * t->light_count of them against the target or every view taking part, the optimised SH
+ * starting at the lighting it solved with them; then the vector is laid out to hold them. */
+static pen_status search_lights(pen_context *ctx, pen_optim_task *t, run *r,
+                                pen_optim_result *out) {
+    pen__optim_eye one = {NULL, &t->target, NULL, 1.0, NULL};
+    pen__optim_eye *eyes = &one;
+    int n = 1;
+    if (r->multi) {
+        eyes = pen__calloc(ctx, (size_t)t->view_count, sizeof *eyes, "views");
+        if (!eyes) return PEN_ERROR_MEMORY;
+        n = view_eyes(t, eyes);
+    }
+    const double t0 = omp_get_wtime();
+    pen_status s = pen__optim_lights_search(
+        ctx, r->sc, &r->opt, eyes, n, t->light_count, (r->groups & PEN_OPTIM_LIGHTING) != 0,
+        t->lighting_ridge, PEN__OPTIM_SEARCH_RADIUS_DEG, &out->search_renders);
+    out->search_seconds = omp_get_wtime() - t0;
+    out->lights_searched = s ? 0 : t->light_count;
+    if (eyes != &one) free(eyes);
+    return s ? s : relayout(ctx, t, r);
 }
 
 /* Least-squares lighting: the ridge is fixed at the initial guess, whose lighting is then solved
@@ -482,7 +531,10 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
         pen__optim_deformation_rest(&r);
         pen__optim_project(r.segments, r.segment_count, r.x);
         pen__optim_transfer(&r, 1);
-        if (task->init_fit && r.lighting != SIZE_MAX) s = fitted_lighting(ctx, task, &r);
+        const int search =
+            (task->optimize & PEN_OPTIM_LIGHTS) && task->scene.lighting.light_count == 0;
+        if (search) s = search_lights(ctx, task, &r, out); /* (its SH replaces "fit"'s) */
+        else if (task->init_fit && r.lighting != SIZE_MAX) s = fitted_lighting(ctx, task, &r);
         if (!s && r.multi)
             s = pen__optim_views_init(ctx, &r.views, task, task->shadow_weight,
                                       (task->optimize & PEN_OPTIM_LIGHTING) != 0);
