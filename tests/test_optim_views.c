@@ -136,8 +136,10 @@ static void test_gradient_sum(void) {
     double loss = 0.0, sum_loss = 0.0, sh[PEN_SH_MAX_COEFFS][3], pose[6];
     memset(sh, 0, sizeof sh);
     memset(pose, 0, sizeof pose);
+    const pen_optim_settings set = pen_optim_settings_default();
+    CHECK(pen__optim_views_plan(ctx, &V, &t.scene, &set, wrt) == PEN_OK);
     CHECK(pen__optim_views_fwd(ctx, &V, &t.scene, &opt, t.loss, 1, &loss) == PEN_OK);
-    CHECK(pen__optim_views_bwd(ctx, &V, &t.scene, &opt, wrt, &all) == PEN_OK);
+    CHECK(pen__optim_views_bwd(ctx, &V, &t.scene, &opt, &all) == PEN_OK);
     for (int v = 0; v < 3; ++v) { /* each view alone: its loss and gradient, weighted */
         const pen_scene vs = pen__optim_view_scene(&t.scene, &t.views[v].camera);
         pen_image img = {0, 0, 0, NULL}, d = {0, 0, 0, NULL};
