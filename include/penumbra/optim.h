@@ -232,7 +232,8 @@ typedef struct pen_optim_settings {
     int resume;           /* 1: continue from OUTDIR/checkpoint.bin (it must exist) */
     /* Multi-view tasks ("views"): how many views render at once, each with threads / view_workers
      * of the context's threads (OpenMP nesting permitting, else one). 0: automatic (as many as
-     * there are threads and views); 1: one view after the other, each with every thread. The
+     * there are threads when the process has at least as many views or nesting is on, else 1);
+     * 1: one view after the other, each with every thread. The
      * result does not depend on it: the renderer's results do not depend on its thread count,
      * and the views' gradients are summed in view order (docs/optimize.md, "Several views"). */
     int view_workers;

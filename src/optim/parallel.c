@@ -12,8 +12,11 @@
  * renders it with its own context (threads: the caller's / W, which OpenMP grants only when
  * nesting is on; else 1) and its own gradient struct. W = 1 keeps the caller's context: each
  * view in turn with every thread. Rendering views at once pays where a render alone does not
- * keep the threads busy: its serial parts (posing, rasterization setup, the backward's scatter)
- * and small images (the measurements are in docs/optimize.md).
+ * keep the threads busy: its serial parts (posing, rasterization setup, the backward's scatter),
+ * small images, and threads that wait at the render's barriers on a loaded machine (the
+ * measurements are in docs/optimize.md). The automatic choice takes W = T (the thread count)
+ * when the process has at least T views, or nesting is on; with fewer views and nesting off,
+ * W = min(T, views) would leave threads idle, so the views go in turn with every thread.
  *
  * Ranks: the views taking part are cut into contiguous blocks of nearly equal size (the first
  * n mod size ranks get one more); after each pass every rank's block is gathered on every rank
@@ -149,7 +152,9 @@ pen_status pen__optim_workers_init(pen_context *ctx, pen__optim_workers *W, int 
                                    int views, const pen_scene *sc) {
     memset(W, 0, sizeof *W);
     const int threads = pen__threads(ctx);
-    int count = requested > 0 ? requested : threads;
+    int count = requested;
+    if (count <= 0) /* automatic: see the top of the file */
+        count = views >= threads || omp_get_max_active_levels() > 1 ? threads : 1;
     if (count > views) count = views;
     if (count < 1) count = 1;
     W->ctx = pen__calloc(ctx, (size_t)count, sizeof *W->ctx, "view workers");
