@@ -319,7 +319,7 @@ pen_status pen__optim_views_fwd(pen_context *ctx, pen__optim_views *V, const pen
 pen_status pen__optim_views_bwd(pen_context *ctx, pen__optim_views *V, const pen_scene *sc,
                                 const pen_render_options *opt, pen_render_grad *grad) {
     if (V->grad_floats == 0) return PEN_OK; /* nothing differentiated */
-    pass p = {V, sc, opt, PEN_OPTIM_LOSS_L2, 1};
+    pass p = {V, sc, opt, PEN_OPTIM_LOSS_L2, 1}; /* (the loss kind: the forward's business) */
     pen_status s = pen__optim_workers_run(ctx, &V->workers, V->lo, V->hi, view_bwd, &p);
     if (!s)
         s = pen__optim_exchange(ctx, V->ranks, V->taking_part, V->grads,
