@@ -13,8 +13,10 @@ T=$(mktemp -d)
 trap 'rm -rf "$T"' EXIT
 fails=0
 fail() { echo "FAIL: $*"; fails=$((fails + 1)); }
-# CI runs as root, which Open MPI refuses unless told twice.
+# CI runs as root, which Open MPI refuses unless told twice; in containers the shared-memory
+# transport's single-copy mechanism (CMA) is usually not permitted: plain copies instead.
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
+export OMPI_MCA_btl_vader_single_copy_mechanism=none
 # One thread per rank: the comparison run uses the same count (the renders do not depend on it,
 # but README asks for equal --threads, so the test does what it says).
 mpi() { "$MPIEXEC" -np 2 --oversubscribe "$@"; }
