@@ -75,8 +75,12 @@ void pen_cli_mpi_start(int *argc, char ***argv) {
     (void)argc;
     (void)argv;
 }
-const pen_optim_ranks *pen_cli_mpi_ranks(void) { return NULL; }
-void pen_cli_mpi_abort(int status) { (void)status; }
+const pen_optim_ranks *pen_cli_mpi_ranks(void) {
+    return NULL;
+}
+void pen_cli_mpi_abort(int status) {
+    (void)status;
+}
 void pen_cli_mpi_stop(void) {}
 
 #endif

@@ -40,9 +40,11 @@ typedef struct span {
 static int spans(const pen_render_grad *g, unsigned wrt, span *out) {
     pen_render_grad *m = (pen_render_grad *)g; /* (spans of a const struct are only read) */
     int k = 0;
-    if (wrt & PEN_GRAD_LIGHTING) out[k++] = (span){&m->sh[0][0], 3 * (size_t)g->bands * (size_t)g->bands};
+    if (wrt & PEN_GRAD_LIGHTING)
+        out[k++] = (span){&m->sh[0][0], 3 * (size_t)g->bands * (size_t)g->bands};
     if (wrt & PEN_GRAD_LIGHTS) /* pen_light: 7 floats */
-        out[k++] = (span){m->lights[0].direction, sizeof(pen_light) / sizeof(float) * (size_t)g->light_count};
+        out[k++] = (span){m->lights[0].direction,
+                          sizeof(pen_light) / sizeof(float) * (size_t)g->light_count};
     if (wrt & PEN_GRAD_ALBEDO) out[k++] = (span){m->ground_albedo, 3};
     for (int o = 0; o < g->object_count; ++o) {
         pen_object_grad *og = &m->objects[o];
@@ -77,7 +79,9 @@ typedef struct cursor {
     size_t at;
 } cursor;
 
-static void count_span(void *user, const span *sp) { ((cursor *)user)->at += sp->n; }
+static void count_span(void *user, const span *sp) {
+    ((cursor *)user)->at += sp->n;
+}
 static void pack_span(void *user, const span *sp) {
     cursor *c = user;
     memcpy(c->v + c->at, sp->p, sizeof(float) * sp->n);
@@ -104,8 +108,7 @@ pen_status pen__optim_grad_pack(pen_context *ctx, const pen_render_grad *g, unsi
     return each_span(ctx, g, wrt, pack_span, &c);
 }
 
-pen_status pen__optim_grad_add(pen_context *ctx, pen_render_grad *g, unsigned wrt,
-                               const float *v) {
+pen_status pen__optim_grad_add(pen_context *ctx, pen_render_grad *g, unsigned wrt, const float *v) {
     cursor c = {(float *)v, 0};
     return each_span(ctx, g, wrt, add_span, &c);
 }
@@ -132,7 +135,8 @@ pen_status pen__optim_exchange(pen_context *ctx, const pen_optim_ranks *ranks, i
     free(counts);
     return failed ? pen__error(ctx, PEN_ERROR_INTERNAL,
                                "optimize: rank %d: gathering the views' results across ranks "
-                               "failed", ranks->rank)
+                               "failed",
+                               ranks->rank)
                   : PEN_OK;
 }
 
