@@ -238,7 +238,33 @@ typedef struct pen_optim_settings {
     int checkpoint_every; /* > 0: also every K iterations; 0: only at the end */
     int snapshot_every;   /* > 0: a snapshot every K iterations; 0: none */
     int resume;           /* 1: continue from OUTDIR/checkpoint.bin (it must exist) */
+    /* Multi-view tasks ("views"): how many views render at once, each with threads / view_workers
+     * of the context's threads (OpenMP nesting permitting, else one). 0: automatic (as many as
+     * there are threads when the process has at least as many views or nesting is on, else 1);
+     * 1: one view after the other, each with every thread. The
+     * result does not depend on it: the renderer's results do not depend on its thread count,
+     * and the views' gradients are summed in view order (docs/optimize.md, "Several views"). */
+    int view_workers;
+    const struct pen_optim_ranks *ranks; /* NULL: one process; else the views are split */
 } pen_optim_settings;
+
+/* Several processes sharing one multi-view task (`mpirun`: cli/mpi.c implements it with MPI).
+ * Every rank runs pen_optim_run on the same task and settings; the views taking part are cut
+ * into `size` contiguous blocks in view order, rank r renders and differentiates block r, and
+ * each iteration gathers every view's loss and gradient on every rank, where they are summed in
+ * view order: every rank takes the same step, and the result is bit for bit that of one process.
+ * Only rank 0 writes checkpoints and snapshots (resuming reads OUTDIR on every rank: a shared
+ * folder). A least-squares lighting solve is not split: every rank solves it over all views. A
+ * rank that fails leaves the others waiting in the next gather: the caller aborts them (the CLI
+ * calls MPI_Abort). */
+typedef struct pen_optim_ranks {
+    int rank, size;
+    /* Collective: `all` has room for the items of every rank in rank order (counts[r] items of
+     * item_bytes bytes for rank r); each rank has written its own at their place; on return
+     * every rank's are there. Returns 0 on success. */
+    int (*allgather)(void *user, void *all, const int *counts, size_t item_bytes);
+    void *user;
+} pen_optim_ranks;
 
 /* shadows = 1, no callback, no output folder. */
 PEN_API pen_optim_settings pen_optim_settings_default(void);

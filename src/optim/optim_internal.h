@@ -203,6 +203,42 @@ static inline pen_scene pen__optim_view_scene(const pen_scene *sc, const pen_cam
     return v;
 }
 
+/* ---- Views in parallel (src/optim/parallel.c) ------------------------------------------------ */
+
+/* The float count of a render gradient's stretches that the groups in `wrt` fill (the sh, the
+ * lights, albedos and texels, poses, spheres, vertices, in a fixed order), its copy into v, and
+ * the addition of such a vector into a gradient struct of the same scene. */
+pen_status pen__optim_grad_floats(pen_context *ctx, const pen_render_grad *g, unsigned wrt,
+                                  size_t *n);
+pen_status pen__optim_grad_pack(pen_context *ctx, const pen_render_grad *g, unsigned wrt,
+                                float *v);
+pen_status pen__optim_grad_add(pen_context *ctx, pen_render_grad *g, unsigned wrt,
+                               const float *v);
+/* Rank `rank`'s contiguous block [lo, hi) of n items cut into `size` blocks. */
+void pen__optim_block(int n, int rank, int size, int *lo, int *hi);
+/* items: n items of item_bytes, this rank's block (pen__optim_block) filled; gathers every
+ * rank's block into it. No-op without ranks or with one. */
+pen_status pen__optim_exchange(pen_context *ctx, const pen_optim_ranks *ranks, int n, void *items,
+                               size_t item_bytes);
+
+/* Views rendered at once: per worker a context and a gradient struct of the scene's shape. */
+typedef struct pen__optim_workers {
+    int count;             /* 1: in turn, with the caller's context */
+    pen_context **ctx;     /* per worker (NULL with one) */
+    pen_render_grad *grad; /* per worker */
+} pen__optim_workers;
+/* requested as pen_optim_settings.view_workers (0: the context's thread count), at most views. */
+pen_status pen__optim_workers_init(pen_context *ctx, pen__optim_workers *W, int requested,
+                                   int views, const pen_scene *sc);
+void pen__optim_workers_free(pen__optim_workers *W);
+/* One view's share of a pass: item j of the pass, with the worker's context and gradient. */
+typedef pen_status (*pen__optim_view_job)(pen_context *ctx, void *user, int j,
+                                          pen_render_grad *grad);
+/* Runs job for j in [lo, hi), W->count at once; returns the first failure in j order (its
+ * message copied into ctx). */
+pen_status pen__optim_workers_run(pen_context *ctx, pen__optim_workers *W, int lo, int hi,
+                                  pen__optim_view_job job, void *user);
+
 /* The loop's per-view state. factor[i] = weight_i / (the sum of view i's pixel weights): 0 for a
  * view left out (weight 0 or empty mask), which is neither rendered nor differentiated. */
 typedef struct pen__optim_views {
@@ -214,6 +250,16 @@ typedef struct pen__optim_views {
     double *factor;
     pen_image *img, *d_img; /* the last render and its loss gradient, per view */
     size_t max_pixels;
+    /* the passes (pen__optim_views_plan): the views taking part, in view order, and per one of
+     * them its w_v E_v and its gradient vector (grad_floats, pen__optim_grad_pack for wrt) */
+    int *order, taking_part;
+    int lo, hi; /* this process's block of order */
+    const pen_optim_ranks *ranks;
+    double *loss;
+    float *grads;
+    size_t grad_floats;
+    unsigned wrt;
+    pen__optim_workers workers;
 } pen__optim_views;
 
 /* Allocates the per-view state for the task's views; shadow_weight > 0: each view's loss weights
@@ -224,14 +270,19 @@ void pen__optim_views_free_run(pen__optim_views *V);
 /* The views taking part, as least-squares eyes (states: the solve's when `solve`); returns how
  * many were written (eyes: room for V->count). */
 int pen__optim_views_eyes(const pen__optim_views *V, int solve, pen__optim_eye *eyes);
-/* Renders every view taking part, *loss = sum_v w_v E_v; with grad also each view's d_img. */
+/* How the passes run: this process's block of the views taking part (set->ranks), the views
+ * at once (set->view_workers), the gradient vectors for the groups in wrt. */
+pen_status pen__optim_views_plan(pen_context *ctx, pen__optim_views *V, const pen_scene *sc,
+                                 const pen_optim_settings *set, unsigned wrt);
+/* Renders every view taking part (this process's block; the others' losses gathered), *loss =
+ * sum_v w_v E_v in view order; with grad also each of the block's d_img. */
 pen_status pen__optim_views_fwd(pen_context *ctx, pen__optim_views *V, const pen_scene *sc,
                                 const pen_render_options *opt, pen_optim_loss kind, int grad,
                                 double *loss);
-/* Adds every view's gradient (of the last pen__optim_views_fwd with grad) into grad, in order. */
+/* Adds every view's gradient (of the last pen__optim_views_fwd with grad) into grad, in view
+ * order: the block's computed each into its own vector, the others' gathered; wrt as planned. */
 pen_status pen__optim_views_bwd(pen_context *ctx, pen__optim_views *V, const pen_scene *sc,
-                                const pen_render_options *opt, unsigned wrt,
-                                pen_render_grad *grad);
+                                const pen_render_options *opt, pen_render_grad *grad);
 /* Renders the scene from every view (finals, count of them) and measures it over each view's
  * mask (metrics); sq (may be NULL) accumulates the squared error and the value count over the
  * views of positive weight. Both arrays are allocated (also on failure: free them). */

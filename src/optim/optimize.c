@@ -38,7 +38,7 @@
 typedef pen__optim_run run;
 
 pen_optim_settings pen_optim_settings_default(void) {
-    pen_optim_settings s = {1, NULL, NULL, NULL, 0, 0, 0};
+    pen_optim_settings s = {1, NULL, NULL, NULL, 0, 0, 0, 0, NULL};
     return s;
 }
 
@@ -273,8 +273,11 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
     const float scale =
         r->multi ? 3.0f * (float)r->views.max_pixels : 3.0f * (float)w * (float)h;
     const unsigned wrt = pen__optim_grad_mask(r->groups, r->solve);
-    const int K = set->outdir ? set->checkpoint_every : 0;
-    const int S = set->outdir ? set->snapshot_every : 0;
+    /* (under several ranks only rank 0 writes: pen_optim_ranks) */
+    const int writes = set->outdir && (!set->ranks || set->ranks->rank == 0);
+    const int K = writes ? set->checkpoint_every : 0;
+    const int S = writes ? set->snapshot_every : 0;
+    if (!s && r->multi) s = pen__optim_views_plan(ctx, &r->views, &t->scene, set, wrt);
     const double t0 = omp_get_wtime();
     int i = start, shown = -1; /* the iteration whose parameters img shows, -1 after a step */
     for (; !s && i < t->iterations; ++i) {
@@ -311,7 +314,7 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
             break;
         }
         pen_render_grad_zero(&grad);
-        s = r->multi ? pen__optim_views_bwd(ctx, &r->views, &t->scene, &opt, wrt, &grad)
+        s = r->multi ? pen__optim_views_bwd(ctx, &r->views, &t->scene, &opt, &grad)
                      : pen_render_bwd(ctx, &t->scene, &opt, state, &d_img, wrt, &grad);
         if (s) break;
         pen__optim_gather(r, &grad, scale);
@@ -332,7 +335,7 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
         shown = i;
     }
     res->seconds = before + (omp_get_wtime() - t0);
-    if (!s && set->outdir) { /* the final state, so that a later run can continue it */
+    if (!s && writes) { /* the final state, so that a later run can continue it */
         st.iteration = i;
         st.recorded = i + 1;
         st.best_iteration = res->best_iteration;
