@@ -6,7 +6,13 @@
  * checkpoints into the output folder every K iterations and at its end; --resume continues from
  * there. Ctrl-C stops the optimisation after the current iteration and still writes the results
  * and the checkpoint, marked "interrupted"; a second Ctrl-C kills; one pressed while the task
- * loads ends the run before it starts, without output. */
+ * loads ends the run before it starts, without output.
+ *
+ * Under mpirun (cli/mpi.c) the ranks share the task's views: every rank loads the task and runs
+ * it, only rank 0 shows progress, writes the folder and prints the summary. A rank that fails
+ * prints its error (ranks other than 0 name themselves) and aborts the job, since the others
+ * would wait for it in the next gather; Ctrl-C is left to mpirun, which ends the job (the last
+ * checkpoint stays: --resume continues from it). */
 #define _POSIX_C_SOURCE 200809L
 #include "commands.h"
 
@@ -80,10 +86,27 @@ static void usage(FILE *f) {
             "  --resume            continue from OUTDIR/checkpoint.bin (same result as one run)\n"
             "  --checkpoint-every K  checkpoint every K iterations (default 50; 0: at the end)\n"
             "  --snapshot-every K  render snapshot every K iterations (default 50; 0: none)\n"
-            "  --threads N         worker threads (default: all cores)\n"
+            "  --threads N         worker threads (default: all cores; per rank under mpirun)\n"
+            "  --view-workers N    views rendered at once (default 0: as many as threads when\n"
+            "                      there are as many views; 1: one after the other, each with\n"
+            "                      every thread); the result does not depend on it\n"
             "  --no-cache          fit {\"fit\": N} spheres afresh, without reading or writing\n"
             "                      the fit cache ($XDG_CACHE_HOME/penumbra; PENUMBRA_NO_CACHE=1)\n"
-            "  -q, --quiet         no summary line\n");
+            "  -q, --quiet         no summary line\n\n"
+            "Under mpirun (a build with MPI: README, \"Running on a cluster\") the ranks share\n"
+            "the views of a task with \"views\"; the result is that of one process, and only\n"
+            "rank 0 writes OUTDIR.\n");
+}
+
+/* The error line of a failure; under several ranks (not 0: naming the rank) and then the job's
+ * end, since the other ranks may be waiting for this one. */
+static int fail_rank(const pen_optim_ranks *ranks, const pen_context *ctx) {
+    if (!ranks) return pen_cli_fail_ctx(CMD, ctx);
+    if (ranks->rank == 0) pen_cli_fail_ctx(CMD, ctx);
+    else pen_cli_fail(CMD, "rank %d: %s", ranks->rank, pen_context_error(ctx));
+    fflush(stderr);
+    pen_cli_mpi_abort(1);
+    return 1;
 }
 
 static void print_metric(const char *name, double v) {
@@ -126,6 +149,10 @@ int pen_cmd_optimize(int argc, char **argv) {
         } else if (!strcmp(a, "--threads")) {
             if (!pen_cli_parse_int(CMD, a, i + 1 < argc ? argv[++i] : NULL, 1, 4096, &threads))
                 return 2;
+        } else if (!strcmp(a, "--view-workers")) {
+            if (!pen_cli_parse_int(CMD, a, i + 1 < argc ? argv[++i] : NULL, 0, 4096,
+                                   &set.view_workers))
+                return 2;
         } else if (!strcmp(a, "-q") || !strcmp(a, "--quiet")) {
             quiet = 1;
         } else if (!strcmp(a, "--no-cache")) {
@@ -136,11 +163,14 @@ int pen_cmd_optimize(int argc, char **argv) {
     }
     if (!task_path) return pen_cli_usage_error(CMD, "missing TASK.json");
     if (!outdir) return pen_cli_usage_error(CMD, "missing -o OUTDIR");
+    set.ranks = pen_cli_mpi_ranks();
+    const int root = !set.ranks || set.ranks->rank == 0;
+    if (!root) quiet = 1;
 
     /* Ctrl-C is caught from here on, so that one pressed while the task loads is not lost: the
      * run then stops before it starts. A SIGINT ignored on entry (a background job of a
      * non-interactive shell) stays ignored. */
-    void (*old)(int) = signal(SIGINT, on_sigint);
+    void (*old)(int) = set.ranks ? signal(SIGINT, SIG_DFL) : signal(SIGINT, on_sigint);
     if (old == SIG_IGN) signal(SIGINT, SIG_IGN);
     pen_context *ctx = pen_context_create();
     if (!ctx) {
@@ -154,7 +184,7 @@ int pen_cmd_optimize(int argc, char **argv) {
     memset(&res, 0, sizeof res);
     int rc = 1;
     if (pen_optim_task_load_ex(ctx, task_path, target, &task)) {
-        rc = pen_cli_fail_ctx(CMD, ctx);
+        rc = fail_rank(set.ranks, ctx);
         goto out_ctx;
     }
     if (iterations > 0) task.iterations = iterations;
@@ -163,18 +193,18 @@ int pen_cmd_optimize(int argc, char **argv) {
         rc = 130;
         goto out_task;
     }
-    progress p = {isatty(fileno(stderr)), -1, 0.0};
+    progress p = {root && isatty(fileno(stderr)), -1, 0.0};
     set.outdir = outdir;
     set.progress = on_progress;
     set.progress_user = &p;
     pen_status s = pen_optim_run(ctx, &task, &set, &res);
     if (p.tty) fputc('\n', stderr);
     if (s) {
-        rc = pen_cli_fail_ctx(CMD, ctx);
+        rc = fail_rank(set.ranks, ctx);
         goto out_task;
     }
-    if (pen_optim_write(ctx, outdir, &task, &set, &res)) {
-        rc = pen_cli_fail_ctx(CMD, ctx);
+    if (root && pen_optim_write(ctx, outdir, &task, &set, &res)) {
+        rc = fail_rank(set.ranks, ctx);
         goto out_task;
     }
     if (!quiet) {

@@ -23,6 +23,16 @@ int pen_cmd_optimize(int argc, char **argv);
 int pen_cmd_bench(int argc, char **argv);
 int pen_cmd_import_cameras(int argc, char **argv);
 
+/* ---- MPI (cli/mpi.c) ---- */
+
+/* MPI_Init when an MPI launcher started the process (and the tool was built with MPI). */
+void pen_cli_mpi_start(int *argc, char ***argv);
+/* The ranks sharing `optimize`'s views; NULL for one process. */
+const pen_optim_ranks *pen_cli_mpi_ranks(void);
+/* MPI_Abort of every rank (a failed rank would leave the others waiting); no-op alone. */
+void pen_cli_mpi_abort(int status);
+void pen_cli_mpi_stop(void);
+
 /* ---- Helpers (cli/common.c) ---- */
 
 /* Prints "penumbra <cmd>: <message>" on stderr and returns exit status 1 (or 2 for usage). */

@@ -43,6 +43,13 @@ int main(int argc, char **argv) {
         printf("penumbra %s\n", pen_version());
         return 0;
     }
+    /* optimize shares its views between the ranks of an mpirun (cli/mpi.c) */
+    if (strcmp(argv[1], "optimize") == 0) {
+        pen_cli_mpi_start(&argc, &argv);
+        const int rc = pen_cmd_optimize(argc - 1, argv + 1);
+        pen_cli_mpi_stop();
+        return rc;
+    }
     for (int i = 0; i < command_count; ++i)
         if (strcmp(argv[1], commands[i].name) == 0) return commands[i].run(argc - 1, argv + 1);
     fprintf(stderr, "penumbra: unknown command '%s'\n", argv[1]);

@@ -10,8 +10,10 @@
 #   3. print the SH-visibility accuracy table at 4 bands;
 #   4. solve the headline inverse problem: Spot's lighting and 6-D pose recovered together from
 #      a ray-traced image (256x256), with shadows and with --no-shadows, metrics side by side
-#      (the SH light alone, "lights": "none" in examples/optimize: the optimizer does not move
-#      disk lights yet).
+#      (the SH light alone, "lights": "none" in examples/optimize);
+#   5. the sun found from one image (examples/sun/run.sh, small): Spot under the full city map,
+#      SH from black and no lights at the start; the optimizer's global search creates the sun's
+#      disk light, Adam refines it with the SH, and the SH alone is fitted beside it.
 # A few minutes on two cores (the first run also fits Spot's 32 spheres, then caches them).
 set -e
 PEN=${1:-build/penumbra}
@@ -62,15 +64,9 @@ for mode in shadows no-shadows; do
     "$PEN" optimize "$ROOT/examples/optimize/spot_demo.json" -o "$OUT/inverse_$mode" \
         --target "$OUT/spot_target.exr" $flag -q
 done
-# A member of a result.json ("-" when absent).
-field() { # file name
-    v=$(sed -n "s/^[[:space:]]*\"$2\":[[:space:]]*\([^,]*\),\{0,1\}$/\1/p" "$1" | head -n 1)
-    echo "${v:--}"
-}
+. "$ROOT/scripts/result_table.sh"
 row() { # label printf-format name
-    a=$(field "$OUT/inverse_shadows/result.json" "$3")
-    b=$(field "$OUT/inverse_no-shadows/result.json" "$3")
-    printf "   %-26s %12s %12s\n" "$1" "$(printf "$2" "$a")" "$(printf "$2" "$b")"
+    result_row "$1" "$2" "$3" "$OUT/inverse_shadows" "$OUT/inverse_no-shadows" 26 12
 }
 printf "   %-26s %12s %12s\n" "" "shadows" "no shadows"
 row "iterations" "%s" iterations
@@ -81,6 +77,9 @@ row "lighting rel. error" "%.3f" lighting_rel_error
 row "image RMSE vs target" "%.4f" image_rmse
 echo "   outputs: $OUT/inverse_shadows/ and $OUT/inverse_no-shadows/ (compare.png: target,"
 echo "   start, result, error; result.json, scene.json, loss.svg, snapshots/)"
+echo
+echo "== The sun found from one image (examples/sun/run.sh at 64 spp and 100 iterations)"
+PEN_SUN_OUT="$OUT/sun" PEN_SUN_SPP=64 PEN_SUN_ITERATIONS=100 sh "$ROOT/examples/sun/run.sh" "$PEN"
 echo
 echo "penumbra demo: images and tables are in $OUT/ (spot_<map>.png: render with the lights,"
 echo "spot_<map>_nolights.png: SH light alone, spot_<map>_truth.png: ray-traced under the full map);"

@@ -5,6 +5,10 @@
 set -e
 PKGS="build-essential cmake pkg-config libembree-dev libcjson-dev libstb-dev libopenexr-dev \
 zlib1g-dev libpng-dev libjpeg-dev"
+# Open MPI: `penumbra optimize` under mpirun splits a task's views across processes and machines
+# (README, "Running on a cluster"); optional to the build (CMake PENUMBRA_MPI), installed so
+# that the test suite checks it (tests/mpi_optimize.sh).
+PKGS="$PKGS libopenmpi-dev openmpi-bin"
 # The Python binding and its tests run on Debian's own Python 3 (/usr/bin/python3).
 PKGS="$PKGS python3 python3-numpy python3-torch"
 [ "${1:-}" = "--fuzz" ] && PKGS="$PKGS clang-14 libclang-rt-14-dev"

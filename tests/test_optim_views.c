@@ -10,6 +10,7 @@
 
 #include "optim/optim_internal.h"
 
+#include <pthread.h>
 #include <stdio.h>
 #include <sys/stat.h>
 #include <unistd.h>
@@ -65,13 +66,20 @@ static pen_optim_task views_task(int n, int total, int extra, unsigned groups, i
     return t;
 }
 
-static pen_optim_result run_task(pen_optim_task *t, const pen_optim_settings *set) {
+/* pen_optim_run with `threads` (0: all cores). */
+static pen_optim_result run_task_threads(pen_optim_task *t, const pen_optim_settings *set,
+                                         int threads) {
     pen_context *ctx = pen_context_create();
+    pen_context_set_threads(ctx, threads);
     pen_optim_result r;
     pen_status s = pen_optim_run(ctx, t, set, &r);
     CHECK_MSG(s == PEN_OK, "%s", pen_context_error(ctx));
     pen_context_destroy(ctx);
     return r;
+}
+
+static pen_optim_result run_task(pen_optim_task *t, const pen_optim_settings *set) {
+    return run_task_threads(t, set, 0);
 }
 
 /* ---- Lighting from 1 view and from 4 ---------------------------------------------------------- */
@@ -136,8 +144,10 @@ static void test_gradient_sum(void) {
     double loss = 0.0, sum_loss = 0.0, sh[PEN_SH_MAX_COEFFS][3], pose[6];
     memset(sh, 0, sizeof sh);
     memset(pose, 0, sizeof pose);
+    const pen_optim_settings set = pen_optim_settings_default();
+    CHECK(pen__optim_views_plan(ctx, &V, &t.scene, &set, wrt) == PEN_OK);
     CHECK(pen__optim_views_fwd(ctx, &V, &t.scene, &opt, t.loss, 1, &loss) == PEN_OK);
-    CHECK(pen__optim_views_bwd(ctx, &V, &t.scene, &opt, wrt, &all) == PEN_OK);
+    CHECK(pen__optim_views_bwd(ctx, &V, &t.scene, &opt, &all) == PEN_OK);
     for (int v = 0; v < 3; ++v) { /* each view alone: its loss and gradient, weighted */
         const pen_scene vs = pen__optim_view_scene(&t.scene, &t.views[v].camera);
         pen_image img = {0, 0, 0, NULL}, d = {0, 0, 0, NULL};
@@ -234,6 +244,120 @@ static void test_weights_and_masks(void) {
     pen_optim_task_free(&tm);
     pen_optim_result_free(&r4);
     pen_optim_task_free(&t4);
+}
+
+/* ---- Views at once and views across ranks (src/optim/parallel.c) ------------------------------ */
+
+/* One after the other with 1 thread, with 2, two and three views at once (2 and 3 threads): the
+ * same losses and recovered scene bit for bit (a view's gradient is computed alone and the sum
+ * runs in view order; the renderer does not depend on its thread count). */
+static void test_views_at_once(void) {
+    const unsigned groups = PEN_OPTIM_LIGHTING | PEN_OPTIM_POSE;
+    const int iterations = check_quick_() ? 3 : 6;
+    static const int setting[][2] = {{2, 1}, {2, 2}, {3, 0}}; /* threads, view_workers */
+    pen_optim_settings set = pen_optim_settings_default();
+    set.view_workers = 1;
+    pen_optim_task t1 = views_task(VIEWS, VIEWS, 0, groups, iterations);
+    pen_optim_result r1 = run_task_threads(&t1, &set, 1);
+    for (int k = 0; k < 3; ++k) {
+        char what[64];
+        snprintf(what, sizeof what, "%d threads, view_workers %d", setting[k][0], setting[k][1]);
+        set.view_workers = setting[k][1];
+        pen_optim_task t = views_task(VIEWS, VIEWS, 0, groups, iterations);
+        pen_optim_result r = run_task_threads(&t, &set, setting[k][0]);
+        check_same_run(&r1, &t1, &r, &t, what);
+        pen_optim_result_free(&r);
+        pen_optim_task_free(&t);
+    }
+    pen_optim_result_free(&r1);
+    pen_optim_task_free(&t1);
+}
+
+/* Ranks played by threads of this process: a shared-memory allgather between two barriers. */
+#define MAX_RANKS 4
+typedef struct world {
+    pthread_barrier_t barrier;
+    void *all[MAX_RANKS];
+} world;
+
+typedef struct rank_run {
+    world *w;
+    pen_optim_ranks ranks;
+    pen_optim_task task;
+    pen_optim_result result;
+    pen_status status;
+} rank_run;
+
+static int shared_allgather(void *user, void *all, const int *counts, size_t item_bytes) {
+    rank_run *me = user;
+    me->w->all[me->ranks.rank] = all;
+    pthread_barrier_wait(&me->w->barrier); /* every rank's block is in its buffer */
+    size_t at = 0;
+    for (int r = 0; r < me->ranks.size; ++r) {
+        const size_t bytes = (size_t)counts[r] * item_bytes;
+        if (r != me->ranks.rank)
+            memcpy((char *)all + at, (const char *)me->w->all[r] + at, bytes);
+        at += bytes;
+    }
+    pthread_barrier_wait(&me->w->barrier); /* all read before anyone writes again */
+    return 0;
+}
+
+static void *rank_main(void *arg) {
+    rank_run *me = arg;
+    pen_context *ctx = pen_context_create();
+    pen_context_set_threads(ctx, 1);
+    pen_optim_settings set = pen_optim_settings_default();
+    set.ranks = &me->ranks;
+    me->status = pen_optim_run(ctx, &me->task, &set, &me->result);
+    if (me->status) fprintf(stderr, "rank %d: %s\n", me->ranks.rank, pen_context_error(ctx));
+    pen_context_destroy(ctx);
+    return NULL;
+}
+
+/* n views plus one of weight 0 (it takes no part, not even in the split) over `size` ranks:
+ * every rank ends with one process's losses and scene, bit for bit. 3 views over 2 ranks (an
+ * uneven split) and over 3, 4 over 4 (one view each). */
+static void test_ranks(void) {
+    const unsigned groups = PEN_OPTIM_LIGHTING | PEN_OPTIM_POSE;
+    const int iterations = check_quick_() ? 3 : 6;
+    static const int cases[][2] = {{3, 2}, {3, 3}, {4, 4}}; /* views, ranks */
+    for (int c = 0; c < 3; ++c) {
+        const int n = cases[c][0], size = cases[c][1];
+        pen_optim_settings set = pen_optim_settings_default();
+        pen_optim_task t1 = views_task(n, n, 1, groups, iterations);
+        t1.views[n].camera = around(1, 5);
+        t1.views[n].target = render_view(&t1.scene, &t1.views[n].camera);
+        pen_optim_result r1 = run_task_threads(&t1, &set, 1);
+        world w;
+        pthread_barrier_init(&w.barrier, NULL, (unsigned)size);
+        rank_run runs[MAX_RANKS];
+        pthread_t threads[MAX_RANKS];
+        for (int r = 0; r < size; ++r) {
+            rank_run *me = &runs[r];
+            memset(me, 0, sizeof *me);
+            me->w = &w;
+            me->ranks = (pen_optim_ranks){r, size, shared_allgather, me};
+            me->task = views_task(n, n, 1, groups, iterations);
+            me->task.views[n].camera = t1.views[n].camera;
+            me->task.views[n].target = render_view(&me->task.scene, &me->task.views[n].camera);
+            CHECK(pthread_create(&threads[r], NULL, rank_main, me) == 0);
+        }
+        for (int r = 0; r < size; ++r) {
+            pthread_join(threads[r], NULL);
+            char what[64];
+            snprintf(what, sizeof what, "%d views, rank %d of %d", n, r, size);
+            CHECK_MSG(runs[r].status == PEN_OK, "%s failed", what);
+            if (!runs[r].status) check_same_run(&r1, &t1, &runs[r].result, &runs[r].task, what);
+            pen_optim_result_free(&runs[r].result);
+            pen_optim_task_free(&runs[r].task);
+        }
+        pthread_barrier_destroy(&w.barrier);
+        printf("  %d views over %d ranks: %d iterations, loss %.9g, as one process\n", n, size,
+               r1.iterations, r1.final_loss);
+        pen_optim_result_free(&r1);
+        pen_optim_task_free(&t1);
+    }
 }
 
 /* ---- The task JSON ---------------------------------------------------------------------------- */
@@ -480,4 +604,5 @@ static void test_resume_and_outputs(void) {
 }
 
 RUN_TESTS(TEST(test_lighting_one_vs_four), TEST(test_gradient_sum), TEST(test_weights_and_masks),
-          TEST(test_task_json), TEST(test_resume_and_outputs))
+          TEST(test_task_json), TEST(test_resume_and_outputs), TEST(test_views_at_once),
+          TEST(test_ranks))

@@ -61,8 +61,9 @@ extern "C" {
                                     its sphere centres (moves vertices and spheres) */
 #define PEN_OPTIM_SPHERES 16u    /* "spheres": every object's sphere centres and radii */
 #define PEN_OPTIM_LIGHTS 32u     /* "lights": every disk light's direction, angular radius and
-                                    irradiance (the scene must have lights: given, or found in its
-                                    map; the optimiser does not create them) */
+                                    irradiance: the scene's (given, or found in its map), or,
+                                    when it has none, light_count lights that a global search
+                                    over directions creates before the descent */
 #define PEN_OPTIM_EXPOSURE 64u   /* "exposure": each view's exposure but the first's (a task with
                                     2 or more views; the first is the gauge, below) */
 
@@ -196,6 +197,13 @@ typedef struct pen_optim_task {
     pen_optim_view *views;
     int validation_count;      /* "validation_views": rendered at the end, not in the loss */
     pen_optim_view *validation;
+    int light_count;    /* "lights" on a scene without lights: how many the global search
+                           creates, 1 .. PEN_SCENE_MAX_LIGHTS (default 1). The search tries
+                           directions over the sky and down to 5 degrees below the horizon,
+                           each a disk of 2 degrees whose irradiance and the SH lighting (when
+                           optimised) are solved by least squares, keeps the best and refines
+                           it, adds lights greedily, and starts the descent there with the
+                           solved irradiances and SH (docs/optimize.md, "Lights") */
 } pen_optim_task;
 
 /* A task holding the defaults pen_optim_task_load starts from (500 iterations, the lr above,
@@ -246,7 +254,33 @@ typedef struct pen_optim_settings {
     int checkpoint_every; /* > 0: also every K iterations; 0: only at the end */
     int snapshot_every;   /* > 0: a snapshot every K iterations; 0: none */
     int resume;           /* 1: continue from OUTDIR/checkpoint.bin (it must exist) */
+    /* Multi-view tasks ("views"): how many views render at once, each with threads / view_workers
+     * of the context's threads (OpenMP nesting permitting, else one). 0: automatic (as many as
+     * there are threads when the process has at least as many views or nesting is on, else 1);
+     * 1: one view after the other, each with every thread. The
+     * result does not depend on it: the renderer's results do not depend on its thread count,
+     * and the views' gradients are summed in view order (docs/optimize.md, "Several views"). */
+    int view_workers;
+    const struct pen_optim_ranks *ranks; /* NULL: one process; else the views are split */
 } pen_optim_settings;
+
+/* Several processes sharing one multi-view task (`mpirun`: cli/mpi.c implements it with MPI).
+ * Every rank runs pen_optim_run on the same task and settings; the views taking part are cut
+ * into `size` contiguous blocks in view order, rank r renders and differentiates block r, and
+ * each iteration gathers every view's loss and gradient on every rank, where they are summed in
+ * view order: every rank takes the same step, and the result is bit for bit that of one process.
+ * Only rank 0 writes checkpoints and snapshots (resuming reads OUTDIR on every rank: a shared
+ * folder). A least-squares lighting solve is not split: every rank solves it over all views. A
+ * rank that fails leaves the others waiting in the next gather: the caller aborts them (the CLI
+ * calls MPI_Abort). */
+typedef struct pen_optim_ranks {
+    int rank, size;
+    /* Collective: `all` has room for the items of every rank in rank order (counts[r] items of
+     * item_bytes bytes for rank r); each rank has written its own at their place; on return
+     * every rank's are there. Returns 0 on success. */
+    int (*allgather)(void *user, void *all, const int *counts, size_t item_bytes);
+    void *user;
+} pen_optim_ranks;
 
 /* shadows = 1, no callback, no output folder. */
 PEN_API pen_optim_settings pen_optim_settings_default(void);
@@ -290,6 +324,10 @@ typedef struct pen_optim_metrics {
                                    projections onto the ground along the truth's dominant light
                                    direction (the dipole of its SH lighting; straight down
                                    without one), on a 256^2 grid; what a shadow determines */
+    double light_direction_error_deg; /* the largest over the recovered disk lights of the
+                                   angle to the nearest of the truth's lights (given, or found
+                                   in its map by the default extraction); with "lights" and a
+                                   truth that has lights */
 } pen_optim_metrics;
 
 /* The recovered scene seen from one view (over the view's mask). */
@@ -318,6 +356,9 @@ typedef struct pen_optim_result {
     int validation_count; /* the task's validation views */
     pen_optim_view_metrics *validation;
     pen_image *validation_finals;
+    int lights_searched;  /* lights the global search created (0: none searched) */
+    int search_renders;   /* the renders it took */
+    double search_seconds; /* its time (not in `seconds`) */
 } pen_optim_result;
 
 /* Runs the task: fits sphere sets the scene asks for ({"fit": N}, cached as pen_spheres_fit_cached says; only

@@ -472,6 +472,30 @@ static pen_status sphere_error(pen_context *ctx, const pen_optim_task *t, pen_op
     return PEN_OK;
 }
 
+/* The largest over the scene's lights of the angle (degrees, in double) to the nearest of the
+ * truth's: each recovered light is matched with the true light it is closest to. */
+static double light_direction_error(const pen_scene *sc, const pen_scene *gt) {
+    double worst = 0.0;
+    for (int i = 0; i < sc->lighting.light_count; ++i) {
+        const float *af = sc->lighting.lights[i].direction;
+        const double a[3] = {af[0], af[1], af[2]};
+        double nearest = 180.0;
+        for (int j = 0; j < gt->lighting.light_count; ++j) {
+            const float *bf = gt->lighting.lights[j].direction;
+            const double b[3] = {bf[0], bf[1], bf[2]};
+            const double cr[3] = {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
+                                  a[0] * b[1] - a[1] * b[0]};
+            const double d = a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+            /* atan2 of |a x b| and a.b: accurate at small angles, where acos is not */
+            const double ang =
+                atan2(sqrt(cr[0] * cr[0] + cr[1] * cr[1] + cr[2] * cr[2]), d) * 180.0 / PEN_PI;
+            nearest = fmin(nearest, ang);
+        }
+        worst = fmax(worst, nearest);
+    }
+    return worst;
+}
+
 pen_status pen__optim_metrics(pen_context *ctx, const pen_optim_task *t, pen_optim_metrics *m) {
     if (!t->has_ground_truth) return PEN_OK;
     pen_status s = pen__optim_check_truth(ctx, t);
@@ -482,6 +506,9 @@ pen_status pen__optim_metrics(pen_context *ctx, const pen_optim_task *t, pen_opt
             m->lighting_rel_error_b2 = lighting_error(&t->scene, &t->ground_truth, 3);
         m->lighting_rel_error_sky = lighting_error_sky(&t->scene, &t->ground_truth);
     }
+    if ((t->optimize & PEN_OPTIM_LIGHTS) && t->scene.lighting.light_count > 0 &&
+        t->ground_truth.lighting.light_count > 0)
+        m->light_direction_error_deg = light_direction_error(&t->scene, &t->ground_truth);
     if (t->optimize & (PEN_OPTIM_POSE | PEN_OPTIM_DEFORMATION)) pose_error(t, m);
     if (t->optimize & PEN_OPTIM_SPHERES) s = sphere_error(ctx, t, m);
     if (s) return s;

@@ -46,9 +46,7 @@ static void mask_from(const pen_image *target, const float *model, float *mask) 
     }
 }
 
-/* Solves the symmetric positive definite n x n system A x = b in place (Cholesky; A and b are
- * overwritten). Returns 0 if A is not positive definite. */
-static int solve_spd(double *A, double *b, int n) {
+int pen__optim_solve_spd(double *A, double *b, int n) {
     for (int j = 0; j < n; ++j) {
         double d = A[j * n + j];
         for (int k = 0; k < j; ++k)
@@ -146,7 +144,8 @@ static void solve_eqs(normal_eqs *q, double ridge, double mu[3], float (*sh)[3])
                 G[k * nb + j] = G[j * nb + k];
             G[j * nb + j] += m + 1e-30; /* band 3's columns are zero without shadows */
         }
-        const int ok = solve_spd(G, b, nb); /* not ok: no pixel sees the light at all: 0 */
+        /* not ok: no pixel sees the light at all: 0 */
+        const int ok = pen__optim_solve_spd(G, b, nb);
         for (int k = 0; k < nb; ++k)
             sh[k][c] = ok ? (float)b[k] : 0.0f;
     }

@@ -131,6 +131,9 @@ pen_status pen__optim_solve_lighting(pen_context *ctx, const pen_scene *sc,
                                      const pen_image *target,
                                      const float *weight, double ridge, double mu[3],
                                      float (*sh)[3]);
+/* Solves the symmetric positive definite n x n system A x = b in place (Cholesky on A's lower
+ * triangle; A and b are overwritten, x in b). Returns 0 if A is not positive definite. */
+int pen__optim_solve_spd(double *A, double *b, int n);
 /* Ridges (relative to the largest diagonal entry of the normal equations): the shadow mask
  * needs an unbiased fitted image, the "fit" initial guess well-conditioned coefficients. */
 #define PEN__OPTIM_RIDGE_MASK 1e-9
@@ -164,6 +167,23 @@ pen_status pen__optim_solve_lighting_eyes(pen_context *ctx, const pen_scene *sc,
                                           const pen__optim_eye *eyes, int n, double ridge,
                                           double mu[3], float (*sh)[3]);
 
+/* ---- The lights' global search (src/optim/lights_search.c) ---------------------------------- */
+
+/* The angular radius (degrees) the search gives each light it creates. */
+#define PEN__OPTIM_SEARCH_RADIUS_DEG 2.0
+/* Creates `count` (1 .. PEN_SCENE_MAX_LIGHTS) disk lights in `sc`, which has none, by a global
+ * search over directions against the eyes' images (rendered with `opt`, each eye's weights and
+ * factor as in the least-squares lighting): a Fibonacci lattice over the sky and down to 5 degrees
+ * below the horizon, refined coarse to fine around the best, lights added greedily; each
+ * candidate scored by the l2 loss minimised over the SH lighting (solve_sh; ridge relative to its
+ * normal equations' largest diagonal entry) and the irradiances (>= 0). The lights get radius
+ * radius_deg and the solved irradiances; with solve_sh the scene's SH becomes the solved one.
+ * Deterministic. *renders (may be NULL): the renders it took. */
+pen_status pen__optim_lights_search(pen_context *ctx, pen_scene *sc,
+                                    const pen_render_options *opt, const pen__optim_eye *eyes,
+                                    int n, int count, int solve_sh, double ridge,
+                                    double radius_deg, int *renders);
+
 /* ---- Views (src/optim/views.c) --------------------------------------------------------------- */
 
 /* Reads the task's "views" (or "validation_views") member at w: an array of {"camera", "target",
@@ -184,6 +204,51 @@ static inline pen_scene pen__optim_view_scene(const pen_scene *sc, const pen_cam
     return v;
 }
 
+/* ---- Views in parallel (src/optim/parallel.c) ------------------------------------------------ */
+
+/* The float count of a render gradient's stretches that the groups in `wrt` fill (the sh, the
+ * lights, albedos and texels, poses, spheres, vertices, in a fixed order), its copy into v, and
+ * the addition of such a vector into a gradient struct of the same scene. */
+pen_status pen__optim_grad_floats(pen_context *ctx, const pen_render_grad *g, unsigned wrt,
+                                  size_t *n);
+pen_status pen__optim_grad_pack(pen_context *ctx, const pen_render_grad *g, unsigned wrt,
+                                float *v);
+pen_status pen__optim_grad_add(pen_context *ctx, pen_render_grad *g, unsigned wrt,
+                               const float *v);
+/* Rank `rank`'s contiguous block [lo, hi) of n items cut into `size` blocks. */
+void pen__optim_block(int n, int rank, int size, int *lo, int *hi);
+/* items: n items of item_bytes, this rank's block (pen__optim_block) filled; gathers every
+ * rank's block into it. No-op without ranks or with one. */
+pen_status pen__optim_exchange(pen_context *ctx, const pen_optim_ranks *ranks, int n, void *items,
+                               size_t item_bytes);
+
+/* Views rendered at once: per worker a context and a gradient struct of the scene's shape. */
+typedef struct pen__optim_workers {
+    int count;             /* 1: in turn, with the caller's context */
+    pen_context **ctx;     /* per worker (NULL with one) */
+    pen_render_grad *grad; /* per worker */
+} pen__optim_workers;
+/* requested as pen_optim_settings.view_workers (0: the context's thread count), at most views. */
+pen_status pen__optim_workers_init(pen_context *ctx, pen__optim_workers *W, int requested,
+                                   int views, const pen_scene *sc);
+void pen__optim_workers_free(pen__optim_workers *W);
+/* One view's share of a pass: item j of the pass, with the worker's context and gradient. */
+typedef pen_status (*pen__optim_view_job)(pen_context *ctx, void *user, int j,
+                                          pen_render_grad *grad);
+/* Runs job for j in [lo, hi), W->count at once; returns the first failure in j order (its
+ * message copied into ctx). */
+pen_status pen__optim_workers_run(pen_context *ctx, pen__optim_workers *W, int lo, int hi,
+                                  pen__optim_view_job job, void *user);
+
+/* What a view's forward gives the sum, gathered across ranks as it is. The exposure's
+ * derivative travels here rather than in the gradient vector: the forward makes it (from the
+ * loss's image gradient), it stays a double, and it exists when no render gradient is wanted
+ * (the "exposure" group alone). */
+typedef struct pen__optim_view_share {
+    double loss;         /* w_v E_v */
+    double d_log_exposure; /* d(w_v E_v)/d(log s_v); 0 in a pass without gradient */
+} pen__optim_view_share;
+
 /* The loop's per-view state. factor[i] = weight_i / (the sum of view i's pixel weights): 0 for a
  * view left out (weight 0 or empty mask), which is neither rendered nor differentiated. */
 typedef struct pen__optim_views {
@@ -199,6 +264,17 @@ typedef struct pen__optim_views {
     pen_image *eye_target;  /* per view: the target over the exposure (pen__optim_view_eye);
                                allocated where the exposure may differ from 1 */
     size_t max_pixels;
+    /* the passes (pen__optim_views_plan): the views taking part, in view order, and per one of
+     * them its forward's share (loss: w_v E_v and d(w_v E_v)/d(log s_v)) and its gradient
+     * vector (grad_floats, pen__optim_grad_pack for wrt) */
+    int *order, taking_part;
+    int lo, hi; /* this process's block of order */
+    const pen_optim_ranks *ranks;
+    pen__optim_view_share *loss;
+    float *grads;
+    size_t grad_floats;
+    unsigned wrt;
+    pen__optim_workers workers;
 } pen__optim_views;
 
 /* Allocates the per-view state for the task's views; shadow_weight > 0: each view's loss weights
@@ -221,16 +297,20 @@ pen_status pen__optim_view_eye(pen_context *ctx, const pen_optim_view *v, double
                                pen_image *scratch, pen__optim_eye *e);
 /* Multiplies the image by a view's exposure (nothing to do at 1). */
 void pen__optim_view_expose(pen_image *img, double exposure);
-/* Renders every view taking part, *loss = sum_v w_v E_v (each render times its view's
- * exposure); with grad also each view's d_img (with respect to the unscaled render) and
- * d_exposure. */
+/* How the passes run: this process's block of the views taking part (set->ranks), the views
+ * at once (set->view_workers), the gradient vectors for the groups in wrt. */
+pen_status pen__optim_views_plan(pen_context *ctx, pen__optim_views *V, const pen_scene *sc,
+                                 const pen_optim_settings *set, unsigned wrt);
+/* Renders every view taking part (this process's block; the others' shares gathered), each
+ * render times its view's exposure, *loss = sum_v w_v E_v in view order; with grad also each of
+ * the block's d_img (with respect to the unscaled render) and every view's d_exposure. */
 pen_status pen__optim_views_fwd(pen_context *ctx, pen__optim_views *V, const pen_scene *sc,
                                 const pen_render_options *opt, pen_optim_loss kind, int grad,
                                 double *loss);
-/* Adds every view's gradient (of the last pen__optim_views_fwd with grad) into grad, in order. */
+/* Adds every view's gradient (of the last pen__optim_views_fwd with grad) into grad, in view
+ * order: the block's computed each into its own vector, the others' gathered; wrt as planned. */
 pen_status pen__optim_views_bwd(pen_context *ctx, pen__optim_views *V, const pen_scene *sc,
-                                const pen_render_options *opt, unsigned wrt,
-                                pen_render_grad *grad);
+                                const pen_render_options *opt, pen_render_grad *grad);
 /* Renders the scene from every view (finals, count of them) and measures it over each view's
  * mask (metrics); sq (may be NULL) accumulates the squared error and the value count over the
  * views of positive weight. Both arrays are allocated (also on failure: free them). */

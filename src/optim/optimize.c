@@ -7,7 +7,10 @@
  * solved by least squares rather than stepped (solve_lighting), renders (pen_render_fwd),
  * evaluates the loss against the target, runs pen_render_bwd for the groups being optimised
  * only, gathers the gradient (plus the regularisers') into the layout of x and steps. The
- * vector's layout, its copies to and from the scene and the gather are params.c.
+ * vector's layout, its copies to and from the scene and the gather are params.c. A task that
+ * optimises "lights" on a scene without lights first has them created by the global search of
+ * lights_search.c (descent cannot move a light whose shadow misses the observed one), after the
+ * initial guesses, and the vector is laid out again to hold them.
  *
  * The loss is a mean over pixels and channels; its gradient is multiplied by that count before
  * Adam sees it (the gradient of the sum). Adam is invariant to the scale of the gradient except
@@ -35,7 +38,7 @@
 typedef pen__optim_run run;
 
 pen_optim_settings pen_optim_settings_default(void) {
-    pen_optim_settings s = {1, NULL, NULL, NULL, 0, 0, 0};
+    pen_optim_settings s = {1, NULL, NULL, NULL, 0, 0, 0, 0, NULL};
     return s;
 }
 
@@ -272,8 +275,11 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
     const float scale =
         r->multi ? 3.0f * (float)r->views.max_pixels : 3.0f * (float)w * (float)h;
     const unsigned wrt = pen__optim_grad_mask(r->groups, r->solve);
-    const int K = set->outdir ? set->checkpoint_every : 0;
-    const int S = set->outdir ? set->snapshot_every : 0;
+    /* (under several ranks only rank 0 writes: pen_optim_ranks) */
+    const int writes = set->outdir && (!set->ranks || set->ranks->rank == 0);
+    const int K = writes ? set->checkpoint_every : 0;
+    const int S = writes ? set->snapshot_every : 0;
+    if (!s && r->multi) s = pen__optim_views_plan(ctx, &r->views, &t->scene, set, wrt);
     const double t0 = omp_get_wtime();
     int i = start, shown = -1; /* the iteration whose parameters img shows, -1 after a step */
     for (; !s && i < t->iterations; ++i) {
@@ -310,7 +316,7 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
             break;
         }
         pen_render_grad_zero(&grad);
-        s = r->multi ? pen__optim_views_bwd(ctx, &r->views, &t->scene, &opt, wrt, &grad)
+        s = r->multi ? pen__optim_views_bwd(ctx, &r->views, &t->scene, &opt, &grad)
                      : pen_render_bwd(ctx, &t->scene, &opt, state, &d_img, wrt, &grad);
         if (s) break;
         pen__optim_gather(r, &grad, scale);
@@ -331,7 +337,7 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
         shown = i;
     }
     res->seconds = before + (omp_get_wtime() - t0);
-    if (!s && set->outdir) { /* the final state, so that a later run can continue it */
+    if (!s && writes) { /* the final state, so that a later run can continue it */
         st.iteration = i;
         st.recorded = i + 1;
         st.best_iteration = res->best_iteration;
@@ -371,6 +377,7 @@ static void metrics_none(pen_optim_metrics *m) {
     m->rotation_error_deg = m->translation_error = m->vertex_rmse = none;
     m->translation_error_rel = none;
     m->sphere_iou = m->sphere_chamfer = m->shadow_iou = none;
+    m->light_direction_error_deg = none;
 }
 
 /* The loss weights 1 + shadow_weight * mask of the initial guess (loss.c). */
@@ -385,6 +392,40 @@ static pen_status shadow_weights(pen_context *ctx, const pen_optim_task *t, run 
     return s;
 }
 
+/* Every view taking part, weighted as in the loss (its weight over its mask's size), as
+ * least-squares eyes, each target over its view's exposure (pen__optim_view_eye; scratch holds
+ * the targets whose exposure differs from 1), so that a fit or a search sees the loss's
+ * objective with the exposures as they stand. */
+typedef struct view_eyes {
+    pen__optim_eye *eyes;
+    pen_image *scratch; /* one per view of the task */
+    int n, count;
+} view_eyes;
+
+static void view_eyes_free(view_eyes *e) {
+    for (int i = 0; e->scratch && i < e->count; ++i)
+        pen_image_free(&e->scratch[i]);
+    free(e->scratch);
+    free(e->eyes);
+}
+
+/* On failure *e is freed. */
+static pen_status view_eyes_make(pen_context *ctx, const pen_optim_task *t, view_eyes *e) {
+    *e = (view_eyes){NULL, NULL, 0, t->view_count};
+    e->eyes = pen__calloc(ctx, (size_t)t->view_count, sizeof *e->eyes, "views");
+    e->scratch = pen__calloc(ctx, (size_t)t->view_count, sizeof *e->scratch, "views");
+    pen_status s = e->eyes && e->scratch ? PEN_OK : PEN_ERROR_MEMORY;
+    for (int i = 0; !s && i < t->view_count; ++i) {
+        const pen_optim_view *v = &t->views[i];
+        const size_t pixels = (size_t)v->camera.width * (size_t)v->camera.height;
+        const double count = pen__loss_weight_sum(v->mask, pixels);
+        if (v->weight > 0.0 && count > 0.0)
+            s = pen__optim_view_eye(ctx, v, v->weight / count, &e->scratch[i], &e->eyes[e->n++]);
+    }
+    if (s) view_eyes_free(e);
+    return s;
+}
+
 /* "init": "fit": the lighting starts at the unshadowed least-squares fit to the target. */
 static pen_status fitted_lighting(pen_context *ctx, const pen_optim_task *t, run *r) {
     if (!r->multi) {
@@ -393,28 +434,52 @@ static pen_status fitted_lighting(pen_context *ctx, const pen_optim_task *t, run
         if (!s) pen__optim_transfer(r, 0);
         return s;
     }
-    /* every view taking part, weighted as in the loss (its weight over its mask's size), each
-     * target over its exposure */
-    pen__optim_eye *eyes = pen__calloc(ctx, (size_t)t->view_count, sizeof *eyes, "views");
-    pen_image *scratch = pen__calloc(ctx, (size_t)t->view_count, sizeof *scratch, "views");
-    pen_status s = eyes && scratch ? PEN_OK : PEN_ERROR_MEMORY;
-    int n = 0;
-    for (int i = 0; !s && i < t->view_count; ++i) {
-        const pen_optim_view *v = &t->views[i];
-        const size_t pixels = (size_t)v->camera.width * (size_t)v->camera.height;
-        const double count = pen__loss_weight_sum(v->mask, pixels);
-        if (v->weight > 0.0 && count > 0.0)
-            s = pen__optim_view_eye(ctx, v, v->weight / count, &scratch[i], &eyes[n++]);
-    }
-    if (!s)
-        s = pen__optim_fit_lighting_eyes(ctx, &t->scene, eyes, n, PEN__OPTIM_RIDGE_INIT,
-                                         r->sc->lighting.sh);
-    for (int i = 0; scratch && i < t->view_count; ++i)
-        pen_image_free(&scratch[i]);
-    free(scratch);
-    free(eyes);
+    view_eyes e;
+    pen_status s = view_eyes_make(ctx, t, &e);
+    if (s) return s;
+    s = pen__optim_fit_lighting_eyes(ctx, &t->scene, e.eyes, e.n, PEN__OPTIM_RIDGE_INIT,
+                                     r->sc->lighting.sh);
+    view_eyes_free(&e);
     if (!s) pen__optim_transfer(r, 0);
     return s;
+}
+
+/* Lays the parameter vector out again for the scene as it now is (the lights the search
+ * created), from the scene's values: the initial guesses were applied before. */
+static pen_status relayout(pen_context *ctx, const pen_optim_task *t, run *r) {
+    const run fresh = {.sc = r->sc, .opt = r->opt, .groups = r->groups, .solve = r->solve,
+                       .multi = r->multi, .task_views = r->task_views,
+                       .task_view_count = r->task_view_count};
+    pen__optim_run_free(r);
+    *r = fresh;
+    pen_status s = pen__optim_layout(ctx, r, t);
+    if (s) return s;
+    pen__optim_transfer(r, 0);
+    pen__optim_deformation_rest(r);
+    pen__optim_project(r->segments, r->segment_count, r->x);
+    pen__optim_transfer(r, 1);
+    return PEN_OK;
+}
+
+/* "lights" on a scene without lights: the global search (lights_search.c) creates
+ * t->light_count of them against the target or every view taking part, the optimised SH
+ * starting at the lighting it solved with them; then the vector is laid out to hold them. */
+static pen_status search_lights(pen_context *ctx, pen_optim_task *t, run *r,
+                                pen_optim_result *out) {
+    pen__optim_eye one = {NULL, &t->target, NULL, 1.0, NULL};
+    view_eyes e = {&one, NULL, 1, 0};
+    if (r->multi) {
+        pen_status s = view_eyes_make(ctx, t, &e);
+        if (s) return s;
+    }
+    const double t0 = omp_get_wtime();
+    pen_status s = pen__optim_lights_search(
+        ctx, r->sc, &r->opt, e.eyes, e.n, t->light_count, (r->groups & PEN_OPTIM_LIGHTING) != 0,
+        t->lighting_ridge, PEN__OPTIM_SEARCH_RADIUS_DEG, &out->search_renders);
+    out->search_seconds = omp_get_wtime() - t0;
+    out->lights_searched = s ? 0 : t->light_count;
+    if (r->multi) view_eyes_free(&e);
+    return s ? s : relayout(ctx, t, r);
 }
 
 /* Least-squares lighting: the ridge is fixed at the initial guess, whose lighting is then solved
@@ -492,7 +557,10 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
         pen__optim_deformation_rest(&r);
         pen__optim_project(r.segments, r.segment_count, r.x);
         pen__optim_transfer(&r, 1);
-        if (task->init_fit && r.lighting != SIZE_MAX) s = fitted_lighting(ctx, task, &r);
+        const int search =
+            (task->optimize & PEN_OPTIM_LIGHTS) && task->scene.lighting.light_count == 0;
+        if (search) s = search_lights(ctx, task, &r, out); /* (its SH replaces "fit"'s) */
+        else if (task->init_fit && r.lighting != SIZE_MAX) s = fitted_lighting(ctx, task, &r);
         if (!s && r.multi)
             s = pen__optim_views_init(ctx, &r.views, task, task->shadow_weight,
                                       (task->optimize & PEN_OPTIM_LIGHTING) != 0);

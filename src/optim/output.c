@@ -409,7 +409,8 @@ static cJSON *metrics_json(const pen_optim_metrics *mt) {
              add_metric(m, "vertex_rmse", mt->vertex_rmse) &&
              add_metric(m, "sphere_iou", mt->sphere_iou) &&
              add_metric(m, "sphere_chamfer", mt->sphere_chamfer) &&
-             add_metric(m, "shadow_iou", mt->shadow_iou);
+             add_metric(m, "shadow_iou", mt->shadow_iou) &&
+             add_metric(m, "light_direction_error_deg", mt->light_direction_error_deg);
     if (!ok) cJSON_Delete(m);
     return ok ? m : NULL;
 }
@@ -424,6 +425,7 @@ static cJSON *lr_json(const pen_optim_lr *lr) {
         pen__json_add(o, "spheres", pen__json_float(lr->spheres)) &&
         pen__json_add(o, "deformation_rotation", pen__json_float(lr->deformation_rotation)) &&
         pen__json_add(o, "deformation_translation", pen__json_float(lr->deformation_translation)) &&
+        pen__json_add(o, "lights", pen__json_float(lr->lights)) &&
         pen__json_add(o, "exposure", pen__json_float(lr->exposure));
     if (!ok) cJSON_Delete(o);
     return ok ? o : NULL;
@@ -436,6 +438,16 @@ static cJSON *graph_json(int k, const char *const names[], const double *w, int 
     int ok = o && pen__json_add(o, "k", cJSON_CreateNumber(k));
     for (int i = 0; ok && i < n; ++i)
         ok = pen__json_add(o, names[i], cJSON_CreateNumber(w[i]));
+    if (!ok) cJSON_Delete(o);
+    return ok ? o : NULL;
+}
+
+/* The lights' global search: how many it created, its renders and seconds. */
+static cJSON *search_json(const pen_optim_result *r) {
+    cJSON *o = cJSON_CreateObject();
+    int ok = o && pen__json_add(o, "lights", cJSON_CreateNumber(r->lights_searched)) &&
+             pen__json_add(o, "renders", cJSON_CreateNumber(r->search_renders)) &&
+             pen__json_add(o, "seconds", cJSON_CreateNumber(r->search_seconds));
     if (!ok) cJSON_Delete(o);
     return ok ? o : NULL;
 }
@@ -480,6 +492,8 @@ pen_status pen_optim_result_json(pen_context *ctx, const pen_optim_task *t,
              (!(t->optimize & PEN_OPTIM_SPHERES) ||
               pen__json_add(root, "spheres",
                             graph_json(t->spheres.k, sphere_names, &t->spheres.w_smooth, 1))) &&
+             (!r->lights_searched ||
+              pen__json_add(root, "light_search", search_json(r))) &&
              pen__json_add(root, "tolerance", cJSON_CreateNumber(t->tolerance)) &&
              pen__json_add(root, "window", cJSON_CreateNumber(t->window)) &&
              pen__json_add(root, "width", cJSON_CreateNumber(main_target(t)->width)) &&

@@ -52,6 +52,7 @@ pen_optim_task pen_optim_task_default(void) {
     t.lighting_ridge = 1e-2;
     t.deformation = pen_optim_deformation_default();
     t.spheres = pen_optim_spheres_default();
+    t.light_count = 1;
     return t;
 }
 
@@ -286,6 +287,16 @@ static pen_status parse_options(pen_context *ctx, const where *top, const cJSON 
         s = pen__json_number(ctx, &w, e, 0.0, 1e6, "a weight in [0, 1e6]", &t->shadow_weight);
         if (s) return s;
     }
+    if ((e = cJSON_GetObjectItemCaseSensitive(root, "light_count"))) {
+        w = at(top, "light_count");
+        s = pen__json_int(ctx, &w, e, 1, PEN_SCENE_MAX_LIGHTS, "an integer in [1, 16]",
+                          &t->light_count);
+        if (!s && !(t->optimize & PEN_OPTIM_LIGHTS))
+            s = pen__json_error(ctx, PEN_ERROR_PARSE, &w,
+                                "needs \"lights\" in optimize (it sets how many lights the "
+                                "search creates)");
+        if (s) return s;
+    }
     if ((e = cJSON_GetObjectItemCaseSensitive(root, "lighting_ridge"))) {
         w = at(top, "lighting_ridge");
         s = pen__json_number(ctx, &w, e, 0.0, 1e6, "a ridge in [0, 1e6]", &t->lighting_ridge);
@@ -341,8 +352,8 @@ static pen_status parse_task(pen_context *ctx, const char *path, const cJSON *ro
                                         "lr",    "loss",      "tolerance", "window",
                                         "init",  "deformation", "spheres", "ground_truth",
                                         "shadow_weight", "lighting_solver",
-                                        "lighting_ridge", "views", "validation_views",
-                                        "target_encoding", NULL};
+                                        "lighting_ridge", "light_count", "views",
+                                        "validation_views", "target_encoding", NULL};
     pen_status s = pen__json_known_keys(ctx, &top, root, known);
     const cJSON *views = cJSON_GetObjectItemCaseSensitive(root, "views");
     const cJSON *validation = cJSON_GetObjectItemCaseSensitive(root, "validation_views");
@@ -427,12 +438,11 @@ void pen_optim_task_free(pen_optim_task *task) {
 pen_status pen__optim_task_check_groups(pen_context *ctx, const pen_optim_task *t) {
     const char *name = t->path ? t->path : "task";
     const pen_scene *sc = &t->scene;
-    if ((t->optimize & PEN_OPTIM_LIGHTS) && sc->lighting.light_count == 0)
+    if ((t->optimize & PEN_OPTIM_LIGHTS) && sc->lighting.light_count == 0 &&
+        (t->light_count < 1 || t->light_count > PEN_SCENE_MAX_LIGHTS))
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                          "%s: optimize: \"lights\": the scene has no disk lights, nothing to "
-                          "optimise (give lighting.lights, or an envmap whose lights are found; "
-                          "the optimiser does not search for lights yet)",
-                          name);
+                          "%s: light_count: %d lights to search for, expected 1 .. %d", name,
+                          t->light_count, PEN_SCENE_MAX_LIGHTS);
     long spheres = 0;
     for (int o = 0; o < sc->object_count; ++o)
         spheres += sc->objects[o].spheres.count;

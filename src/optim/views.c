@@ -8,18 +8,21 @@
  * they count relatively less (as they would with a larger image). A view whose weight is 0 or
  * whose mask holds no pixel contributes nothing and is not even rendered in the loop.
  *
- * Determinism: the views are rendered, differentiated and summed in the task's order, one after
- * the other, each with its own render state (kept across iterations: a view's antialiasing
- * adjacency and background do not change); pen_render_bwd adds each view's gradient into one
- * gradient struct, so the sum runs in a fixed order and the result is bitwise reproducible for
- * a given thread count.
+ * Determinism: each view has its own render state (kept across iterations: a view's
+ * antialiasing adjacency and background do not change); its loss w_v E_v and its gradient are
+ * computed alone into buffers of their own (view_fwd, view_bwd: the one place a view's share is
+ * made), by whichever worker or rank (parallel.c), and summed afterwards in the task's view
+ * order. So the result is bitwise the same for any thread count, views at once or split across
+ * MPI ranks.
  *
  * Exposure (optim.h, pen_optim_view): a view's render is multiplied by its exposure s before the
  * loss; the backward turns dE/dJ (J = s I) into dE/dI = s dE/dJ and dE/d(log s) = sum_p dE/dJ J,
- * which params.c gathers for the "exposure" group. The fits of the lighting (least squares,
- * "init": "fit", the shadow masks) see w (s I - T)^2 as s^2 w (I - T/s)^2: the target T/s with
- * the factor times s^2. At s = 1 nothing is multiplied or divided, so views without exposures
- * are bitwise as before.
+ * which params.c gathers for the "exposure" group. The latter is made in the forward (view_fwd,
+ * from the loss's image gradient) and travels with the view's loss (pen__optim_view_share),
+ * gathered across ranks like it, so an exposure's step is the same on every rank. The fits of the
+ * lighting (least squares, "init": "fit", the shadow masks) see w (s I - T)^2 as s^2 w (I - T/s)^2:
+ * the target T/s with the factor times s^2. At s = 1 nothing is multiplied or divided, so views
+ * without exposures are bitwise as before.
  *
  * The least-squares lighting ("lighting_solver": "least_squares", "init": "fit") sees every view:
  * its normal equations sum the views' with factor w_v / sum_p m_vp (loss.c), the same weighting
@@ -224,6 +227,10 @@ void pen__optim_views_free_run(pen__optim_views *V) {
         if (V->d_img) pen_image_free(&V->d_img[i]);
         if (V->eye_target) pen_image_free(&V->eye_target[i]);
     }
+    pen__optim_workers_free(&V->workers);
+    free(V->order);
+    free(V->loss);
+    free(V->grads);
     free(V->state);
     free(V->solve_state);
     free(V->weight);
@@ -308,40 +315,99 @@ int pen__optim_views_eyes(const pen__optim_views *V, int solve, pen__optim_eye *
     return n;
 }
 
+/* What a pass gives every view's job. */
+typedef struct pass {
+    pen__optim_views *V;
+    const pen_scene *sc;
+    const pen_render_options *opt;
+    pen_optim_loss kind;
+    int grad;
+} pass;
+
+/* View order[j]'s image term: its render times the exposure, V->loss[j] (w_v E_v and, with
+ * p->grad, its derivative in log s_v) and (with p->grad) its d_img. */
+static pen_status view_fwd(pen_context *ctx, void *user, int j, pen_render_grad *unused) {
+    (void)unused;
+    const pass *p = user;
+    pen__optim_views *V = p->V;
+    const int i = V->order[j];
+    const pen_optim_view *v = &V->views[i];
+    const pen_scene vs = pen__optim_view_scene(p->sc, &v->camera);
+    double e = 0.0;
+    pen_status s = pen_render_fwd(ctx, &vs, p->opt, V->state[i], &V->img[i]);
+    if (!s) pen__optim_view_expose(&V->img[i], pen__optim_exposure(v));
+    if (!s) s = pen__optim_loss_fwd(ctx, p->kind, &V->img[i], &v->target, V->weight[i], &e);
+    if (s) return s;
+    V->loss[j] = (pen__optim_view_share){v->weight * e, 0.0};
+    if (p->grad) {
+        pen_image *d = &V->d_img[i];
+        memset(d->data, 0, sizeof(float) * 3 * (size_t)d->width * (size_t)d->height);
+        pen__optim_loss_bwd(p->kind, &V->img[i], &v->target, V->weight[i], v->weight, d);
+        expose_bwd(&V->img[i], pen__optim_exposure(v), d, &V->loss[j].d_log_exposure);
+    }
+    return PEN_OK;
+}
+
+/* View order[j]'s gradient alone (g zeroed first), flattened into its vector. */
+static pen_status view_bwd(pen_context *ctx, void *user, int j, pen_render_grad *g) {
+    const pass *p = user;
+    pen__optim_views *V = p->V;
+    const int i = V->order[j];
+    const pen_scene vs = pen__optim_view_scene(p->sc, &V->views[i].camera);
+    pen_render_grad_zero(g);
+    pen_status s = pen_render_bwd(ctx, &vs, p->opt, V->state[i], &V->d_img[i], V->wrt, g);
+    return s ? s : pen__optim_grad_pack(ctx, g, V->wrt, V->grads + (size_t)j * V->grad_floats);
+}
+
+pen_status pen__optim_views_plan(pen_context *ctx, pen__optim_views *V, const pen_scene *sc,
+                                 const pen_optim_settings *set, unsigned wrt) {
+    V->order = pen__calloc(ctx, (size_t)V->count, sizeof *V->order, "views");
+    V->loss = pen__calloc(ctx, (size_t)V->count, sizeof *V->loss, "views");
+    if (!V->order || !V->loss) return PEN_ERROR_MEMORY;
+    V->taking_part = 0;
+    for (int i = 0; i < V->count; ++i)
+        if (V->factor[i] > 0.0) V->order[V->taking_part++] = i;
+    V->ranks = set->ranks && set->ranks->size > 1 ? set->ranks : NULL;
+    V->lo = 0, V->hi = V->taking_part;
+    if (V->ranks)
+        pen__optim_block(V->taking_part, V->ranks->rank, V->ranks->size, &V->lo, &V->hi);
+    V->wrt = wrt;
+    pen_status s = pen__optim_workers_init(ctx, &V->workers, set->view_workers, V->hi - V->lo, sc);
+    if (!s) s = pen__optim_grad_floats(ctx, &V->workers.grad[0], wrt, &V->grad_floats);
+    if (!s && V->grad_floats > 0 &&
+        !(V->grads = pen__calloc(ctx, (size_t)V->taking_part * V->grad_floats, sizeof(float),
+                                 "view gradients")))
+        s = PEN_ERROR_MEMORY;
+    return s;
+}
+
 pen_status pen__optim_views_fwd(pen_context *ctx, pen__optim_views *V, const pen_scene *sc,
                                 const pen_render_options *opt, pen_optim_loss kind, int grad,
                                 double *loss) {
+    pass p = {V, sc, opt, kind, grad};
+    pen_status s = pen__optim_workers_run(ctx, &V->workers, V->lo, V->hi, view_fwd, &p);
+    if (!s) s = pen__optim_exchange(ctx, V->ranks, V->taking_part, V->loss, sizeof *V->loss);
+    if (s) return s;
     double sum = 0.0;
-    for (int i = 0; i < V->count; ++i) {
-        if (!(V->factor[i] > 0.0)) continue;
-        const pen_optim_view *v = &V->views[i];
-        const pen_scene vs = pen__optim_view_scene(sc, &v->camera);
-        double e = 0.0;
-        pen_status s = pen_render_fwd(ctx, &vs, opt, V->state[i], &V->img[i]);
-        if (!s) pen__optim_view_expose(&V->img[i], pen__optim_exposure(v));
-        if (!s) s = pen__optim_loss_fwd(ctx, kind, &V->img[i], &v->target, V->weight[i], &e);
-        if (s) return s;
-        sum += v->weight * e;
-        if (!grad) continue;
-        pen_image *d = &V->d_img[i];
-        memset(d->data, 0, sizeof(float) * 3 * (size_t)d->width * (size_t)d->height);
-        pen__optim_loss_bwd(kind, &V->img[i], &v->target, V->weight[i], v->weight, d);
-        expose_bwd(&V->img[i], pen__optim_exposure(v), d, &V->d_exposure[i]);
+    for (int j = 0; j < V->taking_part; ++j) {
+        sum += V->loss[j].loss;
+        V->d_exposure[V->order[j]] = V->loss[j].d_log_exposure;
     }
     *loss = sum;
     return PEN_OK;
 }
 
 pen_status pen__optim_views_bwd(pen_context *ctx, pen__optim_views *V, const pen_scene *sc,
-                                const pen_render_options *opt, unsigned wrt,
-                                pen_render_grad *grad) {
-    for (int i = 0; i < V->count; ++i) {
-        if (!(V->factor[i] > 0.0)) continue;
-        const pen_scene vs = pen__optim_view_scene(sc, &V->views[i].camera);
-        pen_status s = pen_render_bwd(ctx, &vs, opt, V->state[i], &V->d_img[i], wrt, grad);
-        if (s) return s;
-    }
-    return PEN_OK;
+                                const pen_render_options *opt, pen_render_grad *grad) {
+    if (V->grad_floats == 0) return PEN_OK; /* nothing differentiated */
+    pass p = {V, sc, opt, PEN_OPTIM_LOSS_L2, 1}; /* (the loss kind: the forward's business) */
+    pen_status s = pen__optim_workers_run(ctx, &V->workers, V->lo, V->hi, view_bwd, &p);
+    if (!s)
+        s = pen__optim_exchange(ctx, V->ranks, V->taking_part, V->grads,
+                                sizeof(float) * V->grad_floats);
+    for (int j = 0; !s && j < V->taking_part; ++j)
+        s = pen__optim_grad_add(ctx, grad, V->wrt, V->grads + (size_t)j * V->grad_floats);
+    return s;
 }
 
 /* ---- The recovered scene from each view ------------------------------------------------------ */
