@@ -188,8 +188,10 @@ expect_error 'bad.json: optimize: expected a non-empty array' \
     '{"scene": "truth.json", "target": "target.exr", "optimize": []}'
 expect_error 'bad.json: optimize\[1\]: "lighting" is listed twice' \
     '{"scene": "truth.json", "target": "target.exr", "optimize": ["lighting", "lighting"]}'
-expect_error 'bad.json: target: "target.png": expected a linear image' \
-    '{"scene": "truth.json", "target": "target.png", "optimize": ["lighting"]}'
+expect_error 'bad.json: target: .*unknown image format' \
+    '{"scene": "truth.json", "target": "target.tif", "optimize": ["lighting"]}'
+expect_error 'bad.json: target_encoding: ' \
+    '{"scene": "truth.json", "target": "target.exr", "optimize": ["lighting"], "target_encoding": "gamma"}'
 expect_error 'bad.json: target: ' \
     '{"scene": "truth.json", "target": "nosuch.exr", "optimize": ["lighting"]}'
 expect_error 'bad.json: scene: ' \
@@ -286,12 +288,30 @@ printf '{"scene": "truth.json", "views": "views.json", "optimize": ["lighting"],
 "$BIN" optimize "$T/views_task.json" -o "$T/views_out" > "$T/views_stdout" 2>"$T/err" ||
     fail "multi-view task: $(cat "$T/err")"
 grep -q "2 views" "$T/views_stdout" || fail "multi-view summary: $(cat "$T/views_stdout")"
-for f in final_0.exr final_1.exr validation_0.exr views.png result.json compare.png; do
+for f in final_0.exr final_1.exr validation_0.exr views.png views.json result.json compare.png; do
     [ -f "$T/views_out/$f" ] || fail "multi-view output $f missing"
 done
 for key in '"views"' '"validation_views"' '"image_rel_rmse"' '"stop_reason"'; do
     grep -q "$key" "$T/views_out/result.json" || fail "multi-view result.json lacks $key"
 done
+# Photos: view 1 an 8-bit sRGB PNG at another exposure, the "exposure" group; the output's
+# views.json (with the recovered exposure) is a task's views.
+"$BIN" render "$T/truth_back.json" -o "$T/v1.png" > /dev/null || fail "render view 1 as PNG"
+printf '{"scene": "truth.json", "optimize": ["lighting", "exposure"], "iterations": 3, "views": [{"camera": %s, "target": "v0.exr"}, {"camera": %s, "target": "v1.png", "exposure": 0.8}]}\n' \
+    "$(cam '[2.5, 1.8, 3.0]')" "$(cam '[-2.5, 1.8, -3.0]')" > "$T/photo_task.json"
+"$BIN" optimize "$T/photo_task.json" -o "$T/photo_out" -q 2>"$T/err" ||
+    fail "PNG views with exposure: $(cat "$T/err")"
+grep -q '"exposure_fixed_view"' "$T/photo_out/result.json" || fail "result.json lacks the gauge"
+grep -q '"exposure"' "$T/photo_out/views.json" || fail "views.json lacks the exposures"
+printf '{"scene": "truth.json", "optimize": ["lighting"], "iterations": 1, "views": "photo_out/views.json"}\n' \
+    > "$T/again_task.json"
+"$BIN" optimize "$T/again_task.json" -o "$T/again_out" -q 2>"$T/err" ||
+    fail "a task on the output's views.json: $(cat "$T/err")"
+printf '{"scene": "truth.json", "target": "v0.exr", "optimize": ["lighting", "exposure"]}\n' \
+    > "$T/single_exposure.json"
+"$BIN" optimize "$T/single_exposure.json" -o "$T/single_out" 2>"$T/err" >/dev/null &&
+    fail "exposure on a single-view task accepted"
+grep -q 'needs "views" with at least 2 views' "$T/err" || fail "exposure error: $(cat "$T/err")"
 printf '{"scene": "truth.json", "views": "views.json", "target": "v0.exr", "optimize": ["lighting"]}\n' > "$T/both.json"
 "$BIN" optimize "$T/both.json" -o "$T/both_out" 2>"$T/err" >/dev/null && fail "views and target accepted"
 grep -q 'both.json: views: a task has either "views" or a "target", not both' "$T/err" ||

@@ -1,7 +1,8 @@
 #!/bin/sh
 # `penumbra optimize` under mpirun (README, "Running on a cluster"): 2 ranks (oversubscribed: CI
 # has few cores) give the recovered scene and iteration count of one process, byte for byte, for
-# 4 views (2 per rank), 3 (an uneven split) and 4 with the least-squares lighting; a run resumed
+# 4 views (2 per rank), 3 (an uneven split), 4 with the least-squares lighting and 3 with the
+# exposure group (scene.json and views.json, the recovered exposures); a run resumed
 # under mpirun equals one in one go; only rank 0 writes the output folder; a task error on the
 # ranks ends the job with the one error line. Registered only in a build with MPI.
 # Usage: sh mpi_optimize.sh PENUMBRA_BIN SRC_DIR MPIEXEC
@@ -60,8 +61,14 @@ echo "{\"scene\": \"init.json\", \"views\": [$views3], \"optimize\": [\"lighting
 echo "{\"scene\": \"init.json\", \"views\": [$views], \"optimize\": [\"lighting\", \"pose\"], \"lighting_solver\": \"least_squares\", \"iterations\": 10}" \
     > "$T/taskls.json"
 
+# The exposure group over 3 views (an uneven split), the exposures of views 1 and 2 off the
+# truth's 1: each view's exposure derivative is gathered across ranks with its loss.
+views3e=$(echo "$views3" | sed 's/"target": "v1.exr"/"target": "v1.exr", "exposure": 1.3/; s/"target": "v2.exr"/"target": "v2.exr", "exposure": 0.8/')
+echo "{\"scene\": \"init.json\", \"views\": [$views3e], \"optimize\": [\"lighting\", \"exposure\"], \"iterations\": 20}" \
+    > "$T/taskexp.json"
+
 iterations() { grep -o '"iterations":[[:space:]]*[0-9]*' "$1/result.json" | head -1; }
-for n in 4 3 ls; do
+for n in 4 3 ls exp; do
     "$BIN" optimize "$T/task$n.json" -o "$T/one$n" -q --threads 1 2>"$T/err" ||
         fail "$n views, one process: $(cat "$T/err")"
     mpi "$BIN" optimize "$T/task$n.json" -o "$T/two$n" -q --threads 1 > "$T/out" 2>&1 ||
@@ -73,6 +80,8 @@ for n in 4 3 ls; do
     for f in final_0.exr final_2.exr; do
         cmp -s "$T/one$n/$f" "$T/two$n/$f" || fail "$n views: $f differs"
     done
+    cmp -s "$T/one$n/views.json" "$T/two$n/views.json" ||
+        fail "$n views: views.json (the recovered exposures) differs"
     [ "$(ls "$T/one$n")" = "$(ls "$T/two$n")" ] ||
         fail "$n views: the folders differ: $(ls "$T/one$n") vs $(ls "$T/two$n")"
     echo "$n views: $(iterations "$T/two$n"), 1 process and 2 ranks give the same scene"

@@ -209,6 +209,17 @@ static void check_same_run(const pen_optim_result *a, const pen_optim_task *ta,
                   memcmp(&ta->scene.objects[0].pose, &tb->scene.objects[0].pose,
                          sizeof ta->scene.objects[0].pose) == 0,
               "%s: recovered scenes differ", what);
+    for (int v = 0; v < ta->view_count && v < tb->view_count; ++v)
+        CHECK_MSG(memcmp(&ta->views[v].exposure, &tb->views[v].exposure, sizeof(double)) == 0,
+                  "%s: view %d's exposure %.17g vs %.17g", what, v, ta->views[v].exposure,
+                  tb->views[v].exposure);
+}
+
+/* With the "exposure" group: the views' exposures start off the truth's 1 (1.2, 0.85, 1.2, ...
+ * after the gauge), so they have a gradient and move. */
+static void expose_views(pen_optim_task *t) {
+    for (int v = 0; v < t->view_count; ++v)
+        t->views[v].exposure = v == 0 ? 1.0 : v % 2 ? 1.2 : 0.85;
 }
 
 /* A fifth view of weight 0 changes nothing; neither does a fifth view whose mask excludes every
@@ -252,25 +263,37 @@ static void test_weights_and_masks(void) {
  * same losses and recovered scene bit for bit (a view's gradient is computed alone and the sum
  * runs in view order; the renderer does not depend on its thread count). */
 static void test_views_at_once(void) {
-    const unsigned groups = PEN_OPTIM_LIGHTING | PEN_OPTIM_POSE;
     const int iterations = check_quick_() ? 3 : 6;
-    static const int setting[][2] = {{2, 1}, {2, 2}, {3, 0}}; /* threads, view_workers */
-    pen_optim_settings set = pen_optim_settings_default();
-    set.view_workers = 1;
-    pen_optim_task t1 = views_task(VIEWS, VIEWS, 0, groups, iterations);
-    pen_optim_result r1 = run_task_threads(&t1, &set, 1);
-    for (int k = 0; k < 3; ++k) {
-        char what[64];
-        snprintf(what, sizeof what, "%d threads, view_workers %d", setting[k][0], setting[k][1]);
-        set.view_workers = setting[k][1];
-        pen_optim_task t = views_task(VIEWS, VIEWS, 0, groups, iterations);
-        pen_optim_result r = run_task_threads(&t, &set, setting[k][0]);
-        check_same_run(&r1, &t1, &r, &t, what);
-        pen_optim_result_free(&r);
-        pen_optim_task_free(&t);
+    /* threads, view_workers, with the exposure group */
+    static const int setting[][3] = {{2, 1, 0}, {2, 2, 0}, {3, 0, 0}, {2, 2, 1}};
+    for (int exposure = 0; exposure < 2; ++exposure) {
+        const unsigned groups =
+            PEN_OPTIM_LIGHTING | PEN_OPTIM_POSE | (exposure ? PEN_OPTIM_EXPOSURE : 0u);
+        pen_optim_settings set = pen_optim_settings_default();
+        set.view_workers = 1;
+        pen_optim_task t1 = views_task(VIEWS, VIEWS, 0, groups, iterations);
+        if (exposure) expose_views(&t1);
+        pen_optim_result r1 = run_task_threads(&t1, &set, 1);
+        for (int k = 0; k < 4; ++k) {
+            if (setting[k][2] != exposure) continue;
+            char what[80];
+            snprintf(what, sizeof what, "%d threads, view_workers %d%s", setting[k][0],
+                     setting[k][1], exposure ? ", exposure" : "");
+            set.view_workers = setting[k][1];
+            pen_optim_task t = views_task(VIEWS, VIEWS, 0, groups, iterations);
+            if (exposure) expose_views(&t);
+            pen_optim_result r = run_task_threads(&t, &set, setting[k][0]);
+            check_same_run(&r1, &t1, &r, &t, what);
+            pen_optim_result_free(&r);
+            pen_optim_task_free(&t);
+        }
+        if (exposure) /* the group moved them: the comparison above saw steps, not constants */
+            CHECK_MSG(t1.views[1].exposure != 1.2 && t1.views[2].exposure != 0.85,
+                      "the exposures did not move: %.17g %.17g", t1.views[1].exposure,
+                      t1.views[2].exposure);
+        pen_optim_result_free(&r1);
+        pen_optim_task_free(&t1);
     }
-    pen_optim_result_free(&r1);
-    pen_optim_task_free(&t1);
 }
 
 /* Ranks played by threads of this process: a shared-memory allgather between two barriers. */
@@ -317,15 +340,19 @@ static void *rank_main(void *arg) {
 
 /* n views plus one of weight 0 (it takes no part, not even in the split) over `size` ranks:
  * every rank ends with one process's losses and scene, bit for bit. 3 views over 2 ranks (an
- * uneven split) and over 3, 4 over 4 (one view each). */
+ * uneven split) and over 3, 4 over 4 (one view each); 3 over 2 with the exposure group (each
+ * view's exposure derivative is gathered with its loss: every rank steps every exposure). */
 static void test_ranks(void) {
-    const unsigned groups = PEN_OPTIM_LIGHTING | PEN_OPTIM_POSE;
     const int iterations = check_quick_() ? 3 : 6;
-    static const int cases[][2] = {{3, 2}, {3, 3}, {4, 4}}; /* views, ranks */
-    for (int c = 0; c < 3; ++c) {
-        const int n = cases[c][0], size = cases[c][1];
+    static const int cases[][3] = {{3, 2, 0}, {3, 3, 0}, {4, 4, 0}, {3, 2, 1}}; /* views, ranks,
+                                                                                  exposure */
+    for (int c = 0; c < 4; ++c) {
+        const int n = cases[c][0], size = cases[c][1], exposure = cases[c][2];
+        const unsigned groups = exposure ? PEN_OPTIM_LIGHTING | PEN_OPTIM_EXPOSURE
+                                         : PEN_OPTIM_LIGHTING | PEN_OPTIM_POSE;
         pen_optim_settings set = pen_optim_settings_default();
         pen_optim_task t1 = views_task(n, n, 1, groups, iterations);
+        if (exposure) expose_views(&t1);
         t1.views[n].camera = around(1, 5);
         t1.views[n].target = render_view(&t1.scene, &t1.views[n].camera);
         pen_optim_result r1 = run_task_threads(&t1, &set, 1);
@@ -339,6 +366,7 @@ static void test_ranks(void) {
             me->w = &w;
             me->ranks = (pen_optim_ranks){r, size, shared_allgather, me};
             me->task = views_task(n, n, 1, groups, iterations);
+            if (exposure) expose_views(&me->task);
             me->task.views[n].camera = t1.views[n].camera;
             me->task.views[n].target = render_view(&me->task.scene, &me->task.views[n].camera);
             CHECK(pthread_create(&threads[r], NULL, rank_main, me) == 0);
@@ -353,8 +381,8 @@ static void test_ranks(void) {
             pen_optim_task_free(&runs[r].task);
         }
         pthread_barrier_destroy(&w.barrier);
-        printf("  %d views over %d ranks: %d iterations, loss %.9g, as one process\n", n, size,
-               r1.iterations, r1.final_loss);
+        printf("  %d views over %d ranks%s: %d iterations, loss %.9g, as one process\n", n,
+               size, exposure ? " (exposure)" : "", r1.iterations, r1.final_loss);
         pen_optim_result_free(&r1);
         pen_optim_task_free(&t1);
     }
@@ -478,8 +506,8 @@ static void test_task_json(void) {
          " \"fov_y_deg\": 40}, \"target\": \"t0.exr\", \"weight\": -1}]",
          "views[0].weight: expected a weight in [0, 1e6]"},
         {"[{\"camera\": {\"width\": 32, \"height\": 32, \"eye\": [1, 1, 2], \"target\": [0, 0, 0],"
-         " \"fov_y_deg\": 40}, \"target\": \"m.png\"}]",
-         "views[0].target: \"m.png\": expected a linear image"},
+         " \"fov_y_deg\": 40}, \"target\": \"m.tif\"}]",
+         "views[0].target: "},
         {"[{\"camera\": {\"width\": 16, \"height\": 32, \"eye\": [1, 1, 2], \"target\": [0, 0, 0],"
          " \"fov_y_deg\": 40}, \"target\": \"t0.exr\", \"mask\": \"small.exr\"}]",
          "views[0].target: t0.exr: the image is 32x32 but the view's camera is 16x32"},

@@ -64,6 +64,8 @@ extern "C" {
                                     irradiance: the scene's (given, or found in its map), or,
                                     when it has none, light_count lights that a global search
                                     over directions creates before the descent */
+#define PEN_OPTIM_EXPOSURE 64u   /* "exposure": each view's exposure but the first's (a task with
+                                    2 or more views; the first is the gauge, below) */
 
 typedef enum pen_optim_loss { PEN_OPTIM_LOSS_L2 = 0, PEN_OPTIM_LOSS_L1 = 1 } pen_optim_loss;
 
@@ -78,6 +80,7 @@ typedef struct pen_optim_lr {
     float deformation_translation; /* the graph nodes' translations (object space) */
     float lights;      /* disk lights: each direction component (a unit vector, renormalised after
                           each step), the angular radius in degrees and the irradiance */
+    float exposure;    /* natural log of a view's exposure (1e-2: about 1% per step) */
 } pen_optim_lr;
 
 /* 1e-2, and 1e-3 for the deformation matrices (supplement section 5.1). */
@@ -141,14 +144,23 @@ typedef enum pen_optim_lighting_solver {
 } pen_optim_lighting_solver;
 
 /* One observed view of a multi-view task (task key "views", docs/optimize.md): a camera of its
- * own, the image it saw, which of its pixels count and how much the view counts. */
+ * own, the image it saw, which of its pixels count and how much the view counts.
+ *
+ * Exposure: the render of a view is multiplied by its exposure s before the loss (and in its
+ * final render and metrics): photos of one scene taken with other shutter times, apertures or
+ * gains. The group "exposure" optimises log s of every view but the first: a common factor on
+ * every exposure is the same image as that factor on the lighting (and on the lights'
+ * irradiance), so the first view's exposure stays as given and fixes the scale (the gauge);
+ * the recovered lighting is in the units the first view's exposure implies. */
 typedef struct pen_optim_view {
     pen_camera camera;  /* look-at or calibrated; its own size */
-    pen_image target;   /* 3 channels, linear (.exr/.hdr), the camera's size */
+    pen_image target;   /* 3 channels, linear (see target_linear), the camera's size */
     char *target_path;
     float *mask;        /* one per pixel, 1 (counts) or 0; NULL: every pixel counts */
     char *mask_path;    /* NULL without a mask */
     double weight;      /* >= 0 (default 1) */
+    double exposure;    /* > 0 (default 1; 0, a view zeroed in code, stands for 1);
+                           pen_optim_run leaves the recovered ones here */
 } pen_optim_view;
 
 typedef struct pen_optim_task {
@@ -156,6 +168,10 @@ typedef struct pen_optim_task {
     pen_scene scene;    /* the initial guess; pen_optim_run leaves the recovered scene here */
     pen_image target;   /* 3 channels, the camera's size; empty in a multi-view task */
     char *target_path;
+    int target_linear;  /* "target_encoding": 0 ("srgb", the default): 8-bit PNG/JPEG targets
+                           (the task's and the views') are decoded from sRGB to linear; 1
+                           ("linear"): their codes / 255 are taken as linear values. EXR and HDR
+                           targets are linear either way. Set before the target is loaded. */
     unsigned optimize;  /* PEN_OPTIM_* */
     int iterations;     /* at most this many Adam steps (default 500) */
     pen_optim_lr lr;
@@ -197,9 +213,9 @@ PEN_API pen_optim_task pen_optim_task_default(void);
 
 /* Loads a task JSON; paths (scene, target, ground truth) are relative to the task file. Errors
  * name the file and the key ("task.json: optimize[1]: unknown group \"colour\""); errors inside
- * an inline scene read "task.json:scene: camera.width: ...". The target must be a linear image
- * (.exr or .hdr) of the scene camera's size. The scene's {"fit": N} sphere requests are left for
- * pen_optim_run. On failure *out is zeroed. */
+ * an inline scene read "task.json:scene: camera.width: ...". The target is an image of the scene
+ * camera's size: linear EXR or HDR, or 8-bit PNG or JPEG decoded from sRGB (target_linear). The
+ * scene's {"fit": N} sphere requests are left for pen_optim_run. On failure *out is zeroed. */
 PEN_API pen_status pen_optim_task_load(pen_context *ctx, const char *path, pen_optim_task *out);
 /* The same with the target image taken from `target` (a path as given, not relative to the task;
  * NULL: the task's "target") instead of the task's "target" key, which is then not read at all. */
@@ -208,8 +224,8 @@ PEN_API pen_status pen_optim_task_load_ex(pen_context *ctx, const char *path, co
 /* The same from JSON text; `path` names it and is the base of its relative paths. */
 PEN_API pen_status pen_optim_task_parse(pen_context *ctx, const char *json_text, const char *path,
                                         pen_optim_task *out);
-/* Replaces the task's target by the image at `path` (.exr or .hdr, the scene camera's size). On
- * failure the task is unchanged. */
+/* Replaces the task's target by the image at `path` (.exr, .hdr, .png, .jpg; the scene camera's
+ * size; 8-bit files decoded as task->target_linear says). On failure the task is unchanged. */
 PEN_API pen_status pen_optim_task_set_target(pen_context *ctx, pen_optim_task *task,
                                              const char *path);
 /* Frees everything the task owns and zeroes it; NULL is a no-op. */

@@ -10,11 +10,13 @@ through $PENUMBRA_LIB, or in the repository's build/ folder). See docs/python.md
     image.mean().backward()                     # scene.sh.grad from the C backward
 
 In a loop, render through one penumbra.Renderer: it keeps the C render state (and its caches)
-from one step to the next.
+from one step to the next. penumbra.render_batch renders a batch of cameras into one (B, H, W, 3)
+tensor, a penumbra.BatchRenderer keeping one render state per camera.
 """
 
 from . import _lib
 from ._lib import PenumbraError
+from .batch import BatchRenderer, render_batch
 from .io import (Mesh, envmap_to_sh, fit_spheres, load_image, load_mesh, load_scene,
                  load_spheres, overlap_weights, save_image)
 from .render import (Camera, Object, RenderFunction, Renderer, Scene, pose, render,
@@ -33,7 +35,7 @@ def version():
     return _lib.lib().pen_version().decode()
 
 
-__all__ = ["Camera", "Mesh", "Object", "PenumbraError", "RenderFunction", "Renderer", "Scene",
-           "envmap_to_sh", "fit_spheres", "load_image", "load_mesh", "load_scene",
-           "load_spheres", "overlap_weights", "pose", "render", "render_scene", "save_image",
-           "version"]
+__all__ = ["BatchRenderer", "Camera", "Mesh", "Object", "PenumbraError", "RenderFunction",
+           "Renderer", "Scene", "envmap_to_sh", "fit_spheres", "load_image", "load_mesh",
+           "load_scene", "load_spheres", "overlap_weights", "pose", "render", "render_batch",
+           "render_scene", "save_image", "version"]

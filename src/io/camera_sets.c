@@ -484,8 +484,9 @@ pen_status pen_camera_set_load_views(pen_context *ctx, const char *path, pen_cam
     where top = {path, ""}, wv;
     pen__json_child(&top, "views", &wv);
     static const char *const known_top[] = {"views", NULL};
-    /* "mask" and "weight" are for tasks (src/optim/views.c); a camera set has no use for them */
-    static const char *const known[] = {"camera", "target", "mask", "weight", NULL};
+    /* "mask", "weight" and "exposure" are for tasks (src/optim/views.c); a camera set has no
+     * use for them */
+    static const char *const known[] = {"camera", "target", "mask", "weight", "exposure", NULL};
     const cJSON *views = pen__json_member(root, "views");
     s = pen__json_need_object(ctx, &top, root);
     if (!s) s = pen__json_known_keys(ctx, &top, root, known_top);

@@ -18,7 +18,7 @@
 
 /* What a segment's values must satisfy after each step (a projection, applied in place). */
 /* The task's parameter groups by bit (optim.h PEN_OPTIM_*: bit k is names[k]), src/optim/task.c. */
-#define PEN__OPTIM_GROUPS 6
+#define PEN__OPTIM_GROUPS 7
 extern const char *const pen__optim_group_names[PEN__OPTIM_GROUPS];
 
 typedef enum pen__optim_bound {
@@ -188,11 +188,12 @@ pen_status pen__optim_lights_search(pen_context *ctx, pen_scene *sc,
 
 /* Reads the task's "views" (or "validation_views") member at w: an array of {"camera", "target",
  * "mask", "weight"} (paths relative to the task file) or the path of a views file holding
- * {"views": [...]} (paths relative to it). On failure what was read is left in *views, *count
- * for pen__optim_views_free. */
+ * {"views": [...]} (paths relative to it). Targets are read with pen_image_load_ex's
+ * target_flags (0: 8-bit files decoded from sRGB; PEN_IMAGE_LOAD_RAW: taken as linear). On
+ * failure what was read is left in *views, *count for pen__optim_views_free. */
 pen_status pen__optim_views_parse(pen_context *ctx, const char *task_path,
                                   const pen__json_where *w, const cJSON *item,
-                                  pen_optim_view **views, int *count);
+                                  unsigned target_flags, pen_optim_view **views, int *count);
 void pen__optim_views_free(pen_optim_view *views, int count);
 /* Of the views' cameras, weights, targets and masks (checkpoint identity). */
 uint64_t pen__optim_views_hash(const pen_optim_view *views, int count);
@@ -239,6 +240,15 @@ typedef pen_status (*pen__optim_view_job)(pen_context *ctx, void *user, int j,
 pen_status pen__optim_workers_run(pen_context *ctx, pen__optim_workers *W, int lo, int hi,
                                   pen__optim_view_job job, void *user);
 
+/* What a view's forward gives the sum, gathered across ranks as it is. The exposure's
+ * derivative travels here rather than in the gradient vector: the forward makes it (from the
+ * loss's image gradient), it stays a double, and it exists when no render gradient is wanted
+ * (the "exposure" group alone). */
+typedef struct pen__optim_view_share {
+    double loss;         /* w_v E_v */
+    double d_log_exposure; /* d(w_v E_v)/d(log s_v); 0 in a pass without gradient */
+} pen__optim_view_share;
+
 /* The loop's per-view state. factor[i] = weight_i / (the sum of view i's pixel weights): 0 for a
  * view left out (weight 0 or empty mask), which is neither rendered nor differentiated. */
 typedef struct pen__optim_views {
@@ -248,14 +258,19 @@ typedef struct pen__optim_views {
     pen_render_state **solve_state; /* per view: the least-squares lighting's renders */
     float **weight;  /* per view: mask x shadow weights per pixel; NULL: every pixel 1 */
     double *factor;
-    pen_image *img, *d_img; /* the last render and its loss gradient, per view */
+    pen_image *img, *d_img; /* the last render (times the exposure) and its loss gradient, per
+                               view */
+    double *d_exposure;     /* per view: d(w_v E_v)/d(log s_v) of the last render with grad */
+    pen_image *eye_target;  /* per view: the target over the exposure (pen__optim_view_eye);
+                               allocated where the exposure may differ from 1 */
     size_t max_pixels;
     /* the passes (pen__optim_views_plan): the views taking part, in view order, and per one of
-     * them its w_v E_v and its gradient vector (grad_floats, pen__optim_grad_pack for wrt) */
+     * them its forward's share (loss: w_v E_v and d(w_v E_v)/d(log s_v)) and its gradient
+     * vector (grad_floats, pen__optim_grad_pack for wrt) */
     int *order, taking_part;
     int lo, hi; /* this process's block of order */
     const pen_optim_ranks *ranks;
-    double *loss;
+    pen__optim_view_share *loss;
     float *grads;
     size_t grad_floats;
     unsigned wrt;
@@ -270,12 +285,25 @@ void pen__optim_views_free_run(pen__optim_views *V);
 /* The views taking part, as least-squares eyes (states: the solve's when `solve`); returns how
  * many were written (eyes: room for V->count). */
 int pen__optim_views_eyes(const pen__optim_views *V, int solve, pen__optim_eye *eyes);
+/* A view's exposure: 0, in a view made in code before the field existed (zeroed), stands for 1. */
+static inline double pen__optim_exposure(const pen_optim_view *v) {
+    return v->exposure > 0.0 ? v->exposure : 1.0;
+}
+/* The view as a least-squares eye (its camera, target, mask and `factor`): with an exposure
+ * s != 1 the loss w (s I - T)^2 is s^2 w (I - T/s)^2, so the target is T/s, written into
+ * *scratch (created when it has no data: ctx may be NULL when it has), and the factor is times
+ * s^2. The state is NULL. */
+pen_status pen__optim_view_eye(pen_context *ctx, const pen_optim_view *v, double factor,
+                               pen_image *scratch, pen__optim_eye *e);
+/* Multiplies the image by a view's exposure (nothing to do at 1). */
+void pen__optim_view_expose(pen_image *img, double exposure);
 /* How the passes run: this process's block of the views taking part (set->ranks), the views
  * at once (set->view_workers), the gradient vectors for the groups in wrt. */
 pen_status pen__optim_views_plan(pen_context *ctx, pen__optim_views *V, const pen_scene *sc,
                                  const pen_optim_settings *set, unsigned wrt);
-/* Renders every view taking part (this process's block; the others' losses gathered), *loss =
- * sum_v w_v E_v in view order; with grad also each of the block's d_img. */
+/* Renders every view taking part (this process's block; the others' shares gathered), each
+ * render times its view's exposure, *loss = sum_v w_v E_v in view order; with grad also each of
+ * the block's d_img (with respect to the unscaled render) and every view's d_exposure. */
 pen_status pen__optim_views_fwd(pen_context *ctx, pen__optim_views *V, const pen_scene *sc,
                                 const pen_render_options *opt, pen_optim_loss kind, int grad,
                                 double *loss);
@@ -382,6 +410,10 @@ typedef struct pen__optim_run {
     unsigned groups;
     size_t lighting; /* offset of the SH block, SIZE_MAX if not optimised */
     size_t lights;   /* offset of the disk lights' block (7 per light), SIZE_MAX if not */
+    size_t exposure; /* offset of the views' log exposures (views 1 .., one each), SIZE_MAX if
+                        not optimised */
+    pen_optim_view *task_views; /* the task's views, where the exposures go (multi-view) */
+    int task_view_count;
     pen__optim_object_layout *objects;
     pen__optim_segment *segments;
     int segment_count;

@@ -237,7 +237,9 @@ static pen_status picture(pen_context *ctx, const pen_optim_task *t, const run *
                           pen_image *img) {
     const pen_scene v =
         r->multi ? pen__optim_view_scene(&t->scene, &t->views[0].camera) : t->scene;
-    return pen_render_fwd(ctx, &v, &r->opt, NULL, img);
+    pen_status s = pen_render_fwd(ctx, &v, &r->opt, NULL, img);
+    if (!s && r->multi) pen__optim_view_expose(img, pen__optim_exposure(&t->views[0]));
+    return s;
 }
 
 static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_settings *set,
@@ -391,17 +393,37 @@ static pen_status shadow_weights(pen_context *ctx, const pen_optim_task *t, run 
 }
 
 /* Every view taking part, weighted as in the loss (its weight over its mask's size), as
- * least-squares eyes; returns their number (eyes: room for every view). */
-static int view_eyes(const pen_optim_task *t, pen__optim_eye *eyes) {
-    int n = 0;
-    for (int i = 0; i < t->view_count; ++i) {
+ * least-squares eyes, each target over its view's exposure (pen__optim_view_eye; scratch holds
+ * the targets whose exposure differs from 1), so that a fit or a search sees the loss's
+ * objective with the exposures as they stand. */
+typedef struct view_eyes {
+    pen__optim_eye *eyes;
+    pen_image *scratch; /* one per view of the task */
+    int n, count;
+} view_eyes;
+
+static void view_eyes_free(view_eyes *e) {
+    for (int i = 0; e->scratch && i < e->count; ++i)
+        pen_image_free(&e->scratch[i]);
+    free(e->scratch);
+    free(e->eyes);
+}
+
+/* On failure *e is freed. */
+static pen_status view_eyes_make(pen_context *ctx, const pen_optim_task *t, view_eyes *e) {
+    *e = (view_eyes){NULL, NULL, 0, t->view_count};
+    e->eyes = pen__calloc(ctx, (size_t)t->view_count, sizeof *e->eyes, "views");
+    e->scratch = pen__calloc(ctx, (size_t)t->view_count, sizeof *e->scratch, "views");
+    pen_status s = e->eyes && e->scratch ? PEN_OK : PEN_ERROR_MEMORY;
+    for (int i = 0; !s && i < t->view_count; ++i) {
         const pen_optim_view *v = &t->views[i];
         const size_t pixels = (size_t)v->camera.width * (size_t)v->camera.height;
         const double count = pen__loss_weight_sum(v->mask, pixels);
         if (v->weight > 0.0 && count > 0.0)
-            eyes[n++] = (pen__optim_eye){&v->camera, &v->target, v->mask, v->weight / count, NULL};
+            s = pen__optim_view_eye(ctx, v, v->weight / count, &e->scratch[i], &e->eyes[e->n++]);
     }
-    return n;
+    if (s) view_eyes_free(e);
+    return s;
 }
 
 /* "init": "fit": the lighting starts at the unshadowed least-squares fit to the target. */
@@ -412,12 +434,12 @@ static pen_status fitted_lighting(pen_context *ctx, const pen_optim_task *t, run
         if (!s) pen__optim_transfer(r, 0);
         return s;
     }
-    pen__optim_eye *eyes = pen__calloc(ctx, (size_t)t->view_count, sizeof *eyes, "views");
-    if (!eyes) return PEN_ERROR_MEMORY;
-    const int n = view_eyes(t, eyes);
-    pen_status s = pen__optim_fit_lighting_eyes(ctx, &t->scene, eyes, n, PEN__OPTIM_RIDGE_INIT,
-                                                r->sc->lighting.sh);
-    free(eyes);
+    view_eyes e;
+    pen_status s = view_eyes_make(ctx, t, &e);
+    if (s) return s;
+    s = pen__optim_fit_lighting_eyes(ctx, &t->scene, e.eyes, e.n, PEN__OPTIM_RIDGE_INIT,
+                                     r->sc->lighting.sh);
+    view_eyes_free(&e);
     if (!s) pen__optim_transfer(r, 0);
     return s;
 }
@@ -426,7 +448,8 @@ static pen_status fitted_lighting(pen_context *ctx, const pen_optim_task *t, run
  * created), from the scene's values: the initial guesses were applied before. */
 static pen_status relayout(pen_context *ctx, const pen_optim_task *t, run *r) {
     const run fresh = {.sc = r->sc, .opt = r->opt, .groups = r->groups, .solve = r->solve,
-                       .multi = r->multi};
+                       .multi = r->multi, .task_views = r->task_views,
+                       .task_view_count = r->task_view_count};
     pen__optim_run_free(r);
     *r = fresh;
     pen_status s = pen__optim_layout(ctx, r, t);
@@ -444,20 +467,18 @@ static pen_status relayout(pen_context *ctx, const pen_optim_task *t, run *r) {
 static pen_status search_lights(pen_context *ctx, pen_optim_task *t, run *r,
                                 pen_optim_result *out) {
     pen__optim_eye one = {NULL, &t->target, NULL, 1.0, NULL};
-    pen__optim_eye *eyes = &one;
-    int n = 1;
+    view_eyes e = {&one, NULL, 1, 0};
     if (r->multi) {
-        eyes = pen__calloc(ctx, (size_t)t->view_count, sizeof *eyes, "views");
-        if (!eyes) return PEN_ERROR_MEMORY;
-        n = view_eyes(t, eyes);
+        pen_status s = view_eyes_make(ctx, t, &e);
+        if (s) return s;
     }
     const double t0 = omp_get_wtime();
     pen_status s = pen__optim_lights_search(
-        ctx, r->sc, &r->opt, eyes, n, t->light_count, (r->groups & PEN_OPTIM_LIGHTING) != 0,
+        ctx, r->sc, &r->opt, e.eyes, e.n, t->light_count, (r->groups & PEN_OPTIM_LIGHTING) != 0,
         t->lighting_ridge, PEN__OPTIM_SEARCH_RADIUS_DEG, &out->search_renders);
     out->search_seconds = omp_get_wtime() - t0;
     out->lights_searched = s ? 0 : t->light_count;
-    if (eyes != &one) free(eyes);
+    if (r->multi) view_eyes_free(&e);
     return s ? s : relayout(ctx, t, r);
 }
 
@@ -527,6 +548,8 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
     r.groups = task->optimize;
     r.solve = task->lighting_solver == PEN_OPTIM_LIGHTING_LEAST_SQUARES;
     r.multi = task->view_count > 0;
+    r.task_views = task->views;
+    r.task_view_count = task->view_count;
     s = pen__optim_layout(ctx, &r, task);
     if (!s) {
         pen__optim_transfer(&r, 0);

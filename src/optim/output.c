@@ -14,8 +14,9 @@
  *
  * A multi-view task (views.c) adds final_<i>.exr per view and validation_<i>.exr per held-back
  * view (the task's order), views.png (a small contact sheet, target | result | 4x error, a row a
- * view, each row at its target's exposure) and per-view metrics in result.json; compare.png and
- * final.exr show the first view. */
+ * view, each row at its target's exposure), views.json (the views file of the task's views
+ * with their exposures as recovered: a later task's "views") and per-view metrics in
+ * result.json; compare.png and final.exr show the first view. */
 #define _POSIX_C_SOURCE 200809L
 #include "io/io_internal.h"
 #include "optim/optim_internal.h"
@@ -278,6 +279,8 @@ static cJSON *views_json(const pen_optim_view *views, int count,
         const char *target = views[i].target_path ? views[i].target_path : "";
         const int ok = o && pen__json_add(o, "target", cJSON_CreateString(target)) &&
                        pen__json_add(o, "weight", cJSON_CreateNumber(views[i].weight)) &&
+                       pen__json_add(o, "exposure",
+                                     cJSON_CreateNumber(pen__optim_exposure(&views[i]))) &&
                        pen__json_add(o, "loss", number_or_null(m[i].loss)) &&
                        pen__json_add(o, "image_rmse", number_or_null(m[i].rmse)) &&
                        pen__json_add(o, "image_rel_rmse", number_or_null(m[i].rel_rmse));
@@ -422,7 +425,8 @@ static cJSON *lr_json(const pen_optim_lr *lr) {
         pen__json_add(o, "spheres", pen__json_float(lr->spheres)) &&
         pen__json_add(o, "deformation_rotation", pen__json_float(lr->deformation_rotation)) &&
         pen__json_add(o, "deformation_translation", pen__json_float(lr->deformation_translation)) &&
-        pen__json_add(o, "lights", pen__json_float(lr->lights));
+        pen__json_add(o, "lights", pen__json_float(lr->lights)) &&
+        pen__json_add(o, "exposure", pen__json_float(lr->exposure));
     if (!ok) cJSON_Delete(o);
     return ok ? o : NULL;
 }
@@ -498,6 +502,9 @@ pen_status pen_optim_result_json(pen_context *ctx, const pen_optim_task *t,
                            cJSON_CreateString(r->converged     ? "converged"
                                               : r->interrupted ? "interrupted"
                                                                : "iteration_limit")) &&
+             /* the gauge of the exposures: the first view's stays as given (optim.h) */
+             (!(t->optimize & PEN_OPTIM_EXPOSURE) ||
+              pen__json_add(root, "exposure_fixed_view", cJSON_CreateNumber(0))) &&
              (!r->views ||
               pen__json_add(root, "views",
                             views_json(t->views, r->view_count, r->views))) &&
@@ -534,8 +541,45 @@ pen_status pen__optim_make_dir(pen_context *ctx, const char *dir) {
     return PEN_OK;
 }
 
+/* A path of the task written relative to outdir/views.json into o[key] (absent: nothing). */
+static int add_path(pen_context *ctx, cJSON *o, const char *key, const char *file,
+                    const char *path) {
+    if (!path) return 1;
+    char *rel = pen__io_path_relative(ctx, file, path);
+    const int ok = rel && pen__json_add(o, key, cJSON_CreateString(rel));
+    free(rel);
+    return ok;
+}
+
+/* views.json: the task's views as a views file (paths relative to the output folder) with each
+ * view's exposure as recovered, so that a later task can start from them. */
+static pen_status views_file(pen_context *ctx, outputs *o, const pen_optim_task *t) {
+    char *file = pen__optim_join(ctx, o->dir, "views.json");
+    cJSON *root = file ? cJSON_CreateObject() : NULL;
+    cJSON *views = root ? cJSON_AddArrayToObject(root, "views") : NULL;
+    int ok = views != NULL;
+    for (int i = 0; ok && i < t->view_count; ++i) {
+        const pen_optim_view *v = &t->views[i];
+        cJSON *e = cJSON_CreateObject();
+        ok = e && pen__json_add(e, "camera", pen__io_camera_json(&v->camera)) &&
+             add_path(ctx, e, "target", file, v->target_path) &&
+             add_path(ctx, e, "mask", file, v->mask_path) &&
+             pen__json_add(e, "weight", cJSON_CreateNumber(v->weight)) &&
+             pen__json_add(e, "exposure", cJSON_CreateNumber(pen__optim_exposure(v)));
+        if (ok) ok = cJSON_AddItemToArray(views, e);
+        else cJSON_Delete(e);
+    }
+    char *text = ok ? cJSON_Print(root) : NULL;
+    cJSON_Delete(root);
+    free(file);
+    if (!text) return pen__error(ctx, PEN_ERROR_MEMORY, "views.json: out of memory");
+    pen_status s = save_text(ctx, o, "views.json", text);
+    cJSON_free(text);
+    return s;
+}
+
 /* Multi-view and validation views: final_<i>.exr and validation_<i>.exr (the task's order),
- * and views.png, the contact sheet of the views (views.c). */
+ * views.png, the contact sheet of the views (views.c), and views.json, the views file. */
 static pen_status view_outputs(pen_context *ctx, outputs *o, const pen_optim_task *t,
                                const pen_optim_result *r) {
     pen_status s = PEN_OK;
@@ -553,6 +597,7 @@ static pen_status view_outputs(pen_context *ctx, outputs *o, const pen_optim_tas
     s = views_sheet(ctx, t->views, r->view_count, r->view_finals, &sheet);
     if (!s) s = save_image(ctx, o, "views.png", &sheet);
     pen_image_free(&sheet);
+    if (!s) s = views_file(ctx, o, t);
     return s;
 }
 

@@ -4,12 +4,16 @@
  * regularisers that belong to the parameters (the deformation's energy, the spheres' smoothness,
  * the least-squares lighting's ridge). The loop that uses them is optimize.c.
  *
+ * The views' exposures (the "exposure" group) live in x as natural logs, so that they stay
+ * positive and a step is a relative change; the first view's is not in x (the gauge, optim.h).
+ *
  * Rotations live in x as radians (the scene keeps degrees), so that the supplement's learning
  * rate 1e-2 means about half a degree per step; their gradient is converted with the same factor. */
 #include "optim/optim_internal.h"
 
 #include "penumbra/render.h"
 
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -38,7 +42,7 @@ static size_t albedo_floats(const pen_object *ob) {
 pen_status pen__optim_layout(pen_context *ctx, run *r, const pen_optim_task *t) {
     const pen_scene *sc = r->sc;
     r->objects = pen__calloc(ctx, (size_t)sc->object_count + 1, sizeof *r->objects, "layout");
-    r->segments = pen__calloc(ctx, 6 * (size_t)sc->object_count + 2, sizeof *r->segments,
+    r->segments = pen__calloc(ctx, 6 * (size_t)sc->object_count + 3, sizeof *r->segments,
                               "segments");
     r->deform = pen__calloc(ctx, (size_t)sc->object_count + 1, sizeof *r->deform, "graphs");
     if (!r->objects || !r->segments || !r->deform) return PEN_ERROR_MEMORY;
@@ -53,6 +57,9 @@ pen_status pen__optim_layout(pen_context *ctx, run *r, const pen_optim_task *t) 
     if ((r->groups & PEN_OPTIM_LIGHTS) && sc->lighting.light_count > 0)
         r->lights = add_segment(r, 7 * (size_t)sc->lighting.light_count, t->lr.lights,
                                 PEN__BOUND_LIGHTS);
+    r->exposure = SIZE_MAX; /* every view's but the first's, the gauge (optim.h) */
+    if ((r->groups & PEN_OPTIM_EXPOSURE) && t->view_count > 1)
+        r->exposure = add_segment(r, (size_t)t->view_count - 1, t->lr.exposure, PEN__BOUND_NONE);
     for (int o = 0; o < sc->object_count; ++o) {
         const pen_object *ob = &sc->objects[o];
         object_layout *L = &r->objects[o];
@@ -165,6 +172,14 @@ void pen__optim_transfer(run *r, int to_scene) {
                     x[k] = *v[k];
             }
         }
+    for (int v = 1; r->exposure != SIZE_MAX && v < r->task_view_count; ++v) {
+        /* log s in x: positive whatever the step, and a step is a relative change */
+        float *x = r->x + r->exposure + (size_t)(v - 1);
+        if (to_scene)
+            r->task_views[v].exposure = exp((double)*x);
+        else
+            *x = (float)log(pen__optim_exposure(&r->task_views[v]));
+    }
     for (int o = 0; o < sc->object_count; ++o) {
         pen_object *ob = &sc->objects[o];
         const object_layout *L = &r->objects[o];
@@ -280,6 +295,8 @@ void pen__optim_gather(run *r, const pen_render_grad *grad, float scale) {
             }
             g[3] = scale * lg->angular_radius_deg;
         }
+    for (int v = 1; r->exposure != SIZE_MAX && v < r->task_view_count; ++v)
+        r->g[r->exposure + (size_t)(v - 1)] = (float)((double)scale * r->views.d_exposure[v]);
     for (int o = 0; o < sc->object_count; ++o) {
         const pen_object_grad *og = &grad->objects[o];
         const object_layout *L = &r->objects[o];

@@ -25,7 +25,7 @@ static where at(const where *w, const char *name) {
 }
 
 pen_optim_lr pen_optim_lr_default(void) {
-    pen_optim_lr lr = {1e-2f, 1e-2f, 1e-2f, 1e-2f, 1e-2f, 1e-3f, 1e-2f, 1e-2f};
+    pen_optim_lr lr = {1e-2f, 1e-2f, 1e-2f, 1e-2f, 1e-2f, 1e-3f, 1e-2f, 1e-2f, 1e-2f};
     return lr;
 }
 
@@ -91,16 +91,20 @@ static pen_status parse_scene_ref(pen_context *ctx, const char *path, const wher
                            pen__json_type_name(item));
 }
 
+/* pen_image_load_ex's flags for a target: 8-bit codes decoded from sRGB unless the task says
+ * they are linear already (a PNG written from linear data, a normal-map-like capture). */
+static unsigned target_flags(const pen_optim_task *t) {
+    return t->target_linear ? PEN_IMAGE_LOAD_RAW : 0u;
+}
+
 pen_status pen_optim_task_set_target(pen_context *ctx, pen_optim_task *task, const char *path) {
     if (task->view_count > 0)
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "\"%s\": the task has \"views\": a target replaces no view's image", path);
-    if (!pen__io_has_ext(path, "exr") && !pen__io_has_ext(path, "hdr"))
-        return pen__error(ctx, PEN_ERROR_ARGUMENT, "\"%s\": expected a linear image (.exr or .hdr)",
-                          path);
     pen_image img = {0, 0, 0, NULL};
     char *name = pen__io_strdup(ctx, path);
-    pen_status s = name ? pen_image_load(ctx, path, &img) : PEN_ERROR_MEMORY;
+    pen_status s = name ? pen_image_load_ex(ctx, path, target_flags(task), &img)
+                        : PEN_ERROR_MEMORY;
     const pen_camera *c = &task->scene.camera;
     if (!s && (img.width != c->width || img.height != c->height))
         s = pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: the image is %dx%d but the scene's camera is %dx%d",
@@ -124,9 +128,6 @@ static pen_status parse_target(pen_context *ctx, const char *path, const where *
     pen_status s = pen__json_string(ctx, &w, cJSON_GetObjectItemCaseSensitive(root, "target"),
                                     &rel);
     if (s) return s;
-    if (!pen__io_has_ext(rel, "exr") && !pen__io_has_ext(rel, "hdr"))
-        return pen__json_error(ctx, PEN_ERROR_PARSE, &w,
-                               "\"%s\": expected a linear image (.exr or .hdr)", rel);
     char *full = pen__io_path_resolve(ctx, path, rel);
     if (!full) return PEN_ERROR_MEMORY;
     s = pen_optim_task_set_target(ctx, t, full);
@@ -136,7 +137,7 @@ static pen_status parse_target(pen_context *ctx, const char *path, const where *
 
 /* The task's group names, in the order of their bits (PEN_OPTIM_LIGHTING = 1 << 0, ...). */
 const char *const pen__optim_group_names[PEN__OPTIM_GROUPS] = {
-    "lighting", "albedo", "pose", "deformation", "spheres", "lights"};
+    "lighting", "albedo", "pose", "deformation", "spheres", "lights", "exposure"};
 
 static pen_status parse_groups(pen_context *ctx, const where *top, const cJSON *root,
                                unsigned *groups) {
@@ -146,7 +147,8 @@ static pen_status parse_groups(pen_context *ctx, const where *top, const cJSON *
     if (!cJSON_IsArray(a) || cJSON_GetArraySize(a) == 0)
         return pen__json_error(ctx, PEN_ERROR_PARSE, &w,
                                "expected a non-empty array of groups (\"lighting\", \"albedo\", "
-                               "\"pose\", \"deformation\", \"spheres\", \"lights\"), got %s",
+                               "\"pose\", \"deformation\", \"spheres\", \"lights\", "
+                               "\"exposure\"), got %s",
                                a ? (cJSON_IsArray(a) ? "an empty array" : pen__json_type_name(a))
                                  : "nothing (missing key)");
     *groups = 0;
@@ -164,7 +166,8 @@ static pen_status parse_groups(pen_context *ctx, const where *top, const cJSON *
         if (!bit)
             return pen__json_error(ctx, PEN_ERROR_PARSE, &wi,
                                    "unknown group \"%s\" (expected \"lighting\", \"albedo\", "
-                                   "\"pose\", \"deformation\", \"spheres\" or \"lights\")",
+                                   "\"pose\", \"deformation\", \"spheres\", \"lights\" or "
+                                   "\"exposure\")",
                                    name);
         if (*groups & bit)
             return pen__json_error(ctx, PEN_ERROR_PARSE, &wi, "\"%s\" is listed twice", name);
@@ -190,6 +193,7 @@ static pen_status parse_lr(pen_context *ctx, const where *top, const cJSON *root
         if (s) return s;
         lr->lighting = lr->albedo = lr->rotation = lr->translation = lr->spheres = (float)v;
         lr->deformation_rotation = lr->deformation_translation = lr->lights = (float)v;
+        lr->exposure = (float)v;
         return PEN_OK;
     }
     if (!cJSON_IsObject(item))
@@ -204,6 +208,7 @@ static pen_status parse_lr(pen_context *ctx, const where *top, const cJSON *root
                                         "deformation_rotation",
                                         "deformation_translation",
                                         "lights",
+                                        "exposure",
                                         "pose",
                                         NULL};
     pen_status s = pen__json_known_keys(ctx, &w, item, known);
@@ -216,6 +221,7 @@ static pen_status parse_lr(pen_context *ctx, const where *top, const cJSON *root
                        &lr->deformation_rotation,
                        &lr->deformation_translation,
                        &lr->lights,
+                       &lr->exposure,
                        NULL};
     for (int k = 0; known[k]; ++k) {
         const cJSON *e = cJSON_GetObjectItemCaseSensitive(item, known[k]);
@@ -296,6 +302,7 @@ static pen_status parse_options(pen_context *ctx, const where *top, const cJSON 
         s = pen__json_number(ctx, &w, e, 0.0, 1e6, "a ridge in [0, 1e6]", &t->lighting_ridge);
         if (s) return s;
     }
+    static const char *const encodings[] = {"srgb", "linear", NULL};
     static const char *const solvers[] = {"adam", "least_squares", NULL};
     static const char *const losses[] = {"l2", "l1", NULL};
     static const char *const inits[] = {"black", "scene", "fit", NULL};
@@ -305,6 +312,12 @@ static pen_status parse_options(pen_context *ctx, const where *top, const cJSON 
         s = pen__json_choice(ctx, &w, e, "lighting solver", solvers, &k);
         if (s) return s;
         t->lighting_solver = k == 1 ? PEN_OPTIM_LIGHTING_LEAST_SQUARES : PEN_OPTIM_LIGHTING_ADAM;
+    }
+    if ((e = cJSON_GetObjectItemCaseSensitive(root, "target_encoding"))) {
+        w = at(top, "target_encoding");
+        s = pen__json_choice(ctx, &w, e, "target encoding", encodings, &k);
+        if (s) return s;
+        t->target_linear = k == 1;
     }
     if ((e = cJSON_GetObjectItemCaseSensitive(root, "loss"))) {
         w = at(top, "loss");
@@ -340,7 +353,7 @@ static pen_status parse_task(pen_context *ctx, const char *path, const cJSON *ro
                                         "init",  "deformation", "spheres", "ground_truth",
                                         "shadow_weight", "lighting_solver",
                                         "lighting_ridge", "light_count", "views",
-                                        "validation_views", NULL};
+                                        "validation_views", "target_encoding", NULL};
     pen_status s = pen__json_known_keys(ctx, &top, root, known);
     const cJSON *views = cJSON_GetObjectItemCaseSensitive(root, "views");
     const cJSON *validation = cJSON_GetObjectItemCaseSensitive(root, "validation_views");
@@ -352,15 +365,16 @@ static pen_status parse_task(pen_context *ctx, const char *path, const cJSON *ro
     if (!s) s = parse_options(ctx, &top, root, t);
     if (!s) s = parse_scene_ref(ctx, path, &top, root, "scene", &t->scene);
     if (!s && views) {
-        s = pen__optim_views_parse(ctx, path, &wv, views, &t->views, &t->view_count);
+        s = pen__optim_views_parse(ctx, path, &wv, views, target_flags(t), &t->views,
+                                   &t->view_count);
     } else if (!s && target) {
         s = pen_optim_task_set_target(ctx, t, target);
     } else if (!s) {
         s = parse_target(ctx, path, &top, root, t);
     }
     if (!s && validation)
-        s = pen__optim_views_parse(ctx, path, &wval, validation, &t->validation,
-                                   &t->validation_count);
+        s = pen__optim_views_parse(ctx, path, &wval, validation, target_flags(t),
+                                   &t->validation, &t->validation_count);
     if (!s && cJSON_GetObjectItemCaseSensitive(root, "ground_truth")) {
         s = parse_scene_ref(ctx, path, &top, root, "ground_truth", &t->ground_truth);
         t->has_ground_truth = s == PEN_OK;
@@ -454,11 +468,30 @@ pen_status pen__optim_task_check_groups(pen_context *ctx, const pen_optim_task *
     return PEN_OK;
 }
 
+/* The "exposure" group and the views' exposures (optim.h, pen_optim_view). */
+static pen_status check_exposure(pen_context *ctx, const pen_optim_task *t) {
+    const char *name = t->path ? t->path : "task";
+    if ((t->optimize & PEN_OPTIM_EXPOSURE) && t->view_count < 2)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: optimize: \"exposure\" needs \"views\" with at least 2 views: "
+                          "the first view's exposure is fixed (a common exposure is the lighting's "
+                          "scale), so %s has none to move",
+                          name, t->view_count ? "one view" : "a single-view task");
+    if ((t->optimize & PEN_OPTIM_EXPOSURE) && !(t->views[0].weight > 0.0))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: optimize: \"exposure\": views[0] fixes the exposures' scale and "
+                          "must take part (weight > 0)",
+                          name);
+    return PEN_OK;
+}
+
 pen_status pen__optim_task_check(pen_context *ctx, const pen_optim_task *t) {
     const char *name = t->path ? t->path : "task";
+    pen_status s;
     if (!t->optimize || (t->optimize & ~(unsigned)(PEN_OPTIM_LIGHTING | PEN_OPTIM_ALBEDO |
                                                    PEN_OPTIM_POSE | PEN_OPTIM_SPHERES |
-                                                   PEN_OPTIM_DEFORMATION | PEN_OPTIM_LIGHTS)) ||
+                                                   PEN_OPTIM_DEFORMATION | PEN_OPTIM_LIGHTS |
+                                                   PEN_OPTIM_EXPOSURE)) ||
         ((t->optimize & PEN_OPTIM_SPHERES) && (t->optimize & PEN_OPTIM_DEFORMATION)))
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "%s: optimize: no group, an unknown one, or both spheres and "
@@ -495,7 +528,12 @@ pen_status pen__optim_task_check(pen_context *ctx, const pen_optim_task *t) {
         if (!(v->weight >= 0.0) || !isfinite(v->weight))
             return pen__error(ctx, PEN_ERROR_ARGUMENT,
                               "%s: %s[%d].weight: expected a finite number >= 0", name, key, k);
+        if (!(v->exposure >= 0.0) || !isfinite(v->exposure)) /* (0: 1, optim.h) */
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "%s: %s[%d].exposure: expected a finite number > 0", name, key, k);
     }
+    s = check_exposure(ctx, t);
+    if (s) return s;
     if (t->view_count > 0 && t->target.data)
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: views and a target: choose one", name);
     if (t->view_count == 0 &&
@@ -519,10 +557,10 @@ pen_status pen__optim_task_check(pen_context *ctx, const pen_optim_task *t) {
     if (!(t->lighting_ridge >= 0.0) || !isfinite(t->lighting_ridge))
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "%s: lighting_ridge must be a finite number >= 0", name);
-    const float lr[8] = {t->lr.lighting, t->lr.albedo,  t->lr.rotation,
+    const float lr[9] = {t->lr.lighting, t->lr.albedo,  t->lr.rotation,
                          t->lr.translation, t->lr.spheres, t->lr.deformation_rotation,
-                         t->lr.deformation_translation, t->lr.lights};
-    for (int k = 0; k < 8; ++k)
+                         t->lr.deformation_translation, t->lr.lights, t->lr.exposure};
+    for (int k = 0; k < 9; ++k)
         if (!(lr[k] > 0.0f) || !isfinite(lr[k]))
             return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: lr: rates must be positive", name);
     return PEN_OK;

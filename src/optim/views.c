@@ -15,6 +15,15 @@
  * order. So the result is bitwise the same for any thread count, views at once or split across
  * MPI ranks.
  *
+ * Exposure (optim.h, pen_optim_view): a view's render is multiplied by its exposure s before the
+ * loss; the backward turns dE/dJ (J = s I) into dE/dI = s dE/dJ and dE/d(log s) = sum_p dE/dJ J,
+ * which params.c gathers for the "exposure" group. The latter is made in the forward (view_fwd,
+ * from the loss's image gradient) and travels with the view's loss (pen__optim_view_share),
+ * gathered across ranks like it, so an exposure's step is the same on every rank. The fits of the
+ * lighting (least squares, "init": "fit", the shadow masks) see w (s I - T)^2 as s^2 w (I - T/s)^2:
+ * the target T/s with the factor times s^2. At s = 1 nothing is multiplied or divided, so views
+ * without exposures are bitwise as before.
+ *
  * The least-squares lighting ("lighting_solver": "least_squares", "init": "fit") sees every view:
  * its normal equations sum the views' with factor w_v / sum_p m_vp (loss.c), the same weighting
  * as E, so the solve minimises the objective the loop reports. */
@@ -30,15 +39,14 @@ typedef pen__json_where where;
 
 /* ---- Parsing --------------------------------------------------------------------------------- */
 
-/* A linear image of the camera's size at `rel` (relative to base), into *img and *name. */
+/* An image of the camera's size at `rel` (relative to base), into *img and *name; flags as
+ * pen_image_load_ex's (a target: 0, 8-bit files decoded from sRGB, or RAW for "target_encoding":
+ * "linear"; a mask: RAW). */
 static pen_status load_image(pen_context *ctx, const where *w, const char *base, const char *rel,
-                             const pen_camera *cam, int linear, pen_image *img, char **name) {
-    if (linear && !pen__io_has_ext(rel, "exr") && !pen__io_has_ext(rel, "hdr"))
-        return pen__json_error(ctx, PEN_ERROR_PARSE, w,
-                               "\"%s\": expected a linear image (.exr or .hdr)", rel);
+                             const pen_camera *cam, unsigned flags, pen_image *img, char **name) {
     *name = pen__io_path_resolve(ctx, base, rel);
     if (!*name) return PEN_ERROR_MEMORY;
-    pen_status s = pen_image_load_ex(ctx, *name, linear ? 0u : PEN_IMAGE_LOAD_RAW, img);
+    pen_status s = pen_image_load_ex(ctx, *name, flags, img);
     if (s) return pen__json_wrap(ctx, s, w);
     if (img->width != cam->width || img->height != cam->height)
         return pen__json_error(ctx, PEN_ERROR_PARSE, w,
@@ -48,25 +56,31 @@ static pen_status load_image(pen_context *ctx, const where *w, const char *base,
 }
 
 static pen_status parse_view(pen_context *ctx, const char *base, const where *w, const cJSON *o,
-                             pen_optim_view *v) {
-    static const char *const known[] = {"camera", "target", "mask", "weight", NULL};
-    where wc, wt, wm, ww;
+                             unsigned target_flags, pen_optim_view *v) {
+    static const char *const known[] = {"camera", "target", "mask", "weight", "exposure", NULL};
+    where wc, wt, wm, ww, we;
     pen__json_child(w, "camera", &wc);
     pen__json_child(w, "target", &wt);
     pen__json_child(w, "mask", &wm);
     pen__json_child(w, "weight", &ww);
+    pen__json_child(w, "exposure", &we);
     v->weight = 1.0;
+    v->exposure = 1.0;
     pen_status s = pen__json_need_object(ctx, w, o);
     if (!s) s = pen__json_known_keys(ctx, w, o, known);
     if (!s) s = pen__io_camera_parse(ctx, &wc, pen__json_member(o, "camera"), &v->camera);
     const char *rel = NULL;
     if (!s) s = pen__json_string(ctx, &wt, pen__json_member(o, "target"), &rel);
-    if (!s) s = load_image(ctx, &wt, base, rel, &v->camera, 1, &v->target, &v->target_path);
+    if (!s)
+        s = load_image(ctx, &wt, base, rel, &v->camera, target_flags, &v->target,
+                       &v->target_path);
     const cJSON *m = pen__json_member(o, "mask");
     if (!s && m) {
         pen_image mask = {0, 0, 0, NULL};
         s = pen__json_string(ctx, &wm, m, &rel);
-        if (!s) s = load_image(ctx, &wm, base, rel, &v->camera, 0, &mask, &v->mask_path);
+        if (!s)
+            s = load_image(ctx, &wm, base, rel, &v->camera, PEN_IMAGE_LOAD_RAW, &mask,
+                           &v->mask_path);
         const size_t pixels = (size_t)v->camera.width * (size_t)v->camera.height;
         if (!s && !(v->mask = pen__malloc(ctx, pixels, sizeof(float), "mask")))
             s = PEN_ERROR_MEMORY;
@@ -78,12 +92,18 @@ static pen_status parse_view(pen_context *ctx, const char *base, const where *w,
     }
     const cJSON *e = pen__json_member(o, "weight");
     if (!s && e) s = pen__json_number(ctx, &ww, e, 0.0, 1e6, "a weight in [0, 1e6]", &v->weight);
+    const cJSON *x = pen__json_member(o, "exposure");
+    if (!s && x) {
+        s = pen__json_number(ctx, &we, x, 0.0, 1e6, "an exposure in (0, 1e6]", &v->exposure);
+        if (!s && !(v->exposure > 0.0))
+            s = pen__json_error(ctx, PEN_ERROR_PARSE, &we, "expected an exposure in (0, 1e6]");
+    }
     return s;
 }
 
 /* The array of views at w (paths relative to base). */
 static pen_status parse_array(pen_context *ctx, const char *base, const where *w, const cJSON *a,
-                              pen_optim_view **views, int *count) {
+                              unsigned target_flags, pen_optim_view **views, int *count) {
     if (!cJSON_IsArray(a) || cJSON_GetArraySize(a) < 1 ||
         cJSON_GetArraySize(a) > PEN_CAMERA_SET_MAX)
         return pen__json_error(ctx, PEN_ERROR_PARSE, w,
@@ -101,17 +121,19 @@ static pen_status parse_array(pen_context *ctx, const char *base, const where *w
         where wi;
         pen__json_index(w, i, &wi);
         *count = ++i; /* (freed with the rest on failure) */
-        s = parse_view(ctx, base, &wi, o, &(*views)[i - 1]);
+        s = parse_view(ctx, base, &wi, o, target_flags, &(*views)[i - 1]);
         if (s) break;
     }
     return s;
 }
 
 pen_status pen__optim_views_parse(pen_context *ctx, const char *task_path, const where *w,
-                                  const cJSON *item, pen_optim_view **views, int *count) {
+                                  const cJSON *item, unsigned target_flags,
+                                  pen_optim_view **views, int *count) {
     *views = NULL;
     *count = 0;
-    if (!cJSON_IsString(item)) return parse_array(ctx, task_path, w, item, views, count);
+    if (!cJSON_IsString(item))
+        return parse_array(ctx, task_path, w, item, target_flags, views, count);
     char *file = pen__io_path_resolve(ctx, task_path, item->valuestring);
     if (!file) return PEN_ERROR_MEMORY;
     cJSON *root = NULL;
@@ -121,7 +143,8 @@ pen_status pen__optim_views_parse(pen_context *ctx, const char *task_path, const
     pen_status s = pen__json_load(ctx, file, &root);
     if (!s) s = pen__json_need_object(ctx, &top, root);
     if (!s) s = pen__json_known_keys(ctx, &top, root, known);
-    if (!s) s = parse_array(ctx, file, &wv, pen__json_member(root, "views"), views, count);
+    if (!s) s = parse_array(ctx, file, &wv, pen__json_member(root, "views"), target_flags, views,
+                            count);
     cJSON_Delete(root);
     free(file);
     return s ? pen__json_wrap(ctx, s, w) : PEN_OK;
@@ -146,11 +169,54 @@ uint64_t pen__optim_views_hash(const pen_optim_view *views, int count) {
         h = pen__fnv1a(h, &v->weight, sizeof v->weight);
         h = pen__fnv1a(h, v->target.data, 3 * pixels * sizeof(float));
         if (v->mask) h = pen__fnv1a(h, v->mask, pixels * sizeof(float));
+        /* (only when given: the checkpoints of tasks without exposures keep their identity) */
+        const double x = pen__optim_exposure(v);
+        if (x != 1.0) h = pen__fnv1a(h, &x, sizeof x);
     }
     return h;
 }
 
 /* ---- The objective over the views ------------------------------------------------------------ */
+
+void pen__optim_view_expose(pen_image *img, double exposure) {
+    if (exposure == 1.0) return; /* (the views without one stay bitwise as they were) */
+    const float k = (float)exposure;
+    const size_t n = 3 * (size_t)img->width * (size_t)img->height;
+    for (size_t i = 0; i < n; ++i)
+        img->data[i] *= k;
+}
+
+pen_status pen__optim_view_eye(pen_context *ctx, const pen_optim_view *v, double factor,
+                               pen_image *scratch, pen__optim_eye *e) {
+    const double x = pen__optim_exposure(v);
+    *e = (pen__optim_eye){&v->camera, &v->target, v->mask, factor, NULL};
+    if (x == 1.0) return PEN_OK;
+    if (!scratch->data) {
+        pen_status s = pen_image_create(ctx, v->target.width, v->target.height, 3, scratch);
+        if (s) return s;
+    }
+    const size_t n = 3 * (size_t)v->target.width * (size_t)v->target.height;
+    for (size_t i = 0; i < n; ++i)
+        scratch->data[i] = (float)((double)v->target.data[i] / x);
+    e->target = scratch;
+    e->factor = factor * x * x;
+    return PEN_OK;
+}
+
+/* The exposure's part of a view's backward: J = s I is the image the loss saw and d = dE/dJ;
+ * dE/d(log s) = sum_p d_p J_p (in pixel order, double), and the render's gradient is
+ * dE/dI = s d, written over d. */
+static void expose_bwd(const pen_image *exposed, double exposure, pen_image *d, double *d_log) {
+    const size_t n = 3 * (size_t)d->width * (size_t)d->height;
+    double sum = 0.0;
+    for (size_t i = 0; i < n; ++i)
+        sum += (double)d->data[i] * (double)exposed->data[i];
+    *d_log = sum;
+    if (exposure == 1.0) return;
+    const float k = (float)exposure;
+    for (size_t i = 0; i < n; ++i)
+        d->data[i] *= k;
+}
 
 void pen__optim_views_free_run(pen__optim_views *V) {
     for (int i = 0; i < V->count; ++i) {
@@ -159,6 +225,7 @@ void pen__optim_views_free_run(pen__optim_views *V) {
         if (V->weight) free(V->weight[i]);
         if (V->img) pen_image_free(&V->img[i]);
         if (V->d_img) pen_image_free(&V->d_img[i]);
+        if (V->eye_target) pen_image_free(&V->eye_target[i]);
     }
     pen__optim_workers_free(&V->workers);
     free(V->order);
@@ -170,6 +237,8 @@ void pen__optim_views_free_run(pen__optim_views *V) {
     free(V->factor);
     free(V->img);
     free(V->d_img);
+    free(V->d_exposure);
+    free(V->eye_target);
     memset(V, 0, sizeof *V);
 }
 
@@ -185,7 +254,10 @@ pen_status pen__optim_views_init(pen_context *ctx, pen__optim_views *V, const pe
     V->factor = pen__calloc(ctx, (size_t)n, sizeof *V->factor, "views");
     V->img = pen__calloc(ctx, (size_t)n, sizeof *V->img, "views");
     V->d_img = pen__calloc(ctx, (size_t)n, sizeof *V->d_img, "views");
-    pen_status s = V->state && V->solve_state && V->weight && V->factor && V->img && V->d_img
+    V->d_exposure = pen__calloc(ctx, (size_t)n, sizeof *V->d_exposure, "views");
+    V->eye_target = pen__calloc(ctx, (size_t)n, sizeof *V->eye_target, "views");
+    pen_status s = V->state && V->solve_state && V->weight && V->factor && V->img && V->d_img &&
+                           V->d_exposure && V->eye_target
                        ? PEN_OK
                        : PEN_ERROR_MEMORY;
     for (int i = 0; !s && i < n; ++i) {
@@ -195,6 +267,11 @@ pen_status pen__optim_views_init(pen_context *ctx, pen__optim_views *V, const pe
         s = pen_render_state_create(ctx, &V->state[i]);
         if (!s) s = pen_render_state_create(ctx, &V->solve_state[i]);
         if (!s) s = pen_image_create(ctx, v->camera.width, v->camera.height, 3, &V->d_img[i]);
+        /* the target over the exposure, for the fits of the lighting (pen__optim_view_eye) */
+        pen__optim_eye eye;
+        if (!s && ((t->optimize & PEN_OPTIM_EXPOSURE) || pen__optim_exposure(v) != 1.0))
+            s = pen_image_create(ctx, v->camera.width, v->camera.height, 3, &V->eye_target[i]);
+        if (!s) s = pen__optim_view_eye(ctx, v, 1.0, &V->eye_target[i], &eye);
         if (s || (!v->mask && shadow_weight == 0.0)) {
             if (!s) V->factor[i] = v->weight / (double)pixels;
             continue;
@@ -203,7 +280,7 @@ pen_status pen__optim_views_init(pen_context *ctx, pen__optim_views *V, const pe
         if (!w) s = PEN_ERROR_MEMORY;
         if (!s && shadow_weight > 0.0) { /* 1 + s m, m the view's shadow mask (loss.c) */
             const pen_scene vs = pen__optim_view_scene(&t->scene, &v->camera);
-            s = pen__optim_shadow_mask(ctx, &vs, &v->target, fit_lighting, w);
+            s = pen__optim_shadow_mask(ctx, &vs, eye.target, fit_lighting, w);
             for (size_t p = 0; !s && p < pixels; ++p)
                 w[p] = 1.0f + (float)shadow_weight * w[p];
         } else if (!s) {
@@ -230,10 +307,9 @@ int pen__optim_views_eyes(const pen__optim_views *V, int solve, pen__optim_eye *
     for (int i = 0; i < V->count; ++i) {
         if (!(V->factor[i] > 0.0)) continue;
         pen__optim_eye *e = &eyes[n++];
-        e->camera = &V->views[i].camera;
-        e->target = &V->views[i].target;
+        /* (cannot fail: the scratch image exists wherever an exposure may differ from 1) */
+        pen__optim_view_eye(NULL, &V->views[i], V->factor[i], &V->eye_target[i], e);
         e->weight = V->weight[i];
-        e->factor = V->factor[i];
         e->state = solve ? V->solve_state[i] : NULL;
     }
     return n;
@@ -248,7 +324,8 @@ typedef struct pass {
     int grad;
 } pass;
 
-/* View order[j]'s image term: its render, V->loss[j] = w_v E_v and (with p->grad) its d_img. */
+/* View order[j]'s image term: its render times the exposure, V->loss[j] (w_v E_v and, with
+ * p->grad, its derivative in log s_v) and (with p->grad) its d_img. */
 static pen_status view_fwd(pen_context *ctx, void *user, int j, pen_render_grad *unused) {
     (void)unused;
     const pass *p = user;
@@ -258,13 +335,15 @@ static pen_status view_fwd(pen_context *ctx, void *user, int j, pen_render_grad 
     const pen_scene vs = pen__optim_view_scene(p->sc, &v->camera);
     double e = 0.0;
     pen_status s = pen_render_fwd(ctx, &vs, p->opt, V->state[i], &V->img[i]);
+    if (!s) pen__optim_view_expose(&V->img[i], pen__optim_exposure(v));
     if (!s) s = pen__optim_loss_fwd(ctx, p->kind, &V->img[i], &v->target, V->weight[i], &e);
     if (s) return s;
-    V->loss[j] = v->weight * e;
+    V->loss[j] = (pen__optim_view_share){v->weight * e, 0.0};
     if (p->grad) {
         pen_image *d = &V->d_img[i];
         memset(d->data, 0, sizeof(float) * 3 * (size_t)d->width * (size_t)d->height);
         pen__optim_loss_bwd(p->kind, &V->img[i], &v->target, V->weight[i], v->weight, d);
+        expose_bwd(&V->img[i], pen__optim_exposure(v), d, &V->loss[j].d_log_exposure);
     }
     return PEN_OK;
 }
@@ -310,8 +389,10 @@ pen_status pen__optim_views_fwd(pen_context *ctx, pen__optim_views *V, const pen
     if (!s) s = pen__optim_exchange(ctx, V->ranks, V->taking_part, V->loss, sizeof *V->loss);
     if (s) return s;
     double sum = 0.0;
-    for (int j = 0; j < V->taking_part; ++j)
-        sum += V->loss[j];
+    for (int j = 0; j < V->taking_part; ++j) {
+        sum += V->loss[j].loss;
+        V->d_exposure[V->order[j]] = V->loss[j].d_log_exposure;
+    }
     *loss = sum;
     return PEN_OK;
 }
@@ -345,6 +426,7 @@ pen_status pen__optim_views_finish(pen_context *ctx, const pen_scene *sc,
         pen_image *img = &(*finals)[i];
         pen_status s = pen_render_fwd(ctx, &vs, opt, NULL, img);
         if (s) return s;
+        pen__optim_view_expose(img, pen__optim_exposure(v));
         const size_t pixels = (size_t)img->width * (size_t)img->height;
         double err = 0.0, ref = 0.0, counted = 0.0;
         for (size_t p = 0; p < pixels; ++p) { /* in pixel order, double */
