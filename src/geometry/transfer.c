@@ -4,11 +4,11 @@
  * Design
  * - One Embree scene of the mesh (and, when asked, the ground square), built per call: the renderer
  *   calls this only when the posed vertices, the band count or the lights change.
- * - SH transfer by a control variate: the clamped cosine H_n is projected exactly (the zonal
- *   coefficients rotated to n), and only its blocked part is estimated, by N = 256 cosine-weighted
- *   directions stratified on a 16 x 16 grid of the unit square (pdf cos / pi, so each blocked
- *   direction w removes pi / N Y_k(w)). A vertex that sees everything gets H_n exactly, so a convex
- *   mesh shades exactly as without self-shadowing.
+ * - SH transfer by a control variate: T_self = H_n - B, the clamped cosine H_n known exactly
+ *   (the renderer evaluates it at the pixel's own normal), and only its blocked part B estimated,
+ *   by N = 256 cosine-weighted directions stratified on a 16 x 16 grid of the unit square (pdf
+ *   cos / pi, so each blocked direction w adds pi / N Y_k(w) to B). A vertex that sees everything
+ *   gets B = 0 exactly, so a convex mesh shades exactly as without self-shadowing.
  * - Rays start at the vertex moved along its normal by 1e-4 of the mesh's bounding diagonal (the
  *   vertex lies on its own triangles; a smaller offset lets rays graze them at creases).
  * - Disk lights: 64 directions uniform over the disk's cap (8 x 8 strata in cos and azimuth); the
@@ -61,16 +61,16 @@ static void frame(const double a[3], double t[3], double b[3]) {
     b[0] = f, b[1] = s + a[1] * a[1] * e, b[2] = -a[1];
 }
 
-/* One vertex: its transfer T (nc values) and light fractions. */
-static void vertex_transfer(RTCScene scene, const pen__transfer_request *rq, const double *hz,
-                            double offset, int v, float *T, float *frac) {
+/* One vertex: the blocked part B of its clamped cosine (nc values) and its light fractions. */
+static void vertex_transfer(RTCScene scene, const pen__transfer_request *rq, double offset, int v,
+                            float *B, float *frac) {
     const int nc = rq->bands * rq->bands, K = frac ? rq->light_count : 0;
     const float *pn = rq->normals + 3 * (size_t)v, *pp = rq->positions + 3 * (size_t)v;
     double n[3] = {pn[0], pn[1], pn[2]};
     const double len = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
     if (!(len > 1e-30)) {
         for (int k = 0; k < nc; ++k)
-            T[k] = 0.0f;
+            B[k] = 0.0f;
         for (int l = 0; l < K; ++l)
             frac[l] = 1.0f;
         return;
@@ -82,8 +82,7 @@ static void vertex_transfer(RTCScene scene, const pen__transfer_request *rq, con
         o[a] = (double)pp[a] + offset * n[a];
     frame(n, t, b);
     uint64_t rng = pen__splitmix_mix(0x5E1F7A45ull ^ (uint64_t)v);
-    double H[PEN_SH_MAX_COEFFS], lost[PEN_SH_MAX_COEFFS] = {0}, y[PEN_SH_MAX_COEFFS];
-    pen_sh_rotate_zonal_d(rq->bands, hz, n, H);
+    double lost[PEN_SH_MAX_COEFFS] = {0}, y[PEN_SH_MAX_COEFFS];
     const int side = 16, N = side * side; /* PEN_TRANSFER_DIRECTIONS */
     for (int s = 0; s < N; ++s) {
         const double u1 = ((s / side) + pen__splitmix_uniform(&rng)) / side;
@@ -98,7 +97,7 @@ static void vertex_transfer(RTCScene scene, const pen__transfer_request *rq, con
             lost[k] += y[k];
     }
     for (int k = 0; k < nc; ++k)
-        T[k] = (float)(H[k] - PEN_PI / N * lost[k]);
+        B[k] = (float)(PEN_PI / N * lost[k]);
     const int dside = 8; /* PEN_TRANSFER_DISK_SAMPLES */
     for (int l = 0; l < K; ++l) {
         const double *w = rq->light_w[l], cb = cos(rq->light_b[l]);
@@ -121,7 +120,7 @@ static void vertex_transfer(RTCScene scene, const pen__transfer_request *rq, con
     }
 }
 
-pen_status pen__mesh_transfer(pen_context *ctx, const pen__transfer_request *rq, float *T,
+pen_status pen__mesh_transfer(pen_context *ctx, const pen__transfer_request *rq, float *B,
                               float *frac) {
     const int V = rq->vertex_count, nc = rq->bands * rq->bands;
     if (V <= 0) return PEN_OK;
@@ -157,12 +156,10 @@ pen_status pen__mesh_transfer(pen_context *ctx, const pen__transfer_request *rq,
         s = embree_status(ctx, dev, "building the scene");
     }
     if (!s) {
-        double hz[PEN_SH_MAX_BANDS] = {0};
-        pen_sh_zonal_clamped_cosine_d(rq->bands, hz);
         const double offset = 1e-4 * (diag > 0.0 ? diag : 1.0);
 #pragma omp parallel for schedule(dynamic, 64) num_threads(threads)
         for (int v = 0; v < V; ++v)
-            vertex_transfer(scene, rq, hz, offset, v, T + (size_t)nc * (size_t)v,
+            vertex_transfer(scene, rq, offset, v, B + (size_t)nc * (size_t)v,
                             frac ? frac + (size_t)rq->light_count * (size_t)v : NULL);
     }
     rtcReleaseScene(scene);

@@ -71,27 +71,28 @@ void pen__shade_bwd_d(const pen__shade_params *p, const double (*sh)[3], int sph
                       const double *fv, double (*d_sh)[3], double *d_spheres, double d_x[3],
                       double d_n[3], double d_rho[3]);
 
-/* The same with the object's own precomputed transfer T_self (bands^2 values, a constant: no
- * gradient flows to it or through it to n) in place of the clamped cosine H_n, and only the
- * spheres that may shadow it (kappa 0 for the object's own): T = exp*(F) * T_self, or T_self
- * itself when sphere_count is 0 (no exponential). self.c calls these for pixels of objects shaded
- * with their transfer, whichever kernel the frame uses. */
+/* The same with the object's own precomputed transfer: B (bands^2 values) is the part of the
+ * clamped cosine its own mesh blocks, interpolated at the pixel (a constant: no gradient flows to
+ * it), so its transfer is T_self = H_n - B; only the spheres that may shadow it count (kappa 0 for
+ * the object's own): T = exp*(F) * T_self, or T_self itself when sphere_count is 0 (no
+ * exponential). self.c calls these for pixels of objects shaded with their transfer, whichever
+ * kernel the frame uses. */
 void pen__shade_self_fwd(const pen__shade_params *p, const float (*sh)[3], int sphere_count,
                          const float *spheres, const float *kappa, const float x[3],
-                         const float n[3], const float *T_self, const float rho[3], float rgb[3],
+                         const float n[3], const float *B, const float rho[3], float rgb[3],
                          float *fv);
 void pen__shade_self_fwd_d(const pen__shade_params *p, const double (*sh)[3], int sphere_count,
                            const double *spheres, const double *kappa, const double x[3],
-                           const double n[3], const double *T_self, const double rho[3],
+                           const double n[3], const double *B, const double rho[3],
                            double rgb[3], double *fv);
 void pen__shade_self_bwd(const pen__shade_params *p, const float (*sh)[3], int sphere_count,
                          const float *spheres, const float *kappa, const float x[3],
-                         const float n[3], const float *T_self, const float rho[3],
+                         const float n[3], const float *B, const float rho[3],
                          const float d_rgb[3], const float *fv, double (*d_sh)[3],
                          double *d_spheres, float d_x[3], float d_n[3], float d_rho[3]);
 void pen__shade_self_bwd_d(const pen__shade_params *p, const double (*sh)[3], int sphere_count,
                            const double *spheres, const double *kappa, const double x[3],
-                           const double n[3], const double *T_self, const double rho[3],
+                           const double n[3], const double *B, const double rho[3],
                            const double d_rgb[3], const double *fv, double (*d_sh)[3],
                            double *d_spheres, double d_x[3], double d_n[3], double d_rho[3]);
 
@@ -256,10 +257,11 @@ typedef struct pen__object_buf {
     int adj_valid, adj_vertices, adj_triangles;
     uint64_t adj_hash;
     /* Self-shadowing by the precomputed transfer (self.c): whether this frame shades the object
-     * with it, whether any other object has spheres, and the per-vertex cache (bands^2 transfer
-     * coefficients and one unblocked disk fraction per light) with the key it was built from. */
+     * with it, whether any other object has spheres, and the per-vertex cache (bands^2
+     * coefficients of the blocked part of the clamped cosine and one unblocked disk fraction per
+     * light) with the key it was built from. */
     int self_on, self_others;
-    pen__buf_float self_T, self_frac;
+    pen__buf_float self_B, self_frac;
     int self_valid;
     uint64_t self_key;
 } pen__object_buf;

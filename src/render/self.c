@@ -1,8 +1,10 @@
 /* Self-shadowing of rigid meshes by a precomputed transfer (docs/design.md sec. 1.15): a pixel of
- * such an object shades with T = exp*(F_others) * T_self, T_self the exact visibility of the
- * object's own mesh times the clamped cosine, projected per vertex by ray tracing
- * (src/geometry/transfer.c) and interpolated at the pixel, and F_others the log-visibility of
- * the other objects' spheres (the same weights as the kernels). Disk lights on it see the
+ * such an object shades with T = exp*(F_others) * T_self, T_self = H_n - B the exact visibility
+ * of the object's own mesh times the clamped cosine: H_n at the pixel's normal as everywhere, B
+ * the part the mesh blocks, projected per vertex by ray tracing (src/geometry/transfer.c) and
+ * interpolated at the pixel (so a vertex that sees everything shades exactly as without
+ * self-shadowing), and F_others the log-visibility of the other objects' spheres (the same
+ * weights as the kernels). Disk lights on it see the
  * mesh's own unblocked fraction of each disk, per vertex, times the other spheres' factor.
  *
  * Design
@@ -12,9 +14,9 @@
  *   optimisation renders the same pose every frame and pays the ray tracing once; a pose change
  *   recomputes it (the transfer is in world space: no SH rotation per frame).
  * - Constants. Ray-traced visibility is piecewise constant in the pose, the shape and the light
- *   directions, so the transfer and the fractions carry no gradient; what stays differentiable
- *   on the object is linear in the lighting, the lights' irradiance and the albedo (exact), and
- *   the other objects' spheres, the normals' share through their weights and the horizon term.
+ *   directions, so B and the fractions carry no gradient; what stays differentiable on the object
+ *   is linear in the lighting, the lights' irradiance and the albedo (exact), and the other
+ *   objects' spheres, the normal through H_n, the spheres' weights and the horizon term.
  *   Optimisers of pose, shape, spheres or light directions force the sphere model
  *   (pen_render_options.self_shadow).
  * - One code path. Transfer pixels go through the scalar kernel's functions whichever kernel
@@ -55,7 +57,7 @@ static pen_status self_cache(pen_context *ctx, const pen_scene *sc, pen_render_s
     const size_t V = (size_t)m->vertex_count, nc = (size_t)sc->sh_bands * (size_t)sc->sh_bands;
     const int K = st->lights.count;
     pen_status s;
-    if ((s = PEN__BUF_RESERVE(ctx, b->self_T, nc * V + 1, "self transfer")) ||
+    if ((s = PEN__BUF_RESERVE(ctx, b->self_B, nc * V + 1, "self blocked part")) ||
         (s = PEN__BUF_RESERVE(ctx, b->self_frac, (size_t)K * V + 1, "self light fractions")))
         return s;
     const pen__transfer_request rq = {m->vertex_count,
@@ -68,7 +70,7 @@ static pen_status self_cache(pen_context *ctx, const pen_scene *sc, pen_render_s
                                       (const double(*)[3])st->lights.w,
                                       st->lights.b,
                                       NULL};
-    if ((s = pen__mesh_transfer(ctx, &rq, b->self_T.data, b->self_frac.data))) return s;
+    if ((s = pen__mesh_transfer(ctx, &rq, b->self_B.data, b->self_frac.data))) return s;
     b->self_valid = 1, b->self_key = key;
     return PEN_OK;
 }
@@ -102,9 +104,9 @@ pen_status pen__self_prepare(pen_context *ctx, const pen_scene *sc, const pen_re
     return PEN_OK;
 }
 
-/* The transfer and the light fractions at pixel i of object o, interpolated with the G-buffer's
- * barycentrics as the normal is. */
-static void self_at(const pen_render_state *st, int o, size_t i, float *T, double *frac) {
+/* The blocked part and the light fractions at pixel i of object o, interpolated with the
+ * G-buffer's barycentrics as the normal is. */
+static void self_at(const pen_render_state *st, int o, size_t i, float *B, double *frac) {
     const pen__object_buf *b = &st->obj[o];
     const pen_raster_mesh *m = &st->meshes[o];
     const uint32_t *idx = m->indices + 3 * (size_t)st->gb.triangle[i];
@@ -114,8 +116,8 @@ static void self_at(const pen_render_state *st, int o, size_t i, float *T, doubl
     for (int k = 0; k < nc; ++k) {
         double t = 0.0;
         for (int c = 0; c < 3; ++c)
-            t += w[c] * (double)b->self_T.data[(size_t)nc * idx[c] + (size_t)k];
-        T[k] = (float)t;
+            t += w[c] * (double)b->self_B.data[(size_t)nc * idx[c] + (size_t)k];
+        B[k] = (float)t;
     }
     for (int l = 0; l < K; ++l) {
         double f = 0.0;
@@ -132,11 +134,11 @@ static void self_G(const pen_render_state *st, const double *G, const double *fr
 }
 
 /* What both passes need at pixel i: its object's kappa_self, the number of spheres to visit for
- * the SH part, the interpolated transfer and the lights' factors Gs = G frac. */
+ * the SH part, the interpolated blocked part and the lights' factors Gs = G frac. */
 typedef struct self_pixel {
     const float *kap, *x, *n, *rho;
     int count;
-    float T[PEN_SH_MAX_COEFFS];
+    float B[PEN_SH_MAX_COEFFS];
     double frac[PEN_SCENE_MAX_LIGHTS], Gs[PEN_SCENE_MAX_LIGHTS];
 } self_pixel;
 
@@ -145,7 +147,7 @@ static void self_pixel_at(const pen_render_state *st, const double *G, size_t i,
     px->kap = st->kappa_self.data + (size_t)o * (size_t)S;
     px->count = st->obj[o].self_others ? S : 0;
     px->x = st->x.data + 3 * i, px->n = st->n.data + 3 * i, px->rho = st->rho.data + 3 * i;
-    self_at(st, o, i, px->T, px->frac);
+    self_at(st, o, i, px->B, px->frac);
     self_G(st, G, px->frac, px->Gs);
 }
 
@@ -154,7 +156,7 @@ void pen__self_shade_fwd(pen_render_state *st, const float (*sh)[3], const doubl
     self_pixel px;
     self_pixel_at(st, G, i, &px);
     float *rgb = st->color.data + 3 * i;
-    pen__shade_self_fwd(&st->params, sh, px.count, st->spheres.data, px.kap, px.x, px.n, px.T,
+    pen__shade_self_fwd(&st->params, sh, px.count, st->spheres.data, px.kap, px.x, px.n, px.B,
                         px.rho, rgb, fv);
     if (st->lights.count)
         pen__lights_fwd(&st->lights, px.Gs, ncull, st->spheres.data, px.kap, cull, px.x, px.n,
@@ -167,7 +169,7 @@ void pen__self_shade_bwd(const pen_render_state *st, const float (*sh)[3], const
                          float *d_rho, double *d_lights, double *d_G) {
     self_pixel px;
     self_pixel_at(st, G, i, &px);
-    pen__shade_self_bwd(&st->params, sh, px.count, st->spheres.data, px.kap, px.x, px.n, px.T,
+    pen__shade_self_bwd(&st->params, sh, px.count, st->spheres.data, px.kap, px.x, px.n, px.B,
                         px.rho, dc, fv, d_sh, d_sph, d_x, d_n, d_rho);
     const int K = st->lights.count;
     if (!K) return;
