@@ -202,11 +202,13 @@ static void shade_tile_bwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
             const int geom = bw->geom;
             const int need_rho = bw->albedo || (geom && sc->objects[surf].texture.data != NULL);
             float d_n[3] = {0.0f, 0.0f, 0.0f};
-            pen__self_shade_bwd(st, sh, G, ncull, ws->cull, i, dc,
+            /* the scene's own lighting: the traced ground replaces the object's `seen` */
+            pen__self_shade_bwd(st, (const float(*)[3])sc->lighting.sh, ncull, ws->cull, i, dc,
                                 !st->fast && job->store ? job->store + nfv * i : NULL,
-                                lights_V(st, i), d_sh, d_sph, geom ? st->d_x.data + 3 * i : NULL,
-                                geom ? d_n : NULL, need_rho ? st->d_rho.data + 3 * i : NULL,
-                                d_lights, d_G);
+                                lights_V(st, i),
+                                bw->light ? (double(*)[3])(row + bw->rl.sh) : NULL, d_sph,
+                                geom ? st->d_x.data + 3 * i : NULL, geom ? d_n : NULL,
+                                need_rho ? st->d_rho.data + 3 * i : NULL, d_lights);
             pixel_bwd_tail(sc, st, bw, row, i, surf, d_n);
         }
         if (!st->fast) {

@@ -213,7 +213,8 @@ static void shade_tile_fwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
                 float *fv = !st->fast && job->store ? job->store + nfv * i : NULL;
                 float *V = st->lights_V_valid ? st->lights_V.data + (size_t)st->lights.count * i
                                               : NULL;
-                pen__self_shade_fwd(st, sh, group_horizon(st, g), ncull, ws->cull, i, fv, V);
+                pen__self_shade_fwd(st, (const float(*)[3])sc->lighting.sh, ncull, ws->cull, i, fv,
+                                    V);
                 continue;
             }
             pen__tile_ws_push(ws, nk++, st, i);

@@ -336,17 +336,17 @@ pen_status pen__self_prepare(pen_context *ctx, const pen_scene *sc, const pen_re
  * needs self_on and the normal facing the side the transfer was traced for (nsign > 0). */
 static inline int pen__self_object(const pen_render_state *st, size_t i);
 /* Shades pixel i of object o (pen__self_object) into st->color: the SH part with the transfer and
- * the other objects' spheres, then the disk lights (G: the object's horizon factors or NULL).
- * fv: the scalar store's F and V for the pixel, or NULL. V: the lights' visibilities to keep, or
- * NULL. */
-void pen__self_shade_fwd(pen_render_state *st, const float (*sh)[3], const double *G, int ncull,
-                         const int *cull, size_t i, float *fv, float *V);
-/* Its backward, the arguments as pen__shade_bwd and pen__lights_bwd (d_G: the object's horizon
- * factors' gradient, or NULL). */
-void pen__self_shade_bwd(const pen_render_state *st, const float (*sh)[3], const double *G,
-                         int ncull, const int *cull, size_t i, const float *dc, const float *fv,
+ * the other objects' spheres, then the disk lights with the mesh's own unblocked fractions in
+ * place of the horizon factors. sh: the scene's lighting (not the object's `seen`: with a ground
+ * that occludes, the transfer traces the ground). fv: the scalar store's F and V for the pixel, or
+ * NULL. V: the lights' visibilities to keep, or NULL. */
+void pen__self_shade_fwd(pen_render_state *st, const float (*sh)[3], int ncull, const int *cull,
+                         size_t i, float *fv, float *V);
+/* Its backward, the arguments as pen__shade_bwd and pen__lights_bwd. */
+void pen__self_shade_bwd(const pen_render_state *st, const float (*sh)[3], int ncull,
+                         const int *cull, size_t i, const float *dc, const float *fv,
                          const float *V, double (*d_sh)[3], double *d_sph, float *d_x, float *d_n,
-                         float *d_rho, double *d_lights, double *d_G);
+                         float *d_rho, double *d_lights);
 
 /* ---- tiles.c ---- */
 

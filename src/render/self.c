@@ -23,8 +23,12 @@
  *   the frame uses (both kernels then agree on them exactly); the other objects' spheres enter
  *   with the per-object overlap weights kappa_self (0 on the object's own spheres, which adds
  *   nothing and skips them), so sphere indices and their gradients keep the frame's layout.
- * - The ground. The cache traces the object's mesh only: the ground's occlusion of the object
- *   stays the lighting restriction of ground.c (measured in docs/visibility.md sec. 8).
+ * - The ground. With a ground that occludes (ground.c) the cache traces the ground square too, and
+ *   the object's transfer pixels shade with the scene's whole lighting and no horizon factors:
+ *   the traced ground replaces ground.c's restriction of the lighting to one horizon per object,
+ *   which darkened flat parts close to the ground (measured in docs/visibility.md sec. 8). The
+ *   key then holds the ground's height and size; the transfer is in world space, so it already
+ *   follows every pose change.
  * - Back faces. The transfer is traced for the side the vertex normal points to; a pixel seeing
  *   a triangle from its other side (open meshes) shades with the spheres as before.
  */
@@ -44,6 +48,10 @@ static uint64_t self_key(const pen_scene *sc, const pen_render_state *st, int o)
     for (int l = 0; l < L->count; ++l) {
         const double wb[4] = {L->w[l][0], L->w[l][1], L->w[l][2], L->b[l]};
         h = (h ^ pen__render_hash32(wb, sizeof wb / 4)) * 0x9E3779B97F4A7C15ull;
+    }
+    if (st->ground_occludes) { /* the ground is traced too */
+        const float g[3] = {1.0f, sc->ground.height, sc->ground.half_size};
+        h = (h ^ pen__render_hash32(g, 3)) * 0x9E3779B97F4A7C15ull;
     }
     return h;
 }
@@ -69,7 +77,7 @@ static pen_status self_cache(pen_context *ctx, const pen_scene *sc, pen_render_s
                                       K,
                                       (const double(*)[3])st->lights.w,
                                       st->lights.b,
-                                      NULL};
+                                      st->ground_occludes ? &sc->ground : NULL};
     if ((s = pen__mesh_transfer(ctx, &rq, b->self_B.data, b->self_frac.data))) return s;
     b->self_valid = 1, b->self_key = key;
     return PEN_OK;
@@ -127,56 +135,44 @@ static void self_at(const pen_render_state *st, int o, size_t i, float *B, doubl
     }
 }
 
-/* The lights' horizon factors times the mesh's own unblocked fractions. */
-static void self_G(const pen_render_state *st, const double *G, const double *frac, double *Gs) {
-    for (int l = 0; l < st->lights.count; ++l)
-        Gs[l] = (G ? G[l] : 1.0) * frac[l];
-}
-
 /* What both passes need at pixel i: its object's kappa_self, the number of spheres to visit for
- * the SH part, the interpolated blocked part and the lights' factors Gs = G frac. */
+ * the SH part, the interpolated blocked part and the light fractions (the lights' factors G). */
 typedef struct self_pixel {
     const float *kap, *x, *n, *rho;
     int count;
     float B[PEN_SH_MAX_COEFFS];
-    double frac[PEN_SCENE_MAX_LIGHTS], Gs[PEN_SCENE_MAX_LIGHTS];
+    double frac[PEN_SCENE_MAX_LIGHTS];
 } self_pixel;
 
-static void self_pixel_at(const pen_render_state *st, const double *G, size_t i, self_pixel *px) {
+static void self_pixel_at(const pen_render_state *st, size_t i, self_pixel *px) {
     const int o = st->gb.surface[i], S = st->sphere_count;
     px->kap = st->kappa_self.data + (size_t)o * (size_t)S;
     px->count = st->obj[o].self_others ? S : 0;
     px->x = st->x.data + 3 * i, px->n = st->n.data + 3 * i, px->rho = st->rho.data + 3 * i;
     self_at(st, o, i, px->B, px->frac);
-    self_G(st, G, px->frac, px->Gs);
 }
 
-void pen__self_shade_fwd(pen_render_state *st, const float (*sh)[3], const double *G, int ncull,
-                         const int *cull, size_t i, float *fv, float *V) {
+void pen__self_shade_fwd(pen_render_state *st, const float (*sh)[3], int ncull, const int *cull,
+                         size_t i, float *fv, float *V) {
     self_pixel px;
-    self_pixel_at(st, G, i, &px);
+    self_pixel_at(st, i, &px);
     float *rgb = st->color.data + 3 * i;
     pen__shade_self_fwd(&st->params, sh, px.count, st->spheres.data, px.kap, px.x, px.n, px.B,
                         px.rho, rgb, fv);
     if (st->lights.count)
-        pen__lights_fwd(&st->lights, px.Gs, ncull, st->spheres.data, px.kap, cull, px.x, px.n,
+        pen__lights_fwd(&st->lights, px.frac, ncull, st->spheres.data, px.kap, cull, px.x, px.n,
                         px.rho, rgb, V);
 }
 
-void pen__self_shade_bwd(const pen_render_state *st, const float (*sh)[3], const double *G,
-                         int ncull, const int *cull, size_t i, const float *dc, const float *fv,
+void pen__self_shade_bwd(const pen_render_state *st, const float (*sh)[3], int ncull,
+                         const int *cull, size_t i, const float *dc, const float *fv,
                          const float *V, double (*d_sh)[3], double *d_sph, float *d_x, float *d_n,
-                         float *d_rho, double *d_lights, double *d_G) {
+                         float *d_rho, double *d_lights) {
     self_pixel px;
-    self_pixel_at(st, G, i, &px);
+    self_pixel_at(st, i, &px);
     pen__shade_self_bwd(&st->params, sh, px.count, st->spheres.data, px.kap, px.x, px.n, px.B,
                         px.rho, dc, fv, d_sh, d_sph, d_x, d_n, d_rho);
-    const int K = st->lights.count;
-    if (!K) return;
-    double dGs[PEN_SCENE_MAX_LIGHTS] = {0};
-    pen__lights_bwd(&st->lights, px.Gs, ncull, st->spheres.data, px.kap, cull, px.x, px.n, px.rho,
-                    dc, V, d_sph, d_x, d_n, d_rho, d_lights, d_G ? dGs : NULL);
-    if (d_G) /* Gs = G frac, the fraction a constant */
-        for (int l = 0; l < K; ++l)
-            d_G[l] += dGs[l] * px.frac[l];
+    if (st->lights.count) /* the fractions enter as the lights' G, constants */
+        pen__lights_bwd(&st->lights, px.frac, ncull, st->spheres.data, px.kap, cull, px.x, px.n,
+                        px.rho, dc, V, d_sph, d_x, d_n, d_rho, d_lights, NULL);
 }
