@@ -18,6 +18,9 @@
  *   Antialiasing blends colours across silhouettes last.
  * - Disk lights (lights.c) are added per pixel after the kernel's SH shading, by the same
  *   scalar function whichever kernel ran (no SIMD version yet: bench/NOTES.md).
+ * - Objects shaded with their own precomputed transfer (self.c, docs/design.md sec. 1.15): their
+ *   pixels leave each run before the kernel and are shaded, SH and lights, by self.c's scalar
+ *   path whichever kernel the frame uses; the runs and the fast store's layout stay as grouped.
  * - What the backward needs stays in the state (state.c): the per-pixel attributes, the groups,
  *   and the kernel's store (F, or F and V, per pixel), kept only when the caller passed a state
  *   and shadows are on.

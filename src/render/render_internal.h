@@ -177,8 +177,9 @@ int pen__shade_fast_use(int v);
 const pen__shade_fast_ops *pen__shade_fast_current(void);
 
 /* ---- Frame: what the files of the full frame share --------------------------------------------
- * Who calls whom: forward.c calls state.c, tiles.c, background.c, ground.c and lights.c;
- * backward.c calls state.c, tiles.c, ground.c and lights.c; background.c calls tiles.c and
+ * Who calls whom: forward.c calls state.c, tiles.c, background.c, ground.c, lights.c and self.c;
+ * backward.c calls state.c, tiles.c, ground.c, lights.c and self.c; self.c calls state.c, lights.c
+ * and the scalar kernel (and src/geometry's transfer); background.c calls tiles.c and
  * state.c; tiles.c calls state.c (pen__buf_grow, behind PEN__BUF_RESERVE, is state.c's) and
  * lights.c (the tile's sphere cull); ground.c calls lights.c (the disks' horizon factors);
  * state.c and lights.c call no other file of the frame. */

@@ -11,11 +11,12 @@
  * - Every buffer is a PEN__BUF (render_internal.h), sized by the pass that needs it and grown,
  *   never shrunk, so that an optimiser's frames after the first allocate nothing. Growing drops
  *   the contents: the passes rewrite what they reserve.
- * - Three caches outlive a frame, each with the key it was built from, because an optimiser
+ * - Four caches outlive a frame, each with the key it was built from, because an optimiser
  *   renders the same topology, sphere set and background again and again: the antialiasing
  *   adjacency per object (keyed by the topology: vertex and triangle counts, a hash of the
  *   indices), the overlap weights computed from sphere sets that came without them (keyed by the
- *   object-space spheres themselves), and the environment-map background (background.c).
+ *   object-space spheres themselves), the environment-map background (background.c), and each
+ *   object's precomputed self transfer (self.c, keyed by the posed vertices, bands and lights).
  */
 #include "core/internal.h"
 #include "render/render_internal.h"
