@@ -2,10 +2,14 @@
  *
  * Every case is the bundled scene examples/scenes/spot_city.json (or --scene) with its image size,
  * SH band count and sphere count changed: the headline case (512 x 512, 32 spheres, 4 bands) and
- * one sweep per parameter through it (resolution 256 / 1024, spheres 8 / 128, bands 3 / 5 / 6).
+ * one sweep per parameter through it (resolution 256 / 1024, spheres 8 / 128, bands 3 / 5 / 6),
+ * disk lights (1, 3), and "transfer": the headline with the objects' own shadows from their
+ * precomputed transfer (docs/design.md sec. 1.15), stepping only the lighting and albedo as a
+ * lighting or texture optimisation does. The other cases shade the objects' own shadows with their
+ * spheres (PEN_RENDER_SELF_SPHERES), the model a pose and sphere step needs.
  * A case times what one optimisation step costs: forward render, L2 loss against a fixed target
  * (the render of a slightly perturbed scene), backward into lighting, albedo texture, spheres
- * and pose; the spheres are fitted (or read from the fit cache) when the case is set up, before
+ * and pose (the transfer case: lighting and albedo); the spheres are fitted (or read from the fit cache) when the case is set up, before
  * any iteration; then warm-up iterations (first-touch page faults, the Gaunt tables), then
  * --repeat timed iterations whose medians are reported, with the renderer's own per-stage times
  * (pen_render_state_timings) as medians per field.
@@ -89,7 +93,8 @@ static void usage(FILE *f) {
 typedef struct bench_case {
     char name[32];
     int width, height, spheres, bands;
-    int lights; /* disk lights added to the scene's own (bench_lights) */
+    int lights;   /* disk lights added to the scene's own (bench_lights) */
+    int transfer; /* the objects' own shadows from their transfer (else their spheres) */
 } bench_case;
 
 typedef struct bench_config {
@@ -110,6 +115,7 @@ static void add_case(bench_case *cases, int *count, const char *prefix, int valu
     c->spheres = spheres;
     c->bands = bands;
     c->lights = 0;
+    c->transfer = 0;
 }
 
 /* The headline first, then each sweep without repeating the headline point. */
@@ -128,6 +134,9 @@ static int make_cases(int quick, bench_case *cases) {
         add_case(cases, &n, "lights", k, size, spheres, bands);
         cases[n - 1].lights = k;
     }
+    add_case(cases, &n, NULL, 0, size, spheres, bands);
+    snprintf(cases[n - 1].name, sizeof cases[n - 1].name, "transfer");
+    cases[n - 1].transfer = 1;
     return n;
 }
 
@@ -192,6 +201,7 @@ typedef struct bench_result {
     int threads;
     double load;
     double forward_ms, backward_ms, total_ms, loss;
+    double first_forward_ms; /* the first warm-up forward, fresh state: the transfer's ray tracing */
     double forward_min_ms, backward_min_ms, total_min_ms; /* least affected by a shared machine */
     double stages[STAGE_COUNT];
     /* Reference comparison; NaN / 0 when skipped or not reached. */
@@ -282,12 +292,21 @@ static pen_status render_target(pen_context *ctx, pen_scene *sc, const pen_rende
     return s;
 }
 
+/* The case's render options: the objects' own shadows from their transfer or their spheres. */
+static pen_render_options case_options(const bench_case *c) {
+    pen_render_options opt = pen_render_options_default();
+    opt.self_shadow = c->transfer ? PEN_RENDER_SELF_SCENE : PEN_RENDER_SELF_SPHERES;
+    return opt;
+}
+
 /* The timed loop: warm-up, then cfg->repeat iterations; medians into r. `image` keeps the last
  * forward (of the unperturbed scene) for the reference comparison. */
-static pen_status time_steps(pen_context *ctx, const bench_config *cfg, const pen_scene *sc,
-                             const pen_image *target, pen_image *image, bench_result *r) {
-    const unsigned wrt = sc->lighting.light_count > 0 ? BENCH_WRT_LIGHTS : BENCH_WRT;
-    const pen_render_options opt = pen_render_options_default();
+static pen_status time_steps(pen_context *ctx, const bench_config *cfg, const bench_case *c,
+                             const pen_scene *sc, const pen_image *target, pen_image *image,
+                             bench_result *r) {
+    unsigned wrt = sc->lighting.light_count > 0 ? BENCH_WRT_LIGHTS : BENCH_WRT;
+    if (c->transfer) wrt = PEN_GRAD_LIGHTING | PEN_GRAD_ALBEDO;
+    const pen_render_options opt = case_options(c);
     const int n = cfg->repeat, per = 3 + STAGE_COUNT; /* forward, backward, total, stages */
     double *samples = calloc((size_t)n * (size_t)per + (size_t)n, sizeof(double));
     pen_render_state *st = NULL;
@@ -310,6 +329,7 @@ static pen_status time_steps(pen_context *ctx, const bench_config *cfg, const pe
         const double t2 = omp_get_wtime();
         if ((s = pen_render_bwd(ctx, sc, &opt, st, &d_image, wrt, &grad))) goto done;
         const double t3 = omp_get_wtime();
+        if (it == 0) r->first_forward_ms = 1e3 * (t1 - t0);
         if (it < cfg->warmup) continue;
         double *row = samples + (size_t)(it - cfg->warmup) * (size_t)per;
         row[0] = 1e3 * (t1 - t0);
@@ -427,11 +447,11 @@ static pen_status run_case(pen_context *ctx, const bench_config *cfg, const benc
     r->load = load_average();
     pen_scene sc;
     if (pen_scene_load(ctx, cfg->scene_path, &sc)) return pen_context_status(ctx);
-    const pen_render_options opt = pen_render_options_default();
+    const pen_render_options opt = case_options(c);
     pen_image target = {0, 0, 0, NULL}, image = target;
     pen_status s;
     if (!(s = configure(ctx, &sc, c)) && !(s = render_target(ctx, &sc, &opt, &target)) &&
-        !(s = time_steps(ctx, cfg, &sc, &target, &image, r)) && cfg->reference && !c->lights)
+        !(s = time_steps(ctx, cfg, c, &sc, &target, &image, r)) && cfg->reference && !c->lights)
         s = compare_reference(ctx, cfg, cache, &sc, &image, r);
     pen_image_free(&image);
     pen_image_free(&target);
@@ -456,12 +476,14 @@ static double ratio(double num, double den) {
 
 static void print_json(const bench_config *cfg, const bench_case *c, const bench_result *r) {
     printf("{\"name\": \"%s\", \"width\": %d, \"height\": %d, \"spheres\": %d, \"bands\": %d, "
-           "\"lights\": %d, \"threads\": %d, \"repeat\": %d, \"quick\": %s",
-           c->name, c->width, c->height, c->spheres, c->bands, c->lights, r->threads, cfg->repeat,
+           "\"lights\": %d, \"self\": \"%s\", \"threads\": %d, \"repeat\": %d, \"quick\": %s",
+           c->name, c->width, c->height, c->spheres, c->bands, c->lights,
+           c->transfer ? "transfer" : "spheres", r->threads, cfg->repeat,
            cfg->quick ? "true" : "false");
     json_num("forward_ms", r->forward_ms, "%.3f");
     json_num("backward_ms", r->backward_ms, "%.3f");
     json_num("total_ms", r->total_ms, "%.3f");
+    json_num("first_forward_ms", r->first_forward_ms, "%.3f");
     json_num("forward_min_ms", r->forward_min_ms, "%.3f");
     json_num("backward_min_ms", r->backward_min_ms, "%.3f");
     json_num("total_min_ms", r->total_min_ms, "%.3f");
@@ -510,6 +532,8 @@ static void print_table_row(const bench_case *c, const bench_result *r) {
     cell(ratio(r->reference_ms, r->total_ms), 7, 3);
     cell(r->load, 5, 2);
     printf("\n");
+    if (c->transfer) /* the cache's one-time ray tracing is in the first forward */
+        printf("%-11s (first forward, the transfer ray traced: %.1f ms)\n", "", r->first_forward_ms);
     fflush(stdout);
 }
 

@@ -1,7 +1,7 @@
 """Accuracy of `penumbra render` against the full-map truth, with and without disk lights (issue 18).
 
 Usage: python3 scripts/lights_table.py PENUMBRA_BIN OUTDIR [--size S] [--spp N] [--meshes a,b]
-                                      [--maps a,b] [--suffix S]
+                                      [--maps a,b] [--suffix S] [--self MODE]
 
 For every mesh x map cell it measures rel. RMSE against `penumbra reference --lighting envmap`
 (the full environment map, importance-sampled, with exact visibility against the real mesh and
@@ -16,7 +16,8 @@ from a second reference at N/4 spp (seed 2): noise = err(second vs truth) / sqrt
 Scenes, poses, cameras and map scales are those of scripts/visibility_table.py (whose functions
 this script uses); 32 fitted spheres ("spheres": {"fit": 32}, cached). Existing images are reused;
 --suffix S names the renders (not the truths) so that a second binary is compared with the same
-truths. Writes OUTDIR/scenes, OUTDIR/img, OUTDIR/lights<S>.tsv and a markdown table on stdout.
+truths; --self MODE writes "shadow": {"self": MODE} into every scene (visibility_table.py's
+--self). Writes OUTDIR/scenes, OUTDIR/img, OUTDIR/lights<S>.tsv and a markdown table on stdout.
 """
 import json
 import os
@@ -35,9 +36,10 @@ def main():
         sys.exit(__doc__)
     bin_, out = os.path.abspath(args[0]), os.path.abspath(args[1])
     opts = {"--size": "128", "--spp": "4096", "--meshes": ",".join(MESHES),
-            "--maps": ",".join(MAPS), "--suffix": ""}
+            "--maps": ",".join(MAPS), "--suffix": "", "--self": ""}
     for i in range(2, len(args) - 1, 2):
         opts[args[i]] = args[i + 1]
+    vt.SELF = opts["--self"] or None
     size, spp, suffix = int(opts["--size"]), int(opts["--spp"]), opts["--suffix"]
     for d in ("scenes", "img"):
         os.makedirs(os.path.join(out, d), exist_ok=True)

@@ -3,7 +3,7 @@
 
 Usage: python3 scripts/visibility_table.py PENUMBRA_BIN OUTDIR [--size S] [--spp N]
                                           [--meshes a,b] [--maps a,b] [--no-proxy] [--suffix S]
-                                          [--plain]
+                                          [--plain] [--self MODE] [--quick]
 
 For every mesh x map cell (data/meshes x data/envmaps/*.exr) it renders the scene with
 `penumbra render` and measures rel. RMSE against `penumbra reference --lighting sh` (exact
@@ -24,6 +24,11 @@ Per cell:
             an exact proxy, and what is left of render's error is the SH visibility model's
 Spheres are fitted once per mesh and count with `penumbra fit-spheres -n N` (default settings,
 the same as "spheres": {"fit": N}) into OUTDIR/spheres and used as files.
+
+--self MODE writes "shadow": {"self": MODE} into every scene (transfer: the object's own mesh
+ray traced per vertex, the default; spheres: its own spheres, the renderer before the transfer),
+so that one binary measures both with --suffix. --quick renders only the default, --no-shadows and
+ground receiver (no other switches, no other sphere counts).
 
 --plain gives every object the constant albedo 0.7 instead of its texture (Spot's, and Bob's from
 its material): the rasterizer samples a texture once per pixel, the reference box-filters it,
@@ -63,6 +68,7 @@ MESHES = ["spot_triangulated", "bob_tri", "blub", "scorpion", "koala", "goathead
 MAPS = ["city", "night", "courtyard", "interior", "forest", "sunset"]
 COUNTS = [16, 32, 64, 128]
 SIZE_TARGET = 1.7
+SELF = None  # --self: the scenes' shadow.self, or None for the renderer's default
 BINS = [0.05, 0.2, 0.4]  # upper edges of the truth's blocked-fraction bins; the last is open
 
 
@@ -239,6 +245,8 @@ def scene_json(path, size, mesh_path, spheres, pose, cam, env, scale, shadow=Non
           "lighting": {"envmap": os.path.join(DATA, "envmaps", env + ".exr"), "scale": scale,
                        "rotation_y_deg": 0},
           "sh_bands": 4, "objects": [obj], "background": background}
+    if SELF:
+        shadow = dict(shadow or {}, self=SELF)
     if shadow:
         sc["shadow"] = shadow
     if ground:
@@ -337,13 +345,18 @@ def main():
     bin_, out = os.path.abspath(args[0]), os.path.abspath(args[1])
     opts = {"--size": "160", "--spp": "1024", "--meshes": ",".join(MESHES),
             "--maps": ",".join(MAPS), "--suffix": ""}
-    proxy, plain = True, False
+    global SELF
+    proxy, plain, quick = True, False, False
     i = 2
     while i < len(args):
-        if args[i] in ("--no-proxy", "--plain"):
+        if args[i] in ("--no-proxy", "--plain", "--quick"):
             proxy = proxy and args[i] != "--no-proxy"
             plain = plain or args[i] == "--plain"
+            quick = quick or args[i] == "--quick"
             i += 1
+        elif args[i] == "--self":
+            SELF = args[i + 1]
+            i += 2
         else:
             opts[args[i]] = args[i + 1]
             i += 2
@@ -414,10 +427,12 @@ def main():
             for tag, shadow in (("overlap_none", {"overlap": "none"}),
                                 ("ground_receiver", {"ground": "receiver"}),
                                 ("exp_exact", {"exp": "exact"})):
+                if quick and tag != "ground_receiver":
+                    continue
                 row(mesh, env, tag, compare(bin_, render(sc(tag, shadow=shadow), cell + "_" + tag),
                                             truth, objcov))
             for n in COUNTS:
-                if n != 32:
+                if n != 32 and not quick:
                     row(mesh, env, "spheres%d" % n,
                         compare(bin_, render(sc("n%d" % n, spheres=sph[n]),
                                              cell + "_render%d" % n), truth, objcov))
@@ -481,7 +496,10 @@ def report(rows, analysis, meshes, maps, scales, spp, size, proxy, suffix):
     for m in meshes:
         cells = []
         for k in kinds:
-            xs = [v[(m, e, k)] for e in maps]
+            xs = [v[(m, e, k)] for e in maps if (m, e, k) in v]
+            if not xs:
+                cells.append("-")
+                continue
             cells.append("%.3f (%.3f)" % tuple(math.sqrt(sum(x[j] ** 2 for x in xs) / len(xs))
                                                for j in (1, 0)))
         print("| %s | " % m + " | ".join(cells) + " |")

@@ -32,7 +32,8 @@ need = ["name", "width", "height", "spheres", "bands", "threads", "forward_ms", 
         "fwd_antialias_ms", "bwd_antialias_ms", "bwd_shade_ms", "bwd_visibility_ms", "bwd_exp_ms",
         "bwd_scatter_ms", "sh_rel_rmse", "truth_spp", "reference_spp", "reference_ms",
         "reference_vs_forward", "reference_vs_total", "repeat", "load_avg_1min", "forward_min_ms",
-        "backward_min_ms", "total_min_ms", "reference_rel_rmse", "quick", "loss"]
+        "backward_min_ms", "total_min_ms", "reference_rel_rmse", "quick", "loss",
+        "first_forward_ms", "self"]
 bad = []
 names = []
 lines = open(path).read().splitlines()
@@ -102,7 +103,7 @@ fi
 
 # The whole quick suite: every case, the headline among them, all cores. Under the sanitizers
 # (PEN_TEST_QUICK=1) two cases only: the sphere fits and the reference are slow there.
-all="headline res32 res128 spheres8 spheres128 bands3 bands5 bands6 lights1 lights3"
+all="headline res32 res128 spheres8 spheres128 bands3 bands5 bands6 lights1 lights3 transfer"
 only=""
 if [ "${PEN_TEST_QUICK:-0}" = 1 ]; then
     all="headline bands3"

@@ -226,6 +226,17 @@ static inline int rs_all_finite(const float *v, size_t n) {
     return 1;
 }
 
+/* Relative RMS error of image a against b (3 channels, the same size). */
+static inline double rs_rel_error(const pen_image *a, const pen_image *b) {
+    double e = 0.0, r = 0.0;
+    for (size_t i = 0; i < 3 * (size_t)a->width * (size_t)a->height; ++i) {
+        const double d = (double)a->data[i] - (double)b->data[i];
+        e += d * d;
+        r += (double)b->data[i] * (double)b->data[i];
+    }
+    return sqrt(e / r);
+}
+
 /* Renders with a fresh context; returns the status and fills *img (allocated). */
 static inline pen_status rs_render(const pen_scene *sc, const pen_render_options *opt, int threads,
                                    pen_image *img) {

@@ -71,7 +71,10 @@ static void test_flat_matches_render(void) {
     CHECK(pen_render_state_create(ctx, &fst) == PEN_OK);
     pen_image img = {0, 0, 0, NULL};
     float *fimg = calloc(np, sizeof(float)), *d_img = malloc(np * sizeof(float));
-    CHECK(pen_render_fwd(ctx, &sc, NULL, st, &img) == PEN_OK);
+    /* The flat API shades the objects' own shadows with their spheres (flat.h). */
+    pen_render_options opt = pen_render_options_default();
+    opt.self_shadow = PEN_RENDER_SELF_SPHERES;
+    CHECK(pen_render_fwd(ctx, &sc, &opt, st, &img) == PEN_OK);
     CHECK(pen_flat_render_fwd(ctx, &f, fst, fimg) == PEN_OK);
     CHECK(same_floats(img.data, fimg, np));
     for (size_t i = 0; i < np; ++i)
@@ -80,7 +83,7 @@ static void test_flat_matches_render(void) {
     pen_render_grad g;
     CHECK(pen_render_grad_create(ctx, &sc, &g) == PEN_OK);
     const pen_image d = {24, 24, 3, d_img};
-    CHECK(pen_render_bwd(ctx, &sc, NULL, st, &d, PEN_GRAD_ALL, &g) == PEN_OK);
+    CHECK(pen_render_bwd(ctx, &sc, &opt, st, &d, PEN_GRAD_ALL, &g) == PEN_OK);
 
     const int V = ob->mesh.vertex_count, nt = 3 * ob->texture.width * ob->texture.height;
     float d_sh[3 * 16] = {0}, d_ground[3] = {0}, d_albedo[3] = {0}, d_spheres[8] = {0},
@@ -152,7 +155,8 @@ static const char CUBE_OBJ[] = "v -0.3 0 -0.3\nv 0.3 0 -0.3\nv 0.3 0.6 -0.3\nv -
                                "v -0.3 0 0.3\nv 0.3 0 0.3\nv 0.3 0.6 0.3\nv -0.3 0.6 0.3\n"
                                "f 1 4 3 2\nf 5 6 7 8\nf 1 2 6 5\nf 4 8 7 3\nf 1 5 8 4\nf 2 3 7 6\n";
 
-/* A scene JSON loaded through the flat API renders as pen_scene_load + pen_render_fwd does; a
+/* A scene JSON loaded through the flat API renders as pen_scene_load + pen_render_fwd does (with
+ * the objects' own shadows from their spheres, as the flat API always shades them); a
  * {"fit": N} request is left empty or fitted as asked. */
 static void test_flat_scene_load(void) {
     check_private_cache_(); /* the fit cache below goes to a folder of this test */
@@ -185,7 +189,9 @@ static void test_flat_scene_load(void) {
     pen_scene sc;
     CHECK(pen_scene_load(ctx, path, &sc) == PEN_OK);
     pen_image img = {0, 0, 0, NULL};
-    CHECK(pen_render_fwd(ctx, &sc, NULL, NULL, &img) == PEN_OK);
+    pen_render_options opt = pen_render_options_default();
+    opt.self_shadow = PEN_RENDER_SELF_SPHERES; /* as the flat API shades (flat.h) */
+    CHECK(pen_render_fwd(ctx, &sc, &opt, NULL, &img) == PEN_OK);
     float fimg[3 * 20 * 16];
     CHECK(pen_flat_render_fwd(ctx, f, NULL, fimg) == PEN_OK);
     CHECK(img.data && same_floats(img.data, fimg, 3 * 20 * 16));

@@ -13,7 +13,9 @@
  *     directions 5e-2 relative on the textured ball (texel-centre kinks), 1e-2 for silhouettes
  *     alone; pose translations POSE_TOL relative to max(|FD|, |analytic|, POSE_FLOOR of the
  *     group's largest derivative), below.
- * The shading kernel itself is checked in double precision in tests/test_render_shade.c. */
+ * The shading kernel itself is checked in double precision in tests/test_render_shade.c. Objects
+ * shadow themselves through their spheres here (PEN_RENDER_SELF_SPHERES), the model whose pose,
+ * shape and sphere gradients exist. */
 #include "render_scenes.h"
 
 static unsigned long long seed = 4242;
@@ -54,6 +56,9 @@ static fd_rig rig_grad(const pen_scene *sc, int shadows, pen_render_grad *g) {
     pen_context_set_threads(r.ctx, 1); /* many small renders: threads would only add overhead */
     r.opt = pen_render_options_default();
     r.opt.shadows = shadows;
+    /* The sphere model for the objects' own shadows: the precomputed transfer (the default) is a
+     * constant of the pose and shape, with no gradient (tests/test_self_transfer.c). */
+    r.opt.self_shadow = PEN_RENDER_SELF_SPHERES;
     pen_render_state_create(r.ctx, &r.st);
     pen_status s = pen_render_fwd(r.ctx, sc, &r.opt, r.st, &r.img);
     CHECK_MSG(s == PEN_OK, "%s", pen_context_error(r.ctx));

@@ -5,7 +5,10 @@
  * can mirror it field by field; pen_scene (scene.h) is richer and owns its arrays, this one
  * borrows them. A pen_flat_scene describes the same scene as pen_scene: pen_flat_render_fwd
  * builds a pen_scene that points into the caller's arrays and runs pen_render_fwd on it, so the
- * image is the one `penumbra render` makes of the equivalent scene JSON, bit for bit.
+ * image is the one `penumbra render` makes of the equivalent scene JSON with "shadow": {"self":
+ * "spheres"}, bit for bit: the flat API shades the objects' own shadows with their spheres, whose
+ * gradients reach the pose and the vertices (the precomputed self transfer, the JSON default,
+ * has none; docs/design.md sec. 1.15).
  *
  * Usage (one object, one step):
  *
@@ -88,7 +91,8 @@ typedef struct pen_flat_scene {
     const float *envmap; /* 3 * width * height, equirectangular (scene.h), linear RGB */
     float envmap_rotation_y_deg;
     float envmap_scale;
-    int shadows; /* pen_render_options */
+    int shadows; /* pen_render_options (the objects' own shadows always from their spheres:
+                    PEN_RENDER_SELF_SPHERES, whose gradients reach the pose and vertices) */
     int antialias;
     int object_count;
     const pen_flat_object *objects;

@@ -62,13 +62,22 @@ extern "C" {
  * naming the size and the bytes. */
 #define PEN_RENDER_MAX_BYTES 17179869184.0
 
+/* What shadows an object's own surface (pen_render_options.self_shadow). SCENE follows the scene's
+ * "shadow": {"self": ...} (default: the precomputed transfer of the object's own mesh, exact
+ * self-visibility but constant in pose, shape, spheres and light directions); SPHERES forces the
+ * object's own spheres whatever the scene says, as an optimiser of pose, deformation, spheres or
+ * light directions needs (docs/design.md sec. 1.15). */
+#define PEN_RENDER_SELF_SCENE 0
+#define PEN_RENDER_SELF_SPHERES 1
+
 typedef struct pen_render_options {
-    int shadows;   /* 1: SH visibility from the sphere sets; 0: V == 1 (`--no-shadows`) */
-    int antialias; /* 1: analytic silhouette antialiasing (needed for silhouette gradients) */
-    int kernel;    /* PEN_RENDER_KERNEL_* */
+    int shadows;     /* 1: SH visibility from the sphere sets; 0: V == 1 (`--no-shadows`) */
+    int antialias;   /* 1: analytic silhouette antialiasing (needed for silhouette gradients) */
+    int kernel;      /* PEN_RENDER_KERNEL_* */
+    int self_shadow; /* PEN_RENDER_SELF_* */
 } pen_render_options;
 
-/* shadows = 1, antialias = 1, kernel = PEN_RENDER_KERNEL_FAST. */
+/* shadows = 1, antialias = 1, kernel = PEN_RENDER_KERNEL_FAST, self_shadow = SCENE. */
 PEN_API pen_render_options pen_render_options_default(void);
 
 /* How many pixels the fast kernel in use shades per SIMD batch (16 with AVX-512). Its per-batch

@@ -183,11 +183,20 @@ typedef enum pen_shadow_ground {
     PEN_GROUND_RECEIVER = 1  /* it only receives shadows; the objects see the whole sphere */
 } pen_shadow_ground;
 
+/* What darkens an object's own surface ("shadow": {"self": ...}, docs/design.md sec. 1.15). */
+typedef enum pen_shadow_self {
+    PEN_SELF_TRANSFER = 0, /* exact visibility of the object's own mesh, ray traced per vertex
+                              and cached (pose- and shape-constant: no gradient through it);
+                              the other objects' spheres as before */
+    PEN_SELF_SPHERES = 1   /* the object's own spheres, like every other occluder */
+} pen_shadow_self;
+
 typedef struct pen_shadow {
     float epsilon;                  /* log-visibility depth (supplement eq. 6) */
     pen_sh_exp_method exp;
     pen_shadow_overlap overlap;
     pen_shadow_ground ground;
+    pen_shadow_self self;
 } pen_shadow;
 
 typedef struct pen_scene {

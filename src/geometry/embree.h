@@ -1,5 +1,6 @@
 /* Embree scene setup shared by the sphere fit's voxelizer (voxelize.c) and the reference renderer
- * (src/reference): triangle geometry filled from penumbra's mesh arrays. Internal. */
+ * (src/reference): triangle geometry filled from penumbra's mesh arrays, and the shadow-ray query (also used by the
+ * self transfer, transfer.c). Internal. */
 #ifndef PEN_GEOMETRY_EMBREE_H
 #define PEN_GEOMETRY_EMBREE_H
 
@@ -13,5 +14,9 @@
  * need not have. Returns 0 when a buffer could not be allocated. */
 int pen__embree_fill_triangles(RTCGeometry geom, const float *positions, size_t vertex_count,
                                const uint32_t *indices, size_t triangle_count);
+
+/* Whether the ray from org along dir (need not be unit) hits anything of the committed scene
+ * beyond tnear. */
+int pen__embree_occluded(RTCScene scene, const float org[3], const float dir[3], float tnear);
 
 #endif

@@ -231,7 +231,7 @@ static pen_status parse_shadow(pen_context *ctx, const where *top, const cJSON *
     sh->exp = PEN_SH_EXP_CALIBRATED;
     pen_status s = PEN_OK;
     if (o) {
-        static const char *const known[] = {"epsilon", "exp", "overlap", "ground", NULL};
+        static const char *const known[] = {"epsilon", "exp", "overlap", "ground", "self", NULL};
         s = pen__json_need_object(ctx, &w, o);
         if (!s) s = pen__json_known_keys(ctx, &w, o, known);
         const cJSON *e = pen__json_member(o, "exp");
@@ -261,6 +261,13 @@ static pen_status parse_shadow(pen_context *ctx, const where *top, const cJSON *
             where wg = at(&w, "ground");
             s = pen__json_choice(ctx, &wg, g, "ground mode", grounds, &k);
             sh->ground = k == 1 ? PEN_GROUND_RECEIVER : PEN_GROUND_OCCLUDES;
+        }
+        static const char *const selfs[] = {"transfer", "spheres", NULL};
+        const cJSON *sf = pen__json_member(o, "self");
+        if (!s && sf) {
+            where ws = at(&w, "self");
+            s = pen__json_choice(ctx, &ws, sf, "self-shadow mode", selfs, &k);
+            sh->self = k == 1 ? PEN_SELF_SPHERES : PEN_SELF_TRANSFER;
         }
     }
     /* The epsilon the exponential model was fitted with, unless given. */
@@ -701,7 +708,9 @@ static cJSON *shadow_json(const pen_shadow *sh) {
                       cJSON_CreateString(sh->overlap == PEN_OVERLAP_NONE ? "none" : "weights")) &&
         pen__json_add(
             o, "ground",
-            cJSON_CreateString(sh->ground == PEN_GROUND_RECEIVER ? "receiver" : "occludes"));
+            cJSON_CreateString(sh->ground == PEN_GROUND_RECEIVER ? "receiver" : "occludes")) &&
+        pen__json_add(o, "self",
+                      cJSON_CreateString(sh->self == PEN_SELF_SPHERES ? "spheres" : "transfer"));
     if (!ok) cJSON_Delete(o);
     return ok ? o : NULL;
 }

@@ -121,19 +121,7 @@ static void background(const pen_reference *ref, const float dir[3], float out[3
 /* ---- Rays ------------------------------------------------------------------------------------ */
 
 static int occluded(const pen_reference *ref, const float org[3], const float dir[3]) {
-    struct RTCIntersectContext ictx;
-    rtcInitIntersectContext(&ictx);
-    struct RTCRay ray;
-    ray.org_x = org[0], ray.org_y = org[1], ray.org_z = org[2];
-    ray.dir_x = dir[0], ray.dir_y = dir[1], ray.dir_z = dir[2];
-    ray.tnear = 0.0f;
-    ray.tfar = INFINITY;
-    ray.time = 0.0f;
-    ray.mask = 0xFFFFFFFFu;
-    ray.id = 0;
-    ray.flags = 0;
-    rtcOccluded1(ref->rtc, &ictx, &ray);
-    return ray.tfar < 0.0f; /* Embree sets tfar to -inf on a hit */
+    return pen__embree_occluded(ref->rtc, org, dir, 0.0f);
 }
 
 /* A cosine-distributed direction around the unit normal n (pdf cos / pi); returns the cosine. */

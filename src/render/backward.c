@@ -187,9 +187,33 @@ static void shade_tile_bwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
                           ? row + bw->rl.light_G + (size_t)own * (size_t)st->lights.count
                           : NULL;
         double *d_lights = bw->lights ? row + bw->rl.lights : NULL;
+        /* Pixels shaded with their object's own transfer (self.c), as the forward split them;
+         * the rest, nk of them, compacted into ws (ws->idx) for the kernel. */
+        int nk = 0;
+        for (int k = 0; k < cnt; ++k) {
+            const size_t i = (size_t)pix[k];
+            if (pen__self_object(st, i) < 0) {
+                ws->idx[nk++] = (int)i;
+                continue;
+            }
+            const float *dc = st->d_color.data + 3 * i;
+            if (dc[0] == 0.0f && dc[1] == 0.0f && dc[2] == 0.0f) continue;
+            const int surf = st->gb.surface[i];
+            const int geom = bw->geom;
+            const int need_rho = bw->albedo || (geom && sc->objects[surf].texture.data != NULL);
+            float d_n[3] = {0.0f, 0.0f, 0.0f};
+            /* the scene's own lighting: the traced ground replaces the object's `seen` */
+            pen__self_shade_bwd(st, (const float(*)[3])sc->lighting.sh, ncull, ws->cull, i, dc,
+                                !st->fast && job->store ? job->store + nfv * i : NULL,
+                                lights_V(st, i),
+                                bw->light ? (double(*)[3])(row + bw->rl.sh) : NULL, d_sph,
+                                geom ? st->d_x.data + 3 * i : NULL, geom ? d_n : NULL,
+                                need_rho ? st->d_rho.data + 3 * i : NULL, d_lights);
+            pixel_bwd_tail(sc, st, bw, row, i, surf, d_n);
+        }
         if (!st->fast) {
-            for (int k = 0; k < cnt; ++k) {
-                const size_t i = (size_t)pix[k];
+            for (int k = 0; k < nk; ++k) {
+                const size_t i = (size_t)ws->idx[k];
                 const int surf = st->gb.surface[i];
                 const float *dc = st->d_color.data + 3 * i;
                 if (dc[0] == 0.0f && dc[1] == 0.0f && dc[2] == 0.0f) continue;
@@ -211,19 +235,20 @@ static void shade_tile_bwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
             }
             continue;
         }
-        for (int k = 0; k < cnt; ++k) {
-            memcpy(ws->out + 3 * k, st->d_color.data + 3 * (size_t)pix[k], 3 * sizeof(float));
-            pen__tile_ws_push(ws, k, st, (size_t)pix[k]);
+        for (int k = 0; k < nk; ++k) {
+            const size_t i = (size_t)ws->idx[k];
+            memcpy(ws->out + 3 * k, st->d_color.data + 3 * i, 3 * sizeof(float));
+            pen__tile_ws_push(ws, k, st, i);
         }
-        memset(ws->dx, 0, 3 * sizeof(float) * (size_t)cnt);
-        memset(ws->dn, 0, 3 * sizeof(float) * (size_t)cnt);
-        memset(ws->drho, 0, 3 * sizeof(float) * (size_t)cnt);
-        pen__shade_fast_bwd(&st->params, sh, S, st->spheres.data, st->kappa.data, cnt,
-                            g == 0 ? cnt : 0, ws->x, ws->n, ws->rho, ws->out, store, ws->kernel,
+        memset(ws->dx, 0, 3 * sizeof(float) * (size_t)nk);
+        memset(ws->dn, 0, 3 * sizeof(float) * (size_t)nk);
+        memset(ws->drho, 0, 3 * sizeof(float) * (size_t)nk);
+        pen__shade_fast_bwd(&st->params, sh, S, st->spheres.data, st->kappa.data, nk,
+                            g == 0 ? nk : 0, ws->x, ws->n, ws->rho, ws->out, store, ws->kernel,
                             d_sh, d_sph, bw->geom ? ws->dx : NULL, bw->geom ? ws->dn : NULL,
                             ws->drho, tk);
-        if (store) store += pen__shade_fast_store_floats(&st->params, cnt);
-        for (int k = 0; st->lights.count && k < cnt; ++k) {
+        if (store) store += pen__shade_fast_store_floats(&st->params, cnt); /* the run's layout */
+        for (int k = 0; st->lights.count && k < nk; ++k) {
             const size_t i = (size_t)ws->idx[k];
             const int geom = g != 0 && bw->geom; /* ground pixels: no d_x, d_n wanted */
             pen__lights_bwd(&st->lights, G, ncull, st->spheres.data, st->kappa.data, ws->cull,
@@ -232,7 +257,7 @@ static void shade_tile_bwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
                             geom ? ws->dx + 3 * k : NULL, geom ? ws->dn + 3 * k : NULL,
                             ws->drho + 3 * k, d_lights, d_G);
         }
-        for (int k = 0; k < cnt; ++k) {
+        for (int k = 0; k < nk; ++k) {
             const size_t i = (size_t)ws->idx[k];
             const int surf = st->gb.surface[i];
             const int geom = surf >= 0 && bw->geom;
@@ -271,7 +296,7 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     if (!st || !st->valid)
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "render backward: no forward pass to undo");
     if (opt->shadows != st->opt.shadows || opt->antialias != st->opt.antialias ||
-        opt->kernel != st->opt.kernel)
+        opt->kernel != st->opt.kernel || opt->self_shadow != st->opt.self_shadow)
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "render backward: options differ from the forward pass");
     const int W = st->width, H = st->height;

@@ -181,6 +181,10 @@ static pen_render_options options_of(const pen_flat_scene *f) {
     pen_render_options opt = pen_render_options_default();
     opt.shadows = f->shadows != 0;
     opt.antialias = f->antialias != 0;
+    /* The objects' own shadows from their spheres: the flat API serves PyTorch, whose gradients
+     * reach the pose and the vertices, which the precomputed self transfer does not follow
+     * (docs/design.md sec. 1.15); flat renders stay those of the sphere model. */
+    opt.self_shadow = PEN_RENDER_SELF_SPHERES;
     return opt;
 }
 

@@ -18,6 +18,9 @@
  *   Antialiasing blends colours across silhouettes last.
  * - Disk lights (lights.c) are added per pixel after the kernel's SH shading, by the same
  *   scalar function whichever kernel ran (no SIMD version yet: bench/NOTES.md).
+ * - Objects shaded with their own precomputed transfer (self.c, docs/design.md sec. 1.15): their
+ *   pixels leave each run before the kernel and are shaded, SH and lights, by self.c's scalar
+ *   path whichever kernel the frame uses; the runs and the fast store's layout stay as grouped.
  * - What the backward needs stays in the state (state.c): the per-pixel attributes, the groups,
  *   and the kernel's store (F, or F and V, per pixel), kept only when the caller passed a state
  *   and shadows are on.
@@ -36,6 +39,7 @@ pen_render_options pen_render_options_default(void) {
     o.shadows = 1;
     o.antialias = 1;
     o.kernel = PEN_RENDER_KERNEL_FAST;
+    o.self_shadow = PEN_RENDER_SELF_SCENE;
     return o;
 }
 
@@ -113,7 +117,7 @@ static pen_status prepare(pen_context *ctx, const pen_scene *sc, const pen_rende
                           sc->sh_bands);
     pen__lights_init(&st->lights, &sc->lighting, st->params.epsilon, opt->shadows);
     pen__ground_occlusion_prepare(sc, opt, st);
-    return PEN_OK;
+    return pen__self_prepare(ctx, sc, opt, st);
 }
 
 /* Sign that turns the interpolated normal towards the viewer's side of the triangle. */
@@ -203,25 +207,38 @@ static void shade_tile_fwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
         int cnt;
         const int g = pen__tile_run(st, t, r, &pix, &cnt);
         const float(*sh)[3] = pen__tile_group_lighting(sc, st, g);
+        /* Pixels shaded with their object's own transfer (self.c) leave the run; the rest, nk of
+         * them, go compacted into ws (their indices in ws->idx) to the kernel. */
+        int nk = 0;
+        for (int k = 0; k < cnt; ++k) {
+            const size_t i = (size_t)pix[k];
+            if (pen__self_object(st, i) >= 0) {
+                float *fv = !st->fast && job->store ? job->store + nfv * i : NULL;
+                float *V = st->lights_V_valid ? st->lights_V.data + (size_t)st->lights.count * i
+                                              : NULL;
+                pen__self_shade_fwd(st, (const float(*)[3])sc->lighting.sh, ncull, ws->cull, i, fv,
+                                    V);
+                continue;
+            }
+            pen__tile_ws_push(ws, nk++, st, i);
+        }
         if (!st->fast) {
-            for (int k = 0; k < cnt; ++k) {
-                const size_t i = (size_t)pix[k];
+            for (int k = 0; k < nk; ++k) {
+                const size_t i = (size_t)ws->idx[k];
                 pen__shade_fwd(&st->params, sh, st->sphere_count, st->spheres.data, st->kappa.data,
                                st->x.data + 3 * i, st->n.data + 3 * i, st->rho.data + 3 * i,
                                st->color.data + 3 * i, job->store ? job->store + nfv * i : NULL);
             }
-            if (st->lights.count) shade_lights_fwd(st, ws, ncull, g, pix, cnt);
+            if (st->lights.count) shade_lights_fwd(st, ws, ncull, g, ws->idx, nk);
             continue;
         }
-        for (int k = 0; k < cnt; ++k)
-            pen__tile_ws_push(ws, k, st, (size_t)pix[k]);
         pen__shade_fast_fwd(&st->params, sh, st->sphere_count, st->spheres.data, st->kappa.data,
-                            cnt, g == 0 ? cnt : 0, ws->x, ws->n, ws->rho, ws->out, store,
+                            nk, g == 0 ? nk : 0, ws->x, ws->n, ws->rho, ws->out, store,
                             ws->kernel, tk);
-        if (store) store += pen__shade_fast_store_floats(&st->params, cnt);
-        for (int k = 0; k < cnt; ++k)
+        if (store) store += pen__shade_fast_store_floats(&st->params, cnt); /* the run's layout */
+        for (int k = 0; k < nk; ++k)
             memcpy(st->color.data + 3 * (size_t)ws->idx[k], ws->out + 3 * k, 3 * sizeof(float));
-        if (st->lights.count) shade_lights_fwd(st, ws, ncull, g, pix, cnt);
+        if (st->lights.count) shade_lights_fwd(st, ws, ncull, g, ws->idx, nk);
     }
 }
 

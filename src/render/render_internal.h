@@ -71,6 +71,31 @@ void pen__shade_bwd_d(const pen__shade_params *p, const double (*sh)[3], int sph
                       const double *fv, double (*d_sh)[3], double *d_spheres, double d_x[3],
                       double d_n[3], double d_rho[3]);
 
+/* The same with the object's own precomputed transfer: B (bands^2 values) is the part of the
+ * clamped cosine its own mesh blocks, interpolated at the pixel (a constant: no gradient flows to
+ * it), so its transfer is T_self = H_n - B; only the spheres that may shadow it count (kappa 0 for
+ * the object's own): T = exp*(F) * T_self, or T_self itself when sphere_count is 0 (no
+ * exponential). self.c calls these for pixels of objects shaded with their transfer, whichever
+ * kernel the frame uses. */
+void pen__shade_self_fwd(const pen__shade_params *p, const float (*sh)[3], int sphere_count,
+                         const float *spheres, const float *kappa, const float x[3],
+                         const float n[3], const float *B, const float rho[3], float rgb[3],
+                         float *fv);
+void pen__shade_self_fwd_d(const pen__shade_params *p, const double (*sh)[3], int sphere_count,
+                           const double *spheres, const double *kappa, const double x[3],
+                           const double n[3], const double *B, const double rho[3],
+                           double rgb[3], double *fv);
+void pen__shade_self_bwd(const pen__shade_params *p, const float (*sh)[3], int sphere_count,
+                         const float *spheres, const float *kappa, const float x[3],
+                         const float n[3], const float *B, const float rho[3],
+                         const float d_rgb[3], const float *fv, double (*d_sh)[3],
+                         double *d_spheres, float d_x[3], float d_n[3], float d_rho[3]);
+void pen__shade_self_bwd_d(const pen__shade_params *p, const double (*sh)[3], int sphere_count,
+                           const double *spheres, const double *kappa, const double x[3],
+                           const double n[3], const double *B, const double rho[3],
+                           const double d_rgb[3], const double *fv, double (*d_sh)[3],
+                           double *d_spheres, double d_x[3], double d_n[3], double d_rho[3]);
+
 /* ---- Fast kernel (shade_fast.c, shade_fast_dispatch.c) -----------------------------------------
  * The same shading as pen__shade_fwd / pen__shade_bwd, for many pixels at once: pixels go in
  * batches of lanes through structure-of-arrays lane vectors (16 lanes: one AVX-512 register of
@@ -152,8 +177,9 @@ int pen__shade_fast_use(int v);
 const pen__shade_fast_ops *pen__shade_fast_current(void);
 
 /* ---- Frame: what the files of the full frame share --------------------------------------------
- * Who calls whom: forward.c calls state.c, tiles.c, background.c, ground.c and lights.c;
- * backward.c calls state.c, tiles.c, ground.c and lights.c; background.c calls tiles.c and
+ * Who calls whom: forward.c calls state.c, tiles.c, background.c, ground.c, lights.c and self.c;
+ * backward.c calls state.c, tiles.c, ground.c, lights.c and self.c; self.c calls state.c, lights.c
+ * and the scalar kernel (and src/geometry's transfer); background.c calls tiles.c and
  * state.c; tiles.c calls state.c (pen__buf_grow, behind PEN__BUF_RESERVE, is state.c's) and
  * lights.c (the tile's sphere cull); ground.c calls lights.c (the disks' horizon factors);
  * state.c and lights.c call no other file of the frame. */
@@ -231,6 +257,14 @@ typedef struct pen__object_buf {
      * the half-edges every frame cost about 0.5 ms at the headline. */
     int adj_valid, adj_vertices, adj_triangles;
     uint64_t adj_hash;
+    /* Self-shadowing by the precomputed transfer (self.c): whether this frame shades the object
+     * with it, whether any other object has spheres, and the per-vertex cache (bands^2
+     * coefficients of the blocked part of the clamped cosine and one unblocked disk fraction per
+     * light) with the key it was built from. */
+    int self_on, self_others;
+    pen__buf_float self_B, self_frac;
+    int self_valid;
+    uint64_t self_key;
 } pen__object_buf;
 
 struct pen_render_state {
@@ -270,6 +304,8 @@ struct pen_render_state {
     int bg_valid;
     pen_render_timings timings;
     int ground_occludes; /* shadow.ground "occludes", shadows on, a ground: see ground.c */
+    int self_any;             /* some object shades with its transfer this frame (self.c) */
+    pen__buf_float kappa_self; /* per object (sphere_count each): kappa, 0 on its own spheres */
 };
 
 /* ---- state.c ---- */
@@ -288,6 +324,30 @@ pen_status pen__render_object_adjacency(pen_context *ctx, pen__object_buf *b, co
 /* st->kappa for the scene's spheres (st->sphere_first laid out): given, 1, or computed from the
  * spheres and kept with them. */
 pen_status pen__render_overlap_weights(pen_context *ctx, const pen_scene *sc, pen_render_state *st);
+
+/* ---- self.c ---- */
+
+/* Decides which objects shade with their own transfer this frame (shadows on, the scene's
+ * shadow.self "transfer" not overridden by opt->self_shadow, a mesh with triangles and spheres)
+ * and brings their caches up to date (ray traced only when the posed vertices, the band count or
+ * the lights changed). After the lights and ground occlusion are prepared. */
+pen_status pen__self_prepare(pen_context *ctx, const pen_scene *sc, const pen_render_options *opt,
+                             pen_render_state *st);
+/* The object whose transfer shades surface pixel i, or -1 (the pixel's shading is the kernel's):
+ * needs self_on and the normal facing the side the transfer was traced for (nsign > 0). */
+static inline int pen__self_object(const pen_render_state *st, size_t i);
+/* Shades pixel i of object o (pen__self_object) into st->color: the SH part with the transfer and
+ * the other objects' spheres, then the disk lights with the mesh's own unblocked fractions in
+ * place of the horizon factors. sh: the scene's lighting (not the object's `seen`: with a ground
+ * that occludes, the transfer traces the ground). fv: the scalar store's F and V for the pixel, or
+ * NULL. V: the lights' visibilities to keep, or NULL. */
+void pen__self_shade_fwd(pen_render_state *st, const float (*sh)[3], int ncull, const int *cull,
+                         size_t i, float *fv, float *V);
+/* Its backward, the arguments as pen__shade_bwd and pen__lights_bwd. */
+void pen__self_shade_bwd(const pen_render_state *st, const float (*sh)[3], int ncull,
+                         const int *cull, size_t i, const float *dc, const float *fv,
+                         const float *V, double (*d_sh)[3], double *d_sph, float *d_x, float *d_n,
+                         float *d_rho, double *d_lights);
 
 /* ---- tiles.c ---- */
 
@@ -389,5 +449,10 @@ void pen__ground_occlusion_bwd(const pen_scene *sc, const pen_render_state *st,
  * objects' height gradients into their pose translation[1]. Only with st->ground_occludes. */
 void pen__ground_lights_bwd(const pen_scene *sc, const pen_render_state *st, const double *d_G,
                             double *d_lights, pen_render_grad *grad);
+
+static inline int pen__self_object(const pen_render_state *st, size_t i) {
+    const int o = st->gb.surface[i];
+    return st->self_any && o >= 0 && st->obj[o].self_on && st->nsign.data[i] > 0.0f ? o : -1;
+}
 
 #endif

@@ -11,11 +11,12 @@
  * - Every buffer is a PEN__BUF (render_internal.h), sized by the pass that needs it and grown,
  *   never shrunk, so that an optimiser's frames after the first allocate nothing. Growing drops
  *   the contents: the passes rewrite what they reserve.
- * - Three caches outlive a frame, each with the key it was built from, because an optimiser
+ * - Four caches outlive a frame, each with the key it was built from, because an optimiser
  *   renders the same topology, sphere set and background again and again: the antialiasing
  *   adjacency per object (keyed by the topology: vertex and triangle counts, a hash of the
  *   indices), the overlap weights computed from sphere sets that came without them (keyed by the
- *   object-space spheres themselves), and the environment-map background (background.c).
+ *   object-space spheres themselves), the environment-map background (background.c), and each
+ *   object's precomputed self transfer (self.c, keyed by the posed vertices, bands and lights).
  */
 #include "core/internal.h"
 #include "render/render_internal.h"
@@ -92,10 +93,11 @@ void pen_render_state_free(pen_render_state *st) {
         pen__object_buf *b = &st->obj[o];
         PEN__BUF_FREE(b->world), PEN__BUF_FREE(b->vnormal), PEN__BUF_FREE(b->d_world);
         PEN__BUF_FREE(b->d_vnormal), PEN__BUF_FREE(b->adjacency);
+        PEN__BUF_FREE(b->self_B), PEN__BUF_FREE(b->self_frac);
     }
     free(st->obj), free(st->meshes), free(st->sphere_first);
     PEN__BUF_FREE(st->spheres), PEN__BUF_FREE(st->kappa), PEN__BUF_FREE(st->kappa_key);
-    PEN__BUF_FREE(st->kappa_first);
+    PEN__BUF_FREE(st->kappa_first), PEN__BUF_FREE(st->kappa_self);
     pen__buf_float *px[PIXEL_BUFFERS];
     pixel_buffers(st, px);
     for (int i = 0; i < PIXEL_BUFFERS; ++i)

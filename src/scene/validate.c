@@ -93,6 +93,9 @@ pen_status pen__scene_validate(pen_context *ctx, const pen_scene *sc, const char
     if (sc->shadow.overlap != PEN_OVERLAP_WEIGHTS && sc->shadow.overlap != PEN_OVERLAP_NONE)
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: shadow.overlap: unknown mode %d", who,
                           (int)sc->shadow.overlap);
+    if (sc->shadow.self != PEN_SELF_TRANSFER && sc->shadow.self != PEN_SELF_SPHERES)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: shadow.self: unknown mode %d", who,
+                          (int)sc->shadow.self);
     if (sc->object_count < 0 || (sc->object_count > 0 && !sc->objects))
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: bad object list", who);
     if (!finite_n(sc->background, 3) ||

@@ -1,0 +1,168 @@
+/* Precomputed self-transfer of a rigid mesh: what the mesh's own surfaces hide from each of its
+ * vertices, ray traced once with Embree (see transfer.h).
+ *
+ * Design
+ * - One Embree scene of the mesh (and, when asked, the ground square), built per call: the renderer
+ *   calls this only when the posed vertices, the band count or the lights change.
+ * - SH transfer by a control variate: T_self = H_n - B, the clamped cosine H_n known exactly
+ *   (the renderer evaluates it at the pixel's own normal), and only its blocked part B estimated,
+ *   by N = 256 cosine-weighted directions stratified on a 16 x 16 grid of the unit square (pdf
+ *   cos / pi, so each blocked direction w adds pi / N Y_k(w) to B). A vertex that sees everything
+ *   gets B = 0 exactly, so a convex mesh shades exactly as without self-shadowing.
+ * - Rays start at the vertex moved along its normal by 1e-4 of the mesh's bounding diagonal (the
+ *   vertex lies on its own triangles; a smaller offset lets rays graze them at creases).
+ * - Disk lights: 64 directions uniform over the disk's cap (8 x 8 strata in cos and azimuth); the
+ *   fraction counts only those above the tangent plane, since the renderer's horizon term already
+ *   weighs the part below.
+ * - Jitter within each stratum comes from splitmix64 seeded by the vertex index, and vertices are
+ *   independent, so the result is the same for any thread count.
+ */
+#include "geometry/transfer.h"
+
+#include "core/internal.h"
+#include "core/random.h"
+#include "geometry/embree.h"
+#include "penumbra/sh.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+
+static pen_status embree_status(pen_context *ctx, RTCDevice device, const char *when) {
+    enum RTCError e = rtcGetDeviceError(device);
+    if (e == RTC_ERROR_NONE) return PEN_OK;
+    return pen__error(ctx, e == RTC_ERROR_OUT_OF_MEMORY ? PEN_ERROR_MEMORY : PEN_ERROR_INTERNAL,
+                      "self transfer: Embree error %d while %s", (int)e, when);
+}
+
+static int attach(RTCDevice dev, RTCScene scene, const float *p, size_t nv, const uint32_t *idx,
+                  size_t nt) {
+    RTCGeometry g = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_TRIANGLE);
+    if (!g) return 0;
+    const int ok = pen__embree_fill_triangles(g, p, nv, idx, nt);
+    if (ok) {
+        rtcCommitGeometry(g);
+        rtcAttachGeometry(scene, g);
+    }
+    rtcReleaseGeometry(g);
+    return ok;
+}
+
+static int blocked(RTCScene scene, const double o[3], const double d[3]) {
+    const float of[3] = {(float)o[0], (float)o[1], (float)o[2]};
+    const float df[3] = {(float)d[0], (float)d[1], (float)d[2]};
+    return pen__embree_occluded(scene, of, df, 0.0f);
+}
+
+/* Two unit vectors completing the unit a to a right-handed frame (Duff et al. 2017). */
+static void frame(const double a[3], double t[3], double b[3]) {
+    const double s = a[2] >= 0.0 ? 1.0 : -1.0, e = -1.0 / (s + a[2]), f = a[0] * a[1] * e;
+    t[0] = 1.0 + s * a[0] * a[0] * e, t[1] = s * f, t[2] = -s * a[0];
+    b[0] = f, b[1] = s + a[1] * a[1] * e, b[2] = -a[1];
+}
+
+/* One vertex: the blocked part B of its clamped cosine (nc values) and its light fractions. */
+static void vertex_transfer(RTCScene scene, const pen__transfer_request *rq, double offset, int v,
+                            float *B, float *frac) {
+    const int nc = rq->bands * rq->bands, K = frac ? rq->light_count : 0;
+    const float *pn = rq->normals + 3 * (size_t)v, *pp = rq->positions + 3 * (size_t)v;
+    double n[3] = {pn[0], pn[1], pn[2]};
+    const double len = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+    if (!(len > 1e-30)) {
+        for (int k = 0; k < nc; ++k)
+            B[k] = 0.0f;
+        for (int l = 0; l < K; ++l)
+            frac[l] = 1.0f;
+        return;
+    }
+    for (int a = 0; a < 3; ++a)
+        n[a] /= len;
+    double o[3], t[3], b[3];
+    for (int a = 0; a < 3; ++a)
+        o[a] = (double)pp[a] + offset * n[a];
+    frame(n, t, b);
+    uint64_t rng = pen__splitmix_mix(0x5E1F7A45ull ^ (uint64_t)v);
+    double lost[PEN_SH_MAX_COEFFS] = {0}, y[PEN_SH_MAX_COEFFS];
+    const int side = 16, N = side * side; /* PEN_TRANSFER_DIRECTIONS */
+    for (int s = 0; s < N; ++s) {
+        const double u1 = ((s / side) + pen__splitmix_uniform(&rng)) / side;
+        const double u2 = ((s % side) + pen__splitmix_uniform(&rng)) / side;
+        const double r = sqrt(u1), phi = 2.0 * PEN_PI * u2, c = sqrt(fmax(0.0, 1.0 - u1));
+        double d[3];
+        for (int a = 0; a < 3; ++a)
+            d[a] = r * cos(phi) * t[a] + r * sin(phi) * b[a] + c * n[a];
+        if (!blocked(scene, o, d)) continue;
+        pen_sh_eval_d(rq->bands, d, y);
+        for (int k = 0; k < nc; ++k)
+            lost[k] += y[k];
+    }
+    for (int k = 0; k < nc; ++k)
+        B[k] = (float)(PEN_PI / N * lost[k]);
+    const int dside = 8; /* PEN_TRANSFER_DISK_SAMPLES */
+    for (int l = 0; l < K; ++l) {
+        const double *w = rq->light_w[l], cb = cos(rq->light_b[l]);
+        double lt[3], lb[3];
+        frame(w, lt, lb);
+        int above = 0, open = 0;
+        for (int s = 0; s < dside * dside; ++s) {
+            const double u1 = ((s / dside) + pen__splitmix_uniform(&rng)) / dside;
+            const double u2 = ((s % dside) + pen__splitmix_uniform(&rng)) / dside;
+            const double c = 1.0 - u1 * (1.0 - cb), sn = sqrt(fmax(0.0, 1.0 - c * c));
+            const double phi = 2.0 * PEN_PI * u2;
+            double d[3];
+            for (int a = 0; a < 3; ++a)
+                d[a] = sn * cos(phi) * lt[a] + sn * sin(phi) * lb[a] + c * w[a];
+            if (d[0] * n[0] + d[1] * n[1] + d[2] * n[2] <= 0.0) continue;
+            ++above;
+            open += !blocked(scene, o, d);
+        }
+        frac[l] = above ? (float)open / (float)above : 1.0f;
+    }
+}
+
+pen_status pen__mesh_transfer(pen_context *ctx, const pen__transfer_request *rq, float *B,
+                              float *frac) {
+    const int V = rq->vertex_count, nc = rq->bands * rq->bands;
+    if (V <= 0) return PEN_OK;
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (int v = 0; v < V; ++v)
+        for (int a = 0; a < 3; ++a) {
+            lo[a] = fmin(lo[a], (double)rq->positions[3 * (size_t)v + a]);
+            hi[a] = fmax(hi[a], (double)rq->positions[3 * (size_t)v + a]);
+        }
+    const double diag = sqrt((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) +
+                             (hi[2] - lo[2]) * (hi[2] - lo[2]));
+    const int threads = pen__threads(ctx);
+    char config[64];
+    snprintf(config, sizeof config, "threads=%d", threads);
+    RTCDevice dev = rtcNewDevice(config);
+    if (!dev)
+        return pen__error(ctx, PEN_ERROR_INTERNAL, "self transfer: Embree device: error %d",
+                          (int)rtcGetDeviceError(NULL));
+    RTCScene scene = rtcNewScene(dev);
+    pen_status s = PEN_OK;
+    if (rq->triangle_count > 0 &&
+        !attach(dev, scene, rq->positions, (size_t)V, rq->indices, (size_t)rq->triangle_count))
+        s = embree_status(ctx, dev, "allocating mesh buffers");
+    if (!s && rq->ground && rq->ground->enabled) {
+        const float h = rq->ground->half_size, y = rq->ground->height;
+        const float corners[12] = {-h, y, -h, -h, y, h, h, y, h, h, y, -h};
+        const uint32_t tris[6] = {0, 1, 2, 0, 2, 3};
+        if (!attach(dev, scene, corners, 4, tris, 2))
+            s = embree_status(ctx, dev, "allocating ground buffers");
+    }
+    if (!s) {
+        rtcCommitScene(scene);
+        s = embree_status(ctx, dev, "building the scene");
+    }
+    if (!s) {
+        const double offset = 1e-4 * (diag > 0.0 ? diag : 1.0);
+#pragma omp parallel for schedule(dynamic, 64) num_threads(threads)
+        for (int v = 0; v < V; ++v)
+            vertex_transfer(scene, rq, offset, v, B + (size_t)nc * (size_t)v,
+                            frac ? frac + (size_t)rq->light_count * (size_t)v : NULL);
+    }
+    rtcReleaseScene(scene);
+    rtcReleaseDevice(dev);
+    return s;
+}

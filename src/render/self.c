@@ -1,0 +1,178 @@
+/* Self-shadowing of rigid meshes by a precomputed transfer (docs/design.md sec. 1.15): a pixel of
+ * such an object shades with T = exp*(F_others) * T_self, T_self = H_n - B the exact visibility
+ * of the object's own mesh times the clamped cosine: H_n at the pixel's normal as everywhere, B
+ * the part the mesh blocks, projected per vertex by ray tracing (src/geometry/transfer.c) and
+ * interpolated at the pixel (so a vertex that sees everything shades exactly as without
+ * self-shadowing), and F_others the log-visibility of the other objects' spheres (the same
+ * weights as the kernels). Disk lights on it see the
+ * mesh's own unblocked fraction of each disk, per vertex, times the other spheres' factor.
+ *
+ * Design
+ * - The cache. Per object, the transfer and the light fractions of every vertex, with a key: a
+ *   hash of the posed vertex positions and the indices, the band count, and the lights' unit
+ *   directions and radii (the ground too when it is traced). A lighting, albedo or texture
+ *   optimisation renders the same pose every frame and pays the ray tracing once; a pose change
+ *   recomputes it (the transfer is in world space: no SH rotation per frame).
+ * - Constants. Ray-traced visibility is piecewise constant in the pose, the shape and the light
+ *   directions, so B and the fractions carry no gradient; what stays differentiable on the object
+ *   is linear in the lighting, the lights' irradiance and the albedo (exact), and the other
+ *   objects' spheres, the normal through H_n, the spheres' weights and the horizon term.
+ *   Optimisers of pose, shape, spheres or light directions force the sphere model
+ *   (pen_render_options.self_shadow).
+ * - One code path. Transfer pixels go through the scalar kernel's functions whichever kernel
+ *   the frame uses (both kernels then agree on them exactly); the other objects' spheres enter
+ *   with the per-object overlap weights kappa_self (0 on the object's own spheres, which adds
+ *   nothing and skips them), so sphere indices and their gradients keep the frame's layout.
+ * - The ground. With a ground that occludes (ground.c) the cache traces the ground square too, and
+ *   the object's transfer pixels shade with the scene's whole lighting and no horizon factors:
+ *   the traced ground replaces ground.c's restriction of the lighting to one horizon per object,
+ *   which darkened flat parts close to the ground (measured in docs/visibility.md sec. 8). The
+ *   key then holds the ground's height and size; the transfer is in world space, so it already
+ *   follows every pose change.
+ * - Back faces. The transfer is traced for the side the vertex normal points to; a pixel seeing
+ *   a triangle from its other side (open meshes) shades with the spheres as before.
+ */
+#include "core/internal.h"
+#include "geometry/transfer.h"
+#include "render/render_internal.h"
+
+#include <string.h>
+
+/* The cache key of object o: what its transfer depends on. */
+static uint64_t self_key(const pen_scene *sc, const pen_render_state *st, int o) {
+    const pen_mesh *m = &sc->objects[o].mesh;
+    const pen__lights *L = &st->lights;
+    uint64_t h = pen__render_hash32(st->obj[o].world.data, 3 * (size_t)m->vertex_count);
+    h = (h ^ pen__render_hash32(m->indices, 3 * (size_t)m->triangle_count)) * 0x9E3779B97F4A7C15ull;
+    h = (h ^ (uint64_t)sc->sh_bands ^ ((uint64_t)L->count << 8)) * 0x9E3779B97F4A7C15ull;
+    for (int l = 0; l < L->count; ++l) {
+        const double wb[4] = {L->w[l][0], L->w[l][1], L->w[l][2], L->b[l]};
+        h = (h ^ pen__render_hash32(wb, sizeof wb / 4)) * 0x9E3779B97F4A7C15ull;
+    }
+    if (st->ground_occludes) { /* the ground is traced too */
+        const float g[3] = {1.0f, sc->ground.height, sc->ground.half_size};
+        h = (h ^ pen__render_hash32(g, 3)) * 0x9E3779B97F4A7C15ull;
+    }
+    return h;
+}
+
+static pen_status self_cache(pen_context *ctx, const pen_scene *sc, pen_render_state *st, int o) {
+    pen__object_buf *b = &st->obj[o];
+    const pen_mesh *m = &sc->objects[o].mesh;
+    const uint64_t key = self_key(sc, st, o);
+    if (b->self_valid && b->self_key == key) return PEN_OK;
+    b->self_valid = 0;
+    const size_t V = (size_t)m->vertex_count, nc = (size_t)sc->sh_bands * (size_t)sc->sh_bands;
+    const int K = st->lights.count;
+    pen_status s;
+    if ((s = PEN__BUF_RESERVE(ctx, b->self_B, nc * V + 1, "self blocked part")) ||
+        (s = PEN__BUF_RESERVE(ctx, b->self_frac, (size_t)K * V + 1, "self light fractions")))
+        return s;
+    const pen__transfer_request rq = {m->vertex_count,
+                                      m->triangle_count,
+                                      b->world.data,
+                                      b->vnormal.data,
+                                      m->indices,
+                                      sc->sh_bands,
+                                      K,
+                                      (const double(*)[3])st->lights.w,
+                                      st->lights.b,
+                                      st->ground_occludes ? &sc->ground : NULL};
+    if ((s = pen__mesh_transfer(ctx, &rq, b->self_B.data, b->self_frac.data))) return s;
+    b->self_valid = 1, b->self_key = key;
+    return PEN_OK;
+}
+
+pen_status pen__self_prepare(pen_context *ctx, const pen_scene *sc, const pen_render_options *opt,
+                             pen_render_state *st) {
+    st->self_any = 0;
+    const int want = opt->shadows && opt->self_shadow != PEN_RENDER_SELF_SPHERES &&
+                     sc->shadow.self == PEN_SELF_TRANSFER;
+    const int S = st->sphere_count;
+    for (int o = 0; o < sc->object_count; ++o) {
+        const pen_object *ob = &sc->objects[o];
+        pen__object_buf *b = &st->obj[o];
+        const int own = st->sphere_first[o + 1] - st->sphere_first[o];
+        b->self_on = want && ob->mesh.triangle_count > 0 && own > 0;
+        b->self_others = S - own > 0;
+        st->self_any |= b->self_on;
+    }
+    if (!st->self_any) return PEN_OK;
+    pen_status s = PEN__BUF_RESERVE(ctx, st->kappa_self,
+                                    (size_t)sc->object_count * (size_t)S + 1, "self kappa");
+    if (s) return s;
+    for (int o = 0; o < sc->object_count; ++o) {
+        if (!st->obj[o].self_on) continue;
+        float *k = st->kappa_self.data + (size_t)o * (size_t)S;
+        memcpy(k, st->kappa.data, sizeof(float) * (size_t)S);
+        for (int i = st->sphere_first[o]; i < st->sphere_first[o + 1]; ++i)
+            k[i] = 0.0f;
+        if ((s = self_cache(ctx, sc, st, o))) return s;
+    }
+    return PEN_OK;
+}
+
+/* The blocked part and the light fractions at pixel i of object o, interpolated with the
+ * G-buffer's barycentrics as the normal is. */
+static void self_at(const pen_render_state *st, int o, size_t i, float *B, double *frac) {
+    const pen__object_buf *b = &st->obj[o];
+    const pen_raster_mesh *m = &st->meshes[o];
+    const uint32_t *idx = m->indices + 3 * (size_t)st->gb.triangle[i];
+    const double u = (double)st->gb.bary[2 * i], v = (double)st->gb.bary[2 * i + 1];
+    const double w[3] = {1.0 - u - v, u, v};
+    const int nc = st->params.bands * st->params.bands, K = st->lights.count;
+    for (int k = 0; k < nc; ++k) {
+        double t = 0.0;
+        for (int c = 0; c < 3; ++c)
+            t += w[c] * (double)b->self_B.data[(size_t)nc * idx[c] + (size_t)k];
+        B[k] = (float)t;
+    }
+    for (int l = 0; l < K; ++l) {
+        double f = 0.0;
+        for (int c = 0; c < 3; ++c)
+            f += w[c] * (double)b->self_frac.data[(size_t)K * idx[c] + (size_t)l];
+        frac[l] = f;
+    }
+}
+
+/* What both passes need at pixel i: its object's kappa_self, the number of spheres to visit for
+ * the SH part, the interpolated blocked part and the light fractions (the lights' factors G). */
+typedef struct self_pixel {
+    const float *kap, *x, *n, *rho;
+    int count;
+    float B[PEN_SH_MAX_COEFFS];
+    double frac[PEN_SCENE_MAX_LIGHTS];
+} self_pixel;
+
+static void self_pixel_at(const pen_render_state *st, size_t i, self_pixel *px) {
+    const int o = st->gb.surface[i], S = st->sphere_count;
+    px->kap = st->kappa_self.data + (size_t)o * (size_t)S;
+    px->count = st->obj[o].self_others ? S : 0;
+    px->x = st->x.data + 3 * i, px->n = st->n.data + 3 * i, px->rho = st->rho.data + 3 * i;
+    self_at(st, o, i, px->B, px->frac);
+}
+
+void pen__self_shade_fwd(pen_render_state *st, const float (*sh)[3], int ncull, const int *cull,
+                         size_t i, float *fv, float *V) {
+    self_pixel px;
+    self_pixel_at(st, i, &px);
+    float *rgb = st->color.data + 3 * i;
+    pen__shade_self_fwd(&st->params, sh, px.count, st->spheres.data, px.kap, px.x, px.n, px.B,
+                        px.rho, rgb, fv);
+    if (st->lights.count)
+        pen__lights_fwd(&st->lights, px.frac, ncull, st->spheres.data, px.kap, cull, px.x, px.n,
+                        px.rho, rgb, V);
+}
+
+void pen__self_shade_bwd(const pen_render_state *st, const float (*sh)[3], int ncull,
+                         const int *cull, size_t i, const float *dc, const float *fv,
+                         const float *V, double (*d_sh)[3], double *d_sph, float *d_x, float *d_n,
+                         float *d_rho, double *d_lights) {
+    self_pixel px;
+    self_pixel_at(st, i, &px);
+    pen__shade_self_bwd(&st->params, sh, px.count, st->spheres.data, px.kap, px.x, px.n, px.B,
+                        px.rho, dc, fv, d_sh, d_sph, d_x, d_n, d_rho);
+    if (st->lights.count) /* the fractions enter as the lights' G, constants */
+        pen__lights_bwd(&st->lights, px.frac, ncull, st->spheres.data, px.kap, cull, px.x, px.n,
+                        px.rho, dc, V, d_sph, d_x, d_n, d_rho, d_lights, NULL);
+}

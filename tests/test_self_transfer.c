@@ -1,0 +1,389 @@
+/* Self-shadowing by the precomputed transfer of the object's own mesh (src/render/self.c,
+ * src/geometry/transfer.c; docs/design.md sec. 1.15).
+ *
+ * - A convex mesh blocks nothing of its own clamped cosine: B = 0 at every vertex, every light
+ *   fraction 1, so it shades exactly as the clamped cosine.
+ * - A concave mesh (a V of two subdivided quads) against the ray-traced reference's exact
+ *   visibility: the transfer is much closer than the object's own spheres; with a disk light too.
+ * - The kernel with a transfer against central differences in double: lighting, albedo, and the
+ *   other objects' spheres, x and n (the blocked part a constant).
+ * - A frame's lighting and albedo gradients with the transfer on (the image is linear in them).
+ * - The cache: kept while the pose stays, rebuilt when it moves.
+ * - The same transfer and the same image for any thread count, and from either kernel.
+ * - "self": "spheres" (scene) and PEN_RENDER_SELF_SPHERES (options) render as the sphere model. */
+#include "check.h"
+#include "render_scenes.h"
+
+#include "geometry/transfer.h"
+#include "render/render_internal.h"
+
+#include <string.h>
+
+/* ---- Scenes ---------------------------------------------------------------------------------- */
+
+/* A V of two quads meeting along the z axis at height 0.3, each rising 0.55 over 0.55 sideways,
+ * 1.1 deep, subdivided k x k; faces wound so that the normals point into the V (up and inwards). */
+static pen_mesh v_mesh(int k) {
+    rs_builder b = {0, 0, 0, 0, NULL, NULL};
+    for (int side = -1; side <= 1; side += 2) {
+        int id[17][17];
+        for (int i = 0; i <= k; ++i)
+            for (int j = 0; j <= k; ++j) {
+                const float s = (float)i / (float)k, t = (float)j / (float)k;
+                const float p[3] = {side * 0.55f * s, 0.3f + 0.55f * s, -0.55f + 1.1f * t};
+                id[i][j] = rs_vertex(&b, p);
+            }
+        for (int i = 0; i < k; ++i)
+            for (int j = 0; j < k; ++j) {
+                const int a = id[i][j], c = id[i + 1][j], d = id[i + 1][j + 1], e = id[i][j + 1];
+                if (side > 0)
+                    rs_triangle(&b, a, e, d), rs_triangle(&b, a, d, c);
+                else
+                    rs_triangle(&b, a, c, d), rs_triangle(&b, a, d, e);
+            }
+    }
+    pen_mesh m;
+    memset(&m, 0, sizeof m);
+    m.vertex_count = b.nv, m.triangle_count = b.nt;
+    m.positions = b.pos, m.indices = b.idx;
+    return m;
+}
+
+/* The V with four spheres along its walls, no ground, 64 x 64, the camera looking into it. */
+static pen_scene v_scene(int size) {
+    pen_scene sc = rs_scene(size, size);
+    sc.ground.enabled = 0;
+    const float sph[16] = {-0.2f, 0.52f, -0.25f, 0.2f, -0.2f, 0.52f, 0.25f, 0.2f,
+                           0.2f,  0.52f, -0.25f, 0.2f, 0.2f,  0.52f, 0.25f, 0.2f};
+    rs_add_object(&sc, v_mesh(16), 4, sph);
+    const float eye[3] = {0.2f, 1.9f, 1.6f}, target[3] = {0.0f, 0.45f, 0.0f};
+    memcpy(sc.camera.eye, eye, sizeof eye);
+    memcpy(sc.camera.target, target, sizeof target);
+    return sc;
+}
+
+static pen_image reference_of(const pen_scene *sc, int spp) {
+    pen_image img = {0, 0, 0, NULL};
+    pen_context *ctx = pen_context_create();
+    pen_reference *ref = NULL;
+    CHECK(pen_reference_create(ctx, sc, PEN_REFERENCE_LIGHTING_SH, &ref) == PEN_OK);
+    CHECK(pen_reference_render(ctx, ref, spp, 1, &img) == PEN_OK);
+    pen_reference_destroy(ref);
+    pen_context_destroy(ctx);
+    return img;
+}
+
+static pen__transfer_request request_of(const pen_mesh *m, const float *normals, int bands) {
+    pen__transfer_request rq;
+    memset(&rq, 0, sizeof rq);
+    rq.vertex_count = m->vertex_count, rq.triangle_count = m->triangle_count;
+    rq.positions = m->positions, rq.normals = normals, rq.indices = m->indices;
+    rq.bands = bands;
+    return rq;
+}
+
+/* ---- Tests ----------------------------------------------------------------------------------- */
+
+static void test_convex_blocks_nothing(void) {
+    pen_context *ctx = pen_context_create();
+    pen_mesh m = rs_octasphere(3, 0.5f, 0);
+    float *nrm = malloc(sizeof(float) * 3 * (size_t)m.vertex_count);
+    CHECK(pen_vertex_normals_fwd(ctx, m.vertex_count, m.positions, m.triangle_count, m.indices,
+                                 nrm) == PEN_OK);
+    pen__transfer_request rq = request_of(&m, nrm, 4);
+    const double w[2][3] = {{0.0, 1.0, 0.0}, {0.6, 0.0, 0.8}}, b[2] = {0.05, 0.3};
+    rq.light_count = 2, rq.light_w = w, rq.light_b = b;
+    float *B = malloc(sizeof(float) * 16 * (size_t)m.vertex_count);
+    float *frac = malloc(sizeof(float) * 2 * (size_t)m.vertex_count);
+    CHECK(pen__mesh_transfer(ctx, &rq, B, frac) == PEN_OK);
+    double worst = 0.0, fworst = 0.0;
+    for (int i = 0; i < 16 * m.vertex_count; ++i)
+        worst = fmax(worst, fabs((double)B[i]));
+    for (int i = 0; i < 2 * m.vertex_count; ++i)
+        fworst = fmax(fworst, fabs((double)frac[i] - 1.0));
+    CHECK_MSG(worst == 0.0 && fworst == 0.0, "convex mesh: |B| up to %g, |1 - frac| up to %g",
+              worst, fworst);
+    /* The transfer H_n - B is then the clamped cosine's projection: the whole scene renders as
+     * with the sphere model switched off for the object (no other object). */
+    free(B), free(frac), free(nrm);
+    pen_mesh_free(&m);
+    pen_context_destroy(ctx);
+}
+
+/* Measured: transfer 0.011, own spheres 0.116 (SH only); with a disk light 0.021 and 0.140. */
+static void test_concave_against_reference(void) {
+    for (int lit = 0; lit < 2; ++lit) {
+        pen_scene sc = v_scene(64);
+        if (lit) {
+            sc.lighting.light_count = 1;
+            sc.lighting.lights_mode = PEN_LIGHTS_GIVEN;
+            pen_light *L = &sc.lighting.lights[0];
+            const float d[3] = {0.8f, 0.45f, 0.2f};
+            memcpy(L->direction, d, sizeof d);
+            L->angular_radius_deg = 3.0f;
+            L->irradiance[0] = L->irradiance[1] = L->irradiance[2] = 2.5f;
+        }
+        pen_image ref = reference_of(&sc, check_quick_() ? 64 : 512);
+        pen_render_options opt = pen_render_options_default();
+        pen_image tr = {0, 0, 0, NULL}, sp = {0, 0, 0, NULL};
+        CHECK(rs_render(&sc, &opt, 2, &tr) == PEN_OK);
+        opt.self_shadow = PEN_RENDER_SELF_SPHERES;
+        CHECK(rs_render(&sc, &opt, 2, &sp) == PEN_OK);
+        const double et = rs_rel_error(&tr, &ref), es = rs_rel_error(&sp, &ref);
+        printf("  V %s: rel. error against the reference: transfer %.4f, own spheres %.4f\n",
+               lit ? "with a disk light" : "under SH light", et, es);
+        CHECK(et < 0.05);
+        CHECK(et < 0.5 * es);
+        pen_image_free(&tr), pen_image_free(&sp), pen_image_free(&ref);
+        pen_scene_free(&sc);
+    }
+}
+
+/* The kernel's loss sum_ch q_ch rgb_ch and its gradient, in double. */
+typedef struct kcase {
+    pen__shade_params p;
+    double sh[PEN_SH_MAX_COEFFS][3], spheres[12], kappa[3], x[3], n[3], B[PEN_SH_MAX_COEFFS],
+        rho[3], q[3];
+    int count;
+} kcase;
+
+static double kloss(const kcase *c) {
+    double rgb[3];
+    pen__shade_self_fwd_d(&c->p, (const double(*)[3])c->sh, c->count, c->spheres, c->kappa, c->x,
+                          c->n, c->B, c->rho, rgb, NULL);
+    return c->q[0] * rgb[0] + c->q[1] * rgb[1] + c->q[2] * rgb[2];
+}
+
+static void fd_check(kcase *c, double *v, int m, const double *an, const char *what) {
+    for (int j = 0; j < m; ++j) {
+        const double keep = v[j], h = 1e-6;
+        v[j] = keep + h;
+        const double lp = kloss(c);
+        v[j] = keep - h;
+        const double lm = kloss(c);
+        v[j] = keep;
+        const double fd = (lp - lm) / (2.0 * h);
+        CHECK_MSG(fabs(fd - an[j]) <= 1e-6 * fmax(1.0, fabs(fd)), "%s[%d]: analytic %.9g, FD %.9g",
+                  what, j, an[j], fd);
+    }
+}
+
+static void test_kernel_gradients(void) {
+    unsigned long long seed = 19;
+    for (int trial = 0; trial < 6; ++trial) {
+        kcase c;
+        memset(&c, 0, sizeof c);
+        const pen_sh_exp_model model = pen_sh_exp_model_default(PEN_SH_EXP_CALIBRATED, 4);
+        pen__shade_params_init(&c.p, 4, &model, 0.0, 1);
+        for (int k = 0; k < 16; ++k)
+            for (int ch = 0; ch < 3; ++ch)
+                c.sh[k][ch] = rs_uniform(&seed, -0.5, 1.0);
+        rs_unit_vector(&seed, c.n);
+        c.n[1] = fabs(c.n[1]);
+        for (int a = 0; a < 3; ++a) {
+            c.x[a] = rs_uniform(&seed, -0.2, 0.2);
+            c.rho[a] = rs_uniform(&seed, 0.2, 0.9);
+            c.q[a] = rs_uniform(&seed, 0.5, 1.5);
+        }
+        for (int k = 0; k < 16; ++k)
+            c.B[k] = rs_uniform(&seed, -0.1, 0.1);
+        /* Three spheres above the receiver; the second is the object's own (kappa 0). */
+        for (int i = 0; i < 3; ++i) {
+            double d[3];
+            rs_unit_vector(&seed, d);
+            const double dist = rs_uniform(&seed, 0.6, 1.2);
+            for (int a = 0; a < 3; ++a)
+                c.spheres[4 * i + a] = c.x[a] + dist * (0.5 * d[a] + 0.8 * c.n[a]);
+            c.spheres[4 * i + 3] = rs_uniform(&seed, 0.15, 0.35);
+            c.kappa[i] = i == 1 ? 0.0 : rs_uniform(&seed, 0.5, 1.0);
+        }
+        c.count = trial % 3 == 2 ? 0 : 3; /* no other sphere: T = H_n - B, no exponential */
+        double d_sh[PEN_SH_MAX_COEFFS][3] = {{0}}, d_sph[12] = {0}, d_x[3] = {0}, d_n[3] = {0},
+               d_rho[3] = {0};
+        pen__shade_self_bwd_d(&c.p, (const double(*)[3])c.sh, c.count, c.spheres, c.kappa, c.x,
+                              c.n, c.B, c.rho, c.q, NULL, d_sh, d_sph, d_x, d_n, d_rho);
+        fd_check(&c, &c.sh[0][0], 48, &d_sh[0][0], "d_sh");
+        fd_check(&c, c.rho, 3, d_rho, "d_rho");
+        fd_check(&c, c.x, 3, d_x, "d_x");
+        fd_check(&c, c.n, 3, d_n, "d_n");
+        fd_check(&c, c.spheres, 12, d_sph, "d_spheres");
+        CHECK(d_sph[4] == 0.0 && d_sph[5] == 0.0 && d_sph[6] == 0.0 && d_sph[7] == 0.0);
+        /* With the blocked part zero and no other sphere: the clamped cosine's shading. */
+        if (c.count == 0) {
+            double rgb[3], ref[3], zero[PEN_SH_MAX_COEFFS] = {0};
+            pen__shade_self_fwd_d(&c.p, (const double(*)[3])c.sh, 0, c.spheres, c.kappa, c.x,
+                                  c.n, zero, c.rho, rgb, NULL);
+            pen__shade_params q = c.p;
+            q.shadows = 0;
+            pen__shade_fwd_d(&q, (const double(*)[3])c.sh, 0, c.spheres, c.kappa, c.x, c.n, c.rho,
+                             ref, NULL);
+            for (int ch = 0; ch < 3; ++ch)
+                CHECK(rgb[ch] == ref[ch]);
+        }
+    }
+}
+
+/* loss = sum q . image with the transfer on: its lighting and albedo gradients against central
+ * differences of the float render (the image is linear in both, so the differences are exact up
+ * to rounding), with a second object whose spheres shadow the V, both kernels. */
+static void test_frame_lighting_albedo(void) {
+    pen_scene sc = v_scene(48);
+    const float ball[4] = {0.0f, 0.0f, 0.0f, 0.2f};
+    pen_object *o2 = rs_add_object(&sc, rs_octasphere(2, 0.2f, 0), 1, ball);
+    o2->pose.translation[0] = 0.25f, o2->pose.translation[1] = 1.15f;
+    sc.lighting.light_count = 1;
+    sc.lighting.lights_mode = PEN_LIGHTS_GIVEN;
+    const float d[3] = {0.5f, 0.8f, 0.3f};
+    memcpy(sc.lighting.lights[0].direction, d, sizeof d);
+    sc.lighting.lights[0].angular_radius_deg = 5.0f;
+    sc.lighting.lights[0].irradiance[0] = 1.5f, sc.lighting.lights[0].irradiance[1] = 1.2f;
+    sc.lighting.lights[0].irradiance[2] = 1.0f;
+    for (int kernel = 0; kernel < 2; ++kernel) {
+        pen_context *ctx = pen_context_create();
+        pen_render_options opt = pen_render_options_default();
+        opt.kernel = kernel ? PEN_RENDER_KERNEL_SCALAR : PEN_RENDER_KERNEL_FAST;
+        pen_render_state *st = NULL;
+        CHECK(pen_render_state_create(ctx, &st) == PEN_OK);
+        pen_image img = {0, 0, 0, NULL}, dimg = {0, 0, 0, NULL};
+        CHECK(pen_render_fwd(ctx, &sc, &opt, st, &img) == PEN_OK);
+        CHECK(st->obj[0].self_on && st->obj[0].self_others); /* the ball's sphere shadows the V */
+        CHECK(pen_image_create(ctx, img.width, img.height, 3, &dimg) == PEN_OK);
+        unsigned long long seed = 5;
+        for (size_t i = 0; i < 3 * (size_t)img.width * img.height; ++i)
+            dimg.data[i] = (float)rs_uniform(&seed, 0.0, 1.0);
+        pen_render_grad g;
+        CHECK(pen_render_grad_create(ctx, &sc, &g) == PEN_OK);
+        pen_render_grad_zero(&g);
+        CHECK(pen_render_bwd(ctx, &sc, &opt, st, &dimg, PEN_GRAD_LIGHTING | PEN_GRAD_ALBEDO |
+                                                             PEN_GRAD_LIGHTS, &g) == PEN_OK);
+        pen_image tmp = {0, 0, 0, NULL};
+        float *params[6] = {&sc.lighting.sh[0][0], &sc.lighting.sh[2][1], &sc.lighting.sh[6][2],
+                            &sc.objects[0].albedo[0], &sc.objects[0].albedo[2],
+                            &sc.lighting.lights[0].irradiance[1]};
+        const double an[6] = {g.sh[0][0], g.sh[2][1], g.sh[6][2], g.objects[0].albedo[0],
+                              g.objects[0].albedo[2], g.lights[0].irradiance[1]};
+        for (int j = 0; j < 6; ++j) {
+            const float keep = *params[j], h = 0.05f;
+            double l[2];
+            for (int sgn = 0; sgn < 2; ++sgn) {
+                *params[j] = keep + (sgn ? -h : h);
+                CHECK(pen_render_fwd(ctx, &sc, &opt, NULL, &tmp) == PEN_OK);
+                l[sgn] = 0.0;
+                for (size_t i = 0; i < 3 * (size_t)img.width * img.height; ++i)
+                    l[sgn] += (double)dimg.data[i] * (double)tmp.data[i];
+            }
+            *params[j] = keep;
+            const double fd = (l[0] - l[1]) / (2.0 * (double)h);
+            CHECK_MSG(fabs(fd - an[j]) <= 2e-3 * fmax(1.0, fabs(fd)),
+                      "kernel %d, parameter %d: analytic %.6g, FD %.6g", kernel, j, an[j], fd);
+        }
+        pen_image_free(&tmp), pen_image_free(&img), pen_image_free(&dimg);
+        pen_render_grad_free(&g);
+        pen_render_state_free(st);
+        pen_context_destroy(ctx);
+    }
+    pen_scene_free(&sc);
+}
+
+static void test_cache(void) {
+    pen_scene sc = v_scene(32);
+    pen_context *ctx = pen_context_create();
+    pen_render_options opt = pen_render_options_default();
+    pen_render_state *st = NULL;
+    CHECK(pen_render_state_create(ctx, &st) == PEN_OK);
+    pen_image img = {0, 0, 0, NULL};
+    CHECK(pen_render_fwd(ctx, &sc, &opt, st, &img) == PEN_OK);
+    pen__object_buf *b = &st->obj[0];
+    CHECK(b->self_on && b->self_valid);
+    const uint64_t key = b->self_key;
+    /* The same pose, other lighting and albedo: the cache is kept (a marker survives). */
+    const float marker = 12345.0f, kept = b->self_B.data[0];
+    b->self_B.data[0] = marker;
+    sc.lighting.sh[1][0] += 0.3f;
+    sc.objects[0].albedo[1] = 0.2f;
+    CHECK(pen_render_fwd(ctx, &sc, &opt, st, &img) == PEN_OK);
+    CHECK(b->self_key == key && b->self_B.data[0] == marker);
+    /* The pose moves: rebuilt. */
+    sc.objects[0].pose.rotation_axis_angle_deg[1] = 20.0f;
+    CHECK(pen_render_fwd(ctx, &sc, &opt, st, &img) == PEN_OK);
+    CHECK(b->self_key != key && b->self_B.data[0] != marker);
+    /* Back to the first pose: the first transfer again. */
+    sc.objects[0].pose.rotation_axis_angle_deg[1] = 0.0f;
+    CHECK(pen_render_fwd(ctx, &sc, &opt, st, &img) == PEN_OK);
+    CHECK(b->self_key == key && b->self_B.data[0] == kept);
+    /* The band count is part of the key. */
+    sc.sh_bands = 3;
+    CHECK(pen_render_fwd(ctx, &sc, &opt, st, &img) == PEN_OK);
+    CHECK(b->self_key != key);
+    pen_image_free(&img);
+    pen_render_state_free(st);
+    pen_context_destroy(ctx);
+    pen_scene_free(&sc);
+}
+
+static void test_threads_and_kernels(void) {
+    pen_scene sc = v_scene(48);
+    pen_mesh *m = &sc.objects[0].mesh;
+    float *nrm = malloc(sizeof(float) * 3 * (size_t)m->vertex_count);
+    float *B[2] = {malloc(sizeof(float) * 16 * (size_t)m->vertex_count),
+                   malloc(sizeof(float) * 16 * (size_t)m->vertex_count)};
+    for (int r = 0; r < 2; ++r) {
+        pen_context *ctx = pen_context_create();
+        pen_context_set_threads(ctx, r ? 3 : 1);
+        CHECK(pen_vertex_normals_fwd(ctx, m->vertex_count, m->positions, m->triangle_count,
+                                     m->indices, nrm) == PEN_OK);
+        pen__transfer_request rq = request_of(m, nrm, 4);
+        CHECK(pen__mesh_transfer(ctx, &rq, B[r], NULL) == PEN_OK);
+        pen_context_destroy(ctx);
+    }
+    CHECK(!memcmp(B[0], B[1], sizeof(float) * 16 * (size_t)m->vertex_count));
+    double blocked = 0.0;
+    for (int i = 0; i < m->vertex_count; ++i)
+        blocked = fmax(blocked, (double)B[0][16 * i]);
+    CHECK(blocked > 0.1); /* the V's crease sees its other wall */
+    pen_image a = {0, 0, 0, NULL}, b = {0, 0, 0, NULL}, c = {0, 0, 0, NULL};
+    pen_render_options opt = pen_render_options_default();
+    CHECK(rs_render(&sc, &opt, 1, &a) == PEN_OK);
+    CHECK(rs_render(&sc, &opt, 3, &b) == PEN_OK);
+    opt.kernel = PEN_RENDER_KERNEL_SCALAR;
+    CHECK(rs_render(&sc, &opt, 2, &c) == PEN_OK);
+    const size_t n = 3 * (size_t)a.width * a.height;
+    CHECK(!memcmp(a.data, b.data, sizeof(float) * n));
+    double worst = 0.0;
+    for (size_t i = 0; i < n; ++i)
+        worst = fmax(worst, fabs((double)a.data[i] - (double)c.data[i]));
+    CHECK_MSG(worst < 1e-5, "fast and scalar kernels differ by %g", worst);
+    pen_image_free(&a), pen_image_free(&b), pen_image_free(&c);
+    free(B[0]), free(B[1]), free(nrm);
+    pen_scene_free(&sc);
+}
+
+static void test_spheres_mode(void) {
+    pen_scene sc = v_scene(32);
+    pen_render_options opt = pen_render_options_default();
+    pen_image t = {0, 0, 0, NULL}, s1 = {0, 0, 0, NULL}, s2 = {0, 0, 0, NULL};
+    CHECK(rs_render(&sc, &opt, 2, &t) == PEN_OK);
+    opt.self_shadow = PEN_RENDER_SELF_SPHERES;
+    CHECK(rs_render(&sc, &opt, 2, &s1) == PEN_OK);
+    opt.self_shadow = PEN_RENDER_SELF_SCENE;
+    sc.shadow.self = PEN_SELF_SPHERES;
+    CHECK(rs_render(&sc, &opt, 2, &s2) == PEN_OK);
+    const size_t n = 3 * (size_t)t.width * t.height;
+    CHECK(!memcmp(s1.data, s2.data, sizeof(float) * n));
+    CHECK(memcmp(t.data, s1.data, sizeof(float) * n) != 0);
+    pen_image_free(&t), pen_image_free(&s1), pen_image_free(&s2);
+    pen_scene_free(&sc);
+}
+
+int main(void) {
+    static const check_test_ tests[] = {
+        {"test_convex_blocks_nothing", test_convex_blocks_nothing},
+        {"test_concave_against_reference", test_concave_against_reference},
+        {"test_kernel_gradients", test_kernel_gradients},
+        {"test_frame_lighting_albedo", test_frame_lighting_albedo},
+        {"test_cache", test_cache},
+        {"test_threads_and_kernels", test_threads_and_kernels},
+        {"test_spheres_mode", test_spheres_mode},
+    };
+    return check_run_(tests, (int)(sizeof tests / sizeof tests[0]));
+}
