@@ -546,6 +546,13 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
     r.opt = pen_render_options_default();
     r.opt.shadows = set.shadows;
     r.groups = task->optimize;
+    /* The precomputed self transfer (docs/design.md sec. 1.15) is constant in the pose, the shape,
+     * the spheres and the lights' directions: a task moving any of them sees its objects' own
+     * shadows through their spheres, whose gradient it needs (and a light search would ray trace
+     * the transfer again for every candidate direction). Lighting, albedo and exposure keep the
+     * scene's choice: their gradients are exact with the transfer, which is traced once. */
+    if (r.groups & (PEN_OPTIM_POSE | PEN_OPTIM_DEFORMATION | PEN_OPTIM_SPHERES | PEN_OPTIM_LIGHTS))
+        r.opt.self_shadow = PEN_RENDER_SELF_SPHERES;
     r.solve = task->lighting_solver == PEN_OPTIM_LIGHTING_LEAST_SQUARES;
     r.multi = task->view_count > 0;
     r.task_views = task->views;
