@@ -17,11 +17,15 @@ uses the first n, so the n-view sets grow by adding views, and 1 view is the sce
 
 Two held-back views that no placement uses, (60, 30) and (250, 55), are the validation views
 of every task. Solvers: ls = least squares, default ridge 1e-2; ls4 = ridge 1e-4; adam = the
-task defaults (Adam from black, 500 iterations at most, rate 0.01).
+task defaults (Adam from black, 500 iterations at most, rate 0.01). Targets: t_<name>.exr, the
+full map ray-traced (the experiment); the controls t_<name>_sh.exr (ray-traced with the map's
+4-band projection: exact visibility, band-limited light) and t_<name>_model.exr (penumbra's own
+render of the truth: the model exact), whose views files and tasks carry the suffix _sh and
+_model (least squares only).
 Writes into OUT: cam_<name>.json (the truth with that camera, absolute paths, for `penumbra
 reference` and `penumbra render`), truth.json (the truth under ENVMAP, the scene and ground truth
-of every task), views_<placement>_<n>.json, views_val.json and
-task_<placement>_<n>_<solver>.json; their targets are t_<name>.exr (made by run_views.sh).
+of every task), views_<placement>_<n>[_sh|_model].json, views_val[_sh|_model].json and
+task_<placement>_<n>_<solver>[_sh|_model].json; the targets are made by run_views.sh.
 Usage: python3 make_views.py OUT MESH ENVMAP
 """
 import json
@@ -106,18 +110,21 @@ for key, cam in cameras.items():
     write("cam_%s.json" % key, dict(truth, camera=cam))
 
 
-def views_file(keys):
-    return {"views": [{"camera": cameras[k], "target": "t_%s.exr" % k} for k in keys]}
+def views_file(keys, suffix):
+    return {"views": [{"camera": cameras[k], "target": "t_%s%s.exr" % (k, suffix)} for k in keys]}
 
 
-write("views_val.json", views_file(sorted(VALIDATION)))
-for name, keys in views.items():
-    for n in COUNTS:
-        write("views_%s_%d.json" % (name, n), views_file(keys[:n]))
-        for solver, extra in SOLVERS.items():
-            task = {"scene": "truth.json", "ground_truth": "truth.json", "optimize": ["lighting"],
-                    "views": "views_%s_%d.json" % (name, n),
-                    "validation_views": "views_val.json"}
-            task.update(extra)
-            write("task_%s_%d_%s.json" % (name, n, solver), task)
+for suffix in ("", "_sh", "_model"):
+    write("views_val%s.json" % suffix, views_file(sorted(VALIDATION), suffix))
+    for name, keys in views.items():
+        for n in COUNTS:
+            write("views_%s_%d%s.json" % (name, n, suffix), views_file(keys[:n], suffix))
+            for solver, extra in SOLVERS.items():
+                if suffix and solver == "adam":
+                    continue
+                task = {"scene": "truth.json", "ground_truth": "truth.json",
+                        "optimize": ["lighting"], "views": "views_%s_%d%s.json" % (name, n, suffix),
+                        "validation_views": "views_val%s.json" % suffix}
+                task.update(extra)
+                write("task_%s_%d_%s%s.json" % (name, n, solver, suffix), task)
 print(" ".join(sorted(cameras)))

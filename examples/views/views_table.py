@@ -4,7 +4,8 @@ One line per run (MESH_ENVMAP/run_<placement>_<n>_<solver>/result.json): the lig
 (all 16 coefficients, bands 0-2, the sky = upper hemisphere), the ratio of each to the same
 case's 1-view ring run with the same solver (issue 20 asks 4 views <= 0.5x), the held-back
 views' mean rel. RMSE ("val") beside that of the true map's 4-band projection there ("true",
-true_val<i>.json) and their ratio, and the solver's iterations, stop reason, seconds per
+true_val<i>.json, against the full map's targets; for the controls the ratio is not the
+issue's) and their ratio, and the solver's iterations, stop reason, seconds per
 iteration and final loss.
 Usage: python3 views_table.py OUT   (OUT = out/views)
 """
@@ -15,7 +16,7 @@ import re
 import sys
 
 out = sys.argv[1]
-RUN = re.compile(r"run_(ring|ring_far|ring_near|elev)_(\d+)_(\w+)$")
+RUN = re.compile(r"run_(ring|ring_far|ring_near|elev)_(\d+)_(ls4|ls|adam)(_sh|_model)?$")
 ORDER = {"ring": 0, "elev": 1, "ring_far": 2, "ring_near": 3}
 rows = []
 for case in sorted(os.listdir(out)):
@@ -31,31 +32,32 @@ for case in sorted(os.listdir(out)):
         r = json.load(open(path))
         met = r["metrics"]
         val = [v["image_rel_rmse"] for v in r["validation_views"]]
-        rows.append({"case": case, "placement": m.group(1), "n": int(m.group(2)),
-                     "solver": m.group(3), "err": met["lighting_rel_error"],
+        rows.append({"case": case, "targets": (m.group(4) or "_map")[1:],
+                     "placement": m.group(1), "n": int(m.group(2)), "solver": m.group(3), "err": met["lighting_rel_error"],
                      "b02": met["lighting_rel_error_bands_0_2"],
                      "sky": met["lighting_rel_error_sky"],
                      "val": sum(val) / len(val), "true": sum(true) / len(true),
                      "iterations": r["iterations"], "stop": r["stop_reason"],
                      "s_per_it": r["seconds_per_iteration"], "seconds": r["seconds"],
                      "loss": r["final_loss"]})
-base = {(r["case"], r["solver"]): r for r in rows if r["placement"] == "ring" and r["n"] == 1}
-rows.sort(key=lambda r: (r["case"], r["solver"], ORDER[r["placement"]], r["n"]))
-cols = ("case", "placement", "n", "solver", "err", "err_x1", "b02", "sky", "sky_x1", "val",
+base = {(r["case"], r["targets"], r["solver"]): r for r in rows
+        if r["placement"] == "ring" and r["n"] == 1}
+rows.sort(key=lambda r: (r["case"], r["targets"], r["solver"], ORDER[r["placement"]], r["n"]))
+cols = ("case", "targets", "placement", "n", "solver", "err", "err_x1", "b02", "sky", "sky_x1", "val",
         "true", "val_ratio", "iterations", "stop", "s_per_it", "seconds", "loss")
 with open(os.path.join(out, "results.tsv"), "w") as f:
     f.write("\t".join(cols) + "\n")
-    print("| case | placement | views | solver | lighting error (x 1 view) | bands 0-2 | sky "
+    print("| case | targets | placement | views | solver | lighting error (x 1 view) | bands 0-2 | sky "
           "(x 1 view) | held-back rel. RMSE / true's (ratio) | iterations, stop | s/it |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
-        b = base.get((r["case"], r["solver"]))
+        b = base.get((r["case"], r["targets"], r["solver"]))
         r["err_x1"] = r["err"] / b["err"] if b else float("nan")
         r["sky_x1"] = r["sky"] / b["sky"] if b else float("nan")
         r["val_ratio"] = r["val"] / r["true"]
         f.write("\t".join(str(r[c]) for c in cols) + "\n")
-        print("| %s | %s | %d | %s | %.3f (%.2fx) | %.3f | %.3f (%.2fx) | %.4f / %.4f (%.2f) "
-              "| %d, %s | %.3f |" % (r["case"], r["placement"], r["n"], r["solver"], r["err"],
+        print("| %s | %s | %s | %d | %s | %.3f (%.2fx) | %.3f | %.3f (%.2fx) | %.4f / %.4f (%.2f) "
+              "| %d, %s | %.3f |" % (r["case"], r["targets"], r["placement"], r["n"], r["solver"], r["err"],
                                    r["err_x1"], r["b02"], r["sky"], r["sky_x1"], r["val"],
                                    r["true"], r["val_ratio"], r["iterations"], r["stop"],
                                    r["s_per_it"]))
