@@ -61,3 +61,28 @@ with open(os.path.join(out, "results.tsv"), "w") as f:
                                    r["err_x1"], r["b02"], r["sky"], r["sky_x1"], r["val"],
                                    r["true"], r["val_ratio"], r["iterations"], r["stop"],
                                    r["s_per_it"]))
+
+# The summary of docs/optimize.md: per case, targets, solver and placement the lighting error
+# (sky) at 1, 2, 4 and 8 views, 4 views against the 1-view ring run, and the held-back ratio at
+# 4 views (the views at every count for Adam: its iterations and stop reason).
+print()
+print("| case | targets | solver | placement | 1 view | 2 views | 4 views | 8 views | 4 views "
+      "/ 1 view: all (sky) | held-back / true's, 4 views |")
+print("|---|---|---|---|---|---|---|---|---|---|")
+groups = {}
+for r in rows:
+    groups.setdefault((r["case"], r["targets"], r["solver"], r["placement"]), {})[r["n"]] = r
+for (case, targets, solver, placement), runs in groups.items():
+    def cell(n):
+        r = runs.get(n)
+        if r is None:
+            return "-"
+        text = "%.3f (%.3f)" % (r["err"], r["sky"])
+        if solver == "adam":
+            text += ", %d%s" % (r["iterations"], "" if r["stop"] == "converged" else " (limit)")
+        return text
+    four = runs.get(4)
+    ratio = "%.2fx (%.2fx)" % (four["err_x1"], four["sky_x1"]) if four else "-"
+    held = "%.2f" % four["val_ratio"] if four and targets == "map" else "-"
+    print("| %s | %s | %s | %s | %s | %s | %s | %s | %s | %s |"
+          % (case, targets, solver, placement, cell(1), cell(2), cell(4), cell(8), ratio, held))
