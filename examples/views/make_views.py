@@ -17,14 +17,16 @@ uses the first n, so the n-view sets grow by adding views, and 1 view is the sce
 
 Two held-back views that no placement uses, (60, 30) and (250, 55), are the validation views
 of every task. Solvers: ls = least squares, default ridge 1e-2; ls4 = ridge 1e-4; adam = the
-task defaults (Adam from black, 500 iterations at most, rate 0.01). Targets: t_<name>.exr, the
+task defaults (Adam from black, 500 iterations at most, rate 0.01); pose = not the lighting
+but the 6-D pose (Adam, at most 400 iterations) from examples/optimize/<mesh>_pose_init.json
+(10.8 degrees and 0.1 off), the lighting known (map targets only). Targets: t_<name>.exr, the
 full map ray-traced (the experiment); the controls t_<name>_sh.exr (ray-traced with the map's
 4-band projection: exact visibility, band-limited light) and t_<name>_model.exr (penumbra's own
 render of the truth: the model exact), whose views files and tasks carry the suffix _sh and
 _model (least squares only).
 Writes into OUT: cam_<name>.json (the truth with that camera, absolute paths, for `penumbra
 reference` and `penumbra render`), truth.json (the truth under ENVMAP, the scene and ground truth
-of every task), views_<placement>_<n>[_sh|_model].json, views_val[_sh|_model].json and
+of every task), pose_init.json (the pose tasks' start), views_<placement>_<n>[_sh|_model].json, views_val[_sh|_model].json and
 task_<placement>_<n>_<solver>[_sh|_model].json; the targets are made by run_views.sh.
 Usage: python3 make_views.py OUT MESH ENVMAP
 """
@@ -39,7 +41,8 @@ SIZE = 128
 COUNTS = (1, 2, 4, 8)
 SOLVERS = {"ls": {"lighting_solver": "least_squares"},
            "ls4": {"lighting_solver": "least_squares", "lighting_ridge": 1e-4},
-           "adam": {}}
+           "adam": {},
+           "pose": {"scene": "pose_init.json", "optimize": ["pose"], "iterations": 400}}
 RING = (0, 180, 90, 270, 45, 225, 135, 315)
 ELEV = ((0, None), (180, 70), (90, 40), (270, 15), (45, 89), (225, 40), (135, 15), (315, 70))
 VALIDATION = {"val1": (60, 30), "val2": (250, 55)}
@@ -106,6 +109,11 @@ def write(name, obj):
 
 
 write("truth.json", truth)
+with open(os.path.join(TASKS, "%s_pose_init.json" % mesh)) as f:
+    pose_init = json.load(f)
+pose_init.update(lighting=truth["lighting"], objects=[
+    dict(ob, pose=p["pose"]) for ob, p in zip(truth["objects"], pose_init["objects"])])
+write("pose_init.json", pose_init)
 for key, cam in cameras.items():
     write("cam_%s.json" % key, dict(truth, camera=cam))
 
@@ -120,7 +128,7 @@ for suffix in ("", "_sh", "_model"):
         for n in COUNTS:
             write("views_%s_%d%s.json" % (name, n, suffix), views_file(keys[:n], suffix))
             for solver, extra in SOLVERS.items():
-                if suffix and solver == "adam":
+                if suffix and solver in ("adam", "pose"):
                     continue
                 task = {"scene": "truth.json", "ground_truth": "truth.json",
                         "optimize": ["lighting"], "views": "views_%s_%d%s.json" % (name, n, suffix),

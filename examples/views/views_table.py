@@ -6,7 +6,7 @@ case's 1-view ring run with the same solver (issue 20 asks 4 views <= 0.5x), the
 views' mean rel. RMSE ("val") beside that of the true map's 4-band projection there ("true",
 true_val<i>.json, against the full map's targets; for the controls the ratio is not the
 issue's) and their ratio, and the solver's iterations, stop reason, seconds per
-iteration and final loss.
+iteration and final loss; the pose runs in a table of their own.
 Usage: python3 views_table.py OUT   (OUT = out/views)
 """
 import glob
@@ -16,9 +16,10 @@ import re
 import sys
 
 out = sys.argv[1]
-RUN = re.compile(r"run_(ring|ring_far|ring_near|elev)_(\d+)_(ls4|ls|adam)(_sh|_model)?$")
+RUN = re.compile(r"run_(ring|ring_far|ring_near|elev)_(\d+)_(ls4|ls|adam|pose)(_sh|_model)?$")
 ORDER = {"ring": 0, "elev": 1, "ring_far": 2, "ring_near": 3}
 rows = []
+poses = []
 for case in sorted(os.listdir(out)):
     cdir = os.path.join(out, case)
     true_files = sorted(glob.glob(os.path.join(cdir, "true_val*.json")))
@@ -31,6 +32,11 @@ for case in sorted(os.listdir(out)):
             continue
         r = json.load(open(path))
         met = r["metrics"]
+        if m.group(3) == "pose":
+            poses.append((case, m.group(1), int(m.group(2)), met["rotation_error_deg"],
+                          met["translation_error_rel"], r["iterations"], r["stop_reason"],
+                          r["seconds_per_iteration"]))
+            continue
         val = [v["image_rel_rmse"] for v in r["validation_views"]]
         rows.append({"case": case, "targets": (m.group(4) or "_map")[1:],
                      "placement": m.group(1), "n": int(m.group(2)), "solver": m.group(3), "err": met["lighting_rel_error"],
@@ -86,3 +92,14 @@ for (case, targets, solver, placement), runs in groups.items():
     held = "%.2f" % four["val_ratio"] if four and targets == "map" else "-"
     print("| %s | %s | %s | %s | %s | %s | %s | %s | %s | %s |"
           % (case, targets, solver, placement, cell(1), cell(2), cell(4), cell(8), ratio, held))
+
+# The pose from several views: rotation error, translation error as a share of the object's
+# size, iterations and seconds per iteration.
+if poses:
+    print()
+    print("| case | placement | views | rotation error (deg) | translation error (%% of size) "
+          "| iterations, stop | s/it |")
+    print("|---|---|---|---|---|---|---|")
+    for p in sorted(poses, key=lambda p: (p[0], ORDER[p[1]], p[2])):
+        print("| %s | %s | %d | %.2f | %.1f%% | %d, %s | %.2f |"
+              % (p[0], p[1], p[2], p[3], 100 * p[4], p[5], p[6], p[7]))
