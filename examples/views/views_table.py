@@ -97,7 +97,7 @@ for (case, targets, solver, placement), runs in groups.items():
 # size, iterations and seconds per iteration.
 if poses:
     print()
-    print("| case | placement | views | rotation error (deg) | translation error (%% of size) "
+    print("| case | placement | views | rotation error (deg) | translation error (% of size) "
           "| iterations, stop | s/it |")
     print("|---|---|---|---|---|---|---|")
     for p in sorted(poses, key=lambda p: (p[0], ORDER[p[1]], p[2])):
