@@ -97,6 +97,9 @@ for (case, targets, solver, placement), runs in groups.items():
 # size, iterations and seconds per iteration.
 if poses:
     print()
+    print("The pose (solver \"pose\": from examples/optimize/<mesh>_pose_init.json, 10.8 deg and "
+          "0.1 off, the lighting known):")
+    print()
     print("| case | placement | views | rotation error (deg) | translation error (% of size) "
           "| iterations, stop | s/it |")
     print("|---|---|---|---|---|---|---|")
