@@ -20,7 +20,15 @@
 #   with city.hdr replaced by interior.hdr (same scale and rotation), and the results go to
 #   out/optimize/interior_LIGHTING/; PEN_TABLE_TASKS (default "lighting albedo pose lighting_pose deformation
 #   shape_from_shadow") picks rows; PEN_TABLE_ITERATIONS caps every run's iterations (a quick
-#   smoke run of the whole table: PEN_TABLE_ITERATIONS=5).
+#   smoke run of the whole table: PEN_TABLE_ITERATIONS=5); PEN_TABLE_LIGHTS picks the disk lights
+#   of the tasks' scenes: none (default: the scenes' "lights": "none", the SH light alone), map
+#   (the lights the loader finds in the map, the scenes' "lights" key removed: for the pose,
+#   albedo, deformation and shape rows the lighting is known, so the map's lights are the right
+#   model; the lighting rows solve the SH part with the found lights held at their true values)
+#   or search (as map, but the lighting rows start from a scene without lights and optimise
+#   ["lighting", "lights"] with "light_count": 1: the optimizer's global search for a sun; the
+#   ground truth keeps the map's lights). With lights the JSONs are copied to
+#   out/tasks_ENVMAP_lights-L/ and the results go to out/optimize/[interior_]LIGHTING_lights-L/.
 # Writes out/optimize/ (ignored by git): meshes/<mesh>_bent.obj, spheres/<mesh>_start.json,
 # targets/<mesh>.exr (envmap), <mesh>_sh.exr, <mesh>_bent[_sh].exr, <mesh>_shadow.exr, one folder
 # per run (LIGHTING/<mesh>_<task>_<shadows|no-shadows>/ with result.json, scene.json, final.png,
@@ -40,22 +48,48 @@ ROOT=$HERE/../..
 GEN=$ROOT/out/optimize
 TARGETS=$GEN/targets
 ENVMAP=${PEN_TABLE_ENVMAP:-city}
+LIGHTS=${PEN_TABLE_LIGHTS:-none}
 case $ENVMAP in
-city) TASKS_DIR=$HERE env="" OUT=$GEN/$LIGHTING ;;
-interior)
-    # two folders below the root, like this one, so the copies' relative paths still hold
-    TASKS_DIR=$ROOT/out/tasks_interior env=_interior OUT=$GEN/interior_$LIGHTING
-    mkdir -p "$TASKS_DIR"
-    for f in "$HERE"/*.json; do
-        sed 's#/city\.hdr#/interior.hdr#g' "$f" > "$TASKS_DIR/$(basename "$f")"
-    done ;;
+city) env="" OUT=$GEN/$LIGHTING ;;
+interior) env=_interior OUT=$GEN/interior_$LIGHTING ;;
 *) echo "unknown envmap $ENVMAP (expected city or interior)" >&2 && exit 2 ;;
+esac
+case $LIGHTS in
+none) TASKS_DIR=$HERE lights="" ;;
+map|search) lights=_lights-$LIGHTS OUT=${OUT}_lights-$LIGHTS ;;
+*) echo "unknown PEN_TABLE_LIGHTS $LIGHTS (expected none, map or search)" >&2 && exit 2 ;;
 esac
 case $LIGHTING in
 envmap) suffix="" ;;
-sh) suffix=_sh ;;
+# the 4-band targets hold the found lights too when the scenes keep them
+sh) suffix=_sh$lights ;;
 *) echo "unknown lighting $LIGHTING (expected envmap or sh)" >&2 && exit 2 ;;
 esac
+# Copies of this folder's JSONs when the map or the lights change; two folders below the root,
+# like this one, so that the copies' relative paths still hold. Without lights each scene's
+# "lights": "none" is dropped (the loader then finds the map's lights); for the search the
+# original scenes stay beside them as *_nolights.json, the lighting rows' starting scenes.
+if [ $ENVMAP != city ] || [ $LIGHTS != none ]; then
+    TASKS_DIR=$ROOT/out/tasks_$ENVMAP$lights
+    mkdir -p "$TASKS_DIR"
+    for f in "$HERE"/*.json; do
+        b=$(basename "$f" .json)
+        sed "s#/city\\.hdr#/$ENVMAP.hdr#g" "$f" > "$TASKS_DIR/${b}_nolights.json"
+        if [ $LIGHTS = none ]; then
+            mv "$TASKS_DIR/${b}_nolights.json" "$TASKS_DIR/$b.json"
+        else
+            sed 's#,[[:space:]]*"lights":[[:space:]]*"none"##' "$TASKS_DIR/${b}_nolights.json" \
+                > "$TASKS_DIR/$b.json"
+        fi
+    done
+    if [ $LIGHTS = search ]; then
+        for f in "$TASKS_DIR"/*_lighting.json "$TASKS_DIR"/*_lighting_pose.json; do
+            sed -e 's#"scene": "\([^"]*\)\.json"#"scene": "\1_nolights.json"#' \
+                -e 's#"optimize": \["lighting"#"light_count": 1, "optimize": ["lighting", "lights"#' \
+                "$f" > "$f.tmp" && mv "$f.tmp" "$f"
+        done
+    fi
+fi
 mkdir -p "$TARGETS" "$OUT" "$GEN/meshes" "$GEN/spheres"
 
 # The value of a top-level or metrics member of a result.json ("-" when absent).
@@ -87,7 +121,7 @@ prepare() { # mesh
     fi
 }
 
-printf 'mesh\ttask\tshadows\titerations\tconverged\ts_per_it\tfinal_loss\timage_rmse\tlighting_rel_error\tlighting_rel_error_sky\talbedo_psnr_db\talbedo_shadow_psnr_db\talbedo_shadow_fraction\talbedo_texel_psnr_db\talbedo_observed\trotation_error_deg\ttranslation_error\ttranslation_error_rel\tvertex_rmse\tsphere_iou\tsphere_chamfer\tshadow_iou\n' > "$OUT/results.tsv"
+printf 'mesh\ttask\tshadows\titerations\tconverged\ts_per_it\tfinal_loss\timage_rmse\tlighting_rel_error\tlighting_rel_error_sky\talbedo_psnr_db\talbedo_shadow_psnr_db\talbedo_shadow_fraction\talbedo_texel_psnr_db\talbedo_observed\trotation_error_deg\ttranslation_error\ttranslation_error_rel\tvertex_rmse\tsphere_iou\tsphere_chamfer\tshadow_iou\tlight_direction_error_deg\n' > "$OUT/results.tsv"
 echo "| mesh | task | shadows | iterations | s/it | image RMSE | lighting rel. error (bands 0–2) | albedo PSNR, view (in shadow) (dB) | rotation error (°) | translation error (% of size) | vertex RMSE | shadow IoU (sphere IoU) |"
 echo "|---|---|---|---|---|---|---|---|---|---|---|---|"
 for mesh in $MESHES; do
@@ -118,7 +152,7 @@ for mesh in $MESHES; do
                 albedo_texel_psnr_db albedo_observed \
                 rotation_error_deg translation_error translation_error_rel vertex_rmse \
                 sphere_iou sphere_chamfer \
-                shadow_iou; do
+                shadow_iou light_direction_error_deg; do
                 printf '\t%s' "$(field "$r" $f)" >> "$OUT/results.tsv"
             done
             printf '\n' >> "$OUT/results.tsv"
