@@ -600,7 +600,7 @@ static void test_footprint_gradients(void) {
             double L[2];
             for (int side = 0; side < 2; ++side) {
                 w[3 * v + a] = keep + (side ? -1e-4f : 1e-4f);
-                pen__uv_footprint_fwd(st, ob, 0);
+                pen__uv_footprint_fwd(st, ob, 0, 1);
                 L[side] = 0.0;
                 for (size_t i = 0; i < np; ++i)
                     if (st->gb.surface[i] == 0 && st->gb.triangle[i] == tri[i])

@@ -9,7 +9,8 @@
  *   These are the rasterizer's perspective-correct barycentrics. Their derivatives in D are
  *   g1 = (a - b1 n) / D.n and g2 = (b - b2 n) / D.n, and dD/dx = right / fx, dD/dy = -up / fy;
  *   the uv is affine in (b1, b2), so J = [uv1 - uv0, uv2 - uv0] [g1.dD/dx, g1.dD/dy;
- *   g2.dD/dx, g2.dD/dy]. All in double; an edge-on triangle (D.n = 0) gets J = 0.
+ *   g2.dD/dx, g2.dD/dy]. All in double; an edge-on triangle (D.n = 0) gets J = 0. The forward
+ *   runs over the pixels in parallel (each its own).
  * - Objects with texture_filter "point" skip all of it (one lookup at the pixel's uv).
  * - The backward runs the same chain in reverse into the three posed corners (the uvs and the
  *   view carry no gradient), so the pose and vertex gradients include how the footprint itself
@@ -64,9 +65,13 @@ static int footprint_at(const pen_render_state *st, const pen_object *ob, int o,
     return 1;
 }
 
-void pen__uv_footprint_fwd(pen_render_state *st, const pen_object *ob, int o) {
-    const size_t np = (size_t)st->width * (size_t)st->height;
-    for (size_t i = 0; i < np; ++i) {
+void pen__uv_footprint_fwd(pen_render_state *st, const pen_object *ob, int o, int threads) {
+    const long np = (long)st->width * (long)st->height;
+    /* every pixel on its own: the result does not depend on the threads */
+#pragma omp parallel for schedule(static) num_threads(threads) \
+    if (threads > 1 && np >= PEN_RENDER_PARALLEL_MIN_PIXELS)
+    for (long ii = 0; ii < np; ++ii) {
+        const size_t i = (size_t)ii;
         if (st->gb.surface[i] != o) continue;
         float *J = st->uvj.data + 4 * i;
         footprint f;

@@ -332,7 +332,7 @@ pen_status pen__render_overlap_weights(pen_context *ctx, const pen_scene *sc, pe
 
 /* st->uvj at every pixel of object o (textured): J = d(uv)/d(pixel x, y) of the pixel's triangle
  * at the pixel centre, from the posed vertices and the view. */
-void pen__uv_footprint_fwd(pen_render_state *st, const pen_object *ob, int o);
+void pen__uv_footprint_fwd(pen_render_state *st, const pen_object *ob, int o, int threads);
 /* Its backward: adds the gradient of st->d_uvj (4 per pixel) at object o's pixels into d_world
  * (3 per posed vertex). */
 void pen__uv_footprint_bwd(const pen_render_state *st, const pen_object *ob, int o,
