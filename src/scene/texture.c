@@ -1,5 +1,6 @@
 /* Bilinear texture sampling with its backward: the one lookup of an object's albedo texture, used
- * by the renderer's shading and by the reference renderer, so that both see the same albedo.
+ * by the renderer's shading (point or filtered over the pixel's footprint) and, at points, by the
+ * reference renderer, whose samples filter it over the pixel, so that both see the same albedo.
  *
  * Texture lookup: bilinear between the four nearest texel centres, repeat wrap in both
  * directions (the OpenGL default and what OBJ texture coordinates outside [0,1] expect). Texel
