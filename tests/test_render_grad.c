@@ -656,7 +656,8 @@ static void test_footprint_checkerboard(void) {
         pen_render_grad_free(&g);
         pen_scene_free(&sc);
     }
-    CHECK_MSG(spread[0] < 0.1 && spread[1] > 2.5 * spread[0], "rms from grey: footprint %.3f, point %.3f",
+    CHECK_MSG(spread[0] < 0.1 && spread[1] > 2.5 * spread[0],
+              "rms from grey: footprint %.3f, point %.3f",
               spread[0], spread[1]);
 }
 

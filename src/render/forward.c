@@ -108,7 +108,8 @@ static pen_status prepare(pen_context *ctx, const pen_scene *sc, const pen_rende
         if (ob->texture.data) {
             pen_interpolate_fwd(&st->gb, o, ob->mesh.uv_indices, ob->mesh.uvs, 2, st->uv.data);
             if ((s = PEN__BUF_RESERVE(ctx, st->uvj, 4 * np, "texture footprints"))) return s;
-            if (ob->texture_filter == PEN_TEXTURE_FILTER_FOOTPRINT) pen__uv_footprint_fwd(st, ob, o, pen__threads(ctx));
+            if (ob->texture_filter == PEN_TEXTURE_FILTER_FOOTPRINT)
+                pen__uv_footprint_fwd(st, ob, o, pen__threads(ctx));
         }
     }
 
