@@ -54,6 +54,7 @@ static const char *FULL_SCENE =
     "  \"shadow\": {\"exp\": \"paper\"},\n"
     "  \"objects\": [\n"
     "    {\"mesh\": \"../assets/quad.obj\", \"albedo_texture\": \"../assets/tex.png\","
+    " \"texture_filter\": \"point\","
     " \"spheres\": \"../assets/s.json\", \"pose\": {\"rotation_axis_angle_deg\": [0, 90, 0],"
     " \"translation\": [1, 0, 0.3], \"scale\": 2}},\n"
     "    {\"mesh\": \"../assets/quad.obj\"},\n"
@@ -67,6 +68,8 @@ static const char *FULL_SCENE =
     "}\n";
 
 static void check_full(const pen_scene *sc) {
+    CHECK(sc->objects[0].texture_filter == PEN_TEXTURE_FILTER_POINT &&
+          sc->objects[1].texture_filter == PEN_TEXTURE_FILTER_FOOTPRINT);
     CHECK(sc->camera.width == 64 && sc->camera.height == 48 && sc->camera.fov_y_deg == 35.0f);
     CHECK(sc->camera.eye[1] == 1.2f && sc->camera.target[1] == 0.4f && sc->camera.up[1] == 1.0f);
     CHECK(sc->sh_bands == 3);
@@ -329,6 +332,9 @@ static void test_malformed(void) {
         {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/quad.obj\", "
          "\"albedo_texture\": \"../assets/gone.png\"}]}",
          PEN_ERROR_IO, "objects[0].albedo_texture", "gone.png"},
+        {"{" CAM ", " LIGHT ", \"objects\": [{\"mesh\": \"../assets/quad.obj\", "
+         "\"albedo_texture\": \"../assets/tex.png\", \"texture_filter\": \"box\"}]}",
+         PEN_ERROR_PARSE, "objects[0].texture_filter", "footprint"},
         {"[1, 2]", PEN_ERROR_PARSE, "bad.json", "expected a JSON object"},
         {"{\n\"camera\": {\n  ,}\n}", PEN_ERROR_PARSE, "bad.json:3:", "invalid JSON"},
         {"", PEN_ERROR_PARSE, "bad.json:1:", "invalid JSON"},

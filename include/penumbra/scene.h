@@ -113,6 +113,16 @@ typedef enum pen_texture_layout {
                                     also the texture with "albedo_texture_layout": "baked" */
 } pen_texture_layout;
 
+/* How the renderer looks up an object's albedo texture (pen_object.texture_filter, the scene's
+ * "texture_filter"). The reference renderer always takes point lookups, averaged over its own
+ * samples in each pixel. */
+typedef enum pen_texture_filter {
+    PEN_TEXTURE_FILTER_FOOTPRINT = 0, /* "footprint": the bilinear lookup averaged over a fixed
+                                         grid across the pixel's footprint on the texture (a box
+                                         filter over the pixel; docs/design.md sec. 1.4) */
+    PEN_TEXTURE_FILTER_POINT = 1      /* "point": one bilinear lookup at the pixel centre's uv */
+} pen_texture_filter;
+
 typedef struct pen_object {
     pen_mesh mesh;          /* object space */
     pen_image texture;      /* albedo texture (linear RGB), data == NULL if constant albedo */
@@ -124,6 +134,7 @@ typedef struct pen_object {
     char *mesh_path;        /* as resolved when loading, for messages and saving */
     char *texture_path;     /* NULL for a constant albedo, and for a baked atlas as baked */
     pen_texture_layout texture_layout;
+    pen_texture_filter texture_filter;
     char *spheres_path;     /* NULL when the spheres were inline, fitted or absent; clear it (free
                                and set NULL) after changing the spheres so that pen_scene_save
                                writes them inline instead of referencing the old file */

@@ -373,6 +373,14 @@ static pen_status parse_albedo(pen_context *ctx, const char *path, const where *
         if (!s && !tex_rel)
             s = pen__json_error(ctx, PEN_ERROR_PARSE, &wl, "needs \"albedo_texture\"");
     }
+    if (!s && pen__json_member(o, "texture_filter")) {
+        static const char *const filters[] = {"footprint", "point", NULL};
+        where wf = at(w, "texture_filter");
+        int f = 0;
+        s = pen__json_choice(ctx, &wf, pen__json_member(o, "texture_filter"), "texture filter",
+                             filters, &f);
+        obj->texture_filter = f ? PEN_TEXTURE_FILTER_POINT : PEN_TEXTURE_FILTER_FOOTPRINT;
+    }
     if (!s && tex_rel && pen__json_member(o, "albedo"))
         s = pen__json_error(ctx, PEN_ERROR_PARSE, w,
                             "give \"albedo_texture\" or \"albedo\", not both");
@@ -432,7 +440,8 @@ static pen_status parse_albedo(pen_context *ctx, const char *path, const where *
 static pen_status parse_object(pen_context *ctx, const char *path, const where *w, const cJSON *o,
                                pen_object *obj) {
     static const char *const known[] = {
-        "mesh", "albedo_texture", "albedo_texture_layout", "albedo", "spheres", "pose", NULL};
+        "mesh", "albedo_texture", "albedo_texture_layout", "texture_filter", "albedo", "spheres",
+        "pose", NULL};
     pen_status s = pen__json_need_object(ctx, w, o);
     if (!s) s = pen__json_known_keys(ctx, w, o, known);
     where wm = at(w, "mesh");
@@ -650,6 +659,8 @@ static cJSON *object_json(pen_context *ctx, const char *path, const pen_object *
              (!baked || pen__json_add(o, "albedo_texture_layout", cJSON_CreateString("baked")));
     else if (ok && !baked) /* a baked atlas as baked: the mesh file says it all */
         ok = pen__json_add(o, "albedo", pen__json_float_array(obj->albedo, 3));
+    if (ok && obj->texture.data && obj->texture_filter == PEN_TEXTURE_FILTER_POINT)
+        ok = pen__json_add(o, "texture_filter", cJSON_CreateString("point"));
     if (ok && obj->spheres_path) {
         ok = add_path(ctx, o, "spheres", path, obj->spheres_path);
     } else if (ok && obj->spheres.count > 0) {

@@ -286,7 +286,9 @@ static void mesh_surface(const pen_reference *ref, unsigned g, unsigned t, float
         for (int i = 0; i < 2; ++i)
             uv[i] = b[0] * mesh->uvs[2 * ti[0] + i] + b[1] * mesh->uvs[2 * ti[1] + i] +
                     b[2] * mesh->uvs[2 * ti[2] + i];
-        pen__texture_fwd(&obj->texture, uv, s->albedo); /* the renderer's lookup, so both agree */
+        /* the renderer's bilinear lookup at a point; the pixel's samples box-filter it, as the
+         * renderer's footprint filter does (texture.c) */
+        pen__texture_fwd(&obj->texture, uv, s->albedo);
     } else {
         memcpy(s->albedo, obj->albedo, sizeof s->albedo);
     }

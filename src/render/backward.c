@@ -134,7 +134,8 @@ static void pixel_bwd_tail(const pen_scene *sc, pen_render_state *st, const bwd_
             row[bw->rl.albedo + 3 * (size_t)surf + ch] += (double)d_rho[ch];
     if (!bw->geom) return;
     if (ob->texture.data)
-        pen__texture_bwd(&ob->texture, st->uv.data + 2 * i, d_rho, NULL, st->d_uv.data + 2 * i);
+        pen__render_texture_bwd(st, ob, i, d_rho, NULL, st->d_uv.data + 2 * i,
+                                st->d_uvj.data + 4 * i);
     const float sign = st->nsign.data[i];
     for (int a = 0; a < 3; ++a)
         d_n[a] *= sign;
@@ -169,6 +170,7 @@ static void shade_tile_bwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
             for (int a = 0; a < 3; ++a)
                 d_x[a] = d_nraw[a] = d_rho[a] = 0.0f;
             d_uv[0] = d_uv[1] = 0.0f;
+            if (bw->geom) memset(st->d_uvj.data + 4 * i, 0, 4 * sizeof(float));
         }
     const int ncull = st->lights.count ? pen__tile_lights_cull(st, t, ws) : 0;
     for (int r = 0; r < st->groups.data[t].runs; ++r) {
@@ -361,7 +363,8 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     const row_layout rl = rows_layout(sc->sh_bands, O, seen, S, K);
     const int ntiles = pen__tile_count(st);
     if ((s = PEN__BUF_RESERVE(ctx, st->rows, rl.stride * (size_t)ntiles,
-                              "tile gradient buffers"))) {
+                              "tile gradient buffers")) ||
+        (want_geom && (s = PEN__BUF_RESERVE(ctx, st->d_uvj, 4 * np, "footprint gradient")))) {
         free(d_world);
         return s;
     }
@@ -472,8 +475,8 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
             for (size_t i = 0; i < np; ++i) {
                 const int surf = st->gb.surface[i];
                 if (surf < 0 || !sc->objects[surf].texture.data) continue;
-                pen__texture_bwd(&sc->objects[surf].texture, st->uv.data + 2 * i,
-                                 st->d_rho.data + 3 * i, grad->objects[surf].texture, NULL);
+                pen__render_texture_bwd(st, &sc->objects[surf], i, st->d_rho.data + 3 * i,
+                                        grad->objects[surf].texture, NULL, NULL);
             }
 #pragma omp section
         if (want_geom)
@@ -484,9 +487,12 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
                                     b->d_world.data, st->d_bary.data);
                 pen_interpolate_bwd(&st->gb, o, ob->mesh.indices, b->vnormal.data, 3,
                                     st->d_nraw.data, b->d_vnormal.data, st->d_bary.data);
-                if (ob->texture.data)
+                if (ob->texture.data) {
                     pen_interpolate_bwd(&st->gb, o, ob->mesh.uv_indices, ob->mesh.uvs, 2,
                                         st->d_uv.data, NULL, st->d_bary.data);
+                    if (ob->texture_filter == PEN_TEXTURE_FILTER_FOOTPRINT)
+                        pen__uv_footprint_bwd(st, ob, o, b->d_world.data);
+                }
                 s_geom = pen_vertex_normals_bwd(ctx, ob->mesh.vertex_count, b->world.data,
                                                 ob->mesh.triangle_count, ob->mesh.indices,
                                                 b->d_vnormal.data, b->d_world.data);

@@ -105,8 +105,12 @@ static pen_status prepare(pen_context *ctx, const pen_scene *sc, const pen_rende
         pen_interpolate_fwd(&st->gb, o, ob->mesh.indices, st->obj[o].world.data, 3, st->x.data);
         pen_interpolate_fwd(&st->gb, o, ob->mesh.indices, st->obj[o].vnormal.data, 3,
                             st->nraw.data);
-        if (ob->texture.data)
+        if (ob->texture.data) {
             pen_interpolate_fwd(&st->gb, o, ob->mesh.uv_indices, ob->mesh.uvs, 2, st->uv.data);
+            if ((s = PEN__BUF_RESERVE(ctx, st->uvj, 4 * np, "texture footprints"))) return s;
+            if (ob->texture_filter == PEN_TEXTURE_FILTER_FOOTPRINT)
+                pen__uv_footprint_fwd(st, ob, o, pen__threads(ctx));
+        }
     }
 
     const pen_sh_exp_model model = pen_sh_exp_model_default(sc->shadow.exp, sc->sh_bands);
@@ -154,7 +158,7 @@ static void surface_attributes(const pen_scene *sc, pen_render_state *st, size_t
     for (int a = 0; a < 3; ++a)
         n[a] *= sign;
     if (ob->texture.data)
-        pen__texture_fwd(&ob->texture, st->uv.data + 2 * i, rho);
+        pen__render_texture_fwd(st, ob, i, rho);
     else
         for (int ch = 0; ch < 3; ++ch)
             rho[ch] = ob->albedo[ch];

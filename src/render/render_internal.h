@@ -288,6 +288,9 @@ struct pen_render_state {
     /* Per pixel, 3 floats each (uv, d_uv and d_bary use 2, nsign 1). */
     pen__buf_float x, nraw, n, rho, uv, color, nsign;
     pen__buf_float d_color, d_x, d_nraw, d_uv, d_rho, d_bary;
+    pen__buf_float uvj; /* per textured pixel, 4 floats: J = d(uv)/d(pixel x, y) of its triangle
+                         * at the pixel centre, the texture's footprint (texture.h) */
+    pen__buf_float d_uvj; /* its gradient (4 floats per pixel) */
     pen__buf_float bary_scratch; /* pen_raster_bary_bwd_scratch's 9 floats per pixel */
     PEN__BUF(size_t) tile_off;   /* the fast store's layout per tile (pen__tile_store_layout) */
     PEN__BUF(pen__tile_groups) groups; /* per tile, of the last forward */
@@ -324,6 +327,22 @@ pen_status pen__render_object_adjacency(pen_context *ctx, pen__object_buf *b, co
 /* st->kappa for the scene's spheres (st->sphere_first laid out): given, 1, or computed from the
  * spheres and kept with them. */
 pen_status pen__render_overlap_weights(pen_context *ctx, const pen_scene *sc, pen_render_state *st);
+
+/* ---- footprint.c ---- */
+
+/* st->uvj at every pixel of object o (textured): J = d(uv)/d(pixel x, y) of the pixel's triangle
+ * at the pixel centre, from the posed vertices and the view. */
+void pen__uv_footprint_fwd(pen_render_state *st, const pen_object *ob, int o, int threads);
+/* Its backward: adds the gradient of st->d_uvj (4 per pixel) at object o's pixels into d_world
+ * (3 per posed vertex). */
+void pen__uv_footprint_bwd(const pen_render_state *st, const pen_object *ob, int o,
+                           float *d_world);
+/* The albedo of textured pixel i of ob by its texture_filter (point, or over st->uvj), and its
+ * backward into d_texels, d_uv, d_J (each may be NULL; d_J is left alone by point lookups). */
+void pen__render_texture_fwd(const pen_render_state *st, const pen_object *ob, size_t i,
+                             float rho[3]);
+void pen__render_texture_bwd(const pen_render_state *st, const pen_object *ob, size_t i,
+                             const float d_rho[3], float *d_texels, float d_uv[2], float d_J[4]);
 
 /* ---- self.c ---- */
 

@@ -103,6 +103,7 @@ void pen_render_state_free(pen_render_state *st) {
     for (int i = 0; i < PIXEL_BUFFERS; ++i)
         PEN__BUF_FREE(*px[i]);
     PEN__BUF_FREE(st->fv), PEN__BUF_FREE(st->lights_V), PEN__BUF_FREE(st->rows), PEN__BUF_FREE(st->ws), PEN__BUF_FREE(st->bg);
+    PEN__BUF_FREE(st->uvj), PEN__BUF_FREE(st->d_uvj);
     PEN__BUF_FREE(st->bary_scratch), PEN__BUF_FREE(st->tile_off), PEN__BUF_FREE(st->groups);
     free(st);
 }

@@ -1,11 +1,21 @@
 /* Bilinear texture sampling with its backward: the one lookup of an object's albedo texture, used
- * by the renderer's shading and by the reference renderer, so that both see the same albedo.
+ * by the renderer's shading (point or filtered over the pixel's footprint) and, at points, by the
+ * reference renderer, whose samples filter it over the pixel, so that both see the same albedo.
  *
  * Texture lookup: bilinear between the four nearest texel centres, repeat wrap in both
  * directions (the OpenGL default and what OBJ texture coordinates outside [0,1] expect). Texel
  * (i, j), row j counted from the top of the image, has its centre at u = (i + 0.5) / W,
  * v = 1 - (j + 0.5) / H. The lookup is continuous in uv and piecewise linear; its uv gradient
  * jumps at texel centres, which the optimiser tolerates like any kink.
+ *
+ * Footprint filter (the renderer's lookup, docs/design.md sec. 1.4): the mean of the bilinear
+ * lookup at a fixed PEN__TEXTURE_GRID x PEN__TEXTURE_GRID grid of points uv + J o over the
+ * pixel, o the grid's cell centres in [-1/2, 1/2]^2 and J = d(uv)/d(pixel x, y) at the pixel
+ * centre, i.e. a box filter of the texture over the pixel's parallelogram footprint, as a
+ * supersampled reference sees it. The grid is fixed (no adaptive switch), so the lookup stays
+ * continuous in uv and J. Its backward is exact: in the texels each sample's bilinear weights /
+ * K, in uv the mean of the samples' uv gradients, and in J their sum weighted by the offsets
+ * (the renderer carries it on to the geometry: src/render/footprint.c).
  */
 #include "scene/texture.h"
 
@@ -24,10 +34,10 @@ static int wrap(long i, int n) {
     return (int)(r < 0 ? r + n : r);
 }
 
-static bilinear bilinear_at(const pen_image *tex, const float uv[2]) {
-    /* Double for the texel coordinate: u * W loses the fraction in float for large u. */
-    const double fx = (double)uv[0] * tex->width - 0.5;
-    const double fy = (1.0 - (double)uv[1]) * tex->height - 0.5;
+/* Double for the texel coordinate: u * W loses the fraction in float for large u. */
+static bilinear bilinear_at(const pen_image *tex, double u, double v) {
+    const double fx = u * tex->width - 0.5;
+    const double fy = (1.0 - v) * tex->height - 0.5;
     bilinear s;
     double x0 = floor(fx), y0 = floor(fy);
     if (!isfinite(x0) || fabs(x0) > 1e9) x0 = 0.0; /* garbage uv: a defined texel */
@@ -46,28 +56,30 @@ static bilinear bilinear_at(const pen_image *tex, const float uv[2]) {
     return s;
 }
 
-void pen__texture_fwd(const pen_image *tex, const float uv[2], float rgb[3]) {
-    const bilinear s = bilinear_at(tex, uv);
-    const float wt[4] = {(1 - s.a) * (1 - s.b), s.a * (1 - s.b), (1 - s.a) * s.b, s.a * s.b};
+/* rgb = the bilinear lookup at s. */
+static void lerp_fwd(const pen_image *tex, const bilinear *s, float rgb[3]) {
+    const float wt[4] = {(1 - s->a) * (1 - s->b), s->a * (1 - s->b), (1 - s->a) * s->b,
+                         s->a * s->b};
     const int nch = tex->channels;
     for (int ch = 0; ch < 3; ++ch) {
         const int c = ch < nch ? ch : nch - 1;
         float v = 0.0f;
         for (int q = 0; q < 4; ++q)
-            v += wt[q] * tex->data[s.idx[q] * (size_t)nch + (size_t)c];
+            v += wt[q] * tex->data[s->idx[q] * (size_t)nch + (size_t)c];
         rgb[ch] = v;
     }
 }
 
-void pen__texture_bwd(const pen_image *tex, const float uv[2], const float d_rgb[3],
-                      float *d_texels, float d_uv[2]) {
-    const bilinear s = bilinear_at(tex, uv);
+/* Adds the bilinear lookup's backward at s into d_texels and d_uv (each may be NULL). */
+static void lerp_bwd(const pen_image *tex, const bilinear *s, const float d_rgb[3],
+                     float *d_texels, float d_uv[2]) {
     const int nch = tex->channels;
     if (d_texels) {
-        const float wt[4] = {(1 - s.a) * (1 - s.b), s.a * (1 - s.b), (1 - s.a) * s.b, s.a * s.b};
+        const float wt[4] = {(1 - s->a) * (1 - s->b), s->a * (1 - s->b), (1 - s->a) * s->b,
+                             s->a * s->b};
         for (int q = 0; q < 4; ++q)
             for (int ch = 0; ch < 3 && ch < nch; ++ch)
-                d_texels[s.idx[q] * (size_t)nch + (size_t)ch] += wt[q] * d_rgb[ch];
+                d_texels[s->idx[q] * (size_t)nch + (size_t)ch] += wt[q] * d_rgb[ch];
     }
     if (d_uv) {
         /* rgb = (1-b)((1-a) t00 + a t10) + b((1-a) t01 + a t11); a grows with u (x W), b grows
@@ -76,14 +88,68 @@ void pen__texture_bwd(const pen_image *tex, const float uv[2], const float d_rgb
         for (int ch = 0; ch < 3; ++ch) {
             const int c = ch < nch ? ch : nch - 1;
             const float *t = tex->data;
-            const float t00 = t[s.idx[0] * (size_t)nch + (size_t)c];
-            const float t10 = t[s.idx[1] * (size_t)nch + (size_t)c];
-            const float t01 = t[s.idx[2] * (size_t)nch + (size_t)c];
-            const float t11 = t[s.idx[3] * (size_t)nch + (size_t)c];
-            da += d_rgb[ch] * ((1 - s.b) * (t10 - t00) + s.b * (t11 - t01));
-            db += d_rgb[ch] * ((1 - s.a) * (t01 - t00) + s.a * (t11 - t10));
+            const float t00 = t[s->idx[0] * (size_t)nch + (size_t)c];
+            const float t10 = t[s->idx[1] * (size_t)nch + (size_t)c];
+            const float t01 = t[s->idx[2] * (size_t)nch + (size_t)c];
+            const float t11 = t[s->idx[3] * (size_t)nch + (size_t)c];
+            da += d_rgb[ch] * ((1 - s->b) * (t10 - t00) + s->b * (t11 - t01));
+            db += d_rgb[ch] * ((1 - s->a) * (t01 - t00) + s->a * (t11 - t10));
         }
         d_uv[0] += da * (float)tex->width;
         d_uv[1] -= db * (float)tex->height;
+    }
+}
+
+void pen__texture_fwd(const pen_image *tex, const float uv[2], float rgb[3]) {
+    const bilinear s = bilinear_at(tex, (double)uv[0], (double)uv[1]);
+    lerp_fwd(tex, &s, rgb);
+}
+
+void pen__texture_bwd(const pen_image *tex, const float uv[2], const float d_rgb[3],
+                      float *d_texels, float d_uv[2]) {
+    const bilinear s = bilinear_at(tex, (double)uv[0], (double)uv[1]);
+    lerp_bwd(tex, &s, d_rgb, d_texels, d_uv);
+}
+
+/* The k-th sample point of the footprint grid (k < PEN__TEXTURE_SAMPLES). */
+static bilinear footprint_sample(const pen_image *tex, const float uv[2], const float J[4],
+                                 int k) {
+    const int n = PEN__TEXTURE_GRID;
+    const double ox = ((k % n) + 0.5) / n - 0.5, oy = ((k / n) + 0.5) / n - 0.5;
+    const double u = (double)uv[0] + (double)J[0] * ox + (double)J[1] * oy;
+    const double v = (double)uv[1] + (double)J[2] * ox + (double)J[3] * oy;
+    return bilinear_at(tex, u, v);
+}
+
+void pen__texture_footprint_fwd(const pen_image *tex, const float uv[2], const float J[4],
+                                float rgb[3]) {
+    double acc[3] = {0.0, 0.0, 0.0};
+    for (int k = 0; k < PEN__TEXTURE_SAMPLES; ++k) {
+        const bilinear s = footprint_sample(tex, uv, J, k);
+        float c[3];
+        lerp_fwd(tex, &s, c);
+        for (int ch = 0; ch < 3; ++ch)
+            acc[ch] += (double)c[ch];
+    }
+    for (int ch = 0; ch < 3; ++ch)
+        rgb[ch] = (float)(acc[ch] / PEN__TEXTURE_SAMPLES);
+}
+
+void pen__texture_footprint_bwd(const pen_image *tex, const float uv[2], const float J[4],
+                                const float d_rgb[3], float *d_texels, float d_uv[2],
+                                float d_J[4]) {
+    const int n = PEN__TEXTURE_GRID;
+    const float inv = 1.0f / PEN__TEXTURE_SAMPLES;
+    const float d_k[3] = {d_rgb[0] * inv, d_rgb[1] * inv, d_rgb[2] * inv};
+    for (int k = 0; k < PEN__TEXTURE_SAMPLES; ++k) {
+        const bilinear s = footprint_sample(tex, uv, J, k);
+        float g[2] = {0.0f, 0.0f};
+        lerp_bwd(tex, &s, d_k, d_texels, d_uv || d_J ? g : NULL);
+        if (d_uv) d_uv[0] += g[0], d_uv[1] += g[1];
+        if (d_J) {
+            const float ox = ((float)(k % n) + 0.5f) / n - 0.5f;
+            const float oy = ((float)(k / n) + 0.5f) / n - 0.5f;
+            d_J[0] += g[0] * ox, d_J[1] += g[0] * oy, d_J[2] += g[1] * ox, d_J[3] += g[1] * oy;
+        }
     }
 }

@@ -11,4 +11,17 @@ void pen__texture_fwd(const pen_image *tex, const float uv[2], float rgb[3]);
 void pen__texture_bwd(const pen_image *tex, const float uv[2], const float d_rgb[3],
                       float *d_texels, float d_uv[2]);
 
+/* Footprint-filtered lookup (the renderer's): the mean of pen__texture_fwd at the K =
+ * PEN__TEXTURE_GRID^2 points uv + J o, o on a fixed grid of cell centres over [-1/2, 1/2]^2 and
+ * J = d(u, v)/d(pixel x, y) row-major ({du/dx, du/dy, dv/dx, dv/dy}): a box filter of the
+ * texture over the pixel. */
+#define PEN__TEXTURE_GRID 3
+#define PEN__TEXTURE_SAMPLES (PEN__TEXTURE_GRID * PEN__TEXTURE_GRID)
+void pen__texture_footprint_fwd(const pen_image *tex, const float uv[2], const float J[4],
+                                float rgb[3]);
+/* Adds into d_texels, d_uv and d_J (each may be NULL). */
+void pen__texture_footprint_bwd(const pen_image *tex, const float uv[2], const float J[4],
+                                const float d_rgb[3], float *d_texels, float d_uv[2],
+                                float d_J[4]);
+
 #endif
