@@ -661,9 +661,47 @@ static void test_footprint_checkerboard(void) {
               spread[0], spread[1]);
 }
 
+/* pen_render_options.texture_filter = POINT (what pose and deformation tasks render with) gives
+ * the image and gradient of the objects' own "point" key, bit for bit, on a footprint-keyed scene;
+ * and a backward under other options than its forward's is refused. */
+static void test_texture_filter_option(void) {
+    pen_scene a = rs_ball_scene(24, 1, &seed), b = rs_ball_scene(24, 1, &seed);
+    const size_t texels = (size_t)a.objects[0].texture.width * a.objects[0].texture.height * 3;
+    for (size_t i = 0; i < texels; ++i)
+        b.objects[0].texture.data[i] = a.objects[0].texture.data[i];
+    a.objects[0].texture_filter = PEN_TEXTURE_FILTER_FOOTPRINT;
+    b.objects[0].texture_filter = PEN_TEXTURE_FILTER_POINT;
+    pen_render_options forced = pen_render_options_default(), plain = forced;
+    forced.texture_filter = PEN_RENDER_TEXTURE_POINT;
+    pen_image ia = {0, 0, 0, NULL}, ib = {0, 0, 0, NULL}, d = {0, 0, 0, NULL};
+    pen_render_state *sa = NULL, *sb = NULL;
+    pen_render_grad ga, gb;
+    CHECK(pen_render_state_create(NULL, &sa) == PEN_OK);
+    CHECK(pen_render_state_create(NULL, &sb) == PEN_OK);
+    CHECK(pen_render_fwd(NULL, &a, &forced, sa, &ia) == PEN_OK);
+    CHECK(pen_render_fwd(NULL, &b, &plain, sb, &ib) == PEN_OK);
+    const size_t n = 3 * (size_t)ia.width * (size_t)ia.height;
+    CHECK(memcmp(ia.data, ib.data, sizeof(float) * n) == 0);
+    CHECK(pen_image_create(NULL, ia.width, ia.height, 3, &d) == PEN_OK);
+    for (size_t i = 0; i < n; ++i) d.data[i] = (float)((i % 7) + 1) / 7.0f;
+    CHECK(pen_render_grad_create(NULL, &a, &ga) == PEN_OK);
+    CHECK(pen_render_grad_create(NULL, &b, &gb) == PEN_OK);
+    CHECK(pen_render_bwd(NULL, &a, &forced, sa, &d, PEN_GRAD_ALL, &ga) == PEN_OK);
+    CHECK(pen_render_bwd(NULL, &b, &plain, sb, &d, PEN_GRAD_ALL, &gb) == PEN_OK);
+    CHECK(memcmp(ga.objects[0].texture, gb.objects[0].texture, sizeof(float) * texels) == 0);
+    const float *ta = ga.objects[0].pose.translation, *tb = gb.objects[0].pose.translation;
+    CHECK(memcmp(ta, tb, sizeof(float) * 3) == 0);
+    CHECK(pen_render_bwd(NULL, &a, &plain, sa, &d, PEN_GRAD_ALL, &ga) != PEN_OK);
+    pen_image_free(&ia), pen_image_free(&ib), pen_image_free(&d);
+    pen_render_grad_free(&ga), pen_render_grad_free(&gb);
+    pen_render_state_free(sa), pen_render_state_free(sb);
+    pen_scene_free(&a), pen_scene_free(&b);
+}
+
 RUN_TESTS(TEST(test_lighting_and_albedo), TEST(test_sphere_gradients), TEST(test_occluder_only),
           TEST(test_self_shadowing_gradients), TEST(test_two_objects), TEST(test_pose_gradients),
           TEST(test_vertex_gradients), TEST(test_silhouette_gradients),
           TEST(test_disk_light_gradients),
           TEST(test_thread_count_independent), TEST(test_torture_finite),
-          TEST(test_footprint_gradients), TEST(test_footprint_checkerboard))
+          TEST(test_footprint_gradients), TEST(test_footprint_checkerboard),
+          TEST(test_texture_filter_option))

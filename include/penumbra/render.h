@@ -70,14 +70,24 @@ extern "C" {
 #define PEN_RENDER_SELF_SCENE 0
 #define PEN_RENDER_SELF_SPHERES 1
 
+/* How albedo textures are looked up (pen_render_options.texture_filter). SCENE follows each
+ * object's "texture_filter" (default: box-filtered over the pixel's footprint, docs/design.md
+ * sec. 1.4, whose per-triangle footprint steps where a facet edge crosses a pixel centre); POINT
+ * forces one bilinear lookup at the pixel's UV, continuous in the geometry, as an optimiser of
+ * pose or deformation wants. */
+#define PEN_RENDER_TEXTURE_SCENE 0
+#define PEN_RENDER_TEXTURE_POINT 1
+
 typedef struct pen_render_options {
     int shadows;     /* 1: SH visibility from the sphere sets; 0: V == 1 (`--no-shadows`) */
     int antialias;   /* 1: analytic silhouette antialiasing (needed for silhouette gradients) */
     int kernel;      /* PEN_RENDER_KERNEL_* */
     int self_shadow; /* PEN_RENDER_SELF_* */
+    int texture_filter; /* PEN_RENDER_TEXTURE_* */
 } pen_render_options;
 
-/* shadows = 1, antialias = 1, kernel = PEN_RENDER_KERNEL_FAST, self_shadow = SCENE. */
+/* shadows = 1, antialias = 1, kernel = PEN_RENDER_KERNEL_FAST, self_shadow = SCENE,
+ * texture_filter = SCENE. */
 PEN_API pen_render_options pen_render_options_default(void);
 
 /* How many pixels the fast kernel in use shades per SIMD batch (16 with AVX-512). Its per-batch

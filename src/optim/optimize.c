@@ -553,6 +553,11 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
      * scene's choice: their gradients are exact with the transfer, which is traced once. */
     if (r.groups & (PEN_OPTIM_POSE | PEN_OPTIM_DEFORMATION | PEN_OPTIM_SPHERES | PEN_OPTIM_LIGHTS))
         r.opt.self_shadow = PEN_RENDER_SELF_SPHERES;
+    /* Likewise the footprint-filtered texture lookup steps where a facet edge crosses a pixel
+     * centre (its footprint is per triangle): a task moving the geometry looks textures up at
+     * the pixel's UV, which is continuous in it. */
+    if (r.groups & (PEN_OPTIM_POSE | PEN_OPTIM_DEFORMATION))
+        r.opt.texture_filter = PEN_RENDER_TEXTURE_POINT;
     r.solve = task->lighting_solver == PEN_OPTIM_LIGHTING_LEAST_SQUARES;
     r.multi = task->view_count > 0;
     r.task_views = task->views;

@@ -298,7 +298,8 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     if (!st || !st->valid)
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "render backward: no forward pass to undo");
     if (opt->shadows != st->opt.shadows || opt->antialias != st->opt.antialias ||
-        opt->kernel != st->opt.kernel || opt->self_shadow != st->opt.self_shadow)
+        opt->kernel != st->opt.kernel || opt->self_shadow != st->opt.self_shadow ||
+        opt->texture_filter != st->opt.texture_filter)
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "render backward: options differ from the forward pass");
     const int W = st->width, H = st->height;
@@ -490,7 +491,7 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
                 if (ob->texture.data) {
                     pen_interpolate_bwd(&st->gb, o, ob->mesh.uv_indices, ob->mesh.uvs, 2,
                                         st->d_uv.data, NULL, st->d_bary.data);
-                    if (ob->texture_filter == PEN_TEXTURE_FILTER_FOOTPRINT)
+                    if (pen__render_footprint(st, ob))
                         pen__uv_footprint_bwd(st, ob, o, b->d_world.data);
                 }
                 s_geom = pen_vertex_normals_bwd(ctx, ob->mesh.vertex_count, b->world.data,

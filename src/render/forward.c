@@ -40,6 +40,7 @@ pen_render_options pen_render_options_default(void) {
     o.antialias = 1;
     o.kernel = PEN_RENDER_KERNEL_FAST;
     o.self_shadow = PEN_RENDER_SELF_SCENE;
+    o.texture_filter = PEN_RENDER_TEXTURE_SCENE;
     return o;
 }
 
@@ -100,6 +101,7 @@ static pen_status prepare(pen_context *ctx, const pen_scene *sc, const pen_rende
                                 &st->gb)))
         return s;
     pen_gbuffer_points(&st->view, &st->gb, st->x.data);
+    st->texture_point = opt->texture_filter == PEN_RENDER_TEXTURE_POINT;
     for (int o = 0; o < sc->object_count; ++o) {
         const pen_object *ob = &sc->objects[o];
         pen_interpolate_fwd(&st->gb, o, ob->mesh.indices, st->obj[o].world.data, 3, st->x.data);
@@ -108,8 +110,7 @@ static pen_status prepare(pen_context *ctx, const pen_scene *sc, const pen_rende
         if (ob->texture.data) {
             pen_interpolate_fwd(&st->gb, o, ob->mesh.uv_indices, ob->mesh.uvs, 2, st->uv.data);
             if ((s = PEN__BUF_RESERVE(ctx, st->uvj, 4 * np, "texture footprints"))) return s;
-            if (ob->texture_filter == PEN_TEXTURE_FILTER_FOOTPRINT)
-                pen__uv_footprint_fwd(st, ob, o, pen__threads(ctx));
+            if (pen__render_footprint(st, ob)) pen__uv_footprint_fwd(st, ob, o, pen__threads(ctx));
         }
     }
 

@@ -299,6 +299,7 @@ struct pen_render_state {
     pen__buf_float lights_V; /* the disk lights' visibilities, lights.count per pixel */
     int lights_V_valid;      /* the forward kept lights_V (a state, shadows on, lights) */
     int fast;          /* the forward used the fast kernel */
+    int texture_point; /* this frame's opt->texture_filter is PEN_RENDER_TEXTURE_POINT */
     PEN__BUF(double) rows;      /* the backward's double accumulators, one block per tile */
     PEN__BUF(unsigned char) ws; /* per-thread workspaces (pen__tile_ws) */
     pen__buf_float bg;          /* environment-map background of the last frame, 3 per pixel */
@@ -337,6 +338,11 @@ void pen__uv_footprint_fwd(pen_render_state *st, const pen_object *ob, int o, in
  * (3 per posed vertex). */
 void pen__uv_footprint_bwd(const pen_render_state *st, const pen_object *ob, int o,
                            float *d_world);
+/* Whether ob's texture is looked up over the pixel's footprint this frame: its texture_filter,
+ * unless the render options force point lookups. */
+static inline int pen__render_footprint(const pen_render_state *st, const pen_object *ob) {
+    return ob->texture_filter == PEN_TEXTURE_FILTER_FOOTPRINT && !st->texture_point;
+}
 /* The albedo of textured pixel i of ob by its texture_filter (point, or over st->uvj), and its
  * backward into d_texels, d_uv, d_J (each may be NULL; d_J is left alone by point lookups). */
 void pen__render_texture_fwd(const pen_render_state *st, const pen_object *ob, size_t i,
