@@ -71,9 +71,11 @@ static void test_flat_matches_render(void) {
     CHECK(pen_render_state_create(ctx, &fst) == PEN_OK);
     pen_image img = {0, 0, 0, NULL};
     float *fimg = calloc(np, sizeof(float)), *d_img = malloc(np * sizeof(float));
-    /* The flat API shades the objects' own shadows with their spheres (flat.h). */
+    /* The flat API shades the objects' own shadows with their spheres and looks textures up at
+     * the pixel's uv (flat.h). */
     pen_render_options opt = pen_render_options_default();
     opt.self_shadow = PEN_RENDER_SELF_SPHERES;
+    opt.texture_filter = PEN_RENDER_TEXTURE_POINT;
     CHECK(pen_render_fwd(ctx, &sc, &opt, st, &img) == PEN_OK);
     CHECK(pen_flat_render_fwd(ctx, &f, fst, fimg) == PEN_OK);
     CHECK(same_floats(img.data, fimg, np));
@@ -191,6 +193,7 @@ static void test_flat_scene_load(void) {
     pen_image img = {0, 0, 0, NULL};
     pen_render_options opt = pen_render_options_default();
     opt.self_shadow = PEN_RENDER_SELF_SPHERES; /* as the flat API shades (flat.h) */
+    opt.texture_filter = PEN_RENDER_TEXTURE_POINT;
     CHECK(pen_render_fwd(ctx, &sc, &opt, NULL, &img) == PEN_OK);
     float fimg[3 * 20 * 16];
     CHECK(pen_flat_render_fwd(ctx, f, NULL, fimg) == PEN_OK);

@@ -6,9 +6,11 @@
  * borrows them. A pen_flat_scene describes the same scene as pen_scene: pen_flat_render_fwd
  * builds a pen_scene that points into the caller's arrays and runs pen_render_fwd on it, so the
  * image is the one `penumbra render` makes of the equivalent scene JSON with "shadow": {"self":
- * "spheres"}, bit for bit: the flat API shades the objects' own shadows with their spheres, whose
- * gradients reach the pose and the vertices (the precomputed self transfer, the JSON default,
- * has none; docs/design.md sec. 1.15).
+ * "spheres"} and "texture_filter": "point" on its textured objects, bit for bit: the flat API
+ * shades the objects' own shadows with their spheres, whose gradients reach the pose and the
+ * vertices (the precomputed self transfer, the JSON default, has none; docs/design.md sec. 1.15),
+ * and looks textures up at the pixel's uv, continuous in the geometry (the JSON default filters
+ * over the pixel's footprint, which steps between facets; sec. 1.4).
  *
  * Usage (one object, one step):
  *
@@ -91,8 +93,9 @@ typedef struct pen_flat_scene {
     const float *envmap; /* 3 * width * height, equirectangular (scene.h), linear RGB */
     float envmap_rotation_y_deg;
     float envmap_scale;
-    int shadows; /* pen_render_options (the objects' own shadows always from their spheres:
-                    PEN_RENDER_SELF_SPHERES, whose gradients reach the pose and vertices) */
+    int shadows; /* pen_render_options (the objects' own shadows always from their spheres,
+                    PEN_RENDER_SELF_SPHERES, and point texture lookups, PEN_RENDER_TEXTURE_POINT:
+                    their gradients reach the pose and vertices) */
     int antialias;
     int object_count;
     const pen_flat_object *objects;

@@ -22,14 +22,15 @@ SPOT_TEXTURE = os.path.join(SRC, "data", "meshes", "spot_texture.png")
 CITY = os.path.join(SRC, "data", "envmaps", "city.hdr")
 
 # A textured Spot with three inline spheres on the ground (the scene of tests/cli_render.sh). Both
-# scenes shade the objects' own shadows with their spheres ("self": "spheres"), the one model the
-# flat API has (docs/python.md), so that the command's renders can be compared with the binding's.
+# scenes shade the objects' own shadows with their spheres ("self": "spheres") and look Spot's
+# texture up at the pixel's uv ("texture_filter": "point"), the one model the flat API has
+# (docs/python.md), so that the command's renders can be compared with the binding's.
 SCENE_SH = """{"camera": {"width": 48, "height": 40, "fov_y_deg": 40, "eye": [2.5, 1.8, 3.0],
             "target": [0, 0.5, 0]},
  "lighting": {"sh": [[1.5,1.5,1.5],[-1,-1,-1],[0.2,0.2,0.2],[-0.3,-0.3,-0.3],
                      [0,0,0],[0,0,0],[0,0,0],[0,0,0],[0,0,0],
                      [0,0,0],[0,0,0],[0,0,0],[0,0,0],[0,0,0],[0,0,0],[0,0,0]]},
- "objects": [{"mesh": "%(mesh)s", "albedo_texture": "%(texture)s",
+ "objects": [{"mesh": "%(mesh)s", "albedo_texture": "%(texture)s", "texture_filter": "point",
               "spheres": [{"center": [0, -0.07, 0.3], "radius": 0.36},
                           {"center": [0, 0.45, -0.4], "radius": 0.28},
                           {"center": [0, -0.55, 0.35], "radius": 0.2}],
@@ -44,7 +45,7 @@ SCENE_ENVMAP = """{"camera": {"width": 40, "height": 32, "fov_y_deg": 45, "eye":
             "target": [0, 0.4, 0]},
  "lighting": {"envmap": "%(envmap)s", "scale": 0.3, "rotation_y_deg": 40},
  "sh_bands": 3, "shadow": {"exp": "paper", "epsilon": 3.0, "self": "spheres"},
- "objects": [{"mesh": "%(mesh)s", "albedo_texture": "%(texture)s",
+ "objects": [{"mesh": "%(mesh)s", "albedo_texture": "%(texture)s", "texture_filter": "point",
               "spheres": [{"center": [0, -0.07, 0.3], "radius": 0.36}],
               "pose": {"translation": [0, 0.737, 0]}},
              {"mesh": "%(mesh)s", "albedo": [0.3, 0.6, 0.9],

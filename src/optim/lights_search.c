@@ -216,6 +216,10 @@ static pen_status find_one(pen_context *ctx, const pen_render_options *opt, leve
         s = score(ctx, opt, coarse->S, coarse->E, coarse->n, d, fmax(r0, 0.5 * spacing), &v);
         if (!s && v < lowest) lowest = v, memcpy(best, d, sizeof d);
     }
+    if (!s && !isfinite(lowest)) /* every candidate's loss not finite: no direction to refine */
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "optimize: lights search: no candidate direction has a finite loss "
+                          "(are the target's values finite?)");
     double step = spacing;
     for (int lv = 0; !s && lv < SEARCH_LEVELS; ++lv) {
         step *= 0.5;

@@ -185,6 +185,9 @@ static pen_render_options options_of(const pen_flat_scene *f) {
      * reach the pose and the vertices, which the precomputed self transfer does not follow
      * (docs/design.md sec. 1.15); flat renders stay those of the sphere model. */
     opt.self_shadow = PEN_RENDER_SELF_SPHERES;
+    /* and textures looked up at the pixel's uv, continuous in the geometry (the footprint filter
+     * steps between facets, docs/design.md sec. 1.4): flat renders stay those of before it */
+    opt.texture_filter = PEN_RENDER_TEXTURE_POINT;
     return opt;
 }
 

@@ -283,6 +283,15 @@ pen_status pen_render_fwd(pen_context *ctx, const pen_scene *sc, const pen_rende
         s = pen__error(ctx, PEN_ERROR_ARGUMENT, "render: unknown kernel %d", opt->kernel);
         goto done;
     }
+    if ((opt->self_shadow != PEN_RENDER_SELF_SCENE &&
+         opt->self_shadow != PEN_RENDER_SELF_SPHERES) ||
+        (opt->texture_filter != PEN_RENDER_TEXTURE_SCENE &&
+         opt->texture_filter != PEN_RENDER_TEXTURE_POINT)) {
+        s = pen__error(ctx, PEN_ERROR_ARGUMENT,
+                       "render: unknown self_shadow %d or texture_filter %d", opt->self_shadow,
+                       opt->texture_filter);
+        goto done;
+    }
     if ((s = check_frame_memory(ctx, sc, opt, own == NULL))) goto done;
     pen_render_state *st = state;
     st->valid = 0;

@@ -69,7 +69,9 @@ size_t pen__render_pixel_bytes(int bands, int store) {
     /* The pixel buffers above, the G-buffer (surface, triangle, 2 barycentrics, depth), the
      * output image, and the backward's store at its larger (scalar kernel) size: F and V. */
     const size_t gbuffer = 2 * sizeof(int32_t) + 3 * sizeof(float);
-    size_t b = PIXEL_BUFFERS * 3 * sizeof(float) + gbuffer + 3 * sizeof(float);
+    /* (+ the texture footprints J and their gradient, 4 floats each, allocated when an object is
+     * textured: counted always, an estimate that errs on the safe side) */
+    size_t b = PIXEL_BUFFERS * 3 * sizeof(float) + gbuffer + 3 * sizeof(float) + 8 * sizeof(float);
     if (store) b += 2 * (size_t)bands * (size_t)bands * sizeof(float);
     return b;
 }
