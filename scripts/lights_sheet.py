@@ -22,9 +22,7 @@ def main():
     if len(args) < 2:
         sys.exit(__doc__)
     out, sheet = args[0], args[1]
-    opts = {"--suffix": "", "--cells": CELLS}
-    for i in range(2, len(args) - 1, 2):
-        opts[args[i]] = args[i + 1]
+    opts, _ = vt.parse_options(args[2:], {"--suffix": "", "--cells": CELLS})
     rows = []
     for cell in opts["--cells"].split(","):
         mesh, env = cell.split(":")

@@ -35,10 +35,9 @@ def main():
     if len(args) < 2:
         sys.exit(__doc__)
     bin_, out = os.path.abspath(args[0]), os.path.abspath(args[1])
-    opts = {"--size": "128", "--spp": "4096", "--meshes": ",".join(MESHES),
-            "--maps": ",".join(MAPS), "--suffix": "", "--self": ""}
-    for i in range(2, len(args) - 1, 2):
-        opts[args[i]] = args[i + 1]
+    opts, _ = vt.parse_options(args[2:], {"--size": "128", "--spp": "4096",
+                                          "--meshes": ",".join(MESHES), "--maps": ",".join(MAPS),
+                                          "--suffix": "", "--self": ""})
     vt.SELF = opts["--self"] or None
     size, spp, suffix = int(opts["--size"]), int(opts["--spp"]), opts["--suffix"]
     for d in ("scenes", "img"):

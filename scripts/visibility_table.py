@@ -163,6 +163,24 @@ def srgb8(v):
 # ---------------------------------------------------------------------------------------------
 # Running penumbra
 
+def parse_options(args, values, flags=()):
+    """The options after the positional arguments: `--name VALUE` into a copy of `values` (its
+    keys are the known names, its values the defaults), and each of `flags` (`--name`, no value)
+    into the returned set. An unknown name or a missing value exits with the script's usage."""
+    opts, seen, i = dict(values), set(), 0
+    while i < len(args):
+        if args[i] in flags:
+            seen.add(args[i])
+            i += 1
+        elif args[i] in opts and i + 1 < len(args):
+            opts[args[i]] = args[i + 1]
+            i += 2
+        else:
+            sys.exit("unknown option or missing value: %s\n%s"
+                     % (args[i], sys.modules["__main__"].__doc__))
+    return opts, seen
+
+
 def run(args):
     r = subprocess.run(["nice"] + args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     if r.returncode != 0:
@@ -343,23 +361,14 @@ def main():
     if len(args) < 2:
         sys.exit(__doc__)
     bin_, out = os.path.abspath(args[0]), os.path.abspath(args[1])
-    opts = {"--size": "160", "--spp": "1024", "--meshes": ",".join(MESHES),
-            "--maps": ",".join(MAPS), "--suffix": ""}
     global SELF
-    proxy, plain, quick = True, False, False
-    i = 2
-    while i < len(args):
-        if args[i] in ("--no-proxy", "--plain", "--quick"):
-            proxy = proxy and args[i] != "--no-proxy"
-            plain = plain or args[i] == "--plain"
-            quick = quick or args[i] == "--quick"
-            i += 1
-        elif args[i] == "--self":
-            SELF = args[i + 1]
-            i += 2
-        else:
-            opts[args[i]] = args[i + 1]
-            i += 2
+    opts, flags = parse_options(args[2:], {"--size": "160", "--spp": "1024",
+                                           "--meshes": ",".join(MESHES),
+                                           "--maps": ",".join(MAPS), "--suffix": "",
+                                           "--self": ""},
+                                ("--no-proxy", "--plain", "--quick"))
+    SELF = opts["--self"] or None
+    proxy, plain, quick = "--no-proxy" not in flags, "--plain" in flags, "--quick" in flags
     size, spp = int(opts["--size"]), int(opts["--spp"])
     meshes, maps = opts["--meshes"].split(","), opts["--maps"].split(",")
     suffix = opts["--suffix"]
