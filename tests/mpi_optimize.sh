@@ -27,18 +27,8 @@ if ! mpi true > "$T/launch" 2>&1; then
 fi
 
 # The truth: Spot with three spheres under 2-band SH lighting, 32x32; targets from 4 cameras.
-cat > "$T/truth.json" <<JSON
-{"camera": {"width": 32, "height": 32, "fov_y_deg": 40, "eye": [2.5, 1.8, 3.0], "target": [0, 0.5, 0]},
- "lighting": {"sh": [[1.5,1.4,1.3],[-1,-1,-1],[0.2,0.2,0.2],[-0.3,-0.3,-0.3]]},
- "sh_bands": 2,
- "objects": [{"mesh": "$SRC/data/meshes/spot_triangulated.obj", "albedo": [0.8, 0.6, 0.4],
-              "spheres": [{"center": [0, -0.07, 0.3], "radius": 0.36},
-                          {"center": [0, 0.45, -0.4], "radius": 0.28},
-                          {"center": [0, -0.55, 0.35], "radius": 0.2}],
-              "pose": {"rotation_axis_angle_deg": [0, 30, 0], "translation": [0, 0.737, 0]}}],
- "ground": {"albedo": [0.7, 0.7, 0.7]},
- "background": [0.1, 0.2, 0.3]}
-JSON
+. "$SRC/tests/optimize_truth.sh"
+truth '"albedo": [0.8, 0.6, 0.4]' > "$T/truth.json"
 views=""
 i=0
 for eye in "[2.5, 1.8, 3.0]" "[-2.5, 1.8, -3.0]" "[3.0, 1.8, -2.5]" "[-3.0, 1.8, 2.5]"; do
