@@ -73,11 +73,14 @@ static pen_image reference_of(const pen_scene *sc, int spp) {
     return img;
 }
 
+/* The mesh as its own occluder, its vertices as the receivers (the renderer's self transfer). */
+static pen__transfer_mesh tmesh;
 static pen__transfer_request request_of(const pen_mesh *m, const float *normals, int bands) {
     pen__transfer_request rq;
     memset(&rq, 0, sizeof rq);
-    rq.vertex_count = m->vertex_count, rq.triangle_count = m->triangle_count;
-    rq.positions = m->positions, rq.normals = normals, rq.indices = m->indices;
+    tmesh = (pen__transfer_mesh){m->vertex_count, m->triangle_count, m->positions, m->indices};
+    rq.mesh_count = 1, rq.meshes = &tmesh;
+    rq.point_count = m->vertex_count, rq.points = m->positions, rq.normals = normals;
     rq.bands = bands;
     return rq;
 }
@@ -95,7 +98,7 @@ static void test_convex_blocks_nothing(void) {
     rq.light_count = 2, rq.light_w = w, rq.light_b = b;
     float *B = malloc(sizeof(float) * 16 * (size_t)m.vertex_count);
     float *frac = malloc(sizeof(float) * 2 * (size_t)m.vertex_count);
-    CHECK(pen__mesh_transfer(ctx, &rq, B, frac) == PEN_OK);
+    CHECK(pen__transfer(ctx, &rq, B, frac) == PEN_OK);
     double worst = 0.0, fworst = 0.0;
     for (int i = 0; i < 16 * m.vertex_count; ++i)
         worst = fmax(worst, fabs((double)B[i]));
@@ -333,7 +336,7 @@ static void test_threads_and_kernels(void) {
         CHECK(pen_vertex_normals_fwd(ctx, m->vertex_count, m->positions, m->triangle_count,
                                      m->indices, nrm) == PEN_OK);
         pen__transfer_request rq = request_of(m, nrm, 4);
-        CHECK(pen__mesh_transfer(ctx, &rq, B[r], NULL) == PEN_OK);
+        CHECK(pen__transfer(ctx, &rq, B[r], NULL) == PEN_OK);
         pen_context_destroy(ctx);
     }
     CHECK(!memcmp(B[0], B[1], sizeof(float) * 16 * (size_t)m->vertex_count));

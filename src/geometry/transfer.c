@@ -1,15 +1,17 @@
-/* Precomputed self-transfer of a rigid mesh: what the mesh's own surfaces hide from each of its
- * vertices, ray traced once with Embree (see transfer.h).
+/* Precomputed transfer of rigid meshes: what their surfaces (and the ground) hide from each of a
+ * set of receiver points, typically the meshes' own vertices, ray traced once with Embree (see
+ * transfer.h).
  *
  * Design
- * - One Embree scene of the mesh (and, when asked, the ground square), built per call: the renderer
- *   calls this only when the posed vertices, the band count or the lights change.
+ * - One Embree scene of the mesh, built per call: the renderer calls this only when the posed
+ *   vertices, the band count or the lights change. The ground square, when asked, is a plane test
+ *   from the vertex itself (ground_blocks), not a triangle in the scene.
  * - SH transfer by a control variate: T_self = H_n - B, the clamped cosine H_n known exactly
  *   (the renderer evaluates it at the pixel's own normal), and only its blocked part B estimated,
  *   by N = 256 cosine-weighted directions stratified on a 16 x 16 grid of the unit square (pdf
  *   cos / pi, so each blocked direction w adds pi / N Y_k(w) to B). A vertex that sees everything
  *   gets B = 0 exactly, so a convex mesh shades exactly as without self-shadowing.
- * - Rays start at the vertex moved along its normal by 1e-4 of the mesh's bounding diagonal (the
+ * - Rays start at the point moved along its normal by 1e-4 of the meshes' bounding diagonal (a
  *   vertex lies on its own triangles; a smaller offset lets rays graze them at creases).
  * - Disk lights: 64 directions uniform over the disk's cap (8 x 8 strata in cos and azimuth); the
  *   fraction counts only those above the tangent plane, since the renderer's horizon term already
@@ -48,7 +50,21 @@ static int attach(RTCDevice dev, RTCScene scene, const float *p, size_t nv, cons
     return ok;
 }
 
-static int blocked(RTCScene scene, const double o[3], const double d[3]) {
+/* The ground square blocks direction d from the vertex p when d points down and meets the plane
+ * inside the square. Tested from the vertex itself, not from the offset origin: a vertex resting
+ * on the ground with its normal pointing down would otherwise start its rays below the plane and
+ * see the lower sky through it (measured: blub under the interior map, 0.146 rel. RMSE on the
+ * object, too bright where it touches the ground). */
+static int ground_blocks(const pen_ground *g, const double p[3], const double d[3]) {
+    if (!g || d[1] >= 0.0) return 0;
+    const double t = fmax(p[1] - (double)g->height, 0.0) / -d[1];
+    const double x = p[0] + t * d[0], z = p[2] + t * d[2], h = (double)g->half_size;
+    return fabs(x) <= h && fabs(z) <= h;
+}
+
+static int blocked(RTCScene scene, const pen_ground *g, const double p[3], const double o[3],
+                   const double d[3]) {
+    if (ground_blocks(g, p, d)) return 1;
     const float of[3] = {(float)o[0], (float)o[1], (float)o[2]};
     const float df[3] = {(float)d[0], (float)d[1], (float)d[2]};
     return pen__embree_occluded(scene, of, df, 0.0f);
@@ -61,11 +77,11 @@ static void frame(const double a[3], double t[3], double b[3]) {
     b[0] = f, b[1] = s + a[1] * a[1] * e, b[2] = -a[1];
 }
 
-/* One vertex: the blocked part B of its clamped cosine (nc values) and its light fractions. */
-static void vertex_transfer(RTCScene scene, const pen__transfer_request *rq, double offset, int v,
-                            float *B, float *frac) {
+/* One point: the blocked part B of its clamped cosine (nc values) and its light fractions. */
+static void point_transfer(RTCScene scene, const pen__transfer_request *rq, double offset, int v,
+                           float *B, float *frac) {
     const int nc = rq->bands * rq->bands, K = frac ? rq->light_count : 0;
-    const float *pn = rq->normals + 3 * (size_t)v, *pp = rq->positions + 3 * (size_t)v;
+    const float *pn = rq->normals + 3 * (size_t)v, *pp = rq->points + 3 * (size_t)v;
     double n[3] = {pn[0], pn[1], pn[2]};
     const double len = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
     if (!(len > 1e-30)) {
@@ -77,9 +93,11 @@ static void vertex_transfer(RTCScene scene, const pen__transfer_request *rq, dou
     }
     for (int a = 0; a < 3; ++a)
         n[a] /= len;
+    const pen_ground *g = rq->ground && rq->ground->enabled ? rq->ground : NULL;
+    const double p[3] = {pp[0], pp[1], pp[2]};
     double o[3], t[3], b[3];
     for (int a = 0; a < 3; ++a)
-        o[a] = (double)pp[a] + offset * n[a];
+        o[a] = p[a] + offset * n[a];
     frame(n, t, b);
     uint64_t rng = pen__splitmix_mix(0x5E1F7A45ull ^ (uint64_t)v);
     double lost[PEN_SH_MAX_COEFFS] = {0}, y[PEN_SH_MAX_COEFFS];
@@ -91,7 +109,7 @@ static void vertex_transfer(RTCScene scene, const pen__transfer_request *rq, dou
         double d[3];
         for (int a = 0; a < 3; ++a)
             d[a] = r * cos(phi) * t[a] + r * sin(phi) * b[a] + c * n[a];
-        if (!blocked(scene, o, d)) continue;
+        if (!blocked(scene, g, p, o, d)) continue;
         pen_sh_eval_d(rq->bands, d, y);
         for (int k = 0; k < nc; ++k)
             lost[k] += y[k];
@@ -114,24 +132,26 @@ static void vertex_transfer(RTCScene scene, const pen__transfer_request *rq, dou
                 d[a] = sn * cos(phi) * lt[a] + sn * sin(phi) * lb[a] + c * w[a];
             if (d[0] * n[0] + d[1] * n[1] + d[2] * n[2] <= 0.0) continue;
             ++above;
-            open += !blocked(scene, o, d);
+            open += !blocked(scene, g, p, o, d);
         }
         frac[l] = above ? (float)open / (float)above : 1.0f;
     }
 }
 
-pen_status pen__mesh_transfer(pen_context *ctx, const pen__transfer_request *rq, float *B,
-                              float *frac) {
-    const int V = rq->vertex_count, nc = rq->bands * rq->bands;
-    if (V <= 0) return PEN_OK;
+pen_status pen__transfer(pen_context *ctx, const pen__transfer_request *rq, float *B, float *frac) {
+    const int P = rq->point_count, nc = rq->bands * rq->bands;
+    if (P <= 0) return PEN_OK;
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-    for (int v = 0; v < V; ++v)
-        for (int a = 0; a < 3; ++a) {
-            lo[a] = fmin(lo[a], (double)rq->positions[3 * (size_t)v + a]);
-            hi[a] = fmax(hi[a], (double)rq->positions[3 * (size_t)v + a]);
-        }
-    const double diag = sqrt((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) +
-                             (hi[2] - lo[2]) * (hi[2] - lo[2]));
+    for (int g = 0; g < rq->mesh_count; ++g)
+        for (int v = 0; v < rq->meshes[g].vertex_count; ++v)
+            for (int a = 0; a < 3; ++a) {
+                lo[a] = fmin(lo[a], (double)rq->meshes[g].positions[3 * (size_t)v + a]);
+                hi[a] = fmax(hi[a], (double)rq->meshes[g].positions[3 * (size_t)v + a]);
+            }
+    const double diag = lo[0] <= hi[0] ? sqrt((hi[0] - lo[0]) * (hi[0] - lo[0]) +
+                                              (hi[1] - lo[1]) * (hi[1] - lo[1]) +
+                                              (hi[2] - lo[2]) * (hi[2] - lo[2]))
+                                       : 0.0;
     const int threads = pen__threads(ctx);
     char config[64];
     snprintf(config, sizeof config, "threads=%d", threads);
@@ -141,15 +161,11 @@ pen_status pen__mesh_transfer(pen_context *ctx, const pen__transfer_request *rq,
                           (int)rtcGetDeviceError(NULL));
     RTCScene scene = rtcNewScene(dev);
     pen_status s = PEN_OK;
-    if (rq->triangle_count > 0 &&
-        !attach(dev, scene, rq->positions, (size_t)V, rq->indices, (size_t)rq->triangle_count))
-        s = embree_status(ctx, dev, "allocating mesh buffers");
-    if (!s && rq->ground && rq->ground->enabled) {
-        const float h = rq->ground->half_size, y = rq->ground->height;
-        const float corners[12] = {-h, y, -h, -h, y, h, h, y, h, h, y, -h};
-        const uint32_t tris[6] = {0, 1, 2, 0, 2, 3};
-        if (!attach(dev, scene, corners, 4, tris, 2))
-            s = embree_status(ctx, dev, "allocating ground buffers");
+    for (int g = 0; g < rq->mesh_count && !s; ++g) {
+        const pen__transfer_mesh *m = &rq->meshes[g];
+        if (m->triangle_count > 0 && !attach(dev, scene, m->positions, (size_t)m->vertex_count,
+                                             m->indices, (size_t)m->triangle_count))
+            s = embree_status(ctx, dev, "allocating mesh buffers");
     }
     if (!s) {
         rtcCommitScene(scene);
@@ -158,9 +174,9 @@ pen_status pen__mesh_transfer(pen_context *ctx, const pen__transfer_request *rq,
     if (!s) {
         const double offset = 1e-4 * (diag > 0.0 ? diag : 1.0);
 #pragma omp parallel for schedule(dynamic, 64) num_threads(threads)
-        for (int v = 0; v < V; ++v)
-            vertex_transfer(scene, rq, offset, v, B + (size_t)nc * (size_t)v,
-                            frac ? frac + (size_t)rq->light_count * (size_t)v : NULL);
+        for (int v = 0; v < P; ++v)
+            point_transfer(scene, rq, offset, v, B + (size_t)nc * (size_t)v,
+                           frac ? frac + (size_t)rq->light_count * (size_t)v : NULL);
     }
     rtcReleaseScene(scene);
     rtcReleaseDevice(dev);

@@ -14,26 +14,35 @@
 #define PEN_TRANSFER_DIRECTIONS 256
 #define PEN_TRANSFER_DISK_SAMPLES 64
 
-typedef struct pen__transfer_request {
+/* One occluding triangle mesh (world space). */
+typedef struct pen__transfer_mesh {
     int vertex_count, triangle_count;
-    const float *positions; /* 3 per vertex, world space */
-    const float *normals;   /* 3 per vertex (need not be unit; a zero one gets a zero transfer) */
+    const float *positions; /* 3 per vertex */
     const uint32_t *indices;
+} pen__transfer_mesh;
+
+typedef struct pen__transfer_request {
+    int mesh_count;                   /* occluders: traced together */
+    const pen__transfer_mesh *meshes;
+    int point_count;                  /* receivers: where the transfer is wanted */
+    const float *points;              /* 3 per point, world space */
+    const float *normals;             /* 3 per point (need not be unit; a zero one gets B = 0) */
     int bands;
     int light_count;
     const double (*light_w)[3]; /* unit directions towards the lights */
     const double *light_b;      /* angular radii, radians */
-    const pen_ground *ground;   /* traced as an occluder too when not NULL and enabled */
+    const pen_ground *ground;   /* an occluder too when not NULL and enabled */
 } pen__transfer_request;
 
-/* B (bands^2 floats per vertex): B_k = integral of (1 - V(x, w)) max(n . w, 0) Y_k(w) dw, the
- * part of the clamped cosine H_n the mesh (and the ground when asked) blocks from the vertex, V
- * the binary visibility of rays leaving a point offset along n, so that the vertex's transfer is
- * T_self = H_n - B. A cosine-weighted stratified estimate: an unoccluded vertex gets B = 0 exactly.
- * frac (light_count floats per vertex, may be NULL): the share of each disk's samples above the
- * vertex's tangent plane that no triangle blocks (1 when none is above). Deterministic: each
- * vertex's samples come from its index, so any thread count gives the same result. */
-pen_status pen__mesh_transfer(pen_context *ctx, const pen__transfer_request *rq, float *B,
-                              float *frac);
+/* B (bands^2 floats per point): B_k = integral of (1 - V(x, w)) max(n . w, 0) Y_k(w) dw, the
+ * part of the clamped cosine H_n the meshes (and the ground when asked) block from the point, V
+ * the binary visibility of rays leaving the point offset along n (by 1e-4 of the occluders'
+ * bounding diagonal), so that the point's transfer is T = H_n - B. A cosine-weighted stratified
+ * estimate: an unoccluded point gets B = 0 exactly. frac (light_count floats per point, may be
+ * NULL): the share of each disk's samples above the point's tangent plane that nothing blocks (1
+ * when none is above). Deterministic: each point's samples come from its index, so any thread
+ * count gives the same result. The points are typically the meshes' own vertices (self transfer)
+ * or nodes refined from them. */
+pen_status pen__transfer(pen_context *ctx, const pen__transfer_request *rq, float *B, float *frac);
 
 #endif

@@ -68,17 +68,19 @@ static pen_status self_cache(pen_context *ctx, const pen_scene *sc, pen_render_s
     if ((s = PEN__BUF_RESERVE(ctx, b->self_B, nc * V + 1, "self blocked part")) ||
         (s = PEN__BUF_RESERVE(ctx, b->self_frac, (size_t)K * V + 1, "self light fractions")))
         return s;
-    const pen__transfer_request rq = {m->vertex_count,
-                                      m->triangle_count,
+    const pen__transfer_mesh mesh = {m->vertex_count, m->triangle_count, b->world.data,
+                                     m->indices};
+    const pen__transfer_request rq = {1,
+                                      &mesh,
+                                      m->vertex_count,
                                       b->world.data,
                                       b->vnormal.data,
-                                      m->indices,
                                       sc->sh_bands,
                                       K,
                                       (const double(*)[3])st->lights.w,
                                       st->lights.b,
                                       st->ground_occludes ? &sc->ground : NULL};
-    if ((s = pen__mesh_transfer(ctx, &rq, b->self_B.data, b->self_frac.data))) return s;
+    if ((s = pen__transfer(ctx, &rq, b->self_B.data, b->self_frac.data))) return s;
     b->self_valid = 1, b->self_key = key;
     return PEN_OK;
 }
