@@ -183,6 +183,7 @@ const pen__shade_fast_ops *pen__shade_fast_current(void);
  * state.c; tiles.c calls state.c (pen__buf_grow, behind PEN__BUF_RESERVE, is state.c's) and
  * lights.c (the tile's sphere cull); ground.c calls lights.c (the disks' horizon factors);
  * state.c and lights.c call no other file of the frame. */
+#include "geometry/lattice.h" /* the self transfer's nodes */
 #include "penumbra/render.h" /* the state's options, view, G-buffer and timings */
 
 #include <stddef.h>
@@ -258,11 +259,12 @@ typedef struct pen__object_buf {
     int adj_valid, adj_vertices, adj_triangles;
     uint64_t adj_hash;
     /* Self-shadowing by the precomputed transfer (self.c): whether this frame shades the object
-     * with it, whether any other object has spheres, and the per-vertex cache (bands^2
+     * with it, whether any other object has spheres, and the per-node cache (bands^2
      * coefficients of the blocked part of the clamped cosine and one unblocked disk fraction per
      * light) with the key it was built from. */
     int self_on, self_others;
-    pen__buf_float self_B, self_frac;
+    pen__buf_float self_B, self_frac; /* per node of self_lat */
+    pen__lattice self_lat;            /* the nodes: the vertices, refined on coarse meshes */
     int self_valid;
     uint64_t self_key;
 } pen__object_buf;

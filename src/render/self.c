@@ -36,7 +36,13 @@
 #include "geometry/transfer.h"
 #include "render/render_internal.h"
 
+#include <stdlib.h>
 #include <string.h>
+
+/* Receiver nodes at most this far apart (the mean edge, relative to the mesh's bounding diagonal):
+ * a coarse mesh's triangles are refined (geometry/lattice.h) so that the occlusion inside creases
+ * is sampled densely enough. Measured in docs/visibility.md sec. 10. */
+#define PEN_SELF_NODE_SPACING (1.0 / 128.0)
 
 /* The cache key of object o: what its transfer depends on. */
 static uint64_t self_key(const pen_scene *sc, const pen_render_state *st, int o) {
@@ -62,25 +68,37 @@ static pen_status self_cache(pen_context *ctx, const pen_scene *sc, pen_render_s
     const uint64_t key = self_key(sc, st, o);
     if (b->self_valid && b->self_key == key) return PEN_OK;
     b->self_valid = 0;
-    const size_t V = (size_t)m->vertex_count, nc = (size_t)sc->sh_bands * (size_t)sc->sh_bands;
+    /* The level from the unposed mesh, so that a pose never changes it. */
+    const int level = pen__lattice_level(m->vertex_count, m->positions, m->triangle_count,
+                                         m->indices, PEN_SELF_NODE_SPACING);
+    pen_status s = pen__lattice_build(ctx, &b->self_lat, level, m->vertex_count,
+                                      m->triangle_count, m->indices);
+    if (s) return s;
+    const size_t N = (size_t)b->self_lat.node_count;
+    const size_t nc = (size_t)sc->sh_bands * (size_t)sc->sh_bands;
     const int K = st->lights.count;
-    pen_status s;
-    if ((s = PEN__BUF_RESERVE(ctx, b->self_B, nc * V + 1, "self blocked part")) ||
-        (s = PEN__BUF_RESERVE(ctx, b->self_frac, (size_t)K * V + 1, "self light fractions")))
+    if ((s = PEN__BUF_RESERVE(ctx, b->self_B, nc * N + 1, "self blocked part")) ||
+        (s = PEN__BUF_RESERVE(ctx, b->self_frac, (size_t)K * N + 1, "self light fractions")))
         return s;
+    float *pos = pen__malloc(ctx, 6 * N, sizeof(float), "self transfer nodes");
+    if (!pos) return PEN_ERROR_MEMORY;
+    float *nrm = pos + 3 * N;
+    pen__lattice_nodes(&b->self_lat, m->indices, b->world.data, b->vnormal.data, pos, nrm);
     const pen__transfer_mesh mesh = {m->vertex_count, m->triangle_count, b->world.data,
                                      m->indices};
     const pen__transfer_request rq = {1,
                                       &mesh,
-                                      m->vertex_count,
-                                      b->world.data,
-                                      b->vnormal.data,
+                                      (int)N,
+                                      pos,
+                                      nrm,
                                       sc->sh_bands,
                                       K,
                                       (const double(*)[3])st->lights.w,
                                       st->lights.b,
                                       st->ground_occludes ? &sc->ground : NULL};
-    if ((s = pen__transfer(ctx, &rq, b->self_B.data, b->self_frac.data))) return s;
+    s = pen__transfer(ctx, &rq, b->self_B.data, b->self_frac.data);
+    free(pos);
+    if (s) return s;
     b->self_valid = 1, b->self_key = key;
     return PEN_OK;
 }
@@ -114,25 +132,26 @@ pen_status pen__self_prepare(pen_context *ctx, const pen_scene *sc, const pen_re
     return PEN_OK;
 }
 
-/* The blocked part and the light fractions at pixel i of object o, interpolated with the
- * G-buffer's barycentrics as the normal is. */
+/* The blocked part and the light fractions at pixel i of object o, interpolated linearly on the
+ * sub-triangle of the node lattice that holds the pixel's barycentrics (at level 1 the triangle
+ * itself, as the normal is interpolated). */
 static void self_at(const pen_render_state *st, int o, size_t i, float *B, double *frac) {
     const pen__object_buf *b = &st->obj[o];
-    const pen_raster_mesh *m = &st->meshes[o];
-    const uint32_t *idx = m->indices + 3 * (size_t)st->gb.triangle[i];
-    const double u = (double)st->gb.bary[2 * i], v = (double)st->gb.bary[2 * i + 1];
-    const double w[3] = {1.0 - u - v, u, v};
+    int node[3];
+    double w[3];
+    pen__lattice_locate(&b->self_lat, st->meshes[o].indices, st->gb.triangle[i],
+                        (double)st->gb.bary[2 * i], (double)st->gb.bary[2 * i + 1], node, w);
     const int nc = st->params.bands * st->params.bands, K = st->lights.count;
     for (int k = 0; k < nc; ++k) {
         double t = 0.0;
         for (int c = 0; c < 3; ++c)
-            t += w[c] * (double)b->self_B.data[(size_t)nc * idx[c] + (size_t)k];
+            t += w[c] * (double)b->self_B.data[(size_t)nc * (size_t)node[c] + (size_t)k];
         B[k] = (float)t;
     }
     for (int l = 0; l < K; ++l) {
         double f = 0.0;
         for (int c = 0; c < 3; ++c)
-            f += w[c] * (double)b->self_frac.data[(size_t)K * idx[c] + (size_t)l];
+            f += w[c] * (double)b->self_frac.data[(size_t)K * (size_t)node[c] + (size_t)l];
         frac[l] = f;
     }
 }

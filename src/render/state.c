@@ -96,6 +96,7 @@ void pen_render_state_free(pen_render_state *st) {
         PEN__BUF_FREE(b->world), PEN__BUF_FREE(b->vnormal), PEN__BUF_FREE(b->d_world);
         PEN__BUF_FREE(b->d_vnormal), PEN__BUF_FREE(b->adjacency);
         PEN__BUF_FREE(b->self_B), PEN__BUF_FREE(b->self_frac);
+        pen__lattice_free(&b->self_lat);
     }
     free(st->obj), free(st->meshes), free(st->sphere_first);
     PEN__BUF_FREE(st->spheres), PEN__BUF_FREE(st->kappa), PEN__BUF_FREE(st->kappa_key);
