@@ -132,6 +132,69 @@ static void test_flat_matches_render(void) {
     pen_scene_free(&sc);
 }
 
+/* self_shadow 1 and texture_filter 1: the renderer's defaults (the objects' own shadows from the
+ * transfer, textures over the footprint), bit for bit, forward and backward of the lighting,
+ * textures and albedos; gradients the transfer does not follow are refused, not returned as 0. */
+static void test_flat_transfer(void) {
+    pen_context *ctx = fixture_ctx();
+    unsigned long long seed = 11;
+    pen_scene sc = rs_ball_scene(24, 1, &seed);
+    CHECK(sc.shadow.self == PEN_SELF_TRANSFER);
+    CHECK(sc.objects[0].texture.data &&
+          sc.objects[0].texture_filter == PEN_TEXTURE_FILTER_FOOTPRINT);
+    pen_flat_object fo;
+    float sh[3 * PEN_SH_MAX_COEFFS];
+    pen_flat_scene f = flat_of(&sc, &fo, sh);
+    f.self_shadow = 1, f.texture_filter = 1;
+    const size_t np = 3 * 24 * 24;
+    pen_render_state *st = NULL, *fst = NULL;
+    CHECK(pen_render_state_create(ctx, &st) == PEN_OK);
+    CHECK(pen_render_state_create(ctx, &fst) == PEN_OK);
+    pen_image img = {0, 0, 0, NULL}, pts = {0, 0, 0, NULL};
+    float *fimg = calloc(np, sizeof(float)), *d_img = malloc(np * sizeof(float));
+    const pen_render_options opt = pen_render_options_default();
+    CHECK(pen_render_fwd(ctx, &sc, &opt, st, &img) == PEN_OK);
+    CHECK(pen_flat_render_fwd(ctx, &f, fst, fimg) == PEN_OK);
+    CHECK(same_floats(img.data, fimg, np));
+    pen_render_options sph = opt;
+    sph.self_shadow = PEN_RENDER_SELF_SPHERES, sph.texture_filter = PEN_RENDER_TEXTURE_POINT;
+    CHECK(pen_render_fwd(ctx, &sc, &sph, NULL, &pts) == PEN_OK);
+    CHECK(!same_floats(pts.data, fimg, np)); /* the switches do something here */
+    for (size_t i = 0; i < np; ++i)
+        d_img[i] = (float)(check_rand_(&seed) - 0.5);
+    pen_render_grad g;
+    CHECK(pen_render_grad_create(ctx, &sc, &g) == PEN_OK);
+    const pen_image d = {24, 24, 3, d_img};
+    CHECK(pen_render_bwd(ctx, &sc, &opt, st, &d, PEN_GRAD_LIGHTING | PEN_GRAD_ALBEDO, &g) ==
+          PEN_OK);
+    const int nt = 3 * sc.objects[0].texture.width * sc.objects[0].texture.height;
+    float d_sh[3 * 16] = {0}, d_ground[3] = {0}, d_albedo[3] = {0};
+    float *d_tex = calloc((size_t)nt, sizeof(float));
+    pen_flat_object_grad og = {NULL, d_tex, d_albedo, NULL, NULL};
+    pen_flat_grad fg = {d_sh, d_ground, &og, NULL};
+    CHECK(pen_flat_render_bwd(ctx, &f, fst, d_img, &fg) == PEN_OK);
+    int same = 1;
+    for (int i = 0; i < 16; ++i)
+        same &= same_floats(d_sh + 3 * i, g.sh[i], 3);
+    CHECK(same);
+    CHECK(same_floats(d_ground, g.ground_albedo, 3));
+    CHECK(same_floats(d_tex, g.objects[0].texture, (size_t)nt));
+    float d_pose[7] = {0};
+    pen_flat_object_grad og2 = {NULL, NULL, NULL, NULL, d_pose};
+    pen_flat_grad fg2 = {d_sh, NULL, &og2, NULL};
+    CHECK_ERROR(ctx, pen_flat_render_bwd(ctx, &f, fst, d_img, &fg2), PEN_ERROR_ARGUMENT,
+                "self_shadow 1");
+    f.self_shadow = 2;
+    CHECK_ERROR(ctx, pen_flat_render_fwd(ctx, &f, NULL, fimg), PEN_ERROR_ARGUMENT,
+                "self_shadow and texture_filter");
+    pen_render_grad_free(&g);
+    free(d_tex), free(fimg), free(d_img);
+    pen_image_free(&img), pen_image_free(&pts);
+    pen_render_state_free(st);
+    pen_render_state_free(fst);
+    pen_scene_free(&sc);
+}
+
 /* Per-vertex uvs (uv_indices NULL) are read through the position indices. */
 static void test_flat_per_vertex_uvs(void) {
     pen_context *ctx = fixture_ctx();
@@ -405,6 +468,6 @@ static void test_flat_abi(void) {
     CHECK(found);
 }
 
-RUN_TESTS(TEST(test_flat_matches_render), TEST(test_flat_per_vertex_uvs),
+RUN_TESTS(TEST(test_flat_matches_render), TEST(test_flat_transfer), TEST(test_flat_per_vertex_uvs),
           TEST(test_flat_scene_load), TEST(test_flat_errors), TEST(test_flat_renderer_reuse),
           TEST(test_flat_abi))

@@ -5,12 +5,14 @@
  * can mirror it field by field; pen_scene (scene.h) is richer and owns its arrays, this one
  * borrows them. A pen_flat_scene describes the same scene as pen_scene: pen_flat_render_fwd
  * builds a pen_scene that points into the caller's arrays and runs pen_render_fwd on it, so the
- * image is the one `penumbra render` makes of the equivalent scene JSON with "shadow": {"self":
- * "spheres"} and "texture_filter": "point" on its textured objects, bit for bit: the flat API
- * shades the objects' own shadows with their spheres, whose gradients reach the pose and the
- * vertices (the precomputed self transfer, the JSON default, has none; docs/design.md sec. 1.15),
- * and looks textures up at the pixel's uv, continuous in the geometry (the JSON default filters
- * over the pixel's footprint, which steps between facets; sec. 1.4).
+ * image is the one `penumbra render` makes of the equivalent scene JSON, bit for bit. Two defaults
+ * differ from the JSON's: by default (self_shadow 0) the flat API shades the objects' own shadows
+ * with their spheres, whose gradients reach the pose and the vertices (the precomputed transfer,
+ * the JSON default, has none; docs/design.md sec. 1.15), and (texture_filter 0) looks textures up
+ * at the pixel's uv, continuous in the geometry (the JSON default filters over the pixel's
+ * footprint, which steps between facets; sec. 1.4): the JSON's "shadow": {"self": "spheres"} and
+ * "texture_filter": "point". self_shadow 1 and texture_filter 1 give the JSON defaults, for
+ * lighting and texture work against photographs.
  *
  * Usage (one object, one step):
  *
@@ -93,9 +95,7 @@ typedef struct pen_flat_scene {
     const float *envmap; /* 3 * width * height, equirectangular (scene.h), linear RGB */
     float envmap_rotation_y_deg;
     float envmap_scale;
-    int shadows; /* pen_render_options (the objects' own shadows always from their spheres,
-                    PEN_RENDER_SELF_SPHERES, and point texture lookups, PEN_RENDER_TEXTURE_POINT:
-                    their gradients reach the pose and vertices) */
+    int shadows; /* pen_render_options.shadows */
     int antialias;
     int object_count;
     const pen_flat_object *objects;
@@ -106,12 +106,19 @@ typedef struct pen_flat_scene {
     const float *lights;  /* 7 * light_count: direction towards the light (3, any non-zero
                              length: normalised by the renderer), angular radius in degrees,
                              irradiance (3) */
+    int self_shadow;      /* 0 (default): the objects' own shadows from their spheres (every
+                             gradient); 1: from their meshes' precomputed transfer, ray traced
+                             and cached (exact; the backward then refuses gradients of the
+                             positions, pose, spheres and lights, which do not see it) */
+    int texture_filter;   /* 0 (default): one bilinear lookup at the pixel's uv; 1: averaged
+                             over the pixel's footprint (pen_texture_filter FOOTPRINT) */
 } pen_flat_scene;
 
 /* A 64 x 64 camera at (0, 1, 3) looking at (0, 0.5, 0) with 40 degrees vertical field of view,
  * sh_bands 4 and no lighting array, no disk lights, the calibrated exponential with its own epsilon, overlap
  * weights on, the default ground (height 0, albedo 0.8, half size 4, occluding the objects), black
- * background, no map, shadows and antialiasing on, no objects. */
+ * background, no map, shadows and antialiasing on, own shadows from the spheres, point texture
+ * lookups, no objects. */
 PEN_API pen_flat_scene pen_flat_scene_default(void);
 
 /* Where pen_flat_render_bwd writes; every pointer may be NULL (that gradient is not computed).
@@ -173,7 +180,7 @@ PEN_API pen_render_state *pen_flat_renderer_state(pen_flat_renderer *renderer);
 /* ---- Layout check ---------------------------------------------------------------------------- */
 
 /* Raised whenever a row of pen_flat_abi's table changes (a field added, moved or resized). */
-#define PEN_FLAT_ABI_VERSION 2
+#define PEN_FLAT_ABI_VERSION 3
 
 /* One row of the layout table. */
 typedef struct pen_flat_abi_field {

@@ -91,6 +91,8 @@ class FlatScene(ctypes.Structure):
         ("ground_occlusion", ctypes.c_int),
         ("light_count", ctypes.c_int),
         ("lights", c_float_p),
+        ("self_shadow", ctypes.c_int),
+        ("texture_filter", ctypes.c_int),
     ]
 
 
@@ -142,7 +144,7 @@ class Spheres(ctypes.Structure):
 # ---- Layout check -------------------------------------------------------------------------------
 
 # The layout version this package's structs are written for (PEN_FLAT_ABI_VERSION in flat.h).
-ABI_VERSION = 2
+ABI_VERSION = 3
 
 # The C structs the package mirrors, by their C names.
 MIRRORS = {

@@ -89,7 +89,9 @@ def _scene_from_flat(f):
                  envmap_scale=f.envmap_scale, epsilon=f.epsilon, exp=exp,
                  overlap={0: "weights", 1: "none"}[f.overlap],
                  ground_occlusion={0: "occludes", 1: "receiver"}[f.ground_occlusion],
-                 lights=_copy(f.lights, (f.light_count, 7)) if f.light_count > 0 else None)
+                 lights=_copy(f.lights, (f.light_count, 7)) if f.light_count > 0 else None,
+                 self_shadow={0: "spheres", 1: "transfer"}[f.self_shadow],
+                 texture_filter={0: "point", 1: "footprint"}[f.texture_filter])
 
 
 # ---- Meshes, images, spheres --------------------------------------------------------------------

@@ -29,6 +29,8 @@ from ._lib import PenumbraError
 EXP_METHODS = {"calibrated": 0, "default": 0, "paper": 1, "exact": 2}
 OVERLAP_MODES = {"weights": 0, "none": 1}
 GROUND_MODES = {"occludes": 0, "receiver": 1}
+SELF_SHADOW_MODES = {"spheres": 0, "transfer": 1}
+TEXTURE_FILTERS = {"point": 0, "footprint": 1}
 
 
 @dataclasses.dataclass
@@ -87,7 +89,12 @@ class Scene:
     (K, 7) float32 tensor of K <= 16 distant disk lights, one row each: the direction towards the
     light (3, any non-zero length), the angular radius in degrees and the irradiance (3) that an
     unoccluded surface facing it receives; load_scene fills it with the lights the scene gives or
-    finds in its environment map."""
+    finds in its environment map. self_shadow is "spheres" (the objects' own shadows from their
+    spheres: every gradient) or "transfer" (from their meshes, ray traced once per pose and cached:
+    exact, but then only the lighting, albedo, texture and ground albedo have gradients; asking
+    for a vertex, pose, sphere or light gradient raises PenumbraError); texture_filter is "point"
+    (one bilinear lookup at the pixel's uv) or "footprint" (averaged over the pixel's footprint,
+    as `penumbra render` does by default)."""
 
     camera: Camera
     sh: torch.Tensor
@@ -105,6 +112,8 @@ class Scene:
     overlap: str = "weights"
     ground_occlusion: str = "occludes"
     lights: Optional[torch.Tensor] = None
+    self_shadow: str = "spheres"
+    texture_filter: str = "point"
 
 
 def pose(rotation_axis_angle_deg=(0.0, 0.0, 0.0), translation=(0.0, 0.0, 0.0), scale=1.0):
@@ -209,6 +218,14 @@ class _Spec:
             raise ValueError("penumbra: ground_occlusion must be \"occludes\" or \"receiver\"; "
                              "got %r" % (scene.ground_occlusion,))
         self.ground_occlusion = GROUND_MODES[scene.ground_occlusion]
+        if scene.self_shadow not in SELF_SHADOW_MODES:
+            raise ValueError("penumbra: self_shadow must be \"spheres\" or \"transfer\"; got %r"
+                             % (scene.self_shadow,))
+        self.self_shadow = SELF_SHADOW_MODES[scene.self_shadow]
+        if scene.texture_filter not in TEXTURE_FILTERS:
+            raise ValueError("penumbra: texture_filter must be \"point\" or \"footprint\"; got %r"
+                             % (scene.texture_filter,))
+        self.texture_filter = TEXTURE_FILTERS[scene.texture_filter]
         self.envmap = None
         if scene.envmap is not None:
             self.envmap = _float_tensor("envmap", scene.envmap, (None, None, 3)).detach()
@@ -376,6 +393,7 @@ def _flat(spec, sh, ground_albedo, lights, obj):
     s.shadows, s.antialias = spec.shadows, spec.antialias
     s.overlap = spec.overlap
     s.ground_occlusion = spec.ground_occlusion
+    s.self_shadow, s.texture_filter = spec.self_shadow, spec.texture_filter
     n = len(spec.objects)
     objs = (_lib.FlatObject * max(n, 1))()
     for i, os_ in enumerate(spec.objects):
@@ -476,7 +494,8 @@ def render(vertices, faces, sh, camera=None, *, uvs=None, uv_faces=None, texture
            ground_height=0.0, ground_half_size=4.0, background=(0.0, 0.0, 0.0), envmap=None,
            envmap_rotation_y_deg=0.0, envmap_scale=1.0, epsilon=0.0, exp="calibrated",
            shadows=True, antialias=True, threads=None, sphere_weights=None, overlap="weights",
-           ground_occlusion="occludes", renderer=None):
+           ground_occlusion="occludes", renderer=None, self_shadow="spheres",
+           texture_filter="point"):
     """Renders one object (see Object and Scene for the arguments); returns the (height, width, 3)
     float32 image. camera: a Camera (None: the default 64 x 64 one). threads, renderer: as
     render_scene."""
@@ -486,7 +505,8 @@ def render(vertices, faces, sh, camera=None, *, uvs=None, uv_faces=None, texture
                   ground=ground, ground_albedo=ground_albedo, ground_height=ground_height,
                   ground_half_size=ground_half_size, background=background, envmap=envmap,
                   envmap_rotation_y_deg=envmap_rotation_y_deg, envmap_scale=envmap_scale,
-                  epsilon=epsilon, exp=exp, overlap=overlap, ground_occlusion=ground_occlusion)
+                  epsilon=epsilon, exp=exp, overlap=overlap, ground_occlusion=ground_occlusion,
+                  self_shadow=self_shadow, texture_filter=texture_filter)
     return render_scene(scene, shadows=shadows, antialias=antialias, threads=threads,
                         renderer=renderer)
 

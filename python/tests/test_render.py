@@ -97,6 +97,35 @@ class CliEqualityTest(Temp):
     def test_no_shadows(self):
         self.check(SCENE_SH, "--no-shadows")
 
+    def test_transfer_and_footprint(self):
+        """The CLI's defaults (own shadows from the transfer, footprint texture filter) through
+        self_shadow="transfer" and texture_filter="footprint"; lighting and texture gradients
+        flow, a vertex gradient is refused."""
+        template = (SCENE_SH.replace('"shadow": {"self": "spheres"},', "")
+                    .replace('"texture_filter": "point",', ""))
+        path = self.write_scene(template)
+        out = os.path.join(self.dir, "cli.exr")
+        subprocess.run([CLI, "render", path, "-o", out, "-q"], check=True)
+        want = penumbra.load_image(out)
+        scene = penumbra.load_scene(path)
+        self.assertEqual(scene.self_shadow, "spheres")  # the flat default, whatever the JSON
+        plain = penumbra.render_scene(scene)
+        scene = dataclasses.replace(scene, self_shadow="transfer", texture_filter="footprint")
+        got = penumbra.render_scene(scene)
+        self.assertTrue(torch.equal(got, want),
+                        "max difference %g" % float((got - want).abs().max()))
+        self.assertFalse(torch.equal(plain, want))
+        sh = scene.sh.clone().requires_grad_(True)
+        penumbra.render_scene(dataclasses.replace(scene, sh=sh)).sum().backward()
+        self.assertTrue(bool(torch.isfinite(sh.grad).all()) and float(sh.grad.abs().sum()) > 0)
+        ob = scene.objects[0]
+        v = ob.vertices.clone().requires_grad_(True)
+        bent = dataclasses.replace(scene, objects=[dataclasses.replace(ob, vertices=v)])
+        with self.assertRaisesRegex(penumbra.PenumbraError, "self_shadow"):
+            penumbra.render_scene(bent).sum().backward()
+        with self.assertRaisesRegex(ValueError, "self_shadow"):
+            penumbra.render_scene(dataclasses.replace(scene, self_shadow="mesh"))
+
     def test_envmap_two_objects(self):
         scene, img = self.check(SCENE_ENVMAP)
         self.assertEqual(scene.background, "envmap")

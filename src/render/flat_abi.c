@@ -72,6 +72,8 @@ static const pen_flat_abi_field table[] = {
     FIELD(pen_flat_scene, ground_occlusion),
     FIELD(pen_flat_scene, light_count),
     FIELD(pen_flat_scene, lights),
+    FIELD(pen_flat_scene, self_shadow),
+    FIELD(pen_flat_scene, texture_filter),
 
     SIZE_ROW(pen_flat_object_grad),
     FIELD(pen_flat_object_grad, positions),

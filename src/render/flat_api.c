@@ -70,6 +70,7 @@ static pen_status object_view(pen_context *ctx, int o, const pen_flat_object *f,
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "flat scene: objects[%d]: needs vertices and triangles (%d, %d)", o,
                           f->vertex_count, f->triangle_count);
+    ob->texture_filter = PEN_TEXTURE_FILTER_FOOTPRINT; /* used when options_of asks for it */
     pen_mesh *m = &ob->mesh;
     m->vertex_count = f->vertex_count;
     m->triangle_count = f->triangle_count;
@@ -162,6 +163,12 @@ static pen_status scene_view(pen_context *ctx, const pen_flat_scene *f, pen_obje
     sc->shadow.exp = (pen_sh_exp_method)f->exp_method;
     sc->shadow.overlap = (pen_shadow_overlap)f->overlap;
     sc->shadow.ground = (pen_shadow_ground)f->ground_occlusion;
+    if ((f->self_shadow != 0 && f->self_shadow != 1) ||
+        (f->texture_filter != 0 && f->texture_filter != 1))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "flat scene: self_shadow and texture_filter must be 0 or 1 (got %d, %d)",
+                          f->self_shadow, f->texture_filter);
+    sc->shadow.self = PEN_SELF_TRANSFER; /* used when options_of asks for the scene's */
     sc->ground.enabled = f->ground_enabled != 0;
     sc->ground.height = f->ground_height;
     memcpy(sc->ground.albedo, f->ground_albedo, sizeof sc->ground.albedo);
@@ -181,13 +188,15 @@ static pen_render_options options_of(const pen_flat_scene *f) {
     pen_render_options opt = pen_render_options_default();
     opt.shadows = f->shadows != 0;
     opt.antialias = f->antialias != 0;
-    /* The objects' own shadows from their spheres: the flat API serves PyTorch, whose gradients
-     * reach the pose and the vertices, which the precomputed self transfer does not follow
-     * (docs/design.md sec. 1.15); flat renders stay those of the sphere model. */
-    opt.self_shadow = PEN_RENDER_SELF_SPHERES;
+    /* By default the objects' own shadows from their spheres: the flat API serves PyTorch, whose
+     * gradients reach the pose and the vertices, which the precomputed self transfer does not
+     * follow (docs/design.md sec. 1.15); the scene view asks for the transfer (shadow.self) and
+     * the footprint filter (each object's texture_filter), the options pick. */
+    opt.self_shadow = f->self_shadow == 1 ? PEN_RENDER_SELF_SCENE : PEN_RENDER_SELF_SPHERES;
     /* and textures looked up at the pixel's uv, continuous in the geometry (the footprint filter
-     * steps between facets, docs/design.md sec. 1.4): flat renders stay those of before it */
-    opt.texture_filter = PEN_RENDER_TEXTURE_POINT;
+     * steps between facets, docs/design.md sec. 1.4) */
+    opt.texture_filter =
+        f->texture_filter == 1 ? PEN_RENDER_TEXTURE_SCENE : PEN_RENDER_TEXTURE_POINT;
     return opt;
 }
 
@@ -284,6 +293,16 @@ static pen_status flat_bwd(pen_context *ctx, const pen_flat_scene *f, pen_render
     } else {
         pen_render_grad_free(g);
         if ((s = pen_render_grad_create(ctx, &sc, g))) return s;
+    }
+    if (f->self_shadow == 1) { /* the transfer is constant in these: refuse, do not return 0 */
+        int geo = grad->lights != NULL;
+        for (int o = 0; grad->objects && o < f->object_count; ++o)
+            geo |= grad->objects[o].positions || grad->objects[o].pose || grad->objects[o].spheres;
+        if (geo)
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "flat render backward: with self_shadow 1 (the precomputed "
+                              "transfer) there is no gradient of positions, pose, spheres or "
+                              "lights; render with self_shadow 0 for those");
     }
     const pen_render_options opt = options_of(f);
     const pen_image d_img = {f->width, f->height, 3, (float *)d_image};
