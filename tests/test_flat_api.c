@@ -55,6 +55,14 @@ static int same_floats(const float *a, const float *b, size_t n) {
     return memcmp(a, b, n * sizeof(float)) == 0;
 }
 
+/* The flat lighting and ground-albedo gradients (d_sh: 3 * 16) are pen_render's, bit for bit. */
+static int same_lighting(const float *d_sh, const float *d_ground, const pen_render_grad *g) {
+    int same = same_floats(d_ground, g->ground_albedo, 3);
+    for (int i = 0; i < 16; ++i)
+        same &= same_floats(d_sh + 3 * i, g->sh[i], 3);
+    return same;
+}
+
 /* The flat forward and backward are pen_render's, bit for bit, for every gradient group. */
 static void test_flat_matches_render(void) {
     pen_context *ctx = fixture_ctx();
@@ -94,11 +102,7 @@ static void test_flat_matches_render(void) {
     pen_flat_object_grad og = {d_pos, d_tex, d_albedo, d_spheres, d_pose};
     pen_flat_grad fg = {d_sh, d_ground, &og, NULL};
     CHECK(pen_flat_render_bwd(ctx, &f, fst, d_img, &fg) == PEN_OK);
-    int same = 1;
-    for (int i = 0; i < 16; ++i)
-        same &= same_floats(d_sh + 3 * i, g.sh[i], 3);
-    CHECK(same);
-    CHECK(same_floats(d_ground, g.ground_albedo, 3));
+    CHECK(same_lighting(d_sh, d_ground, &g));
     CHECK(same_floats(d_pos, g.objects[0].positions, 3 * (size_t)V));
     CHECK(same_floats(d_tex, g.objects[0].texture, (size_t)nt));
     CHECK(same_floats(d_spheres, g.objects[0].spheres, 8));
@@ -173,11 +177,7 @@ static void test_flat_transfer(void) {
     pen_flat_object_grad og = {NULL, d_tex, d_albedo, NULL, NULL};
     pen_flat_grad fg = {d_sh, d_ground, &og, NULL};
     CHECK(pen_flat_render_bwd(ctx, &f, fst, d_img, &fg) == PEN_OK);
-    int same = 1;
-    for (int i = 0; i < 16; ++i)
-        same &= same_floats(d_sh + 3 * i, g.sh[i], 3);
-    CHECK(same);
-    CHECK(same_floats(d_ground, g.ground_albedo, 3));
+    CHECK(same_lighting(d_sh, d_ground, &g));
     CHECK(same_floats(d_tex, g.objects[0].texture, (size_t)nt));
     float d_pose[7] = {0};
     pen_flat_object_grad og2 = {NULL, NULL, NULL, NULL, d_pose};

@@ -185,6 +185,14 @@ class _ObjectSpec:
         self.sphere_weights = sphere_weights
 
 
+def _choice(name, value, table):
+    """table[value], or ValueError naming the field and the accepted names."""
+    if value not in table:
+        raise ValueError("penumbra: %s must be one of %s; got %r"
+                         % (name, ", ".join('"%s"' % k for k in table), value))
+    return table[value]
+
+
 class _Spec:
     """Everything of a scene that is not a differentiable input of the Function."""
 
@@ -206,26 +214,11 @@ class _Spec:
         self.ground_height = float(scene.ground_height)
         self.ground_half_size = float(scene.ground_half_size)
         self.epsilon = float(scene.epsilon)
-        if scene.exp not in EXP_METHODS:
-            raise ValueError("penumbra: exp must be one of calibrated, paper, exact; got %r"
-                             % (scene.exp,))
-        self.exp = EXP_METHODS[scene.exp]
-        if scene.overlap not in OVERLAP_MODES:
-            raise ValueError("penumbra: overlap must be \"weights\" or \"none\"; got %r"
-                             % (scene.overlap,))
-        self.overlap = OVERLAP_MODES[scene.overlap]
-        if scene.ground_occlusion not in GROUND_MODES:
-            raise ValueError("penumbra: ground_occlusion must be \"occludes\" or \"receiver\"; "
-                             "got %r" % (scene.ground_occlusion,))
-        self.ground_occlusion = GROUND_MODES[scene.ground_occlusion]
-        if scene.self_shadow not in SELF_SHADOW_MODES:
-            raise ValueError("penumbra: self_shadow must be \"spheres\" or \"transfer\"; got %r"
-                             % (scene.self_shadow,))
-        self.self_shadow = SELF_SHADOW_MODES[scene.self_shadow]
-        if scene.texture_filter not in TEXTURE_FILTERS:
-            raise ValueError("penumbra: texture_filter must be \"point\" or \"footprint\"; got %r"
-                             % (scene.texture_filter,))
-        self.texture_filter = TEXTURE_FILTERS[scene.texture_filter]
+        self.exp = _choice("exp", scene.exp, EXP_METHODS)
+        self.overlap = _choice("overlap", scene.overlap, OVERLAP_MODES)
+        self.ground_occlusion = _choice("ground_occlusion", scene.ground_occlusion, GROUND_MODES)
+        self.self_shadow = _choice("self_shadow", scene.self_shadow, SELF_SHADOW_MODES)
+        self.texture_filter = _choice("texture_filter", scene.texture_filter, TEXTURE_FILTERS)
         self.envmap = None
         if scene.envmap is not None:
             self.envmap = _float_tensor("envmap", scene.envmap, (None, None, 3)).detach()
