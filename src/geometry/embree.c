@@ -32,3 +32,23 @@ int pen__embree_occluded(RTCScene scene, const float org[3], const float dir[3],
     rtcOccluded1(scene, &ictx, &ray);
     return ray.tfar < 0.0f; /* Embree sets tfar to -inf on a hit */
 }
+
+void pen__embree_occluded16(RTCScene scene, const float org[3], const float (*dir)[3], int n,
+                            const int *want, float tnear, int *hit) {
+    struct RTCIntersectContext ictx;
+    rtcInitIntersectContext(&ictx);
+    struct RTCRay16 r; /* RTC_ALIGN(64) in its declaration */
+    int valid[16];
+    for (int i = 0; i < 16; ++i) {
+        const int on = i < n && want[i];
+        valid[i] = on ? -1 : 0;
+        r.org_x[i] = org[0], r.org_y[i] = org[1], r.org_z[i] = org[2];
+        r.dir_x[i] = on ? dir[i][0] : 0.0f, r.dir_y[i] = on ? dir[i][1] : 0.0f;
+        r.dir_z[i] = on ? dir[i][2] : 1.0f;
+        r.tnear[i] = tnear, r.tfar[i] = INFINITY, r.time[i] = 0.0f;
+        r.mask[i] = 0xFFFFFFFFu, r.id[i] = (unsigned)i, r.flags[i] = 0;
+    }
+    rtcOccluded16(valid, scene, &ictx, &r);
+    for (int i = 0; i < n; ++i)
+        hit[i] = want[i] && r.tfar[i] < 0.0f;
+}

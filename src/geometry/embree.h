@@ -19,4 +19,10 @@ int pen__embree_fill_triangles(RTCGeometry geom, const float *positions, size_t 
  * beyond tnear. */
 int pen__embree_occluded(RTCScene scene, const float org[3], const float dir[3], float tnear);
 
+/* The same for n <= 16 rays from one origin, traced as one packet: hit[i] = 1 when ray i is
+ * blocked; rays with want[i] == 0 are not traced (hit[i] = 0). A packet of rays from one point
+ * shares the traversal's upper levels, which single rays repeat. */
+void pen__embree_occluded16(RTCScene scene, const float org[3], const float (*dir)[3], int n,
+                            const int *want, float tnear, int *hit);
+
 #endif

@@ -62,12 +62,25 @@ static int ground_blocks(const pen_ground *g, const double p[3], const double d[
     return fabs(x) <= h && fabs(z) <= h;
 }
 
-static int blocked(RTCScene scene, const pen_ground *g, const double p[3], const double o[3],
-                   const double d[3]) {
-    if (ground_blocks(g, p, d)) return 1;
+/* Which of n <= 16 directions d from the point p (rays from o, p moved along its normal) are
+ * blocked: the ground first, by the plane test, then the rest as one Embree packet. */
+static void blocked16(RTCScene scene, const pen_ground *g, const double p[3], const double o[3],
+                      const double (*d)[3], const int *want, int n, int *hit) {
     const float of[3] = {(float)o[0], (float)o[1], (float)o[2]};
-    const float df[3] = {(float)d[0], (float)d[1], (float)d[2]};
-    return pen__embree_occluded(scene, of, df, 0.0f);
+    float df[16][3];
+    int trace[16], any = 0;
+    for (int i = 0; i < n; ++i) {
+        hit[i] = want[i] && ground_blocks(g, p, d[i]);
+        trace[i] = want[i] && !hit[i];
+        any |= trace[i];
+        for (int a = 0; a < 3; ++a)
+            df[i][a] = (float)d[i][a];
+    }
+    if (!any) return;
+    int h[16];
+    pen__embree_occluded16(scene, of, (const float(*)[3])df, n, trace, 0.0f, h);
+    for (int i = 0; i < n; ++i)
+        hit[i] |= h[i];
 }
 
 /* Two unit vectors completing the unit a to a right-handed frame (Duff et al. 2017). */
@@ -101,38 +114,50 @@ static void point_transfer(RTCScene scene, const pen__transfer_request *rq, doub
     frame(n, t, b);
     uint64_t rng = pen__splitmix_mix(0x5E1F7A45ull ^ (uint64_t)v);
     double lost[PEN_SH_MAX_COEFFS] = {0}, y[PEN_SH_MAX_COEFFS];
-    const int side = 16, N = side * side; /* PEN_TRANSFER_DIRECTIONS */
-    for (int s = 0; s < N; ++s) {
-        const double u1 = ((s / side) + pen__splitmix_uniform(&rng)) / side;
-        const double u2 = ((s % side) + pen__splitmix_uniform(&rng)) / side;
-        const double r = sqrt(u1), phi = 2.0 * PEN_PI * u2, c = sqrt(fmax(0.0, 1.0 - u1));
-        double d[3];
-        for (int a = 0; a < 3; ++a)
-            d[a] = r * cos(phi) * t[a] + r * sin(phi) * b[a] + c * n[a];
-        if (!blocked(scene, g, p, o, d)) continue;
-        pen_sh_eval_d(rq->bands, d, y);
-        for (int k = 0; k < nc; ++k)
-            lost[k] += y[k];
+    const int side = 16, N = side * side; /* PEN_TRANSFER_DIRECTIONS: 16 packets of 16 */
+    double d[16][3];
+    int want[16], hit[16];
+    for (int s0 = 0; s0 < N; s0 += 16) {
+        for (int i = 0; i < 16; ++i) {
+            const int s = s0 + i;
+            const double u1 = ((s / side) + pen__splitmix_uniform(&rng)) / side;
+            const double u2 = ((s % side) + pen__splitmix_uniform(&rng)) / side;
+            const double r = sqrt(u1), phi = 2.0 * PEN_PI * u2, c = sqrt(fmax(0.0, 1.0 - u1));
+            for (int a = 0; a < 3; ++a)
+                d[i][a] = r * cos(phi) * t[a] + r * sin(phi) * b[a] + c * n[a];
+            want[i] = 1;
+        }
+        blocked16(scene, g, p, o, (const double(*)[3])d, want, 16, hit);
+        for (int i = 0; i < 16; ++i) { /* in direction order, as the sum always ran */
+            if (!hit[i]) continue;
+            pen_sh_eval_d(rq->bands, d[i], y);
+            for (int k = 0; k < nc; ++k)
+                lost[k] += y[k];
+        }
     }
     for (int k = 0; k < nc; ++k)
         B[k] = (float)(PEN_PI / N * lost[k]);
-    const int dside = 8; /* PEN_TRANSFER_DISK_SAMPLES */
+    const int dside = 8; /* PEN_TRANSFER_DISK_SAMPLES: 4 packets of 16 */
     for (int l = 0; l < K; ++l) {
         const double *w = rq->light_w[l], cb = cos(rq->light_b[l]);
         double lt[3], lb[3];
         frame(w, lt, lb);
         int above = 0, open = 0;
-        for (int s = 0; s < dside * dside; ++s) {
-            const double u1 = ((s / dside) + pen__splitmix_uniform(&rng)) / dside;
-            const double u2 = ((s % dside) + pen__splitmix_uniform(&rng)) / dside;
-            const double c = 1.0 - u1 * (1.0 - cb), sn = sqrt(fmax(0.0, 1.0 - c * c));
-            const double phi = 2.0 * PEN_PI * u2;
-            double d[3];
-            for (int a = 0; a < 3; ++a)
-                d[a] = sn * cos(phi) * lt[a] + sn * sin(phi) * lb[a] + c * w[a];
-            if (d[0] * n[0] + d[1] * n[1] + d[2] * n[2] <= 0.0) continue;
-            ++above;
-            open += !blocked(scene, g, p, o, d);
+        for (int s0 = 0; s0 < dside * dside; s0 += 16) {
+            for (int i = 0; i < 16; ++i) {
+                const int s = s0 + i;
+                const double u1 = ((s / dside) + pen__splitmix_uniform(&rng)) / dside;
+                const double u2 = ((s % dside) + pen__splitmix_uniform(&rng)) / dside;
+                const double c = 1.0 - u1 * (1.0 - cb), sn = sqrt(fmax(0.0, 1.0 - c * c));
+                const double phi = 2.0 * PEN_PI * u2;
+                for (int a = 0; a < 3; ++a)
+                    d[i][a] = sn * cos(phi) * lt[a] + sn * sin(phi) * lb[a] + c * w[a];
+                want[i] = d[i][0] * n[0] + d[i][1] * n[1] + d[i][2] * n[2] > 0.0;
+                above += want[i];
+            }
+            blocked16(scene, g, p, o, (const double(*)[3])d, want, 16, hit);
+            for (int i = 0; i < 16; ++i)
+                open += want[i] && !hit[i];
         }
         frac[l] = above ? (float)open / (float)above : 1.0f;
     }
