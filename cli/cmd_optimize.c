@@ -210,6 +210,7 @@ int pen_cmd_optimize(int argc, char **argv) {
     if (!quiet) {
         printf("%s: %d iterations (%s), %.2f s, loss %.4g -> %.4g", outdir, res.iterations,
                res.interrupted ? "interrupted"
+               : res.solved    ? "solved"
                                : (res.converged ? "converged" : "iteration limit"),
                res.seconds, res.losses[0], res.final_loss);
         if (res.resumed_from > 0) printf(", resumed at %d", res.resumed_from);
