@@ -18,9 +18,8 @@
  * large image and slow textures down.
  *
  * Record keeping: losses[i] is the objective after i steps (the image loss plus the regularisers:
- * the deformation's, the spheres' smoothness, the lighting's ridge); the stopping
- * rule looks at them after each
- * render, and when it fires no further step is taken. The parameters of the lowest objective
+ * the deformation's, the spheres' smoothness, the lighting's ridge); the stopping rule looks at
+ * them after each render, and when it fires no further step is taken. The parameters of the lowest objective
  * are kept (the best iterate) and rendered once more if they are not the last ones. */
 #include "optim/optim_internal.h"
 #include "scene/validate.h"
@@ -280,6 +279,8 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
     const float scale =
         r->multi ? 3.0f * (float)r->views.max_pixels : 3.0f * (float)w * (float)h;
     const unsigned wrt = pen__optim_grad_mask(r->groups, r->solve);
+    /* solved lighting alone: nothing for Adam to move, the solve is the answer */
+    const int alone = r->solve && r->n == 3 * (size_t)r->sc->sh_bands * (size_t)r->sc->sh_bands;
     /* (under several ranks only rank 0 writes: pen_optim_ranks) */
     const int writes = set->outdir && (!set->ranks || set->ranks->rank == 0);
     const int K = writes ? set->checkpoint_every : 0;
@@ -314,11 +315,9 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
             res->interrupted = 1;
             break;
         }
-        if (pen__optim_stalled(res->losses, i + 1, t->window, t->tolerance) ||
-            (r->solve && r->n == 3 * (size_t)r->sc->sh_bands * (size_t)r->sc->sh_bands)) {
-            /* (solved lighting alone: nothing for Adam to move, the solve is the answer) */
+        if (alone || pen__optim_stalled(res->losses, i + 1, t->window, t->tolerance)) {
             res->converged = 1;
-            res->solved = r->solve && r->n == 3 * (size_t)r->sc->sh_bands * (size_t)r->sc->sh_bands;
+            res->solved = alone;
             break;
         }
         pen_render_grad_zero(&grad);
