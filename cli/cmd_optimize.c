@@ -71,8 +71,9 @@ static void usage(FILE *f) {
             "Usage: penumbra optimize TASK.json -o OUTDIR [options]\n\n"
             "Recovers the task's parameter groups (lighting, albedo, pose, deformation,\n"
             "spheres, disk lights, views' exposures) from its target image by Adam through the\n"
-            "differentiable renderer (the lighting solved exactly with \"lighting_solver\":\n"
-            "\"least_squares\"), and writes OUTDIR/result.json (iterations, timing, losses,\n"
+            "differentiable renderer (the lighting solved exactly by least squares instead\n"
+            "when it is the only group: \"lighting_solver\": \"auto\", the default), and\n"
+            "writes OUTDIR/result.json (iterations, timing, losses, stop reason,\n"
             "metrics against the ground truth), scene.json (the recovered scene),\n"
             "final.exr/.png, compare.png, loss.svg, checkpoint.bin and\n"
             "snapshots/iter_NNNNN.png. A task with \"views\" (several\n"
@@ -210,6 +211,7 @@ int pen_cmd_optimize(int argc, char **argv) {
     if (!quiet) {
         printf("%s: %d iterations (%s), %.2f s, loss %.4g -> %.4g", outdir, res.iterations,
                res.interrupted ? "interrupted"
+               : res.solved    ? "solved"
                                : (res.converged ? "converged" : "iteration limit"),
                res.seconds, res.losses[0], res.final_loss);
         if (res.resumed_from > 0) printf(", resumed at %d", res.resumed_from);

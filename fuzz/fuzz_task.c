@@ -18,10 +18,13 @@ static void check_task(const pen_optim_task *t) {
                         t->lr.translation, t->lr.spheres, t->lr.deformation_rotation,
                         t->lr.deformation_translation};
     fuzz_check_floats(lr, sizeof lr / sizeof lr[0], "task: lr");
-    const double d[] = {t->tolerance,          t->shadow_weight,       t->lighting_ridge,
+    const double d[] = {t->tolerance,          t->shadow_weight,
                         t->deformation.w_rot,  t->deformation.w_reg,   t->spheres.w_smooth};
     for (size_t i = 0; i < sizeof d / sizeof d[0]; ++i)
         if (!isfinite(d[i])) fuzz_fail("task: non-finite setting");
+    /* (NaN: the solver's default ridge, penumbra/optim.h) */
+    if (!isnan(t->lighting_ridge) && !(isfinite(t->lighting_ridge) && t->lighting_ridge >= 0.0))
+        fuzz_fail("task: lighting_ridge");
     if (t->iterations < 0 || t->window < 1) fuzz_fail("task: iterations or window");
 }
 

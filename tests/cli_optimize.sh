@@ -18,10 +18,10 @@ truth "\"albedo_texture\": \"$SRC/data/meshes/spot_texture.png\"" > "$T/truth_te
 "$BIN" reference "$T/truth_tex.json" -o "$T/target_tex.exr" --spp 16 > /dev/null ||
     fail "reference (textured)"
 
-# 1. Lighting from black, scene and ground truth by path.
+# 1. Lighting from black by Adam (the sections below step it), scene and ground truth by path.
 cat > "$T/task.json" <<JSON
 {"scene": "truth.json", "target": "target.exr", "optimize": ["lighting"],
- "iterations": 60, "ground_truth": "truth.json"}
+ "lighting_solver": "adam", "iterations": 60, "ground_truth": "truth.json"}
 JSON
 out=$("$BIN" optimize "$T/task.json" -o "$T/out") || fail "optimize lighting"
 case "$out" in *"$T/out: "*"iterations"*"lighting_rel_error"*) ;; *) fail "summary line: $out" ;; esac
@@ -40,6 +40,24 @@ grep -q '<svg' "$T/out/loss.svg" || fail "loss.svg is not an SVG"
 rmse=$("$BIN" compare "$T/again.exr" "$T/out/final.exr" | sed 's/.*"rmse": *\([^,]*\),.*/\1/')
 awk -v r="$rmse" 'BEGIN { exit !(r < 1e-6) }' || fail "recovered scene renders $rmse off final"
 ls "$T/out" | grep -q tmp- && fail "temporary file left in the output folder"
+
+# 1b. The default solver ("auto"): least squares for the lighting alone, ended by the solve with
+# the ridge 1e-2 in the stated loss; Adam with ridge 0 for lighting and pose.
+printf '{"scene": "truth.json", "target": "target.exr", "optimize": ["lighting"]}\n' > "$T/auto.json"
+out=$("$BIN" optimize "$T/auto.json" -o "$T/auto") || fail "optimize lighting (auto)"
+case "$out" in *"0 iterations (solved)"*) ;; *) fail "auto summary line: $out" ;; esac
+for key in '"lighting_solver":[[:space:]]*"least_squares"' '"lighting_ridge":[[:space:]]*0.01' \
+    '"stop_reason":[[:space:]]*"solved"' '"converged":[[:space:]]*true' '"iterations":[[:space:]]*0,' \
+    '"final_image_loss"' '"final_ridge_loss"'; do
+    grep -q "$key" "$T/auto/result.json" || fail "auto: result.json lacks $key"
+done
+printf '{"scene": "truth.json", "target": "target.exr", "optimize": ["lighting", "pose"], "iterations": 2}\n' \
+    > "$T/auto_lp.json"
+"$BIN" optimize "$T/auto_lp.json" -o "$T/auto_lp" -q || fail "optimize lighting + pose (auto)"
+for key in '"lighting_solver":[[:space:]]*"adam"' '"lighting_ridge":[[:space:]]*0,' \
+    '"final_ridge_loss":[[:space:]]*0,' '"stop_reason":[[:space:]]*"iteration_limit"'; do
+    grep -q "$key" "$T/auto_lp/result.json" || fail "auto (lighting + pose): result.json lacks $key"
+done
 
 # 2. --no-shadows writes "shadows": false; --iterations overrides the task.
 "$BIN" optimize "$T/task.json" -o "$T/flat" --no-shadows --iterations 5 -q || fail "--no-shadows"
@@ -136,6 +154,7 @@ grep -q "checkpoint.bin: made for another task: 12 parameters in 1 segments, thi
 # 6. Ctrl-C: the run stops after the current iteration, writes everything, exits 130.
 if command -v timeout > /dev/null; then
     printf '{"scene": "truth.json", "target": "target.exr", "optimize": ["lighting"],\n' > "$T/long.json"
+    printf ' "lighting_solver": "adam",\n' >> "$T/long.json"
     printf ' "iterations": 1000000, "window": 10000}\n' >> "$T/long.json"
     # 5 s: loading must be over when the signal comes (an earlier one aborts without output);
     # --foreground: one signal, to the command only (without it timeout signals the process

@@ -8,6 +8,8 @@
  *   is tiny against the gradient at black lighting. A ridge shrinks the solution.
  * - The shadow-aware solve recovers 4-band lighting better than the --no-shadows one.
  * - Lighting and pose together from black lighting (the pose moves at the solved lighting).
+ * - The ridge's gradient (Adam's) against central differences; the default solver ("auto") of a
+ *   lighting-only task is least squares, and Adam on the same stated loss reaches its loss.
  * - The task is refused with the l1 loss or without "lighting" in optimize.
  * Fixture: tests/optim_scenes.h (the ellipsoid over the ground, targets ray-traced at 256 spp). */
 #include "optim_scenes.h"
@@ -159,6 +161,77 @@ static void test_lighting_pose(void) {
     pen_optim_task_free(&t);
 }
 
+/* The ridge's gradient (what Adam adds to the lighting's gradient) against central differences
+ * in double. The term is quadratic and the values and the step are short binary fractions, so
+ * they agree to rounding. */
+static void test_ridge_gradient(void) {
+    const double mu[3] = {0.3, 1.7, 0.05}, weight_sum = 123.5;
+    float sh[9][3];
+    double d[9][3], e = 0.0;
+    memset(d, 0, sizeof d);
+    for (int k = 0; k < 9; ++k)
+        for (int c = 0; c < 3; ++c) {
+            sh[k][c] = (float)((3 * k + c) % 7 - 3) * 0.125f + 0.0625f;
+            e += mu[c] * (double)sh[k][c] * (double)sh[k][c];
+        }
+    CHECK_REL(pen__optim_ridge_term(mu, weight_sum, 9, (const float(*)[3])sh, d),
+              e / (3.0 * weight_sum), 1e-15, 0);
+    const double h = 1.0 / 1024.0;
+    for (int k = 0; k < 9; ++k)
+        for (int c = 0; c < 3; ++c) {
+            const float v = sh[k][c];
+            sh[k][c] = (float)((double)v + h);
+            const double up = pen__optim_ridge_term(mu, weight_sum, 9, (const float(*)[3])sh, NULL);
+            sh[k][c] = (float)((double)v - h);
+            const double down =
+                pen__optim_ridge_term(mu, weight_sum, 9, (const float(*)[3])sh, NULL);
+            sh[k][c] = v;
+            CHECK_REL(d[k][c], (up - down) / (2.0 * h), 1e-9, 1e-15);
+        }
+}
+
+/* The default solver ("auto") of a lighting-only task is least squares: it ends in its solve
+ * ("solved", 0 Adam steps) at the optimum of the stated loss, the image loss plus the ridge
+ * (1e-2). Adam on the same stated loss (the ridge set explicitly: the same mu) ends at the same
+ * loss, which checks the ridge's gradient in Adam's steps. Measured (40^2, 2 bands, lr 3e-2):
+ * 6.2e-6 above the solve after 1500 steps, 8e-9 below it (float renders) when the stopping rule
+ * ends the run at 2436; 1.8e-5 after 3000 at the default lr 1e-2, 3.9e-3 after 2000 at 2e-3.
+ * Lighting and pose: Adam, no ridge. */
+#define REL_ADAM_LS 1e-4
+static void test_auto_converges(void) {
+    pen_optim_task t = os_task(os_egg(SIZE, 0, 2), os_egg(SIZE, 0, 2), PEN_OPTIM_LIGHTING, 20);
+    pen_optim_result a = run(&t, 1);
+    CHECK(a.lighting_solver == PEN_OPTIM_LIGHTING_LEAST_SQUARES && a.lighting_ridge == 1e-2);
+    CHECK(a.solved && a.converged && a.iterations == 0);
+    CHECK(a.final_ridge_loss > 0.0 && a.final_loss == a.final_image_loss + a.final_ridge_loss);
+    pen_optim_task_free(&t);
+    const int steps = check_quick_() ? 30 : 1500;
+    t = os_task(os_egg(SIZE, 0, 2), os_egg(SIZE, 0, 2), PEN_OPTIM_LIGHTING, steps);
+    t.lighting_solver = PEN_OPTIM_LIGHTING_ADAM;
+    t.lighting_ridge = 1e-2;
+    t.lr.lighting = 3e-2f;
+    t.tolerance = 0.0; /* to the limit */
+    pen_optim_result b = run(&t, 1);
+    CHECK(b.lighting_solver == PEN_OPTIM_LIGHTING_ADAM && b.lighting_ridge == 1e-2 && !b.solved);
+    CHECK(b.final_ridge_loss > 0.0 && b.final_loss == b.final_image_loss + b.final_ridge_loss);
+    printf("  least squares %.10g (image %.10g, ridge %.4g), Adam %d steps %.10g: %.3g relative\n",
+           a.final_loss, a.final_image_loss, a.final_ridge_loss, b.iterations, b.final_loss,
+           b.final_loss / a.final_loss - 1.0);
+    if (!check_quick_()) /* (the solve is the optimum: Adam ends above it, up to float renders) */
+        CHECK_MSG(b.final_loss > a.final_loss * (1.0 - 1e-6) &&
+                      b.final_loss < a.final_loss * (1.0 + REL_ADAM_LS),
+                  "Adam %.10g, least squares %.10g", b.final_loss, a.final_loss);
+    pen_optim_result_free(&a);
+    pen_optim_result_free(&b);
+    pen_optim_task_free(&t);
+    t = os_task(os_egg(SIZE, 0, 2), os_egg(SIZE, 0, 2), PEN_OPTIM_LIGHTING | PEN_OPTIM_POSE, 2);
+    a = run(&t, 1);
+    CHECK(a.lighting_solver == PEN_OPTIM_LIGHTING_ADAM && a.lighting_ridge == 0.0);
+    CHECK(!a.solved && a.final_ridge_loss == 0.0 && a.final_loss == a.final_image_loss);
+    pen_optim_result_free(&a);
+    pen_optim_task_free(&t);
+}
+
 static void test_refused(void) {
     pen_context *ctx = pen_context_create();
     for (int k = 0; k < 3; ++k) {
@@ -175,4 +248,5 @@ static void test_refused(void) {
 }
 
 RUN_TESTS(TEST(test_exact_on_own_render), TEST(test_stationary_and_ridge),
-          TEST(test_shadows_beat_baseline), TEST(test_lighting_pose), TEST(test_refused))
+          TEST(test_shadows_beat_baseline), TEST(test_lighting_pose), TEST(test_ridge_gradient),
+          TEST(test_auto_converges), TEST(test_refused))

@@ -261,5 +261,84 @@ static void test_resume_other_regularisers(void) {
                            "checkpoint.bin: made with other regularisers", dir));
 }
 
+/* Rewrites the checkpoint at `path` as the version-3 build wrote it for a default (Adam) task:
+ * version 3, ridge 1e-2 (which Adam's loss then ignored), the checksum recomputed. */
+static void make_version_3(const char *path) {
+    FILE *f = fopen(path, "rb");
+    CHECK(f != NULL);
+    if (!f) return;
+    static unsigned char buf[1 << 16];
+    const size_t n = fread(buf, 1, sizeof buf, f);
+    fclose(f);
+    CHECK(n > 100 && n < sizeof buf);
+    uint32_t version = 3, segs = 0;
+    int32_t solver = -1;
+    const double ridge = 1e-2;
+    memcpy(&segs, buf + 24, 4);
+    /* the layout in checkpoint.c: 28 bytes, 20 a segment, groups, 4 ints, shadow weight */
+    const size_t at = 28 + 20 * (size_t)segs + 4 + 16 + 8;
+    memcpy(&solver, buf + at, 4);
+    CHECK(solver == PEN_OPTIM_LIGHTING_ADAM);
+    memcpy(buf + 8, &version, 4);
+    memcpy(buf + at + 4, &ridge, 8);
+    const uint64_t sum = pen__fnv1a(PEN__FNV1A_SEED, buf, n - 8);
+    memcpy(buf + n - 8, &sum, 8);
+    f = fopen(path, "wb");
+    CHECK(f && fwrite(buf, 1, n, f) == n);
+    if (f) fclose(f);
+}
+
+/* A lighting task of the default solver ("auto") resumed from a checkpoint of the build before
+ * it (version 3, Adam: the default then): it continues with Adam and no ridge, as that build
+ * would have, bit for bit the run made in one go, although "auto" alone would take least
+ * squares. */
+static void test_resume_old_checkpoint(void) {
+    char dir[] = "/tmp/pen_resume_XXXXXX";
+    CHECK(mkdtemp(dir) != NULL);
+    const int j = check_quick_() ? 5 : 9;
+    pen_optim_task ta = make_task(PEN_OPTIM_LIGHTING, 0), tb = make_task(PEN_OPTIM_LIGHTING, 0);
+    ta.lighting_solver = tb.lighting_solver = PEN_OPTIM_LIGHTING_ADAM;
+    pen_context *ctx = pen_context_create();
+    pen_optim_settings set = pen_optim_settings_default();
+    pen_optim_result a, b;
+    CHECK(pen_optim_run(ctx, &ta, &set, &a) == PEN_OK);
+    stopper stop = {j, -1, NULL, NULL};
+    set.outdir = dir;
+    set.progress = on_progress;
+    set.progress_user = &stop;
+    CHECK(pen_optim_run(ctx, &tb, &set, &b) == PEN_OK);
+    CHECK(b.interrupted && b.iterations == j);
+    pen_optim_result_free(&b);
+    pen_optim_task_free(&tb);
+    make_version_3(path_in(dir, "checkpoint.bin"));
+    tb = make_task(PEN_OPTIM_LIGHTING, 0);
+    CHECK(tb.lighting_solver == PEN_OPTIM_LIGHTING_AUTO && isnan(tb.lighting_ridge));
+    set.progress = NULL;
+    set.resume = 1;
+    pen_status s = pen_optim_run(ctx, &tb, &set, &b);
+    CHECK_MSG(s == PEN_OK, "%s", pen_context_error(ctx));
+    if (!s) {
+        CHECK(b.resumed_from == j && b.lighting_solver == PEN_OPTIM_LIGHTING_ADAM &&
+              b.lighting_ridge == 0.0);
+        check_same(&a, &ta, &b, &tb, "version 3 + resumed");
+        pen_optim_result_free(&b);
+    }
+    /* the same file against an explicit Adam ridge: another loss, refused */
+    pen_optim_task_free(&tb);
+    tb = make_task(PEN_OPTIM_LIGHTING, 0);
+    tb.lighting_solver = PEN_OPTIM_LIGHTING_ADAM;
+    tb.lighting_ridge = 1e-2;
+    make_version_3(path_in(dir, "checkpoint.bin"));
+    CHECK(pen_optim_run(ctx, &tb, &set, &b) == PEN_ERROR_ARGUMENT);
+    CHECK_MSG(strstr(pen_context_error(ctx), "made with another lighting solver (adam, ridge 0)"),
+              "%s", pen_context_error(ctx));
+    pen_optim_result_free(&a);
+    pen_optim_task_free(&ta);
+    pen_optim_task_free(&tb);
+    pen_context_destroy(ctx);
+    cleanup(dir);
+}
+
 RUN_TESTS(TEST(test_resume_lighting_pose), TEST(test_resume_deformation), TEST(test_resume_stopping),
-          TEST(test_resume_refused), TEST(test_resume_other_regularisers))
+          TEST(test_resume_refused), TEST(test_resume_other_regularisers),
+          TEST(test_resume_old_checkpoint))

@@ -120,6 +120,8 @@ static void test_srgb_targets(void) {
 static pen_optim_task exposure_task(int n, const double *truth_exposure, unsigned groups) {
     pen_context *ctx = pen_context_create();
     pen_optim_task t = pen_optim_task_default();
+    /* Adam unless a test says otherwise (a lighting-only task's default is least squares) */
+    t.lighting_solver = PEN_OPTIM_LIGHTING_ADAM;
     t.ground_truth = os_egg(ES, 0, 4);
     os_sun(&t.ground_truth, 6.0f, 0.5f);
     t.has_ground_truth = 1;

@@ -51,6 +51,8 @@ static pen_image render_view(const pen_scene *sc, const pen_camera *cam) {
  * scene's renders), weights 1; `extra` more views allocated (zeroed) for the caller to fill. */
 static pen_optim_task views_task(int n, int total, int extra, unsigned groups, int iterations) {
     pen_optim_task t = pen_optim_task_default();
+    /* Adam unless a test says otherwise (a lighting-only task's default is least squares) */
+    t.lighting_solver = PEN_OPTIM_LIGHTING_ADAM;
     t.ground_truth = truth_scene();
     t.has_ground_truth = 1;
     t.scene = os_egg(SIZE, 0, 4);

@@ -68,7 +68,8 @@ for suffix in ("", "_sh"):
         solvers = [("ls", {"lighting_solver": "least_squares"}),
                    ("ls1e-4", {"lighting_solver": "least_squares", "lighting_ridge": 1e-4})]
         if not suffix:
-            solvers.append(("adam_fit", {"init": "fit", "iterations": 300}))
+            solvers.append(("adam_fit", {"lighting_solver": "adam", "init": "fit",
+                                         "iterations": 300}))
         for solver, extra in solvers:
             task = {"scene": TRUTH, "ground_truth": TRUTH, "optimize": ["lighting"],
                     "views": "views_%d%s.json" % (n, suffix),

@@ -16,8 +16,8 @@ uses the first n, so the n-view sets grow by adding views, and 1 view is the sce
             (225, 40), (135, 15), (315, 70)
 
 Two held-back views that no placement uses, (60, 30) and (250, 55), are the validation views
-of every task. Solvers: ls = least squares, default ridge 1e-2; ls4 = ridge 1e-4; adam = the
-task defaults (Adam from black, 500 iterations at most, rate 0.01); pose = not the lighting
+of every task. Solvers: ls = least squares, default ridge 1e-2; ls4 = ridge 1e-4; adam = Adam
+with the task defaults (from black, no ridge, 500 iterations at most, rate 0.01); pose = not the lighting
 but the 6-D pose (Adam, at most 400 iterations) from examples/optimize/<mesh>_pose_init.json
 (10.8 degrees and 0.1 off), the lighting known (map targets only). Targets: t_<name>.exr, the
 full map ray-traced (the experiment); the controls t_<name>_sh.exr (ray-traced with the map's
@@ -41,7 +41,7 @@ SIZE = 128
 COUNTS = (1, 2, 4, 8)
 SOLVERS = {"ls": {"lighting_solver": "least_squares"},
            "ls4": {"lighting_solver": "least_squares", "lighting_ridge": 1e-4},
-           "adam": {},
+           "adam": {"lighting_solver": "adam"},
            "pose": {"scene": "pose_init.json", "optimize": ["pose"], "iterations": 400}}
 RING = (0, 180, 90, 270, 45, 225, 135, 315)
 ELEV = ((0, None), (180, 70), (90, 40), (270, 15), (45, 89), (225, 40), (135, 15), (315, 70))

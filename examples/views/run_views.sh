@@ -7,7 +7,7 @@
 # camera's target with the full map (128x128, 256 spp; the scenes keep "lights": "none", so the
 # map's 4-band projection is the true lighting); the lighting is then recovered from black
 # (4 bands, everything else known) by each solver: ls (least squares, default ridge 1e-2), ls4
-# (ridge 1e-4), adam (the task defaults: Adam, 500 iterations at most).
+# (ridge 1e-4), adam (Adam with the task defaults: no ridge, 500 iterations at most).
 # Usage: sh examples/views/run_views.sh PENUMBRA_BIN [MESH:ENVMAP ...]
 #   MESH spot or bob (examples/optimize/MESH_truth.json), ENVMAP a bundled .hdr (city, interior)
 # Environment: PEN_VIEWS_PLACEMENTS (default "ring elev ring_far ring_near"), PEN_VIEWS_COUNTS

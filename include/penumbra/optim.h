@@ -126,22 +126,39 @@ PEN_API pen_optim_spheres pen_optim_spheres_default(void);
  * "shadow_weight" field below.) */
 
 /* How optimised lighting is updated (task key "lighting_solver").
- * ADAM ("adam", the default): Adam steps on the SH coefficients like every other group
- * (supplement 5.1).
+ * ADAM ("adam"): Adam steps on the SH coefficients like every other group (supplement 5.1).
  * LEAST_SQUARES ("least_squares"): the render is affine in the lighting, so for the current
  * values of every other group the best lighting is a linear least-squares problem per channel
- * (one render per coefficient; the l2 loss, weighted by "shadow_weight"). It is solved exactly
- * before each render whenever the other parameters have changed, and Adam moves only the other
- * groups, along the loss's gradient at the solved lighting (which is the gradient of the loss
- * minimised over the lighting: variable projection). One view determines some combinations of the
- * coefficients badly, so the objective carries a ridge mu_c |L_c|^2 per channel: mu_c is
- * "lighting_ridge" (default 1e-2) times the largest diagonal entry of channel c's normal
- * equations at the initial guess, then held fixed; the recorded losses include it (in the loss's
- * units, mu_c |L_c|^2 / (3 sum_p w_p)). Needs the l2 loss. */
+ * (one render per coefficient, sh_bands^2 + 1 renders a solve; the l2 loss, weighted by
+ * "shadow_weight"). It is solved exactly before each render whenever the other parameters have
+ * changed, and Adam moves only the other groups, along the loss's gradient at the solved
+ * lighting (which is the gradient of the loss minimised over the lighting: variable projection).
+ * A task that optimises the lighting alone ends in that one solve (0 Adam steps, stop reason
+ * "solved"). Needs the l2 loss.
+ * AUTO ("auto", the default): LEAST_SQUARES when the task optimises the lighting alone with the
+ * l2 loss (the solve is the optimum of the stated loss, reached at once), ADAM otherwise (a
+ * joint task would pay a solve at every iteration, and exposure, lights and the l1 loss need
+ * Adam). pen_optim_run resolves it before anything is written (result.json and the checkpoints
+ * name the solver used; resuming a checkpoint, "auto" takes the checkpoint's solver).
+ *
+ * The ridge (task key "lighting_ridge" = rho >= 0). One view determines some combinations of the
+ * coefficients badly, so the stated loss carries a prior on the lighting, for both solvers:
+ *     loss = image loss + sum_c mu_c |L_c|^2 / (3 sum_p w_p)
+ * (w_p the shadow weights, 1 without them; in a multi-view task sum_p w_p is 1: the views'
+ * weights over their masks' sizes normalise), mu_c = rho times the largest diagonal entry of
+ * channel c's normal equations at the initial guess, then held fixed for the run. Least squares
+ * minimises it exactly; Adam steps on it (the term's gradient joins the lighting's). The default
+ * (NaN in the struct) is 1e-2 with least squares and 0 with Adam (Adam's runs stay those of a
+ * plain image loss); a task may set it for either. The lights search (light_count) solves its SH
+ * with rho as given, 1e-2 by default whatever the solver. */
 typedef enum pen_optim_lighting_solver {
     PEN_OPTIM_LIGHTING_ADAM = 0,
-    PEN_OPTIM_LIGHTING_LEAST_SQUARES = 1
+    PEN_OPTIM_LIGHTING_LEAST_SQUARES = 1,
+    PEN_OPTIM_LIGHTING_AUTO = 2
 } pen_optim_lighting_solver;
+
+/* The ridge least squares (and the lights search) take when the task sets none (above). */
+#define PEN_OPTIM_LIGHTING_RIDGE_DEFAULT 1e-2
 
 /* One observed view of a multi-view task (task key "views", docs/optimize.md): a camera of its
  * own, the image it saw, which of its pixels count and how much the view counts.
@@ -185,8 +202,9 @@ typedef struct pen_optim_task {
     pen_optim_spheres spheres; /* with the "spheres" group */
     double shadow_weight; /* >= 0 (default 0): stresses the target's shadows in the loss,
                              below */
-    pen_optim_lighting_solver lighting_solver; /* default PEN_OPTIM_LIGHTING_ADAM */
-    double lighting_ridge; /* least squares: the ridge, relative (default 1e-2), below */
+    pen_optim_lighting_solver lighting_solver; /* default PEN_OPTIM_LIGHTING_AUTO */
+    double lighting_ridge; /* the ridge, relative (above); NaN (the default): 1e-2 with least
+                              squares, 0 with Adam */
     int has_ground_truth;
     pen_scene ground_truth; /* zeroed when has_ground_truth == 0 */
     /* Multi-view ("views"): the loss is sum_v weight_v * loss_v, loss_v the view's loss over its
@@ -207,8 +225,9 @@ typedef struct pen_optim_task {
 } pen_optim_task;
 
 /* A task holding the defaults pen_optim_task_load starts from (500 iterations, the lr above,
- * l2, tolerance 1e-3, window 50, black initial guesses, Adam lighting with ridge 1e-2, the
- * deformation and spheres defaults) and nothing else: no scene, target or groups. */
+ * l2, tolerance 1e-3, window 50, black initial guesses, the "auto" lighting solver with its
+ * solver's ridge (NaN), the deformation and spheres defaults) and nothing else: no scene, target
+ * or groups. */
 PEN_API pen_optim_task pen_optim_task_default(void);
 
 /* Loads a task JSON; paths (scene, target, ground truth) are relative to the task file. Errors
@@ -341,9 +360,12 @@ typedef struct pen_optim_view_metrics {
 typedef struct pen_optim_result {
     int iterations;       /* Adam steps taken */
     double seconds;       /* the optimisation loop (renders, backward passes, updates) */
-    double final_loss;    /* loss of the final render (the best iterate's) */
+    double final_loss;    /* the stated loss at the final render (the best iterate's):
+                             final_image_loss + final_ridge_loss + the deformation's or the
+                             spheres' regulariser when that group is optimised */
     int best_iteration;   /* the iteration whose parameters were kept (lowest loss) */
-    int converged;        /* 1: the stopping rule fired; 0: iteration limit or interrupted */
+    int converged;        /* 1: the stopping rule fired, or the solve ended the task (solved);
+                             0: iteration limit or interrupted */
     int interrupted;      /* 1: the progress callback asked to stop */
     int resumed_from;     /* the iteration the run continued from a checkpoint (0: none) */
     double *losses;       /* iterations + 1 losses: losses[i] of the parameters after i steps */
@@ -359,6 +381,13 @@ typedef struct pen_optim_result {
     int lights_searched;  /* lights the global search created (0: none searched) */
     int search_renders;   /* the renders it took */
     double search_seconds; /* its time (not in `seconds`) */
+    double final_image_loss; /* the image term of final_loss (over the views in a multi-view
+                                task, each weighted) */
+    double final_ridge_loss; /* the lighting ridge's term of final_loss (0 without a ridge) */
+    pen_optim_lighting_solver lighting_solver; /* the solver used ("auto" resolved) */
+    double lighting_ridge; /* the ridge used (the default resolved) */
+    int solved;           /* 1: the least-squares solve ended the task (the lighting alone: 0
+                             Adam steps; converged is 1 too) */
 } pen_optim_result;
 
 /* Runs the task: fits sphere sets the scene asks for ({"fit": N}, cached as pen_spheres_fit_cached says; only

@@ -23,7 +23,11 @@
  *     f32 x[n]  f32 best[n]  f32 m[n]  f32 v[n]  f64 losses[recorded]
  *     u64 FNV-1a 64 of every byte before it
  * Written to a temporary file beside the target, flushed to the disk (fsync), renamed over the
- * old checkpoint and the folder synced, so that a crash leaves either the old or the new one. */
+ * old checkpoint and the folder synced, so that a crash leaves either the old or the new one.
+ *
+ * Version 3 has the same layout; its lighting_ridge meant nothing to Adam (the ridge was not in
+ * Adam's loss then), so a version-3 Adam checkpoint reads as ridge 0, the Adam default now, and
+ * its runs continue as they began. */
 #define _POSIX_C_SOURCE 200809L
 #include "io/io_internal.h"
 #include "optim/optim_internal.h"
@@ -35,7 +39,8 @@
 #include <unistd.h>
 
 #define CHECKPOINT_MAGIC "PENOPTCK"
-#define CHECKPOINT_VERSION 3u
+#define CHECKPOINT_VERSION 4u
+#define CHECKPOINT_VERSION_OLD 3u /* read too: above */
 #define CHECKPOINT_ORDER 0x01020304u
 
 /* ---- Writing --------------------------------------------------------------------------------- */
@@ -180,7 +185,7 @@ static const char *bound_name(unsigned b) {
 
 /* Compares the file's identity with the run's; one line on the first difference. */
 static pen_status check_identity(pen_context *ctx, const char *path, reader *r,
-                                 const pen__optim_identity *id) {
+                                 uint32_t version, const pen__optim_identity *id) {
     const uint64_t n = get_u64(r);
     const uint32_t segs = get_u32(r);
     if (!r->ok) return pen__error(ctx, PEN_ERROR_PARSE, "%s: truncated checkpoint", path);
@@ -205,7 +210,8 @@ static pen_status check_identity(pen_context *ctx, const char *path, reader *r,
     const int32_t loss = get_i32(r), shadows = get_i32(r), w = get_i32(r), h = get_i32(r);
     const double weight = get_f64(r);
     const int32_t solver = get_i32(r);
-    const double ridge = get_f64(r);
+    double ridge = get_f64(r);
+    if (version == CHECKPOINT_VERSION_OLD && solver == PEN_OPTIM_LIGHTING_ADAM) ridge = 0.0;
     const int32_t graph_k = get_i32(r);
     double weights[3];
     for (int k = 0; k < 3; ++k)
@@ -277,11 +283,11 @@ pen_status pen__optim_checkpoint_load(pen_context *ctx, const char *path,
     } else if (order != CHECKPOINT_ORDER) {
         s = pen__error(ctx, PEN_ERROR_PARSE, "%s: written on a machine of another byte order",
                        path);
-    } else if (version != CHECKPOINT_VERSION) {
+    } else if (version != CHECKPOINT_VERSION && version != CHECKPOINT_VERSION_OLD) {
         s = pen__error(ctx, PEN_ERROR_PARSE, "%s: checkpoint version %u, this build reads %u",
                        path, version, CHECKPOINT_VERSION);
     }
-    if (!s) s = check_identity(ctx, path, &r, id);
+    if (!s) s = check_identity(ctx, path, &r, version, id);
     int32_t iteration = 0, recorded = 0, best_it = 0, t = 0;
     double best_loss = 0.0, seconds = 0.0;
     if (!s) {
@@ -341,4 +347,31 @@ pen_status pen__optim_checkpoint_load(pen_context *ctx, const char *path,
     st->seconds = seconds;
     st->adam->t = t;
     return PEN_OK;
+}
+
+int pen__optim_checkpoint_solver(const char *path) {
+    reader r = {fopen(path, "rb"), PEN__FNV1A_SEED, 1};
+    if (!r.f) return -1;
+    char magic[8];
+    get(&r, magic, 8);
+    const uint32_t version = get_u32(&r), order = get_u32(&r);
+    (void)get_u64(&r); /* n */
+    const uint32_t segs = get_u32(&r);
+    int ok = r.ok && memcmp(magic, CHECKPOINT_MAGIC, 8) == 0 && order == CHECKPOINT_ORDER &&
+             (version == CHECKPOINT_VERSION || version == CHECKPOINT_VERSION_OLD) &&
+             segs <= 1u << 20;
+    for (uint32_t k = 0; ok && k < segs; ++k) { /* offset, count, bound */
+        (void)get_u64(&r), (void)get_u64(&r), (void)get_u32(&r);
+        ok = r.ok;
+    }
+    (void)get_u32(&r); /* groups */
+    for (int k = 0; k < 4; ++k) /* loss, shadows, width, height */
+        (void)get_i32(&r);
+    (void)get_f64(&r); /* shadow_weight */
+    const int32_t solver = get_i32(&r);
+    fclose(r.f);
+    return ok && r.ok && (solver == PEN_OPTIM_LIGHTING_ADAM ||
+                          solver == PEN_OPTIM_LIGHTING_LEAST_SQUARES)
+               ? solver
+               : -1;
 }

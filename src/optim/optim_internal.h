@@ -360,6 +360,9 @@ pen_status pen__optim_checkpoint_save(pen_context *ctx, const char *path,
 pen_status pen__optim_checkpoint_load(pen_context *ctx, const char *path,
                                       const pen__optim_identity *id, int max_losses,
                                       pen__optim_state *st);
+/* The lighting solver a checkpoint was made with (pen_optim_lighting_solver), or -1 when the
+ * file cannot be read as one (the load then says why). */
+int pen__optim_checkpoint_solver(const char *path);
 
 /* ---- Output folder (src/optim/output.c) ------------------------------------------------------ */
 
@@ -426,6 +429,10 @@ typedef struct pen__optim_run {
     float *weight;            /* per pixel loss weights (shadow_weight > 0), else NULL */
     /* "lighting_solver": "least_squares": the lighting is solved, not stepped */
     int solve;
+    /* The lighting ridge (optim.h) is a term of the loss when `ridged`: always with least
+     * squares, with Adam when its ridge is > 0 */
+    int ridged;
+    double ridge;             /* "lighting_ridge", the default resolved */
     double mu[3];             /* the ridge per channel, fixed at the initial guess */
     double weight_sum;        /* of the loss weights (the pixel count without them) */
     float *solved_for;        /* the parameters the lighting in x was solved for */
@@ -444,6 +451,12 @@ void pen__optim_run_free(pen__optim_run *r);
 void pen__optim_transfer(pen__optim_run *r, int to_scene);
 void pen__optim_deformation_rest(pen__optim_run *r);
 double pen__optim_regularisers(pen__optim_run *r);
+/* The lighting ridge's term of the loss, sum_c mu_c |L_c|^2 / (3 weight_sum) over nb
+ * coefficients; with d (may be NULL) its gradient with respect to sh is added to d. */
+double pen__optim_ridge_term(const double mu[3], double weight_sum, int nb, const float (*sh)[3],
+                             double (*d)[3]);
+/* The ridge's term at the run's lighting (0 when it is not in the loss). */
+double pen__optim_ridge_loss(const pen__optim_run *r);
 void pen__optim_initial_guess(pen__optim_run *r);
 /* r->g = scale x the render gradient in x's layout, plus the regularisers' gradients. */
 void pen__optim_gather(pen__optim_run *r, const pen_render_grad *grad, float scale);

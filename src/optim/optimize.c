@@ -18,9 +18,8 @@
  * large image and slow textures down.
  *
  * Record keeping: losses[i] is the objective after i steps (the image loss plus the regularisers:
- * the deformation's, the spheres' smoothness, the least-squares lighting's ridge); the stopping
- * rule looks at them after each
- * render, and when it fires no further step is taken. The parameters of the lowest objective
+ * the deformation's, the spheres' smoothness, the lighting's ridge); the stopping rule looks at
+ * them after each render, and when it fires no further step is taken. The parameters of the lowest objective
  * are kept (the best iterate) and rendered once more if they are not the last ones. */
 #include "optim/optim_internal.h"
 #include "scene/validate.h"
@@ -44,28 +43,33 @@ pen_optim_settings pen_optim_settings_default(void) {
 
 /* ---- Least-squares lighting ----------------------------------------------------------------- */
 
-/* With "lighting_solver": "least_squares", makes the lighting in x and the scene the solution for
- * the current values of every other parameter, unless it already is (a lighting-only task solves
- * once). Adam never moves the lighting segment (its gradient is not computed, so it stays 0 and
- * so do Adam's steps there). */
+/* The least-squares lighting for the current values of every other parameter into sh: one
+ * system over every view (views.c) or the target's (optim.h; mu as there). */
+static pen_status solve_into(pen_context *ctx, const pen_optim_task *t,
+                             const pen_render_options *opt, run *r, float (*sh)[3]) {
+    if (!r->multi)
+        return pen__optim_solve_lighting(ctx, r->sc, opt, r->solve_state, &t->target, r->weight,
+                                         r->ridge, r->mu, sh);
+    pen__optim_eye *eyes = pen__calloc(ctx, (size_t)r->views.count, sizeof *eyes, "views");
+    pen_status s = eyes ? pen__optim_solve_lighting_eyes(ctx, r->sc, opt, eyes,
+                                                         pen__optim_views_eyes(&r->views, 1, eyes),
+                                                         r->ridge, r->mu, sh)
+                        : PEN_ERROR_MEMORY;
+    free(eyes);
+    return s;
+}
+
+/* With the least-squares lighting solver, makes the lighting in x and the scene the solution
+ * for the current values of every other parameter, unless it already is (a lighting-only task
+ * solves once). Adam never moves the lighting segment (its gradient is not computed, so it
+ * stays 0 and so do Adam's steps there). */
 static pen_status solve_lighting(pen_context *ctx, const pen_optim_task *t,
                                  const pen_render_options *opt, run *r) {
     if (!r->solve) return PEN_OK;
     const size_t nl = 3 * (size_t)r->sc->sh_bands * (size_t)r->sc->sh_bands;
     const size_t rest = r->n - nl; /* the lighting segment comes first (layout) */
     if (r->solved && memcmp(r->solved_for, r->x + nl, sizeof(float) * rest) == 0) return PEN_OK;
-    pen_status s;
-    if (r->multi) { /* one system over every view (views.c) */
-        pen__optim_eye *eyes = pen__calloc(ctx, (size_t)r->views.count, sizeof *eyes, "views");
-        s = eyes ? pen__optim_solve_lighting_eyes(ctx, r->sc, opt, eyes,
-                                                  pen__optim_views_eyes(&r->views, 1, eyes),
-                                                  t->lighting_ridge, r->mu, r->sc->lighting.sh)
-                 : PEN_ERROR_MEMORY;
-        free(eyes);
-    } else {
-        s = pen__optim_solve_lighting(ctx, r->sc, opt, r->solve_state, &t->target, r->weight,
-                                      t->lighting_ridge, r->mu, r->sc->lighting.sh);
-    }
+    pen_status s = solve_into(ctx, t, opt, r, r->sc->lighting.sh);
     if (s) return s;
     for (size_t k = 0; k < nl; ++k)
         r->x[r->lighting + k] = r->sc->lighting.sh[k / 3][k % 3];
@@ -109,8 +113,8 @@ static pen__optim_identity identity(const pen_optim_task *t, const pen_optim_set
     id.width = t->target.width;
     id.height = t->target.height;
     id.shadow_weight = t->shadow_weight;
-    id.lighting_solver = (int)t->lighting_solver;
-    id.lighting_ridge = t->lighting_ridge;
+    id.lighting_solver = r->solve ? PEN_OPTIM_LIGHTING_LEAST_SQUARES : PEN_OPTIM_LIGHTING_ADAM;
+    id.lighting_ridge = r->ridge; /* (both resolved: a checkpoint never holds "auto") */
     if (r->groups & PEN_OPTIM_DEFORMATION) {
         id.graph_k = t->deformation.k;
         id.weights[0] = t->deformation.w_rot, id.weights[1] = t->deformation.w_reg;
@@ -275,6 +279,8 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
     const float scale =
         r->multi ? 3.0f * (float)r->views.max_pixels : 3.0f * (float)w * (float)h;
     const unsigned wrt = pen__optim_grad_mask(r->groups, r->solve);
+    /* solved lighting alone: nothing for Adam to move, the solve is the answer */
+    const int alone = r->solve && r->n == 3 * (size_t)r->sc->sh_bands * (size_t)r->sc->sh_bands;
     /* (under several ranks only rank 0 writes: pen_optim_ranks) */
     const int writes = set->outdir && (!set->ranks || set->ranks->rank == 0);
     const int K = writes ? set->checkpoint_every : 0;
@@ -309,10 +315,9 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
             res->interrupted = 1;
             break;
         }
-        if (pen__optim_stalled(res->losses, i + 1, t->window, t->tolerance) ||
-            (r->solve && r->n == 3 * (size_t)r->sc->sh_bands * (size_t)r->sc->sh_bands)) {
-            /* (solved lighting alone: nothing for Adam to move, the solve is the answer) */
+        if (alone || pen__optim_stalled(res->losses, i + 1, t->window, t->tolerance)) {
             res->converged = 1;
+            res->solved = alone;
             break;
         }
         pen_render_grad_zero(&grad);
@@ -353,9 +358,12 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
         if (!r->multi) s = pen_render_fwd(ctx, &t->scene, &opt, NULL, &img);
     }
     if (!s && r->multi) s = picture(ctx, t, r, &img);
-    if (!s && r->multi) s = image_term(ctx, t, r, NULL, &img, &res->final_loss, NULL);
-    if (!s && !r->multi) s = evaluate(ctx, t, r->weight, &img, &res->final_loss, NULL);
-    if (!s) res->final_loss += pen__optim_regularisers(r);
+    if (!s && r->multi) s = image_term(ctx, t, r, NULL, &img, &res->final_image_loss, NULL);
+    if (!s && !r->multi) s = evaluate(ctx, t, r->weight, &img, &res->final_image_loss, NULL);
+    if (!s) {
+        res->final_ridge_loss = pen__optim_ridge_loss(r);
+        res->final_loss = res->final_image_loss + pen__optim_regularisers(r);
+    }
     if (!s) {
         res->final = img;
         img.data = NULL;
@@ -448,6 +456,7 @@ static pen_status fitted_lighting(pen_context *ctx, const pen_optim_task *t, run
  * created), from the scene's values: the initial guesses were applied before. */
 static pen_status relayout(pen_context *ctx, const pen_optim_task *t, run *r) {
     const run fresh = {.sc = r->sc, .opt = r->opt, .groups = r->groups, .solve = r->solve,
+                       .ridge = r->ridge,
                        .multi = r->multi, .task_views = r->task_views,
                        .task_view_count = r->task_view_count};
     pen__optim_run_free(r);
@@ -475,25 +484,51 @@ static pen_status search_lights(pen_context *ctx, pen_optim_task *t, run *r,
     const double t0 = omp_get_wtime();
     pen_status s = pen__optim_lights_search(
         ctx, r->sc, &r->opt, e.eyes, e.n, t->light_count, (r->groups & PEN_OPTIM_LIGHTING) != 0,
-        t->lighting_ridge, PEN__OPTIM_SEARCH_RADIUS_DEG, &out->search_renders);
+        isnan(t->lighting_ridge) ? PEN_OPTIM_LIGHTING_RIDGE_DEFAULT : t->lighting_ridge,
+        PEN__OPTIM_SEARCH_RADIUS_DEG, &out->search_renders);
     out->search_seconds = omp_get_wtime() - t0;
     out->lights_searched = s ? 0 : t->light_count;
     if (r->multi) view_eyes_free(&e);
     return s ? s : relayout(ctx, t, r);
 }
 
-/* Least-squares lighting: the ridge is fixed at the initial guess, whose lighting is then solved
- * for (so the first render, the loss curve's start, shows the solved lighting). */
-static pen_status lighting_solver_init(pen_context *ctx, const pen_optim_task *t, run *r) {
+/* The lighting ridge (optim.h): mu is fixed at the initial guess from its normal equations.
+ * Least squares then solves the initial guess's lighting (so the first render, the loss curve's
+ * start, shows the solved lighting); Adam with a ridge keeps its initial lighting and takes only
+ * mu from the solve. */
+static pen_status ridge_init(pen_context *ctx, const pen_optim_task *t, run *r) {
+    r->ridged = 1;
     r->weight_sum = r->multi ? 1.0 /* the views' factors normalise (views.c) */
                              : pen__loss_weight_sum(r->weight, (size_t)t->target.width *
                                                                    (size_t)t->target.height);
     r->mu[0] = r->mu[1] = r->mu[2] = -1.0;
+    if (!r->solve) {
+        float sh[PEN_SH_MAX_COEFFS][3];
+        return solve_into(ctx, t, &r->opt, r, sh);
+    }
     r->solved_for = pen__calloc(ctx, r->n + 1, sizeof(float), "lighting solve");
     if (!r->solved_for) return PEN_ERROR_MEMORY;
     pen_status s = pen_render_state_create(ctx, &r->solve_state);
     if (s) return s;
     return solve_lighting(ctx, t, &r->opt, r);
+}
+
+/* "auto" resolved (optim.h): least squares for the lighting alone with the l2 loss, Adam
+ * otherwise; resuming, the checkpoint's solver, so that a run continues as it began (a
+ * checkpoint of a task least squares cannot solve is refused later, by its identity). */
+static pen_optim_lighting_solver resolve_solver(pen_context *ctx, const pen_optim_task *t,
+                                                const pen_optim_settings *set) {
+    if (t->lighting_solver != PEN_OPTIM_LIGHTING_AUTO) return t->lighting_solver;
+    const int solvable = (t->optimize & PEN_OPTIM_LIGHTING) && t->loss == PEN_OPTIM_LOSS_L2;
+    if (set->resume && set->outdir) {
+        char *path = pen__optim_join(ctx, set->outdir, "checkpoint.bin");
+        const int k = path ? pen__optim_checkpoint_solver(path) : -1;
+        free(path);
+        if (k == PEN_OPTIM_LIGHTING_ADAM || (k == PEN_OPTIM_LIGHTING_LEAST_SQUARES && solvable))
+            return (pen_optim_lighting_solver)k;
+    }
+    return solvable && t->optimize == PEN_OPTIM_LIGHTING ? PEN_OPTIM_LIGHTING_LEAST_SQUARES
+                                                         : PEN_OPTIM_LIGHTING_ADAM;
 }
 
 static pen_status check_settings(pen_context *ctx, const pen_optim_settings *set) {
@@ -558,7 +593,12 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
      * the pixel's UV, which is continuous in it. */
     if (r.groups & (PEN_OPTIM_POSE | PEN_OPTIM_DEFORMATION))
         r.opt.texture_filter = PEN_RENDER_TEXTURE_POINT;
-    r.solve = task->lighting_solver == PEN_OPTIM_LIGHTING_LEAST_SQUARES;
+    r.solve = resolve_solver(ctx, task, &set) == PEN_OPTIM_LIGHTING_LEAST_SQUARES;
+    r.ridge = !isnan(task->lighting_ridge) ? task->lighting_ridge
+              : r.solve                    ? PEN_OPTIM_LIGHTING_RIDGE_DEFAULT
+                                           : 0.0;
+    out->lighting_solver = r.solve ? PEN_OPTIM_LIGHTING_LEAST_SQUARES : PEN_OPTIM_LIGHTING_ADAM;
+    out->lighting_ridge = r.ridge;
     r.multi = task->view_count > 0;
     r.task_views = task->views;
     r.task_view_count = task->view_count;
@@ -578,7 +618,8 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
                                       (task->optimize & PEN_OPTIM_LIGHTING) != 0);
         else if (!s && task->shadow_weight > 0.0)
             s = shadow_weights(ctx, task, &r);
-        if (!s && r.solve) s = lighting_solver_init(ctx, task, &r);
+        if (!s && (r.solve || (r.ridge > 0.0 && r.lighting != SIZE_MAX)))
+            s = ridge_init(ctx, task, &r);
     }
     if (!s) s = optimise(ctx, task, &set, &r, out);
     if (!s) {

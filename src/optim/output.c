@@ -469,11 +469,12 @@ pen_status pen_optim_result_json(pen_context *ctx, const pen_optim_task *t,
              pen__json_add(root, "loss",
                            cJSON_CreateString(t->loss == PEN_OPTIM_LOSS_L1 ? "l1" : "l2")) &&
              pen__json_add(root, "shadow_weight", cJSON_CreateNumber(t->shadow_weight)) &&
+             /* the solver and ridge used ("auto" and the default resolved) */
              pen__json_add(root, "lighting_solver",
-                           cJSON_CreateString(t->lighting_solver == PEN_OPTIM_LIGHTING_LEAST_SQUARES
+                           cJSON_CreateString(r->lighting_solver == PEN_OPTIM_LIGHTING_LEAST_SQUARES
                                                   ? "least_squares"
                                                   : "adam")) &&
-             pen__json_add(root, "lighting_ridge", cJSON_CreateNumber(t->lighting_ridge)) &&
+             pen__json_add(root, "lighting_ridge", cJSON_CreateNumber(r->lighting_ridge)) &&
              pen__json_add(root, "iterations", cJSON_CreateNumber(it)) &&
              pen__json_add(root, "seconds", cJSON_CreateNumber(r->seconds)) &&
              pen__json_add(root, "seconds_per_iteration",
@@ -481,6 +482,8 @@ pen_status pen_optim_result_json(pen_context *ctx, const pen_optim_task *t,
              pen__json_add(root, "initial_loss",
                            cJSON_CreateNumber(r->losses ? r->losses[0] : (double)NAN)) &&
              pen__json_add(root, "final_loss", cJSON_CreateNumber(r->final_loss)) &&
+             pen__json_add(root, "final_image_loss", cJSON_CreateNumber(r->final_image_loss)) &&
+             pen__json_add(root, "final_ridge_loss", cJSON_CreateNumber(r->final_ridge_loss)) &&
              pen__json_add(root, "converged", cJSON_CreateBool(r->converged)) &&
              pen__json_add(root, "interrupted", cJSON_CreateBool(r->interrupted)) &&
              pen__json_add(root, "resumed_from", cJSON_CreateNumber(r->resumed_from)) &&
@@ -499,7 +502,8 @@ pen_status pen_optim_result_json(pen_context *ctx, const pen_optim_task *t,
              pen__json_add(root, "width", cJSON_CreateNumber(main_target(t)->width)) &&
              pen__json_add(root, "height", cJSON_CreateNumber(main_target(t)->height)) &&
              pen__json_add(root, "stop_reason",
-                           cJSON_CreateString(r->converged     ? "converged"
+                           cJSON_CreateString(r->solved        ? "solved"
+                                              : r->converged   ? "converged"
                                               : r->interrupted ? "interrupted"
                                                                : "iteration_limit")) &&
              /* the gauge of the exposures: the first view's stays as given (optim.h) */

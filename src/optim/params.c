@@ -2,7 +2,7 @@
  * float vector x (the layout, cut into segments with their learning rates and bounds), the copy
  * between x and the scene both ways, the gather of a render gradient into x's layout, and the
  * regularisers that belong to the parameters (the deformation's energy, the spheres' smoothness,
- * the least-squares lighting's ridge). The loop that uses them is optimize.c.
+ * the lighting's ridge). The loop that uses them is optimize.c.
  *
  * The views' exposures (the "exposure" group) live in x as natural logs, so that they stay
  * positive and a step is a relative change; the first view's is not in x (the gauge, optim.h).
@@ -239,21 +239,28 @@ void pen__optim_deformation_rest(run *r) {
     }
 }
 
-/* The ridge term of the least-squares lighting in the loss's units (0 otherwise). */
-static double ridge_penalty(const run *r) {
-    if (!r->solve) return 0.0;
+double pen__optim_ridge_term(const double mu[3], double weight_sum, int nb, const float (*sh)[3],
+                             double (*d)[3]) {
     double e = 0.0;
-    for (int k = 0; k < r->sc->sh_bands * r->sc->sh_bands; ++k)
-        for (int c = 0; c < 3; ++c)
-            e += r->mu[c] * (double)r->sc->lighting.sh[k][c] * (double)r->sc->lighting.sh[k][c];
-    return e / (3.0 * r->weight_sum);
+    for (int k = 0; k < nb; ++k)
+        for (int c = 0; c < 3; ++c) {
+            e += mu[c] * (double)sh[k][c] * (double)sh[k][c];
+            if (d) d[k][c] += 2.0 * mu[c] * (double)sh[k][c] / (3.0 * weight_sum);
+        }
+    return e / (3.0 * weight_sum);
+}
+
+double pen__optim_ridge_loss(const run *r) {
+    if (!r->ridged) return 0.0;
+    return pen__optim_ridge_term(r->mu, r->weight_sum, r->sc->sh_bands * r->sc->sh_bands,
+                                 (const float(*)[3])r->sc->lighting.sh, NULL);
 }
 
 /* The regularisers at the current parameters (D->params and D->spheres, set by transfer; their
  * gradient is added in pen__optim_gather()): every deformed object's, the spheres' smoothness, and the
- * least-squares lighting's ridge. */
+ * lighting's ridge. */
 double pen__optim_regularisers(run *r) {
-    double e = ridge_penalty(r);
+    double e = pen__optim_ridge_loss(r);
     for (int o = 0; o < r->sc->object_count; ++o) {
         const object_deform *D = &r->deform[o];
         if (r->objects[o].deform != SIZE_MAX)
@@ -281,10 +288,22 @@ void pen__optim_initial_guess(run *r) {
 
 void pen__optim_gather(run *r, const pen_render_grad *grad, float scale) {
     const pen_scene *sc = r->sc;
-    if (r->lighting != SIZE_MAX)
-        for (int k = 0; k < sc->sh_bands * sc->sh_bands; ++k)
+    if (r->lighting != SIZE_MAX) {
+        const int nb = sc->sh_bands * sc->sh_bands;
+        for (int k = 0; k < nb; ++k)
             for (int ch = 0; ch < 3; ++ch)
                 r->g[r->lighting + 3 * (size_t)k + ch] = scale * grad->sh[k][ch];
+        if (r->ridged && !r->solve) { /* Adam on the ridged loss: in its units, scaled alike */
+            double d[PEN_SH_MAX_COEFFS][3];
+            memset(d, 0, sizeof d);
+            pen__optim_ridge_term(r->mu, r->weight_sum, nb, (const float(*)[3])sc->lighting.sh,
+                                  d);
+            for (int k = 0; k < nb; ++k)
+                for (int ch = 0; ch < 3; ++ch)
+                    r->g[r->lighting + 3 * (size_t)k + ch] =
+                        (float)((double)(scale * grad->sh[k][ch]) + (double)scale * d[k][ch]);
+        }
+    }
     if (r->lights != SIZE_MAX)
         for (int l = 0; l < grad->light_count; ++l) {
             const pen_light_grad *lg = &grad->lights[l];

@@ -48,8 +48,8 @@ pen_optim_task pen_optim_task_default(void) {
     t.tolerance = 1e-3;
     t.window = 50;
     t.init_black = 1;
-    t.lighting_solver = PEN_OPTIM_LIGHTING_ADAM;
-    t.lighting_ridge = 1e-2;
+    t.lighting_solver = PEN_OPTIM_LIGHTING_AUTO;
+    t.lighting_ridge = (double)NAN; /* the solver's (optim.h) */
     t.deformation = pen_optim_deformation_default();
     t.spheres = pen_optim_spheres_default();
     t.light_count = 1;
@@ -303,7 +303,7 @@ static pen_status parse_options(pen_context *ctx, const where *top, const cJSON 
         if (s) return s;
     }
     static const char *const encodings[] = {"srgb", "linear", NULL};
-    static const char *const solvers[] = {"adam", "least_squares", NULL};
+    static const char *const solvers[] = {"adam", "least_squares", "auto", NULL};
     static const char *const losses[] = {"l2", "l1", NULL};
     static const char *const inits[] = {"black", "scene", "fit", NULL};
     int k = -1;
@@ -311,7 +311,9 @@ static pen_status parse_options(pen_context *ctx, const where *top, const cJSON 
         w = at(top, "lighting_solver");
         s = pen__json_choice(ctx, &w, e, "lighting solver", solvers, &k);
         if (s) return s;
-        t->lighting_solver = k == 1 ? PEN_OPTIM_LIGHTING_LEAST_SQUARES : PEN_OPTIM_LIGHTING_ADAM;
+        t->lighting_solver = k == 2   ? PEN_OPTIM_LIGHTING_AUTO
+                             : k == 1 ? PEN_OPTIM_LIGHTING_LEAST_SQUARES
+                                      : PEN_OPTIM_LIGHTING_ADAM;
     }
     if ((e = cJSON_GetObjectItemCaseSensitive(root, "target_encoding"))) {
         w = at(top, "target_encoding");
@@ -554,7 +556,13 @@ pen_status pen__optim_task_check(pen_context *ctx, const pen_optim_task *t) {
                           "%s: lighting_solver: \"least_squares\" needs \"lighting\" in optimize "
                           "and the l2 loss",
                           name);
-    if (!(t->lighting_ridge >= 0.0) || !isfinite(t->lighting_ridge))
+    if (t->lighting_solver != PEN_OPTIM_LIGHTING_ADAM &&
+        t->lighting_solver != PEN_OPTIM_LIGHTING_LEAST_SQUARES &&
+        t->lighting_solver != PEN_OPTIM_LIGHTING_AUTO)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: lighting_solver: unknown solver %d", name,
+                          (int)t->lighting_solver);
+    /* (NaN: the solver's default, optim.h) */
+    if (!isnan(t->lighting_ridge) && (!(t->lighting_ridge >= 0.0) || !isfinite(t->lighting_ridge)))
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "%s: lighting_ridge must be a finite number >= 0", name);
     const float lr[9] = {t->lr.lighting, t->lr.albedo,  t->lr.rotation,
