@@ -8,9 +8,11 @@
 # first 1, 2, 4 and 8 cameras (deformation: ring; shape: ring and top, make_views_shape.py).
 # Usage: sh examples/views/run_views_shape.sh PENUMBRA_BIN [MESH ...]   (MESH spot or bob)
 # Environment: PEN_VIEWS_SHAPE_RUNS (default "deformation_ring shape_ring shape_top") and
-#   PEN_VIEWS_COUNTS (default "1 2 4 8") pick the runs; PEN_VIEWS_SPP the targets' samples.
+#   PEN_VIEWS_COUNTS (default "1 2 4 8") pick the runs; PEN_VIEWS_SPP the targets' samples;
+#   PEN_VIEWS_ITERATIONS overrides the tasks' iteration limit (runs run_..._it<N>/, beside the
+#   runs at the tasks' own limit: does a run at the limit still gain, or has it stalled?).
 # Writes out/views_shape/MESH/ (ignored by git; finished targets and runs are kept and not run
-# again): t_<task>_<camera>.exr, run_<task>_<placement>_<n>/ (the optimize outputs),
+# again): t_<task>_<camera>.exr, run_<task>_<placement>_<n>[_it<N>]/ (the optimize outputs),
 # run_shape_start/ (the shape's start: one step without shadows, the spheres unmoved), and
 # out/views_shape/results.tsv with a markdown table on stdout (views_shape_table.py).
 # The inputs the single-view table makes (run_table.sh) are made here too when missing, by the
@@ -58,8 +60,13 @@ for mesh in $MESHES; do
     esac
     for run in $RUNS; do
         for n in $COUNTS; do
-            task=$dir/task_${run}_$n.json
-            [ -s "$dir/run_${run}_$n/result.json" ] || "$BIN" optimize "$task" -o "$dir/run_${run}_$n" -q
+            set -- -q
+            name=run_${run}_$n
+            if [ -n "${PEN_VIEWS_ITERATIONS:-}" ]; then
+                set -- -q --iterations "$PEN_VIEWS_ITERATIONS"
+                name=${name}_it$PEN_VIEWS_ITERATIONS
+            fi
+            [ -s "$dir/$name/result.json" ] || "$BIN" optimize "$dir/task_${run}_$n.json" -o "$dir/$name" "$@"
         done
     done
 done
