@@ -10,9 +10,12 @@
 # Environment: PEN_VIEWS_SHAPE_RUNS (default "deformation_ring shape_ring shape_top") and
 #   PEN_VIEWS_COUNTS (default "1 2 4 8") pick the runs; PEN_VIEWS_SPP the targets' samples;
 #   PEN_VIEWS_ITERATIONS overrides the tasks' iteration limit (runs run_..._it<N>/, beside the
-#   runs at the tasks' own limit: does a run at the limit still gain, or has it stalled?).
+#   runs at the tasks' own limit: does a run at the limit still gain, or has it stalled?);
+#   PEN_VIEWS_THREADS sets the thread count (runs run_..._t<N>/: the same result, bit for bit,
+#   in another time; with 1 view and 2 threads the view renders with both, in turn, which on a
+#   loaded machine is the slow way: docs/optimize.md, "Views in parallel").
 # Writes out/views_shape/MESH/ (ignored by git; finished targets and runs are kept and not run
-# again): t_<task>_<camera>.exr, run_<task>_<placement>_<n>[_it<N>]/ (the optimize outputs),
+# again): t_<task>_<camera>.exr, run_<task>_<placement>_<n>[_it<N>][_t<T>]/ (the optimize outputs),
 # run_shape_start/ (the shape's start: one step without shadows, the spheres unmoved), and
 # out/views_shape/results.tsv with a markdown table on stdout (views_shape_table.py).
 # The inputs the single-view table makes (run_table.sh) are made here too when missing, by the
@@ -41,7 +44,8 @@ for mesh in $MESHES; do
         python3 "$OPT/bend_obj.py" "$ROOT/data/meshes/$obj" "$GEN/meshes/${mesh}_bent.obj" \
             --along $along --toward $toward --curvature 0.4
     if [ ! -s "$GEN/spheres/${mesh}_start.json" ]; then
-        "$BIN" fit-spheres "$ROOT/data/meshes/$obj" -n 32 -o "$GEN/spheres/${mesh}_fit32.json" > /dev/null
+        "$BIN" fit-spheres "$ROOT/data/meshes/$obj" -n 32 -o "$GEN/spheres/${mesh}_fit32.json" \
+            > /dev/null
         python3 "$OPT/perturb_spheres.py" "$GEN/spheres/${mesh}_fit32.json" \
             "$GEN/spheres/${mesh}_start.json" --scale 0.75 --shift 0.1 0 -0.12
     fi
@@ -63,10 +67,15 @@ for mesh in $MESHES; do
             set -- -q
             name=run_${run}_$n
             if [ -n "${PEN_VIEWS_ITERATIONS:-}" ]; then
-                set -- -q --iterations "$PEN_VIEWS_ITERATIONS"
+                set -- "$@" --iterations "$PEN_VIEWS_ITERATIONS"
                 name=${name}_it$PEN_VIEWS_ITERATIONS
             fi
-            [ -s "$dir/$name/result.json" ] || "$BIN" optimize "$dir/task_${run}_$n.json" -o "$dir/$name" "$@"
+            if [ -n "${PEN_VIEWS_THREADS:-}" ]; then
+                set -- "$@" --threads "$PEN_VIEWS_THREADS"
+                name=${name}_t$PEN_VIEWS_THREADS
+            fi
+            [ -s "$dir/$name/result.json" ] ||
+                "$BIN" optimize "$dir/task_${run}_$n.json" -o "$dir/$name" "$@"
         done
     done
 done

@@ -1,7 +1,8 @@
 """Collects the finished runs of run_views_shape.sh into OUT/results.tsv and a markdown table.
 
-One line per run (MESH/run_<task>_<placement>_<n>[_it<N>]/result.json; _it<N>: the limit raised to
-N iterations, "limit" column): the task's metrics against the
+One line per run (MESH/run_<task>_<placement>_<n>[_it<N>][_t<T>]/result.json; _it<N>: the limit
+raised to N iterations, "limit" column; _t<T>: T threads, "threads" column, else the default,
+all): the task's metrics against the
 ground truth (deformation: vertex_rmse against the bent mesh; shape: shadow_iou, the silhouette
 seen from the light, sphere_iou and sphere_chamfer against the true fit), the image RMSE over
 every view's pixels, the iterations and stop reason, seconds per iteration and the first and
@@ -18,7 +19,7 @@ import os
 import re
 import sys
 
-RUN = re.compile(r"run_(deformation|shape)_(?:(ring|top)_(\d+)(?:_it(\d+))?|start)$")
+RUN = re.compile(r"run_(deformation|shape)_(?:(ring|top)_(\d+)(?:_it(\d+))?(?:_t(\d+))?|start)$")
 METRICS = {"deformation": ("vertex_rmse",),
            "shape": ("shadow_iou", "sphere_iou", "sphere_chamfer")}
 
@@ -49,24 +50,26 @@ def main():
             limit = int(m.group(4) or json.load(f)["iterations"])
         rows.append(dict(mesh=os.path.basename(mesh_dir), task=m.group(1),
                          placement=m.group(2) or "start", n=int(m.group(3) or 0), limit=limit,
-                         r=r))
-        if m.group(1) == "deformation" and m.group(3) == "1" and not m.group(4):
+                         threads=m.group(5) or "all", r=r))
+        if m.group(1) == "deformation" and m.group(3) == "1" and not (m.group(4) or m.group(5)):
             scenes = []
             for name in ("start_deformation.json", "truth_deformation.json"):
                 with open(os.path.join(mesh_dir, name)) as f:
                     scenes.append(json.load(f))
             rows.append(dict(mesh=rows[-1]["mesh"], task="deformation", placement="start", n=0,
-                             limit=0, r={"metrics": {"vertex_rmse": vertex_rmse(*scenes)}}))
+                             limit=0, threads="",
+                             r={"metrics": {"vertex_rmse": vertex_rmse(*scenes)}}))
     order = {"start": 0, "ring": 1, "top": 2}
     meshes = {"spot": 0, "bob": 1}
     rows.sort(key=lambda x: (meshes.get(x["mesh"], 2), x["mesh"], x["task"],
-                             order[x["placement"]], x["limit"], x["n"]))
-    cols = ("mesh", "task", "placement", "views", "limit") + METRICS["deformation"] + METRICS["shape"] + (
-        "image_rmse", "iterations", "stop_reason", "seconds_per_iteration", "initial_loss",
-        "final_loss")
-    print("| mesh | task | placement | views | limit | vertex RMSE / shadow IoU, sphere IoU, "
-          "Chamfer | image RMSE | iterations, stop | s/it |")
-    print("|---|---|---|---|---|---|---|---|---|")
+                             order[x["placement"]], x["limit"], x["threads"] != "all",
+                             x["threads"], x["n"]))
+    cols = (("mesh", "task", "placement", "views", "limit", "threads") + METRICS["deformation"]
+            + METRICS["shape"] + ("image_rmse", "iterations", "stop_reason",
+                                  "seconds_per_iteration", "initial_loss", "final_loss"))
+    print("| mesh | task | placement | views | limit | threads | vertex RMSE / shadow IoU, "
+          "sphere IoU, Chamfer | image RMSE | iterations, stop | s/it |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     with open(os.path.join(out, "results.tsv"), "w") as f:
         f.write("\t".join(cols) + "\n")
         for x in rows:
@@ -76,11 +79,12 @@ def main():
             f.write("\t".join(str(line.get(c, "")) for c in cols) + "\n")
             metric = ", ".join("%.4f" % met[k] for k in METRICS[x["task"]])
             if x["placement"] == "start":
-                print("| %s | %s | start | - | - | %s | | | |" % (x["mesh"], x["task"], metric))
+                print("| %s | %s | start | - | - | - | %s | | | |" % (x["mesh"], x["task"], metric))
                 continue
             r = x["r"]
-            print("| %s | %s | %s | %d | %d | %s | %.4f | %d, %s | %.3f |" % (
-                x["mesh"], x["task"], x["placement"], x["n"], x["limit"], metric, met["image_rmse"],
+            print("| %s | %s | %s | %d | %d | %s | %s | %.4f | %d, %s | %.3f |" % (
+                x["mesh"], x["task"], x["placement"], x["n"], x["limit"], x["threads"], metric,
+                met["image_rmse"],
                 r["iterations"], r["stop_reason"], r["seconds_per_iteration"]))
 
 if __name__ == "__main__":
