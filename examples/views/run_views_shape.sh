@@ -15,13 +15,14 @@
 #   in another time; with 1 view and 2 threads the view renders with both, in turn, which on a
 #   loaded machine is the slow way: docs/optimize.md, "Views in parallel").
 # Writes out/views_shape/MESH/ (ignored by git; finished targets and runs are kept and not run
-# again): t_<task>_<camera>.exr, run_<task>_<placement>_<n>[_it<N>][_t<T>]/ (the optimize outputs),
-# run_shape_start/ (the shape's start: one step without shadows, the spheres unmoved), and
+# again): t_<task>_<camera>.exr, run_<task>_<placement>_<n>[_it<N>][_t<T>]/ (the optimize
+# outputs), run_shape_start/ (the shape's start: one step without shadows, the spheres
+# unmoved), and
 # out/views_shape/results.tsv with a markdown table on stdout (views_shape_table.py).
 # The inputs the single-view table makes (run_table.sh) are made here too when missing, by the
 # same commands: out/optimize/meshes/MESH_bent.obj and out/optimize/spheres/MESH_start.json.
-# Cost on the shared 2-core machine: the targets about 5 s each; an iteration about one view's
-# render and backward pass per view (see the table's s/it).
+# Cost on the shared 2-core machine (nice'd, loaded): about 5 minutes per mesh; the targets 2-5 s
+# each, an iteration 0.02-0.04 s per view (docs/optimize.md has the measured s/it).
 set -eu
 BIN=$(cd "$(dirname "$1")" && pwd)/$(basename "$1")
 [ $# -ge 1 ] && shift
