@@ -47,92 +47,104 @@ RING = (0, 180, 90, 270, 45, 225, 135, 315)
 ELEV = ((0, None), (180, 70), (90, 40), (270, 15), (45, 89), (225, 40), (135, 15), (315, 70))
 VALIDATION = {"val1": (60, 30), "val2": (250, 55)}
 
-out, mesh, envmap = os.path.abspath(sys.argv[1]), sys.argv[2], sys.argv[3]
-truth_path = os.path.join(TASKS, "%s_truth.json" % mesh)
-with open(truth_path) as f:
-    truth = json.load(f)
-
 
 def absolute(path):
     return os.path.normpath(os.path.join(TASKS, path))
 
 
-truth["lighting"]["envmap"] = absolute(truth["lighting"]["envmap"]).replace(
-    "/city.hdr", "/%s.hdr" % envmap)
-for ob in truth["objects"]:
-    ob["mesh"] = absolute(ob["mesh"])
-    ob["albedo_texture"] = absolute(ob["albedo_texture"])
-cam0 = truth["camera"]
-target = cam0["target"]
-d0 = [e - t for e, t in zip(cam0["eye"], target)]
-dist0 = math.sqrt(sum(v * v for v in d0))
-elev0 = math.degrees(math.asin(d0[1] / dist0))
-azim0 = math.atan2(d0[0], d0[2])
+def load_scene(name, envmap="city"):
+    """examples/optimize/NAME.json with absolute paths (its map replaced by the bundled ENVMAP)."""
+    with open(os.path.join(TASKS, name + ".json")) as f:
+        scene = json.load(f)
+    if "envmap" in scene["lighting"]:
+        scene["lighting"]["envmap"] = absolute(scene["lighting"]["envmap"]).replace(
+            "/city.hdr", "/%s.hdr" % envmap)
+    for ob in scene["objects"]:
+        for key in ("mesh", "albedo_texture", "spheres"):
+            if isinstance(ob.get(key), str):
+                ob[key] = absolute(ob[key])
+    return scene
 
 
-def camera(azimuth, elevation, factor=1.0):
-    a, e = azim0 + math.radians(azimuth), math.radians(elevation)
-    r = dist0 * factor
-    direction = (math.cos(e) * math.sin(a), math.sin(e), math.cos(e) * math.cos(a))
-    eye = [t + r * v for t, v in zip(target, direction)]
-    # looking almost straight down, "up" is the horizontal direction away from the camera
-    up = [0, 1, 0] if elevation < 80 else [-math.sin(a), 0, -math.cos(a)]
-    return {"width": SIZE, "height": SIZE, "fov_y_deg": cam0["fov_y_deg"],
-            "eye": [round(v, 6) for v in eye], "target": target,
-            "up": [round(v, 6) for v in up]}
+def placements(cam0):
+    """The cameras around cam0's target (key -> camera) and the placements (name -> the
+    ordered keys of its 8 cameras; "val" the two held-back views)."""
+    target = cam0["target"]
+    d0 = [e - t for e, t in zip(cam0["eye"], target)]
+    dist0 = math.sqrt(sum(v * v for v in d0))
+    elev0 = math.degrees(math.asin(d0[1] / dist0))
+    azim0 = math.atan2(d0[0], d0[2])
+
+    def camera(azimuth, elevation, factor=1.0):
+        a, e = azim0 + math.radians(azimuth), math.radians(elevation)
+        r = dist0 * factor
+        direction = (math.cos(e) * math.sin(a), math.sin(e), math.cos(e) * math.cos(a))
+        eye = [t + r * v for t, v in zip(target, direction)]
+        # looking almost straight down, "up" is the horizontal direction away from the camera
+        up = [0, 1, 0] if elevation < 80 else [-math.sin(a), 0, -math.cos(a)]
+        return {"width": SIZE, "height": SIZE, "fov_y_deg": cam0["fov_y_deg"],
+                "eye": [round(v, 6) for v in eye], "target": target,
+                "up": [round(v, 6) for v in up]}
+
+    def placement(name):
+        if name.startswith("ring"):
+            factor = {"ring": 1.0, "ring_far": 1.4, "ring_near": 0.75}[name]
+            return [(a, elev0, factor) for a in RING]
+        return [(a, elev0 if e is None else e, 1.0) for a, e in ELEV]
+
+    cameras = {}
+    views = {}
+    for name in ("ring", "ring_far", "ring_near", "elev"):
+        views[name] = []
+        for spec in placement(name):
+            key = "a%d_e%d_d%d" % (round(spec[0]), round(spec[1]), round(100 * spec[2]))
+            cameras[key] = camera(*spec)
+            views[name].append(key)
+    for key, (a, e) in VALIDATION.items():
+        cameras[key] = camera(a, e)
+    views["val"] = sorted(VALIDATION)
+    return cameras, views
 
 
-def placement(name):
-    if name.startswith("ring"):
-        factor = {"ring": 1.0, "ring_far": 1.4, "ring_near": 0.75}[name]
-        return [(a, elev0, factor) for a in RING]
-    return [(a, elev0 if e is None else e, 1.0) for a, e in ELEV]
+def main():
+    out, mesh, envmap = os.path.abspath(sys.argv[1]), sys.argv[2], sys.argv[3]
+    truth = load_scene("%s_truth" % mesh, envmap)
+    cameras, views = placements(truth["camera"])
+    views.pop("val")
+
+    os.makedirs(out, exist_ok=True)
+
+    def write(name, obj):
+        with open(os.path.join(out, name), "w") as f:
+            json.dump(obj, f, indent=1)
+
+    write("truth.json", truth)
+    with open(os.path.join(TASKS, "%s_pose_init.json" % mesh)) as f:
+        pose_init = json.load(f)
+    pose_init.update(lighting=truth["lighting"], objects=[
+        dict(ob, pose=p["pose"]) for ob, p in zip(truth["objects"], pose_init["objects"])])
+    write("pose_init.json", pose_init)
+    for key, cam in cameras.items():
+        write("cam_%s.json" % key, dict(truth, camera=cam))
+
+    def views_file(keys, suffix):
+        return {"views": [{"camera": cameras[k], "target": "t_%s%s.exr" % (k, suffix)} for k in keys]}
+
+    for suffix in ("", "_sh", "_model"):
+        write("views_val%s.json" % suffix, views_file(sorted(VALIDATION), suffix))
+        for name, keys in views.items():
+            for n in COUNTS:
+                write("views_%s_%d%s.json" % (name, n, suffix), views_file(keys[:n], suffix))
+                for solver, extra in SOLVERS.items():
+                    if suffix and solver in ("adam", "pose"):
+                        continue
+                    task = {"scene": "truth.json", "ground_truth": "truth.json",
+                            "optimize": ["lighting"], "views": "views_%s_%d%s.json" % (name, n, suffix),
+                            "validation_views": "views_val%s.json" % suffix}
+                    task.update(extra)
+                    write("task_%s_%d_%s%s.json" % (name, n, solver, suffix), task)
+    print(" ".join(sorted(cameras)))
 
 
-cameras = {}
-views = {}
-for name in ("ring", "ring_far", "ring_near", "elev"):
-    views[name] = []
-    for spec in placement(name):
-        key = "a%d_e%d_d%d" % (round(spec[0]), round(spec[1]), round(100 * spec[2]))
-        cameras[key] = camera(*spec)
-        views[name].append(key)
-for key, (a, e) in VALIDATION.items():
-    cameras[key] = camera(a, e)
-
-os.makedirs(out, exist_ok=True)
-
-
-def write(name, obj):
-    with open(os.path.join(out, name), "w") as f:
-        json.dump(obj, f, indent=1)
-
-
-write("truth.json", truth)
-with open(os.path.join(TASKS, "%s_pose_init.json" % mesh)) as f:
-    pose_init = json.load(f)
-pose_init.update(lighting=truth["lighting"], objects=[
-    dict(ob, pose=p["pose"]) for ob, p in zip(truth["objects"], pose_init["objects"])])
-write("pose_init.json", pose_init)
-for key, cam in cameras.items():
-    write("cam_%s.json" % key, dict(truth, camera=cam))
-
-
-def views_file(keys, suffix):
-    return {"views": [{"camera": cameras[k], "target": "t_%s%s.exr" % (k, suffix)} for k in keys]}
-
-
-for suffix in ("", "_sh", "_model"):
-    write("views_val%s.json" % suffix, views_file(sorted(VALIDATION), suffix))
-    for name, keys in views.items():
-        for n in COUNTS:
-            write("views_%s_%d%s.json" % (name, n, suffix), views_file(keys[:n], suffix))
-            for solver, extra in SOLVERS.items():
-                if suffix and solver in ("adam", "pose"):
-                    continue
-                task = {"scene": "truth.json", "ground_truth": "truth.json",
-                        "optimize": ["lighting"], "views": "views_%s_%d%s.json" % (name, n, suffix),
-                        "validation_views": "views_val%s.json" % suffix}
-                task.update(extra)
-                write("task_%s_%d_%s%s.json" % (name, n, solver, suffix), task)
-print(" ".join(sorted(cameras)))
+if __name__ == "__main__":
+    main()
