@@ -105,21 +105,8 @@ reference() { # truth.json target.exr [--lighting L]
 }
 
 # Generated inputs: the bent meshes (deformation) and the perturbed spheres (shape from shadow).
-prepare() { # mesh
-    case $1 in
-    spot) obj=spot_triangulated.obj along=z toward=x ;;
-    bob) obj=bob_tri.obj along=x toward=z ;;
-    *) echo "unknown mesh $1" >&2 && exit 2 ;;
-    esac
-    [ -s "$GEN/meshes/$1_bent.obj" ] ||
-        python3 "$HERE/bend_obj.py" "$ROOT/data/meshes/$obj" "$GEN/meshes/$1_bent.obj" \
-            --along $along --toward $toward --curvature 0.4
-    if [ ! -s "$GEN/spheres/$1_start.json" ]; then
-        "$BIN" fit-spheres "$ROOT/data/meshes/$obj" -n 32 -o "$GEN/spheres/$1_fit32.json" > /dev/null
-        python3 "$HERE/perturb_spheres.py" "$GEN/spheres/$1_fit32.json" \
-            "$GEN/spheres/$1_start.json" --scale 0.75 --shift 0.1 0 -0.12
-    fi
-}
+. "$HERE/prepare.sh"
+prepare() { pen_prepare "$HERE" "$ROOT" "$BIN" "$GEN" "$1"; }
 
 printf 'mesh\ttask\tshadows\titerations\tconverged\ts_per_it\tfinal_loss\timage_rmse\tlighting_rel_error\tlighting_rel_error_sky\talbedo_psnr_db\talbedo_shadow_psnr_db\talbedo_shadow_fraction\talbedo_texel_psnr_db\talbedo_observed\trotation_error_deg\ttranslation_error\ttranslation_error_rel\tvertex_rmse\tsphere_iou\tsphere_chamfer\tshadow_iou\tlight_direction_error_deg\n' > "$OUT/results.tsv"
 echo "| mesh | task | shadows | iterations | s/it | image RMSE | lighting rel. error (bands 0–2) | albedo PSNR, view (in shadow) (dB) | rotation error (°) | translation error (% of size) | vertex RMSE | shadow IoU (sphere IoU) |"

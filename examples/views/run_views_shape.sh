@@ -33,23 +33,11 @@ SPP=${PEN_VIEWS_SPP:-256}
 HERE=$(cd "$(dirname "$0")" && pwd)
 ROOT=$(cd "$HERE/../.." && pwd)
 OPT=$ROOT/examples/optimize
+. "$OPT/prepare.sh"
 GEN=$ROOT/out/optimize
 mkdir -p "$GEN/meshes" "$GEN/spheres"
 for mesh in $MESHES; do
-    case $mesh in
-    spot) obj=spot_triangulated.obj along=z toward=x ;;
-    bob) obj=bob_tri.obj along=x toward=z ;;
-    *) echo "unknown mesh $mesh (expected spot or bob)" >&2 && exit 2 ;;
-    esac
-    [ -s "$GEN/meshes/${mesh}_bent.obj" ] ||
-        python3 "$OPT/bend_obj.py" "$ROOT/data/meshes/$obj" "$GEN/meshes/${mesh}_bent.obj" \
-            --along $along --toward $toward --curvature 0.4
-    if [ ! -s "$GEN/spheres/${mesh}_start.json" ]; then
-        "$BIN" fit-spheres "$ROOT/data/meshes/$obj" -n 32 -o "$GEN/spheres/${mesh}_fit32.json" \
-            > /dev/null
-        python3 "$OPT/perturb_spheres.py" "$GEN/spheres/${mesh}_fit32.json" \
-            "$GEN/spheres/${mesh}_start.json" --scale 0.75 --shift 0.1 0 -0.12
-    fi
+    pen_prepare "$OPT" "$ROOT" "$BIN" "$GEN" "$mesh"
     dir=$ROOT/out/views_shape/$mesh
     for key in $(python3 "$HERE/make_views_shape.py" "$dir" "$mesh"); do
         # the deformation's targets are lit by the map itself; the shape's by their SH sun
