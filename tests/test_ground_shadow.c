@@ -253,7 +253,7 @@ static void test_cache(void) {
     pen_image img;
     pen_render_state *st = render_kept(ctx, &sc, &opt, &img);
     pen__ground_grid *gr = &st->grid;
-    CHECK(gr->on && gr->valid && gr->n == 64);
+    CHECK(gr->on && gr->valid && gr->n == 96);
     const uint64_t key = gr->key;
     const float marker = 4321.0f;
     gr->B.data[0] = marker;

@@ -40,12 +40,15 @@
 #include <stdlib.h>
 #include <string.h>
 
-/* Nodes per side. Measured on the six dev meshes at 160 x 160 (docs/visibility.md sec. 9): the
- * image error stops falling at about 64 (128 changes the third digit), and 64^2 nodes trace in
- * about the time of a 4k-vertex mesh's self transfer. */
-#define GRID_N 64
+/* Nodes per side. Measured on the six dev meshes x six maps at 160 x 160 (docs/visibility.md
+ * sec. 9), mean / worst image rel. RMSE: 32: 0.0327 / 0.054, 64: 0.0291 / 0.038, 96: 0.0281 /
+ * 0.035, 128: 0.0276 / 0.035; the gain left is on the interior map's sharp lamps. The trace costs
+ * about 21 us of CPU per node (bench/NOTES.md): 0.2 s at 96, as a 6k-vertex mesh's own transfer;
+ * 128 would pay 1.8 times that for 0.0005. */
+#define GRID_N 96
 /* The warp: the centre spacing is beta / sinh(beta) of a uniform grid's (0.30 at 3), the edge's
- * cosh(beta) times the centre's. Measured against 2 and 4 at N = 64 (docs/visibility.md sec. 9). */
+ * cosh(beta) = 10 times the centre's. At N = 64, beta 2 / 3 / 4 gave mean image rel. RMSE 0.0298 /
+ * 0.0291 / 0.0296 (docs/visibility.md sec. 9). */
 #define GRID_BETA 3.0
 
 /* ---- The grid -------------------------------------------------------------------------------- */
