@@ -10,14 +10,14 @@
  * Design
  * - Why. Fitted spheres cover thin parts (legs, tails) fatly, and their shadows on the ground are
  *   too dark in long streaks; on the dev meshes that was 90-98 % of the image's squared error
- *   once the objects' own pixels used the transfer (docs/visibility.md sec. 9).
+ *   once the objects' own pixels used the transfer (docs/visibility.md sec. 10).
  * - The grid. N x N nodes, x = c + A sinh(beta s) per axis (z alike), s in [-1, 1] uniform over
  *   the nodes, c the transferred objects' centre (clamped into the square) and A chosen per side
  *   of c so that s = +-1 lands on the square's edges. The warp puts the nodes where shadows have
  *   detail (contact lines, thin parts close to the ground) and few where the ground is far from
  *   everything and its shadow smooth. Pixels interpolate bilinearly in s, so the warp costs two
  *   asinh per pixel. GRID_N and GRID_BETA were chosen by measurement (bench/NOTES.md,
- *   docs/visibility.md sec. 9); "shadow": {"ground_grid": N} overrides N.
+ *   docs/visibility.md sec. 10); "shadow": {"ground_grid": N} overrides N.
  * - One trace for all: the meshes of every object with the transfer are the occluders of one
  *   pen__transfer request (the ground does not shadow itself), the nodes its receivers (+Y).
  * - The cache. In the render state with a key: every transferred object's posed vertices and
@@ -41,14 +41,14 @@
 #include <string.h>
 
 /* Nodes per side. Measured on the six dev meshes x six maps at 160 x 160 (docs/visibility.md
- * sec. 9), mean / worst image rel. RMSE: 32: 0.0327 / 0.054, 64: 0.0291 / 0.038, 96: 0.0281 /
+ * sec. 10), mean / worst image rel. RMSE: 32: 0.0327 / 0.054, 64: 0.0291 / 0.038, 96: 0.0281 /
  * 0.035, 128: 0.0276 / 0.035; the gain left is on the interior map's sharp lamps. The trace costs
  * about 21 us of CPU per node (bench/NOTES.md): 0.2 s at 96, as a 6k-vertex mesh's own transfer;
  * 128 would pay 1.8 times that for 0.0005. */
 #define GRID_N 96
 /* The warp: the centre spacing is beta / sinh(beta) of a uniform grid's (0.30 at 3), the edge's
  * cosh(beta) = 10 times the centre's. At N = 64, beta 2 / 3 / 4 gave mean image rel. RMSE 0.0298 /
- * 0.0291 / 0.0296 (docs/visibility.md sec. 9). */
+ * 0.0291 / 0.0296 (docs/visibility.md sec. 10). */
 #define GRID_BETA 3.0
 
 /* ---- The grid -------------------------------------------------------------------------------- */
