@@ -5,7 +5,9 @@
  * one sweep per parameter through it (resolution 256 / 1024, spheres 8 / 128, bands 3 / 5 / 6),
  * disk lights (1, 3), and "transfer": the headline with the objects' own shadows from their
  * precomputed transfer (docs/design.md sec. 1.15), stepping only the lighting and albedo as a
- * lighting or texture optimisation does. The other cases shade the objects' own shadows with their
+ * lighting or texture optimisation does, the ground shadowed by the spheres as before the ground
+ * transfer; "groundgrid" is the same with the ground's shadows from the transfer's grid too (the
+ * scene's default). The other cases shade the objects' own shadows with their
  * spheres (PEN_RENDER_SELF_SPHERES), the model a pose and sphere step needs.
  * A case times what one optimisation step costs: forward render, L2 loss against a fixed target
  * (the render of a slightly perturbed scene), backward into lighting, albedo texture, spheres
@@ -95,6 +97,7 @@ typedef struct bench_case {
     int width, height, spheres, bands;
     int lights;   /* disk lights added to the scene's own (bench_lights) */
     int transfer; /* the objects' own shadows from their transfer (else their spheres) */
+    int ground_grid; /* with transfer: the ground's shadows from the grid (else the spheres) */
 } bench_case;
 
 typedef struct bench_config {
@@ -116,6 +119,7 @@ static void add_case(bench_case *cases, int *count, const char *prefix, int valu
     c->bands = bands;
     c->lights = 0;
     c->transfer = 0;
+    c->ground_grid = 0;
 }
 
 /* The headline first, then each sweep without repeating the headline point. */
@@ -137,6 +141,10 @@ static int make_cases(int quick, bench_case *cases) {
     add_case(cases, &n, NULL, 0, size, spheres, bands);
     snprintf(cases[n - 1].name, sizeof cases[n - 1].name, "transfer");
     cases[n - 1].transfer = 1;
+    add_case(cases, &n, NULL, 0, size, spheres, bands);
+    snprintf(cases[n - 1].name, sizeof cases[n - 1].name, "groundgrid");
+    cases[n - 1].transfer = 1;
+    cases[n - 1].ground_grid = 1;
     return n;
 }
 
@@ -241,6 +249,8 @@ static void bench_lights(pen_scene *sc, int count) {
 
 static pen_status configure(pen_context *ctx, pen_scene *sc, const bench_case *c) {
     if (c->lights) bench_lights(sc, c->lights);
+    sc->shadow.ground_shadow = c->ground_grid ? PEN_GROUND_SHADOW_TRANSFER
+                                              : PEN_GROUND_SHADOW_SPHERES;
     sc->camera.width = c->width;
     sc->camera.height = c->height;
     if (c->bands != sc->sh_bands) {
@@ -476,9 +486,11 @@ static double ratio(double num, double den) {
 
 static void print_json(const bench_config *cfg, const bench_case *c, const bench_result *r) {
     printf("{\"name\": \"%s\", \"width\": %d, \"height\": %d, \"spheres\": %d, \"bands\": %d, "
-           "\"lights\": %d, \"self\": \"%s\", \"threads\": %d, \"repeat\": %d, \"quick\": %s",
+           "\"lights\": %d, \"self\": \"%s\", \"ground_shadow\": \"%s\", \"threads\": %d, "
+           "\"repeat\": %d, \"quick\": %s",
            c->name, c->width, c->height, c->spheres, c->bands, c->lights,
-           c->transfer ? "transfer" : "spheres", r->threads, cfg->repeat,
+           c->transfer ? "transfer" : "spheres", c->ground_grid ? "transfer" : "spheres",
+           r->threads, cfg->repeat,
            cfg->quick ? "true" : "false");
     json_num("forward_ms", r->forward_ms, "%.3f");
     json_num("backward_ms", r->backward_ms, "%.3f");
@@ -533,7 +545,8 @@ static void print_table_row(const bench_case *c, const bench_result *r) {
     cell(r->load, 5, 2);
     printf("\n");
     if (c->transfer) /* the cache's one-time ray tracing is in the first forward */
-        printf("%-11s (first forward, the transfer ray traced: %.1f ms)\n", "", r->first_forward_ms);
+        printf("%-11s (first forward, the transfer%s ray traced: %.1f ms)\n", "",
+               c->ground_grid ? " and the ground grid" : "", r->first_forward_ms);
     fflush(stdout);
 }
 

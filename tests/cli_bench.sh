@@ -103,7 +103,7 @@ fi
 
 # The whole quick suite: every case, the headline among them, all cores. Under the sanitizers
 # (PEN_TEST_QUICK=1) two cases only: the sphere fits and the reference are slow there.
-all="headline res32 res128 spheres8 spheres128 bands3 bands5 bands6 lights1 lights3 transfer"
+all="headline res32 res128 spheres8 spheres128 bands3 bands5 bands6 lights1 lights3 transfer groundgrid"
 only=""
 if [ "${PEN_TEST_QUICK:-0}" = 1 ]; then
     all="headline bands3"

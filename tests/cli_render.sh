@@ -23,6 +23,7 @@ cat > "$T/scene.json" <<JSON
                           {"center": [0, -0.55, 0.35], "radius": 0.2}],
               "pose": {"translation": [0, 0.737, 0]}}],
  "ground": {"albedo": [0.7, 0.7, 0.7]},
+ "shadow": {"ground_shadow": "spheres"},
  "background": [0.1, 0.2, 0.3]}
 JSON
 
@@ -36,16 +37,23 @@ cmp -s "$T/out.exr" "$T/plain.exr" && fail "--no-shadows made no difference"
 cmp -s "$T/out.exr" "$T/t3.exr" || fail "the image depends on the thread count"
 # Overlap weights: "none" is the plain sum, the same image as weights of exactly 1, and differs
 # from the default (weights computed at load for these overlapping spheres).
-sed 's/"lighting"/"shadow": {"overlap": "none"}, "lighting"/' "$T/scene.json" > "$T/none.json"
+sed 's/"ground_shadow": "spheres"}/"ground_shadow": "spheres", "overlap": "none"}/' "$T/scene.json" > "$T/none.json"
 sed 's/"radius": \([0-9.]*\)}/"radius": \1, "weight": 1}/g' "$T/scene.json" > "$T/ones.json"
 "$BIN" render "$T/none.json" -o "$T/none.exr" -q || fail "overlap none"
 "$BIN" render "$T/ones.json" -o "$T/ones.exr" -q || fail "weights of 1"
 cmp -s "$T/none.exr" "$T/ones.exr" || fail "overlap none differs from weights of 1"
 cmp -s "$T/none.exr" "$T/out.exr" && fail "overlap weights made no difference"
-sed 's/"lighting"/"shadow": {"overlap": "half"}, "lighting"/' "$T/scene.json" > "$T/bad.json"
+sed 's/"ground_shadow": "spheres"}/"ground_shadow": "spheres", "overlap": "half"}/' "$T/scene.json" > "$T/bad.json"
 "$BIN" render "$T/bad.json" -o "$T/bad.exr" -q 2> "$T/err" && fail "overlap half accepted"
 grep -q "shadow.overlap" "$T/err" || fail "overlap error: $(cat "$T/err")"
 [ ! -e "$T/bad.exr" ] || fail "failed render left a file"
+# The ground transfer's keys: an unknown mode and a grid out of range are refused by name.
+sed 's/"ground_shadow": "spheres"/"ground_shadow": "mesh"/' "$T/scene.json" > "$T/badg.json"
+"$BIN" render "$T/badg.json" -o "$T/bad.exr" -q 2> "$T/err" && fail "ground_shadow mesh accepted"
+grep -q "shadow.ground_shadow" "$T/err" || fail "ground_shadow error: $(cat "$T/err")"
+sed 's/"ground_shadow": "spheres"/"ground_grid": 1/' "$T/scene.json" > "$T/badn.json"
+"$BIN" render "$T/badn.json" -o "$T/bad.exr" -q 2> "$T/err" && fail "ground_grid 1 accepted"
+grep -q "shadow.ground_grid" "$T/err" || fail "ground_grid error: $(cat "$T/err")"
 out=$("$BIN" render "$T/scene.json" -o "$T/again.png")
 case "$out" in *"48x40"*"3 spheres"*) ;; *) fail "summary line: $out" ;; esac
 

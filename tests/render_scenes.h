@@ -67,6 +67,15 @@ static inline void rs_triangle(rs_builder *b, int a, int c, int d) {
     b->nt++;
 }
 
+/* The builder's vertices and triangles as a mesh (which takes them). */
+static inline pen_mesh rs_builder_mesh(const rs_builder *b) {
+    pen_mesh m;
+    memset(&m, 0, sizeof m);
+    m.vertex_count = b->nv, m.triangle_count = b->nt;
+    m.positions = b->pos, m.indices = b->idx;
+    return m;
+}
+
 static inline void rs_unit(float p[3]) {
     float l = sqrtf(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]);
     p[0] /= l, p[1] /= l, p[2] /= l;

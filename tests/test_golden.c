@@ -166,6 +166,16 @@ static void test_bundled_scenes(void) {
                      variant & 2 ? "no-shadows" : "shadows");
             render_case(ctx, &scene, tag, opt, !(variant & 1));
         }
+        /* "ground_shadow": "spheres": the ground shaded by the spheres, as before the ground
+         * transfer (these rows were the shadows rows then). */
+        scene.shadow.ground_shadow = PEN_GROUND_SHADOW_SPHERES;
+        for (int variant = 0; variant < 2; ++variant) {
+            pen_render_options opt = pen_render_options_default();
+            opt.kernel = variant ? PEN_RENDER_KERNEL_SCALAR : PEN_RENDER_KERNEL_FAST;
+            snprintf(tag, sizeof tag, "%s %s shadows ground-spheres", scenes[s],
+                     variant ? "scalar" : "fast");
+            render_case(ctx, &scene, tag, opt, !variant);
+        }
         pen_scene_free(&scene);
     }
     pen_context_destroy(ctx);

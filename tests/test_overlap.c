@@ -392,6 +392,9 @@ static pen_image render(const pen_scene *sc) {
  * weights missing renders what the computed weights render; the renderer refuses bad weights. */
 static void test_render_option(void) {
     pen_scene sc = os_egg(24, 0, 4);
+    /* The spheres' shadow on the ground (the object's own pixels use its transfer, so the ground
+     * is where the spheres show): not the ground transfer's grid. */
+    sc.shadow.ground_shadow = PEN_GROUND_SHADOW_SPHERES;
     pen_spheres *sp = &sc.objects[0].spheres;
     sc.shadow.overlap = PEN_OVERLAP_NONE;
     pen_image none = render(&sc);
@@ -426,6 +429,9 @@ static void test_render_option(void) {
 static void test_closer_to_reference(void) {
     const int size = check_quick_() ? 16 : 40;
     pen_scene sc = rs_scene(size, size);
+    /* The spheres' shadow on the ground (the object's own pixels use its transfer, so the ground
+     * is where the spheres show): not the ground transfer's grid. */
+    sc.shadow.ground_shadow = PEN_GROUND_SHADOW_SPHERES;
     pen_mesh mesh = rs_octasphere(3, 0.45f, 0);
     for (int i = 0; i < mesh.vertex_count; ++i)
         mesh.positions[3 * i] *= 1.6f, mesh.positions[3 * i + 1] *= 0.7f;

@@ -122,6 +122,8 @@ static pen_scene occluder_scene(float height, float radius) {
         sc.lighting.sh[0][ch] = (float)sqrt(4 * M_PI);
     const float s[4] = {0, height, 0, radius};
     rs_add_object(&sc, rs_far_triangle(), 1, s);
+    /* The sphere is the occluder, not the far triangle: no ground transfer of that mesh. */
+    sc.shadow.ground_shadow = PEN_GROUND_SHADOW_SPHERES;
     return sc;
 }
 

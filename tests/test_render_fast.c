@@ -320,6 +320,9 @@ static pen_scene frame_scene(int size_w, int size_h, int bands, int count, pen_s
             sc.lighting.sh[k][ch] = (float)rs_uniform(&seed, -0.05, 0.05);
     sc.shadow.exp = m;
     sc.shadow.epsilon = (float)pen_sh_exp_model_default(m, bands).epsilon;
+    /* The ground's pixels through the kernels (with the ground transfer's grid they would take
+     * the scalar transfer path in both). */
+    sc.shadow.ground_shadow = PEN_GROUND_SHADOW_SPHERES;
     pen_spheres *sp = &sc.objects[0].spheres;
     pen_spheres grown;
     CHECK(pen_spheres_create(NULL, count, &grown) == PEN_OK);

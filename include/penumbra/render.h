@@ -66,7 +66,8 @@ extern "C" {
  * "shadow": {"self": ...} (default: the precomputed transfer of the object's own mesh, exact
  * self-visibility but constant in pose, shape, spheres and light directions); SPHERES forces the
  * object's own spheres whatever the scene says, as an optimiser of pose, deformation, spheres or
- * light directions needs (docs/design.md sec. 1.15). */
+ * light directions needs (docs/design.md sec. 1.15); it also turns off the ground's shadows from
+ * the transfer ("ground_shadow"), so the ground is shadowed by the spheres too. */
 #define PEN_RENDER_SELF_SCENE 0
 #define PEN_RENDER_SELF_SPHERES 1
 

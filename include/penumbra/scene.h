@@ -202,12 +202,29 @@ typedef enum pen_shadow_self {
     PEN_SELF_SPHERES = 1   /* the object's own spheres, like every other occluder */
 } pen_shadow_self;
 
+/* What darkens the ground under objects whose own shadows use the transfer ("shadow":
+ * {"ground_shadow": ...}, docs/design.md sec. 1.15). */
+typedef enum pen_shadow_ground_shadow {
+    PEN_GROUND_SHADOW_TRANSFER = 0, /* exact visibility of those objects' meshes, ray traced at
+                                       a warped grid of nodes over the ground square and cached
+                                       (no gradient through it); the other objects' spheres as
+                                       before. Only where the objects' self transfer is on */
+    PEN_GROUND_SHADOW_SPHERES = 1   /* every object's spheres, as on any other receiver */
+} pen_shadow_ground_shadow;
+
+/* Bounds of "shadow": {"ground_grid": N}, the ground transfer's nodes per side (0: the
+ * renderer's default). */
+#define PEN_GROUND_GRID_MIN 2
+#define PEN_GROUND_GRID_MAX 1024
+
 typedef struct pen_shadow {
     float epsilon;                  /* log-visibility depth (supplement eq. 6) */
     pen_sh_exp_method exp;
     pen_shadow_overlap overlap;
     pen_shadow_ground ground;
     pen_shadow_self self;
+    pen_shadow_ground_shadow ground_shadow;
+    int ground_grid; /* nodes per side of the ground transfer's grid; 0: the default */
 } pen_shadow;
 
 typedef struct pen_scene {

@@ -231,7 +231,8 @@ static pen_status parse_shadow(pen_context *ctx, const where *top, const cJSON *
     sh->exp = PEN_SH_EXP_CALIBRATED;
     pen_status s = PEN_OK;
     if (o) {
-        static const char *const known[] = {"epsilon", "exp", "overlap", "ground", "self", NULL};
+        static const char *const known[] = {"epsilon", "exp",           "overlap",    "ground",
+                                            "self",    "ground_shadow", "ground_grid", NULL};
         s = pen__json_need_object(ctx, &w, o);
         if (!s) s = pen__json_known_keys(ctx, &w, o, known);
         const cJSON *e = pen__json_member(o, "exp");
@@ -268,6 +269,19 @@ static pen_status parse_shadow(pen_context *ctx, const where *top, const cJSON *
             where ws = at(&w, "self");
             s = pen__json_choice(ctx, &ws, sf, "self-shadow mode", selfs, &k);
             sh->self = k == 1 ? PEN_SELF_SPHERES : PEN_SELF_TRANSFER;
+        }
+        static const char *const gshadows[] = {"transfer", "spheres", NULL};
+        const cJSON *gs = pen__json_member(o, "ground_shadow");
+        if (!s && gs) {
+            where wg = at(&w, "ground_shadow");
+            s = pen__json_choice(ctx, &wg, gs, "ground shadow mode", gshadows, &k);
+            sh->ground_shadow = k == 1 ? PEN_GROUND_SHADOW_SPHERES : PEN_GROUND_SHADOW_TRANSFER;
+        }
+        const cJSON *gg = pen__json_member(o, "ground_grid");
+        if (!s && gg) {
+            where wg = at(&w, "ground_grid");
+            s = pen__json_int(ctx, &wg, gg, PEN_GROUND_GRID_MIN, PEN_GROUND_GRID_MAX,
+                              "nodes per side", &sh->ground_grid);
         }
     }
     /* The epsilon the exponential model was fitted with, unless given. */
@@ -721,7 +735,13 @@ static cJSON *shadow_json(const pen_shadow *sh) {
             o, "ground",
             cJSON_CreateString(sh->ground == PEN_GROUND_RECEIVER ? "receiver" : "occludes")) &&
         pen__json_add(o, "self",
-                      cJSON_CreateString(sh->self == PEN_SELF_SPHERES ? "spheres" : "transfer"));
+                      cJSON_CreateString(sh->self == PEN_SELF_SPHERES ? "spheres" : "transfer")) &&
+        pen__json_add(o, "ground_shadow",
+                      cJSON_CreateString(sh->ground_shadow == PEN_GROUND_SHADOW_SPHERES
+                                             ? "spheres"
+                                             : "transfer"));
+    if (ok && sh->ground_grid > 0) /* the renderer's default otherwise */
+        ok = pen__json_add(o, "ground_grid", cJSON_CreateNumber(sh->ground_grid));
     if (!ok) cJSON_Delete(o);
     return ok ? o : NULL;
 }

@@ -194,12 +194,21 @@ static void shade_tile_bwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
         int nk = 0;
         for (int k = 0; k < cnt; ++k) {
             const size_t i = (size_t)pix[k];
-            if (pen__self_object(st, i) < 0) {
+            const int grid = pen__ground_shadow_pixel(st, i);
+            if (!grid && pen__self_object(st, i) < 0) {
                 ws->idx[nk++] = (int)i;
                 continue;
             }
             const float *dc = st->d_color.data + 3 * i;
             if (dc[0] == 0.0f && dc[1] == 0.0f && dc[2] == 0.0f) continue;
+            if (grid) { /* the ground's grid (ground_shadow.c): the ground's group, d_sh */
+                pen__ground_shadow_bwd(st, sh, ncull, ws->cull, i, dc,
+                                       !st->fast && job->store ? job->store + nfv * i : NULL,
+                                       lights_V(st, i), d_sh, d_sph,
+                                       bw->albedo ? st->d_rho.data + 3 * i : NULL, d_lights);
+                pixel_bwd_tail(sc, st, bw, row, i, PEN_SURFACE_GROUND, NULL);
+                continue;
+            }
             const int surf = st->gb.surface[i];
             const int geom = bw->geom;
             const int need_rho = bw->albedo || (geom && sc->objects[surf].texture.data != NULL);

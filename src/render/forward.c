@@ -21,6 +21,7 @@
  * - Objects shaded with their own precomputed transfer (self.c, docs/design.md sec. 1.15): their
  *   pixels leave each run before the kernel and are shaded, SH and lights, by self.c's scalar
  *   path whichever kernel the frame uses; the runs and the fast store's layout stay as grouped.
+ *   Ground pixels under such objects leave the same way to ground_shadow.c's grid.
  * - What the backward needs stays in the state (state.c): the per-pixel attributes, the groups,
  *   and the kernel's store (F, or F and V, per pixel), kept only when the caller passed a state
  *   and shadows are on.
@@ -122,7 +123,8 @@ static pen_status prepare(pen_context *ctx, const pen_scene *sc, const pen_rende
                           sc->sh_bands);
     pen__lights_init(&st->lights, &sc->lighting, st->params.epsilon, opt->shadows);
     pen__ground_occlusion_prepare(sc, opt, st);
-    return pen__self_prepare(ctx, sc, opt, st);
+    if ((s = pen__self_prepare(ctx, sc, opt, st))) return s;
+    return pen__ground_shadow_prepare(ctx, sc, st);
 }
 
 /* Sign that turns the interpolated normal towards the viewer's side of the triangle. */
@@ -223,6 +225,14 @@ static void shade_tile_fwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
                                               : NULL;
                 pen__self_shade_fwd(st, (const float(*)[3])sc->lighting.sh, ncull, ws->cull, i, fv,
                                     V);
+                continue;
+            }
+            if (pen__ground_shadow_pixel(st, i)) { /* the ground's grid (ground_shadow.c) */
+                pen__ground_shadow_fwd(st, sh, ncull, ws->cull, i,
+                                       !st->fast && job->store ? job->store + nfv * i : NULL,
+                                       st->lights_V_valid
+                                           ? st->lights_V.data + (size_t)st->lights.count * i
+                                           : NULL);
                 continue;
             }
             pen__tile_ws_push(ws, nk++, st, i);

@@ -177,9 +177,10 @@ int pen__shade_fast_use(int v);
 const pen__shade_fast_ops *pen__shade_fast_current(void);
 
 /* ---- Frame: what the files of the full frame share --------------------------------------------
- * Who calls whom: forward.c calls state.c, tiles.c, background.c, ground.c, lights.c and self.c;
- * backward.c calls state.c, tiles.c, ground.c, lights.c and self.c; self.c calls state.c, lights.c
- * and the scalar kernel (and src/geometry's transfer); background.c calls tiles.c and
+ * Who calls whom: forward.c calls state.c, tiles.c, background.c, ground.c, lights.c, self.c and
+ * ground_shadow.c; backward.c calls state.c, tiles.c, ground.c, lights.c, self.c and
+ * ground_shadow.c; self.c and ground_shadow.c call state.c, lights.c and the scalar kernel (and
+ * src/geometry's transfer); background.c calls tiles.c and
  * state.c; tiles.c calls state.c (pen__buf_grow, behind PEN__BUF_RESERVE, is state.c's) and
  * lights.c (the tile's sphere cull); ground.c calls lights.c (the disks' horizon factors);
  * state.c and lights.c call no other file of the frame. */
@@ -269,6 +270,19 @@ typedef struct pen__object_buf {
     uint64_t self_key;
 } pen__object_buf;
 
+/* The ground's shadows of the objects shaded with their transfer (ground_shadow.c): the grid
+ * of nodes on the ground square and its cache. */
+typedef struct pen__ground_grid {
+    int on;     /* this frame: ground pixels shade with the grid */
+    int others; /* some object without the transfer has spheres (kappa not all 0) */
+    int n;      /* nodes per side */
+    double beta, c[2], a[2][2]; /* x = c + a[side] sinh(beta s) per axis (x, z), side s < 0, >= 0 */
+    pen__buf_float B, frac;     /* per node (row z, column x): bands^2, and one per light */
+    pen__buf_float kappa;       /* per sphere: kappa, 0 on the transferred objects' spheres */
+    int valid;
+    uint64_t key;
+} pen__ground_grid;
+
 struct pen_render_state {
     int valid;              /* a forward has filled the buffers */
     pen_render_options opt; /* the forward's options */
@@ -312,6 +326,7 @@ struct pen_render_state {
     int ground_occludes; /* shadow.ground "occludes", shadows on, a ground: see ground.c */
     int self_any;             /* some object shades with its transfer this frame (self.c) */
     pen__buf_float kappa_self; /* per object (sphere_count each): kappa, 0 on its own spheres */
+    pen__ground_grid grid;     /* the ground's shadows of those objects (ground_shadow.c) */
 };
 
 /* ---- state.c ---- */
@@ -375,6 +390,27 @@ void pen__self_shade_bwd(const pen_render_state *st, const float (*sh)[3], int n
                          const int *cull, size_t i, const float *dc, const float *fv,
                          const float *V, double (*d_sh)[3], double *d_sph, float *d_x, float *d_n,
                          float *d_rho, double *d_lights);
+
+/* ---- ground_shadow.c ---- */
+
+/* Decides whether the ground's pixels shade with the grid this frame (a ground, shadow.
+ * ground_shadow "transfer", some object with its transfer on: after pen__self_prepare) and brings
+ * the grid's cache up to date (traced only when its key changed). */
+pen_status pen__ground_shadow_prepare(pen_context *ctx, const pen_scene *sc, pen_render_state *st);
+/* Whether pixel i is shaded by the grid (a ground pixel of a frame with it on). */
+static inline int pen__ground_shadow_pixel(const pen_render_state *st, size_t i) {
+    return st->grid.on && st->gb.surface[i] == PEN_SURFACE_GROUND;
+}
+/* Shades ground pixel i into st->color: the SH part with the grid's transfer and the other
+ * objects' spheres, then the disk lights with the grid's unblocked fractions. The arguments as
+ * pen__self_shade_fwd. */
+void pen__ground_shadow_fwd(pen_render_state *st, const float (*sh)[3], int ncull, const int *cull,
+                            size_t i, float *fv, float *V);
+/* Its backward (no d_x, d_n: the ground's pixels have none). */
+void pen__ground_shadow_bwd(const pen_render_state *st, const float (*sh)[3], int ncull,
+                            const int *cull, size_t i, const float *dc, const float *fv,
+                            const float *V, double (*d_sh)[3], double *d_sph, float *d_rho,
+                            double *d_lights);
 
 /* ---- tiles.c ---- */
 

@@ -96,6 +96,16 @@ pen_status pen__scene_validate(pen_context *ctx, const pen_scene *sc, const char
     if (sc->shadow.self != PEN_SELF_TRANSFER && sc->shadow.self != PEN_SELF_SPHERES)
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: shadow.self: unknown mode %d", who,
                           (int)sc->shadow.self);
+    if (sc->shadow.ground_shadow != PEN_GROUND_SHADOW_TRANSFER &&
+        sc->shadow.ground_shadow != PEN_GROUND_SHADOW_SPHERES)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: shadow.ground_shadow: unknown mode %d",
+                          who, (int)sc->shadow.ground_shadow);
+    if (sc->shadow.ground_grid != 0 && (sc->shadow.ground_grid < PEN_GROUND_GRID_MIN ||
+                                        sc->shadow.ground_grid > PEN_GROUND_GRID_MAX))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: shadow.ground_grid: %d nodes per side (expected 0 for the default, "
+                          "or %d to %d)",
+                          who, sc->shadow.ground_grid, PEN_GROUND_GRID_MIN, PEN_GROUND_GRID_MAX);
     if (sc->object_count < 0 || (sc->object_count > 0 && !sc->objects))
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: bad object list", who);
     if (!finite_n(sc->background, 3) ||

@@ -1,0 +1,257 @@
+/* The ground's shadows of rigid objects by a precomputed transfer (docs/design.md sec. 1.15): the
+ * shadows that objects shaded with their own transfer (self.c) cast on the ground, ray traced
+ * against their meshes at a grid of nodes on the ground square instead of read from their
+ * spheres. A ground pixel then shades with T = exp*(F_others) * (H_up - B(x)): H_up the clamped
+ * cosine around +Y, B the part of it the meshes block, interpolated from the nodes, and F_others
+ * the log-visibility of the spheres of the objects without the transfer (the same weights as the
+ * kernels). Disk lights see the meshes' unblocked fraction of each disk, interpolated likewise,
+ * times the other spheres' factor.
+ *
+ * Design
+ * - Why. Fitted spheres cover thin parts (legs, tails) fatly, and their shadows on the ground are
+ *   too dark in long streaks; on the dev meshes that was 90-98 % of the image's squared error
+ *   once the objects' own pixels used the transfer (docs/visibility.md sec. 10).
+ * - The grid. N x N nodes, x = c + A sinh(beta s) per axis (z alike), s in [-1, 1] uniform over
+ *   the nodes, c the transferred objects' centre (clamped into the square) and A chosen per side
+ *   of c so that s = +-1 lands on the square's edges. The warp puts the nodes where shadows have
+ *   detail (contact lines, thin parts close to the ground) and few where the ground is far from
+ *   everything and its shadow smooth. Pixels interpolate bilinearly in s, so the warp costs two
+ *   asinh per pixel. GRID_N and GRID_BETA were chosen by measurement (bench/NOTES.md,
+ *   docs/visibility.md sec. 10); "shadow": {"ground_grid": N} overrides N.
+ * - One trace for all: the meshes of every object with the transfer are the occluders of one
+ *   pen__transfer request (the ground does not shadow itself), the nodes its receivers (+Y).
+ * - The cache. In the render state with a key: every transferred object's posed vertices and
+ *   indices, the band count, the lights, the ground's height and size and the grid's size. A
+ *   lighting, albedo or texture optimisation pays the trace once; a pose change pays it again.
+ * - Constants. As for the self transfer, B and the fractions carry no gradient (pose, shape and
+ *   light directions); the lighting, the lights' irradiance, the ground albedo and the other
+ *   objects' spheres get theirs exactly. Optimisers of pose, shape, spheres or light directions
+ *   force PEN_RENDER_SELF_SPHERES, which leaves no object with the transfer and so turns the grid
+ *   off with it.
+ * - One code path. Ground pixels with the grid go through the scalar kernel's transfer functions
+ *   (pen__shade_self_fwd / bwd, pen__lights_fwd / bwd) whichever kernel the frame uses, with
+ *   kappa_grid: the overlap weights, 0 on the transferred objects' spheres.
+ */
+#include "core/internal.h"
+#include "geometry/transfer.h"
+#include "render/render_internal.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* Nodes per side. Measured on the six dev meshes x six maps at 160 x 160 (docs/visibility.md
+ * sec. 10), mean / worst image rel. RMSE: 32: 0.0327 / 0.054, 64: 0.0291 / 0.038, 96: 0.0281 /
+ * 0.035, 128: 0.0276 / 0.035; the gain left is on the interior map's sharp lamps. The trace costs
+ * about 21 us of CPU per node (bench/NOTES.md): 0.2 s at 96, as a 6k-vertex mesh's own transfer;
+ * 128 would pay 1.8 times that for 0.0005. */
+#define GRID_N 96
+/* The warp: the centre spacing is beta / sinh(beta) of a uniform grid's (0.30 at 3), the edge's
+ * cosh(beta) = 10 times the centre's. At N = 64, beta 2 / 3 / 4 gave mean image rel. RMSE 0.0298 /
+ * 0.0291 / 0.0296 (docs/visibility.md sec. 10). */
+#define GRID_BETA 3.0
+
+/* ---- The grid -------------------------------------------------------------------------------- */
+
+/* Position on one axis of grid coordinate s in [-1, 1]. */
+static double grid_pos(const pen__ground_grid *gr, int axis, double s) {
+    const double a = s < 0.0 ? gr->a[axis][0] : gr->a[axis][1];
+    return gr->c[axis] + a * sinh(gr->beta * s);
+}
+
+/* Its inverse, clamped to [-1, 1]. */
+static double grid_coord(const pen__ground_grid *gr, int axis, double x) {
+    const double d = x - gr->c[axis], a = d < 0.0 ? gr->a[axis][0] : gr->a[axis][1];
+    if (!(a > 0.0)) return d < 0.0 ? -1.0 : 1.0;
+    const double s = asinh(d / a) / gr->beta;
+    return s < -1.0 ? -1.0 : s > 1.0 ? 1.0 : s;
+}
+
+/* The grid's shape for this frame: nodes per side, the centre of the transferred objects' posed
+ * vertices (x and z) clamped into the square, and the scales per side. */
+static void grid_shape(const pen_scene *sc, const pen_render_state *st, pen__ground_grid *gr) {
+    gr->n = sc->shadow.ground_grid > 0 ? sc->shadow.ground_grid : GRID_N;
+    gr->beta = GRID_BETA;
+    double lo[2] = {INFINITY, INFINITY}, hi[2] = {-INFINITY, -INFINITY};
+    for (int o = 0; o < sc->object_count; ++o) {
+        if (!st->obj[o].self_on) continue;
+        const float *w = st->obj[o].world.data;
+        for (int v = 0; v < sc->objects[o].mesh.vertex_count; ++v)
+            for (int a = 0; a < 2; ++a) {
+                const double x = (double)w[3 * (size_t)v + 2 * (size_t)a];
+                lo[a] = fmin(lo[a], x), hi[a] = fmax(hi[a], x);
+            }
+    }
+    const double h = (double)sc->ground.half_size, room = 0.5 * h;
+    for (int a = 0; a < 2; ++a) {
+        double c = lo[a] <= hi[a] ? 0.5 * (lo[a] + hi[a]) : 0.0;
+        c = c < -room ? -room : c > room ? room : c; /* both sides keep room for nodes */
+        gr->c[a] = c;
+        gr->a[a][0] = (c + h) / sinh(gr->beta);
+        gr->a[a][1] = (h - c) / sinh(gr->beta);
+    }
+}
+
+/* The cache key: what the nodes' transfer depends on. */
+static uint64_t grid_key(const pen_scene *sc, const pen_render_state *st,
+                         const pen__ground_grid *gr) {
+    const pen__lights *L = &st->lights;
+    uint64_t h = ((uint64_t)sc->sh_bands ^ ((uint64_t)L->count << 8) ^ ((uint64_t)gr->n << 16)) *
+                 0x9E3779B97F4A7C15ull;
+    for (int o = 0; o < sc->object_count; ++o) {
+        if (!st->obj[o].self_on) continue;
+        const pen_mesh *m = &sc->objects[o].mesh;
+        h = (h ^ (uint64_t)o) * 0x9E3779B97F4A7C15ull;
+        h = (h ^ pen__render_hash32(st->obj[o].world.data, 3 * (size_t)m->vertex_count)) *
+            0x9E3779B97F4A7C15ull;
+        h = (h ^ pen__render_hash32(m->indices, 3 * (size_t)m->triangle_count)) *
+            0x9E3779B97F4A7C15ull;
+    }
+    for (int l = 0; l < L->count; ++l) {
+        const double wb[4] = {L->w[l][0], L->w[l][1], L->w[l][2], L->b[l]};
+        h = (h ^ pen__render_hash32(wb, sizeof wb / 4)) * 0x9E3779B97F4A7C15ull;
+    }
+    const double g[5] = {(double)sc->ground.height, (double)sc->ground.half_size, gr->c[0],
+                         gr->c[1], gr->beta};
+    return (h ^ pen__render_hash32(g, sizeof g / 4)) * 0x9E3779B97F4A7C15ull;
+}
+
+/* Traces the nodes against the transferred objects' meshes into gr->B and gr->frac. */
+static pen_status grid_trace(pen_context *ctx, const pen_scene *sc, pen_render_state *st,
+                             pen__ground_grid *gr) {
+    const int N = gr->n, K = st->lights.count, O = sc->object_count;
+    const size_t P = (size_t)N * (size_t)N, nc = (size_t)sc->sh_bands * (size_t)sc->sh_bands;
+    pen_status s;
+    if ((s = PEN__BUF_RESERVE(ctx, gr->B, nc * P + 1, "ground grid blocked part")) ||
+        (s = PEN__BUF_RESERVE(ctx, gr->frac, (size_t)K * P + 1, "ground grid light fractions")))
+        return s;
+    float *pts = pen__malloc(ctx, 6 * P, sizeof(float), "ground grid nodes");
+    pen__transfer_mesh *meshes = pen__calloc(ctx, (size_t)O + 1, sizeof *meshes, "grid meshes");
+    if (!pts || !meshes) {
+        free(pts), free(meshes);
+        return PEN_ERROR_MEMORY;
+    }
+    float *nrm = pts + 3 * P;
+    for (int j = 0; j < N; ++j)
+        for (int i = 0; i < N; ++i) {
+            const size_t k = (size_t)j * (size_t)N + (size_t)i;
+            const double si = -1.0 + 2.0 * i / (N - 1), sj = -1.0 + 2.0 * j / (N - 1);
+            pts[3 * k] = (float)grid_pos(gr, 0, si);
+            pts[3 * k + 1] = sc->ground.height;
+            pts[3 * k + 2] = (float)grid_pos(gr, 1, sj);
+            nrm[3 * k] = 0.0f, nrm[3 * k + 1] = 1.0f, nrm[3 * k + 2] = 0.0f;
+        }
+    int nm = 0;
+    for (int o = 0; o < O; ++o) {
+        if (!st->obj[o].self_on) continue;
+        const pen_mesh *m = &sc->objects[o].mesh;
+        meshes[nm++] = (pen__transfer_mesh){m->vertex_count, m->triangle_count,
+                                            st->obj[o].world.data, m->indices};
+    }
+    const pen__transfer_request rq = {nm,
+                                      meshes,
+                                      (int)P,
+                                      pts,
+                                      nrm,
+                                      sc->sh_bands,
+                                      K,
+                                      (const double(*)[3])st->lights.w,
+                                      st->lights.b,
+                                      NULL}; /* the ground does not shadow itself */
+    s = pen__transfer(ctx, &rq, gr->B.data, gr->frac.data);
+    free(pts), free(meshes);
+    return s;
+}
+
+pen_status pen__ground_shadow_prepare(pen_context *ctx, const pen_scene *sc, pen_render_state *st) {
+    pen__ground_grid *gr = &st->grid;
+    gr->on = 0;
+    if (!st->self_any || !sc->ground.enabled ||
+        sc->shadow.ground_shadow != PEN_GROUND_SHADOW_TRANSFER)
+        return PEN_OK;
+    const int S = st->sphere_count;
+    pen_status s = PEN__BUF_RESERVE(ctx, gr->kappa, (size_t)S + 1, "ground grid kappa");
+    if (s) return s;
+    gr->others = 0;
+    for (int o = 0; o < sc->object_count; ++o)
+        for (int i = st->sphere_first[o]; i < st->sphere_first[o + 1]; ++i) {
+            gr->kappa.data[i] = st->obj[o].self_on ? 0.0f : st->kappa.data[i];
+            gr->others |= !st->obj[o].self_on;
+        }
+    pen__ground_grid shape = *gr;
+    grid_shape(sc, st, &shape);
+    const uint64_t key = grid_key(sc, st, &shape);
+    if (!gr->valid || gr->key != key) {
+        gr->valid = 0;
+        gr->n = shape.n, gr->beta = shape.beta;
+        memcpy(gr->c, shape.c, sizeof gr->c);
+        memcpy(gr->a, shape.a, sizeof gr->a);
+        if ((s = grid_trace(ctx, sc, st, gr))) return s;
+        gr->valid = 1, gr->key = key;
+    }
+    gr->on = 1;
+    return PEN_OK;
+}
+
+/* ---- Shading --------------------------------------------------------------------------------- */
+
+/* The blocked part and the light fractions at ground point x, bilinear in the grid's s. */
+static void grid_at(const pen_render_state *st, const float *x, float *B, double *frac) {
+    const pen__ground_grid *gr = &st->grid;
+    const int N = gr->n, nc = st->params.bands * st->params.bands, K = st->lights.count;
+    int i0[2];
+    double t[2];
+    for (int a = 0; a < 2; ++a) {
+        const double u = 0.5 * (grid_coord(gr, a, (double)x[2 * a]) + 1.0) * (N - 1);
+        int j = (int)u;
+        j = j > N - 2 ? N - 2 : j;
+        i0[a] = j, t[a] = u - j;
+    }
+    const size_t k00 = (size_t)i0[1] * (size_t)N + (size_t)i0[0];
+    const size_t k[4] = {k00, k00 + 1, k00 + (size_t)N, k00 + (size_t)N + 1};
+    const double w[4] = {(1.0 - t[0]) * (1.0 - t[1]), t[0] * (1.0 - t[1]), (1.0 - t[0]) * t[1],
+                         t[0] * t[1]};
+    for (int c = 0; c < nc; ++c) {
+        double v = 0.0;
+        for (int q = 0; q < 4; ++q)
+            v += w[q] * (double)gr->B.data[(size_t)nc * k[q] + (size_t)c];
+        B[c] = (float)v;
+    }
+    for (int l = 0; l < K; ++l) {
+        double v = 0.0;
+        for (int q = 0; q < 4; ++q)
+            v += w[q] * (double)gr->frac.data[(size_t)K * k[q] + (size_t)l];
+        frac[l] = v;
+    }
+}
+
+void pen__ground_shadow_fwd(pen_render_state *st, const float (*sh)[3], int ncull, const int *cull,
+                            size_t i, float *fv, float *V) {
+    float B[PEN_SH_MAX_COEFFS];
+    double frac[PEN_SCENE_MAX_LIGHTS];
+    const float *x = st->x.data + 3 * i, *n = st->n.data + 3 * i, *rho = st->rho.data + 3 * i;
+    grid_at(st, x, B, frac);
+    const int count = st->grid.others ? st->sphere_count : 0;
+    float *rgb = st->color.data + 3 * i;
+    pen__shade_self_fwd(&st->params, sh, count, st->spheres.data, st->grid.kappa.data, x, n, B,
+                        rho, rgb, fv);
+    if (st->lights.count)
+        pen__lights_fwd(&st->lights, frac, ncull, st->spheres.data, st->grid.kappa.data, cull, x,
+                        n, rho, rgb, V);
+}
+
+void pen__ground_shadow_bwd(const pen_render_state *st, const float (*sh)[3], int ncull,
+                            const int *cull, size_t i, const float *dc, const float *fv,
+                            const float *V, double (*d_sh)[3], double *d_sph, float *d_rho,
+                            double *d_lights) {
+    float B[PEN_SH_MAX_COEFFS];
+    double frac[PEN_SCENE_MAX_LIGHTS];
+    const float *x = st->x.data + 3 * i, *n = st->n.data + 3 * i, *rho = st->rho.data + 3 * i;
+    grid_at(st, x, B, frac);
+    const int count = st->grid.others ? st->sphere_count : 0;
+    pen__shade_self_bwd(&st->params, sh, count, st->spheres.data, st->grid.kappa.data, x, n, B,
+                        rho, dc, fv, d_sh, d_sph, NULL, NULL, d_rho);
+    if (st->lights.count) /* the fractions enter as the lights' G, constants */
+        pen__lights_bwd(&st->lights, frac, ncull, st->spheres.data, st->grid.kappa.data, cull, x,
+                        n, rho, dc, V, d_sph, NULL, NULL, d_rho, d_lights, NULL);
+}
