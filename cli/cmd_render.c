@@ -16,7 +16,9 @@ static void usage(FILE *f) {
     fprintf(f,
             "Usage: penumbra render SCENE.json -o OUT.(png|exr|hdr) [options]\n\n"
             "Renders the scene with soft shadows from its sphere sets (SH visibility) and writes\n"
-            "the image: .png is 8-bit sRGB, .exr and .hdr are linear radiance. Objects with\n"
+            "the image: .png is 8-bit sRGB, .exr and .hdr are linear radiance. By default an\n"
+            "object's own shadows and its shadows on the ground come from its mesh instead,\n"
+            "ray traced once (\"shadow\": {\"self\", \"ground_shadow\"}). Objects with\n"
             "\"spheres\": {\"fit\": N} get N fitted spheres first (seconds per object; the fit\n"
             "is cached in $XDG_CACHE_HOME/penumbra, else ~/.cache/penumbra, and reused).\n\n"
             "Options:\n"

@@ -38,14 +38,18 @@ void pen__embree_occluded16(RTCScene scene, const float org[3], const float (*di
     struct RTCIntersectContext ictx;
     rtcInitIntersectContext(&ictx);
     struct RTCRay16 r; /* RTC_ALIGN(64) in its declaration */
-    int valid[16];
+    /* Embree asks for the mask aligned like the packet (its debug build refuses one that is not);
+     * the AVX-512 traversal loads it as one vector. */
+    _Alignas(64) int valid[16];
     for (int i = 0; i < 16; ++i) {
         const int on = i < n && want[i];
         valid[i] = on ? -1 : 0;
         r.org_x[i] = org[0], r.org_y[i] = org[1], r.org_z[i] = org[2];
         r.dir_x[i] = on ? dir[i][0] : 0.0f, r.dir_y[i] = on ? dir[i][1] : 0.0f;
         r.dir_z[i] = on ? dir[i][2] : 1.0f;
-        r.tnear[i] = tnear, r.tfar[i] = INFINITY, r.time[i] = 0.0f;
+        /* an empty interval as well: Embree's fallback without 16-wide packets traces the packet
+         * as a stream, which skips rays by tnear > tfar and ignores the mask */
+        r.tnear[i] = tnear, r.tfar[i] = on ? INFINITY : -INFINITY, r.time[i] = 0.0f;
         r.mask[i] = 0xFFFFFFFFu, r.id[i] = (unsigned)i, r.flags[i] = 0;
     }
     rtcOccluded16(valid, scene, &ictx, &r);

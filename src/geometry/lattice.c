@@ -8,8 +8,8 @@
  *   interpolated field is continuous across it.
  * - Edge nodes are computed from the edge's two vertices alone (not from either triangle's
  *   barycentrics), so every triangle that writes one writes the same bits.
- * - Unique edges by sorting (smaller, larger) vertex pairs: O(T log T) once per topology; the
- *   renderer keeps the lattice while the mesh's topology and level stay.
+ * - Unique edges by sorting (smaller, larger) vertex pairs: O(T log T), rebuilt by the renderer
+ *   whenever it traces the transfer again (a pose change), which costs far more.
  */
 #include "geometry/lattice.h"
 

@@ -281,7 +281,7 @@ static pen_status parse_shadow(pen_context *ctx, const where *top, const cJSON *
         if (!s && gg) {
             where wg = at(&w, "ground_grid");
             s = pen__json_int(ctx, &wg, gg, PEN_GROUND_GRID_MIN, PEN_GROUND_GRID_MAX,
-                              "nodes per side", &sh->ground_grid);
+                              "an integer in [2, 1024] (nodes per side)", &sh->ground_grid);
         }
     }
     /* The epsilon the exponential model was fitted with, unless given. */

@@ -502,14 +502,18 @@ static pen_status ridge_init(pen_context *ctx, const pen_optim_task *t, run *r) 
                              : pen__loss_weight_sum(r->weight, (size_t)t->target.width *
                                                                    (size_t)t->target.height);
     r->mu[0] = r->mu[1] = r->mu[2] = -1.0;
+    /* a state for the basis renders, so that they share one trace of the transfer */
+    pen_status s = pen_render_state_create(ctx, &r->solve_state);
+    if (s) return s;
     if (!r->solve) {
         float sh[PEN_SH_MAX_COEFFS][3];
-        return solve_into(ctx, t, &r->opt, r, sh);
+        s = solve_into(ctx, t, &r->opt, r, sh);
+        pen_render_state_free(r->solve_state); /* Adam needs it no more */
+        r->solve_state = NULL;
+        return s;
     }
     r->solved_for = pen__calloc(ctx, r->n + 1, sizeof(float), "lighting solve");
     if (!r->solved_for) return PEN_ERROR_MEMORY;
-    pen_status s = pen_render_state_create(ctx, &r->solve_state);
-    if (s) return s;
     return solve_lighting(ctx, t, &r->opt, r);
 }
 

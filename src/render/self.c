@@ -1,14 +1,14 @@
 /* Self-shadowing of rigid meshes by a precomputed transfer (docs/design.md sec. 1.15): a pixel of
  * such an object shades with T = exp*(F_others) * T_self, T_self = H_n - B the exact visibility
  * of the object's own mesh times the clamped cosine: H_n at the pixel's normal as everywhere, B
- * the part the mesh blocks, projected per vertex by ray tracing (src/geometry/transfer.c) and
- * interpolated at the pixel (so a vertex that sees everything shades exactly as without
- * self-shadowing), and F_others the log-visibility of the other objects' spheres (the same
- * weights as the kernels). Disk lights on it see the
- * mesh's own unblocked fraction of each disk, per vertex, times the other spheres' factor.
+ * the part the mesh blocks, projected per node (the vertices, refined on coarse meshes) by ray
+ * tracing (src/geometry/transfer.c) and interpolated at the pixel (so a node that sees everything
+ * shades exactly as without self-shadowing), and F_others the log-visibility of the other
+ * objects' spheres (the same weights as the kernels). Disk lights on it see the mesh's own
+ * unblocked fraction of each disk, per node, times the other spheres' factor.
  *
  * Design
- * - The cache. Per object, the transfer and the light fractions of every vertex, with a key: a
+ * - The cache. Per object, the transfer and the light fractions of every node, with a key: a
  *   hash of the posed vertex positions and the indices, the band count, and the lights' unit
  *   directions and radii (the ground too when it is traced). A lighting, albedo or texture
  *   optimisation renders the same pose every frame and pays the ray tracing once; a pose change
