@@ -168,6 +168,16 @@ static void test_lattice(void) {
     for (int c = 0; c < 3; ++c)
         CHECK(node[c] == (int)m.indices[15 + c]);
     CHECK(w[0] == 0.25 && w[1] == 0.25 && w[2] == 0.5);
+    /* the V's mean edge is about 1/5 of its diagonal: 1/128 asks for the most, 8; a node budget
+     * lowers it (level L holds about 3 T (L - 1) + T (L - 1)(L - 2) / 2 nodes beyond the
+     * vertices), down to the vertices alone */
+    const int top = pen__lattice_level(m.vertex_count, m.positions, m.triangle_count, m.indices,
+                                        1.0 / 128.0, 1e9);
+    CHECK(top == PEN_LATTICE_MAX_LEVEL);
+    CHECK(pen__lattice_level(m.vertex_count, m.positions, m.triangle_count, m.indices,
+                             1.0 / 128.0, 300.0) == 3);
+    CHECK(pen__lattice_level(m.vertex_count, m.positions, m.triangle_count, m.indices,
+                             1.0 / 128.0, (double)m.vertex_count) == 1);
     const int L = 4;
     CHECK(pen__lattice_build(ctx, &lat, L, m.vertex_count, m.triangle_count, m.indices) == PEN_OK);
     /* each wall: a 4 x 4 vertex grid, 33 edges; the two walls share the crease's 4 vertices */

@@ -73,7 +73,7 @@ pen_status pen__lattice_build(pen_context *ctx, pen__lattice *lat, int level, in
 }
 
 int pen__lattice_level(int vertex_count, const float *positions, int triangle_count,
-                       const uint32_t *indices, double spacing) {
+                       const uint32_t *indices, double spacing, double max_nodes) {
     if (vertex_count <= 0 || triangle_count <= 0 || !(spacing > 0.0)) return 1;
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
     for (int v = 0; v < vertex_count; ++v)
@@ -93,8 +93,14 @@ int pen__lattice_level(int vertex_count, const float *positions, int triangle_co
     }
     const double mean = sum / (3.0 * triangle_count);
     if (!(diag > 0.0) || !(mean > 0.0)) return 1;
-    const double L = ceil(mean / (spacing * diag) - 1e-9);
-    return L < 1.0 ? 1 : L > PEN_LATTICE_MAX_LEVEL ? PEN_LATTICE_MAX_LEVEL : (int)L;
+    const double want = ceil(mean / (spacing * diag) - 1e-9);
+    int L = want < 1.0 ? 1 : want > PEN_LATTICE_MAX_LEVEL ? PEN_LATTICE_MAX_LEVEL : (int)want;
+    /* nodes: V + E (L - 1) + T (L - 1)(L - 2) / 2, with E at most 3 T */
+    while (L > 1 && vertex_count + 3.0 * triangle_count * (L - 1) +
+                            0.5 * triangle_count * (L - 1) * (L - 2) >
+                        max_nodes)
+        --L;
+    return L;
 }
 
 /* The node at lattice point (a, b) of triangle t: barycentrics (L - a - b, a, b) / L. */

@@ -29,9 +29,10 @@ pen_status pen__lattice_build(pen_context *ctx, pen__lattice *lat, int level, in
 void pen__lattice_free(pen__lattice *lat);
 
 /* The level that brings the mean edge of the mesh (3 floats per vertex) to at most `spacing`
- * times its bounding diagonal, in 1 .. PEN_LATTICE_MAX_LEVEL. */
+ * times its bounding diagonal, in 1 .. PEN_LATTICE_MAX_LEVEL, lowered while the lattice would hold
+ * more than max_nodes nodes (a mesh of long thin triangles would otherwise ask for millions). */
 int pen__lattice_level(int vertex_count, const float *positions, int triangle_count,
-                       const uint32_t *indices, double spacing);
+                       const uint32_t *indices, double spacing, double max_nodes);
 
 /* Node positions and normals (3 floats each per node): the vertices' own, then the linear
  * interpolation of the triangle's corners at the node's barycentrics (normals not renormalised:

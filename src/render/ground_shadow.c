@@ -12,12 +12,16 @@
  *   too dark in long streaks; on the dev meshes that was 90-98 % of the image's squared error
  *   once the objects' own pixels used the transfer (docs/visibility.md sec. 10).
  * - The grid. N x N nodes, x = c + A sinh(beta s) per axis (z alike), s in [-1, 1] uniform over
- *   the nodes, c the transferred objects' centre (clamped into the square) and A chosen per side
- *   of c so that s = +-1 lands on the square's edges. The warp puts the nodes where shadows have
- *   detail (contact lines, thin parts close to the ground) and few where the ground is far from
- *   everything and its shadow smooth. Pixels interpolate bilinearly in s, so the warp costs two
- *   asinh per pixel. GRID_N and GRID_BETA were chosen by measurement (bench/NOTES.md,
- *   docs/visibility.md sec. 10); "shadow": {"ground_grid": N} overrides N.
+ *   the nodes, c the transferred objects' centre (clamped into the square). The scale A follows
+ *   the objects (GRID_SCALE times their horizontal half-extent R) and beta, per side of c, is
+ *   what lands s = +-1 on the square's edge, asinh(D / A) for an edge D away: the spacing near
+ *   the objects is then A beta / (N / 2), set by their size and only logarithmically by the
+ *   square's (a ground drawn out to the horizon keeps its contact shadows), and at a distance
+ *   x >> A it is about beta x / (N / 2), a fixed share of the distance. The warp puts the nodes
+ *   where shadows have detail (contact lines, thin parts close to the ground) and few where the
+ *   ground is far from everything and its shadow smooth. Pixels interpolate bilinearly in s, so
+ *   the warp costs two asinh per pixel. GRID_N and GRID_SCALE were chosen by measurement
+ *   (bench/NOTES.md, docs/visibility.md sec. 11); "shadow": {"ground_grid": N} overrides N.
  * - One trace for all: the meshes of every object with the transfer are the occluders of one
  *   pen__transfer request (the ground does not shadow itself), the nodes its receivers (+Y).
  * - The cache. In the render state with a key: every transferred object's posed vertices and
@@ -46,24 +50,27 @@
  * about 21 us of CPU per node (bench/NOTES.md): 0.2 s at 96, as a 6k-vertex mesh's own transfer;
  * 128 would pay 1.8 times that for 0.0005. */
 #define GRID_N 96
-/* The warp: the centre spacing is beta / sinh(beta) of a uniform grid's (0.30 at 3), the edge's
- * cosh(beta) = 10 times the centre's. At N = 64, beta 2 / 3 / 4 gave mean image rel. RMSE 0.0298 /
- * 0.0291 / 0.0296 (docs/visibility.md sec. 10). */
-#define GRID_BETA 3.0
+/* The warp's scale A, relative to the objects' horizontal half-extent R. On the dev scenes (a
+ * 1.7-unit object, R about 0.8, on a square of half size 4) 0.5 gives beta about 3, where a fixed
+ * beta of 2 / 3 / 4 had given mean image rel. RMSE 0.0298 / 0.0291 / 0.0296 at N = 64
+ * (docs/visibility.md sec. 11). A fixed beta instead (A from the square) let the spacing near the
+ * objects grow with the square: blub's image error was 0.034, 0.076, 0.208 at half sizes 10, 100,
+ * 500 (the spheres: 0.11). */
+#define GRID_SCALE 0.5
 
 /* ---- The grid -------------------------------------------------------------------------------- */
 
 /* Position on one axis of grid coordinate s in [-1, 1]. */
 static double grid_pos(const pen__ground_grid *gr, int axis, double s) {
-    const double a = s < 0.0 ? gr->a[axis][0] : gr->a[axis][1];
-    return gr->c[axis] + a * sinh(gr->beta * s);
+    const double b = s < 0.0 ? gr->beta[axis][0] : gr->beta[axis][1];
+    return gr->c[axis] + gr->a[axis] * sinh(b * s);
 }
 
 /* Its inverse, clamped to [-1, 1]. */
 static double grid_coord(const pen__ground_grid *gr, int axis, double x) {
-    const double d = x - gr->c[axis], a = d < 0.0 ? gr->a[axis][0] : gr->a[axis][1];
-    if (!(a > 0.0)) return d < 0.0 ? -1.0 : 1.0;
-    const double s = asinh(d / a) / gr->beta;
+    const double d = x - gr->c[axis], b = d < 0.0 ? gr->beta[axis][0] : gr->beta[axis][1];
+    if (!(b > 0.0)) return d < 0.0 ? -1.0 : 1.0;
+    const double s = asinh(d / gr->a[axis]) / b;
     return s < -1.0 ? -1.0 : s > 1.0 ? 1.0 : s;
 }
 
@@ -71,7 +78,6 @@ static double grid_coord(const pen__ground_grid *gr, int axis, double x) {
  * vertices (x and z) clamped into the square, and the scales per side. */
 static void grid_shape(const pen_scene *sc, const pen_render_state *st, pen__ground_grid *gr) {
     gr->n = sc->shadow.ground_grid > 0 ? sc->shadow.ground_grid : GRID_N;
-    gr->beta = GRID_BETA;
     double lo[2] = {INFINITY, INFINITY}, hi[2] = {-INFINITY, -INFINITY};
     for (int o = 0; o < sc->object_count; ++o) {
         if (!st->obj[o].self_on) continue;
@@ -83,12 +89,17 @@ static void grid_shape(const pen_scene *sc, const pen_render_state *st, pen__gro
             }
     }
     const double h = (double)sc->ground.half_size, room = 0.5 * h;
+    double R = 0.0; /* the objects' horizontal half-extent */
+    for (int a = 0; a < 2; ++a)
+        R = lo[a] <= hi[a] ? fmax(R, 0.5 * (hi[a] - lo[a])) : R;
+    /* at least 1e-3 of the square: a flat or point-like object still gets a finite warp */
+    const double A = fmax(GRID_SCALE * R, 1e-3 * h);
     for (int a = 0; a < 2; ++a) {
         double c = lo[a] <= hi[a] ? 0.5 * (lo[a] + hi[a]) : 0.0;
         c = c < -room ? -room : c > room ? room : c; /* both sides keep room for nodes */
-        gr->c[a] = c;
-        gr->a[a][0] = (c + h) / sinh(gr->beta);
-        gr->a[a][1] = (h - c) / sinh(gr->beta);
+        gr->c[a] = c, gr->a[a] = A;
+        gr->beta[a][0] = asinh((c + h) / A);
+        gr->beta[a][1] = asinh((h - c) / A);
     }
 }
 
@@ -111,8 +122,14 @@ static uint64_t grid_key(const pen_scene *sc, const pen_render_state *st,
         const double wb[4] = {L->w[l][0], L->w[l][1], L->w[l][2], L->b[l]};
         h = (h ^ pen__render_hash32(wb, sizeof wb / 4)) * 0x9E3779B97F4A7C15ull;
     }
-    const double g[5] = {(double)sc->ground.height, (double)sc->ground.half_size, gr->c[0],
-                         gr->c[1], gr->beta};
+    const double g[9] = {(double)sc->ground.height, (double)sc->ground.half_size,
+                         gr->c[0],
+                         gr->c[1],
+                         gr->a[0],
+                         gr->beta[0][0],
+                         gr->beta[0][1],
+                         gr->beta[1][0],
+                         gr->beta[1][1]};
     return (h ^ pen__render_hash32(g, sizeof g / 4)) * 0x9E3779B97F4A7C15ull;
 }
 
@@ -183,9 +200,10 @@ pen_status pen__ground_shadow_prepare(pen_context *ctx, const pen_scene *sc, pen
     const uint64_t key = grid_key(sc, st, &shape);
     if (!gr->valid || gr->key != key) {
         gr->valid = 0;
-        gr->n = shape.n, gr->beta = shape.beta;
+        gr->n = shape.n;
         memcpy(gr->c, shape.c, sizeof gr->c);
         memcpy(gr->a, shape.a, sizeof gr->a);
+        memcpy(gr->beta, shape.beta, sizeof gr->beta);
         if ((s = grid_trace(ctx, sc, st, gr))) return s;
         gr->valid = 1, gr->key = key;
     }

@@ -276,7 +276,8 @@ typedef struct pen__ground_grid {
     int on;     /* this frame: ground pixels shade with the grid */
     int others; /* some object without the transfer has spheres (kappa not all 0) */
     int n;      /* nodes per side */
-    double beta, c[2], a[2][2]; /* x = c + a[side] sinh(beta s) per axis (x, z), side s < 0, >= 0 */
+    double c[2], a[2], beta[2][2]; /* x = c + a sinh(beta[side] s) per axis (x, z), side s < 0,
+                                      s >= 0 */
     pen__buf_float B, frac;     /* per node (row z, column x): bands^2, and one per light */
     pen__buf_float kappa;       /* per sphere: kappa, 0 on the transferred objects' spheres */
     int valid;

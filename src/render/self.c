@@ -43,6 +43,10 @@
  * a coarse mesh's triangles are refined (geometry/lattice.h) so that the occlusion inside creases
  * is sampled densely enough. Measured in docs/visibility.md sec. 10. */
 #define PEN_SELF_NODE_SPACING (1.0 / 128.0)
+/* ... but at most this many nodes (the dev meshes get 15 000 to 32 000): at about 21-40 us of CPU
+ * each, a few seconds once per pose. A mesh of long thin triangles (a tube, a scan with slivers)
+ * keeps its vertices' spacing instead of asking for millions of nodes. */
+#define PEN_SELF_MAX_NODES 200000.0
 
 /* The cache key of object o: what its transfer depends on. */
 static uint64_t self_key(const pen_scene *sc, const pen_render_state *st, int o) {
@@ -70,7 +74,8 @@ static pen_status self_cache(pen_context *ctx, const pen_scene *sc, pen_render_s
     b->self_valid = 0;
     /* The level from the unposed mesh, so that a pose never changes it. */
     const int level = pen__lattice_level(m->vertex_count, m->positions, m->triangle_count,
-                                         m->indices, PEN_SELF_NODE_SPACING);
+                                         m->indices, PEN_SELF_NODE_SPACING,
+                                         PEN_SELF_MAX_NODES);
     pen_status s = pen__lattice_build(ctx, &b->self_lat, level, m->vertex_count,
                                       m->triangle_count, m->indices);
     if (s) return s;
