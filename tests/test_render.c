@@ -356,6 +356,12 @@ static void test_invalid_inputs(void) {
     sc.objects[0].pose.scale = 0.0f;
     expect_error(&sc, "pose");
     sc.objects[0].pose.scale = 1.0f;
+    const float half = sc.ground.half_size;
+    sc.ground.half_size = 0.0f; /* the JSON loader bounds it; the C API must too */
+    expect_error(&sc, "ground.half_size");
+    sc.ground.half_size = -1.0f;
+    expect_error(&sc, "ground.half_size");
+    sc.ground.half_size = half;
     sc.lighting.sh[3][1] = INFINITY;
     expect_error(&sc, "lighting");
     sc.lighting.sh[3][1] = 0.0f;

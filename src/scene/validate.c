@@ -112,6 +112,9 @@ pen_status pen__scene_validate(pen_context *ctx, const pen_scene *sc, const char
         (sc->ground.enabled && (!finite_n(sc->ground.albedo, 3) || !isfinite(sc->ground.height) ||
                                 !isfinite(sc->ground.half_size))))
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: non-finite background or ground", who);
+    if (sc->ground.enabled && !(sc->ground.half_size > 0.0f))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: ground.half_size must be > 0 (got %g)", who,
+                          (double)sc->ground.half_size);
     if (sc->background_envmap && (!sc->lighting.envmap.data || !isfinite(sc->lighting.scale) ||
                                   !isfinite(sc->lighting.rotation_y_deg)))
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
