@@ -224,6 +224,16 @@ static pen_status parse_lighting(pen_context *ctx, const char *path, const where
     return PEN_OK;
 }
 
+/* The optional key `name` of obj as the index of one of `names` into *k; -1 when absent. */
+static pen_status choice(pen_context *ctx, const where *w, const cJSON *obj, const char *name,
+                         const char *what, const char *const *names, int *k) {
+    *k = -1;
+    const cJSON *v = pen__json_member(obj, name);
+    if (!v) return PEN_OK;
+    where wv = at(w, name);
+    return pen__json_choice(ctx, &wv, v, what, names, k);
+}
+
 static pen_status parse_shadow(pen_context *ctx, const where *top, const cJSON *root, int bands,
                                pen_shadow *sh) {
     where w = at(top, "shadow");
@@ -248,35 +258,21 @@ static pen_status parse_shadow(pen_context *ctx, const where *top, const cJSON *
                                     name);
             if (!s) sh->exp = (pen_sh_exp_method)m;
         }
+        /* The two-way choices: the second name of each list selects the non-default mode. */
         static const char *const overlaps[] = {"weights", "none", NULL};
         static const char *const grounds[] = {"occludes", "receiver", NULL};
-        int k = 0;
-        const cJSON *v = pen__json_member(o, "overlap");
-        if (!s && v) {
-            where wv = at(&w, "overlap");
-            s = pen__json_choice(ctx, &wv, v, "overlap mode", overlaps, &k);
-            sh->overlap = k == 1 ? PEN_OVERLAP_NONE : PEN_OVERLAP_WEIGHTS;
-        }
-        const cJSON *g = pen__json_member(o, "ground");
-        if (!s && g) {
-            where wg = at(&w, "ground");
-            s = pen__json_choice(ctx, &wg, g, "ground mode", grounds, &k);
-            sh->ground = k == 1 ? PEN_GROUND_RECEIVER : PEN_GROUND_OCCLUDES;
-        }
         static const char *const selfs[] = {"transfer", "spheres", NULL};
-        const cJSON *sf = pen__json_member(o, "self");
-        if (!s && sf) {
-            where ws = at(&w, "self");
-            s = pen__json_choice(ctx, &ws, sf, "self-shadow mode", selfs, &k);
-            sh->self = k == 1 ? PEN_SELF_SPHERES : PEN_SELF_TRANSFER;
-        }
         static const char *const gshadows[] = {"transfer", "spheres", NULL};
-        const cJSON *gs = pen__json_member(o, "ground_shadow");
-        if (!s && gs) {
-            where wg = at(&w, "ground_shadow");
-            s = pen__json_choice(ctx, &wg, gs, "ground shadow mode", gshadows, &k);
+        int k;
+        if (!s && !(s = choice(ctx, &w, o, "overlap", "overlap mode", overlaps, &k)) && k >= 0)
+            sh->overlap = k == 1 ? PEN_OVERLAP_NONE : PEN_OVERLAP_WEIGHTS;
+        if (!s && !(s = choice(ctx, &w, o, "ground", "ground mode", grounds, &k)) && k >= 0)
+            sh->ground = k == 1 ? PEN_GROUND_RECEIVER : PEN_GROUND_OCCLUDES;
+        if (!s && !(s = choice(ctx, &w, o, "self", "self-shadow mode", selfs, &k)) && k >= 0)
+            sh->self = k == 1 ? PEN_SELF_SPHERES : PEN_SELF_TRANSFER;
+        if (!s && !(s = choice(ctx, &w, o, "ground_shadow", "ground shadow mode", gshadows, &k)) &&
+            k >= 0)
             sh->ground_shadow = k == 1 ? PEN_GROUND_SHADOW_SPHERES : PEN_GROUND_SHADOW_TRANSFER;
-        }
         const cJSON *gg = pen__json_member(o, "ground_grid");
         if (!s && gg) {
             where wg = at(&w, "ground_grid");
