@@ -112,6 +112,11 @@ typedef struct pen_flat_scene {
                              positions, pose, spheres and lights, which do not see it) */
     int texture_filter;   /* 0 (default): one bilinear lookup at the pixel's uv; 1: averaged
                              over the pixel's footprint (pen_texture_filter FOOTPRINT) */
+    int ground_shadow;    /* with self_shadow 1, the ground's shadows of those objects:
+                             pen_shadow_ground_shadow (0 from their meshes at a grid of nodes,
+                             the default; 1 from their spheres) */
+    int ground_grid;      /* that grid's nodes per side: 0 (the default, 96) or
+                             PEN_GROUND_GRID_MIN .. PEN_GROUND_GRID_MAX */
 } pen_flat_scene;
 
 /* A 64 x 64 camera at (0, 1, 3) looking at (0, 0.5, 0) with 40 degrees vertical field of view,

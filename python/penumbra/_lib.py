@@ -93,6 +93,8 @@ class FlatScene(ctypes.Structure):
         ("lights", c_float_p),
         ("self_shadow", ctypes.c_int),
         ("texture_filter", ctypes.c_int),
+        ("ground_shadow", ctypes.c_int),
+        ("ground_grid", ctypes.c_int),
     ]
 
 

@@ -91,7 +91,9 @@ def _scene_from_flat(f):
                  ground_occlusion={0: "occludes", 1: "receiver"}[f.ground_occlusion],
                  lights=_copy(f.lights, (f.light_count, 7)) if f.light_count > 0 else None,
                  self_shadow={0: "spheres", 1: "transfer"}[f.self_shadow],
-                 texture_filter={0: "point", 1: "footprint"}[f.texture_filter])
+                 texture_filter={0: "point", 1: "footprint"}[f.texture_filter],
+                 ground_shadow={0: "transfer", 1: "spheres"}[f.ground_shadow],
+                 ground_grid=f.ground_grid)
 
 
 # ---- Meshes, images, spheres --------------------------------------------------------------------

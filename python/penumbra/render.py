@@ -30,6 +30,7 @@ EXP_METHODS = {"calibrated": 0, "default": 0, "paper": 1, "exact": 2}
 OVERLAP_MODES = {"weights": 0, "none": 1}
 GROUND_MODES = {"occludes": 0, "receiver": 1}
 SELF_SHADOW_MODES = {"spheres": 0, "transfer": 1}
+GROUND_SHADOW_MODES = {"transfer": 0, "spheres": 1}
 TEXTURE_FILTERS = {"point": 0, "footprint": 1}
 
 
@@ -94,7 +95,9 @@ class Scene:
     exact, but then only the lighting, albedo, texture and ground albedo have gradients; asking
     for a vertex, pose, sphere or light gradient raises PenumbraError); texture_filter is "point"
     (one bilinear lookup at the pixel's uv) or "footprint" (averaged over the pixel's footprint,
-    as `penumbra render` does by default)."""
+    as `penumbra render` does by default). With self_shadow "transfer", ground_shadow is "transfer"
+    (those objects' ground shadows ray traced at a grid of ground_grid x ground_grid nodes, 0: 96)
+    or "spheres"."""
 
     camera: Camera
     sh: torch.Tensor
@@ -114,6 +117,8 @@ class Scene:
     lights: Optional[torch.Tensor] = None
     self_shadow: str = "spheres"
     texture_filter: str = "point"
+    ground_shadow: str = "transfer"
+    ground_grid: int = 0
 
 
 def pose(rotation_axis_angle_deg=(0.0, 0.0, 0.0), translation=(0.0, 0.0, 0.0), scale=1.0):
@@ -219,6 +224,8 @@ class _Spec:
         self.ground_occlusion = _choice("ground_occlusion", scene.ground_occlusion, GROUND_MODES)
         self.self_shadow = _choice("self_shadow", scene.self_shadow, SELF_SHADOW_MODES)
         self.texture_filter = _choice("texture_filter", scene.texture_filter, TEXTURE_FILTERS)
+        self.ground_shadow = _choice("ground_shadow", scene.ground_shadow, GROUND_SHADOW_MODES)
+        self.ground_grid = int(scene.ground_grid)
         self.envmap = None
         if scene.envmap is not None:
             self.envmap = _float_tensor("envmap", scene.envmap, (None, None, 3)).detach()
@@ -387,6 +394,7 @@ def _flat(spec, sh, ground_albedo, lights, obj):
     s.overlap = spec.overlap
     s.ground_occlusion = spec.ground_occlusion
     s.self_shadow, s.texture_filter = spec.self_shadow, spec.texture_filter
+    s.ground_shadow, s.ground_grid = spec.ground_shadow, spec.ground_grid
     n = len(spec.objects)
     objs = (_lib.FlatObject * max(n, 1))()
     for i, os_ in enumerate(spec.objects):

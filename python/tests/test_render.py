@@ -125,6 +125,18 @@ class CliEqualityTest(Temp):
             penumbra.render_scene(bent).sum().backward()
         with self.assertRaisesRegex(ValueError, "self_shadow"):
             penumbra.render_scene(dataclasses.replace(scene, self_shadow="mesh"))
+        # the ground's shadow keys travel from the JSON through load_scene
+        path = self.write_scene(template.replace('"background"',
+                                                 '"shadow": {"ground_grid": 48},\n "background"'),
+                                "grid.json")
+        subprocess.run([CLI, "render", path, "-o", out, "-q"], check=True)
+        want = penumbra.load_image(out)
+        scene = penumbra.load_scene(path)
+        self.assertEqual((scene.ground_shadow, scene.ground_grid), ("transfer", 48))
+        got = penumbra.render_scene(dataclasses.replace(scene, self_shadow="transfer",
+                                                        texture_filter="footprint"))
+        self.assertTrue(torch.equal(got, want),
+                        "max difference %g" % float((got - want).abs().max()))
 
     def test_envmap_two_objects(self):
         scene, img = self.check(SCENE_ENVMAP)

@@ -208,7 +208,7 @@ class AbiTest(unittest.TestCase):
 
         c_int = __import__("ctypes").c_int
         cases = [
-            (fields[:-1], "texture_filter.*does not have it"),          # a field missing
+            (fields[:-1], "ground_grid.*does not have it"),             # a field missing
             (fields + [("extra", c_int)], "extra.*the library does not"),  # one too many
             (fields[:3] + fields[4:], "eye.*has target there"),          # one left out inside
             ([(n, c_int) if n == "sh" else (n, t) for n, t in fields], "field sh: offset"),

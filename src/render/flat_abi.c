@@ -74,6 +74,8 @@ static const pen_flat_abi_field table[] = {
     FIELD(pen_flat_scene, lights),
     FIELD(pen_flat_scene, self_shadow),
     FIELD(pen_flat_scene, texture_filter),
+    FIELD(pen_flat_scene, ground_shadow),
+    FIELD(pen_flat_scene, ground_grid),
 
     SIZE_ROW(pen_flat_object_grad),
     FIELD(pen_flat_object_grad, positions),

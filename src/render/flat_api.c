@@ -169,6 +169,8 @@ static pen_status scene_view(pen_context *ctx, const pen_flat_scene *f, pen_obje
                           "flat scene: self_shadow and texture_filter must be 0 or 1 (got %d, %d)",
                           f->self_shadow, f->texture_filter);
     sc->shadow.self = PEN_SELF_TRANSFER; /* used when options_of asks for the scene's */
+    sc->shadow.ground_shadow = (pen_shadow_ground_shadow)f->ground_shadow; /* validated there */
+    sc->shadow.ground_grid = f->ground_grid;
     sc->ground.enabled = f->ground_enabled != 0;
     sc->ground.height = f->ground_height;
     memcpy(sc->ground.albedo, f->ground_albedo, sizeof sc->ground.albedo);
@@ -462,6 +464,8 @@ static pen_status flatten(pen_context *ctx, pen_flat_loaded *l) {
     f->exp_method = (int)sc->shadow.exp;
     f->overlap = (int)sc->shadow.overlap;
     f->ground_occlusion = (int)sc->shadow.ground;
+    f->ground_shadow = (int)sc->shadow.ground_shadow;
+    f->ground_grid = sc->shadow.ground_grid;
     f->ground_enabled = sc->ground.enabled;
     f->ground_height = sc->ground.height;
     memcpy(f->ground_albedo, sc->ground.albedo, sizeof f->ground_albedo);
