@@ -258,4 +258,14 @@ static inline pen_status rs_render(const pen_scene *sc, const pen_render_options
     return s;
 }
 
+/* A forward into a new render state, kept for the caller to look into (its caches) and free. */
+static inline pen_render_state *rs_render_kept(pen_context *ctx, const pen_scene *sc,
+                                               const pen_render_options *opt, pen_image *img) {
+    pen_render_state *st = NULL;
+    CHECK(pen_render_state_create(ctx, &st) == PEN_OK);
+    memset(img, 0, sizeof *img);
+    CHECK(pen_render_fwd(ctx, sc, opt, st, img) == PEN_OK);
+    return st;
+}
+
 #endif

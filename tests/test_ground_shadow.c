@@ -64,16 +64,6 @@ static void add_light(pen_scene *sc) {
     L->irradiance[0] = 1.5f, L->irradiance[1] = 1.2f, L->irradiance[2] = 1.0f;
 }
 
-/* Renders with a state kept (for its G-buffer and grid); the caller frees both. */
-static pen_render_state *render_kept(pen_context *ctx, const pen_scene *sc,
-                                     const pen_render_options *opt, pen_image *img) {
-    pen_render_state *st = NULL;
-    CHECK(pen_render_state_create(ctx, &st) == PEN_OK);
-    memset(img, 0, sizeof *img);
-    CHECK(pen_render_fwd(ctx, sc, opt, st, img) == PEN_OK);
-    return st;
-}
-
 /* ---- Tests ----------------------------------------------------------------------------------- */
 
 static void test_frame_gradients(void) {
@@ -84,7 +74,7 @@ static void test_frame_gradients(void) {
         pen_render_options opt = pen_render_options_default();
         opt.kernel = kernel ? PEN_RENDER_KERNEL_SCALAR : PEN_RENDER_KERNEL_FAST;
         pen_image img, dimg = {0, 0, 0, NULL};
-        pen_render_state *st = render_kept(ctx, &sc, &opt, &img);
+        pen_render_state *st = rs_render_kept(ctx, &sc, &opt, &img);
         CHECK(st->grid.on && st->grid.valid);
         /* loss = sum q . image over the ground's pixels only */
         CHECK(pen_image_create(ctx, img.width, img.height, 3, &dimg) == PEN_OK);
@@ -138,7 +128,7 @@ static void test_far_object_sees_nothing(void) {
     pen_render_options opt = pen_render_options_default();
     opt.kernel = PEN_RENDER_KERNEL_SCALAR;
     pen_image img, off;
-    pen_render_state *st = render_kept(ctx, &sc, &opt, &img);
+    pen_render_state *st = rs_render_kept(ctx, &sc, &opt, &img);
     const pen__ground_grid *gr = &st->grid;
     CHECK(gr->on && gr->n >= 2);
     const size_t nodes = (size_t)gr->n * (size_t)gr->n;
@@ -150,7 +140,7 @@ static void test_far_object_sees_nothing(void) {
     CHECK_MSG(worst == 0.0 && fworst == 0.0, "far object: |B| up to %g, |1 - frac| up to %g",
               worst, fworst);
     opt.shadows = 0;
-    pen_render_state *st2 = render_kept(ctx, &sc, &opt, &off);
+    pen_render_state *st2 = rs_render_kept(ctx, &sc, &opt, &off);
     size_t ground = 0;
     double diff = 0.0;
     for (size_t i = 0; i < (size_t)img.width * img.height; ++i) {
@@ -181,14 +171,14 @@ static void test_spheres_mode_and_threads(void) {
         opt.kernel = kernel ? PEN_RENDER_KERNEL_SCALAR : PEN_RENDER_KERNEL_FAST;
         pen_image a, b, grid;
         opt.self_shadow = PEN_RENDER_SELF_SPHERES;
-        pen_render_state *sa = render_kept(ctx, &sc, &opt, &a);
+        pen_render_state *sa = rs_render_kept(ctx, &sc, &opt, &a);
         CHECK(!sa->grid.on); /* the optimisers' switch turns the grid off too */
         opt.self_shadow = PEN_RENDER_SELF_SCENE;
         sc.shadow.ground_shadow = PEN_GROUND_SHADOW_SPHERES;
-        pen_render_state *sb = render_kept(ctx, &sc, &opt, &b);
+        pen_render_state *sb = rs_render_kept(ctx, &sc, &opt, &b);
         CHECK(!sb->grid.on && sb->self_any);
         sc.shadow.ground_shadow = PEN_GROUND_SHADOW_TRANSFER;
-        pen_render_state *sg = render_kept(ctx, &sc, &opt, &grid);
+        pen_render_state *sg = rs_render_kept(ctx, &sc, &opt, &grid);
         CHECK(sg->grid.on);
         size_t ground = 0, same = 0, moved = 0;
         for (size_t i = 0; i < (size_t)a.width * a.height; ++i) {
@@ -224,9 +214,9 @@ static void test_bar_against_reference(void) {
     pen_reference_destroy(ref);
     pen_render_options opt = pen_render_options_default();
     pen_image grid, sph;
-    pen_render_state *st = render_kept(ctx, &sc, &opt, &grid);
+    pen_render_state *st = rs_render_kept(ctx, &sc, &opt, &grid);
     sc.shadow.ground_shadow = PEN_GROUND_SHADOW_SPHERES;
-    pen_render_state *s2 = render_kept(ctx, &sc, &opt, &sph);
+    pen_render_state *s2 = rs_render_kept(ctx, &sc, &opt, &sph);
     double eg = 0.0, es = 0.0, r = 0.0;
     for (size_t i = 0; i < (size_t)grid.width * grid.height; ++i) {
         if (st->gb.surface[i] != PEN_SURFACE_GROUND) continue;
@@ -251,7 +241,7 @@ static void test_cache(void) {
     pen_context *ctx = pen_context_create();
     pen_render_options opt = pen_render_options_default();
     pen_image img;
-    pen_render_state *st = render_kept(ctx, &sc, &opt, &img);
+    pen_render_state *st = rs_render_kept(ctx, &sc, &opt, &img);
     pen__ground_grid *gr = &st->grid;
     CHECK(gr->on && gr->valid && gr->n == 96);
     const uint64_t key = gr->key;

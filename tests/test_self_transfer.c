@@ -408,10 +408,8 @@ static void test_cache(void) {
     pen_scene sc = v_scene(32);
     pen_context *ctx = pen_context_create();
     pen_render_options opt = pen_render_options_default();
-    pen_render_state *st = NULL;
-    CHECK(pen_render_state_create(ctx, &st) == PEN_OK);
-    pen_image img = {0, 0, 0, NULL};
-    CHECK(pen_render_fwd(ctx, &sc, &opt, st, &img) == PEN_OK);
+    pen_image img;
+    pen_render_state *st = rs_render_kept(ctx, &sc, &opt, &img);
     pen__object_buf *b = &st->obj[0];
     CHECK(b->self_on && b->self_valid);
     const uint64_t key = b->self_key;
