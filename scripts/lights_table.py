@@ -26,8 +26,8 @@ import sys
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import visibility_table as vt  # noqa: E402
 
-MESHES = ["spot_triangulated", "bob_tri", "scorpion", "koala"]
-MAPS = ["city", "interior", "forest", "night", "sunset"]
+MESHES = ["spot_triangulated", "bob_tri", "scorpion", "koala", "blub", "goathead"]
+MAPS = ["city", "interior", "forest", "night", "sunset", "courtyard"]
 
 
 def main():
