@@ -5,6 +5,11 @@
 
 #include "render_scenes.h"
 
+#include "core/internal.h" /* pen__fnv1a: the checkpoints' checksum */
+
+#include <stdio.h>
+#include <string.h>
+
 /* render_scenes.h's octasphere stretched to an ellipsoid (semi-axes 0.5625, 0.36, 0.45),
  * optionally textured (6x5 random texels from a fixed seed), 0.55 over the ground, turned
  * (10, 25, 0) degrees, size x size pixels, `bands` lighting bands, with five proxy spheres
@@ -95,6 +100,27 @@ static inline pen_optim_task os_task(pen_scene scene, pen_scene truth, unsigned 
     t.iterations = iterations;
     t.target = os_reference(&t.ground_truth);
     return t;
+}
+
+/* A checkpoint file's bytes, to be edited as an older build would have written them: read
+ * whole into buf (room for cap bytes; returns the size, 0 on failure), then written back with
+ * its checksum (the trailing FNV-1a 64 of every byte before it, checkpoint.c) recomputed. */
+static inline size_t os_checkpoint_read(const char *path, unsigned char *buf, size_t cap) {
+    FILE *f = fopen(path, "rb");
+    CHECK(f != NULL);
+    if (!f) return 0;
+    const size_t n = fread(buf, 1, cap, f);
+    fclose(f);
+    CHECK(n > 100 && n < cap);
+    return n > 100 && n < cap ? n : 0;
+}
+
+static inline void os_checkpoint_write(const char *path, unsigned char *buf, size_t n) {
+    const uint64_t sum = pen__fnv1a(PEN__FNV1A_SEED, buf, n - 8);
+    memcpy(buf + n - 8, &sum, 8);
+    FILE *f = fopen(path, "wb");
+    CHECK(f && fwrite(buf, 1, n, f) == n);
+    if (f) fclose(f);
 }
 
 #endif

@@ -157,10 +157,12 @@ static void test_search_finds_light(void) {
 /* The search over a multi-view task's views (views.c, 48 x 48 each): two lights of the truth
  * are found greedily, each within 2 degrees of one of them, with the task's second view seeing
  * the scene from the other side. `exposed`: the second view's photo is twice as bright, its
- * exposure 2 given and the "exposure" group on: the search fits its target over the exposure
- * (with the factor times 4, optimize.c), and after it the exposure is still in the vector (the
- * layout redone for the lights keeps the views): Adam's steps move it (by about lr.exposure a
- * step; without the group in the vector it would stay at the float rounding of 2). */
+ * exposure given as 1.9 and the "exposure" group on: the search fits its target over the
+ * exposure (with the factor times 1.9^2, optimize.c), and after it the exposure is still in the
+ * vector (the layout redone for the lights keeps the views): Adam's steps move it towards 2 (by
+ * about lr.exposure a step) and lower the loss, so the kept iterate has it nearer 2; without the
+ * group in the vector it would stay at the float rounding of 1.9. (Given as 2, the search's
+ * fit can leave nothing for the steps to improve, and the kept iterate is the first.) */
 #define SEARCH_VIEW 48
 static void search_views(int exposed) {
     pen_scene truth = lit_egg(-30.0f);
@@ -194,7 +196,7 @@ static void search_views(int exposed) {
         t.views[v].camera = seen.camera;
         t.views[v].target = rendered(&seen);
         t.views[v].weight = v ? 0.5 : 1.0;
-        t.views[v].exposure = v && exposed ? 2.0 : 1.0;
+        t.views[v].exposure = v && exposed ? 1.9 : 1.0;
         const size_t floats = 3 * (size_t)SEARCH_VIEW * SEARCH_VIEW;
         for (size_t i = 0; v && exposed && i < floats; ++i) /* (exact in float) */
             t.views[v].target.data[i] *= 2.0f;
@@ -212,10 +214,9 @@ static void search_views(int exposed) {
     printf("  views%s: %d renders, %.2f s; errors %.2f and %.2f deg (metric %.2f)\n",
            exposed ? " (second exposed 2x)" : "", r.search_renders, r.search_seconds, err[0],
            err[1], r.metrics.light_direction_error_deg);
-    if (exposed) printf("  the second view's exposure: 2 -> %.6f\n", t.views[1].exposure);
+    if (exposed) printf("  the second view's exposure: 1.9 -> %.6f (truth 2)\n", t.views[1].exposure);
     if (exposed)
-        CHECK_MSG(fabs(log(t.views[1].exposure / 2.0)) > 1e-3 &&
-                      fabs(log(t.views[1].exposure / 2.0)) < 0.1,
+        CHECK_MSG(fabs(log(t.views[1].exposure / 2.0)) < fabs(log(1.9 / 2.0)) - 1e-3,
                   "the second view's exposure after the steps: %.17g", t.views[1].exposure);
     CHECK(err[0] < 2.0 && err[1] < 2.0);
     CHECK(fabs(r.metrics.light_direction_error_deg - fmax(err[0], err[1])) < 1e-3);

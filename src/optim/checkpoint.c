@@ -25,9 +25,12 @@
  * Written to a temporary file beside the target, flushed to the disk (fsync), renamed over the
  * old checkpoint and the folder synced, so that a crash leaves either the old or the new one.
  *
- * Version 3 has the same layout; its lighting_ridge meant nothing to Adam (the ridge was not in
- * Adam's loss then), so a version-3 Adam checkpoint reads as ridge 0, the Adam default now, and
- * its runs continue as they began. */
+ * Versions 3 and 4 have the same layout. Version 3's lighting_ridge meant nothing to Adam (the
+ * ridge was not in Adam's loss then), so a version-3 Adam checkpoint reads as ridge 0, the Adam
+ * default now, and its runs continue as they began. Before version 5 the ridge's weight was
+ * relative to the normal equations summed over the views, not to their mean
+ * (pen__optim_ridge_mu): a multi-view run with a ridge had another objective then, so such a
+ * checkpoint is refused; single-view ones read as they were. */
 #define _POSIX_C_SOURCE 200809L
 #include "io/io_internal.h"
 #include "optim/optim_internal.h"
@@ -39,8 +42,8 @@
 #include <unistd.h>
 
 #define CHECKPOINT_MAGIC "PENOPTCK"
-#define CHECKPOINT_VERSION 4u
-#define CHECKPOINT_VERSION_OLD 3u /* read too: above */
+#define CHECKPOINT_VERSION 5u
+#define CHECKPOINT_VERSION_MIN 3u /* read from here on: above */
 #define CHECKPOINT_ORDER 0x01020304u
 
 /* ---- Writing --------------------------------------------------------------------------------- */
@@ -211,7 +214,7 @@ static pen_status check_identity(pen_context *ctx, const char *path, reader *r,
     const double weight = get_f64(r);
     const int32_t solver = get_i32(r);
     double ridge = get_f64(r);
-    if (version == CHECKPOINT_VERSION_OLD && solver == PEN_OPTIM_LIGHTING_ADAM) ridge = 0.0;
+    if (version == 3u && solver == PEN_OPTIM_LIGHTING_ADAM) ridge = 0.0;
     const int32_t graph_k = get_i32(r);
     double weights[3];
     for (int k = 0; k < 3; ++k)
@@ -246,6 +249,12 @@ static pen_status check_identity(pen_context *ctx, const char *path, reader *r,
                           "%s, ridge %g",
                           path, solver ? "least_squares" : "adam", ridge,
                           id->lighting_solver ? "least_squares" : "adam", id->lighting_ridge);
+    if (version < 5u && ridge > 0.0 && id->ridge_views > 1)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: checkpoint version %u, made when the lighting ridge of a multi-view "
+                          "task weighed as much as all its views (now one view's worth): this "
+                          "task's objective differs, run it again without --resume",
+                          path, version);
     if (graph_k != id->graph_k || memcmp(weights, id->weights, sizeof weights) != 0)
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "%s: made with other regularisers (k %d, weights %g %g %g), this "
@@ -283,9 +292,9 @@ pen_status pen__optim_checkpoint_load(pen_context *ctx, const char *path,
     } else if (order != CHECKPOINT_ORDER) {
         s = pen__error(ctx, PEN_ERROR_PARSE, "%s: written on a machine of another byte order",
                        path);
-    } else if (version != CHECKPOINT_VERSION && version != CHECKPOINT_VERSION_OLD) {
-        s = pen__error(ctx, PEN_ERROR_PARSE, "%s: checkpoint version %u, this build reads %u",
-                       path, version, CHECKPOINT_VERSION);
+    } else if (version < CHECKPOINT_VERSION_MIN || version > CHECKPOINT_VERSION) {
+        s = pen__error(ctx, PEN_ERROR_PARSE, "%s: checkpoint version %u, this build reads %u to %u",
+                       path, version, CHECKPOINT_VERSION_MIN, CHECKPOINT_VERSION);
     }
     if (!s) s = check_identity(ctx, path, &r, version, id);
     int32_t iteration = 0, recorded = 0, best_it = 0, t = 0;
@@ -358,7 +367,7 @@ int pen__optim_checkpoint_solver(const char *path) {
     (void)get_u64(&r); /* n */
     const uint32_t segs = get_u32(&r);
     int ok = r.ok && memcmp(magic, CHECKPOINT_MAGIC, 8) == 0 && order == CHECKPOINT_ORDER &&
-             (version == CHECKPOINT_VERSION || version == CHECKPOINT_VERSION_OLD) &&
+             version >= CHECKPOINT_VERSION_MIN && version <= CHECKPOINT_VERSION &&
              segs <= 1u << 20;
     for (uint32_t k = 0; ok && k < segs; ++k) { /* offset, count, bound */
         (void)get_u64(&r), (void)get_u64(&r), (void)get_u32(&r);

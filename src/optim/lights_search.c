@@ -10,7 +10,8 @@
  * per image (C), and its score is the exact minimum over the SH coefficients and the irradiance
  * of the task's l2 loss: per channel a small linear least-squares problem whose normal equations
  * reuse the SH block (summed once) and add one row. The SH block carries the least-squares
- * lighting's ridge ("lighting_ridge" times its largest diagonal entry), the light none; an
+ * lighting's ridge (pen__optim_ridge_mu: "lighting_ridge" times its largest diagonal entry over the
+ * number of images), the light none; an
  * irradiance must be >= 0, so a channel whose solution has a negative one drops that light and is
  * solved again (an active set; a light cannot subtract light). When the SH is not optimised it
  * stays as the scene has it and only the irradiances are solved.
@@ -295,7 +296,7 @@ static void level_block(level *L, int nb, double ridge) {
                 S->b[c][j] += dot(E[e].eye, E[e].cols[j].data, E[e].resid, c);
             top = fmax(top, S->G[c][j * MAX_COLS + j]);
         }
-        S->mu[c] = ridge * top;
+        S->mu[c] = pen__optim_ridge_mu(ridge, top, L->n);
         for (int e = 0; e < L->n; ++e)
             S->rr[c] += dot(E[e].eye, E[e].resid, NULL, c);
     }

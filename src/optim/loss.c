@@ -126,18 +126,23 @@ static void accumulate(normal_eqs *q, const pen_image *target, const pen_image *
     }
 }
 
+double pen__optim_ridge_mu(double ridge, double top, int eyes) {
+    return ridge * top / (double)(eyes > 1 ? eyes : 1);
+}
+
 /* Per channel c, the coefficients L_c (nb of them, into sh) minimising the accumulated sum +
- * mu_c |L_c|^2. mu[c] < 0 on entry: mu_c = ridge * (the largest diagonal entry of channel c's
- * normal equations), written back to mu[c]; mu[c] >= 0: taken as it is (a fixed objective across
- * calls). Consumes the equations (solved in place). */
-static void solve_eqs(normal_eqs *q, double ridge, double mu[3], float (*sh)[3]) {
+ * mu_c |L_c|^2. mu[c] < 0 on entry: mu_c = pen__optim_ridge_mu (ridge times the largest diagonal
+ * entry of channel c's normal equations, over the `eyes` images summed into them), written back
+ * to mu[c]; mu[c] >= 0: taken as it is (a fixed objective across calls). Consumes the equations
+ * (solved in place). */
+static void solve_eqs(normal_eqs *q, double ridge, int eyes, double mu[3], float (*sh)[3]) {
     const int nb = q->nb;
     for (int c = 0; c < 3; ++c) {
         double *G = q->G + (size_t)c * (size_t)nb * (size_t)nb, *b = q->b + (size_t)c * (size_t)nb;
         double scale = 0.0;
         for (int j = 0; j < nb; ++j)
             scale = fmax(scale, G[j * nb + j]);
-        const double m = mu && mu[c] >= 0.0 ? mu[c] : ridge * scale;
+        const double m = mu && mu[c] >= 0.0 ? mu[c] : pen__optim_ridge_mu(ridge, scale, eyes);
         if (mu) mu[c] = m;
         for (int j = 0; j < nb; ++j) {
             for (int k = 0; k < j; ++k)
@@ -236,7 +241,7 @@ pen_status pen__optim_fit_lighting_eyes(pen_context *ctx, const pen_scene *sc,
             free(model);
             free(mask);
         }
-        if (!s) solve_eqs(&q, ridge, NULL, sh);
+        if (!s) solve_eqs(&q, ridge, n, NULL, sh);
         if (!s) memset(q.G, 0, sizeof(double) * 3 * (size_t)nb * (size_t)nb);
         if (!s) memset(q.b, 0, sizeof(double) * 3 * (size_t)nb);
     }
@@ -265,7 +270,7 @@ pen_status pen__optim_solve_lighting_eyes(pen_context *ctx, const pen_scene *sc,
         s = eye_basis(ctx, sc, opt, &eyes[e], &base, cols);
         if (!s) accumulate(&q, eyes[e].target, &base, cols, eyes[e].weight, eyes[e].factor);
     }
-    if (!s) solve_eqs(&q, ridge, mu, sh);
+    if (!s) solve_eqs(&q, ridge, n, mu, sh);
     basis_free(&base, cols, nb);
     eqs_free(&q);
     return s;

@@ -115,14 +115,15 @@ static inline void pen__optim_loss_bwd(pen_optim_loss kind, const pen_image *ima
 /* The SH lighting (sh_bands^2 rows) that best explains `target` by the scene `sc` rendered
  * without shadows (least squares per channel; refitted once over the pixels the first fit's
  * shadow mask calls lit, m < 0.1). Band 3's coefficients stay 0: no unshadowed diffuse surface
- * sees them. ridge: Tikhonov weight relative to the normal equations' largest diagonal entry. */
+ * sees them. ridge: Tikhonov weight relative to the normal equations' largest diagonal entry
+ * (pen__optim_ridge_mu). */
 pen_status pen__optim_fit_lighting(pen_context *ctx, const pen_scene *sc, const pen_image *target,
                                    double ridge, float (*sh)[3]);
 /* The lighting-only least-squares problem of "lighting_solver": "least_squares" (optim.h): per
  * channel c the SH coefficients minimising sum_p w_p sum_c (I_pc(L) - T_pc)^2 + mu_c |L_c|^2,
  * I the scene rendered with `opt` (shadows or not) and lighting L, w = weight (NULL: 1), from one
- * render per coefficient (the render is affine in L). mu[c] < 0 on entry: set to ridge * the
- * largest diagonal entry of channel c's normal equations and written back; mu[c] >= 0: used as
+ * render per coefficient (the render is affine in L). mu[c] < 0 on entry: set to
+ * pen__optim_ridge_mu of channel c's normal equations and written back; mu[c] >= 0: used as
  * it is, so repeated solves minimise one fixed objective. The result goes into sh (bands^2).
  * state (may be NULL) is reused by the renders: a state kept across solves keeps what does not
  * depend on the lighting between them (the antialiasing adjacency, the envmap background). */
@@ -134,7 +135,7 @@ pen_status pen__optim_solve_lighting(pen_context *ctx, const pen_scene *sc,
 /* Solves the symmetric positive definite n x n system A x = b in place (Cholesky on A's lower
  * triangle; A and b are overwritten, x in b). Returns 0 if A is not positive definite. */
 int pen__optim_solve_spd(double *A, double *b, int n);
-/* Ridges (relative to the largest diagonal entry of the normal equations): the shadow mask
+/* Ridges (relative to the largest diagonal entry of the normal equations, pen__optim_ridge_mu): the shadow mask
  * needs an unbiased fitted image, the "fit" initial guess well-conditioned coefficients. */
 #define PEN__OPTIM_RIDGE_MASK 1e-9
 #define PEN__OPTIM_RIDGE_INIT 1e-2
@@ -155,8 +156,17 @@ typedef struct pen__optim_eye {
     double factor;
     pen_render_state *state;
 } pen__optim_eye;
+/* The ridge's weight mu for one channel: ridge * top / max(eyes, 1), top the largest diagonal
+ * entry of the normal equations summed over `eyes` images. The ridge is a prior on the lighting
+ * and each view taking part is one view's worth of data (a view's loss is a mean over its
+ * pixels), so mu is relative to the views' mean normal equations: the prior stays as strong as
+ * with one view while the data grow with the views. Relative to the summed equations instead,
+ * the prior grew with the views and its pull stayed the same at any count (docs/optimize.md,
+ * "The ridge is one view's worth"). With one image it is ridge * top. */
+double pen__optim_ridge_mu(double ridge, double top, int eyes);
+
 /* pen__optim_fit_lighting and pen__optim_solve_lighting over several images: the normal
- * equations are summed over the eyes in order (ridges relative to the summed ones). With one eye
+ * equations are summed over the eyes in order (the ridge: pen__optim_ridge_mu). With one eye
  * of factor 1 and the scene's camera they give the single-image functions' results bit for
  * bit. */
 pen_status pen__optim_fit_lighting_eyes(pen_context *ctx, const pen_scene *sc,
@@ -175,8 +185,8 @@ pen_status pen__optim_solve_lighting_eyes(pen_context *ctx, const pen_scene *sc,
  * search over directions against the eyes' images (rendered with `opt`, each eye's weights and
  * factor as in the least-squares lighting): a Fibonacci lattice over the sky and down to 5 degrees
  * below the horizon, refined coarse to fine around the best, lights added greedily; each
- * candidate scored by the l2 loss minimised over the SH lighting (solve_sh; ridge relative to its
- * normal equations' largest diagonal entry) and the irradiances (>= 0). The lights get radius
+ * candidate scored by the l2 loss minimised over the SH lighting (solve_sh; ridge as
+ * pen__optim_ridge_mu) and the irradiances (>= 0). The lights get radius
  * radius_deg and the solved irradiances; with solve_sh the scene's SH becomes the solved one.
  * Deterministic. *renders (may be NULL): the renders it took. */
 pen_status pen__optim_lights_search(pen_context *ctx, pen_scene *sc,
@@ -332,6 +342,7 @@ typedef struct pen__optim_identity {
     double shadow_weight;
     int lighting_solver;   /* pen_optim_lighting_solver */
     double lighting_ridge;
+    int ridge_views;      /* the views taking part (1: a single target): pen__optim_ridge_mu */
     int graph_k;          /* the regularisers: deformation (k; w_rot, w_reg, 0) or spheres */
     double weights[3];    /* (k; w_smooth, 0, 0); zeros without either group */
     uint64_t target_hash; /* of the target's pixels */
