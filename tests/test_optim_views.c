@@ -661,6 +661,12 @@ static void test_resume_and_outputs(void) {
     CHECK_MSG(strstr(pen_context_error(ctx), "checkpoint.bin: checkpoint version 4, made when the "
                                              "lighting ridge of a multi-view task"),
               "%s", pen_context_error(ctx));
+    /* and a version this build does not know, with its range */
+    set_checkpoint_version(path_in(cut, "checkpoint.bin"), 6);
+    CHECK(pen_optim_run(ctx, &tb, &set, &b) == PEN_ERROR_PARSE);
+    CHECK_MSG(strstr(pen_context_error(ctx), "checkpoint.bin: checkpoint version 6, this build "
+                                             "reads 3 to 5"),
+              "%s", pen_context_error(ctx));
     pen_optim_task_free(&tb);
     /* the outputs, with two held-back views */
     set.resume = 0;

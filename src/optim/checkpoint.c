@@ -186,6 +186,19 @@ static const char *bound_name(unsigned b) {
                                      : "none";
 }
 
+/* The file's preamble: magic, version and byte-order marker. Returns 0 for a checkpoint this
+ * build reads (its version in *version), else what is wrong: 1 not a checkpoint, 2 another byte
+ * order, 3 a version outside CHECKPOINT_VERSION_MIN .. CHECKPOINT_VERSION. */
+static int preamble(reader *r, uint32_t *version) {
+    char magic[8];
+    get(r, magic, 8);
+    *version = get_u32(r);
+    const uint32_t order = get_u32(r);
+    if (!r->ok || memcmp(magic, CHECKPOINT_MAGIC, 8) != 0) return 1;
+    if (order != CHECKPOINT_ORDER) return 2;
+    return *version < CHECKPOINT_VERSION_MIN || *version > CHECKPOINT_VERSION ? 3 : 0;
+}
+
 /* Compares the file's identity with the run's; one line on the first difference. */
 static pen_status check_identity(pen_context *ctx, const char *path, reader *r,
                                  uint32_t version, const pen__optim_identity *id) {
@@ -283,16 +296,15 @@ pen_status pen__optim_checkpoint_load(pen_context *ctx, const char *path,
     if (!r.f)
         return pen__error(ctx, PEN_ERROR_IO, "%s: cannot open the checkpoint: %s", path,
                           strerror(errno));
-    char magic[8];
-    get(&r, magic, 8);
-    const uint32_t version = get_u32(&r), order = get_u32(&r);
+    uint32_t version = 0;
+    const int wrong = preamble(&r, &version);
     pen_status s = PEN_OK;
-    if (!r.ok || memcmp(magic, CHECKPOINT_MAGIC, 8) != 0) {
+    if (wrong == 1) {
         s = pen__error(ctx, PEN_ERROR_PARSE, "%s: not a penumbra optimize checkpoint", path);
-    } else if (order != CHECKPOINT_ORDER) {
+    } else if (wrong == 2) {
         s = pen__error(ctx, PEN_ERROR_PARSE, "%s: written on a machine of another byte order",
                        path);
-    } else if (version < CHECKPOINT_VERSION_MIN || version > CHECKPOINT_VERSION) {
+    } else if (wrong == 3) {
         s = pen__error(ctx, PEN_ERROR_PARSE, "%s: checkpoint version %u, this build reads %u to %u",
                        path, version, CHECKPOINT_VERSION_MIN, CHECKPOINT_VERSION);
     }
@@ -361,14 +373,11 @@ pen_status pen__optim_checkpoint_load(pen_context *ctx, const char *path,
 int pen__optim_checkpoint_solver(const char *path) {
     reader r = {fopen(path, "rb"), PEN__FNV1A_SEED, 1};
     if (!r.f) return -1;
-    char magic[8];
-    get(&r, magic, 8);
-    const uint32_t version = get_u32(&r), order = get_u32(&r);
+    uint32_t version = 0;
+    const int wrong = preamble(&r, &version);
     (void)get_u64(&r); /* n */
     const uint32_t segs = get_u32(&r);
-    int ok = r.ok && memcmp(magic, CHECKPOINT_MAGIC, 8) == 0 && order == CHECKPOINT_ORDER &&
-             version >= CHECKPOINT_VERSION_MIN && version <= CHECKPOINT_VERSION &&
-             segs <= 1u << 20;
+    int ok = !wrong && r.ok && segs <= 1u << 20;
     for (uint32_t k = 0; ok && k < segs; ++k) { /* offset, count, bound */
         (void)get_u64(&r), (void)get_u64(&r), (void)get_u32(&r);
         ok = r.ok;
