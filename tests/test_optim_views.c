@@ -132,8 +132,8 @@ static void test_lighting_one_vs_four(void) {
  * rho over the pair solves what one copy solves at rho / 2 (the summed normal equations are
  * twice one copy's, and so is mu's top entry: mu = rho * 2 top / 2). Under the rule before it
  * (mu relative to the summed equations) the pair solved what one copy solves at rho: duplicates
- * did not count. The stated ridge term keeps its meaning: the result's ridge loss is mu |L|^2
- * over the same normaliser in both runs. */
+ * did not count. The stated loss is the pair's image loss plus its ridge term, both twice those
+ * of the one copy at rho / 2: one objective, scaled. */
 static void test_ridge_per_view(void) {
     pen_optim_task two = views_task(2, VIEWS, 0, PEN_OPTIM_LIGHTING, 10);
     pen_image_free(&two.views[1].target);
@@ -165,6 +165,12 @@ static void test_ridge_per_view(void) {
            rs.metrics.lighting_rel_error);
     CHECK_MSG(diff < 1e-5 * norm, "two copies: %.3g off one at half the ridge", diff);
     CHECK_MSG(apart > 1e3 * diff, "the ridge made no difference (%.3g)", apart);
+    CHECK_MSG(fabs(r2.final_ridge_loss - 2.0 * r1.final_ridge_loss) < 1e-9 * r2.final_ridge_loss &&
+                  fabs(r2.final_image_loss - 2.0 * r1.final_image_loss) <
+                      1e-9 * r2.final_image_loss &&
+                  r2.final_ridge_loss > 0.0,
+              "stated losses: two copies %.9g + %.9g, one copy %.9g + %.9g", r2.final_image_loss,
+              r2.final_ridge_loss, r1.final_image_loss, r1.final_ridge_loss);
     pen_optim_result_free(&r2);
     pen_optim_result_free(&r1);
     pen_optim_result_free(&rs);
@@ -641,6 +647,17 @@ static void test_resume_and_outputs(void) {
     CHECK(pen_optim_run(ctx, &tb, &set, &b) == PEN_ERROR_ARGUMENT);
     CHECK_MSG(strstr(pen_context_error(ctx), "checkpoint.bin: made for another target"), "%s",
               pen_context_error(ctx));
+    pen_optim_task_free(&tb);
+    /* a version-4 checkpoint of a multi-view task whose initial guess differs names the ridge
+     * rule of version 4 as a possible reason (its "fit" start or search took the old one) */
+    set_checkpoint_version(path_in(cut, "checkpoint.bin"), 4);
+    tb = views_task(3, 3, 0, groups, iterations);
+    tb.shadow_weight = 2.0;
+    tb.scene.objects[0].pose.translation[0] += 0.01f;
+    CHECK(pen_optim_run(ctx, &tb, &set, &b) == PEN_ERROR_ARGUMENT);
+    CHECK_MSG(strstr(pen_context_error(ctx), "checkpoint.bin: made for another initial guess: "
+                                             "checkpoint version 4 of a multi-view task"),
+              "%s", pen_context_error(ctx));
     pen_optim_task_free(&tb);
     /* a checkpoint of a multi-view task with a lighting ridge from before the ridge was one
      * view's worth (version 4) is refused: its objective was another */

@@ -30,7 +30,9 @@
  * default now, and its runs continue as they began. Before version 5 the ridge's weight was
  * relative to the normal equations summed over the views, not to their mean
  * (pen__optim_ridge_mu): a multi-view run with a ridge had another objective then, so such a
- * checkpoint is refused; single-view ones read as they were. */
+ * checkpoint is refused, and one whose "fit" start or lights search took a ridge had another
+ * initial guess, refused by its hash with the same reason named; single-view ones read as they
+ * were. */
 #define _POSIX_C_SOURCE 200809L
 #include "io/io_internal.h"
 #include "optim/optim_internal.h"
@@ -277,6 +279,13 @@ static pen_status check_identity(pen_context *ctx, const char *path, reader *r,
     if (w != id->width || h != id->height || target != id->target_hash)
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "%s: made for another target image (%dx%d, or other pixels)", path, w, h);
+    if (init != id->init_hash && version < 5u && id->ridge_views > 1)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: made for another initial guess: checkpoint version %u of a "
+                          "multi-view task, whose \"fit\" lighting or lights search weighed "
+                          "its ridge as much as all the views (now one view's worth), or the "
+                          "task's scene differs; run it again without --resume",
+                          path, version);
     if (init != id->init_hash)
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "%s: made for another initial guess (the task's scene differs)", path);
