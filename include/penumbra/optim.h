@@ -147,7 +147,8 @@ PEN_API pen_optim_spheres pen_optim_spheres_default(void);
  * (w_p the shadow weights, 1 without them; in a multi-view task sum_p w_p is 1: the views'
  * weights over their masks' sizes normalise), mu_c = rho times the largest diagonal entry of
  * channel c's normal equations at the initial guess, divided by the number of views taking part
- * (1 with a single target), then held fixed for the run: the prior weighs as much as one view,
+ * (weight > 0 and a non-empty mask, each counted once whatever its weight, so that scaling every
+ * weight leaves the solution as it is; 1 with a single target), then held fixed for the run: the prior weighs as much as one view,
  * whatever the number of views, so that more views outweigh it (relative to the summed
  * equations, it would grow with them and its pull would never fade). Least squares
  * minimises it exactly; Adam steps on it (the term's gradient joins the lighting's). The default
