@@ -238,6 +238,7 @@ static void test_bar_against_reference(void) {
 
 static void test_cache(void) {
     pen_scene sc = bar_scene(32);
+    add_light(&sc);
     pen_context *ctx = pen_context_create();
     pen_render_options opt = pen_render_options_default();
     pen_image img;
@@ -256,6 +257,19 @@ static void test_cache(void) {
     sc.objects[0].pose.translation[2] = 0.1f;
     CHECK(pen_render_fwd(ctx, &sc, &opt, st, &img) == PEN_OK);
     CHECK(gr->key != key && gr->B.data[0] != marker);
+    /* The light's irradiance: kept (a gradient, not a trace); its direction or size: traced
+     * again (the key takes them through the object's own transfer key, self.c). */
+    uint64_t k1 = gr->key;
+    sc.lighting.lights[0].irradiance[0] = 2.0f;
+    CHECK(pen_render_fwd(ctx, &sc, &opt, st, &img) == PEN_OK);
+    CHECK(gr->key == k1);
+    sc.lighting.lights[0].direction[0] = 0.5f;
+    CHECK(pen_render_fwd(ctx, &sc, &opt, st, &img) == PEN_OK);
+    CHECK(gr->key != k1);
+    k1 = gr->key;
+    sc.lighting.lights[0].angular_radius_deg = 6.0f;
+    CHECK(pen_render_fwd(ctx, &sc, &opt, st, &img) == PEN_OK);
+    CHECK(gr->key != k1);
     /* The scene's grid size is part of the key. */
     const uint64_t k2 = gr->key;
     sc.shadow.ground_grid = 16;

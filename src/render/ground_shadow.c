@@ -103,24 +103,17 @@ static void grid_shape(const pen_scene *sc, const pen_render_state *st, pen__gro
     }
 }
 
-/* The cache key: what the nodes' transfer depends on. */
+/* The cache key: what the nodes' transfer depends on. The transferred objects' own keys (self.c)
+ * were made this frame by pen__self_prepare, which runs first, and already hash their posed
+ * vertices, indices, the band count and the lights (with at least one such object, or no grid),
+ * so they stand for the meshes here instead of hashing every vertex a second time. */
 static uint64_t grid_key(const pen_scene *sc, const pen_render_state *st,
                          const pen__ground_grid *gr) {
-    const pen__lights *L = &st->lights;
-    uint64_t h = ((uint64_t)sc->sh_bands ^ ((uint64_t)L->count << 8) ^ ((uint64_t)gr->n << 16)) *
-                 0x9E3779B97F4A7C15ull;
+    uint64_t h = ((uint64_t)sc->sh_bands ^ ((uint64_t)gr->n << 16)) * 0x9E3779B97F4A7C15ull;
     for (int o = 0; o < sc->object_count; ++o) {
         if (!st->obj[o].self_on) continue;
-        const pen_mesh *m = &sc->objects[o].mesh;
         h = (h ^ (uint64_t)o) * 0x9E3779B97F4A7C15ull;
-        h = (h ^ pen__render_hash32(st->obj[o].world.data, 3 * (size_t)m->vertex_count)) *
-            0x9E3779B97F4A7C15ull;
-        h = (h ^ pen__render_hash32(m->indices, 3 * (size_t)m->triangle_count)) *
-            0x9E3779B97F4A7C15ull;
-    }
-    for (int l = 0; l < L->count; ++l) {
-        const double wb[4] = {L->w[l][0], L->w[l][1], L->w[l][2], L->b[l]};
-        h = (h ^ pen__render_hash32(wb, sizeof wb / 4)) * 0x9E3779B97F4A7C15ull;
+        h = (h ^ st->obj[o].self_key) * 0x9E3779B97F4A7C15ull;
     }
     const double g[9] = {(double)sc->ground.height, (double)sc->ground.half_size,
                          gr->c[0],
