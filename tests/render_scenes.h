@@ -258,6 +258,27 @@ static inline pen_status rs_render(const pen_scene *sc, const pen_render_options
     return s;
 }
 
+/* The central difference (L(p + h) - L(p - h)) / 2h of L = <d_img, render>, summed in double,
+ * for the float parameter *param of sc (renders without a state; *param restored): the number a
+ * backward's gradient of that parameter against d_img is checked with. */
+static inline double rs_central_dot(pen_context *ctx, const pen_scene *sc,
+                                    const pen_render_options *opt, float *param, float h,
+                                    const pen_image *d_img) {
+    const float keep = *param;
+    pen_image tmp = {0, 0, 0, NULL};
+    double l[2];
+    for (int sgn = 0; sgn < 2; ++sgn) {
+        *param = keep + (sgn ? -h : h);
+        CHECK(pen_render_fwd(ctx, sc, opt, NULL, &tmp) == PEN_OK);
+        l[sgn] = 0.0;
+        for (size_t i = 0; i < 3 * (size_t)d_img->width * (size_t)d_img->height; ++i)
+            l[sgn] += (double)d_img->data[i] * (double)tmp.data[i];
+    }
+    *param = keep;
+    pen_image_free(&tmp);
+    return (l[0] - l[1]) / (2.0 * (double)h);
+}
+
 /* A forward into a new render state, kept for the caller to look into (its caches) and free. */
 static inline pen_render_state *rs_render_kept(pen_context *ctx, const pen_scene *sc,
                                                const pen_render_options *opt, pen_image *img) {

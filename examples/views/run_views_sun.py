@@ -20,6 +20,8 @@ import os
 import subprocess
 import sys
 
+from run_views_lights import held_back_floor
+
 ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")
 
 
@@ -31,18 +33,13 @@ def main():
     ridge = os.environ.get("PEN_SUN_RIDGE")
     tag = "_sun" + ("_r" + ridge if ridge else "")
 
-    def rel(a, b):
-        out = subprocess.check_output([pen, "compare", a, b])
-        return json.loads(out)["rel_rmse"]
-
     print("| scene | views | light's angle to the map's (deg) | SH error (sky) | held-back: found / "
           "true lights | iterations, stop | search: renders, s | s/it |")
     print("|---|---|---|---|---|---|---|---|")
     for case in cases:
         name, _, count = case.partition(":")
         d = os.path.join(ROOT, "out", "views", name)
-        floor = sum(rel(os.path.join(d, "true_%s_lights.exr" % v), os.path.join(d, "t_%s.exr" % v))
-                    for v in ("val1", "val2")) / 2
+        floor = held_back_floor(pen, d)
         for n in (1, 2, 4, 8):
             task = {"scene": "truth.json", "ground_truth": "truth_lights.json",
                     "optimize": ["lighting", "lights"], "light_count": int(count or 1),

@@ -274,10 +274,11 @@ typedef struct pen__optim_views {
     pen_image *eye_target;  /* per view: the target over the exposure (pen__optim_view_eye);
                                allocated where the exposure may differ from 1 */
     size_t max_pixels;
+    int taking_part; /* views with factor > 0 (counted by pen__optim_views_init) */
     /* the passes (pen__optim_views_plan): the views taking part, in view order, and per one of
      * them its forward's share (loss: w_v E_v and d(w_v E_v)/d(log s_v)) and its gradient
      * vector (grad_floats, pen__optim_grad_pack for wrt) */
-    int *order, taking_part;
+    int *order;
     int lo, hi; /* this process's block of order */
     const pen_optim_ranks *ranks;
     pen__optim_view_share *loss;

@@ -115,12 +115,7 @@ static pen__optim_identity identity(const pen_optim_task *t, const pen_optim_set
     id.shadow_weight = t->shadow_weight;
     id.lighting_solver = r->solve ? PEN_OPTIM_LIGHTING_LEAST_SQUARES : PEN_OPTIM_LIGHTING_ADAM;
     id.lighting_ridge = r->ridge; /* (both resolved: a checkpoint never holds "auto") */
-    id.ridge_views = 1;
-    if (r->multi) { /* (the views' plan, which counts them too, comes later) */
-        id.ridge_views = 0;
-        for (int i = 0; i < r->views.count; ++i)
-            id.ridge_views += r->views.factor[i] > 0.0;
-    }
+    id.ridge_views = r->multi ? r->views.taking_part : 1;
     if (r->groups & PEN_OPTIM_DEFORMATION) {
         id.graph_k = t->deformation.k;
         id.weights[0] = t->deformation.w_rot, id.weights[1] = t->deformation.w_reg;

@@ -292,10 +292,10 @@ pen_status pen__optim_views_init(pen_context *ctx, pen__optim_views *V, const pe
         const double sum = s ? 0.0 : pen__loss_weight_sum(w, pixels);
         V->factor[i] = sum > 0.0 ? v->weight / sum : 0.0; /* empty mask: the view is out */
     }
-    int taking_part = 0;
+    V->taking_part = 0;
     for (int i = 0; !s && i < n; ++i)
-        taking_part += V->factor[i] > 0.0;
-    if (!s && taking_part == 0)
+        V->taking_part += V->factor[i] > 0.0;
+    if (!s && V->taking_part == 0)
         s = pen__error(ctx, PEN_ERROR_ARGUMENT,
                        "%s: views: every view has weight 0 or an empty mask: nothing to fit",
                        t->path ? t->path : "task");
