@@ -261,6 +261,16 @@ static void test_resume_other_regularisers(void) {
                            "checkpoint.bin: made with other regularisers", dir));
 }
 
+/* Rewrites the version field of the checkpoint at `path`, the checksum recomputed: a file as
+ * an older build wrote it where the fields did not change since. */
+static void set_version(const char *path, uint32_t version) {
+    static unsigned char buf[1 << 16];
+    const size_t n = os_checkpoint_read(path, buf, sizeof buf);
+    if (!n) return;
+    memcpy(buf + 8, &version, 4);
+    os_checkpoint_write(path, buf, n);
+}
+
 /* Rewrites the checkpoint at `path` as the version-3 build wrote it for a default (Adam) task:
  * version 3, ridge 1e-2 (which Adam's loss then ignored), the checksum recomputed. */
 static void make_version_3(const char *path) {
@@ -331,6 +341,48 @@ static void test_resume_old_checkpoint(void) {
     cleanup(dir);
 }
 
+/* Version 4 weighed a multi-view task's ridge as all its views; a single-view task's ridge was
+ * the same then as now, so its checkpoint still resumes (Adam with a lighting ridge: the ridge
+ * is part of the loop's objective), bit for bit the run made in one go. */
+static void test_resume_version_4_single_view(void) {
+    char dir[] = "/tmp/pen_resume_XXXXXX";
+    CHECK(mkdtemp(dir) != NULL);
+    const int j = check_quick_() ? 5 : 9;
+    pen_optim_task ta = make_task(PEN_OPTIM_LIGHTING, 0), tb = make_task(PEN_OPTIM_LIGHTING, 0);
+    ta.lighting_solver = tb.lighting_solver = PEN_OPTIM_LIGHTING_ADAM;
+    ta.lighting_ridge = tb.lighting_ridge = 1e-2;
+    pen_context *ctx = pen_context_create();
+    pen_optim_settings set = pen_optim_settings_default();
+    pen_optim_result a, b;
+    CHECK(pen_optim_run(ctx, &ta, &set, &a) == PEN_OK);
+    stopper stop = {j, -1, NULL, NULL};
+    set.outdir = dir;
+    set.progress = on_progress;
+    set.progress_user = &stop;
+    CHECK(pen_optim_run(ctx, &tb, &set, &b) == PEN_OK);
+    CHECK(b.interrupted && b.iterations == j);
+    pen_optim_result_free(&b);
+    pen_optim_task_free(&tb);
+    set_version(path_in(dir, "checkpoint.bin"), 4);
+    tb = make_task(PEN_OPTIM_LIGHTING, 0);
+    tb.lighting_solver = PEN_OPTIM_LIGHTING_ADAM;
+    tb.lighting_ridge = 1e-2;
+    set.progress = NULL;
+    set.resume = 1;
+    const pen_status s = pen_optim_run(ctx, &tb, &set, &b);
+    CHECK_MSG(s == PEN_OK, "%s", pen_context_error(ctx));
+    if (!s) {
+        CHECK(b.resumed_from == j && b.lighting_ridge == 1e-2);
+        check_same(&a, &ta, &b, &tb, "version 4 + resumed");
+        pen_optim_result_free(&b);
+    }
+    pen_optim_result_free(&a);
+    pen_optim_task_free(&ta);
+    pen_optim_task_free(&tb);
+    pen_context_destroy(ctx);
+    cleanup(dir);
+}
+
 RUN_TESTS(TEST(test_resume_lighting_pose), TEST(test_resume_deformation), TEST(test_resume_stopping),
           TEST(test_resume_refused), TEST(test_resume_other_regularisers),
-          TEST(test_resume_old_checkpoint))
+          TEST(test_resume_old_checkpoint), TEST(test_resume_version_4_single_view))

@@ -280,15 +280,19 @@ static void expose_views(pen_optim_task *t) {
 }
 
 /* A fifth view of weight 0 changes nothing; neither does a fifth view whose mask excludes every
- * pixel; and a view's weight 0 equals its mask excluding everything. */
+ * pixel; and a view's weight 0 equals its mask excluding everything. The runs carry a lighting
+ * ridge, whose mu divides by the views taking part (pen__optim_ridge_mu): an idle view counted
+ * there would change mu, and the run. */
 static void test_weights_and_masks(void) {
     const unsigned groups = PEN_OPTIM_LIGHTING | PEN_OPTIM_POSE;
     const int iterations = check_quick_() ? 4 : 8;
     pen_optim_settings set = pen_optim_settings_default();
     pen_optim_task t4 = views_task(VIEWS, VIEWS, 0, groups, iterations);
+    t4.lighting_ridge = 1e-2;
     pen_optim_result r4 = run_task(&t4, &set);
     for (int variant = 0; variant < 2; ++variant) {
         pen_optim_task t = views_task(VIEWS, VIEWS, 1, groups, iterations);
+        t.lighting_ridge = 1e-2;
         pen_optim_view *v = &t.views[VIEWS];
         v->camera = around(1, 3);
         v->target = render_view(&t.scene, &v->camera); /* far from the truth: would matter */
@@ -409,6 +413,7 @@ static void test_ranks(void) {
                                          : PEN_OPTIM_LIGHTING | PEN_OPTIM_POSE;
         pen_optim_settings set = pen_optim_settings_default();
         pen_optim_task t1 = views_task(n, n, 1, groups, iterations);
+        t1.lighting_ridge = 1e-2; /* mu counts every rank's views, not its own block's */
         if (exposure) expose_views(&t1);
         t1.views[n].camera = around(1, 5);
         t1.views[n].target = render_view(&t1.scene, &t1.views[n].camera);
@@ -423,6 +428,7 @@ static void test_ranks(void) {
             me->w = &w;
             me->ranks = (pen_optim_ranks){r, size, shared_allgather, me};
             me->task = views_task(n, n, 1, groups, iterations);
+            me->task.lighting_ridge = t1.lighting_ridge;
             if (exposure) expose_views(&me->task);
             me->task.views[n].camera = t1.views[n].camera;
             me->task.views[n].target = render_view(&me->task.scene, &me->task.views[n].camera);

@@ -148,9 +148,10 @@ PEN_API pen_optim_spheres pen_optim_spheres_default(void);
  * weights over their masks' sizes normalise), mu_c = rho times the largest diagonal entry of
  * channel c's normal equations at the initial guess, divided by the number of views taking part
  * (weight > 0 and a non-empty mask, each counted once whatever its weight, so that scaling every
- * weight leaves the solution as it is; 1 with a single target), then held fixed for the run: the prior weighs as much as one view,
- * whatever the number of views, so that more views outweigh it (relative to the summed
- * equations, it would grow with them and its pull would never fade). Least squares
+ * weight leaves the solution as it is; 1 with a single target), then held fixed for the run:
+ * the prior weighs as much as one view, whatever the number of views, so that more views
+ * outweigh it (relative to the summed equations, it would grow with them and its pull would
+ * never fade). Least squares
  * minimises it exactly; Adam steps on it (the term's gradient joins the lighting's). The default
  * (NaN in the struct) is 1e-2 with least squares and 0 with Adam (Adam's runs stay those of a
  * plain image loss); a task may set it for either. The lights search (light_count) solves its SH
@@ -266,8 +267,10 @@ typedef int (*pen_optim_progress_fn)(void *user, int iteration, int iterations, 
  * task run to N iterations in one go and run to K, then resumed to N, give the same parameters,
  * losses and outputs bit for bit (same task, target, shadows and thread count; the renderer
  * reduces in a fixed order). A checkpoint of another task (parameter layout, target, initial
- * guess, loss, shadow weight, shadows, lighting solver and ridge, regularisers) or a damaged one is refused with one line naming the file and what
- * differs. `snapshot_every` > 0 writes the render of every K-th iterate to
+ * guess, loss, shadow weight, shadows, lighting solver and ridge, regularisers) or a damaged one
+ * is refused with one line naming the file and what differs; so is a multi-view checkpoint of
+ * version 3 or 4 whose lighting took a ridge (the ridge weighed as all the views then,
+ * docs/optimize.md "The ridge is one view's worth"). `snapshot_every` > 0 writes the render of every K-th iterate to
  * OUTDIR/snapshots/iter_NNNNN.png. The folder is created when first written to. */
 typedef struct pen_optim_settings {
     int shadows;                    /* 0: optimise with V == 1 (`--no-shadows`, the baseline) */

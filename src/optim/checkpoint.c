@@ -264,7 +264,9 @@ static pen_status check_identity(pen_context *ctx, const char *path, reader *r,
                           "%s, ridge %g",
                           path, solver ? "least_squares" : "adam", ridge,
                           id->lighting_solver ? "least_squares" : "adam", id->lighting_ridge);
-    if (version < 5u && ridge > 0.0 && id->ridge_views > 1)
+    /* (the ridge is part of the objective only where the lighting is: a task without the group
+     * ignores "lighting_ridge") */
+    if (version < 5u && ridge > 0.0 && (id->groups & PEN_OPTIM_LIGHTING) && id->ridge_views > 1)
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "%s: checkpoint version %u, made when the lighting ridge of a multi-view "
                           "task weighed as much as all its views (now one view's worth): this "

@@ -135,8 +135,9 @@ pen_status pen__optim_solve_lighting(pen_context *ctx, const pen_scene *sc,
 /* Solves the symmetric positive definite n x n system A x = b in place (Cholesky on A's lower
  * triangle; A and b are overwritten, x in b). Returns 0 if A is not positive definite. */
 int pen__optim_solve_spd(double *A, double *b, int n);
-/* Ridges (relative to the largest diagonal entry of the normal equations, pen__optim_ridge_mu): the shadow mask
- * needs an unbiased fitted image, the "fit" initial guess well-conditioned coefficients. */
+/* Ridges (relative to the largest diagonal entry of the normal equations, pen__optim_ridge_mu):
+ * the shadow mask needs an unbiased fitted image, the "fit" initial guess well-conditioned
+ * coefficients. */
 #define PEN__OPTIM_RIDGE_MASK 1e-9
 #define PEN__OPTIM_RIDGE_INIT 1e-2
 /* The shadow mask of optim.h ("shadow_weight") for the scene `sc` (the initial guess; the
