@@ -22,7 +22,8 @@ static const pen__optim_identity FUZZ_IDENTITY = {
     .loss = PEN_OPTIM_LOSS_L2, .shadows = 1, .width = 8, .height = 8, .shadow_weight = 0.0,
     .lighting_solver = PEN_OPTIM_LIGHTING_ADAM, .lighting_ridge = 0.0, .graph_k = 0,
     .weights = {0.0, 0.0, 0.0}, .target_hash = 0x1234u, .init_hash = 0x5678u,
-    .ridge_views = 2}; /* (a multi-view task: the older versions' refusals are reachable) */
+    .ridge_views = 2, /* (a multi-view task: the older versions' refusals are reachable) */
+    .scene_hash = 0x9abcu};
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
     uint8_t *bytes = malloc(size ? size : 1);

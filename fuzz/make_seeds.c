@@ -113,7 +113,8 @@ static void checkpoint(int iteration, const char *out) {
         .n = N, .segments = segments, .segment_count = 2, .groups = PEN_OPTIM_LIGHTING,
         .loss = PEN_OPTIM_LOSS_L2, .shadows = 1, .width = 8, .height = 8, .shadow_weight = 0.0,
         .lighting_solver = PEN_OPTIM_LIGHTING_ADAM, .lighting_ridge = 0.0, .graph_k = 0,
-        .weights = {0.0, 0.0, 0.0}, .target_hash = 0x1234u, .init_hash = 0x5678u};
+        .weights = {0.0, 0.0, 0.0}, .target_hash = 0x1234u, .init_hash = 0x5678u,
+        .ridge_views = 2, .scene_hash = 0x9abcu};
     float x[N], best[N], m[N], v[N];
     double losses[64];
     for (int i = 0; i < N; ++i) {

@@ -123,4 +123,29 @@ static inline void os_checkpoint_write(const char *path, unsigned char *buf, siz
     if (f) fclose(f);
 }
 
+/* Where the lighting solver's field of a checkpoint in buf starts (the layout in checkpoint.c:
+ * 28 bytes, 20 a segment, then groups, 4 ints and the shadow weight). */
+static inline size_t os_checkpoint_solver_at(const unsigned char *buf) {
+    uint32_t segs;
+    memcpy(&segs, buf + 24, 4);
+    return 28 + 20 * (size_t)segs + 4 + 16 + 8;
+}
+
+/* Rewrites the checkpoint at `path` as a build of an older `version` wrote it where the fields
+ * did not change since: the version field set and, below version 6, the scene's hash (after the
+ * solver, ridge, k, the 3 weights, the target's and the initial guess's hashes) taken out; the
+ * checksum recomputed. */
+static inline void os_checkpoint_downgrade(const char *path, uint32_t version) {
+    static unsigned char buf[1 << 16];
+    size_t n = os_checkpoint_read(path, buf, sizeof buf);
+    if (!n) return;
+    memcpy(buf + 8, &version, 4);
+    if (version < 6u) {
+        const size_t at = os_checkpoint_solver_at(buf) + 4 + 8 + 4 + 24 + 8 + 8;
+        memmove(buf + at, buf + at + 8, n - at - 8);
+        n -= 8;
+    }
+    os_checkpoint_write(path, buf, n);
+}
+
 #endif

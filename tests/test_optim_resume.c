@@ -231,14 +231,14 @@ static void test_resume_refused(void) {
     CHECK(strstr(pen_context_error(ctx), "checkpoint.bin: damaged checkpoint (checksum mismatch)"));
     /* An iteration (and Adam step) of INT32_MAX is refused from the counts alone, before the
      * checksum is read, without computing iteration + 1 in 32 bits (UBSan). The counts follow
-     * the identity: 28 bytes, 20 a segment, then 84 (see the layout in checkpoint.c). */
+     * the identity: 28 bytes, 20 a segment, then 92 (see the layout in checkpoint.c). */
     f = fopen(path, "r+b");
     CHECK(f != NULL);
     if (f) {
         uint32_t segs = 0;
         CHECK(fseek(f, 24, SEEK_SET) == 0 && fread(&segs, 4, 1, f) == 1);
         const int32_t big[4] = {INT32_MAX, 3, 0, INT32_MAX}; /* iteration, losses, best, step */
-        CHECK(fseek(f, 112 + 20 * (long)segs, SEEK_SET) == 0);
+        CHECK(fseek(f, 120 + 20 * (long)segs, SEEK_SET) == 0);
         CHECK(fwrite(big, sizeof big, 1, f) == 1);
         fclose(f);
     }
@@ -251,6 +251,26 @@ static void test_resume_refused(void) {
     cleanup(dir);
 }
 
+static void move_camera(pen_optim_task *t) { t->scene.camera.eye[0] += 0.01f; }
+static void paint_ground(pen_optim_task *t) { t->scene.ground.albedo[1] *= 0.9f; }
+static void filter_texture(pen_optim_task *t) {
+    t->scene.objects[0].texture_filter = PEN_TEXTURE_FILTER_POINT;
+}
+static void overlap_none(pen_optim_task *t) { t->scene.shadow.overlap = PEN_OVERLAP_NONE; }
+
+/* What the renders depend on besides the parameters and the target is part of the identity
+ * (version 6): a resume after the scene's camera, its ground, an object's texture filter key or
+ * the spheres' overlap rule was edited is refused, where it used to go on under the new scene. */
+static void test_resume_other_scene(void) {
+    void (*const edits[])(pen_optim_task *) = {move_camera, paint_ground, filter_texture,
+                                               overlap_none};
+    for (size_t k = 0; k < sizeof edits / sizeof edits[0]; ++k) {
+        char dir[] = "/tmp/pen_resume_XXXXXX";
+        cleanup(refused_resume(PEN_OPTIM_POSE, edits[k], "checkpoint.bin: made for another scene",
+                               dir));
+    }
+}
+
 static void stiffer(pen_optim_task *t) { t->spheres.w_smooth *= 2.0; }
 
 /* The regularisers are part of the objective: a checkpoint of the spheres group is refused by
@@ -261,31 +281,18 @@ static void test_resume_other_regularisers(void) {
                            "checkpoint.bin: made with other regularisers", dir));
 }
 
-/* Rewrites the version field of the checkpoint at `path`, the checksum recomputed: a file as
- * an older build wrote it where the fields did not change since. */
-static void set_version(const char *path, uint32_t version) {
-    static unsigned char buf[1 << 16];
-    const size_t n = os_checkpoint_read(path, buf, sizeof buf);
-    if (!n) return;
-    memcpy(buf + 8, &version, 4);
-    os_checkpoint_write(path, buf, n);
-}
-
 /* Rewrites the checkpoint at `path` as the version-3 build wrote it for a default (Adam) task:
  * version 3, ridge 1e-2 (which Adam's loss then ignored), the checksum recomputed. */
 static void make_version_3(const char *path) {
+    os_checkpoint_downgrade(path, 3);
     static unsigned char buf[1 << 16];
     const size_t n = os_checkpoint_read(path, buf, sizeof buf);
     if (!n) return;
-    uint32_t version = 3, segs = 0;
     int32_t solver = -1;
     const double ridge = 1e-2;
-    memcpy(&segs, buf + 24, 4);
-    /* the layout in checkpoint.c: 28 bytes, 20 a segment, groups, 4 ints, shadow weight */
-    const size_t at = 28 + 20 * (size_t)segs + 4 + 16 + 8;
+    const size_t at = os_checkpoint_solver_at(buf);
     memcpy(&solver, buf + at, 4);
     CHECK(solver == PEN_OPTIM_LIGHTING_ADAM);
-    memcpy(buf + 8, &version, 4);
     memcpy(buf + at + 4, &ridge, 8);
     os_checkpoint_write(path, buf, n);
 }
@@ -363,7 +370,7 @@ static void test_resume_version_4_single_view(void) {
     CHECK(b.interrupted && b.iterations == j);
     pen_optim_result_free(&b);
     pen_optim_task_free(&tb);
-    set_version(path_in(dir, "checkpoint.bin"), 4);
+    os_checkpoint_downgrade(path_in(dir, "checkpoint.bin"), 4);
     tb = make_task(PEN_OPTIM_LIGHTING, 0);
     tb.lighting_solver = PEN_OPTIM_LIGHTING_ADAM;
     tb.lighting_ridge = 1e-2;
@@ -384,5 +391,6 @@ static void test_resume_version_4_single_view(void) {
 }
 
 RUN_TESTS(TEST(test_resume_lighting_pose), TEST(test_resume_deformation), TEST(test_resume_stopping),
-          TEST(test_resume_refused), TEST(test_resume_other_regularisers),
+          TEST(test_resume_refused), TEST(test_resume_other_scene),
+          TEST(test_resume_other_regularisers),
           TEST(test_resume_old_checkpoint), TEST(test_resume_version_4_single_view))

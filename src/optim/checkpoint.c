@@ -8,8 +8,8 @@
  * (the layout, the initial guess and its render, the shadow mask) and is checked against the
  * checkpoint through an identity (parameter layout, groups, loss, shadows, image size, shadow
  * weight, lighting solver and ridge, the regularisers' k and weights, hashes of the target's
- * pixels and of the initial parameter vector), so a checkpoint is never applied to another
- * problem.
+ * pixels, of the initial parameter vector and of the rest of the scene with the loop's render
+ * options), so a checkpoint is never applied to another problem.
  *
  * File layout (native byte order; an order marker refuses files from another kind of machine):
  *     "PENOPTCK" u32 version u32 0x01020304
@@ -18,7 +18,7 @@
  *     i32 lighting_solver  f64 lighting_ridge
  *     i32 graph_k  f64 weights[3]   (the regularisers: deformation k, w_rot, w_reg or spheres k,
  *                                   w_smooth, 0; zeros without either group)
- *     u64 target_hash  u64 init_hash
+ *     u64 target_hash  u64 init_hash  u64 scene_hash (from version 6)
  *     i32 iteration  i32 recorded  i32 best_iteration  i32 adam_t  f64 best_loss  f64 seconds
  *     f32 x[n]  f32 best[n]  f32 m[n]  f32 v[n]  f64 losses[recorded]
  *     u64 FNV-1a 64 of every byte before it
@@ -32,7 +32,9 @@
  * (pen__optim_ridge_mu): a multi-view run with a ridge had another objective then, so such a
  * checkpoint is refused, and one whose "fit" start or lights search took a ridge had another
  * initial guess, refused by its hash with the same reason named; single-view ones read as they
- * were. */
+ * were. Version 6 adds the scene's hash (pen__optim_scene_hash): before it, a run resumed after
+ * the scene's camera, meshes, textures, ground or shadow keys had been edited went on under the
+ * new scene. Older files have none and are read without that check. */
 #define _POSIX_C_SOURCE 200809L
 #include "io/io_internal.h"
 #include "optim/optim_internal.h"
@@ -44,9 +46,62 @@
 #include <unistd.h>
 
 #define CHECKPOINT_MAGIC "PENOPTCK"
-#define CHECKPOINT_VERSION 5u
+#define CHECKPOINT_VERSION 6u
 #define CHECKPOINT_VERSION_MIN 3u /* read from here on: above */
 #define CHECKPOINT_ORDER 0x01020304u
+
+/* ---- The scene's hash ------------------------------------------------------------------------ */
+
+static uint64_t mix(uint64_t h, const void *data, size_t size) {
+    return data && size ? pen__fnv1a(h, data, size) : h;
+}
+
+/* The structs hashed whole below hold 4-byte fields only (ints, floats, enums), so they have no
+ * padding whose bytes could differ between two runs. */
+uint64_t pen__optim_scene_hash(const pen_scene *sc, const pen_render_options *opt) {
+    uint64_t h = mix(PEN__FNV1A_SEED, opt, sizeof *opt);
+    h = mix(h, &sc->camera, sizeof sc->camera);
+    h = mix(h, &sc->sh_bands, sizeof sc->sh_bands);
+    h = mix(h, sc->lighting.sh, sizeof sc->lighting.sh[0] * (size_t)(sc->sh_bands * sc->sh_bands));
+    h = mix(h, &sc->lighting.light_count, sizeof sc->lighting.light_count);
+    h = mix(h, sc->lighting.lights, sizeof sc->lighting.lights[0] * (size_t)sc->lighting.light_count);
+    h = mix(h, &sc->shadow, sizeof sc->shadow);
+    h = mix(h, &sc->ground, sizeof sc->ground);
+    h = mix(h, &sc->background_envmap, sizeof sc->background_envmap);
+    h = mix(h, sc->background, sizeof sc->background);
+    if (sc->background_envmap) { /* the map itself is seen; otherwise only its SH and lights */
+        const pen_image *e = &sc->lighting.envmap;
+        h = mix(h, &sc->lighting.scale, sizeof sc->lighting.scale);
+        h = mix(h, &sc->lighting.rotation_y_deg, sizeof sc->lighting.rotation_y_deg);
+        h = mix(h, e->data, sizeof(float) * (size_t)e->channels * (size_t)e->width * (size_t)e->height);
+    }
+    h = mix(h, &sc->object_count, sizeof sc->object_count);
+    for (int o = 0; o < sc->object_count; ++o) {
+        const pen_object *ob = &sc->objects[o];
+        const pen_mesh *m = &ob->mesh;
+        const size_t tri = 3 * (size_t)m->triangle_count;
+        const int32_t counts[4] = {m->vertex_count, m->triangle_count, m->uv_count, m->normal_count};
+        h = mix(h, counts, sizeof counts);
+        h = mix(h, m->positions, sizeof(float) * 3 * (size_t)m->vertex_count);
+        h = mix(h, m->indices, sizeof(uint32_t) * tri);
+        h = mix(h, m->uvs, sizeof(float) * 2 * (size_t)m->uv_count);
+        h = mix(h, m->uv_indices, m->uv_count ? sizeof(uint32_t) * tri : 0);
+        h = mix(h, m->normals, sizeof(float) * 3 * (size_t)m->normal_count);
+        h = mix(h, m->normal_indices, m->normal_count ? sizeof(uint32_t) * tri : 0);
+        const pen_image *t = &ob->texture;
+        const int32_t tex[5] = {t->data ? t->width : 0, t->data ? t->height : 0,
+                                t->data ? t->channels : 0, (int32_t)ob->texture_layout,
+                                (int32_t)ob->texture_filter};
+        h = mix(h, tex, sizeof tex);
+        h = mix(h, t->data, sizeof(float) * (size_t)tex[0] * (size_t)tex[1] * (size_t)tex[2]);
+        h = mix(h, ob->albedo, sizeof ob->albedo);
+        h = mix(h, &ob->pose, sizeof ob->pose);
+        h = mix(h, &ob->spheres.count, sizeof ob->spheres.count);
+        h = mix(h, ob->spheres.data, sizeof(float) * 4 * (size_t)ob->spheres.count);
+        h = mix(h, ob->spheres.weight, sizeof(float) * (size_t)ob->spheres.count);
+    }
+    return h;
+}
 
 /* ---- Writing --------------------------------------------------------------------------------- */
 
@@ -88,6 +143,7 @@ static void put_identity(writer *w, const pen__optim_identity *id) {
         put_f64(w, id->weights[k]);
     put_u64(w, id->target_hash);
     put_u64(w, id->init_hash);
+    put_u64(w, id->scene_hash);
 }
 
 /* fsync of the folder holding `path`, so that the rename itself survives a crash. Best effort:
@@ -235,6 +291,7 @@ static pen_status check_identity(pen_context *ctx, const char *path, reader *r,
     for (int k = 0; k < 3; ++k)
         weights[k] = get_f64(r);
     const uint64_t target = get_u64(r), init = get_u64(r);
+    const uint64_t scene = version >= 6u ? get_u64(r) : id->scene_hash;
     if (!r->ok) return pen__error(ctx, PEN_ERROR_PARSE, "%s: truncated checkpoint", path);
     /* Flags outside their enums would be reported below as if they were valid settings ("made
      * with shadows, this run is with shadows"): a file that holds one is damaged. */
@@ -291,6 +348,10 @@ static pen_status check_identity(pen_context *ctx, const char *path, reader *r,
     if (init != id->init_hash)
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "%s: made for another initial guess (the task's scene differs)", path);
+    if (scene != id->scene_hash)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: made for another scene (its camera, meshes, textures, spheres, "
+                          "lights, ground, background or shadow settings differ)", path);
     return PEN_OK;
 }
 

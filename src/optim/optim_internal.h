@@ -349,7 +349,16 @@ typedef struct pen__optim_identity {
     double weights[3];    /* (k; w_smooth, 0, 0); zeros without either group */
     uint64_t target_hash; /* of the target's pixels */
     uint64_t init_hash;   /* of the parameter vector of the initial guess */
+    uint64_t scene_hash;  /* of the initial scene and the loop's render options
+                             (pen__optim_scene_hash) */
 } pen__optim_identity;
+
+/* A hash of everything the loop's renders depend on besides the target: the render options and
+ * the scene's camera, lighting (SH and disk lights; the map's pixels where the background shows
+ * it), shadow settings, ground, background and objects (meshes, textures and their filter,
+ * albedos, poses, spheres with their overlap weights). Taken at the initial guess, it is the same
+ * in a run and in its resumption from the same task. */
+uint64_t pen__optim_scene_hash(const pen_scene *sc, const pen_render_options *opt);
 
 /* The loop's state after `iteration` Adam steps; the arrays are the loop's own buffers. */
 typedef struct pen__optim_state {

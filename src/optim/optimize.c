@@ -131,6 +131,7 @@ static pen__optim_identity identity(const pen_optim_task *t, const pen_optim_set
         id.target_hash = pen__optim_views_hash(t->views, t->view_count);
     }
     id.init_hash = pen__fnv1a(PEN__FNV1A_SEED, r->x, sizeof(float) * r->n);
+    id.scene_hash = pen__optim_scene_hash(&t->scene, &r->opt);
     return id;
 }
 
