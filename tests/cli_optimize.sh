@@ -136,6 +136,14 @@ expect_resume_error "$T/nosuchdir" "nosuchdir/checkpoint.bin: cannot open the ch
 expect_resume_error "$T/res" "checkpoint.bin: the checkpoint is at iteration 40, beyond the iteration limit 30" --iterations 30
 expect_resume_error "$T/res" "checkpoint.bin: made with shadows, this run is with --no-shadows" --no-shadows
 expect_resume_error "$T/res" "checkpoint.bin: made for another target image" --target "$T/target_tex.exr"
+# The task's scene edited where no parameter is (its ground's albedo; the lighting still starts
+# from black): the run would go on under another scene.
+cp "$T/truth.json" "$T/truth.keep"
+sed 's/"ground": {"albedo": \[0.7, 0.7, 0.7\]}/"ground": {"albedo": [0.6, 0.7, 0.7]}/' \
+    "$T/truth.keep" > "$T/truth.json"
+cmp -s "$T/truth.json" "$T/truth.keep" && fail "the ground's albedo was not edited"
+expect_resume_error "$T/res" "checkpoint.bin: made for another scene"
+mv "$T/truth.keep" "$T/truth.json"
 cp -r "$T/res" "$T/bad"
 size=$(wc -c < "$T/bad/checkpoint.bin")
 printf 'X' | dd of="$T/bad/checkpoint.bin" bs=1 seek=$((size - 20)) conv=notrunc 2>/dev/null
