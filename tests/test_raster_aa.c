@@ -4,6 +4,7 @@
  * silhouette detection on a closed mesh, the gradient of the image sum against the exact
  * derivative of the covered area, thread-count independence and robustness. */
 #include "raster_util.h"
+#include "raster/raster_internal.h" /* the ground border blend */
 
 /* ---- Helpers ------------------------------------------------------------------------------- */
 
@@ -253,6 +254,67 @@ static void test_color_adjoint(void) {
     for (size_t i = 0; i < 3 * n; ++i)
         changed += out[i] != c[i];
     CHECK(changed > 20);
+    free(c), free(g), free(out), free(dc);
+    pen_gbuffer_free(&gb);
+}
+
+/* ---- The ground square's border ------------------------------------------------------------ */
+
+/* The border blend (pen__ground_border_fwd/bwd) with the square shrunk until its far side is in
+ * view: the backward is the forward's transpose (<g, A c> = <A^T g, c>, in double), A moves only
+ * pixels on the border (a ground pixel beside a background one, or the reverse), each row of A is
+ * a convex blend (a constant image stays constant), and without a ground nothing blends. */
+static void test_ground_border_adjoint(void) {
+    ru_scene s;
+    ru_scene_init(&s);
+    s.ground.half_size = 1.6f;
+    const int W = s.cam.width, H = s.cam.height;
+    const size_t n = (size_t)W * (size_t)H;
+    pen_gbuffer gb = ru_scene_gbuffer(&s);
+    unsigned long long seed = 64;
+    float *c = malloc(3 * n * sizeof(float)), *g = malloc(3 * n * sizeof(float));
+    float *out = malloc(3 * n * sizeof(float)), *dc = calloc(3 * n, sizeof(float));
+    for (size_t i = 0; i < 3 * n; ++i) {
+        c[i] = (float)check_rand_(&seed);
+        g[i] = (float)(2 * check_rand_(&seed) - 1);
+    }
+    pen_context *ctx = pen_context_create();
+    memcpy(out, c, 3 * n * sizeof(float)); /* (the forward blends in place) */
+    CHECK(pen__ground_border_fwd(ctx, &gb, &s.view, &s.ground, out, 3) == PEN_OK);
+    CHECK(pen__ground_border_bwd(ctx, &gb, &s.view, &s.ground, 3, g, dc) == PEN_OK);
+    CHECK_REL(dot_d(g, out, 3 * n), dot_d(dc, c, 3 * n), 1e-6, 1);
+    int changed = 0, off_border = 0;
+    for (int y = 0; y < H; ++y)
+        for (int x = 0; x < W; ++x) {
+            const size_t i = (size_t)y * (size_t)W + (size_t)x;
+            if (out[3 * i] == c[3 * i]) continue;
+            ++changed;
+            int beside = 0; /* a neighbour on the other side of the border */
+            const int d[4][2] = {{-1, 0}, {1, 0}, {0, -1}, {0, 1}};
+            for (int k = 0; k < 4; ++k) {
+                const int xx = x + d[k][0], yy = y + d[k][1];
+                if (xx < 0 || xx >= W || yy < 0 || yy >= H) continue;
+                const int a = gb.surface[i], b = gb.surface[(size_t)yy * (size_t)W + (size_t)xx];
+                beside |= (a == PEN_SURFACE_GROUND && b == PEN_SURFACE_BACKGROUND) ||
+                          (a == PEN_SURFACE_BACKGROUND && b == PEN_SURFACE_GROUND);
+            }
+            off_border += !beside;
+        }
+    CHECK_MSG(changed > 10, "%d pixels blended", changed);
+    CHECK_MSG(off_border == 0, "%d pixels blended off the border", off_border);
+    for (size_t i = 0; i < 3 * n; ++i)
+        out[i] = 0.75f;
+    CHECK(pen__ground_border_fwd(ctx, &gb, &s.view, &s.ground, out, 3) == PEN_OK);
+    for (size_t i = 0; i < 3 * n; ++i)
+        CHECK_MSG(fabsf(out[i] - 0.75f) < 1e-6f, "pixel %zu: %g", i / 3, (double)out[i]);
+    /* without a ground nothing blends */
+    s.ground.enabled = 0;
+    pen_gbuffer_free(&gb);
+    gb = ru_scene_gbuffer(&s);
+    memcpy(out, g, 3 * n * sizeof(float));
+    CHECK(pen__ground_border_fwd(ctx, &gb, &s.view, &s.ground, out, 3) == PEN_OK);
+    CHECK(memcmp(out, g, 3 * n * sizeof(float)) == 0);
+    pen_context_destroy(ctx);
     free(c), free(g), free(out), free(dc);
     pen_gbuffer_free(&gb);
 }
@@ -544,6 +606,7 @@ static void test_degenerate_and_errors(void) {
 }
 
 RUN_TESTS(TEST(test_triangle_over_background_fd), TEST(test_full_chain_fd),
+          TEST(test_ground_border_adjoint),
           TEST(test_small_triangles_blend),
           TEST(test_color_adjoint), TEST(test_closed_mesh_silhouettes_only),
           TEST(test_area_derivative), TEST(test_spot_silhouette_fd),

@@ -195,6 +195,31 @@ static void test_lighting_and_albedo(void) {
     }
 }
 
+/* The ground square shrunk until its far border lies in the image: the border's pixels blend
+ * ground and background (pen__ground_border_fwd), and the lighting's and the ground albedo's
+ * gradients pass through that blend's transpose. */
+static void test_ground_border_gradients(void) {
+    pen_scene sc = rs_ball_scene(32, 0, &seed);
+    sc.ground.half_size = 1.2f;
+    pen_render_grad g;
+    fd_rig r = rig_grad(&sc, 1, &g);
+    const pen_gbuffer *gb = &r.st->gb;
+    int pairs = 0;
+    for (int y = 0; y < gb->height; ++y)
+        for (int x = 0; x + 1 < gb->width; ++x) {
+            const int a = gb->surface[y * gb->width + x], b = gb->surface[y * gb->width + x + 1];
+            pairs += (a == PEN_SURFACE_GROUND) != (b == PEN_SURFACE_GROUND) &&
+                     (a == PEN_SURFACE_BACKGROUND || b == PEN_SURFACE_BACKGROUND);
+        }
+    CHECK_MSG(pairs >= 4, "the ground's border is not in view (%d pairs)", pairs);
+    check_group(&r, &sc, "sh", &sc.lighting.sh[0][0], 1, &g.sh[0][0], 1, 48, 0.05f, 1e-3, 1e-3, 0);
+    check_group(&r, &sc, "ground albedo", sc.ground.albedo, 1, g.ground_albedo, 1, 3, 0.05f, 1e-3,
+                1e-3, 0);
+    rig_free(&r);
+    pen_render_grad_free(&g);
+    pen_scene_free(&sc);
+}
+
 /* ---- Spheres (occluders of the ground, self-shadowing of the ball) --------------------------- */
 
 static void test_sphere_gradients(void) {
@@ -698,7 +723,7 @@ static void test_texture_filter_option(void) {
     pen_scene_free(&a), pen_scene_free(&b);
 }
 
-RUN_TESTS(TEST(test_lighting_and_albedo), TEST(test_sphere_gradients), TEST(test_occluder_only),
+RUN_TESTS(TEST(test_lighting_and_albedo), TEST(test_ground_border_gradients), TEST(test_sphere_gradients), TEST(test_occluder_only),
           TEST(test_self_shadowing_gradients), TEST(test_two_objects), TEST(test_pose_gradients),
           TEST(test_vertex_gradients), TEST(test_silhouette_gradients),
           TEST(test_disk_light_gradients),

@@ -52,6 +52,7 @@
 #include "core/internal.h"
 #include "raster/raster_internal.h"
 
+#include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -327,38 +328,251 @@ static pen_status aa_begin(pen_context *ctx, const pen_gbuffer *gb, const pen_vi
 /* The blend is linear in the colours: out = A c with, for each pair (receiver R, source S,
  * weight w), A_RR -= w and A_RS += w on top of the identity. The forward applies A (each pixel
  * gathers its row), the backward A^T (each pixel gathers its column) and adds into dst. */
+
+/* Pixel i's row of A (its column with `transpose`) applied to v, from the n pairs touching it
+ * (pr[j], with i its first pixel when first[j], the other pixel other[j]): written to out, the
+ * pixel's `channels` values (the forward), or added to them (the backward). */
+static void blend_pixel(const aa_pair *pr, const int *first, const size_t *other, int n,
+                        size_t i, const float *v, int channels, int transpose, float *out) {
+    /* The pairs that touch this pixel: receiving (+1) or, for A^T, giving (-1). */
+    double w[4];
+    int role[4], m = 0;
+    size_t from[4];
+    for (int j = 0; j < n; ++j) {
+        int recv = pr[j].receiver == (first[j] ? 1 : 2);
+        if (!recv && !(transpose && pr[j].receiver)) continue;
+        w[m] = (double)pr[j].weight, role[m] = recv, from[m++] = other[j];
+    }
+    for (int c = 0; c < channels; ++c) {
+        double vi = (double)v[i * channels + c], acc = vi;
+        for (int j = 0; j < m; ++j) {
+            double vo = (double)v[from[j] * channels + c];
+            if (role[j]) /* this pixel receives */
+                acc += transpose ? -w[j] * vi : w[j] * (vo - vi);
+            else /* the other pixel receives from this one */
+                acc += w[j] * vo;
+        }
+        if (transpose)
+            out[c] += (float)acc;
+        else
+            out[c] = (float)acc;
+    }
+}
+
 static void apply_blend(int threads, const aa_pair *pairs, int W, int H, const float *v,
                         int channels, int transpose, float *dst) {
 #pragma omp parallel for num_threads(threads) schedule(static)
     for (int y = 0; y < H; ++y)
         for (int x = 0; x < W; ++x) {
             size_t i = (size_t)y * (size_t)W + (size_t)x, idx[4], other[4];
-            int first[4], n = pixel_pairs(W, H, x, y, idx, first, other), m = 0;
-            /* The pairs that touch this pixel: receiving (+1) or, for A^T, giving (-1). */
-            double w[4];
-            int role[4];
-            size_t from[4];
-            for (int j = 0; j < n; ++j) {
-                const aa_pair *pr = pairs + idx[j];
-                int recv = pr->receiver == (first[j] ? 1 : 2);
-                if (!recv && !(transpose && pr->receiver)) continue;
-                w[m] = (double)pr->weight, role[m] = recv, from[m++] = other[j];
-            }
-            for (int c = 0; c < channels; ++c) {
-                double vi = (double)v[i * channels + c], acc = vi;
-                for (int j = 0; j < m; ++j) {
-                    double vo = (double)v[from[j] * channels + c];
-                    if (role[j]) /* this pixel receives */
-                        acc += transpose ? -w[j] * vi : w[j] * (vo - vi);
-                    else /* the other pixel receives from this one */
-                        acc += w[j] * vo;
-                }
-                if (transpose)
-                    dst[i * channels + c] += (float)acc;
-                else
-                    dst[i * channels + c] = (float)acc;
-            }
+            int first[4], n = pixel_pairs(W, H, x, y, idx, first, other);
+            aa_pair pr[4];
+            for (int j = 0; j < n; ++j)
+                pr[j] = pairs[idx[j]];
+            blend_pixel(pr, first, other, n, i, v, channels, transpose, dst + i * (size_t)channels);
         }
+}
+
+/* ---- The ground square's border ----------------------------------------------------------------
+ * The ground never occludes a mesh, so analyze_pair leaves a pair of a ground pixel and a
+ * background pixel alone, and the square's far border (seen at a grazing angle, often against a
+ * bright sky) stayed aliased: a pixel half covered by the ground showed the ground alone or the
+ * background alone. Such a pair is blended by the same rule as a silhouette: alpha is where the
+ * segment from the ground pixel's centre to the background pixel's centre leaves the square (its
+ * ray misses the square from there on), found by bisection of the rasterizer's own hit test; the
+ * 45-degree rule takes the border's screen direction there. The ground is fixed, so the blend has
+ * no position gradient; its colour transpose is the backward. */
+
+/* 1 when the ray through screen point (px, py) hits the ground square in front of the near
+ * plane: the rasterizer's test (raster.c), in double. */
+static int ground_hit(const pen_view *view, const pen_ground *g, double px, double py,
+                      double hit[3]) {
+    double D[3];
+    pen_view_ray(view, px, py, D);
+    double z = ((double)g->height - view->eye[1]) / D[1];
+    if (!(z >= view->near_plane) || !isfinite(z)) return 0;
+    double hx = view->eye[0] + z * D[0], hz = view->eye[2] + z * D[2];
+    double hs = (double)g->half_size;
+    if (hit) hit[0] = hx, hit[1] = (double)g->height, hit[2] = hz;
+    return fabs(hx) <= hs && fabs(hz) <= hs;
+}
+
+static aa_pair ground_pair(const pen_gbuffer *gb, const pen_view *view, const pen_ground *g,
+                           int x, int y, int axis) {
+    aa_pair none = {0.0f, 0, 0};
+    size_t i0 = (size_t)y * (size_t)gb->width + (size_t)x;
+    size_t i1 = axis ? i0 + (size_t)gb->width : i0 + 1;
+    int s0 = gb->surface[i0], s1 = gb->surface[i1];
+    int occ; /* the ground pixel: 0 the first, 1 the second */
+    if (s0 == PEN_SURFACE_GROUND && s1 == PEN_SURFACE_BACKGROUND)
+        occ = 0;
+    else if (s1 == PEN_SURFACE_GROUND && s0 == PEN_SURFACE_BACKGROUND)
+        occ = 1;
+    else
+        return none;
+    double ax = x + 0.5 + (axis ? 0.0 : occ), ay = y + 0.5 + (axis ? occ : 0.0);
+    double dx = axis ? 0.0 : (occ ? -1.0 : 1.0), dy = axis ? (occ ? -1.0 : 1.0) : 0.0;
+    double p[3];
+    if (!ground_hit(view, g, ax, ay, p) || ground_hit(view, g, ax + dx, ay + dy, NULL)) return none;
+    double lo = 0.0, hi = 1.0;
+    for (int it = 0; it < 24; ++it) { /* to 2^-24 of a pixel: below a float weight's rounding */
+        double mid = 0.5 * (lo + hi), q[3];
+        if (ground_hit(view, g, ax + mid * dx, ay + mid * dy, q))
+            lo = mid, p[0] = q[0], p[1] = q[1], p[2] = q[2];
+        else
+            hi = mid;
+    }
+    double alpha = 0.5 * (lo + hi);
+    /* The border's screen direction at the crossing: the square's side there, or (a square
+     * reaching the horizon) the horizon line D.y = 0. */
+    double du, dv, hs = (double)g->half_size, sdir[2];
+    if (fmax(fabs(p[0]), fabs(p[2])) >= (1.0 - 1e-6) * hs && hs > 0.0) {
+        double e[3] = {0.0, 0.0, 0.0}, a[3], b[3], sa[3], sb[3];
+        e[fabs(p[0]) >= fabs(p[2]) ? 2 : 0] = 1e-3 * hs;
+        for (int k = 0; k < 3; ++k)
+            a[k] = p[k] - e[k], b[k] = p[k] + e[k];
+        pen__raster_project_d(view, a, sa, NULL);
+        pen__raster_project_d(view, b, sb, NULL);
+        if (!(sa[2] > 0.0 && sb[2] > 0.0)) return none;
+        sdir[0] = sb[0] - sa[0], sdir[1] = sb[1] - sa[1];
+    } else {
+        sdir[0] = view->focal[0] * view->up[1], sdir[1] = view->focal[1] * view->right[1];
+    }
+    du = sdir[axis], dv = sdir[1 - axis];
+    if (axis == 0 ? !(fabs(dv) >= fabs(du)) : !(fabs(dv) > fabs(du))) return none;
+    aa_pair out;
+    if (alpha >= 0.5) {
+        out.weight = (float)(alpha - 0.5), out.slope = 1;
+        out.receiver = (int8_t)(occ ? 1 : 2);
+    } else {
+        out.weight = (float)(0.5 - alpha), out.slope = -1;
+        out.receiver = (int8_t)(occ ? 2 : 1);
+    }
+    return out;
+}
+
+/* 1 when pixel i may lie on the border: a ground pixel beside a background one or the reverse,
+ * told from the surfaces alone (most pixels are not: four reads, no ray). */
+static int border_candidate(const pen_gbuffer *gb, int x, int y) {
+    const int W = gb->width, H = gb->height;
+    const size_t i = (size_t)y * (size_t)W + (size_t)x;
+    const int s = gb->surface[i];
+    if (s != PEN_SURFACE_GROUND && s != PEN_SURFACE_BACKGROUND) return 0; /* an object's */
+    const int want = s == PEN_SURFACE_GROUND ? PEN_SURFACE_BACKGROUND : PEN_SURFACE_GROUND;
+    return (x > 0 && gb->surface[i - 1] == want) || (x + 1 < W && gb->surface[i + 1] == want) ||
+           (y > 0 && gb->surface[i - (size_t)W] == want) ||
+           (y + 1 < H && gb->surface[i + (size_t)W] == want);
+}
+
+/* The pairs touching pixel (x, y) (pixel_pairs' order) as the border sees them; returns how many
+ * blend (0: the pixel keeps its colour). A blending pair joins a ground pixel and a background
+ * pixel (border_candidate). */
+static int border_pixel(const pen_gbuffer *gb, const pen_view *view, const pen_ground *g, int x,
+                        int y, aa_pair pr[4], int first[4], size_t other[4], int *n) {
+    const int W = gb->width, H = gb->height;
+    const size_t nh = (size_t)(W - 1) * (size_t)H, i = (size_t)y * (size_t)W + (size_t)x;
+    const int s = gb->surface[i];
+    *n = 0;
+    if (!border_candidate(gb, x, y)) return 0;
+    size_t idx[4];
+    *n = pixel_pairs(W, H, x, y, idx, first, other);
+    int blending = 0;
+    for (int j = 0; j < *n; ++j) {
+        const int t = gb->surface[other[j]];
+        pr[j] = (aa_pair){0.0f, 0, 0};
+        if (!((s == PEN_SURFACE_GROUND && t == PEN_SURFACE_BACKGROUND) ||
+              (s == PEN_SURFACE_BACKGROUND && t == PEN_SURFACE_GROUND)))
+            continue;
+        const int axis = idx[j] >= nh;
+        const size_t k = axis ? idx[j] - nh : idx[j];
+        const int row = axis ? W : W - 1;
+        pr[j] = ground_pair(gb, view, g, (int)(k % (size_t)row), (int)(k / (size_t)row), axis);
+        blending += pr[j].receiver != 0;
+    }
+    return blending;
+}
+
+/* A pixel whose colour the border blend changes, and its new colour (the forward's staging). */
+typedef struct border_out {
+    size_t i;
+    float c[4];
+} border_out;
+
+pen_status pen__ground_border_fwd(pen_context *ctx, const pen_gbuffer *gb, const pen_view *view,
+                                  const pen_ground *ground, float *color, int channels) {
+    if (!gb || !view || !gb->surface || !ground || !ground->enabled) return PEN_OK;
+    if (channels < 1 || channels > 4)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "ground border: %d channels", channels);
+    /* Few pixels blend (the square's outline): their new colours are staged, per row, from the
+     * unchanged image, and written once every row is done (rows read their neighbours). */
+    const int W = gb->width, H = gb->height;
+    int *count = pen__calloc(ctx, (size_t)H + 1, sizeof *count, "ground border");
+    if (!count) return PEN_ERROR_MEMORY;
+    const int threads = pen__raster_threads_for(ctx, (size_t)W * (size_t)H);
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (int y = 0; y < H; ++y)
+        for (int x = 0; x < W; ++x) {
+            count[y + 1] += border_candidate(gb, x, y); /* (room for each: a bound) */
+        }
+    for (int y = 0; y < H; ++y)
+        count[y + 1] += count[y];
+    border_out *staged = NULL;
+    if (count[H] > 0) {
+        staged = pen__malloc(ctx, (size_t)count[H], sizeof *staged, "ground border");
+        if (!staged) {
+            free(count);
+            return PEN_ERROR_MEMORY;
+        }
+    }
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (int y = 0; y < H; ++y) {
+        int at = count[y];
+        for (int x = 0; x < W && at < count[y + 1]; ++x) {
+            aa_pair pr[4];
+            int first[4], n;
+            size_t other[4], i = (size_t)y * (size_t)W + (size_t)x;
+            if (!border_candidate(gb, x, y)) continue;
+            staged[at].i = SIZE_MAX; /* a candidate that does not blend */
+            if (border_pixel(gb, view, ground, x, y, pr, first, other, &n)) {
+                staged[at].i = i;
+                blend_pixel(pr, first, other, n, i, color, channels, 0, staged[at].c);
+            }
+            ++at;
+        }
+    }
+    for (int k = 0; k < count[H]; ++k)
+        if (staged[k].i != SIZE_MAX)
+            memcpy(color + staged[k].i * (size_t)channels, staged[k].c,
+                   sizeof(float) * (size_t)channels);
+    free(staged);
+    free(count);
+    return PEN_OK;
+}
+
+pen_status pen__ground_border_bwd(pen_context *ctx, const pen_gbuffer *gb, const pen_view *view,
+                                  const pen_ground *ground, int channels, const float *d_out,
+                                  float *d_color) {
+    if (!gb || channels < 1 || channels > 4)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "ground border: %d channels", channels);
+    const int W = gb->width, H = gb->height;
+    memcpy(d_color, d_out, sizeof(float) * (size_t)channels * (size_t)W * (size_t)H);
+    if (!view || !gb->surface || !ground || !ground->enabled) return PEN_OK;
+    /* Off the border A's column is the identity's (the copy above); on it each pixel gathers
+     * its column from d_out, which nothing writes, so rows run in parallel. */
+    const int threads = pen__raster_threads_for(ctx, (size_t)W * (size_t)H);
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (int y = 0; y < H; ++y)
+        for (int x = 0; x < W; ++x) {
+            aa_pair pr[4];
+            int first[4], n;
+            size_t other[4], i = (size_t)y * (size_t)W + (size_t)x;
+            if (!border_pixel(gb, view, ground, x, y, pr, first, other, &n)) continue;
+            float *out = d_color + i * (size_t)channels;
+            for (int c = 0; c < channels; ++c)
+                out[c] = 0.0f;
+            blend_pixel(pr, first, other, n, i, d_out, channels, 1, out);
+        }
+    return PEN_OK;
 }
 
 /* ---- Forward --------------------------------------------------------------------------------- */

@@ -33,4 +33,14 @@ static inline int pen__raster_threads_for(const pen_context *ctx, size_t work) {
     return work < 8192 ? 1 : pen__threads(ctx);
 }
 
+/* The ground square's border against the background, blended like a silhouette (antialias.c):
+ * color = A color in place (1 to 4 channels); the backward writes d_color = A^T d_out (d_out
+ * and d_color must not alias). Nothing blends without an enabled ground (A = I). No position
+ * gradient (the ground is fixed). */
+pen_status pen__ground_border_fwd(pen_context *ctx, const pen_gbuffer *gb, const pen_view *view,
+                                  const pen_ground *ground, float *color, int channels);
+pen_status pen__ground_border_bwd(pen_context *ctx, const pen_gbuffer *gb, const pen_view *view,
+                                  const pen_ground *ground, int channels, const float *d_out,
+                                  float *d_color);
+
 #endif

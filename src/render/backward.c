@@ -19,6 +19,7 @@
 
 #include "core/internal.h"
 #include "render/render_internal.h"
+#include "raster/raster_internal.h"
 
 #include <omp.h>
 #include <stdlib.h>
@@ -355,16 +356,27 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     double t0 = omp_get_wtime();
 
     /* Antialiasing backward: d_image -> d_colour (+ silhouette vertex gradients). */
+    /* The ground's border blend came last in the forward: its transpose first. */
+    const float *d_img = d_image->data;
+    if (opt->antialias && sc->ground.enabled) {
+        s = pen__ground_border_bwd(ctx, &st->gb, &st->view, &sc->ground, 3, d_image->data,
+                                   st->d_border.data);
+        if (s) {
+            free(d_world);
+            return s;
+        }
+        d_img = st->d_border.data;
+    }
     if (opt->antialias && O > 0) {
         memset(st->d_color.data, 0, sizeof(float) * 3 * np);
         s = pen_antialias_bwd(ctx, &st->gb, &st->view, st->meshes, O, st->color.data, 3,
-                              d_image->data, st->d_color.data, want_geom ? d_world : NULL);
+                              d_img, st->d_color.data, want_geom ? d_world : NULL);
         if (s) {
             free(d_world);
             return s;
         }
     } else {
-        memcpy(st->d_color.data, d_image->data, sizeof(float) * 3 * np);
+        memcpy(st->d_color.data, d_img, sizeof(float) * 3 * np);
     }
     tm->bwd_antialias_ms = pen__render_ms_since(t0);
 

@@ -30,6 +30,7 @@
 
 #include "core/internal.h"
 #include "render/render_internal.h"
+#include "raster/raster_internal.h"
 #include "scene/validate.h"
 
 #include <omp.h>
@@ -369,6 +370,12 @@ pen_status pen_render_fwd(pen_context *ctx, const pen_scene *sc, const pen_rende
             goto done;
     } else {
         memcpy(image->data, st->color.data, sizeof(float) * 3 * (size_t)W * (size_t)H);
+    }
+    /* The ground square's border against the background, after the silhouettes (the backward
+     * takes it first). */
+    if (opt->antialias && sc->ground.enabled) {
+        s = pen__ground_border_fwd(ctx, &st->gb, &st->view, &sc->ground, image->data, 3);
+        if (s) goto done;
     }
     tm->fwd_antialias_ms = pen__render_ms_since(t0);
     st->opt = *opt;

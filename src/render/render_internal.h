@@ -305,6 +305,7 @@ struct pen_render_state {
     /* Per pixel, 3 floats each (uv, d_uv and d_bary use 2, nsign 1). */
     pen__buf_float x, nraw, n, rho, uv, color, nsign;
     pen__buf_float d_color, d_x, d_nraw, d_uv, d_rho, d_bary;
+    pen__buf_float d_border; /* d image through the ground border's blend (pen__ground_border_bwd) */
     pen__buf_float uvj; /* per textured pixel, 4 floats: J = d(uv)/d(pixel x, y) of its triangle
                          * at the pixel centre, the texture's footprint (texture.h) */
     pen__buf_float d_uvj; /* its gradient (4 floats per pixel) */

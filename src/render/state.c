@@ -57,11 +57,11 @@ uint64_t pen__render_hash32(const void *data, size_t n) {
 }
 
 /* The per-pixel buffers, 3 floats per pixel each. */
-#define PIXEL_BUFFERS 13
+#define PIXEL_BUFFERS 14
 static void pixel_buffers(pen_render_state *st, pen__buf_float *px[PIXEL_BUFFERS]) {
     pen__buf_float *all[PIXEL_BUFFERS] = {
         &st->x,       &st->nraw, &st->n,      &st->rho,  &st->uv,    &st->color, &st->nsign,
-        &st->d_color, &st->d_x,  &st->d_nraw, &st->d_uv, &st->d_rho, &st->d_bary};
+        &st->d_color, &st->d_x,  &st->d_nraw, &st->d_uv, &st->d_rho, &st->d_bary, &st->d_border};
     memcpy(px, all, sizeof all);
 }
 
