@@ -301,28 +301,41 @@ static void make_version_3(const char *path) {
  * it (version 3, Adam: the default then): it continues with Adam and no ridge, as that build
  * would have, bit for bit the run made in one go, although "auto" alone would take least
  * squares. */
-static void test_resume_old_checkpoint(void) {
-    char dir[] = "/tmp/pen_resume_XXXXXX";
+/* An Adam lighting task with `ridge` run in one go into *a (its task *ta), and again into the
+ * fresh folder made from the template `dir`, interrupted after j iterations; returns j. */
+static int lighting_interrupted(pen_context *ctx, double ridge, char *dir, pen_optim_task *ta,
+                                pen_optim_result *a) {
     CHECK(mkdtemp(dir) != NULL);
     const int j = check_quick_() ? 5 : 9;
-    pen_optim_task ta = make_task(PEN_OPTIM_LIGHTING, 0), tb = make_task(PEN_OPTIM_LIGHTING, 0);
-    ta.lighting_solver = tb.lighting_solver = PEN_OPTIM_LIGHTING_ADAM;
-    pen_context *ctx = pen_context_create();
+    *ta = make_task(PEN_OPTIM_LIGHTING, 0);
+    pen_optim_task tb = make_task(PEN_OPTIM_LIGHTING, 0);
+    ta->lighting_solver = tb.lighting_solver = PEN_OPTIM_LIGHTING_ADAM;
+    ta->lighting_ridge = tb.lighting_ridge = ridge;
     pen_optim_settings set = pen_optim_settings_default();
-    pen_optim_result a, b;
-    CHECK(pen_optim_run(ctx, &ta, &set, &a) == PEN_OK);
+    CHECK(pen_optim_run(ctx, ta, &set, a) == PEN_OK);
     stopper stop = {j, -1, NULL, NULL};
     set.outdir = dir;
     set.progress = on_progress;
     set.progress_user = &stop;
+    pen_optim_result b;
     CHECK(pen_optim_run(ctx, &tb, &set, &b) == PEN_OK);
     CHECK(b.interrupted && b.iterations == j);
     pen_optim_result_free(&b);
     pen_optim_task_free(&tb);
+    return j;
+}
+
+static void test_resume_old_checkpoint(void) {
+    char dir[] = "/tmp/pen_resume_XXXXXX";
+    pen_context *ctx = pen_context_create();
+    pen_optim_task ta, tb;
+    pen_optim_result a, b;
+    const int j = lighting_interrupted(ctx, NAN, dir, &ta, &a);
+    pen_optim_settings set = pen_optim_settings_default();
+    set.outdir = dir;
     make_version_3(path_in(dir, "checkpoint.bin"));
     tb = make_task(PEN_OPTIM_LIGHTING, 0);
     CHECK(tb.lighting_solver == PEN_OPTIM_LIGHTING_AUTO && isnan(tb.lighting_ridge));
-    set.progress = NULL;
     set.resume = 1;
     pen_status s = pen_optim_run(ctx, &tb, &set, &b);
     CHECK_MSG(s == PEN_OK, "%s", pen_context_error(ctx));
@@ -353,28 +366,16 @@ static void test_resume_old_checkpoint(void) {
  * is part of the loop's objective), bit for bit the run made in one go. */
 static void test_resume_version_4_single_view(void) {
     char dir[] = "/tmp/pen_resume_XXXXXX";
-    CHECK(mkdtemp(dir) != NULL);
-    const int j = check_quick_() ? 5 : 9;
-    pen_optim_task ta = make_task(PEN_OPTIM_LIGHTING, 0), tb = make_task(PEN_OPTIM_LIGHTING, 0);
-    ta.lighting_solver = tb.lighting_solver = PEN_OPTIM_LIGHTING_ADAM;
-    ta.lighting_ridge = tb.lighting_ridge = 1e-2;
     pen_context *ctx = pen_context_create();
-    pen_optim_settings set = pen_optim_settings_default();
+    pen_optim_task ta, tb;
     pen_optim_result a, b;
-    CHECK(pen_optim_run(ctx, &ta, &set, &a) == PEN_OK);
-    stopper stop = {j, -1, NULL, NULL};
+    const int j = lighting_interrupted(ctx, 1e-2, dir, &ta, &a);
+    pen_optim_settings set = pen_optim_settings_default();
     set.outdir = dir;
-    set.progress = on_progress;
-    set.progress_user = &stop;
-    CHECK(pen_optim_run(ctx, &tb, &set, &b) == PEN_OK);
-    CHECK(b.interrupted && b.iterations == j);
-    pen_optim_result_free(&b);
-    pen_optim_task_free(&tb);
     os_checkpoint_downgrade(path_in(dir, "checkpoint.bin"), 4);
     tb = make_task(PEN_OPTIM_LIGHTING, 0);
     tb.lighting_solver = PEN_OPTIM_LIGHTING_ADAM;
     tb.lighting_ridge = 1e-2;
-    set.progress = NULL;
     set.resume = 1;
     const pen_status s = pen_optim_run(ctx, &tb, &set, &b);
     CHECK_MSG(s == PEN_OK, "%s", pen_context_error(ctx));

@@ -104,6 +104,22 @@ static int is_silhouette(const pen_raster_mesh *mesh, const pen_view *view, int 
     return pen__dot_d(nrm, c) * pen__dot_d(nrm, o) >= 0.0;
 }
 
+/* The blend of a pair whose outline crosses the segment between the two pixel centres at alpha
+ * (0 at the occluding pixel's centre, 1 at the other's; occ: which pixel of the pair occludes, 0
+ * the left or upper one): from alpha = 1/2 on the other pixel receives alpha - 1/2 of the
+ * occluder's colour, below it the occluder's pixel receives 1/2 - alpha of the other's. */
+static aa_pair pair_at(double alpha, int occ) {
+    aa_pair out;
+    if (alpha >= 0.5) {
+        out.weight = (float)(alpha - 0.5), out.slope = 1;
+        out.receiver = (int8_t)(occ ? 1 : 2);
+    } else {
+        out.weight = (float)(0.5 - alpha), out.slope = -1;
+        out.receiver = (int8_t)(occ ? 2 : 1);
+    }
+    return out;
+}
+
 /* Analyzes the pair of pixels (x, y) and its right (axis 0) or lower (axis 1) neighbour.
  *
  * The segment from the occluder's centre leaves its triangle T through one edge. When that edge
@@ -173,14 +189,7 @@ static aa_pair analyze_pair(const aa_ctx *ac, int x, int y, int axis, aa_edge *e
         const double *P = s[k_out], *Q = s[(k_out + 1) % 3];
         double dv = Q[va] - P[va], du = Q[ua] - P[ua];
         if (axis == 0 ? !(fabs(dv) >= fabs(du)) : !(fabs(dv) > fabs(du))) return none;
-        aa_pair out;
-        if (alpha >= 0.5) {
-            out.weight = (float)(alpha - 0.5), out.slope = 1;
-            out.receiver = (int8_t)(occ ? 1 : 2);
-        } else {
-            out.weight = (float)(0.5 - alpha), out.slope = -1;
-            out.receiver = (int8_t)(occ ? 2 : 1);
-        }
+        aa_pair out = pair_at(alpha, occ);
         if (edge) {
             double kk = du / dv, d[4] = {0};
             d[ua] = dir * (1.0 - sp);
@@ -440,15 +449,7 @@ static aa_pair ground_pair(const pen_gbuffer *gb, const pen_view *view, const pe
     }
     du = sdir[axis], dv = sdir[1 - axis];
     if (axis == 0 ? !(fabs(dv) >= fabs(du)) : !(fabs(dv) > fabs(du))) return none;
-    aa_pair out;
-    if (alpha >= 0.5) {
-        out.weight = (float)(alpha - 0.5), out.slope = 1;
-        out.receiver = (int8_t)(occ ? 1 : 2);
-    } else {
-        out.weight = (float)(0.5 - alpha), out.slope = -1;
-        out.receiver = (int8_t)(occ ? 2 : 1);
-    }
-    return out;
+    return pair_at(alpha, occ);
 }
 
 /* 1 when pixel i may lie on the border: a ground pixel beside a background one or the reverse,
