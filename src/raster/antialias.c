@@ -466,24 +466,18 @@ static int border_candidate(const pen_gbuffer *gb, int x, int y) {
 }
 
 /* The pairs touching pixel (x, y) (pixel_pairs' order) as the border sees them; returns how many
- * blend (0: the pixel keeps its colour). A blending pair joins a ground pixel and a background
- * pixel (border_candidate). */
+ * blend (0: the pixel keeps its colour). Only a candidate's pairs are looked at (ground_pair
+ * leaves any pair but a ground pixel and a background one alone). */
 static int border_pixel(const pen_gbuffer *gb, const pen_view *view, const pen_ground *g, int x,
                         int y, aa_pair pr[4], int first[4], size_t other[4], int *n) {
     const int W = gb->width, H = gb->height;
-    const size_t nh = (size_t)(W - 1) * (size_t)H, i = (size_t)y * (size_t)W + (size_t)x;
-    const int s = gb->surface[i];
+    const size_t nh = (size_t)(W - 1) * (size_t)H;
     *n = 0;
     if (!border_candidate(gb, x, y)) return 0;
     size_t idx[4];
     *n = pixel_pairs(W, H, x, y, idx, first, other);
     int blending = 0;
     for (int j = 0; j < *n; ++j) {
-        const int t = gb->surface[other[j]];
-        pr[j] = (aa_pair){0.0f, 0, 0};
-        if (!((s == PEN_SURFACE_GROUND && t == PEN_SURFACE_BACKGROUND) ||
-              (s == PEN_SURFACE_BACKGROUND && t == PEN_SURFACE_GROUND)))
-            continue;
         const int axis = idx[j] >= nh;
         const size_t k = axis ? idx[j] - nh : idx[j];
         const int row = axis ? W : W - 1;
