@@ -1,4 +1,6 @@
-"""Accuracy of `penumbra render` against the full-map truth, with and without disk lights (issue 18).
+"""Accuracy of `penumbra render` against the full-map truth, with and without disk lights.
+
+Disk lights: docs/design.md sec. 1.13.
 
 Usage: python3 scripts/lights_table.py PENUMBRA_BIN OUTDIR [--size S] [--spp N] [--meshes a,b]
                                       [--maps a,b] [--suffix S] [--self MODE]

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Self-shadowing accuracy of `penumbra render` on the development meshes (issue 19).
+"""Self-shadowing accuracy of `penumbra render` on the development meshes (design.md sec. 1.15).
 
 Usage: python3 scripts/visibility_table.py PENUMBRA_BIN OUTDIR [--size S] [--spp N]
                                           [--meshes a,b] [--maps a,b] [--no-proxy] [--suffix S]

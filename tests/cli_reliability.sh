@@ -1,5 +1,5 @@
 #!/bin/sh
-# Issue 17's groups of findings as a new user meets them on the command line, with inputs made
+# The reliability audit's groups as a new user meets them on the command line, with inputs made
 # here: a damaged, extreme or oversized input ends the command at once with a non-zero exit, one
 # line on stderr naming the input at fault (the file, key path, pixel or count, never only the
 # output) and no output file; the largest valid inputs run to the end. Cases that other scripts
@@ -97,7 +97,7 @@ expect_error "render: truncated RLE envmap" "lighting.envmap|rle_cut.hdr: scanli
 expect_error "reference: truncated RLE envmap" "lighting.envmap|rle_cut.hdr: scanline" \
     "$BIN" reference "$T/env_cut.json" -o "$T/out.exr" --spp 1
 
-# Overlap weights: a sphere file of 20 000 spheres without weights (the issue measured more than
+# Overlap weights: a sphere file of 20 000 spheres without weights (the audit measured more than
 # 120 s and 3.3 GB) is refused with the count; with "overlap": "none" it needs no weights.
 awk 'BEGIN { srand(3); printf "{\"spheres\": ["
              for (i = 0; i < 20000; ++i)

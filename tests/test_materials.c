@@ -1,8 +1,9 @@
 /* Meshes with several materials and vertex colours: the OBJ/MTL and PLY readers, the albedo
  * baker (its lookups equal the materials' own, exactly up to float rounding), the scene loader's
- * choice, save/reload of baked atlases, and the done-when case of issue 17: an OBJ with quads,
- * negative indices and two materials with JPEG textures renders with both textures, in
- * pen_render_fwd, in `penumbra render` and in the reference renderer. */
+ * choice, save/reload of baked atlases, and the done-when case of the reliability audit
+ * (docs/reliability.md): an OBJ with quads, negative indices and two materials with JPEG textures
+ * renders with both textures, in pen_render_fwd, in `penumbra render` and in the reference
+ * renderer. */
 #include "io_fixtures.h" /* first: it sets the feature-test macros */
 
 #include "scene/texture.h"

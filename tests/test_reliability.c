@@ -1,10 +1,10 @@
-/* Issue 17's groups of findings, the cases that no other test file reaches, each with inputs made
- * here: overlap weights at the sizes the issue measured (group 1), the Embree reference at the
- * largest coordinates the loaders accept (group 2), the largest accepted lighting and texture
- * values and object count through the loader and the renderer (group 4), a damaged checkpoint at
- * INT32_MAX (group 6) and a whole 780 KB PNG of 16384 x 16384 (group 8). The matrix of every case
- * and the test that covers it is in docs/reliability.md; tests/cli_reliability.sh has the
- * command-line side (exit status, one error line naming the input, no partial output). */
+/* The reliability audit's groups (docs/reliability.md), the cases that no other test file reaches,
+ * each with inputs made here: overlap weights at the sizes the audit measured (group 1), the Embree
+ * reference at the largest coordinates the loaders accept (group 2), the largest accepted lighting
+ * and texture values and object count through the loader and the renderer (group 4), a damaged
+ * checkpoint at INT32_MAX (group 6) and a whole 780 KB PNG of 16384 x 16384 (group 8). The matrix
+ * of every case and the test that covers it is in docs/reliability.md; tests/cli_reliability.sh has
+ * the command-line side (exit status, one error line naming the input, no partial output). */
 #include "io_fixtures.h" /* first: it sets the feature-test macros */
 #include "render_scenes.h"
 
@@ -39,10 +39,11 @@ static float *cube_set(int n, unsigned long long seed) {
     return s;
 }
 
-/* The issue measured 10 s at 2000 spheres, more than 100 s at 4096 and more than 120 s and 3.3 GB
- * at 20 000, for any set without weights. Now 2000 and 4096 get weights that a sphere file accepts
- * (finite, in [0, PEN_SCENE_MAX_WEIGHT]) and 20 000 is refused at once, naming the count, with no
- * weights allocated. 4096 only outside the sanitizer run (PEN_TEST_QUICK): seconds in Release. */
+/* The reliability audit measured 10 s at 2000 spheres, more than 100 s at 4096 and more than 120 s
+ * and 3.3 GB at 20 000, for any set without weights. Now 2000 and 4096 get weights that a sphere
+ * file accepts (finite, in [0, PEN_SCENE_MAX_WEIGHT]) and 20 000 is refused at once, naming the
+ * count, with no weights allocated. 4096 only outside the sanitizer run (PEN_TEST_QUICK): seconds
+ * in Release. */
 static void test_overlap_weight_sizes(void) {
     const int sizes[] = {2000, 4096};
     for (int k = 0; k < (check_quick_() ? 1 : 2); ++k) {
@@ -200,7 +201,7 @@ static const char *constant_exr(const char *name, int w, int h, float v) {
     return p;
 }
 
-/* The issue's overflows came from finite inputs: an envmap or texture near FLT_MAX, the lighting
+/* The audit's overflows came from finite inputs: an envmap or texture near FLT_MAX, the lighting
  * scale, SH coefficients. Near FLT_MAX is refused naming the file and pixel (test_io_scene); here
  * the largest values the loader accepts (envmap 1e9 times lighting.scale 1e3 over 8 bands, SH
  * coefficients of 1e13, a texture of 1e6) render with finite pixels and gradients, and FLT_MAX

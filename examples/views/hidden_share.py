@@ -1,6 +1,6 @@
 """How much of the multi-view lighting error lies below the horizon, where the ground hides the
-light from every camera (issue 20's 0.5x question; docs/optimize.md, "What the views cannot see:
-the light below the horizon").
+light from every camera (the multi-view experiment's 0.5x question; docs/optimize.md, "What the
+views cannot see: the light below the horizon").
 
 The lighting error of result.json is |e| / |t| over all SH coefficients (e the recovered minus the
 true coefficients, t the true ones). The SH basis is orthonormal over the sphere, so |e|^2 splits

@@ -1,6 +1,6 @@
 #!/bin/sh
 # The multi-view lighting experiment of docs/optimize.md ("Views, placements and solvers"):
-# can 4 views reach half the 1-view lighting error (issue 20)? For each MESH:ENVMAP (default
+# can 4 views reach half the 1-view lighting error? For each MESH:ENVMAP (default
 # spot:city), make_views.py writes the cameras of four placements (ring = today's single
 # elevation, ring_far, ring_near, elev = several elevations up to top-down), each with 1, 2, 4
 # and 8 views, and two held-back validation views; `penumbra reference` ray-traces every
@@ -23,7 +23,7 @@
 # optimize outputs; run_..._sh, run_..._model for the controls), and out/views/results.tsv (every finished run of every MESH_ENVMAP, one
 # line each) with a markdown table on stdout. The "val" column is the held-back views' mean
 # rel. RMSE against the ray-traced truth, "true" the same of the true projection, "ratio" =
-# val / true (issue 20: at most 1.15 + 0.01 / true).
+# val / true (the experiment's limit: at most 1.15 + 0.01 / true).
 # Cost on the shared 2-core machine: the 33 targets about 2 min per MESH:ENVMAP, a
 # least-squares run a few seconds per view, an Adam run about 0.1-0.3 s per view and iteration.
 set -eu

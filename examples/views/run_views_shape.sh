@@ -1,5 +1,5 @@
 #!/bin/sh
-# The deformation and shape-from-shadow tasks from 1, 2, 4 and 8 views (issue 20's experiments;
+# The deformation and shape-from-shadow tasks from 1, 2, 4 and 8 views (multi-view experiments;
 # docs/optimize.md, "Deformation and shape from shadow from several views"). For each MESH
 # (default spot), make_views_shape.py writes the scenes, cameras and tasks (the single-view
 # tasks' settings, otherwise defaults); `penumbra reference` ray-traces every camera's target

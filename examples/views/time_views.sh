@@ -1,6 +1,6 @@
 #!/bin/sh
 # Seconds per iteration of a multi-view task against the number of views, with 1 and 2 threads
-# and 1 and 2 MPI ranks (docs/optimize.md "Views in parallel"; issue 20). The task: Spot's
+# and 1 and 2 MPI ranks (docs/optimize.md "Views in parallel"). The task: Spot's
 # lighting and pose (from examples/optimize/spot_pose_init.json, 11 degrees and 0.1 units off,
 # black lighting) from N views on a circle around it, targets rendered by `penumbra render` from
 # examples/optimize/spot_truth.json with each view's camera (the timing does not need ray-traced

@@ -2,10 +2,10 @@
 
 One line per run (MESH_ENVMAP/run_<placement>_<n>_<solver>/result.json): the lighting errors
 (all 16 coefficients, bands 0-2, the sky = upper hemisphere), the ratio of each to the same
-case's 1-view ring run with the same solver (issue 20 asks 4 views <= 0.5x), the held-back
+case's 1-view ring run with the same solver (the experiment asks 4 views <= 0.5x), the held-back
 views' mean rel. RMSE ("val") beside that of the true map's 4-band projection there ("true",
 true_val<i>.json, against the full map's targets; for the controls the ratio is not the
-issue's) and their ratio, and the solver's iterations, stop reason, seconds per
+experiment's) and their ratio, and the solver's iterations, stop reason, seconds per
 iteration and final loss; the pose runs in a table of their own.
 Usage: python3 views_table.py OUT   (OUT = out/views)
 """

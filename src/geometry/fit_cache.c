@@ -26,8 +26,8 @@
 #include <sys/stat.h>
 
 /* Bump when a change of the fitter changes its results, so old cache files are not reused (3:
- * the fits cached before session 5 differed from what the fitter now computes under the same
- * key, found when a fresh clone's demo disagreed with the working tree's). */
+ * the fits cached by an earlier fitter differed from what the fitter now computes under the
+ * same key, found when a fresh clone's demo disagreed with the working tree's). */
 #define FIT_VERSION "penumbra-fit-3"
 /* Cache files are small (a few kB per hundred spheres); anything larger is not ours. */
 #define FIT_CACHE_MAX_BYTES (16u << 20)
