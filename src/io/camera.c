@@ -12,7 +12,16 @@
  * forward = R's third row, up = minus its second row, target = eye + d forward with d the
  * distance from the eye to the world origin (reconstructions centre their scene there; the
  * rasterizer's near plane is 1e-3 of this distance), or 1 when the eye is at the origin.
- * The writer always writes eye, target and up, and "intrinsics" for a calibrated camera.
+ * That target must itself be a coordinate a file may hold (|x| <= PEN_SCENE_MAX_COORD): a camera
+ * far out looking away would put it beyond, and the scene or views file written from it would be
+ * refused. So d is shortened to where the ray leaves the bound; only the direction matters, and
+ * the near plane only moves closer. A centre so near the bound, looking out, that d would fall
+ * below 1e-2 of its distance to the origin is refused: the float target would no longer give the
+ * direction to about 1e-5 rad.
+ * The writer always writes eye, target and up (a target beyond the bound, from a camera built in
+ * code, pulled in along its ray the same way), and "intrinsics" for a calibrated camera; the
+ * savers read what they would write back first (pen__io_camera_check), so every file penumbra
+ * writes is one it reads.
  */
 #include "core/internal.h"
 #include "io/io_internal.h"
@@ -40,6 +49,16 @@ static double orthonormality_error(const double R[9], double *det) {
     return err;
 }
 
+/* The distance along unit f, at most d, at which eye + d f still lies within the coordinate
+ * bound (eye inside it). */
+static double within_bound(const double eye[3], const double f[3], double d) {
+    for (int k = 0; k < 3; ++k) {
+        if (f[k] > 0.0) d = fmin(d, (COORD - eye[k]) / f[k]);
+        if (f[k] < 0.0) d = fmin(d, (-COORD - eye[k]) / f[k]);
+    }
+    return d;
+}
+
 int pen__io_camera_pose(const double R[9], const double t[3], pen_camera *cam, char *why,
                         size_t why_size) {
     double det, err = orthonormality_error(R, &det);
@@ -57,14 +76,23 @@ int pen__io_camera_pose(const double R[9], const double t[3], pen_camera *cam, c
         dist += eye[k] * eye[k];
     }
     dist = dist > 0.0 ? sqrt(dist) : 1.0;
-    for (int k = 0; k < 3; ++k) {
+    for (int k = 0; k < 3; ++k)
         if (!(fabs(eye[k]) <= COORD)) {
             snprintf(why, why_size, "the camera centre -R^T t lies beyond %g", COORD);
             return 0;
         }
-        cam->eye[k] = (float)eye[k];
-        cam->target[k] = (float)(eye[k] + dist * R[6 + k]);
-        cam->up[k] = (float)-R[3 + k];
+    const double d = within_bound(eye, R + 6, dist);
+    if (!(d >= 1e-2 * dist)) {
+        snprintf(why, why_size,
+                 "the camera centre lies %.3g from the coordinate bound %g and looks out of it: "
+                 "no look-at target within the bound gives its direction",
+                 d, COORD);
+        return 0;
+    }
+    for (int k = 0; k < 3; ++k) { /* (+ 0.0: no -0 in the files written from them) */
+        cam->eye[k] = (float)(eye[k] + 0.0);
+        cam->target[k] = (float)(eye[k] + d * R[6 + k] + 0.0);
+        cam->up[k] = (float)(0.0 - R[3 + k]);
     }
     return 1;
 }
@@ -230,6 +258,24 @@ pen_status pen__io_camera_parse(pen_context *ctx, const where *w, const cJSON *o
 }
 
 cJSON *pen__io_camera_json(const pen_camera *c) {
+    /* A target beyond the bound (a camera built in code) moves along its ray to within it. */
+    float target[3] = {c->target[0], c->target[1], c->target[2]};
+    double eye[3], f[3], n = 0.0;
+    for (int k = 0; k < 3; ++k) {
+        eye[k] = c->eye[k], f[k] = (double)c->target[k] - eye[k];
+        n += f[k] * f[k];
+    }
+    n = sqrt(n);
+    const int out = !(fabs(target[0]) <= COORD && fabs(target[1]) <= COORD &&
+                      fabs(target[2]) <= COORD);
+    if (out && n > 0.0 && isfinite(n) && fabs(eye[0]) <= COORD && fabs(eye[1]) <= COORD &&
+        fabs(eye[2]) <= COORD) {
+        for (int k = 0; k < 3; ++k)
+            f[k] /= n;
+        const double d = within_bound(eye, f, n);
+        for (int k = 0; k < 3; ++k)
+            target[k] = (float)(eye[k] + d * f[k]);
+    }
     cJSON *o = cJSON_CreateObject();
     int ok = o && pen__json_add(o, "width", cJSON_CreateNumber(c->width)) &&
              pen__json_add(o, "height", cJSON_CreateNumber(c->height));
@@ -245,8 +291,20 @@ cJSON *pen__io_camera_json(const pen_camera *c) {
         ok = pen__json_add(o, "fov_y_deg", pen__json_float(c->fov_y_deg));
     }
     ok = ok && pen__json_add(o, "eye", pen__json_float_array(c->eye, 3)) &&
-         pen__json_add(o, "target", pen__json_float_array(c->target, 3)) &&
+         pen__json_add(o, "target", pen__json_float_array(target, 3)) &&
          pen__json_add(o, "up", pen__json_float_array(c->up, 3));
     if (!ok) cJSON_Delete(o);
     return ok ? o : NULL;
+}
+
+pen_status pen__io_camera_check(pen_context *ctx, const where *w, const pen_camera *cam) {
+    cJSON *o = pen__io_camera_json(cam);
+    if (!o) return pen__error(ctx, PEN_ERROR_MEMORY, "%s: out of memory", w->file);
+    pen_camera back;
+    pen_status s = pen__io_camera_parse(ctx, w, o, &back);
+    cJSON_Delete(o);
+    if (!s) return PEN_OK;
+    char why[1024];
+    snprintf(why, sizeof why, "%s", pen_context_error(ctx));
+    return pen__error(ctx, s, "%s (not written: it would not read back)", why);
 }

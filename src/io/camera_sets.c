@@ -520,10 +520,17 @@ pen_status pen_camera_set_save_views(pen_context *ctx, const char *path,
                                      const pen_camera_set *set) {
     if (!set || set->count < 1 || !set->cameras || !set->images)
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: no views to write", path);
-    for (int i = 0; i < set->count; ++i)
+    for (int i = 0; i < set->count; ++i) {
         if (pen_camera_validate(ctx, &set->cameras[i]))
             return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: view %d: %s", path, i,
                               pen_context_error(ctx));
+        where top = {path, ""}, wv, wc;
+        pen__json_child(&top, "views", &wv);
+        pen__json_index(&wv, i, &wc);
+        pen__json_child(&wc, "camera", &wv);
+        pen_status s = pen__io_camera_check(ctx, &wv, &set->cameras[i]);
+        if (s) return s;
+    }
     cJSON *root = cJSON_CreateObject();
     cJSON *views = root ? cJSON_AddArrayToObject(root, "views") : NULL;
     int ok = views != NULL;

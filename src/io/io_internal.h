@@ -116,6 +116,10 @@ int pen__io_camera_pose(const double R[9], const double t[3], pen_camera *cam, c
                         size_t why_size);
 /* The "camera" object of a scene file; NULL on exhaustion. */
 cJSON *pen__io_camera_json(const pen_camera *cam);
+/* PEN_OK if the object pen__io_camera_json writes for cam reads back (a camera built in code may
+ * hold values no file accepts); else the reader's error at w, marked as not written. The savers
+ * call it before they write. */
+pen_status pen__io_camera_check(pen_context *ctx, const pen__json_where *w, const pen_camera *cam);
 
 /* ---- Image decoders (src/io/image_*.c) ------------------------------------------------------
  * Each decoder reads a whole file held in memory, distrusts every byte, checks the size against

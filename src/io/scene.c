@@ -692,6 +692,9 @@ static cJSON *object_json(pen_context *ctx, const char *path, const pen_object *
 
 /* What must hold for the written file to load again. */
 static pen_status check_saveable(pen_context *ctx, const char *path, const pen_scene *sc) {
+    const where wc = {path, "camera"};
+    pen_status cs = pen__io_camera_check(ctx, &wc, &sc->camera);
+    if (cs) return cs;
     if (sc->sh_bands < 1 || sc->sh_bands > PEN_SH_MAX_BANDS)
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: sh_bands %d outside [1, %d]", path,
                           sc->sh_bands, PEN_SH_MAX_BANDS);
