@@ -14,7 +14,9 @@
  * "camera_angle_y" (radians, full angles), "cx", "cy", "w", "h", each taken from the frame or
  * else from the top level; missing cx, cy are the image centre, a missing fl_y equals fl_x, and
  * a missing w or h is read from the image itself. A file_path without an extension that names no
- * file gets ".png" (the synthetic NeRF scenes write them so). Views keep the file's order.
+ * file gets ".png" (the synthetic NeRF scenes write them so). Views keep the file's order. Lens
+ * distortion (nerfstudio's and instant-ngp's k1.., p1, p2, "camera_model", "is_fisheye") is
+ * refused as COLMAP's distorted models are, and the matrix's last row must be 0 0 0 1.
  *
  * Every number is checked for range and finiteness where it is read; errors name the file and
  * the line (COLMAP) or the JSON key path. Every image must exist: a views file names the images
@@ -76,6 +78,24 @@ typedef struct colmap_camera {
     double fx, fy, cx, cy;
 } colmap_camera;
 
+/* A COLMAP text file, whole. The line reader below ends lines at NULs like C strings do, so a
+ * NUL inside the file would silently end it there and drop every image after it: refused with
+ * its line instead. */
+static pen_status read_text(pen_context *ctx, const char *path, char **text) {
+    size_t size = 0;
+    pen_status s = pen__io_read_file(ctx, path, TEXT_MAX_BYTES, text, &size);
+    if (s) return s;
+    const char *nul = memchr(*text, '\0', size);
+    if (!nul) return PEN_OK;
+    int line = 1;
+    for (const char *p = *text; p < nul; ++p)
+        line += *p == '\n';
+    free(*text);
+    *text = NULL;
+    return pen__error(ctx, PEN_ERROR_PARSE, "%s:%d: NUL byte (a binary file, or a damaged one)",
+                      path, line);
+}
+
 /* The next line of text (NUL-terminated in place); NULL at the end. */
 static char *next_line(char **cursor, int *line_no) {
     char *p = *cursor;
@@ -126,8 +146,7 @@ static int word(char **s, char *out, size_t size) {
 static pen_status read_colmap_cameras(pen_context *ctx, const char *path, colmap_camera **out,
                                       int *count) {
     char *text = NULL;
-    size_t size = 0;
-    pen_status s = pen__io_read_file(ctx, path, TEXT_MAX_BYTES, &text, &size);
+    pen_status s = read_text(ctx, path, &text);
     if (s) return s;
     int cap = 0, n = 0, line_no = 0;
     colmap_camera *cams = NULL;
@@ -216,8 +235,7 @@ static pen_status read_colmap_images(pen_context *ctx, const char *path, const c
                                      const colmap_camera *cams, int cam_count,
                                      pen_camera_set *set) {
     char *text = NULL;
-    size_t size = 0;
-    pen_status s = pen__io_read_file(ctx, path, TEXT_MAX_BYTES, &text, &size);
+    pen_status s = read_text(ctx, path, &text);
     if (s) return s;
     /* Count image lines first: every non-comment line after the header comments is an image
      * line followed by its points line. */
@@ -348,6 +366,54 @@ static pen_status frame_number(pen_context *ctx, const where *wf, const where *w
     return item ? pen__json_number(ctx, &w, item, lo, hi, what, out) : PEN_OK;
 }
 
+/* Lens distortion in a transforms.json object (the top level or a frame): nerfstudio's and
+ * instant-ngp's coefficients, a "camera_model" other than a pinhole, "is_fisheye". penumbra
+ * renders a pinhole, so these are refused as COLMAP's distorted models are, naming the key;
+ * coefficients of 0 are a pinhole's and pass. */
+static pen_status pinhole_only(pen_context *ctx, const where *w, const cJSON *o) {
+    static const char *const undistort =
+        "undistort the images first and give their pinhole intrinsics (COLMAP's "
+        "image_undistorter writes PINHOLE cameras)";
+    static const char *const coeffs[] = {"k1", "k2", "k3", "k4", "k5", "k6", "p1", "p2", NULL};
+    where wk, wd = {w->file, ""};
+    const char *distorted = NULL; /* the first non-zero coefficient */
+    double d = 0.0;
+    for (int k = 0; coeffs[k]; ++k) {
+        const cJSON *item = pen__json_member(o, coeffs[k]);
+        if (!item) continue;
+        pen__json_child(w, coeffs[k], &wk);
+        double v = 0.0;
+        pen_status s = pen__json_number(ctx, &wk, item, -HUGE_VAL, HUGE_VAL,
+                                        "a distortion coefficient", &v);
+        if (s) return s;
+        if (v != 0.0 && !distorted) distorted = coeffs[k], d = v, wd = wk;
+    }
+    const cJSON *model = pen__json_member(o, "camera_model");
+    if (model) {
+        pen__json_child(w, "camera_model", &wk);
+        const char *name = NULL;
+        pen_status s = pen__json_string(ctx, &wk, model, &name);
+        if (s) return s;
+        char with[64] = "";
+        if (distorted) snprintf(with, sizeof with, " (%s %g)", distorted, d);
+        if (strcmp(name, "PINHOLE") != 0 && strcmp(name, "SIMPLE_PINHOLE") != 0)
+            return pen__json_error(ctx, PEN_ERROR_UNSUPPORTED, &wk,
+                                   "camera model %s%s has lens distortion or is not a pinhole "
+                                   "(expected \"PINHOLE\" or \"SIMPLE_PINHOLE\"): %s",
+                                   name, with, undistort);
+    }
+    if (distorted)
+        return pen__json_error(ctx, PEN_ERROR_UNSUPPORTED, &wd, "%g: lens distortion: %s", d,
+                               undistort);
+    const cJSON *fisheye = pen__json_member(o, "is_fisheye");
+    if (fisheye && !cJSON_IsFalse(fisheye)) {
+        pen__json_child(w, "is_fisheye", &wk);
+        return pen__json_error(ctx, PEN_ERROR_UNSUPPORTED, &wk,
+                               "a fisheye camera is not a pinhole: %s", undistort);
+    }
+    return PEN_OK;
+}
+
 static pen_status transforms_frame(pen_context *ctx, const char *path, const where *top_w,
                                    const cJSON *top, int i, const cJSON *frame, pen_camera *cam,
                                    char **image) {
@@ -357,6 +423,7 @@ static pen_status transforms_frame(pen_context *ctx, const char *path, const whe
     pen__json_child(&wf, "file_path", &wp);
     pen__json_child(&wf, "transform_matrix", &wm);
     pen_status s = pen__json_need_object(ctx, &wf, frame);
+    if (!s) s = pinhole_only(ctx, &wf, frame);
     const char *rel = NULL;
     if (!s) s = pen__json_string(ctx, &wp, pen__json_member(frame, "file_path"), &rel);
     if (s) return s;
@@ -385,6 +452,15 @@ static pen_status transforms_frame(pen_context *ctx, const char *path, const whe
         if (s) return s;
         for (int c = 0; c < 4; ++c)
             M[4 * r + c] = row[c];
+    }
+    /* (a projective last row would be read as an affine pose: refused as in a scene camera) */
+    if (M[12] != 0.0 || M[13] != 0.0 || M[14] != 0.0 || M[15] != 1.0) {
+        where wr;
+        pen__json_index(&wm, 3, &wr);
+        return pen__json_error(ctx, PEN_ERROR_PARSE, &wr,
+                               "the last row of a 4x4 pose must be [0, 0, 0, 1], got [%g, %g, %g, "
+                               "%g]",
+                               M[12], M[13], M[14], M[15]);
     }
     /* World-to-camera in OpenCV axes: the rotation's columns are the camera's right, up and
      * backward axes, so R_cv has rows right, -up, -backward, and t = -R_cv centre. */
@@ -457,7 +533,7 @@ pen_status pen_camera_set_load_transforms(pen_context *ctx, const char *path,
                cJSON_GetArraySize(frames) > PEN_CAMERA_SET_MAX) {
         s = pen__json_error(ctx, PEN_ERROR_PARSE, &wf, "expected an array of 1 .. %d frames",
                             PEN_CAMERA_SET_MAX);
-    } else {
+    } else if (!(s = pinhole_only(ctx, &top, root))) {
         int n = cJSON_GetArraySize(frames);
         s = set_alloc(ctx, n, out);
         int i = 0;
