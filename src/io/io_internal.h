@@ -104,6 +104,11 @@ int pen__json_add(cJSON *obj, const char *name, cJSON *item);
 cJSON *pen__json_float(float value);
 cJSON *pen__json_float_array(const float *v, int n);
 
+/* PEN_OK if every value of img is finite and at most `limit` in magnitude, else "path: pixel
+ * (x, y) channel c: v outside [-limit, limit]" (the caller prefixes the key). src/io/scene.c. */
+pen_status pen__io_image_check_values(pen_context *ctx, const char *path, const pen_image *img,
+                                      double limit);
+
 /* ---- The camera in JSON (src/io/camera.c) -------------------------------------------------- */
 
 /* Reads the scene's "camera" object o (at key path w) into *cam (zeroed first). */

@@ -59,8 +59,8 @@ static pen_status opt_floats(pen_context *ctx, const where *w, const cJSON *obj,
 /* Every value of an image the scene references (an environment map, a texture) finite and at
  * most `limit` in magnitude: a value near FLT_MAX would overflow in the SH projection or the
  * shading. The caller prefixes the key. */
-static pen_status check_values(pen_context *ctx, const char *path, const pen_image *img,
-                               double limit) {
+pen_status pen__io_image_check_values(pen_context *ctx, const char *path, const pen_image *img,
+                                      double limit) {
     const size_t n = (size_t)img->width * (size_t)img->height * (size_t)img->channels;
     for (size_t i = 0; i < n; ++i) {
         const float v = img->data[i];
@@ -193,7 +193,9 @@ static pen_status parse_lighting(pen_context *ctx, const char *path, const where
         L->envmap_path = pen__io_path_resolve(ctx, path, rel);
         if (!L->envmap_path) return PEN_ERROR_MEMORY;
         s = pen_image_load(ctx, L->envmap_path, &L->envmap);
-        if (!s) s = check_values(ctx, L->envmap_path, &L->envmap, PEN_SCENE_MAX_RADIANCE);
+        if (!s)
+            s = pen__io_image_check_values(ctx, L->envmap_path, &L->envmap,
+                                           PEN_SCENE_MAX_RADIANCE);
         if (s) return pen__json_wrap(ctx, s, &we);
     }
     if (sh) {
@@ -348,7 +350,9 @@ static pen_status bake_object(pen_context *ctx, pen_object *obj) {
         const pen_mesh_material *mat = mi >= 0 ? &m->materials[mi] : NULL;
         if (!mat || !mat->texture_path || tex[mi].data) continue;
         s = pen_image_load(ctx, mat->texture_path, &tex[mi]);
-        if (!s) s = check_values(ctx, mat->texture_path, &tex[mi], PEN_SCENE_MAX_ALBEDO);
+        if (!s)
+            s = pen__io_image_check_values(ctx, mat->texture_path, &tex[mi],
+                                           PEN_SCENE_MAX_ALBEDO);
         if (s)
             s = pen__error_prefix(ctx, s, "%s: map_Kd of material '%s': ",
                                   mat->texture_source ? mat->texture_source : obj->mesh_path,
@@ -431,7 +435,7 @@ static pen_status parse_albedo(pen_context *ctx, const char *path, const where *
                                "a texture needs a mesh with texture coordinates");
     pen_image img = {0};
     s = pen_image_load(ctx, obj->texture_path, &img);
-    if (!s) s = check_values(ctx, obj->texture_path, &img, PEN_SCENE_MAX_ALBEDO);
+    if (!s) s = pen__io_image_check_values(ctx, obj->texture_path, &img, PEN_SCENE_MAX_ALBEDO);
     if (!s && baked_pixels &&
         (img.width != obj->texture.width || img.height != obj->texture.height))
         s = pen__error(ctx, PEN_ERROR_PARSE,

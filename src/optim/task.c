@@ -109,6 +109,9 @@ pen_status pen_optim_task_set_target(pen_context *ctx, pen_optim_task *task, con
     if (!s && (img.width != c->width || img.height != c->height))
         s = pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: the image is %dx%d but the scene's camera is %dx%d",
                        path, img.width, img.height, c->width, c->height);
+    /* radiance, bounded as a scene's is, so that the loss and the lighting solve stay finite
+     * (views.c says why) */
+    if (!s) s = pen__io_image_check_values(ctx, path, &img, PEN_SCENE_MAX_RADIANCE);
     if (s) {
         pen_image_free(&img);
         free(name);
@@ -344,6 +347,30 @@ static pen_status parse_options(pen_context *ctx, const where *top, const cJSON 
     return parse_lr(ctx, top, root, &t->lr);
 }
 
+/* Why view v takes no part in the objective (weight 0, or a mask without a pixel), or NULL. */
+static const char *left_out(const pen_optim_view *v) {
+    if (!(v->weight > 0.0)) return "weight 0";
+    const size_t pixels = (size_t)v->camera.width * (size_t)v->camera.height;
+    for (size_t p = 0; v->mask && p < pixels; ++p)
+        if (v->mask[p] > 0.0f) return NULL;
+    return v->mask ? "a mask without a pixel above 0.5" : NULL;
+}
+
+/* The exposure group's gauge, views[0] (optim.h: its exposure stays as given and the others are
+ * recovered relative to it), must take part: a view left out of the objective ties its exposure
+ * to nothing, so the others and the lighting would be determined only up to a common factor.
+ * Refused rather than moved to another view, so that views[0] always means what the docs and
+ * result.json's "exposure_fixed_view" say. */
+static pen_status check_gauge(pen_context *ctx, const where *w, const pen_optim_task *t) {
+    const char *why = t->view_count > 0 ? left_out(&t->views[0]) : NULL;
+    if (!(t->optimize & PEN_OPTIM_EXPOSURE) || !why) return PEN_OK;
+    return pen__json_error(ctx, PEN_ERROR_ARGUMENT, w,
+                           "views[0] has %s, but with \"exposure\" its exposure is the fixed "
+                           "gauge of the others: it must take part, or the exposures are not "
+                           "determined (put a view that takes part first)",
+                           why);
+}
+
 static pen_status parse_task(pen_context *ctx, const char *path, const cJSON *root,
                              const char *target, pen_optim_task *t) {
     where top = {path, ""};
@@ -369,6 +396,7 @@ static pen_status parse_task(pen_context *ctx, const char *path, const cJSON *ro
     if (!s && views) {
         s = pen__optim_views_parse(ctx, path, &wv, views, target_flags(t), &t->views,
                                    &t->view_count);
+        if (!s) s = check_gauge(ctx, &wv, t);
     } else if (!s && target) {
         s = pen_optim_task_set_target(ctx, t, target);
     } else if (!s) {
@@ -479,12 +507,8 @@ static pen_status check_exposure(pen_context *ctx, const pen_optim_task *t) {
                           "the first view's exposure is fixed (a common exposure is the lighting's "
                           "scale), so %s has none to move",
                           name, t->view_count ? "one view" : "a single-view task");
-    if ((t->optimize & PEN_OPTIM_EXPOSURE) && !(t->views[0].weight > 0.0))
-        return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                          "%s: optimize: \"exposure\": views[0] fixes the exposures' scale and "
-                          "must take part (weight > 0)",
-                          name);
-    return PEN_OK;
+    const where w = {name, "views"};
+    return check_gauge(ctx, &w, t);
 }
 
 pen_status pen__optim_task_check(pen_context *ctx, const pen_optim_task *t) {

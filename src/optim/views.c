@@ -37,6 +37,16 @@
 
 typedef pen__json_where where;
 
+/* What a view's numbers may be, so that none overflows in the run. A target is radiance, held to
+ * the bound of every radiance a scene holds (PEN_SCENE_MAX_RADIANCE: its map, its background;
+ * pen_optim_task_set_target holds a single target to it too): its squares and the least-squares
+ * lighting that explains it stay far inside float (a 3e38 target made the solved SH
+ * coefficients infinite). An exposure is a camera's gain, 1e-6 .. 1e6 (20 stops either way,
+ * beyond any bracket), so that the fits' target over the exposure (at most 1e15) and their factor
+ * s^2 stay finite too (an exposure of 1e-40 is a float denormal, its target over it infinite). */
+#define PEN__OPTIM_MIN_EXPOSURE 1e-6
+#define PEN__OPTIM_MAX_EXPOSURE 1e6
+
 /* ---- Parsing --------------------------------------------------------------------------------- */
 
 /* An image of the camera's size at `rel` (relative to base), into *img and *name; flags as
@@ -74,6 +84,8 @@ static pen_status parse_view(pen_context *ctx, const char *base, const where *w,
     if (!s)
         s = load_image(ctx, &wt, base, rel, &v->camera, target_flags, &v->target,
                        &v->target_path);
+    if (!s && pen__io_image_check_values(ctx, rel, &v->target, PEN_SCENE_MAX_RADIANCE))
+        s = pen__json_wrap(ctx, PEN_ERROR_PARSE, &wt);
     const cJSON *m = pen__json_member(o, "mask");
     if (!s && m) {
         pen_image mask = {0, 0, 0, NULL};
@@ -93,11 +105,9 @@ static pen_status parse_view(pen_context *ctx, const char *base, const where *w,
     const cJSON *e = pen__json_member(o, "weight");
     if (!s && e) s = pen__json_number(ctx, &ww, e, 0.0, 1e6, "a weight in [0, 1e6]", &v->weight);
     const cJSON *x = pen__json_member(o, "exposure");
-    if (!s && x) {
-        s = pen__json_number(ctx, &we, x, 0.0, 1e6, "an exposure in (0, 1e6]", &v->exposure);
-        if (!s && !(v->exposure > 0.0))
-            s = pen__json_error(ctx, PEN_ERROR_PARSE, &we, "expected an exposure in (0, 1e6]");
-    }
+    if (!s && x)
+        s = pen__json_number(ctx, &we, x, PEN__OPTIM_MIN_EXPOSURE, PEN__OPTIM_MAX_EXPOSURE,
+                             "an exposure in [1e-6, 1e6]", &v->exposure);
     return s;
 }
 
