@@ -8,7 +8,7 @@
  * lighting or texture optimisation does, the ground shadowed by the spheres as before the ground
  * transfer; "groundgrid" is the same with the ground's shadows from the transfer's grid too (the
  * scene's default). The other cases shade the objects' own shadows with their
- * spheres (PEN_RENDER_SELF_SPHERES), the model a pose and sphere step needs.
+ * spheres ("self": "spheres"), the model a pose and sphere step needs.
  * A case times what one optimisation step costs: forward render, L2 loss against a fixed target
  * (the render of a slightly perturbed scene), backward into lighting, albedo texture, spheres
  * and pose (the transfer case: lighting and albedo); the spheres are fitted (or read from the fit cache) when the case is set up, before
@@ -249,6 +249,9 @@ static void bench_lights(pen_scene *sc, int count) {
 
 static pen_status configure(pen_context *ctx, pen_scene *sc, const bench_case *c) {
     if (c->lights) bench_lights(sc, c->lights);
+    /* The objects' own shadows from their transfer or their spheres (the model a pose step
+     * needs, pen_render_grad_model). */
+    sc->shadow.self = c->transfer ? PEN_SELF_TRANSFER : PEN_SELF_SPHERES;
     sc->shadow.ground_shadow = c->ground_grid ? PEN_GROUND_SHADOW_TRANSFER
                                               : PEN_GROUND_SHADOW_SPHERES;
     sc->camera.width = c->width;
@@ -274,7 +277,7 @@ static pen_status configure(pen_context *ctx, pen_scene *sc, const bench_case *c
         ob->spheres_path = NULL;
         ob->fit_spheres = c->spheres;
     }
-    return pen_scene_fit_spheres(ctx, sc);
+    return pen_scene_prepare(ctx, sc, 1, NULL);
 }
 
 /* The target: the scene with dimmer light, a turned and shifted pose (then restored: the saved
@@ -302,13 +305,6 @@ static pen_status render_target(pen_context *ctx, pen_scene *sc, const pen_rende
     return s;
 }
 
-/* The case's render options: the objects' own shadows from their transfer or their spheres. */
-static pen_render_options case_options(const bench_case *c) {
-    pen_render_options opt = pen_render_options_default();
-    opt.self_shadow = c->transfer ? PEN_RENDER_SELF_SCENE : PEN_RENDER_SELF_SPHERES;
-    return opt;
-}
-
 /* The timed loop: warm-up, then cfg->repeat iterations; medians into r. `image` keeps the last
  * forward (of the unperturbed scene) for the reference comparison. */
 static pen_status time_steps(pen_context *ctx, const bench_config *cfg, const bench_case *c,
@@ -316,7 +312,7 @@ static pen_status time_steps(pen_context *ctx, const bench_config *cfg, const be
                              bench_result *r) {
     unsigned wrt = sc->lighting.light_count > 0 ? BENCH_WRT_LIGHTS : BENCH_WRT;
     if (c->transfer) wrt = PEN_GRAD_LIGHTING | PEN_GRAD_ALBEDO;
-    const pen_render_options opt = case_options(c);
+    const pen_render_options opt = pen_render_options_default();
     const int n = cfg->repeat, per = 3 + STAGE_COUNT; /* forward, backward, total, stages */
     double *samples = calloc((size_t)n * (size_t)per + (size_t)n, sizeof(double));
     pen_render_state *st = NULL;
@@ -457,7 +453,7 @@ static pen_status run_case(pen_context *ctx, const bench_config *cfg, const benc
     r->load = load_average();
     pen_scene sc;
     if (pen_scene_load(ctx, cfg->scene_path, &sc)) return pen_context_status(ctx);
-    const pen_render_options opt = case_options(c);
+    const pen_render_options opt = pen_render_options_default();
     pen_image target = {0, 0, 0, NULL}, image = target;
     pen_status s;
     if (!(s = configure(ctx, &sc, c)) && !(s = render_target(ctx, &sc, &opt, &target)) &&

@@ -1,13 +1,14 @@
 /* penumbra render: the SH-shadow render of a scene JSON into a PNG (sRGB), EXR or HDR (linear).
- * Objects whose spheres are {"fit": N} get a fitted set first (pen_spheres_fit_cached with the
- * default settings: the fit is stored in the user's cache folder and reused, as
- * pen_scene_fit_spheres does; done here per object to print each fit's metrics). */
+ * The scene is made ready by pen_scene_prepare, the call every door makes: objects whose spheres
+ * are {"fit": N} get a fitted set first (cached in the user's cache folder and reused); each
+ * fit's metrics are printed. */
 #include "commands.h"
 
 #include "penumbra/fit.h"
 
 #include <omp.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 static const char *const CMD = "render";
@@ -78,25 +79,27 @@ int pen_cmd_render(int argc, char **argv) {
         rc = pen_cli_fail_ctx(CMD, ctx);
         goto out_ctx;
     }
+    /* The scene made ready as every door makes it (pen_scene_prepare): fits, cache, weights. */
+    pen_fit_metrics *fits = calloc(scene.object_count > 0 ? (size_t)scene.object_count : 1,
+                                   sizeof *fits);
+    if (!fits) {
+        rc = pen_cli_fail(CMD, "out of memory");
+        goto out_scene;
+    }
+    const pen_status prepared = pen_scene_prepare(ctx, &scene, opt.shadows, fits);
     int spheres = 0;
-    for (int o = 0; o < scene.object_count; ++o) {
-        pen_object *ob = &scene.objects[o];
-        /* {"fit": N}: the loader leaves the spheres to the fitter; without shadows they are
-         * not needed. */
-        if (ob->fit_spheres > 0 && opt.shadows) {
-            pen_fit_metrics metrics;
-            if (pen_spheres_fit_cached(ctx, &ob->mesh, ob->mesh_path, ob->fit_spheres, NULL,
-                                       &ob->spheres, &metrics)) {
-                rc = pen_cli_fail(CMD, "%s: objects[%d].spheres: %s", scene_path, o,
-                                  pen_context_error(ctx));
-                goto out_scene;
-            }
-            if (!quiet)
-                printf("objects[%d]: %d fitted spheres (%s, surface coverage %.3f)\n", o,
-                       ob->spheres.count, metrics.from_cache ? "from the cache" : "fitted now",
-                       metrics.surface_coverage);
-        }
+    for (int o = 0; !prepared && o < scene.object_count; ++o) {
+        const pen_object *ob = &scene.objects[o];
+        if (!quiet && ob->fit_spheres > 0 && opt.shadows)
+            printf("objects[%d]: %d fitted spheres (%s, surface coverage %.3f)\n", o,
+                   ob->spheres.count, fits[o].from_cache ? "from the cache" : "fitted now",
+                   fits[o].surface_coverage);
         spheres += ob->spheres.count;
+    }
+    free(fits);
+    if (prepared) {
+        rc = pen_cli_fail_ctx(CMD, ctx);
+        goto out_scene;
     }
     const double t0 = omp_get_wtime();
     if (pen_render_fwd(ctx, &scene, &opt, NULL, &image)) {

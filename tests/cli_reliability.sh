@@ -250,7 +250,7 @@ grep -q closed "$T/err" && fail "fit-spheres 1e-20 blames the mesh for not being
 long=$(awk 'BEGIN { for (i = 0; i < 400; ++i) printf "c" }')
 printf 'ply\nformat ascii 1.0\ncomment %s\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n-0.5 0 0\n0.5 0 0\n0 1 0\n3 0 1 2\n' \
     "$long" > "$T/comment.ply"
-scene "$T/comment.json" 12 10 '{"mesh": "comment.ply"}'
+scene "$T/comment.json" 12 10 '{"mesh": "comment.ply", "spheres": [{"center": [0, 0.4, 0], "radius": 0.3}]}'
 expect_ok "render: PLY with a 400-character comment" png "$BIN" render "$T/comment.json" -o "$T/out.png" -q
 
 # ---- Group 8: resource limits ---------------------------------------------------------------------------

@@ -28,6 +28,8 @@ static pen_flat_scene flat_of(const pen_scene *sc, pen_flat_object *objects, flo
     memcpy(f.ground_albedo, sc->ground.albedo, sizeof f.ground_albedo);
     f.ground_half_size = sc->ground.half_size;
     memcpy(f.background, sc->background, sizeof f.background);
+    f.self_shadow = (int)sc->shadow.self; /* the same enums' values (flat.h) */
+    f.ground_shadow = (int)sc->shadow.ground_shadow;
     f.object_count = sc->object_count;
     f.objects = objects;
     for (int o = 0; o < sc->object_count; ++o) {
@@ -44,6 +46,7 @@ static pen_flat_scene flat_of(const pen_scene *sc, pen_flat_object *objects, flo
         }
         memcpy(fo->albedo, ob->albedo, sizeof fo->albedo);
         fo->sphere_count = ob->spheres.count, fo->spheres = ob->spheres.data;
+        fo->texture_filter = (int)ob->texture_filter;
         memcpy(fo->pose, ob->pose.rotation_axis_angle_deg, 3 * sizeof(float));
         memcpy(fo->pose + 3, ob->pose.translation, 3 * sizeof(float));
         fo->pose[6] = ob->pose.scale;
@@ -68,6 +71,11 @@ static void test_flat_matches_render(void) {
     pen_context *ctx = fixture_ctx();
     unsigned long long seed = 7;
     pen_scene sc = rs_ball_scene(24, 1, &seed);
+    /* The model in which every group is exact: the objects' own shadows from their spheres,
+     * textures looked up at the pixel's uv (pen_render_grad_model). */
+    CHECK(pen_render_grad_model(&sc, PEN_GRAD_ALL) != 0);
+    CHECK(sc.shadow.self == PEN_SELF_SPHERES &&
+          sc.objects[0].texture_filter == PEN_TEXTURE_FILTER_POINT);
     pen_object *ob = &sc.objects[0];
     pen_flat_object fo;
     float sh[3 * PEN_SH_MAX_COEFFS];
@@ -79,11 +87,7 @@ static void test_flat_matches_render(void) {
     CHECK(pen_render_state_create(ctx, &fst) == PEN_OK);
     pen_image img = {0, 0, 0, NULL};
     float *fimg = calloc(np, sizeof(float)), *d_img = malloc(np * sizeof(float));
-    /* The flat API shades the objects' own shadows with their spheres and looks textures up at
-     * the pixel's uv (flat.h). */
-    pen_render_options opt = pen_render_options_default();
-    opt.self_shadow = PEN_RENDER_SELF_SPHERES;
-    opt.texture_filter = PEN_RENDER_TEXTURE_POINT;
+    const pen_render_options opt = pen_render_options_default();
     CHECK(pen_render_fwd(ctx, &sc, &opt, st, &img) == PEN_OK);
     CHECK(pen_flat_render_fwd(ctx, &f, fst, fimg) == PEN_OK);
     CHECK(same_floats(img.data, fimg, np));
@@ -136,9 +140,10 @@ static void test_flat_matches_render(void) {
     pen_scene_free(&sc);
 }
 
-/* self_shadow 1 and texture_filter 1: the renderer's defaults (the objects' own shadows from the
- * transfer, textures over the footprint), bit for bit, forward and backward of the lighting,
- * textures and albedos; gradients the transfer does not follow are refused, not returned as 0. */
+/* The defaults (the objects' own shadows from the transfer, textures over the footprint, as in
+ * the JSON), bit for bit, forward and backward of the lighting, textures and albedos; gradients
+ * the transfer does not follow are refused in the same words as pen_render_bwd's, not returned
+ * as 0. */
 static void test_flat_transfer(void) {
     pen_context *ctx = fixture_ctx();
     unsigned long long seed = 11;
@@ -149,7 +154,7 @@ static void test_flat_transfer(void) {
     pen_flat_object fo;
     float sh[3 * PEN_SH_MAX_COEFFS];
     pen_flat_scene f = flat_of(&sc, &fo, sh);
-    f.self_shadow = 1, f.texture_filter = 1;
+    CHECK(f.self_shadow == 0 && fo.texture_filter == 0); /* zeros are the JSON's defaults */
     const size_t np = 3 * 24 * 24;
     pen_render_state *st = NULL, *fst = NULL;
     CHECK(pen_render_state_create(ctx, &st) == PEN_OK);
@@ -160,9 +165,11 @@ static void test_flat_transfer(void) {
     CHECK(pen_render_fwd(ctx, &sc, &opt, st, &img) == PEN_OK);
     CHECK(pen_flat_render_fwd(ctx, &f, fst, fimg) == PEN_OK);
     CHECK(same_floats(img.data, fimg, np));
-    pen_render_options sph = opt;
-    sph.self_shadow = PEN_RENDER_SELF_SPHERES, sph.texture_filter = PEN_RENDER_TEXTURE_POINT;
-    CHECK(pen_render_fwd(ctx, &sc, &sph, NULL, &pts) == PEN_OK);
+    pen_scene sph = sc; /* shallow: the model's fields differ, the arrays are shared */
+    pen_object sph_ob = sc.objects[0];
+    sph.objects = &sph_ob;
+    pen_render_grad_model(&sph, PEN_GRAD_POSE);
+    CHECK(pen_render_fwd(ctx, &sph, &opt, NULL, &pts) == PEN_OK);
     CHECK(!same_floats(pts.data, fimg, np)); /* the switches do something here */
     for (size_t i = 0; i < np; ++i)
         d_img[i] = (float)(check_rand_(&seed) - 0.5);
@@ -183,10 +190,24 @@ static void test_flat_transfer(void) {
     pen_flat_object_grad og2 = {NULL, NULL, NULL, NULL, d_pose};
     pen_flat_grad fg2 = {d_sh, NULL, &og2, NULL};
     CHECK_ERROR(ctx, pen_flat_render_bwd(ctx, &f, fst, d_img, &fg2), PEN_ERROR_ARGUMENT,
-                "self_shadow 1");
+                "no pose gradient under", "\"self\": \"spheres\"");
+    CHECK_ERROR(ctx, pen_flat_grad_check(ctx, &f, PEN_GRAD_POSE), PEN_ERROR_ARGUMENT,
+                "no pose gradient");
+    CHECK(pen_flat_grad_check(ctx, &f, PEN_GRAD_LIGHTING | PEN_GRAD_ALBEDO) == PEN_OK);
+    /* The flat rule is the C rule. */
+    pen_flat_scene fm = f;
+    pen_flat_object fom = fo;
+    fm.objects = &fom;
+    CHECK(pen_flat_grad_model(&fm, &fom, PEN_GRAD_POSE) == PEN_GRAD_POSE);
+    CHECK(fm.self_shadow == (int)sph.shadow.self && fm.ground_shadow == (int)sph.shadow.ground_shadow &&
+          fom.texture_filter == (int)sph_ob.texture_filter);
+    CHECK(pen_flat_grad_check(ctx, &fm, PEN_GRAD_ALL) == PEN_OK);
     f.self_shadow = 2;
     CHECK_ERROR(ctx, pen_flat_render_fwd(ctx, &f, NULL, fimg), PEN_ERROR_ARGUMENT,
-                "self_shadow and texture_filter");
+                "self_shadow 2 is not 0 (transfer) or 1 (spheres)");
+    f.self_shadow = 0, fo.texture_filter = 3;
+    CHECK_ERROR(ctx, pen_flat_render_fwd(ctx, &f, NULL, fimg), PEN_ERROR_ARGUMENT, "objects[0]",
+                "texture_filter 3");
     pen_render_grad_free(&g);
     free(d_tex), free(fimg), free(d_img);
     pen_image_free(&img), pen_image_free(&pts);
@@ -220,9 +241,9 @@ static const char CUBE_OBJ[] = "v -0.3 0 -0.3\nv 0.3 0 -0.3\nv 0.3 0.6 -0.3\nv -
                                "v -0.3 0 0.3\nv 0.3 0 0.3\nv 0.3 0.6 0.3\nv -0.3 0.6 0.3\n"
                                "f 1 4 3 2\nf 5 6 7 8\nf 1 2 6 5\nf 4 8 7 3\nf 1 5 8 4\nf 2 3 7 6\n";
 
-/* A scene JSON loaded through the flat API renders as pen_scene_load + pen_render_fwd does (with
- * the objects' own shadows from their spheres, as the flat API always shades them); a
- * {"fit": N} request is left empty or fitted as asked. */
+/* A scene JSON loaded through the flat API renders as pen_scene_load + pen_render_fwd does, every
+ * key kept; a {"fit": N} request is left empty or fitted as asked, and an object left without
+ * spheres is refused by a render with shadows. */
 static void test_flat_scene_load(void) {
     check_private_cache_(); /* the fit cache below goes to a folder of this test */
     pen_context *ctx = fixture_ctx();
@@ -255,11 +276,18 @@ static void test_flat_scene_load(void) {
     CHECK(pen_scene_load(ctx, path, &sc) == PEN_OK);
     pen_image img = {0, 0, 0, NULL};
     pen_render_options opt = pen_render_options_default();
-    opt.self_shadow = PEN_RENDER_SELF_SPHERES; /* as the flat API shades (flat.h) */
-    opt.texture_filter = PEN_RENDER_TEXTURE_POINT;
-    CHECK(pen_render_fwd(ctx, &sc, &opt, NULL, &img) == PEN_OK);
     float fimg[3 * 20 * 16];
-    CHECK(pen_flat_render_fwd(ctx, f, NULL, fimg) == PEN_OK);
+    /* objects[1] asked for a fit that was not made: with shadows it would cast none. */
+    CHECK_ERROR(ctx, pen_render_fwd(ctx, &sc, &opt, NULL, &img), PEN_ERROR_ARGUMENT,
+                "objects[1]", "{\"fit\": 2} is not fitted yet");
+    CHECK_ERROR(ctx, pen_flat_render_fwd(ctx, f, NULL, fimg), PEN_ERROR_ARGUMENT, "objects[1]",
+                "no spheres");
+    opt.shadows = 0;
+    pen_flat_scene unshadowed = *f;
+    unshadowed.shadows = 0;
+    CHECK(f->self_shadow == (int)sc.shadow.self && f->ground_shadow == (int)sc.shadow.ground_shadow);
+    CHECK(pen_render_fwd(ctx, &sc, &opt, NULL, &img) == PEN_OK);
+    CHECK(pen_flat_render_fwd(ctx, &unshadowed, NULL, fimg) == PEN_OK);
     CHECK(img.data && same_floats(img.data, fimg, 3 * 20 * 16));
     pen_image_free(&img);
     pen_flat_loaded_free(l);
@@ -367,6 +395,7 @@ static void test_flat_renderer_reuse(void) {
     pen_context *ctx = fixture_ctx();
     unsigned long long seed = 11;
     pen_scene sc = rs_ball_scene(24, 1, &seed);
+    pen_render_grad_model(&sc, PEN_GRAD_ALL); /* every group below has its gradient */
     const pen_object *ob = &sc.objects[0];
     pen_flat_object fo;
     float sh[3 * PEN_SH_MAX_COEFFS];

@@ -7,11 +7,11 @@
  * - An object far outside the ground square: no node sees it (B = 0, every fraction 1), so the
  *   ground's pixels equal the unshadowed render.
  * - "ground_shadow": "spheres" shades the ground exactly as the sphere model (bit for bit: the
- *   ground's pixels of a render with PEN_RENDER_SELF_SPHERES); the grid and the image are the
+ *   ground's pixels of a render with "self": "spheres"); the grid and the image are the
  *   same for any thread count.
  * - A thin bar over the ground, covered by fat spheres: against the ray-traced reference the
  *   grid's ground shadow is much closer than the spheres'.
- * - PEN_RENDER_SELF_SPHERES (what pose, shape, sphere and light-direction optimisers force)
+ * - "self": "spheres" (what pose, shape, sphere and light-direction optimisers switch to)
  *   turns the grid off; the cache is kept while the pose stays and rebuilt when it moves. */
 #include "check.h"
 #include "render_scenes.h"
@@ -89,7 +89,7 @@ static void test_frame_gradients(void) {
         CHECK(pen_render_grad_create(ctx, &sc, &g) == PEN_OK);
         pen_render_grad_zero(&g);
         CHECK(pen_render_bwd(ctx, &sc, &opt, st, &dimg,
-                             PEN_GRAD_LIGHTING | PEN_GRAD_ALBEDO | PEN_GRAD_LIGHTS, &g) == PEN_OK);
+                             PEN_GRAD_LIGHTING | PEN_GRAD_ALBEDO | PEN_GRAD_LIGHT_IRRADIANCE, &g) == PEN_OK);
         float *params[6] = {&sc.lighting.sh[0][0], &sc.lighting.sh[2][1], &sc.lighting.sh[7][2],
                             &sc.ground.albedo[0],  &sc.ground.albedo[2],
                             &sc.lighting.lights[0].irradiance[1]};
@@ -159,10 +159,10 @@ static void test_spheres_mode_and_threads(void) {
         opt.antialias = 0;
         opt.kernel = kernel ? PEN_RENDER_KERNEL_SCALAR : PEN_RENDER_KERNEL_FAST;
         pen_image a, b, grid;
-        opt.self_shadow = PEN_RENDER_SELF_SPHERES;
+        sc.shadow.self = PEN_SELF_SPHERES;
         pen_render_state *sa = rs_render_kept(ctx, &sc, &opt, &a);
-        CHECK(!sa->grid.on); /* the optimisers' switch turns the grid off too */
-        opt.self_shadow = PEN_RENDER_SELF_SCENE;
+        CHECK(!sa->grid.on); /* without the self transfer there is no grid */
+        sc.shadow.self = PEN_SELF_TRANSFER;
         sc.shadow.ground_shadow = PEN_GROUND_SHADOW_SPHERES;
         pen_render_state *sb = rs_render_kept(ctx, &sc, &opt, &b);
         CHECK(!sb->grid.on && sb->self_any);

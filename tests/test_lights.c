@@ -503,6 +503,7 @@ static void test_frame(void) {
 /* Images and gradients (the lights' included) are bitwise the same for 1 and 3 threads. */
 static void test_threads(void) {
     pen_scene sc = lit_scene(80); /* above PEN_RENDER_PARALLEL_MIN_PIXELS */
+    pen_render_grad_model(&sc, PEN_GRAD_ALL); /* every group has its gradient */
     pen_image img[2];
     pen_render_grad g[2];
     for (int k = 0; k < 2; ++k) {

@@ -85,14 +85,14 @@ static void test_direction_recovered(void) {
 
 /* The penumbra render of a scene (the search's own model: a known direction must come back). */
 /* Targets in the model the lights tasks optimise with: the objects' own shadows from their spheres
- * (a task moving lights renders with PEN_RENDER_SELF_SPHERES, docs/optimize.md "Method"), so that
+ * (a task moving lights renders with "self": "spheres", pen_render_grad_model), so that
  * the tests measure the search and the descent, not the gap between the two self-shadow models. */
 static pen_image rendered(const pen_scene *sc) {
     pen_image img = {0, 0, 0, NULL};
     pen_context *ctx = pen_context_create();
-    pen_render_options opt = pen_render_options_default();
-    opt.self_shadow = PEN_RENDER_SELF_SPHERES;
-    CHECK(pen_render_fwd(ctx, sc, &opt, NULL, &img) == PEN_OK);
+    pen_scene v = *sc; /* shallow: only the model differs */
+    v.shadow.self = PEN_SELF_SPHERES;
+    CHECK(pen_render_fwd(ctx, &v, NULL, NULL, &img) == PEN_OK);
     pen_context_destroy(ctx);
     return img;
 }

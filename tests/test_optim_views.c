@@ -198,6 +198,7 @@ static void test_gradient_sum(void) {
     CHECK(pen_render_grad_create(ctx, &t.scene, &all) == PEN_OK);
     CHECK(pen_render_grad_create(ctx, &t.scene, &one) == PEN_OK);
     const unsigned wrt = PEN_GRAD_LIGHTING | PEN_GRAD_ALBEDO | PEN_GRAD_POSE;
+    pen_render_grad_model(&t.scene, wrt); /* a pose gradient needs the sphere model (render.h) */
     double loss = 0.0, sum_loss = 0.0, sh[PEN_SH_MAX_COEFFS][3], pose[6];
     memset(sh, 0, sizeof sh);
     memset(pose, 0, sizeof pose);

@@ -160,8 +160,17 @@ static void test_reference_at_accepted_extremes(void) {
 
 /* ---- Group 4: the largest accepted values render finite -------------------------------------- */
 
-/* Forward and backward with a loss that pulls every pixel up: finite pixels and gradients. */
+/* Forward and backward with a loss that pulls every pixel up: finite pixels and gradients, in
+ * the scene's model (its exact groups) and in the sphere model (every group). */
+static void check_finite_frame_model(const pen_scene *sc, const char *what);
 static void check_finite_frame(const pen_scene *sc, const char *what) {
+    check_finite_frame_model(sc, what);
+    pen_scene spheres = *sc; /* shallow: only the model differs */
+    spheres.shadow.self = PEN_SELF_SPHERES;
+    check_finite_frame_model(&spheres, what);
+}
+
+static void check_finite_frame_model(const pen_scene *sc, const char *what) {
     pen_render_state *st = NULL;
     CHECK(pen_render_state_create(ctx, &st) == PEN_OK);
     pen_image img = {0}, d_img = {0};
@@ -175,7 +184,9 @@ static void check_finite_frame(const pen_scene *sc, const char *what) {
     for (size_t i = 0; !s && i < n; ++i)
         d_img.data[i] = 1.0f;
     if (!s) s = pen_render_grad_create(ctx, sc, &g);
-    if (!s) s = pen_render_bwd(ctx, sc, NULL, st, &d_img, PEN_GRAD_ALL, &g);
+    if (!s)
+        s = pen_render_bwd(ctx, sc, NULL, st, &d_img, PEN_GRAD_ALL & pen_render_grad_exact(sc, NULL),
+                           &g);
     CHECK_MSG(s == PEN_OK, "%s: backward: %s", what, pen_context_error(ctx));
     if (!s) {
         CHECK_MSG(rs_all_finite(&g.sh[0][0], 3 * PEN_SH_MAX_COEFFS), "%s: d lighting", what);

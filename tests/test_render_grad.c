@@ -14,8 +14,9 @@
  *     alone; pose translations POSE_TOL relative to max(|FD|, |analytic|, POSE_FLOOR of the
  *     group's largest derivative), below.
  * The shading kernel itself is checked in double precision in tests/test_render_shade.c. Objects
- * shadow themselves through their spheres here (PEN_RENDER_SELF_SPHERES), the model whose pose,
+ * shadow themselves through their spheres here ("self": "spheres"), the model whose pose,
  * shape and sphere gradients exist. */
+#include "io_fixtures.h"
 #include "render_scenes.h"
 #include "render/render_internal.h" /* the footprint J, per-pixel albedo */
 
@@ -50,7 +51,7 @@ static double projected(fd_rig *r, const pen_scene *sc) {
 }
 
 /* Renders once and runs the backward with d_image = q. */
-static fd_rig rig_grad(const pen_scene *sc, int shadows, pen_render_grad *g) {
+static fd_rig rig_grad(pen_scene *sc, int shadows, pen_render_grad *g) {
     fd_rig r;
     memset(&r, 0, sizeof r);
     r.ctx = pen_context_create();
@@ -59,7 +60,7 @@ static fd_rig rig_grad(const pen_scene *sc, int shadows, pen_render_grad *g) {
     r.opt.shadows = shadows;
     /* The sphere model for the objects' own shadows: the precomputed transfer (the default) is a
      * constant of the pose and shape, with no gradient (tests/test_self_transfer.c). */
-    r.opt.self_shadow = PEN_RENDER_SELF_SPHERES;
+    sc->shadow.self = PEN_SELF_SPHERES;
     pen_render_state_create(r.ctx, &r.st);
     pen_status s = pen_render_fwd(r.ctx, sc, &r.opt, r.st, &r.img);
     CHECK_MSG(s == PEN_OK, "%s", pen_context_error(r.ctx));
@@ -514,6 +515,7 @@ static void test_disk_light_gradients(void) {
 /* 1 and 3 threads give bitwise equal images and gradients. */
 static void test_thread_count_independent(void) {
     pen_scene sc = rs_ball_scene(32, 1, &seed);
+    pen_render_grad_model(&sc, PEN_GRAD_ALL); /* every group has its gradient */
     pen_render_grad g[2];
     float *img[2];
     for (int k = 0; k < 2; ++k) {
@@ -686,41 +688,83 @@ static void test_footprint_checkerboard(void) {
               spread[0], spread[1]);
 }
 
-/* pen_render_options.texture_filter = POINT (what pose and deformation tasks render with) gives
- * the image and gradient of the objects' own "point" key, bit for bit, on a footprint-keyed scene;
- * and a backward under other options than its forward's is refused. */
-static void test_texture_filter_option(void) {
+/* The model a gradient needs (render.h): under the transfer (the default) the groups it holds
+ * constant are refused, naming the group and the setting, computing nothing; lighting and albedo
+ * pass; pen_render_grad_model switches to the model whose gradients are all exact (the rule the
+ * optimizer follows), which renders as a scene keyed that way in its JSON, bit for bit. */
+static void test_grad_model_rule(void) {
     pen_scene a = rs_ball_scene(24, 1, &seed), b = rs_ball_scene(24, 1, &seed);
     const size_t texels = (size_t)a.objects[0].texture.width * a.objects[0].texture.height * 3;
     for (size_t i = 0; i < texels; ++i)
         b.objects[0].texture.data[i] = a.objects[0].texture.data[i];
-    a.objects[0].texture_filter = PEN_TEXTURE_FILTER_FOOTPRINT;
+    CHECK(a.shadow.self == PEN_SELF_TRANSFER &&
+          a.objects[0].texture_filter == PEN_TEXTURE_FILTER_FOOTPRINT);
+    b.shadow.self = PEN_SELF_SPHERES, b.shadow.ground_shadow = PEN_GROUND_SHADOW_SPHERES;
     b.objects[0].texture_filter = PEN_TEXTURE_FILTER_POINT;
-    pen_render_options forced = pen_render_options_default(), plain = forced;
-    forced.texture_filter = PEN_RENDER_TEXTURE_POINT;
+    const pen_render_options opt = pen_render_options_default();
+    pen_render_options off = opt;
+    off.shadows = 0;
+    const unsigned constant =
+        PEN_GRAD_POSE | PEN_GRAD_VERTICES | PEN_GRAD_SPHERES | PEN_GRAD_LIGHTS;
+    CHECK(pen_render_grad_exact(&a, &opt) == (PEN_GRAD_ALL & ~constant));
+    CHECK(pen_render_grad_exact(&a, &off) == PEN_GRAD_ALL); /* no transfer without shadows */
+    CHECK(pen_render_grad_exact(&b, &opt) == PEN_GRAD_ALL);
+
+    pen_context *ctx = pen_context_create();
     pen_image ia = {0, 0, 0, NULL}, ib = {0, 0, 0, NULL}, d = {0, 0, 0, NULL};
     pen_render_state *sa = NULL, *sb = NULL;
     pen_render_grad ga, gb;
-    CHECK(pen_render_state_create(NULL, &sa) == PEN_OK);
-    CHECK(pen_render_state_create(NULL, &sb) == PEN_OK);
-    CHECK(pen_render_fwd(NULL, &a, &forced, sa, &ia) == PEN_OK);
-    CHECK(pen_render_fwd(NULL, &b, &plain, sb, &ib) == PEN_OK);
+    CHECK(pen_render_state_create(ctx, &sa) == PEN_OK);
+    CHECK(pen_render_state_create(ctx, &sb) == PEN_OK);
+    CHECK(pen_render_fwd(ctx, &a, &opt, sa, &ia) == PEN_OK);
     const size_t n = 3 * (size_t)ia.width * (size_t)ia.height;
-    CHECK(memcmp(ia.data, ib.data, sizeof(float) * n) == 0);
-    CHECK(pen_image_create(NULL, ia.width, ia.height, 3, &d) == PEN_OK);
+    CHECK(pen_image_create(ctx, ia.width, ia.height, 3, &d) == PEN_OK);
     for (size_t i = 0; i < n; ++i) d.data[i] = (float)((i % 7) + 1) / 7.0f;
-    CHECK(pen_render_grad_create(NULL, &a, &ga) == PEN_OK);
-    CHECK(pen_render_grad_create(NULL, &b, &gb) == PEN_OK);
-    CHECK(pen_render_bwd(NULL, &a, &forced, sa, &d, PEN_GRAD_ALL, &ga) == PEN_OK);
-    CHECK(pen_render_bwd(NULL, &b, &plain, sb, &d, PEN_GRAD_ALL, &gb) == PEN_OK);
+    CHECK(pen_render_grad_create(ctx, &a, &ga) == PEN_OK);
+    static const struct { unsigned bit; const char *name; } refused[] = {
+        {PEN_GRAD_SPHERES, "no sphere gradient"}, {PEN_GRAD_POSE, "no pose gradient"},
+        {PEN_GRAD_VERTICES, "no vertex gradient"}, {PEN_GRAD_LIGHTS, "no disk-light gradient"}};
+    for (int k = 0; k < 4; ++k) {
+        ga.objects[0].pose.translation[0] = 7.0f; /* a refusal computes nothing */
+        CHECK_ERROR(ctx, pen_render_bwd(ctx, &a, &opt, sa, &d, refused[k].bit | PEN_GRAD_LIGHTING,
+                                        &ga),
+                    PEN_ERROR_ARGUMENT, refused[k].name, "\"self\": \"transfer\"",
+                    "\"self\": \"spheres\"");
+        CHECK(ga.objects[0].pose.translation[0] == 7.0f && ga.sh[0][0] == 0.0f);
+    }
+    pen_render_grad_zero(&ga);
+    CHECK(pen_render_bwd(ctx, &a, &opt, sa, &d, PEN_GRAD_LIGHTING | PEN_GRAD_ALBEDO, &ga) ==
+          PEN_OK);
+    CHECK(ga.sh[0][0] != 0.0f);
+
+    /* The rule: pose switches shadows and textures; lighting alone changes nothing. */
+    pen_scene c = a;
+    CHECK(pen_render_grad_model(&c, PEN_GRAD_LIGHTING | PEN_GRAD_ALBEDO) == 0);
+    CHECK(pen_render_grad_model(&a, PEN_GRAD_POSE) == PEN_GRAD_POSE);
+    CHECK(a.shadow.self == PEN_SELF_SPHERES && a.shadow.ground_shadow == PEN_GROUND_SHADOW_SPHERES &&
+          a.objects[0].texture_filter == PEN_TEXTURE_FILTER_POINT);
+    CHECK(pen_render_grad_model(&a, PEN_GRAD_ALL) == 0);
+    /* A backward after the model changed under it is refused. */
+    CHECK_ERROR(ctx, pen_render_bwd(ctx, &a, &opt, sa, &d, PEN_GRAD_LIGHTING, &ga),
+                PEN_ERROR_ARGUMENT, "scene changed");
+    CHECK(pen_render_fwd(ctx, &a, &opt, sa, &ia) == PEN_OK);
+    CHECK(pen_render_fwd(ctx, &b, &opt, sb, &ib) == PEN_OK);
+    CHECK(memcmp(ia.data, ib.data, sizeof(float) * n) == 0);
+    CHECK(pen_render_grad_create(ctx, &b, &gb) == PEN_OK);
+    pen_render_grad_zero(&ga);
+    CHECK(pen_render_bwd(ctx, &a, &opt, sa, &d, PEN_GRAD_ALL, &ga) == PEN_OK);
+    CHECK(pen_render_bwd(ctx, &b, &opt, sb, &d, PEN_GRAD_ALL, &gb) == PEN_OK);
     CHECK(memcmp(ga.objects[0].texture, gb.objects[0].texture, sizeof(float) * texels) == 0);
     const float *ta = ga.objects[0].pose.translation, *tb = gb.objects[0].pose.translation;
-    CHECK(memcmp(ta, tb, sizeof(float) * 3) == 0);
-    CHECK(pen_render_bwd(NULL, &a, &plain, sa, &d, PEN_GRAD_ALL, &ga) != PEN_OK);
+    CHECK(memcmp(ta, tb, sizeof(float) * 3) == 0 && ta[0] != 0.0f);
+    pen_render_options other = opt;
+    other.antialias = 0;
+    CHECK(pen_render_bwd(ctx, &a, &other, sa, &d, PEN_GRAD_ALL, &ga) != PEN_OK);
     pen_image_free(&ia), pen_image_free(&ib), pen_image_free(&d);
     pen_render_grad_free(&ga), pen_render_grad_free(&gb);
     pen_render_state_free(sa), pen_render_state_free(sb);
     pen_scene_free(&a), pen_scene_free(&b);
+    pen_context_destroy(ctx);
 }
 
 RUN_TESTS(TEST(test_lighting_and_albedo), TEST(test_ground_border_gradients), TEST(test_sphere_gradients), TEST(test_occluder_only),
@@ -729,4 +773,4 @@ RUN_TESTS(TEST(test_lighting_and_albedo), TEST(test_ground_border_gradients), TE
           TEST(test_disk_light_gradients),
           TEST(test_thread_count_independent), TEST(test_torture_finite),
           TEST(test_footprint_gradients), TEST(test_footprint_checkerboard),
-          TEST(test_texture_filter_option))
+          TEST(test_grad_model_rule))

@@ -8,8 +8,11 @@ static unsigned long long seed = 4242;
 
 /* Renders with both kernels and runs the backward of a loss that pulls every pixel up: finite
  * pixels and gradients, and the two kernels agree (they share the saturation of sh.h, written
- * once per kernel). */
-static void check_finite_render(const pen_scene *sc, const char *what) {
+ * once per kernel). In the sphere model, so that every gradient group is computed. */
+static void check_finite_render(const pen_scene *scene, const char *what) {
+    pen_scene spheres = *scene; /* shallow: only the model differs */
+    spheres.shadow.self = PEN_SELF_SPHERES;
+    const pen_scene *sc = &spheres;
     pen_context *ctx = pen_context_create();
     pen_context_set_threads(ctx, 2);
     pen_render_state *st = NULL;

@@ -12,7 +12,7 @@
  * - A frame's lighting and albedo gradients with the transfer on (the image is linear in them).
  * - The cache: kept while the pose stays, rebuilt when it moves.
  * - The same transfer and the same image for any thread count, and from either kernel.
- * - "self": "spheres" (scene) and PEN_RENDER_SELF_SPHERES (options) render as the sphere model. */
+ * - "self": "spheres" (scene) and pen_render_grad_model's switch render as the sphere model. */
 #include "check.h"
 #include "render_scenes.h"
 
@@ -139,8 +139,9 @@ static void test_concave_against_reference(void) {
         pen_render_options opt = pen_render_options_default();
         pen_image tr = {0, 0, 0, NULL}, sp = {0, 0, 0, NULL};
         CHECK(rs_render(&sc, &opt, 2, &tr) == PEN_OK);
-        opt.self_shadow = PEN_RENDER_SELF_SPHERES;
+        sc.shadow.self = PEN_SELF_SPHERES;
         CHECK(rs_render(&sc, &opt, 2, &sp) == PEN_OK);
+        sc.shadow.self = PEN_SELF_TRANSFER;
         const double et = rs_rel_error(&tr, &ref), es = rs_rel_error(&sp, &ref);
         printf("  V %s: rel. error against the reference: transfer %.4f, own spheres %.4f\n",
                lit ? "with a disk light" : "under SH light", et, es);
@@ -374,7 +375,7 @@ static void test_frame_lighting_albedo(void) {
         CHECK(pen_render_grad_create(ctx, &sc, &g) == PEN_OK);
         pen_render_grad_zero(&g);
         CHECK(pen_render_bwd(ctx, &sc, &opt, st, &dimg, PEN_GRAD_LIGHTING | PEN_GRAD_ALBEDO |
-                                                             PEN_GRAD_LIGHTS, &g) == PEN_OK);
+                                                             PEN_GRAD_LIGHT_IRRADIANCE, &g) == PEN_OK);
         float *params[6] = {&sc.lighting.sh[0][0], &sc.lighting.sh[2][1], &sc.lighting.sh[6][2],
                             &sc.objects[0].albedo[0], &sc.objects[0].albedo[2],
                             &sc.lighting.lights[0].irradiance[1]};
@@ -469,10 +470,10 @@ static void test_spheres_mode(void) {
     pen_render_options opt = pen_render_options_default();
     pen_image t = {0, 0, 0, NULL}, s1 = {0, 0, 0, NULL}, s2 = {0, 0, 0, NULL};
     CHECK(rs_render(&sc, &opt, 2, &t) == PEN_OK);
-    opt.self_shadow = PEN_RENDER_SELF_SPHERES;
-    CHECK(rs_render(&sc, &opt, 2, &s1) == PEN_OK);
-    opt.self_shadow = PEN_RENDER_SELF_SCENE;
     sc.shadow.self = PEN_SELF_SPHERES;
+    CHECK(rs_render(&sc, &opt, 2, &s1) == PEN_OK);
+    sc.shadow.self = PEN_SELF_TRANSFER; /* the rule's switch renders as the JSON key */
+    CHECK(pen_render_grad_model(&sc, PEN_GRAD_SPHERES) == PEN_GRAD_SPHERES);
     CHECK(rs_render(&sc, &opt, 2, &s2) == PEN_OK);
     const size_t n = 3 * (size_t)t.width * t.height;
     CHECK(!memcmp(s1.data, s2.data, sizeof(float) * n));

@@ -115,9 +115,22 @@ PEN_API pen_status pen_spheres_preview(pen_context *ctx, const pen_mesh *mesh,
                                        const pen_spheres *spheres, float azimuth_deg,
                                        float elevation_deg, int size, pen_image *out);
 
+/* Gets a loaded scene (pen_scene_load) ready to render as `penumbra render` renders it: the one
+ * call the CLI, the optimizer and the Python binding's load_scene make. With shadows != 0, every
+ * object that asks for fitted spheres ("spheres": {"fit": N}: fit_spheres > 0, none yet) gets
+ * them from pen_spheres_fit_cached with the default settings (cached in the user's cache folder,
+ * keyed by the context's thread count too); then every sphere set gets its overlap weights
+ * (pen_spheres_ensure_weights), computed once here. The lights of the environment map
+ * ("lights": {"max": K}, the default) were found by pen_scene_load. metrics: NULL, or
+ * object_count entries, each set to that object's fit (zero for an object not fitted by this
+ * call). Errors name the scene file and the object: "scene.json: objects[1].spheres: ...". */
+PEN_API pen_status pen_scene_prepare(pen_context *ctx, pen_scene *scene, int shadows,
+                                     pen_fit_metrics *metrics);
+
 /* Fits every object of a loaded scene that asks for it ("spheres": {"fit": N}, so fit_spheres > 0
  * and no spheres yet) with pen_spheres_fit_cached and the default settings (cached in the user's
- * cache folder). Objects that have spheres are left alone. */
+ * cache folder). Objects that have spheres are left alone. pen_scene_prepare does this and the
+ * overlap weights. */
 PEN_API pen_status pen_scene_fit_spheres(pen_context *ctx, pen_scene *scene);
 
 /* Writes {"metrics": {...}, "fit_settings": {...}} (the settings member only when settings is

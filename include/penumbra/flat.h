@@ -5,14 +5,13 @@
  * can mirror it field by field; pen_scene (scene.h) is richer and owns its arrays, this one
  * borrows them. A pen_flat_scene describes the same scene as pen_scene: pen_flat_render_fwd
  * builds a pen_scene that points into the caller's arrays and runs pen_render_fwd on it, so the
- * image is the one `penumbra render` makes of the equivalent scene JSON, bit for bit. Two defaults
- * differ from the JSON's: by default (self_shadow 0) the flat API shades the objects' own shadows
- * with their spheres, whose gradients reach the pose and the vertices (the precomputed transfer,
- * the JSON default, has none; docs/design.md sec. 1.15), and (texture_filter 0) looks textures up
- * at the pixel's uv, continuous in the geometry (the JSON default filters over the pixel's
- * footprint, which steps between facets; sec. 1.4): the JSON's "shadow": {"self": "spheres"} and
- * "texture_filter": "point". self_shadow 1 and texture_filter 1 give the JSON defaults, for
- * lighting and texture work against photographs.
+ * image is the one `penumbra render` makes of the equivalent scene JSON, bit for bit. The modes
+ * have the JSON's defaults and the scene enums' values (scene.h): a zeroed field is the JSON's
+ * default, so self_shadow 0 is PEN_SELF_TRANSFER ("transfer"), texture_filter 0 is
+ * PEN_TEXTURE_FILTER_FOOTPRINT ("footprint"). Under "transfer" the backward refuses the pose,
+ * vertex, sphere and disk-light gradients, naming the group (pen_render_grad_check): a pose or
+ * shape optimiser asks for the sphere model first (pen_flat_grad_model, the rule `penumbra
+ * optimize` follows).
  *
  * Usage (one object, one step):
  *
@@ -72,6 +71,8 @@ typedef struct pen_flat_object {
                                     the spheres by the renderer (pen_spheres_overlap_weights) at
                                     every forward; give them to hold them fixed while the
                                     spheres change (they are constants of the gradient) */
+    int texture_filter;          /* pen_texture_filter: 0 (default) averaged over the pixel's
+                                    footprint, 1 one bilinear lookup at the pixel's uv */
 } pen_flat_object;
 
 /* A scene; the arrays are borrowed for the call. */
@@ -106,13 +107,11 @@ typedef struct pen_flat_scene {
     const float *lights;  /* 7 * light_count: direction towards the light (3, any non-zero
                              length: normalised by the renderer), angular radius in degrees,
                              irradiance (3) */
-    int self_shadow;      /* 0 (default): the objects' own shadows from their spheres (every
-                             gradient); 1: from their meshes' precomputed transfer, ray traced
-                             and cached (exact; the backward then refuses gradients of the
-                             positions, pose, spheres and lights, which do not see it) */
-    int texture_filter;   /* 0 (default): one bilinear lookup at the pixel's uv; 1: averaged
-                             over the pixel's footprint (pen_texture_filter FOOTPRINT) */
-    int ground_shadow;    /* with self_shadow 1, the ground's shadows of those objects:
+    int self_shadow;      /* pen_shadow_self: 0 (default) the objects' own shadows from their
+                             meshes' precomputed transfer, ray traced and cached (exact; the
+                             backward then refuses gradients of the positions, pose, spheres and
+                             lights, which do not see it); 1 from their spheres (every gradient) */
+    int ground_shadow;    /* with self_shadow 0, the ground's shadows of those objects:
                              pen_shadow_ground_shadow (0 from their meshes at a grid of nodes,
                              the default; 1 from their spheres) */
     int ground_grid;      /* that grid's nodes per side: 0 (the default, 96) or
@@ -120,10 +119,10 @@ typedef struct pen_flat_scene {
 } pen_flat_scene;
 
 /* A 64 x 64 camera at (0, 1, 3) looking at (0, 0.5, 0) with 40 degrees vertical field of view,
- * sh_bands 4 and no lighting array, no disk lights, the calibrated exponential with its own epsilon, overlap
- * weights on, the default ground (height 0, albedo 0.8, half size 4, occluding the objects), black
- * background, no map, shadows and antialiasing on, own shadows from the spheres, point texture
- * lookups, no objects. */
+ * sh_bands 4 and no lighting array, no disk lights, the calibrated exponential with its own
+ * epsilon, overlap weights on, the default ground (height 0, albedo 0.8, half size 4, occluding
+ * the objects), black background, no map, shadows and antialiasing on, the scene JSON's model
+ * (own and ground shadows from the transfer), no objects. */
 PEN_API pen_flat_scene pen_flat_scene_default(void);
 
 /* Where pen_flat_render_bwd writes; every pointer may be NULL (that gradient is not computed).
@@ -158,6 +157,22 @@ PEN_API pen_status pen_flat_render_bwd(pen_context *ctx, const pen_flat_scene *s
                                        pen_render_state *state, const float *d_image,
                                        const pen_flat_grad *grad);
 
+/* The gradient groups (PEN_GRAD_*) a pen_flat_grad with these pointers set asks for. */
+PEN_API unsigned pen_flat_grad_groups(const pen_flat_scene *scene, const pen_flat_grad *grad);
+
+/* pen_render_grad_check of the scene the flat description makes: PEN_OK when every group of wrt
+ * is exact for its model, else the one-line refusal naming the group (the binding calls it
+ * before a forward whose inputs will want gradients, so the error comes at once). */
+PEN_API pen_status pen_flat_grad_check(pen_context *ctx, const pen_flat_scene *scene,
+                                       unsigned wrt);
+
+/* pen_render_grad_model on the flat description: sets scene->self_shadow and ->ground_shadow,
+ * and the texture_filter of each of scene->object_count entries of `objects` (the array the
+ * scene points to, passed writable; NULL leaves the filters alone), to the model in which the
+ * groups of wrt are exact. Returns the groups that needed a change. */
+PEN_API unsigned pen_flat_grad_model(pen_flat_scene *scene, pen_flat_object *objects,
+                                     unsigned wrt);
+
 /* ---- A renderer kept across calls ------------------------------------------------------------ */
 
 /* A pen_render_state together with what a flat call otherwise allocates anew (the pen_scene
@@ -185,7 +200,7 @@ PEN_API pen_render_state *pen_flat_renderer_state(pen_flat_renderer *renderer);
 /* ---- Layout check ---------------------------------------------------------------------------- */
 
 /* Raised whenever a row of pen_flat_abi's table changes (a field added, moved or resized). */
-#define PEN_FLAT_ABI_VERSION 3
+#define PEN_FLAT_ABI_VERSION 4
 
 /* One row of the layout table. */
 typedef struct pen_flat_abi_field {
@@ -207,9 +222,11 @@ PEN_API int pen_flat_abi(const pen_flat_abi_field **fields, int *count);
 /* A scene JSON loaded and seen as a pen_flat_scene (which points into the loaded arrays). */
 typedef struct pen_flat_loaded pen_flat_loaded;
 
-/* Loads a scene JSON (pen_scene_load). With fit_spheres != 0, objects whose spheres are
- * {"fit": N} get them as `penumbra render` does (pen_scene_fit_spheres: cached in the user's cache folder);
- * with 0 they are left without spheres. On failure *out is NULL. */
+/* Loads a scene JSON (pen_scene_load) and makes it ready as `penumbra render` does
+ * (pen_scene_prepare): with fit_spheres != 0, objects whose spheres are {"fit": N} get them
+ * (cached in the user's cache folder); with 0 they are left without spheres (render them without
+ * shadows). Every key of the file is kept: the model (shadow.self, ground_shadow, ground_grid,
+ * each object's texture_filter), the lights given or found in the map. On failure *out is NULL. */
 PEN_API pen_status pen_flat_scene_load(pen_context *ctx, const char *path, int fit_spheres,
                                        pen_flat_loaded **out);
 /* The flat view; valid until pen_flat_loaded_free. Its objects' uv_indices are always set. */

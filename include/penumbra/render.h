@@ -1,18 +1,30 @@
 /* penumbra/render.h -- the differentiable soft-shadow renderer: forward image, image losses, and
  * the backward pass into every scene parameter.
  *
- * Usage (one optimisation step):
+ * Usage (one optimisation step of a pose, from a scene JSON):
  *
+ *     pen_scene scene;               pen_scene_load(ctx, "scene.json", &scene);     io.h
+ *     pen_scene_prepare(ctx, &scene, 1, NULL);   fits {"fit": N} spheres, as `penumbra render`
+ *     pen_render_grad_model(&scene, PEN_GRAD_POSE);  the model whose pose gradient is exact
  *     pen_render_options opt = pen_render_options_default();
  *     pen_render_state *st = NULL;   pen_render_state_create(ctx, &st);
  *     pen_render_grad grad;          pen_render_grad_create(ctx, &scene, &grad);
  *     pen_image img = {0}, d_img = {0};
- *     pen_render_fwd(ctx, &scene, &opt, st, &img);             allocates img on first use
- *     pen_image_create(ctx, img.width, img.height, 3, &d_img);
- *     double loss; pen_loss_l2(ctx, &img, &target, &loss, &d_img);
- *     pen_render_grad_zero(&grad);
- *     pen_render_bwd(ctx, &scene, &opt, st, &d_img, PEN_GRAD_ALL, &grad);
- *     ... update scene parameters from grad, repeat ...
+ *     for (int step = 0; step < 100; ++step) {
+ *         pen_render_fwd(ctx, &scene, &opt, st, &img);         allocates img on first use
+ *         double loss; pen_loss_l2(ctx, &img, &target, &loss, &d_img);   sets d_img
+ *         pen_render_grad_zero(&grad);
+ *         pen_render_bwd(ctx, &scene, &opt, st, &d_img, PEN_GRAD_POSE, &grad);
+ *         ... move scene.objects[0].pose against grad.objects[0].pose ...
+ *     }
+ *
+ * The model (docs/design.md sec. 1.15): a scene's objects shade their own shadows, and their
+ * shadows on the ground, with the ray-traced transfer of their meshes by default ("shadow":
+ * {"self": "transfer"}), which is exact but traced once per pose and so has no gradient in the
+ * pose, the vertices, the spheres or the lights' directions. Every gradient pen_render_bwd returns
+ * is exact for the model the forward rendered, or it fails naming the group and the setting that
+ * gives it (pen_render_grad_check); pen_render_grad_model switches a scene to the model in which
+ * the groups asked for are exact (the rule `penumbra optimize` follows).
  *
  * What is rendered (docs/renderer.md): per pixel, the visible surface point x of an object or the
  * ground plane, its unit normal n and albedo rho; the visibility V = exp*(sum_i w_i f_i) over all
@@ -53,8 +65,10 @@ extern "C" {
  * bands 3..6, with shadows the calibrated and paper exponentials, without shadows every method
  * (no exponential is taken), and falls back to SCALAR otherwise. SCALAR is the per-pixel
  * reference kernel. Both compute in float and agree to float rounding. */
-#define PEN_RENDER_KERNEL_FAST 0
-#define PEN_RENDER_KERNEL_SCALAR 1
+typedef enum pen_render_kernel {
+    PEN_RENDER_KERNEL_FAST = 0,
+    PEN_RENDER_KERNEL_SCALAR = 1
+} pen_render_kernel;
 
 /* The memory a frame may need (16 GiB). pen_render_fwd computes it from the camera size before
  * allocating (about 190 bytes per pixel, plus 8 bands^2 with a state for the backward and shadows
@@ -62,33 +76,17 @@ extern "C" {
  * naming the size and the bytes. */
 #define PEN_RENDER_MAX_BYTES 17179869184.0
 
-/* What shadows an object's own surface (pen_render_options.self_shadow). SCENE follows the scene's
- * "shadow": {"self": ...} (default: the precomputed transfer of the object's own mesh, exact
- * self-visibility but constant in pose, shape, spheres and light directions); SPHERES forces the
- * object's own spheres whatever the scene says, as an optimiser of pose, deformation, spheres or
- * light directions needs (docs/design.md sec. 1.15); it also turns off the ground's shadows from
- * the transfer ("ground_shadow"), so the ground is shadowed by the spheres too. */
-#define PEN_RENDER_SELF_SCENE 0
-#define PEN_RENDER_SELF_SPHERES 1
-
-/* How albedo textures are looked up (pen_render_options.texture_filter). SCENE follows each
- * object's "texture_filter" (default: box-filtered over the pixel's footprint, docs/design.md
- * sec. 1.4, whose per-triangle footprint steps where a facet edge crosses a pixel centre); POINT
- * forces one bilinear lookup at the pixel's UV, continuous in the geometry, as an optimiser of
- * pose or deformation wants. */
-#define PEN_RENDER_TEXTURE_SCENE 0
-#define PEN_RENDER_TEXTURE_POINT 1
-
+/* How to render; what is rendered (the model: which shadows come from the transfer or the
+ * spheres, how textures are looked up) is the scene's own (pen_shadow, pen_object.texture_filter),
+ * the same in the JSON, the C structs, the flat API and Python. */
 typedef struct pen_render_options {
-    int shadows;     /* 1: SH visibility from the sphere sets; 0: V == 1 (`--no-shadows`) */
+    int shadows;     /* 1: shadows (SH visibility, disk-light visibility); 0: V == 1
+                        (`--no-shadows`) */
     int antialias;   /* 1: analytic silhouette antialiasing (needed for silhouette gradients) */
-    int kernel;      /* PEN_RENDER_KERNEL_* */
-    int self_shadow; /* PEN_RENDER_SELF_* */
-    int texture_filter; /* PEN_RENDER_TEXTURE_* */
+    pen_render_kernel kernel;
 } pen_render_options;
 
-/* shadows = 1, antialias = 1, kernel = PEN_RENDER_KERNEL_FAST, self_shadow = SCENE,
- * texture_filter = SCENE. */
+/* shadows = 1, antialias = 1, kernel = PEN_RENDER_KERNEL_FAST: what `penumbra render` does. */
 PEN_API pen_render_options pen_render_options_default(void);
 
 /* How many pixels the fast kernel in use shades per SIMD batch (16 with AVX-512). Its per-batch
@@ -106,7 +104,10 @@ PEN_API int pen_render_fast_lanes(void);
 #define PEN_GRAD_POSE 8u      /* rigid pose of each object (moves vertices and spheres) */
 #define PEN_GRAD_VERTICES 16u /* vertex positions (object space), incl. silhouettes */
 #define PEN_GRAD_LIGHTS 32u   /* disk lights: direction, angular radius, irradiance */
-#define PEN_GRAD_ALL 63u
+#define PEN_GRAD_LIGHT_IRRADIANCE 64u /* disk lights' irradiance alone (part of PEN_GRAD_LIGHTS;
+                                         exact under the transfer too, where the direction and
+                                         radius are not) */
+#define PEN_GRAD_ALL 127u
 
 typedef struct pen_object_grad {
     float albedo[3]; /* d constant albedo (objects without a texture) */
@@ -142,6 +143,35 @@ PEN_API void pen_render_grad_zero(pen_render_grad *grad);
 /* Frees the arrays and zeroes the struct; NULL is a no-op. */
 PEN_API void pen_render_grad_free(pen_render_grad *grad);
 
+/* ---- The model a gradient needs --------------------------------------------------------------- */
+
+/* The gradient groups (PEN_GRAD_*) that are exact for the model `scene` renders with `opt` (NULL:
+ * the defaults). With shadows on and "shadow": {"self": "transfer"} (PEN_SELF_TRANSFER, the
+ * default), the objects' own shadows and their shadows on the ground are ray traced from their
+ * meshes, once per pose, lights and shape: constant to the renderer's backward, so the groups
+ * that move them (PEN_GRAD_POSE, PEN_GRAD_VERTICES, PEN_GRAD_SPHERES, PEN_GRAD_LIGHTS) are not
+ * exact and are left out; lighting, albedo and the lights' irradiance alone
+ * (PEN_GRAD_LIGHT_IRRADIANCE) always are. Under "self": "spheres" every group is.
+ * (Texture lookups over the pixel's footprint have gradients in the geometry too, exact between
+ * the steps where a facet edge crosses a pixel centre, as any rasterizer's are between edges.) */
+PEN_API unsigned pen_render_grad_exact(const pen_scene *scene, const pen_render_options *opt);
+
+/* PEN_OK when every group of `wrt` is exact for the model (pen_render_grad_exact); otherwise
+ * PEN_ERROR_ARGUMENT with one line naming the first group that is not, the model and the setting
+ * that gives it, e.g. 'render backward: no pose gradient under "shadow": {"self": "transfer"}
+ * (...); use "self": "spheres" (pen_render_grad_model)'. pen_render_bwd runs it first. */
+PEN_API pen_status pen_render_grad_check(pen_context *ctx, const pen_scene *scene,
+                                         const pen_render_options *opt, unsigned wrt);
+
+/* Switches `scene` to the model a task moving the groups of `wrt` renders with, the rule
+ * `penumbra optimize` follows: for pose, vertices, spheres or lights, the objects' own shadows and
+ * their ground shadows from the spheres (shadow.self = PEN_SELF_SPHERES, shadow.ground_shadow =
+ * PEN_GROUND_SHADOW_SPHERES), which makes those gradients exact; for pose or vertices also point
+ * texture lookups (texture_filter = PEN_TEXTURE_FILTER_POINT), continuous in the geometry where
+ * the footprint filter steps between facets (docs/design.md sec. 1.4). Lighting and albedo keep
+ * the scene's model. Returns the groups of wrt that needed a change. */
+PEN_API unsigned pen_render_grad_model(pen_scene *scene, unsigned wrt);
+
 /* ---- Forward and backward -------------------------------------------------------------------- */
 
 /* Buffers kept between a forward and its backward, reused across frames of the same size. */
@@ -152,16 +182,19 @@ PEN_API void pen_render_state_free(pen_render_state *state);
 
 /* Renders the scene into `image`: if image->data is NULL it is allocated (3 channels, camera
  * size), otherwise it must already have that shape. `state` may be NULL when no backward
- * follows. Fails on an invalid camera, mesh, sphere set or lighting (NaN/Inf, bad indices), or a
- * scene whose objects need a sphere set they do not have while shadows are on. Threads:
- * pen_context_threads. */
+ * follows. Fails on an invalid camera, mesh, sphere set or lighting (NaN/Inf, bad indices), and,
+ * with shadows on, on an object without spheres (it would cast no shadow: fit them with
+ * pen_scene_prepare, fit.h, or give them). Threads: pen_context_threads. */
 PEN_API pen_status pen_render_fwd(pen_context *ctx, const pen_scene *scene,
                                   const pen_render_options *opt, pen_render_state *state,
                                   pen_image *image);
 
 /* Backward of the last pen_render_fwd with this state: adds the gradient of the loss into
  * `grad` for the groups in `wrt` (PEN_GRAD_*), given d_image (3 channels, image size). `opt`
- * must equal the forward's (NULL: the defaults); the scene must be the forward's, unchanged. */
+ * must equal the forward's (NULL: the defaults); the scene must be the forward's, unchanged.
+ * Fails, computing nothing, when a group of wrt is not exact for the model the forward rendered
+ * (pen_render_grad_check): ask for PEN_GRAD_ALL & pen_render_grad_exact(scene, opt) to take
+ * whatever the model gives. */
 PEN_API pen_status pen_render_bwd(pen_context *ctx, const pen_scene *scene,
                                   const pen_render_options *opt, pen_render_state *state,
                                   const pen_image *d_image, unsigned wrt, pen_render_grad *grad);
@@ -192,7 +225,8 @@ PEN_API void pen_render_state_timings(const pen_render_state *state, pen_render_
 /* ---- Image losses ---------------------------------------------------------------------------- */
 
 /* Mean squared error over all pixels and channels, loss = (1/N) sum (image - target)^2;
- * d_image (may be NULL; allocated if its data is NULL) += dLoss/dimage. Shapes must match. */
+ * d_image (may be NULL; allocated if its data is NULL) is set to dLoss/dimage (overwritten, not
+ * added to, so that a loop reusing it needs no zeroing). Shapes must match. */
 PEN_API pen_status pen_loss_l2(pen_context *ctx, const pen_image *image, const pen_image *target,
                                double *loss, pen_image *d_image);
 /* Mean absolute error, loss = (1/N) sum |image - target|; the gradient is sign(image - target)/N

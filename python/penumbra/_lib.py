@@ -53,6 +53,7 @@ class FlatObject(ctypes.Structure):
         ("spheres", c_float_p),
         ("pose", ctypes.c_float * 7),
         ("sphere_weights", c_float_p),
+        ("texture_filter", ctypes.c_int),
     ]
 
 
@@ -92,7 +93,6 @@ class FlatScene(ctypes.Structure):
         ("light_count", ctypes.c_int),
         ("lights", c_float_p),
         ("self_shadow", ctypes.c_int),
-        ("texture_filter", ctypes.c_int),
         ("ground_shadow", ctypes.c_int),
         ("ground_grid", ctypes.c_int),
     ]
@@ -146,7 +146,7 @@ class Spheres(ctypes.Structure):
 # ---- Layout check -------------------------------------------------------------------------------
 
 # The layout version this package's structs are written for (PEN_FLAT_ABI_VERSION in flat.h).
-ABI_VERSION = 3
+ABI_VERSION = 4
 
 # The C structs the package mirrors, by their C names.
 MIRRORS = {
@@ -265,6 +265,8 @@ def _declare(lib):
         "pen_flat_renderer_free": (None, [P]),
         "pen_flat_renderer_fwd": (I, [P, P, FSP, c_float_p]),
         "pen_flat_renderer_bwd": (I, [P, P, FSP, c_float_p, FGP]),
+        "pen_flat_grad_check": (I, [P, FSP, ctypes.c_uint]),
+        "pen_flat_grad_model": (ctypes.c_uint, [FSP, ctypes.POINTER(FlatObject), ctypes.c_uint]),
         "pen_flat_scene_load": (I, [P, S, I, ctypes.POINTER(P)]),
         "pen_flat_loaded_scene": (FSP, [P]),
         "pen_flat_loaded_fit_request": (I, [P, I]),

@@ -40,11 +40,14 @@ def _path(path):
 
 
 def load_scene(path, fit_spheres=True, threads=0):
-    """Loads a scene JSON (docs/file-formats.md) into a Scene of tensors, as `penumbra render`
-    sees it: the lighting is the map's SH projection (or the "sh" given), objects keep their
-    texture (or constant albedo), spheres and pose. With fit_spheres, objects whose spheres are
-    {"fit": N} get the fitted set (cached in $XDG_CACHE_HOME/penumbra, shared with the CLI); otherwise they
-    have none (spheres None)."""
+    """Loads a scene JSON (docs/file-formats.md) into a Scene of tensors, made ready as `penumbra
+    render` makes it (pen_scene_prepare), so that render_scene() gives its image: the lighting is
+    the map's SH projection (or the "sh" given) with the lights given or found in the map, objects
+    keep their texture (or constant albedo), texture filter, spheres with their overlap weights
+    and pose, and the shadow model keys are kept. With fit_spheres, objects whose spheres are
+    {"fit": N} get the fitted set (cached in $XDG_CACHE_HOME/penumbra, shared with the CLI, keyed
+    by the thread count too); otherwise they have none (spheres None: render them without
+    shadows). threads: the fit's threads (0: all cores, as the CLI)."""
     L = _lib.lib()
     with _lib.Context(threads) as c:
         handle = ctypes.c_void_p()
@@ -75,6 +78,7 @@ def _scene_from_flat(f):
             ob.spheres = _copy(o.spheres, (o.sphere_count, 4))
             if o.sphere_weights:
                 ob.sphere_weights = _copy(o.sphere_weights, (o.sphere_count,))
+        ob.texture_filter = {0: "footprint", 1: "point"}[o.texture_filter]
         objects.append(ob)
     envmap = None
     if f.envmap_width > 0:
@@ -90,8 +94,7 @@ def _scene_from_flat(f):
                  overlap={0: "weights", 1: "none"}[f.overlap],
                  ground_occlusion={0: "occludes", 1: "receiver"}[f.ground_occlusion],
                  lights=_copy(f.lights, (f.light_count, 7)) if f.light_count > 0 else None,
-                 self_shadow={0: "spheres", 1: "transfer"}[f.self_shadow],
-                 texture_filter={0: "point", 1: "footprint"}[f.texture_filter],
+                 self_shadow={0: "transfer", 1: "spheres"}[f.self_shadow],
                  ground_shadow={0: "transfer", 1: "spheres"}[f.ground_shadow],
                  ground_grid=f.ground_grid)
 

@@ -2,10 +2,18 @@
 
 The forward calls pen_flat_renderer_fwd, the backward pen_flat_renderer_bwd
 (include/penumbra/flat.h): this module only checks the tensors and hands their memory to the C
-library. Differentiable inputs (float32 CPU tensors): SH lighting, ground albedo, and per object
-the vertex positions, texture or constant albedo, proxy spheres and pose. Not differentiated:
-faces, texture coordinates, camera, ground geometry, background and environment map (as in the C
-renderer).
+library. Differentiable inputs (float32 CPU tensors): SH lighting, ground albedo, disk lights, and per
+object the vertex positions, texture or constant albedo, proxy spheres and pose. Not
+differentiated, and refused when given as tensors that require a gradient: faces, texture
+coordinates, camera, ground geometry, background and environment map (as in the C renderer).
+
+The model and the defaults are the scene JSON's and `penumbra render`'s (docs/design.md sec.
+1.15): the objects' own shadows and their shadows on the ground come from the ray-traced transfer
+of their meshes ("transfer"), textures are averaged over the pixel's footprint. Under "transfer"
+the pose, vertex, sphere and disk-light gradients are not exact (the transfer is constant in
+them): a render whose inputs ask for one raises PenumbraError at once, naming the group. A pose or
+shape optimiser renders gradient_model(scene, ["pose"]) instead, the rule `penumbra optimize`
+follows.
 
 A Renderer owns one C renderer (its render state and caches) across calls; render_scene without
 one makes a fresh one per call. A backward needs the state of its own forward: a Renderer
@@ -29,9 +37,13 @@ from ._lib import PenumbraError
 EXP_METHODS = {"calibrated": 0, "default": 0, "paper": 1, "exact": 2}
 OVERLAP_MODES = {"weights": 0, "none": 1}
 GROUND_MODES = {"occludes": 0, "receiver": 1}
-SELF_SHADOW_MODES = {"spheres": 0, "transfer": 1}
+# The same names and values as the scene JSON and the C enums (pen_shadow_self,
+# pen_shadow_ground_shadow, pen_texture_filter): the first of each is the default.
+SELF_SHADOW_MODES = {"transfer": 0, "spheres": 1}
 GROUND_SHADOW_MODES = {"transfer": 0, "spheres": 1}
-TEXTURE_FILTERS = {"point": 0, "footprint": 1}
+TEXTURE_FILTERS = {"footprint": 0, "point": 1}
+# Gradient groups (PEN_GRAD_* in render.h).
+GRAD_GROUPS = {"lighting": 1, "albedo": 2, "spheres": 4, "pose": 8, "vertices": 16, "lights": 32}
 
 
 @dataclasses.dataclass
@@ -65,6 +77,8 @@ class Object:
     the spheres' overlap weights (overlap_weights(); not differentiated); None: computed from the
     current spheres at every render, so give them (e.g. those load_scene returns, or
     overlap_weights() of the initial spheres) to hold them fixed while optimising the spheres.
+    texture_filter: "footprint" (the texture averaged over the pixel's footprint, the default, as
+    in the JSON) or "point" (one bilinear lookup at the pixel's uv, continuous in the geometry).
     """
 
     vertices: torch.Tensor
@@ -76,6 +90,7 @@ class Object:
     spheres: Optional[torch.Tensor] = None
     pose: Optional[torch.Tensor] = None
     sphere_weights: Optional[torch.Tensor] = None
+    texture_filter: str = "footprint"
 
 
 @dataclasses.dataclass
@@ -90,14 +105,14 @@ class Scene:
     (K, 7) float32 tensor of K <= 16 distant disk lights, one row each: the direction towards the
     light (3, any non-zero length), the angular radius in degrees and the irradiance (3) that an
     unoccluded surface facing it receives; load_scene fills it with the lights the scene gives or
-    finds in its environment map. self_shadow is "spheres" (the objects' own shadows from their
-    spheres: every gradient) or "transfer" (from their meshes, ray traced once per pose and cached:
-    exact, but then only the lighting, albedo, texture and ground albedo have gradients; asking
-    for a vertex, pose, sphere or light gradient raises PenumbraError); texture_filter is "point"
-    (one bilinear lookup at the pixel's uv) or "footprint" (averaged over the pixel's footprint,
-    as `penumbra render` does by default). With self_shadow "transfer", ground_shadow is "transfer"
-    (those objects' ground shadows ray traced at a grid of ground_grid x ground_grid nodes, 0: 96)
-    or "spheres"."""
+    finds in its environment map. self_shadow is "transfer" (the default, as in the JSON: the
+    objects' own shadows from their meshes, ray traced once per pose and cached: exact, but then
+    only the lighting, albedo, texture and ground albedo have gradients; a render whose vertex,
+    pose, sphere or light tensors require a gradient raises PenumbraError) or "spheres" (from
+    their spheres: every gradient; gradient_model() picks it). With self_shadow "transfer",
+    ground_shadow is "transfer" (those objects' ground shadows ray traced at a grid of ground_grid
+    x ground_grid nodes, 0: 96) or "spheres". The texture lookup is each Object's
+    texture_filter."""
 
     camera: Camera
     sh: torch.Tensor
@@ -115,8 +130,7 @@ class Scene:
     overlap: str = "weights"
     ground_occlusion: str = "occludes"
     lights: Optional[torch.Tensor] = None
-    self_shadow: str = "spheres"
-    texture_filter: str = "point"
+    self_shadow: str = "transfer"
     ground_shadow: str = "transfer"
     ground_grid: int = 0
 
@@ -185,9 +199,23 @@ def _sh_bands(sh):
 class _ObjectSpec:
     """The non-differentiable part of one object: int32 faces, uvs, uv faces, sphere weights."""
 
-    def __init__(self, faces, uvs, uv_faces, sphere_weights=None):
+    def __init__(self, faces, uvs, uv_faces, sphere_weights=None, texture_filter=0):
         self.faces, self.uvs, self.uv_faces = faces, uvs, uv_faces
         self.sphere_weights = sphere_weights
+        self.texture_filter = texture_filter
+
+
+def _plain(name, value):
+    """A number or sequence that the renderer takes as a constant: a tensor that requires a
+    gradient is refused (it would get none); other tensors are read as their values."""
+    if isinstance(value, torch.Tensor):
+        if value.requires_grad:
+            raise ValueError("penumbra: %s has no gradient in the renderer; pass it without "
+                             "requires_grad (e.g. %s.detach())" % (name, name))
+        return value.tolist()
+    if isinstance(value, (list, tuple)):
+        return type(value)(_plain("%s[%d]" % (name, i), v) for i, v in enumerate(value))
+    return value
 
 
 def _choice(name, value, table):
@@ -206,6 +234,9 @@ class _Spec:
         if not isinstance(cam, Camera):
             raise TypeError("penumbra: scene.camera must be a penumbra.Camera, got %s"
                             % type(cam).__name__)
+        cam = dataclasses.replace(cam, **{f.name: _plain("camera." + f.name,
+                                                         getattr(cam, f.name))
+                                          for f in dataclasses.fields(Camera)})
         for name in ("width", "height"):
             value = getattr(cam, name)
             if not isinstance(value, int) or not 1 <= value <= 16384:
@@ -216,18 +247,19 @@ class _Spec:
                 raise ValueError("penumbra: camera %s must have 3 coordinates" % name)
         self.camera = cam
         self.ground = bool(scene.ground)
-        self.ground_height = float(scene.ground_height)
-        self.ground_half_size = float(scene.ground_half_size)
-        self.epsilon = float(scene.epsilon)
+        self.ground_height = float(_plain("ground_height", scene.ground_height))
+        self.ground_half_size = float(_plain("ground_half_size", scene.ground_half_size))
+        self.epsilon = float(_plain("epsilon", scene.epsilon))
         self.exp = _choice("exp", scene.exp, EXP_METHODS)
         self.overlap = _choice("overlap", scene.overlap, OVERLAP_MODES)
         self.ground_occlusion = _choice("ground_occlusion", scene.ground_occlusion, GROUND_MODES)
         self.self_shadow = _choice("self_shadow", scene.self_shadow, SELF_SHADOW_MODES)
-        self.texture_filter = _choice("texture_filter", scene.texture_filter, TEXTURE_FILTERS)
         self.ground_shadow = _choice("ground_shadow", scene.ground_shadow, GROUND_SHADOW_MODES)
         self.ground_grid = int(scene.ground_grid)
         self.envmap = None
         if scene.envmap is not None:
+            if isinstance(scene.envmap, torch.Tensor) and scene.envmap.requires_grad:
+                _plain("envmap", scene.envmap)
             self.envmap = _float_tensor("envmap", scene.envmap, (None, None, 3)).detach()
         if isinstance(scene.background, str):
             if scene.background != "envmap":
@@ -236,14 +268,17 @@ class _Spec:
                 raise ValueError("penumbra: background \"envmap\" needs scene.envmap")
             self.background_envmap, self.background = 1, (0.0, 0.0, 0.0)
         else:
-            bg = _float_tensor("background", scene.background, (3,), allow_list=True)
+            bg = _float_tensor("background", _plain("background", scene.background), (3,),
+                               allow_list=True)
             self.background_envmap, self.background = 0, tuple(float(v) for v in bg)
-        self.envmap_rotation_y_deg = float(scene.envmap_rotation_y_deg)
-        self.envmap_scale = float(scene.envmap_scale)
+        self.envmap_rotation_y_deg = float(_plain("envmap_rotation_y_deg",
+                                                  scene.envmap_rotation_y_deg))
+        self.envmap_scale = float(_plain("envmap_scale", scene.envmap_scale))
         self.shadows, self.antialias = int(bool(shadows)), int(bool(antialias))
         self.threads = threads
         self.renderer = None
         self.objects = []
+        self.wrt = 0  # PEN_GRAD_* bits of the inputs that require a gradient
 
 
 # Per object, the differentiable inputs in this order (pen_flat_object_grad's fields).
@@ -282,7 +317,8 @@ def _check_object(i, ob):
     elif ob.sphere_weights is not None:
         raise ValueError("penumbra: %ssphere_weights given without spheres" % p)
     ps = _float_tensor(p + "pose", pose() if ob.pose is None else ob.pose, (7,), allow_list=True)
-    return _ObjectSpec(faces, uvs, uv_faces, weights), [v, tex, albedo, spheres, ps]
+    filt = _choice(p + "texture_filter", ob.texture_filter, TEXTURE_FILTERS)
+    return _ObjectSpec(faces, uvs, uv_faces, weights, filt), [v, tex, albedo, spheres, ps]
 
 
 # ---- The Function -------------------------------------------------------------------------------
@@ -348,9 +384,20 @@ class Renderer:
         self._ctx.set_threads(threads)
         self._ctx.check(fn(self._ctx.ptr, self._ptr, *args))
 
-    def _forward(self, threads, flat, image):
-        """Renders flat into image; returns the token its backward passes to _backward."""
+    def _call_ctx(self, threads, fn, *args):
+        """fn(context, *args), a call that takes no renderer."""
+        if not self._ptr:
+            raise PenumbraError("penumbra: the Renderer is closed")
+        self._ctx.set_threads(threads)
+        self._ctx.check(fn(self._ctx.ptr, *args))
+
+    def _forward(self, threads, flat, image, wrt=0):
+        """Renders flat into image; returns the token its backward passes to _backward. wrt: the
+        gradient groups the inputs will ask for, checked first against the model (the C
+        refusal, pen_flat_grad_check, raised before anything is rendered)."""
         with self._lock:
+            if wrt:
+                self._call_ctx(threads, _lib.lib().pen_flat_grad_check, ctypes.byref(flat), wrt)
             self._last = None
             self._call(threads, _lib.lib().pen_flat_renderer_fwd, ctypes.byref(flat),
                        _lib.fptr(image))
@@ -393,7 +440,7 @@ def _flat(spec, sh, ground_albedo, lights, obj):
     s.shadows, s.antialias = spec.shadows, spec.antialias
     s.overlap = spec.overlap
     s.ground_occlusion = spec.ground_occlusion
-    s.self_shadow, s.texture_filter = spec.self_shadow, spec.texture_filter
+    s.self_shadow = spec.self_shadow
     s.ground_shadow, s.ground_grid = spec.ground_shadow, spec.ground_grid
     n = len(spec.objects)
     objs = (_lib.FlatObject * max(n, 1))()
@@ -413,9 +460,62 @@ def _flat(spec, sh, ground_albedo, lights, obj):
             o.sphere_count, o.spheres = spheres.shape[0], _lib.fptr(spheres)
             o.sphere_weights = _lib.fptr(os_.sphere_weights)
         o.pose[:] = tuple(float(x) for x in ps)
+        o.texture_filter = os_.texture_filter
     s.object_count = n
     s.objects = objs
     return s
+
+
+def _wanted_groups(sh, ground_albedo, lights, obj):
+    """The PEN_GRAD_* bits of the inputs that require a gradient."""
+    def req(t):
+        return t is not None and t.requires_grad
+    g = GRAD_GROUPS
+    wrt = (g["lighting"] if req(sh) else 0) | (g["albedo"] if req(ground_albedo) else 0)
+    wrt |= g["lights"] if req(lights) else 0
+    for i in range(0, len(obj), 5):
+        v, tex, albedo, spheres, ps = obj[i:i + 5]
+        wrt |= (g["vertices"] if req(v) else 0) | (g["spheres"] if req(spheres) else 0)
+        wrt |= (g["albedo"] if req(tex) or req(albedo) else 0) | (g["pose"] if req(ps) else 0)
+    return wrt
+
+
+def gradient_model(scene, groups):
+    """The scene in the model in which the gradients of `groups` (names of GRAD_GROUPS:
+    "lighting", "albedo", "spheres", "pose", "vertices", "lights") are exact: a copy with
+    self_shadow and ground_shadow "spheres" for pose, vertices, spheres or lights, and textured
+    objects' texture_filter "point" for pose or vertices; the rule `penumbra optimize` follows
+    (pen_render_grad_model). The tensors are shared, not copied.
+
+        scene = penumbra.gradient_model(penumbra.load_scene("scene.json"), ["pose"])
+    """
+    if not isinstance(scene, Scene):
+        raise TypeError("penumbra: gradient_model takes a penumbra.Scene, got %s"
+                        % type(scene).__name__)
+    if isinstance(groups, str):
+        groups = [groups]
+    wrt = 0
+    for name in groups:
+        wrt |= _choice("gradient group", name, GRAD_GROUPS)
+    f = _lib.FlatScene()
+    f.self_shadow = _choice("self_shadow", scene.self_shadow, SELF_SHADOW_MODES)
+    f.ground_shadow = _choice("ground_shadow", scene.ground_shadow, GROUND_SHADOW_MODES)
+    n = len(scene.objects)
+    objs = (_lib.FlatObject * max(n, 1))()
+    texels = ctypes.c_float(0.0)  # stands for a texture: the rule only asks whether there is one
+    for i, ob in enumerate(scene.objects):
+        objs[i].texture_filter = _choice("objects[%d].texture_filter" % i, ob.texture_filter,
+                                         TEXTURE_FILTERS)
+        if ob.texture is not None:
+            objs[i].texture = ctypes.pointer(texels)
+    f.object_count, f.objects = n, objs
+    _lib.lib().pen_flat_grad_model(ctypes.byref(f), objs, wrt)
+    names = {v: k for k, v in SELF_SHADOW_MODES.items()}
+    filters = {v: k for k, v in TEXTURE_FILTERS.items()}
+    objects = [dataclasses.replace(ob, texture_filter=filters[objs[i].texture_filter])
+               for i, ob in enumerate(scene.objects)]
+    return dataclasses.replace(scene, self_shadow=names[f.self_shadow],
+                               ground_shadow=names[f.ground_shadow], objects=objects)
 
 
 class RenderFunction(torch.autograd.Function):
@@ -429,7 +529,7 @@ class RenderFunction(torch.autograd.Function):
         renderer = spec.renderer if spec.renderer is not None else Renderer(spec.threads)
         flat = _flat(spec, sh, ground_albedo, lights, obj)
         image = torch.empty(flat.height, flat.width, 3, dtype=torch.float32)
-        ctx.token = renderer._forward(spec.threads, flat, image)
+        ctx.token = renderer._forward(spec.threads, flat, image, spec.wrt)
         ctx.spec, ctx.renderer = spec, renderer
         ctx.save_for_backward(sh, ground_albedo, lights, *obj)
         return image
@@ -487,6 +587,10 @@ def render_scene(scene, shadows=True, antialias=True, threads=None, renderer=Non
         os_, ts = _check_object(i, ob)
         spec.objects.append(os_)
         tensors += ts
+    # The groups whose tensors will ask for a gradient (grad mode is off inside the Function's
+    # forward, so it is read here), refused at once when the model has no exact gradient of them.
+    if torch.is_grad_enabled():
+        spec.wrt = _wanted_groups(sh, ground_albedo, lights, tensors)
     return RenderFunction.apply(spec, sh, ground_albedo, lights, *tensors)
 
 
@@ -495,22 +599,22 @@ def render(vertices, faces, sh, camera=None, *, uvs=None, uv_faces=None, texture
            ground_height=0.0, ground_half_size=4.0, background=(0.0, 0.0, 0.0), envmap=None,
            envmap_rotation_y_deg=0.0, envmap_scale=1.0, epsilon=0.0, exp="calibrated",
            shadows=True, antialias=True, threads=None, sphere_weights=None, overlap="weights",
-           ground_occlusion="occludes", renderer=None, self_shadow="spheres",
-           texture_filter="point"):
-    """Renders one object (see Object and Scene for the arguments); returns the (height, width, 3)
-    float32 image. camera: a Camera (None: the default 64 x 64 one). threads, renderer: as
-    render_scene."""
+           ground_occlusion="occludes", renderer=None, self_shadow="transfer",
+           texture_filter="footprint"):
+    """Renders one object (see Object and Scene for the arguments, whose defaults these are);
+    returns the (height, width, 3) float32 image. camera: a Camera (None: the default 64 x 64
+    one). threads, renderer: as render_scene."""
     scene = Scene(camera=camera or Camera(), sh=sh,
                   objects=[Object(vertices, faces, uvs, uv_faces, texture, albedo, spheres, pose,
-                                  sphere_weights)],
+                                  sphere_weights, texture_filter)],
                   ground=ground, ground_albedo=ground_albedo, ground_height=ground_height,
                   ground_half_size=ground_half_size, background=background, envmap=envmap,
                   envmap_rotation_y_deg=envmap_rotation_y_deg, envmap_scale=envmap_scale,
                   epsilon=epsilon, exp=exp, overlap=overlap, ground_occlusion=ground_occlusion,
-                  self_shadow=self_shadow, texture_filter=texture_filter)
+                  self_shadow=self_shadow)
     return render_scene(scene, shadows=shadows, antialias=antialias, threads=threads,
                         renderer=renderer)
 
 
 __all__ = ["Camera", "Object", "Renderer", "Scene", "pose", "render", "render_scene",
-           "RenderFunction", "PenumbraError"]
+           "gradient_model", "RenderFunction", "PenumbraError", "GRAD_GROUPS"]

@@ -51,7 +51,8 @@ def octasphere(level=1, radius=0.45):
 def ball_scene(size=16, textured=False, level=1):
     """An ellipsoid (an octasphere stretched 1.25 in x, 0.8 in y) hovering over the ground
     (translation y = 0.55, a small rotation), two proxy spheres inside it with their overlap
-    weights held fixed (as load_scene gives them; gradcheck moves the spheres), 4-band lighting."""
+    weights held fixed (as load_scene gives them; gradcheck moves the spheres), 4-band lighting,
+    in the sphere model (gradient_model)."""
     v, f, uvs = octasphere(level)
     v = v * torch.tensor([1.25, 0.8, 1.0])
     spheres = torch.tensor([[-0.15, 0.0, 0.02, 0.32], [0.17, 0.02, -0.03, 0.3]])
@@ -64,6 +65,9 @@ def ball_scene(size=16, textured=False, level=1):
         ob.uvs = uvs
         ob.texture = 0.2 + 0.7 * torch.rand(5, 6, 3, generator=g)
     cam = penumbra.Camera(size, size, 40.0, (0.3, 1.5, 2.4), (0.0, 0.35, 0.0))
-    return penumbra.Scene(camera=cam, sh=lighting(), objects=[ob],
-                          ground_albedo=torch.tensor([0.7, 0.6, 0.5]), ground_half_size=3.0,
-                          background=(0.2, 0.3, 0.4))
+    scene = penumbra.Scene(camera=cam, sh=lighting(), objects=[ob],
+                           ground_albedo=torch.tensor([0.7, 0.6, 0.5]), ground_half_size=3.0,
+                           background=(0.2, 0.3, 0.4))
+    # The model in which every gradient group is exact (own shadows from the spheres, point
+    # texture lookups): these scenes are for gradient checks of every group.
+    return penumbra.gradient_model(scene, list(penumbra.GRAD_GROUPS))

@@ -23,8 +23,8 @@ CITY = os.path.join(SRC, "data", "envmaps", "city.hdr")
 
 # A textured Spot with three inline spheres on the ground (the scene of tests/cli_render.sh). Both
 # scenes shade the objects' own shadows with their spheres ("self": "spheres") and look Spot's
-# texture up at the pixel's uv ("texture_filter": "point"), the one model the flat API has
-# (docs/python.md), so that the command's renders can be compared with the binding's.
+# texture up at the pixel's uv ("texture_filter": "point"), the model in which every gradient is
+# exact; test_transfer_and_footprint renders the JSON's defaults.
 SCENE_SH = """{"camera": {"width": 48, "height": 40, "fov_y_deg": 40, "eye": [2.5, 1.8, 3.0],
             "target": [0, 0.5, 0]},
  "lighting": {"sh": [[1.5,1.5,1.5],[-1,-1,-1],[0.2,0.2,0.2],[-0.3,-0.3,-0.3],
@@ -98,9 +98,10 @@ class CliEqualityTest(Temp):
         self.check(SCENE_SH, "--no-shadows")
 
     def test_transfer_and_footprint(self):
-        """The CLI's defaults (own shadows from the transfer, footprint texture filter) through
-        self_shadow="transfer" and texture_filter="footprint"; lighting and texture gradients
-        flow, a vertex gradient is refused."""
+        """The CLI's defaults (own shadows from the transfer, footprint texture filter) are the
+        binding's: load_scene keeps the JSON's model and render_scene gives the CLI's image;
+        lighting and texture gradients flow, a vertex gradient is refused at the render, naming
+        the group, until gradient_model switches to the sphere model."""
         template = (SCENE_SH.replace('"shadow": {"self": "spheres"},', "")
                     .replace('"texture_filter": "point",', ""))
         path = self.write_scene(template)
@@ -108,21 +109,29 @@ class CliEqualityTest(Temp):
         subprocess.run([CLI, "render", path, "-o", out, "-q"], check=True)
         want = penumbra.load_image(out)
         scene = penumbra.load_scene(path)
-        self.assertEqual(scene.self_shadow, "spheres")  # the flat default, whatever the JSON
-        plain = penumbra.render_scene(scene)
-        scene = dataclasses.replace(scene, self_shadow="transfer", texture_filter="footprint")
+        self.assertEqual(scene.self_shadow, "transfer")
+        self.assertEqual(scene.objects[0].texture_filter, "footprint")
         got = penumbra.render_scene(scene)
         self.assertTrue(torch.equal(got, want),
                         "max difference %g" % float((got - want).abs().max()))
-        self.assertFalse(torch.equal(plain, want))
         sh = scene.sh.clone().requires_grad_(True)
         penumbra.render_scene(dataclasses.replace(scene, sh=sh)).sum().backward()
         self.assertTrue(bool(torch.isfinite(sh.grad).all()) and float(sh.grad.abs().sum()) > 0)
         ob = scene.objects[0]
         v = ob.vertices.clone().requires_grad_(True)
         bent = dataclasses.replace(scene, objects=[dataclasses.replace(ob, vertices=v)])
-        with self.assertRaisesRegex(penumbra.PenumbraError, "self_shadow"):
-            penumbra.render_scene(bent).sum().backward()
+        with self.assertRaisesRegex(penumbra.PenumbraError,
+                                    'no vertex gradient under "shadow": {"self": "transfer"}'):
+            penumbra.render_scene(bent)
+        model = penumbra.gradient_model(bent, ["vertices"])
+        self.assertEqual((model.self_shadow, model.ground_shadow), ("spheres", "spheres"))
+        self.assertEqual(model.objects[0].texture_filter, "point")
+        self.assertIs(model.objects[0].vertices, v)
+        penumbra.render_scene(model).sum().backward()
+        self.assertTrue(float(v.grad.abs().sum()) > 0)
+        same = penumbra.gradient_model(scene, ["lighting", "albedo"])
+        self.assertEqual((same.self_shadow, same.objects[0].texture_filter),
+                         ("transfer", "footprint"))
         with self.assertRaisesRegex(ValueError, "self_shadow"):
             penumbra.render_scene(dataclasses.replace(scene, self_shadow="mesh"))
         # the ground's shadow keys travel from the JSON through load_scene
@@ -133,8 +142,7 @@ class CliEqualityTest(Temp):
         want = penumbra.load_image(out)
         scene = penumbra.load_scene(path)
         self.assertEqual((scene.ground_shadow, scene.ground_grid), ("transfer", 48))
-        got = penumbra.render_scene(dataclasses.replace(scene, self_shadow="transfer",
-                                                        texture_filter="footprint"))
+        got = penumbra.render_scene(scene)
         self.assertTrue(torch.equal(got, want),
                         "max difference %g" % float((got - want).abs().max()))
 
@@ -387,7 +395,8 @@ class AutogradTest(unittest.TestCase):
         img = penumbra.render(ob.vertices, ob.faces, scene.sh, scene.camera, uvs=ob.uvs,
                               texture=ob.texture, spheres=ob.spheres, pose=ob.pose,
                               ground_albedo=scene.ground_albedo, ground_half_size=3.0,
-                              background=(0.2, 0.3, 0.4))
+                              background=(0.2, 0.3, 0.4), self_shadow="spheres",
+                              texture_filter="point")
         self.assertTrue(torch.equal(img, penumbra.render_scene(scene)))
 
 

@@ -155,7 +155,8 @@ class RendererTest(unittest.TestCase):
             a = r.render(ob.vertices, ob.faces, sc.sh, sc.camera, albedo=ob.albedo,
                          spheres=ob.spheres, pose=ob.pose, ground_albedo=sc.ground_albedo,
                          ground_half_size=3.0, background=(0.2, 0.3, 0.4),
-                         sphere_weights=ob.sphere_weights)
+                         sphere_weights=ob.sphere_weights, self_shadow=sc.self_shadow,
+                         texture_filter=ob.texture_filter)
             b = r.render_scene(sc, threads=2)
         self.assertTrue(torch.equal(a, b))
         self.assertTrue(torch.equal(a, penumbra.render_scene(sc)))
@@ -219,8 +220,8 @@ class AbiTest(unittest.TestCase):
                 _lib.check_abi(version, table, {"pen_flat_scene": struct(fs)})
             with self.assertRaisesRegex(penumbra.PenumbraError, pattern):
                 _lib.check_abi(version, table, {"pen_flat_scene": struct(fs)})
-        with self.assertRaisesRegex(penumbra.PenumbraError, "version 3, .* written for 4"):
-            old, _lib.ABI_VERSION = _lib.ABI_VERSION, 4
+        with self.assertRaisesRegex(penumbra.PenumbraError, "version 4, .* written for 5"):
+            old, _lib.ABI_VERSION = _lib.ABI_VERSION, 5
             try:
                 _lib.check_abi(version, table)
             finally:

@@ -9,8 +9,8 @@
  * meshes with the same name in different folders do not replace each other's files, and a user
  * can tell which cache file belongs to which mesh.
  * Key: FNV-1a 64 over the fitter's version, the sphere count, the resolved settings (as text, so
- * defaults given explicitly or by zero fields hash alike) and the bytes of the mesh's positions
- * and indices. The file repeats the key ("fit_key"); a file whose key, sphere count or format is
+ * defaults given explicitly or by zero fields hash alike), the thread count the fit runs on and
+ * the bytes of the mesh's positions and indices. The file repeats the key ("fit_key"); a file whose key, sphere count or format is
  * wrong is ignored and overwritten, never trusted.
  */
 #define _DEFAULT_SOURCE /* realpath */
@@ -32,11 +32,14 @@
 /* Cache files are small (a few kB per hundred spheres); anything larger is not ours. */
 #define FIT_CACHE_MAX_BYTES (16u << 20)
 
-static uint64_t fit_key(const pen_mesh *mesh, int count, const pen_fit_settings *s) {
+/* The thread count is part of the key: the fitter's energy is summed per thread (fit.c), so
+ * fits with different counts differ in the last bits, and a cached fit must not hand one caller
+ * (the CLI on all cores, a binding pinned to one thread) the fit of another. */
+static uint64_t fit_key(const pen_mesh *mesh, int count, const pen_fit_settings *s, int threads) {
     char text[512];
-    int n = snprintf(text, sizeof text, "%s %d %d %.17g %.17g %.17g %d %.17g %llu", FIT_VERSION,
-                     count, s->voxels, s->surface_weight, s->margin_voxels,
-                     s->samples_per_voxel_area, s->iterations, s->learning_rate, s->seed);
+    int n = snprintf(text, sizeof text, "%s %d %d %.17g %.17g %.17g %d %.17g %llu threads %d",
+                     FIT_VERSION, count, s->voxels, s->surface_weight, s->margin_voxels,
+                     s->samples_per_voxel_area, s->iterations, s->learning_rate, s->seed, threads);
     uint64_t h = pen__fnv1a(PEN__FNV1A_SEED, text, (size_t)n);
     h = pen__fnv1a(h, mesh->positions, 3 * sizeof(float) * (size_t)mesh->vertex_count);
     return pen__fnv1a(h, mesh->indices, 3 * sizeof(uint32_t) * (size_t)mesh->triangle_count);
@@ -144,7 +147,7 @@ static pen_status cache_name(pen_context *ctx, const pen_mesh *mesh, const char 
     pen_status st = pen__fit_check_mesh(ctx, mesh, lo, hi);
     if (st) return st;
     if (!mesh_path) return pen__error(ctx, PEN_ERROR_ARGUMENT, "fit: no mesh path for the cache");
-    snprintf(key, 17, "%016llx", (unsigned long long)fit_key(mesh, count, s));
+    snprintf(key, 17, "%016llx", (unsigned long long)fit_key(mesh, count, s, pen__threads(ctx)));
     char dir[PATH_MAX];
     if (!cache_dir(dir, sizeof dir))
         return pen__error(ctx, PEN_ERROR_IO,
@@ -230,6 +233,34 @@ pen_status pen_spheres_fit_cached(pen_context *ctx, const pen_mesh *mesh, const 
     if (!mesh_path) return pen_spheres_fit(ctx, mesh, count, settings, out, metrics);
     pen_status st = cached_fit(ctx, mesh, mesh_path, count, settings, out, metrics);
     return st ? pen__error_prefix(ctx, st, "%s: ", mesh_path) : PEN_OK;
+}
+
+pen_status pen_scene_prepare(pen_context *ctx, pen_scene *scene, int shadows,
+                             pen_fit_metrics *metrics) {
+    if (!scene) return pen__error(ctx, PEN_ERROR_ARGUMENT, "prepare: no scene");
+    for (int o = 0; metrics && o < scene->object_count; ++o)
+        memset(&metrics[o], 0, sizeof metrics[o]);
+    for (int o = 0; o < scene->object_count; ++o) {
+        pen_object *ob = &scene->objects[o];
+        pen_status st = PEN_OK;
+        /* Without shadows no sphere is used: the fit (seconds) is left for a render with them. */
+        if (shadows && ob->fit_spheres > 0 && ob->spheres.count == 0)
+            st = pen_spheres_fit_cached(ctx, &ob->mesh, ob->mesh_path, ob->fit_spheres, NULL,
+                                        &ob->spheres, metrics ? &metrics[o] : NULL);
+        /* Weights once here rather than in every render state that meets the set (with
+         * "overlap": "none" the renderer takes none). */
+        if (!st && scene->shadow.overlap == PEN_OVERLAP_WEIGHTS)
+            st = pen_spheres_ensure_weights(ctx, &ob->spheres);
+        /* The input at fault, as the renderer names it: the scene file, the object, its spheres'
+         * file. */
+        if (st)
+            return pen__error_prefix(ctx, st, "%s: objects[%d].spheres%s%s%s: ",
+                                     scene->path ? scene->path : "scene", o,
+                                     ob->spheres_path ? " (" : "",
+                                     ob->spheres_path ? ob->spheres_path : "",
+                                     ob->spheres_path ? ")" : "");
+    }
+    return PEN_OK;
 }
 
 pen_status pen_scene_fit_spheres(pen_context *ctx, pen_scene *scene) {

@@ -432,6 +432,9 @@ typedef struct pen__optim_object_deform {
 typedef struct pen__optim_run {
     pen_scene *sc;
     pen_render_options opt;   /* every render of the run (shadows or not) */
+    uint64_t model_hash;      /* the scene's model as given (shadow keys, texture filters),
+                                 before the run switched it (pen_render_grad_model): part of
+                                 the checkpoint's identity with the scene as rendered */
     unsigned groups;
     size_t lighting; /* offset of the SH block, SIZE_MAX if not optimised */
     size_t lights;   /* offset of the disk lights' block (7 per light), SIZE_MAX if not */

@@ -132,6 +132,7 @@ static pen__optim_identity identity(const pen_optim_task *t, const pen_optim_set
     }
     id.init_hash = pen__fnv1a(PEN__FNV1A_SEED, r->x, sizeof(float) * r->n);
     id.scene_hash = pen__optim_scene_hash(&t->scene, &r->opt);
+    id.scene_hash = pen__fnv1a(id.scene_hash, &r->model_hash, sizeof r->model_hash);
     return id;
 }
 
@@ -458,7 +459,7 @@ static pen_status fitted_lighting(pen_context *ctx, const pen_optim_task *t, run
  * created), from the scene's values: the initial guesses were applied before. */
 static pen_status relayout(pen_context *ctx, const pen_optim_task *t, run *r) {
     const run fresh = {.sc = r->sc, .opt = r->opt, .groups = r->groups, .solve = r->solve,
-                       .ridge = r->ridge,
+                       .ridge = r->ridge, .model_hash = r->model_hash,
                        .multi = r->multi, .task_views = r->task_views,
                        .task_view_count = r->task_view_count};
     pen__optim_run_free(r);
@@ -547,6 +548,60 @@ static pen_status check_settings(pen_context *ctx, const pen_optim_settings *set
     return PEN_OK;
 }
 
+/* ---- The model of the task's gradients --------------------------------------------------------- */
+
+/* The render gradient groups a task's parameter groups move. */
+static unsigned render_groups(unsigned optim) {
+    unsigned g = 0;
+    if (optim & PEN_OPTIM_POSE) g |= PEN_GRAD_POSE;
+    if (optim & PEN_OPTIM_DEFORMATION) g |= PEN_GRAD_VERTICES;
+    if (optim & PEN_OPTIM_SPHERES) g |= PEN_GRAD_SPHERES;
+    if (optim & PEN_OPTIM_LIGHTS) g |= PEN_GRAD_LIGHTS;
+    return g;
+}
+
+/* The scene's model as the user gave it, while the run renders with pen_render_grad_model's. */
+typedef struct saved_model {
+    int active;
+    pen_shadow_self self;
+    pen_shadow_ground_shadow ground_shadow;
+    pen_texture_filter *filters; /* per object */
+} saved_model;
+
+/* Saves the scene's model into *m, its hash into *hash, and switches the scene to the model of
+ * the render groups wrt. */
+static pen_status model_switch(pen_context *ctx, pen_scene *sc, unsigned wrt, saved_model *m,
+                               uint64_t *hash) {
+    memset(m, 0, sizeof *m);
+    m->filters = pen__calloc(ctx, sc->object_count > 0 ? (size_t)sc->object_count : 1,
+                             sizeof *m->filters, "optimize: model");
+    if (!m->filters) return PEN_ERROR_MEMORY;
+    m->self = sc->shadow.self;
+    m->ground_shadow = sc->shadow.ground_shadow;
+    for (int o = 0; o < sc->object_count; ++o)
+        m->filters[o] = sc->objects[o].texture_filter;
+    const int32_t keys[2] = {(int32_t)m->self, (int32_t)m->ground_shadow};
+    *hash = pen__fnv1a(PEN__FNV1A_SEED, keys, sizeof keys);
+    for (int o = 0; o < sc->object_count; ++o) {
+        const int32_t f = (int32_t)m->filters[o];
+        *hash = pen__fnv1a(*hash, &f, sizeof f);
+    }
+    m->active = 1;
+    pen_render_grad_model(sc, wrt);
+    return PEN_OK;
+}
+
+/* Puts the user's model back (once; later calls do nothing). */
+static void model_restore(pen_scene *sc, saved_model *m) {
+    if (!m->active) return;
+    sc->shadow.self = m->self;
+    sc->shadow.ground_shadow = m->ground_shadow;
+    for (int o = 0; o < sc->object_count; ++o)
+        sc->objects[o].texture_filter = m->filters[o];
+    free(m->filters);
+    memset(m, 0, sizeof *m);
+}
+
 pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim_settings *settings,
                          pen_optim_result *out) {
     memset(out, 0, sizeof *out);
@@ -566,20 +621,16 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
     /* Sphere sets asked for as {"fit": N}: the shadows need them, so do the deformation graph's
      * nodes and the spheres group; without shadows and those no spheres are needed. */
     const unsigned needs = PEN_OPTIM_DEFORMATION | PEN_OPTIM_SPHERES;
-    if (set.shadows || (task->optimize & needs)) {
-        s = pen_scene_fit_spheres(ctx, &task->scene);
-        if (s) return s;
-    }
+    /* The scene made ready as `penumbra render` makes it (pen_scene_prepare): the fits, and the
+     * overlap weights of the initial spheres, held fixed while spheres, deformation or pose move
+     * (an in-memory set without them would otherwise get them recomputed every frame). */
+    s = pen_scene_prepare(ctx, &task->scene, set.shadows || (task->optimize & needs), NULL);
+    if (s) return s;
     if (task->has_ground_truth && (task->optimize & PEN_OPTIM_SPHERES)) { /* sphere metrics */
         s = pen_scene_fit_spheres(ctx, &task->ground_truth);
         if (s) return s;
     }
     s = pen__optim_task_check_groups(ctx, task);
-    if (s) return s;
-    /* Overlap weights of the initial spheres, held fixed while spheres, deformation or pose move
-     * (an in-memory set without them would otherwise get them recomputed every frame). */
-    for (int o = 0; o < task->scene.object_count && !s; ++o)
-        s = pen_spheres_ensure_weights(ctx, &task->scene.objects[o].spheres);
     if (s) return s;
     run r;
     memset(&r, 0, sizeof r);
@@ -587,18 +638,17 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
     r.opt = pen_render_options_default();
     r.opt.shadows = set.shadows;
     r.groups = task->optimize;
-    /* The precomputed self transfer (docs/design.md sec. 1.15) is constant in the pose, the shape,
-     * the spheres and the lights' directions: a task moving any of them sees its objects' own
-     * shadows through their spheres, whose gradient it needs (and a light search would ray trace
-     * the transfer again for every candidate direction). Lighting, albedo and exposure keep the
-     * scene's choice: their gradients are exact with the transfer, which is traced once. */
-    if (r.groups & (PEN_OPTIM_POSE | PEN_OPTIM_DEFORMATION | PEN_OPTIM_SPHERES | PEN_OPTIM_LIGHTS))
-        r.opt.self_shadow = PEN_RENDER_SELF_SPHERES;
-    /* Likewise the footprint-filtered texture lookup steps where a facet edge crosses a pixel
-     * centre (its footprint is per triangle): a task moving the geometry looks textures up at
-     * the pixel's UV, which is continuous in it. */
-    if (r.groups & (PEN_OPTIM_POSE | PEN_OPTIM_DEFORMATION))
-        r.opt.texture_filter = PEN_RENDER_TEXTURE_POINT;
+    /* The model the task's gradients need, by the one rule every door follows
+     * (pen_render_grad_model, docs/design.md sec. 1.15): the precomputed self transfer is
+     * constant in the pose, the shape, the spheres and the lights' directions, so a task moving
+     * any of them sees its objects' own shadows through their spheres (and a light search would
+     * otherwise ray trace the transfer again for every candidate direction); a task moving the
+     * geometry looks textures up at the pixel's uv, continuous in it. Lighting, albedo and
+     * exposure keep the scene's model. The user's model is put back before the metrics and the
+     * outputs, which describe the scene as given. */
+    saved_model model;
+    s = model_switch(ctx, &task->scene, render_groups(r.groups), &model, &r.model_hash);
+    if (s) return s;
     r.solve = resolve_solver(ctx, task, &set) == PEN_OPTIM_LIGHTING_LEAST_SQUARES;
     r.ridge = !isnan(task->lighting_ridge) ? task->lighting_ridge
               : r.solve                    ? PEN_OPTIM_LIGHTING_RIDGE_DEFAULT
@@ -645,9 +695,11 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
                                         task->validation_count, &out->validation,
                                         &out->validation_finals, NULL);
         }
+        model_restore(&task->scene, &model);
         if (!s && task->has_ground_truth) s = pen__optim_metrics(ctx, task, &out->metrics);
         out->metrics.image_rmse = s ? (double)NAN : e.rmse;
     }
+    model_restore(&task->scene, &model);
     pen__optim_run_free(&r);
     if (s) pen_optim_result_free(out);
     return s;

@@ -300,6 +300,69 @@ static pen_status check_grad_shape(pen_context *ctx, const pen_scene *sc,
     return PEN_OK;
 }
 
+/* ---- The model a gradient needs -------------------------------------------------------------- */
+
+/* The groups the ray-traced transfer (self.c, ground_shadow.c) holds constant. */
+#define TRANSFER_CONSTANT (PEN_GRAD_POSE | PEN_GRAD_VERTICES | PEN_GRAD_SPHERES | PEN_GRAD_LIGHTS)
+
+unsigned pen_render_grad_exact(const pen_scene *sc, const pen_render_options *opt) {
+    pen_render_options def = pen_render_options_default();
+    if (!opt) opt = &def;
+    for (int o = 0; sc && o < sc->object_count; ++o)
+        if (pen__self_transfer_on(sc, opt, o)) return PEN_GRAD_ALL & ~TRANSFER_CONSTANT;
+    return PEN_GRAD_ALL;
+}
+
+static const char *group_name(unsigned bit) {
+    switch (bit) {
+    case PEN_GRAD_LIGHTING: return "lighting";
+    case PEN_GRAD_ALBEDO: return "albedo";
+    case PEN_GRAD_SPHERES: return "sphere";
+    case PEN_GRAD_POSE: return "pose";
+    case PEN_GRAD_VERTICES: return "vertex";
+    case PEN_GRAD_LIGHTS: return "disk-light";
+    case PEN_GRAD_LIGHT_IRRADIANCE: return "disk-light irradiance";
+    default: return "unknown";
+    }
+}
+
+pen_status pen_render_grad_check(pen_context *ctx, const pen_scene *sc,
+                                 const pen_render_options *opt, unsigned wrt) {
+    if (!sc) return pen__error(ctx, PEN_ERROR_ARGUMENT, "render backward: no scene");
+    if (wrt & ~PEN_GRAD_ALL)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "render backward: unknown gradient bits 0x%x",
+                          wrt & ~PEN_GRAD_ALL);
+    const unsigned missing = wrt & ~pen_render_grad_exact(sc, opt);
+    if (!missing) return PEN_OK;
+    const unsigned bit = missing & (~missing + 1u); /* the lowest group asked for and refused */
+    return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                      "render backward: no %s gradient under \"shadow\": {\"self\": "
+                      "\"transfer\"} (the objects' own and ground shadows are ray traced, constant "
+                      "in pose, vertices, spheres and light directions); render with \"self\": "
+                      "\"spheres\" for it (pen_render_grad_model; gradient_model in Python)",
+                      group_name(bit));
+}
+
+unsigned pen_render_grad_model(pen_scene *sc, unsigned wrt) {
+    unsigned changed = 0;
+    if (!sc) return 0;
+    if ((wrt & TRANSFER_CONSTANT) &&
+        (sc->shadow.self != PEN_SELF_SPHERES ||
+         sc->shadow.ground_shadow != PEN_GROUND_SHADOW_SPHERES)) {
+        sc->shadow.self = PEN_SELF_SPHERES;
+        sc->shadow.ground_shadow = PEN_GROUND_SHADOW_SPHERES;
+        changed |= wrt & TRANSFER_CONSTANT;
+    }
+    /* Point lookups are continuous in the geometry; the footprint steps between facets. */
+    for (int o = 0; (wrt & (PEN_GRAD_POSE | PEN_GRAD_VERTICES)) && o < sc->object_count; ++o) {
+        pen_object *ob = &sc->objects[o];
+        if (!ob->texture.data || ob->texture_filter == PEN_TEXTURE_FILTER_POINT) continue;
+        ob->texture_filter = PEN_TEXTURE_FILTER_POINT;
+        changed |= wrt & (PEN_GRAD_POSE | PEN_GRAD_VERTICES);
+    }
+    return changed;
+}
+
 pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_render_options *opt,
                           pen_render_state *st, const pen_image *d_image, unsigned wrt,
                           pen_render_grad *grad) {
@@ -308,10 +371,11 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     if (!st || !st->valid)
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "render backward: no forward pass to undo");
     if (opt->shadows != st->opt.shadows || opt->antialias != st->opt.antialias ||
-        opt->kernel != st->opt.kernel || opt->self_shadow != st->opt.self_shadow ||
-        opt->texture_filter != st->opt.texture_filter)
+        opt->kernel != st->opt.kernel)
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "render backward: options differ from the forward pass");
+    pen_status s = pen_render_grad_check(ctx, sc, opt, wrt);
+    if (s) return s;
     const int W = st->width, H = st->height;
     if (!d_image || !d_image->data || d_image->width != W || d_image->height != H ||
         d_image->channels != 3)
@@ -321,19 +385,21 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     for (int o = 0; o < sc->object_count && !changed; ++o)
         changed = st->meshes[o].vertex_count != sc->objects[o].mesh.vertex_count ||
                   st->meshes[o].triangle_count != sc->objects[o].mesh.triangle_count ||
-                  st->sphere_first[o + 1] - st->sphere_first[o] != sc->objects[o].spheres.count;
+                  st->sphere_first[o + 1] - st->sphere_first[o] != sc->objects[o].spheres.count ||
+                  st->obj[o].self_on != pen__self_transfer_on(sc, opt, o);
     if (changed)
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "render backward: the scene changed since the forward pass");
-    pen_status s = check_grad_shape(ctx, sc, grad);
-    if (s) return s;
+    if ((s = check_grad_shape(ctx, sc, grad))) return s;
     const size_t np = (size_t)W * (size_t)H;
     const int O = sc->object_count, S = st->sphere_count, nc = sc->sh_bands * sc->sh_bands;
     const int want_geom = (wrt & (PEN_GRAD_POSE | PEN_GRAD_VERTICES)) != 0;
     const int want_sph = (wrt & (PEN_GRAD_SPHERES | PEN_GRAD_POSE)) != 0;
     const int want_light = (wrt & PEN_GRAD_LIGHTING) != 0;
     const int want_albedo = (wrt & PEN_GRAD_ALBEDO) != 0;
-    const int want_lights = (wrt & PEN_GRAD_LIGHTS) != 0 && st->lights.count > 0;
+    const int want_lights =
+        (wrt & (PEN_GRAD_LIGHTS | PEN_GRAD_LIGHT_IRRADIANCE)) != 0 && st->lights.count > 0;
+    const int want_light_geometry = (wrt & PEN_GRAD_LIGHTS) != 0; /* direction and radius */
     const int K = st->lights.count;
 
     /* World-space vertex gradient buffers. */
@@ -449,10 +515,11 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
             const double *w = st->lights.w[l];
             const double wd = w[0] * dl[0] + w[1] * dl[1] + w[2] * dl[2];
             pen_light_grad *lg = &grad->lights[l];
-            for (int a = 0; a < 3; ++a) {
-                lg->direction[a] += (float)((dl[a] - w[a] * wd) / st->lights.len[l]);
+            for (int a = 0; a < 3; ++a)
                 lg->irradiance[a] += (float)dl[4 + a];
-            }
+            if (!want_light_geometry) continue;
+            for (int a = 0; a < 3; ++a)
+                lg->direction[a] += (float)((dl[a] - w[a] * wd) / st->lights.len[l]);
             lg->angular_radius_deg += (float)(dl[3] * (PEN_PI / 180.0));
         }
     if (want_albedo) {
@@ -512,7 +579,7 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
                 if (ob->texture.data) {
                     pen_interpolate_bwd(&st->gb, o, ob->mesh.uv_indices, ob->mesh.uvs, 2,
                                         st->d_uv.data, NULL, st->d_bary.data);
-                    if (pen__render_footprint(st, ob))
+                    if (pen__render_footprint(ob))
                         pen__uv_footprint_bwd(st, ob, o, b->d_world.data);
                 }
                 s_geom = pen_vertex_normals_bwd(ctx, ob->mesh.vertex_count, b->world.data,

@@ -37,6 +37,7 @@ static const pen_flat_abi_field table[] = {
     FIELD(pen_flat_object, spheres),
     FIELD(pen_flat_object, pose),
     FIELD(pen_flat_object, sphere_weights),
+    FIELD(pen_flat_object, texture_filter),
 
     SIZE_ROW(pen_flat_scene),
     FIELD(pen_flat_scene, width),
@@ -73,7 +74,6 @@ static const pen_flat_abi_field table[] = {
     FIELD(pen_flat_scene, light_count),
     FIELD(pen_flat_scene, lights),
     FIELD(pen_flat_scene, self_shadow),
-    FIELD(pen_flat_scene, texture_filter),
     FIELD(pen_flat_scene, ground_shadow),
     FIELD(pen_flat_scene, ground_grid),
 

@@ -70,7 +70,13 @@ static pen_status object_view(pen_context *ctx, int o, const pen_flat_object *f,
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "flat scene: objects[%d]: needs vertices and triangles (%d, %d)", o,
                           f->vertex_count, f->triangle_count);
-    ob->texture_filter = PEN_TEXTURE_FILTER_FOOTPRINT; /* used when options_of asks for it */
+    if (f->texture_filter != PEN_TEXTURE_FILTER_FOOTPRINT &&
+        f->texture_filter != PEN_TEXTURE_FILTER_POINT)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "flat scene: objects[%d]: texture_filter %d is not 0 (footprint) or 1 "
+                          "(point)",
+                          o, f->texture_filter);
+    ob->texture_filter = (pen_texture_filter)f->texture_filter;
     pen_mesh *m = &ob->mesh;
     m->vertex_count = f->vertex_count;
     m->triangle_count = f->triangle_count;
@@ -163,12 +169,11 @@ static pen_status scene_view(pen_context *ctx, const pen_flat_scene *f, pen_obje
     sc->shadow.exp = (pen_sh_exp_method)f->exp_method;
     sc->shadow.overlap = (pen_shadow_overlap)f->overlap;
     sc->shadow.ground = (pen_shadow_ground)f->ground_occlusion;
-    if ((f->self_shadow != 0 && f->self_shadow != 1) ||
-        (f->texture_filter != 0 && f->texture_filter != 1))
+    if (f->self_shadow != PEN_SELF_TRANSFER && f->self_shadow != PEN_SELF_SPHERES)
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                          "flat scene: self_shadow and texture_filter must be 0 or 1 (got %d, %d)",
-                          f->self_shadow, f->texture_filter);
-    sc->shadow.self = PEN_SELF_TRANSFER; /* used when options_of asks for the scene's */
+                          "flat scene: self_shadow %d is not 0 (transfer) or 1 (spheres)",
+                          f->self_shadow);
+    sc->shadow.self = (pen_shadow_self)f->self_shadow;
     sc->shadow.ground_shadow = (pen_shadow_ground_shadow)f->ground_shadow; /* validated there */
     sc->shadow.ground_grid = f->ground_grid;
     sc->ground.enabled = f->ground_enabled != 0;
@@ -186,19 +191,11 @@ static pen_status scene_view(pen_context *ctx, const pen_flat_scene *f, pen_obje
     return PEN_OK;
 }
 
+/* The options: the model is the scene's (scene_view), as in the JSON. */
 static pen_render_options options_of(const pen_flat_scene *f) {
     pen_render_options opt = pen_render_options_default();
     opt.shadows = f->shadows != 0;
     opt.antialias = f->antialias != 0;
-    /* By default the objects' own shadows from their spheres: the flat API serves PyTorch, whose
-     * gradients reach the pose and the vertices, which the precomputed self transfer does not
-     * follow (docs/design.md sec. 1.15); the scene view asks for the transfer (shadow.self) and
-     * the footprint filter (each object's texture_filter), the options pick. */
-    opt.self_shadow = f->self_shadow == 1 ? PEN_RENDER_SELF_SCENE : PEN_RENDER_SELF_SPHERES;
-    /* and textures looked up at the pixel's uv, continuous in the geometry (the footprint filter
-     * steps between facets, docs/design.md sec. 1.4) */
-    opt.texture_filter =
-        f->texture_filter == 1 ? PEN_RENDER_TEXTURE_SCENE : PEN_RENDER_TEXTURE_POINT;
     return opt;
 }
 
@@ -232,8 +229,9 @@ static void add_n(float *dst, const float *src, size_t n) {
         dst[i] += src[i];
 }
 
-static unsigned wanted(const pen_flat_scene *f, const pen_flat_grad *g) {
+unsigned pen_flat_grad_groups(const pen_flat_scene *f, const pen_flat_grad *g) {
     unsigned wrt = 0;
+    if (!f || !g) return 0;
     if (g->sh) wrt |= PEN_GRAD_LIGHTING;
     if (g->ground_albedo) wrt |= PEN_GRAD_ALBEDO;
     if (g->lights && f->light_count > 0) wrt |= PEN_GRAD_LIGHTS;
@@ -296,19 +294,9 @@ static pen_status flat_bwd(pen_context *ctx, const pen_flat_scene *f, pen_render
         pen_render_grad_free(g);
         if ((s = pen_render_grad_create(ctx, &sc, g))) return s;
     }
-    if (f->self_shadow == 1) { /* the transfer is constant in these: refuse, do not return 0 */
-        int geo = grad->lights != NULL;
-        for (int o = 0; grad->objects && o < f->object_count; ++o)
-            geo |= grad->objects[o].positions || grad->objects[o].pose || grad->objects[o].spheres;
-        if (geo)
-            return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                              "flat render backward: with self_shadow 1 (the precomputed "
-                              "transfer) there is no gradient of positions, pose, spheres or "
-                              "lights; render with self_shadow 0 for those");
-    }
     const pen_render_options opt = options_of(f);
     const pen_image d_img = {f->width, f->height, 3, (float *)d_image};
-    s = pen_render_bwd(ctx, &sc, &opt, state, &d_img, wanted(f, grad), g);
+    s = pen_render_bwd(ctx, &sc, &opt, state, &d_img, pen_flat_grad_groups(f, grad), g);
     if (s) return s;
     const int nc = sc.sh_bands * sc.sh_bands;
     for (int i = 0; grad->sh && i < nc; ++i)
@@ -335,6 +323,42 @@ pen_status pen_flat_render_bwd(pen_context *ctx, const pen_flat_scene *f, pen_re
     pen_render_grad_free(&g);
     free(objects);
     return s;
+}
+
+pen_status pen_flat_grad_check(pen_context *ctx, const pen_flat_scene *f, unsigned wrt) {
+    if (!f) return pen__error(ctx, PEN_ERROR_ARGUMENT, "flat gradient check: NULL scene");
+    pen_object *objects = NULL;
+    int cap = 0;
+    pen_scene sc;
+    pen_status s = scene_view(ctx, f, &objects, &cap, &sc);
+    const pen_render_options opt = options_of(f);
+    if (!s) s = pen_render_grad_check(ctx, &sc, &opt, wrt);
+    free(objects);
+    return s;
+}
+
+unsigned pen_flat_grad_model(pen_flat_scene *f, pen_flat_object *objects, unsigned wrt) {
+    if (!f) return 0;
+    /* The rule applied to a minimal pen_scene holding what it reads and writes. */
+    const int n = objects && f->object_count > 0 ? f->object_count : 0;
+    pen_object *view = n ? calloc((size_t)n, sizeof *view) : NULL;
+    pen_scene sc;
+    memset(&sc, 0, sizeof sc);
+    sc.shadow.self = (pen_shadow_self)f->self_shadow;
+    sc.shadow.ground_shadow = (pen_shadow_ground_shadow)f->ground_shadow;
+    sc.object_count = view ? n : 0;
+    sc.objects = view;
+    for (int o = 0; o < sc.object_count; ++o) {
+        view[o].texture_filter = (pen_texture_filter)objects[o].texture_filter;
+        view[o].texture.data = (float *)objects[o].texture; /* only tested for NULL */
+    }
+    const unsigned changed = pen_render_grad_model(&sc, wrt);
+    f->self_shadow = (int)sc.shadow.self;
+    f->ground_shadow = (int)sc.shadow.ground_shadow;
+    for (int o = 0; o < sc.object_count; ++o)
+        objects[o].texture_filter = (int)view[o].texture_filter;
+    free(view);
+    return changed;
 }
 
 /* ---- A renderer kept across calls ------------------------------------------------------------ */
@@ -430,6 +454,7 @@ static pen_status flat_object(pen_context *ctx, const pen_object *ob, int o, pen
     f->sphere_count = ob->spheres.count;
     f->spheres = ob->spheres.data;
     f->sphere_weights = ob->spheres.weight;
+    f->texture_filter = (int)ob->texture_filter;
     memcpy(f->pose, ob->pose.rotation_axis_angle_deg, 3 * sizeof(float));
     memcpy(f->pose + 3, ob->pose.translation, 3 * sizeof(float));
     f->pose[6] = ob->pose.scale;
@@ -464,6 +489,7 @@ static pen_status flatten(pen_context *ctx, pen_flat_loaded *l) {
     f->exp_method = (int)sc->shadow.exp;
     f->overlap = (int)sc->shadow.overlap;
     f->ground_occlusion = (int)sc->shadow.ground;
+    f->self_shadow = (int)sc->shadow.self;
     f->ground_shadow = (int)sc->shadow.ground_shadow;
     f->ground_grid = sc->shadow.ground_grid;
     f->ground_enabled = sc->ground.enabled;
@@ -501,11 +527,9 @@ pen_status pen_flat_scene_load(pen_context *ctx, const char *path, int fit_spher
     pen_flat_loaded *l = pen__calloc(ctx, 1, sizeof *l, "loaded scene");
     if (!l) return PEN_ERROR_MEMORY;
     pen_status s = pen_scene_load(ctx, path, &l->scene);
-    if (!s && fit_spheres) s = pen_scene_fit_spheres(ctx, &l->scene);
-    /* The overlap weights, which the loader does not solve: the flat scene carries them, so the
+    /* Made ready as every door makes it; the flat scene carries the overlap weights, so the
      * binding's renders do not solve them again for every render state. */
-    for (int o = 0; !s && o < l->scene.object_count; ++o)
-        s = pen_spheres_ensure_weights(ctx, &l->scene.objects[o].spheres);
+    if (!s) s = pen_scene_prepare(ctx, &l->scene, fit_spheres, NULL);
     if (!s) s = flatten(ctx, l);
     if (s) {
         pen_flat_loaded_free(l);

@@ -158,7 +158,7 @@ void pen__uv_footprint_bwd(const pen_render_state *st, const pen_object *ob, int
 void pen__render_texture_fwd(const pen_render_state *st, const pen_object *ob, size_t i,
                              float rho[3]) {
     const float *uv = st->uv.data + 2 * i;
-    if (!pen__render_footprint(st, ob))
+    if (!pen__render_footprint(ob))
         pen__texture_fwd(&ob->texture, uv, rho);
     else
         pen__texture_footprint_fwd(&ob->texture, uv, st->uvj.data + 4 * i, rho);
@@ -167,7 +167,7 @@ void pen__render_texture_fwd(const pen_render_state *st, const pen_object *ob, s
 void pen__render_texture_bwd(const pen_render_state *st, const pen_object *ob, size_t i,
                              const float d_rho[3], float *d_texels, float d_uv[2], float d_J[4]) {
     const float *uv = st->uv.data + 2 * i;
-    if (!pen__render_footprint(st, ob))
+    if (!pen__render_footprint(ob))
         pen__texture_bwd(&ob->texture, uv, d_rho, d_texels, d_uv);
     else
         pen__texture_footprint_bwd(&ob->texture, uv, st->uvj.data + 4 * i, d_rho, d_texels, d_uv,

@@ -41,17 +41,39 @@ pen_render_options pen_render_options_default(void) {
     o.shadows = 1;
     o.antialias = 1;
     o.kernel = PEN_RENDER_KERNEL_FAST;
-    o.self_shadow = PEN_RENDER_SELF_SCENE;
-    o.texture_filter = PEN_RENDER_TEXTURE_SCENE;
     return o;
 }
 
 /* ---- Geometry and attributes ----------------------------------------------------------------- */
 
+/* With shadows on, every object casts its shadow on the others (and, under the sphere model, on
+ * itself and the ground) from its spheres: an object without any would cast none, silently.
+ * Refused, naming the object and how to give it spheres. */
+static pen_status check_spheres(pen_context *ctx, const pen_scene *sc) {
+    for (int o = 0; o < sc->object_count; ++o) {
+        const pen_object *ob = &sc->objects[o];
+        if (ob->spheres.count > 0) continue;
+        const char *name = ob->mesh_path ? ob->mesh_path : "in memory";
+        if (ob->fit_spheres > 0)
+            return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                              "render: objects[%d] (%s): \"spheres\": {\"fit\": %d} is not "
+                              "fitted yet; prepare the scene first (pen_scene_prepare, as "
+                              "penumbra render and Python's load_scene do)",
+                              o, name, ob->fit_spheres);
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "render: objects[%d] (%s): no spheres, so it would cast no shadow; give "
+                          "it spheres (\"spheres\": {\"fit\": N}, pen_spheres_fit) or render "
+                          "without shadows",
+                          o, name);
+    }
+    return PEN_OK;
+}
+
 /* Poses the geometry, rasterizes, and interpolates the per-pixel attributes into st. */
 static pen_status prepare(pen_context *ctx, const pen_scene *sc, const pen_render_options *opt,
                           pen_render_state *st) {
     pen_status s = pen__scene_validate(ctx, sc, "render");
+    if (!s && opt->shadows) s = check_spheres(ctx, sc);
     if (s) return s;
     if ((s = pen_view_init(ctx, &sc->camera, &st->view))) return s; /* validated: fills the view */
     const int W = st->view.width, H = st->view.height;
@@ -103,7 +125,6 @@ static pen_status prepare(pen_context *ctx, const pen_scene *sc, const pen_rende
                                 &st->gb)))
         return s;
     pen_gbuffer_points(&st->view, &st->gb, st->x.data);
-    st->texture_point = opt->texture_filter == PEN_RENDER_TEXTURE_POINT;
     for (int o = 0; o < sc->object_count; ++o) {
         const pen_object *ob = &sc->objects[o];
         pen_interpolate_fwd(&st->gb, o, ob->mesh.indices, st->obj[o].world.data, 3, st->x.data);
@@ -112,7 +133,7 @@ static pen_status prepare(pen_context *ctx, const pen_scene *sc, const pen_rende
         if (ob->texture.data) {
             pen_interpolate_fwd(&st->gb, o, ob->mesh.uv_indices, ob->mesh.uvs, 2, st->uv.data);
             if ((s = PEN__BUF_RESERVE(ctx, st->uvj, 4 * np, "texture footprints"))) return s;
-            if (pen__render_footprint(st, ob)) pen__uv_footprint_fwd(st, ob, o, pen__threads(ctx));
+            if (pen__render_footprint(ob)) pen__uv_footprint_fwd(st, ob, o, pen__threads(ctx));
         }
     }
 
@@ -292,15 +313,6 @@ pen_status pen_render_fwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     }
     if (opt->kernel != PEN_RENDER_KERNEL_FAST && opt->kernel != PEN_RENDER_KERNEL_SCALAR) {
         s = pen__error(ctx, PEN_ERROR_ARGUMENT, "render: unknown kernel %d", opt->kernel);
-        goto done;
-    }
-    if ((opt->self_shadow != PEN_RENDER_SELF_SCENE &&
-         opt->self_shadow != PEN_RENDER_SELF_SPHERES) ||
-        (opt->texture_filter != PEN_RENDER_TEXTURE_SCENE &&
-         opt->texture_filter != PEN_RENDER_TEXTURE_POINT)) {
-        s = pen__error(ctx, PEN_ERROR_ARGUMENT,
-                       "render: unknown self_shadow %d or texture_filter %d", opt->self_shadow,
-                       opt->texture_filter);
         goto done;
     }
     if ((s = check_frame_memory(ctx, sc, opt, own == NULL))) goto done;

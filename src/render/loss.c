@@ -44,7 +44,7 @@ static pen_status loss(pen_context *ctx, int l1, const pen_image *image, const p
     for (size_t i = 0; i < n; ++i) {
         const double r = (double)image->data[i] - (double)target->data[i];
         sum += rho(l1, r);
-        if (d_image) d_image->data[i] += (float)(drho(l1, r) * inv);
+        if (d_image) d_image->data[i] = (float)(drho(l1, r) * inv); /* set: render.h */
     }
     if (out) *out = sum * inv;
     if (!isfinite(sum))

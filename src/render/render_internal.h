@@ -317,7 +317,6 @@ struct pen_render_state {
     pen__buf_float lights_V; /* the disk lights' visibilities, lights.count per pixel */
     int lights_V_valid;      /* the forward kept lights_V (a state, shadows on, lights) */
     int fast;          /* the forward used the fast kernel */
-    int texture_point; /* this frame's opt->texture_filter is PEN_RENDER_TEXTURE_POINT */
     PEN__BUF(double) rows;      /* the backward's double accumulators, one block per tile */
     PEN__BUF(unsigned char) ws; /* per-thread workspaces (pen__tile_ws) */
     pen__buf_float bg;          /* environment-map background of the last frame, 3 per pixel */
@@ -357,10 +356,9 @@ void pen__uv_footprint_fwd(pen_render_state *st, const pen_object *ob, int o, in
  * (3 per posed vertex). */
 void pen__uv_footprint_bwd(const pen_render_state *st, const pen_object *ob, int o,
                            float *d_world);
-/* Whether ob's texture is looked up over the pixel's footprint this frame: its texture_filter,
- * unless the render options force point lookups. */
-static inline int pen__render_footprint(const pen_render_state *st, const pen_object *ob) {
-    return ob->texture_filter == PEN_TEXTURE_FILTER_FOOTPRINT && !st->texture_point;
+/* Whether ob's texture is looked up over the pixel's footprint: its texture_filter. */
+static inline int pen__render_footprint(const pen_object *ob) {
+    return ob->texture_filter == PEN_TEXTURE_FILTER_FOOTPRINT;
 }
 /* The albedo of textured pixel i of ob by its texture_filter (point, or over st->uvj), and its
  * backward into d_texels, d_uv, d_J (each may be NULL; d_J is left alone by point lookups). */
@@ -371,8 +369,16 @@ void pen__render_texture_bwd(const pen_render_state *st, const pen_object *ob, s
 
 /* ---- self.c ---- */
 
-/* Decides which objects shade with their own transfer this frame (shadows on, the scene's
- * shadow.self "transfer" not overridden by opt->self_shadow, a mesh with triangles and spheres)
+/* Whether object o of sc shades its own shadows with its transfer under opt: shadows on, the
+ * scene's shadow.self "transfer", a mesh with triangles and spheres. The one rule for the
+ * forward (pen__self_prepare) and for which gradients are exact (pen_render_grad_exact). */
+static inline int pen__self_transfer_on(const pen_scene *sc, const pen_render_options *opt,
+                                        int o) {
+    const pen_object *ob = &sc->objects[o];
+    return opt->shadows && sc->shadow.self == PEN_SELF_TRANSFER && ob->mesh.triangle_count > 0 &&
+           ob->spheres.count > 0;
+}
+/* Decides which objects shade with their own transfer this frame (pen__self_transfer_on)
  * and brings their caches up to date (ray traced only when the posed vertices, the band count or
  * the lights changed). After the lights and ground occlusion are prepared. */
 pen_status pen__self_prepare(pen_context *ctx, const pen_scene *sc, const pen_render_options *opt,

@@ -17,8 +17,8 @@
  *   directions, so B and the fractions carry no gradient; what stays differentiable on the object
  *   is linear in the lighting, the lights' irradiance and the albedo (exact), and the other
  *   objects' spheres, the normal through H_n, the spheres' weights and the horizon term.
- *   Optimisers of pose, shape, spheres or light directions force the sphere model
- *   (pen_render_options.self_shadow).
+ *   pen_render_bwd refuses those gradients (pen_render_grad_check); optimisers of pose, shape,
+ *   spheres or light directions switch the scene to the sphere model (pen_render_grad_model).
  * - One code path. Transfer pixels go through the scalar kernel's functions whichever kernel
  *   the frame uses (both kernels then agree on them exactly); the other objects' spheres enter
  *   with the per-object overlap weights kappa_self (0 on the object's own spheres, which adds
@@ -111,14 +111,11 @@ static pen_status self_cache(pen_context *ctx, const pen_scene *sc, pen_render_s
 pen_status pen__self_prepare(pen_context *ctx, const pen_scene *sc, const pen_render_options *opt,
                              pen_render_state *st) {
     st->self_any = 0;
-    const int want = opt->shadows && opt->self_shadow != PEN_RENDER_SELF_SPHERES &&
-                     sc->shadow.self == PEN_SELF_TRANSFER;
     const int S = st->sphere_count;
     for (int o = 0; o < sc->object_count; ++o) {
-        const pen_object *ob = &sc->objects[o];
         pen__object_buf *b = &st->obj[o];
         const int own = st->sphere_first[o + 1] - st->sphere_first[o];
-        b->self_on = want && ob->mesh.triangle_count > 0 && own > 0;
+        b->self_on = pen__self_transfer_on(sc, opt, o);
         b->self_others = S - own > 0;
         st->self_any |= b->self_on;
     }

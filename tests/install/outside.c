@@ -43,8 +43,8 @@ int main(int argc, char **argv) {
 
     const pen_render_options opt = pen_render_options_default();
     double loss = 0.0;
-    if (pen_scene_fit_spheres(ctx, &scene)) {
-        fail(ctx, "fit");
+    if (pen_scene_prepare(ctx, &scene, opt.shadows, NULL)) {
+        fail(ctx, "prepare");
     } else if (pen_render_state_create(ctx, &state) ||
                pen_render_fwd(ctx, &scene, &opt, state, &image)) {
         fail(ctx, "render");
@@ -58,7 +58,9 @@ int main(int argc, char **argv) {
             fail(ctx, "grad");
         } else {
             pen_render_grad_zero(&grad);
-            if (pen_render_bwd(ctx, &scene, &opt, state, &d_image, PEN_GRAD_ALL, &grad)) {
+            /* Every group the scene's model has an exact gradient of (render.h). */
+            const unsigned wrt = PEN_GRAD_ALL & pen_render_grad_exact(&scene, &opt);
+            if (pen_render_bwd(ctx, &scene, &opt, state, &d_image, wrt, &grad)) {
                 fail(ctx, "backward");
             } else if (pen_image_save(ctx, argv[2], &image)) {
                 fail(ctx, "save");
