@@ -82,7 +82,8 @@ int pen_cli_outputs_keep(pen_cli_outputs *out, const char *cmd);
 void pen_cli_outputs_end(pen_cli_outputs *out, int ok);
 /* The bundled file `rel` (e.g. "data/envmaps/city.hdr"), looked for at run time, first found of:
  * $PENUMBRA_DATA_DIR/rel, <exe dir>/../share/penumbra/rel (installed), <exe dir>/../rel and
- * <exe dir>/../../rel (a build folder inside the checkout). Writes the path into buf and returns
+ * <exe dir>/../../rel (a build folder inside the checkout), <source>/rel where <exe
+ * dir>/penumbra-source names the source tree (a build folder anywhere). Writes the path into buf and returns
  * it; otherwise prints one error line naming every place tried, then `hint` (what the user can
  * do instead), and returns NULL. */
 const char *pen_cli_data_path(const char *cmd, const char *rel, const char *hint, char *buf,

@@ -178,12 +178,28 @@ void pen_cli_outputs_end(pen_cli_outputs *out, int ok) {
 #define PEN_DATA_FROM_BINDIR "../share/penumbra"
 #endif
 
+/* The source tree a build folder was configured from: CMake writes its path into the file
+ * `penumbra-source` beside the executable (CMakeLists.txt), so a build outside the checkout
+ * (cmake -B /elsewhere) finds the bundled data; an installed executable has no such file. Into
+ * buf (size bytes); 0 when there is none. */
+static int build_source_dir(const char *exe_dir, char *buf, size_t size) {
+    char path[4096];
+    snprintf(path, sizeof path, "%s/penumbra-source", exe_dir);
+    FILE *f = fopen(path, "r");
+    if (!f) return 0;
+    const int ok = fgets(buf, (int)size, f) != NULL;
+    fclose(f);
+    if (!ok) return 0;
+    buf[strcspn(buf, "\r\n")] = '\0';
+    return buf[0] == '/';
+}
+
 /* No absolute path is compiled in: the places are relative to the running executable (/proc/self/exe),
  * so a build moved or installed elsewhere still finds its data, and a binary reads the source
- * tree it was made from only when it lies inside that tree. */
+ * tree it was made from only when it lies inside that tree or its build folder names it. */
 const char *pen_cli_data_path(const char *cmd, const char *rel, const char *hint, char *buf,
                               size_t size) {
-    char tried[4][4096];
+    char tried[5][4096];
     int n = 0;
     const char *env = getenv("PENUMBRA_DATA_DIR");
     if (env && *env) snprintf(tried[n++], sizeof tried[0], "%s/%s", env, rel);
@@ -201,6 +217,10 @@ const char *pen_cli_data_path(const char *cmd, const char *rel, const char *hint
         /* A build folder in the checkout (build/penumbra), or one level deeper. */
         snprintf(tried[n++], sizeof tried[0], "%s/../%s", exe, rel);
         snprintf(tried[n++], sizeof tried[0], "%s/../../%s", exe, rel);
+        /* A build folder anywhere, through the source path CMake left in it. */
+        char src[2048];
+        if (build_source_dir(exe, src, sizeof src))
+            snprintf(tried[n++], sizeof tried[0], "%s/%s", src, rel);
     }
     for (int i = 0; i < n; ++i)
         if (access(tried[i], R_OK) == 0) {
@@ -208,7 +228,7 @@ const char *pen_cli_data_path(const char *cmd, const char *rel, const char *hint
             snprintf(buf, size, "%s", realpath(tried[i], real) ? real : tried[i]);
             return buf;
         }
-    char list[4 * 4096 + 16] = "";
+    char list[5 * 4096 + 16] = "";
     for (int i = 0; i < n; ++i) {
         if (i) strcat(list, ", ");
         strcat(list, tried[i]);

@@ -174,6 +174,23 @@ expect_error 2 "no case 'nosuch'" --case nosuch
 expect_error 2 "no case 'res256'" --quick --case res256
 expect_error 1 "nosuch.json" --quick --scene "$T/nosuch.json" --case headline
 
+# A build folder outside the checkout (cmake -B /elsewhere) finds the bundled scene through the
+# source path CMake leaves beside the executable; without that file, and with no data beside it,
+# the bundled file is reported missing with the places tried.
+mkdir -p "$T/elsewhere/bin"
+cp "$BIN" "$T/elsewhere/bin/penumbra"
+if (cd "$T" && PENUMBRA_DATA_DIR= "$T/elsewhere/bin/penumbra" bench --quick --case headline \
+        --no-reference --repeat 1 > "$T/out" 2> "$T/err"); then
+    fail "bench from a folder with no data and no source path ran: $(cat "$T/out")"
+fi
+grep -q "bundled file examples/scenes/spot_city.json not found" "$T/err" ||
+    fail "missing bundled data: $(cat "$T/err")"
+echo "$SRC" > "$T/elsewhere/bin/penumbra-source"
+(cd "$T" && PENUMBRA_DATA_DIR= "$T/elsewhere/bin/penumbra" bench --quick --case headline \
+    --no-reference --repeat 1 --json > "$T/out" 2> "$T/err") ||
+    fail "bench from a build folder outside the checkout: $(cat "$T/err")"
+grep -q '"name": "headline"' "$T/out" || fail "bench outside the checkout: no headline case"
+
 if [ "$fails" -ne 0 ]; then
     echo "$fails failed"
     exit 1

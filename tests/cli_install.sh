@@ -86,6 +86,16 @@ if $CC $SAN -o "$T/outside" "$OUT" $(pkg-config --cflags --libs penumbra); then
 else
     fail "outside.c does not build with pkg-config --cflags --libs penumbra"
 fi
+# As docs/library.md builds it for a prefix of one's own: the rpath from pkg-config's libdir, so
+# that it runs with no LD_LIBRARY_PATH.
+# shellcheck disable=SC2046
+if $CC $SAN -o "$T/outside_rpath" "$OUT" $(pkg-config --cflags --libs penumbra) \
+    -Wl,-rpath,"$(pkg-config --variable=libdir penumbra)"; then
+    env -u LD_LIBRARY_PATH "$T/outside_rpath" "$SCENE" "$T/outside_rpath.png" ||
+        fail "outside (rpath, no LD_LIBRARY_PATH) ran"
+else
+    fail "outside.c does not build with the rpath of docs/library.md"
+fi
 STATIC_LIBS=$(pkg-config --static --libs penumbra | sed 's/\(^\| \)-lpenumbra\( \|$\)/ /')
 # shellcheck disable=SC2046,SC2086
 if $CC $SAN -o "$T/outside_static" "$OUT" $(pkg-config --cflags penumbra) "$LIBDIR/libpenumbra.a" \
