@@ -104,9 +104,9 @@ typedef struct pen_flat_scene {
     int ground_occlusion; /* pen_shadow_ground: 0 the ground hides the objects' lower horizon
                              (the default), 1 it only receives shadows */
     int light_count;      /* disk lights (scene.h pen_light), 0 .. PEN_SCENE_MAX_LIGHTS */
-    const float *lights;  /* 7 * light_count: direction towards the light (3, any non-zero
-                             length: normalised by the renderer), angular radius in degrees,
-                             irradiance (3) */
+    const float *lights;  /* PEN_LIGHT_FLOATS (scene.h) * light_count: direction towards the
+                             light (3, any non-zero length: normalised by the renderer),
+                             angular radius in degrees, irradiance (3) */
     int self_shadow;      /* pen_shadow_self: 0 (default) the objects' own shadows from their
                              meshes' precomputed transfer, ray traced and cached (exact; the
                              backward then refuses gradients of the positions, pose, spheres and
@@ -139,8 +139,9 @@ typedef struct pen_flat_grad {
     float *sh;                     /* 3 * sh_bands^2 */
     float *ground_albedo;          /* 3 */
     pen_flat_object_grad *objects; /* object_count entries, or NULL for none */
-    float *lights;                 /* 7 * light_count, laid out as pen_flat_scene.lights (the
-                                      direction's gradient is that of the unnormalised vector) */
+    float *lights;                 /* PEN_LIGHT_FLOATS * light_count, laid out as
+                                      pen_flat_scene.lights (the direction's gradient is that
+                                      of the unnormalised vector) */
 } pen_flat_grad;
 
 /* Renders into `image` (3 * width * height floats, caller-owned). `state` may be NULL when no

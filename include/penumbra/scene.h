@@ -160,6 +160,15 @@ typedef struct pen_light {
     float irradiance[3];
 } pen_light;
 
+/* A disk light as a row of floats, the layout the flat API (flat.h: pen_flat_scene.lights,
+ * pen_flat_grad.lights), the Python binding (python/penumbra/_lib.py LIGHT_FLOATS) and the
+ * optimizer's parameter vector share: pen_light's fields in order, direction (3), angular radius
+ * in degrees, irradiance (3). */
+#define PEN_LIGHT_FLOATS 7
+#define PEN_LIGHT_OFFSET_DIRECTION 0  /* 3 floats */
+#define PEN_LIGHT_OFFSET_RADIUS 3     /* 1 float */
+#define PEN_LIGHT_OFFSET_IRRADIANCE 4 /* 3 floats */
+
 /* Where a scene's disk lights come from (lighting.lights in the JSON). */
 typedef enum pen_lights_mode {
     PEN_LIGHTS_AUTO = 0,  /* found in the environment map (up to lights_max), none without one */

@@ -11,7 +11,7 @@ import numpy as np
 import torch
 
 from . import _lib
-from .render import Camera, Object, Scene
+from .render import LIGHT_FLOATS, Camera, Object, Scene
 
 
 def _copy(ptr, shape):
@@ -93,7 +93,8 @@ def _scene_from_flat(f):
                  envmap_scale=f.envmap_scale, epsilon=f.epsilon, exp=exp,
                  overlap={0: "weights", 1: "none"}[f.overlap],
                  ground_occlusion={0: "occludes", 1: "receiver"}[f.ground_occlusion],
-                 lights=_copy(f.lights, (f.light_count, 7)) if f.light_count > 0 else None,
+                 lights=(_copy(f.lights, (f.light_count, LIGHT_FLOATS))
+                         if f.light_count > 0 else None),
                  self_shadow={0: "transfer", 1: "spheres"}[f.self_shadow],
                  ground_shadow={0: "transfer", 1: "spheres"}[f.ground_shadow],
                  ground_grid=f.ground_grid)

@@ -44,6 +44,10 @@ GROUND_SHADOW_MODES = {"transfer": 0, "spheres": 1}
 TEXTURE_FILTERS = {"footprint": 0, "point": 1}
 # Gradient groups (PEN_GRAD_* in render.h).
 GRAD_GROUPS = {"lighting": 1, "albedo": 2, "spheres": 4, "pose": 8, "vertices": 16, "lights": 32}
+# A disk light as a row of floats (PEN_LIGHT_FLOATS, include/penumbra/scene.h): direction (3),
+# angular radius in degrees, irradiance (3); the layout of pen_flat_scene.lights and
+# pen_flat_grad.lights, and of Scene.lights' rows.
+LIGHT_FLOATS = 7
 
 
 @dataclasses.dataclass
@@ -102,10 +106,10 @@ class Scene:
     "weights" (each sphere's log-visibility times its overlap weight) or "none" (the plain sum);
     ground_occlusion is "occludes" (the ground hides what lies below each object's horizon, as in
     the ray-traced reference) or "receiver" (it only receives shadows). lights is None or a
-    (K, 7) float32 tensor of K <= 16 distant disk lights, one row each: the direction towards the
-    light (3, any non-zero length), the angular radius in degrees and the irradiance (3) that an
-    unoccluded surface facing it receives; load_scene fills it with the lights the scene gives or
-    finds in its environment map. self_shadow is "transfer" (the default, as in the JSON: the
+    (K, LIGHT_FLOATS = 7) float32 tensor of K <= 16 distant disk lights, one row each: the
+    direction towards the light (3, any non-zero length), the angular radius in degrees and the
+    irradiance (3) that an unoccluded surface facing it receives; load_scene fills it with the
+    lights the scene gives or finds in its environment map. self_shadow is "transfer" (the default, as in the JSON: the
     objects' own shadows from their meshes, ray traced once per pose and cached: exact, but then
     only the lighting, albedo, texture and ground albedo have gradients; a render whose vertex,
     pose, sphere or light tensors require a gradient raises PenumbraError) or "spheres" (from
@@ -576,10 +580,10 @@ def render_scene(scene, shadows=True, antialias=True, threads=None, renderer=Non
     sh = _float_tensor("sh", scene.sh, (None, 3))
     _sh_bands(sh)
     ground_albedo = _float_tensor("ground_albedo", scene.ground_albedo, (3,), allow_list=True)
-    lights = None
+    lights, row = None, LIGHT_FLOATS
     if scene.lights is not None and not (isinstance(scene.lights, torch.Tensor)
-                                         and tuple(scene.lights.shape) == (0, 7)):
-        lights = _float_tensor("lights", scene.lights, (None, 7))
+                                         and tuple(scene.lights.shape) == (0, row)):
+        lights = _float_tensor("lights", scene.lights, (None, row))
         if lights.shape[0] > 16:
             raise ValueError("penumbra: at most 16 lights, got %d" % lights.shape[0])
     tensors = []

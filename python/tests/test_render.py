@@ -55,6 +55,13 @@ SCENE_ENVMAP = """{"camera": {"width": 40, "height": 32, "fov_y_deg": 45, "eye":
  "background": "envmap"}"""
 
 
+# Disk lights over a bare ground (LIGHTS: the list's members).
+SCENE_LIGHTS = """{"camera": {"width": 24, "height": 16, "fov_y_deg": 50, "eye": [0, 2, 3],
+            "target": [0, 0, 0]},
+ "lighting": {"sh": [[0.5, 0.5, 0.5]], "lights": [LIGHTS]}, "sh_bands": 1,
+ "objects": [], "ground": {"albedo": [0.7, 0.7, 0.7]}}"""
+
+
 def _cli_available():
     return os.access(CLI, os.X_OK)
 
@@ -96,6 +103,19 @@ class CliEqualityTest(Temp):
 
     def test_no_shadows(self):
         self.check(SCENE_SH, "--no-shadows")
+
+    def test_light_layout(self):
+        # Two disk lights of distinct fields: the rows load_scene reads from the library and the
+        # rows render_scene hands it both follow penumbra.render's LIGHT_FLOATS, the library's
+        # PEN_LIGHT_FLOATS (a stride of the one differing from the other's would shift the second
+        # light's fields and change both the rows and the image).
+        rows = [[0.6, 1.0, 0.3, 2.5, 3.0, 2.5, 2.0], [-0.4, 0.8, -0.5, 7.0, 0.5, 1.0, 1.5]]
+        lights = ", ".join('{"direction": %s, "angular_radius_deg": %s, "irradiance": %s}'
+                           % (r[:3], r[3], r[4:]) for r in rows)
+        scene, _ = self.check(SCENE_LIGHTS.replace("LIGHTS", lights))
+        want = torch.tensor(rows, dtype=torch.float32)
+        want[:, :3] /= want[:, :3].norm(dim=1, keepdim=True)  # the loader keeps unit directions
+        self.assertTrue(torch.allclose(scene.lights, want, rtol=0, atol=1e-6), str(scene.lights))
 
     def test_transfer_and_footprint(self):
         """The CLI's defaults (own shadows from the transfer, footprint texture filter) are the

@@ -63,17 +63,18 @@ static void project_segment(const pen__optim_segment *s, float *x) {
     case PEN__BOUND_LIGHTS:
         /* The renderer normalises the direction, so its length is free; kept at 1 so that the
          * step (about the rate) stays an angle and the vector never shrinks towards zero. */
-        for (size_t i = 0; i + 7 <= s->count; i += 7) {
-            const double a = p[i], b = p[i + 1], c = p[i + 2];
+        for (size_t i = 0; i + PEN_LIGHT_FLOATS <= s->count; i += PEN_LIGHT_FLOATS) {
+            float *d = p + i + PEN_LIGHT_OFFSET_DIRECTION, *e = p + i + PEN_LIGHT_OFFSET_IRRADIANCE;
+            float *radius = p + i + PEN_LIGHT_OFFSET_RADIUS;
+            const double a = d[0], b = d[1], c = d[2];
             const double n = sqrt(a * a + b * b + c * c);
             if (n > 1e-12)
                 for (int k = 0; k < 3; ++k)
-                    p[i + (size_t)k] = (float)((double)p[i + (size_t)k] / n);
-            p[i + 3] = fminf(fmaxf(p[i + 3], (float)PEN_SCENE_MIN_LIGHT_RADIUS_DEG),
-                             (float)PEN_SCENE_MAX_LIGHT_RADIUS_DEG);
-            for (int k = 4; k < 7; ++k)
-                p[i + (size_t)k] = fminf(fmaxf(p[i + (size_t)k], 0.0f),
-                                         (float)PEN_SCENE_MAX_IRRADIANCE);
+                    d[k] = (float)((double)d[k] / n);
+            *radius = fminf(fmaxf(*radius, (float)PEN_SCENE_MIN_LIGHT_RADIUS_DEG),
+                            (float)PEN_SCENE_MAX_LIGHT_RADIUS_DEG);
+            for (int k = 0; k < 3; ++k)
+                e[k] = fminf(fmaxf(e[k], 0.0f), (float)PEN_SCENE_MAX_IRRADIANCE);
         }
         break;
     }

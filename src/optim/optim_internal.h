@@ -437,7 +437,8 @@ typedef struct pen__optim_run {
                                  the checkpoint's identity with the scene as rendered */
     unsigned groups;
     size_t lighting; /* offset of the SH block, SIZE_MAX if not optimised */
-    size_t lights;   /* offset of the disk lights' block (7 per light), SIZE_MAX if not */
+    size_t lights;   /* offset of the disk lights' block (PEN_LIGHT_FLOATS per light), SIZE_MAX
+                        if not */
     size_t exposure; /* offset of the views' log exposures (views 1 .., one each), SIZE_MAX if
                         not optimised */
     pen_optim_view *task_views; /* the task's views, where the exposures go (multi-view) */

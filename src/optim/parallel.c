@@ -42,9 +42,8 @@ static int spans(const pen_render_grad *g, unsigned wrt, span *out) {
     int k = 0;
     if (wrt & PEN_GRAD_LIGHTING)
         out[k++] = (span){&m->sh[0][0], 3 * (size_t)g->bands * (size_t)g->bands};
-    if (wrt & PEN_GRAD_LIGHTS) /* pen_light: 7 floats */
-        out[k++] = (span){m->lights[0].direction,
-                          sizeof(pen_light) / sizeof(float) * (size_t)g->light_count};
+    if (wrt & PEN_GRAD_LIGHTS) /* pen_light: PEN_LIGHT_FLOATS floats (params.c checks) */
+        out[k++] = (span){m->lights[0].direction, PEN_LIGHT_FLOATS * (size_t)g->light_count};
     if (wrt & PEN_GRAD_ALBEDO) out[k++] = (span){m->ground_albedo, 3};
     for (int o = 0; o < g->object_count; ++o) {
         pen_object_grad *og = &m->objects[o];

@@ -23,6 +23,11 @@ typedef pen__optim_object_deform object_deform;
 
 static const double DEG_PER_RAD = 180.0 / PEN_PI;
 
+/* The lights' block holds each light's fields as PEN_LIGHT_FLOATS floats (scene.h), the order of
+ * pen_light, which parallel.c also flattens as one run of floats. */
+_Static_assert(sizeof(pen_light) == PEN_LIGHT_FLOATS * sizeof(float),
+               "pen_light is PEN_LIGHT_FLOATS floats");
+
 static size_t add_segment(run *r, size_t count, float lr, pen__optim_bound bound) {
     pen__optim_segment *s = &r->segments[r->segment_count++];
     s->offset = r->n;
@@ -55,8 +60,8 @@ pen_status pen__optim_layout(pen_context *ctx, run *r, const pen_optim_task *t) 
                                   t->lr.lighting, PEN__BOUND_NONE);
     r->lights = SIZE_MAX; /* after the SH block, which solve_lighting expects first */
     if ((r->groups & PEN_OPTIM_LIGHTS) && sc->lighting.light_count > 0)
-        r->lights = add_segment(r, 7 * (size_t)sc->lighting.light_count, t->lr.lights,
-                                PEN__BOUND_LIGHTS);
+        r->lights = add_segment(r, PEN_LIGHT_FLOATS * (size_t)sc->lighting.light_count,
+                                t->lr.lights, PEN__BOUND_LIGHTS);
     r->exposure = SIZE_MAX; /* every view's but the first's, the gauge (optim.h) */
     if ((r->groups & PEN_OPTIM_EXPOSURE) && t->view_count > 1)
         r->exposure = add_segment(r, (size_t)t->view_count - 1, t->lr.exposure, PEN__BOUND_NONE);
@@ -161,11 +166,14 @@ void pen__optim_transfer(run *r, int to_scene) {
     if (r->lights != SIZE_MAX)
         for (int l = 0; l < sc->lighting.light_count; ++l) {
             pen_light *li = &sc->lighting.lights[l];
-            float *x = r->x + r->lights + 7 * (size_t)l;
-            float *v[7] = {&li->direction[0],   &li->direction[1],  &li->direction[2],
-                           &li->angular_radius_deg, &li->irradiance[0], &li->irradiance[1],
-                           &li->irradiance[2]};
-            for (int k = 0; k < 7; ++k) {
+            float *x = r->x + r->lights + PEN_LIGHT_FLOATS * (size_t)l;
+            float *v[PEN_LIGHT_FLOATS];
+            for (int k = 0; k < 3; ++k) {
+                v[PEN_LIGHT_OFFSET_DIRECTION + k] = &li->direction[k];
+                v[PEN_LIGHT_OFFSET_IRRADIANCE + k] = &li->irradiance[k];
+            }
+            v[PEN_LIGHT_OFFSET_RADIUS] = &li->angular_radius_deg;
+            for (int k = 0; k < PEN_LIGHT_FLOATS; ++k) {
                 if (to_scene)
                     *v[k] = x[k];
                 else
@@ -307,12 +315,12 @@ void pen__optim_gather(run *r, const pen_render_grad *grad, float scale) {
     if (r->lights != SIZE_MAX)
         for (int l = 0; l < grad->light_count; ++l) {
             const pen_light_grad *lg = &grad->lights[l];
-            float *g = r->g + r->lights + 7 * (size_t)l;
+            float *g = r->g + r->lights + PEN_LIGHT_FLOATS * (size_t)l;
             for (int k = 0; k < 3; ++k) {
-                g[k] = scale * lg->direction[k];
-                g[4 + k] = scale * lg->irradiance[k];
+                g[PEN_LIGHT_OFFSET_DIRECTION + k] = scale * lg->direction[k];
+                g[PEN_LIGHT_OFFSET_IRRADIANCE + k] = scale * lg->irradiance[k];
             }
-            g[3] = scale * lg->angular_radius_deg;
+            g[PEN_LIGHT_OFFSET_RADIUS] = scale * lg->angular_radius_deg;
         }
     for (int v = 1; r->exposure != SIZE_MAX && v < r->task_view_count; ++v)
         r->g[r->exposure + (size_t)(v - 1)] = (float)((double)scale * r->views.d_exposure[v]);

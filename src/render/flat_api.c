@@ -146,11 +146,11 @@ static pen_status scene_view(pen_context *ctx, const pen_flat_scene *f, pen_obje
     sc->lighting.lights_mode = PEN_LIGHTS_GIVEN;
     sc->lighting.light_count = f->light_count;
     for (int l = 0; l < f->light_count; ++l) {
-        const float *v = f->lights + 7 * (size_t)l;
+        const float *v = f->lights + PEN_LIGHT_FLOATS * (size_t)l;
         pen_light *L = &sc->lighting.lights[l];
-        memcpy(L->direction, v, sizeof L->direction);
-        L->angular_radius_deg = v[3];
-        memcpy(L->irradiance, v + 4, sizeof L->irradiance);
+        memcpy(L->direction, v + PEN_LIGHT_OFFSET_DIRECTION, sizeof L->direction);
+        L->angular_radius_deg = v[PEN_LIGHT_OFFSET_RADIUS];
+        memcpy(L->irradiance, v + PEN_LIGHT_OFFSET_IRRADIANCE, sizeof L->irradiance);
     }
     pen_camera *c = &sc->camera;
     c->width = f->width, c->height = f->height, c->fov_y_deg = f->fov_y_deg;
@@ -303,10 +303,10 @@ static pen_status flat_bwd(pen_context *ctx, const pen_flat_scene *f, pen_render
         add_n(grad->sh + 3 * i, g->sh[i], 3);
     if (grad->ground_albedo) add_n(grad->ground_albedo, g->ground_albedo, 3);
     for (int l = 0; grad->lights && l < g->light_count; ++l) {
-        float *dst = grad->lights + 7 * (size_t)l;
-        add_n(dst, g->lights[l].direction, 3);
-        dst[3] += g->lights[l].angular_radius_deg;
-        add_n(dst + 4, g->lights[l].irradiance, 3);
+        float *dst = grad->lights + PEN_LIGHT_FLOATS * (size_t)l;
+        add_n(dst + PEN_LIGHT_OFFSET_DIRECTION, g->lights[l].direction, 3);
+        dst[PEN_LIGHT_OFFSET_RADIUS] += g->lights[l].angular_radius_deg;
+        add_n(dst + PEN_LIGHT_OFFSET_IRRADIANCE, g->lights[l].irradiance, 3);
     }
     for (int o = 0; grad->objects && o < sc.object_count; ++o)
         scatter_object(&g->objects[o], &sc.objects[o], &grad->objects[o]);
@@ -412,7 +412,7 @@ struct pen_flat_loaded {
     pen_flat_scene flat;
     pen_flat_object *objects;
     float sh[3 * PEN_SH_MAX_COEFFS];
-    float lights[7 * PEN_SCENE_MAX_LIGHTS];
+    float lights[PEN_LIGHT_FLOATS * PEN_SCENE_MAX_LIGHTS];
 };
 
 void pen_flat_loaded_free(pen_flat_loaded *l) {
@@ -480,10 +480,10 @@ static pen_status flatten(pen_context *ctx, pen_flat_loaded *l) {
     f->lights = l->lights;
     for (int i = 0; i < sc->lighting.light_count; ++i) {
         const pen_light *L = &sc->lighting.lights[i];
-        float *v = l->lights + 7 * i;
-        memcpy(v, L->direction, 3 * sizeof(float));
-        v[3] = L->angular_radius_deg;
-        memcpy(v + 4, L->irradiance, 3 * sizeof(float));
+        float *v = l->lights + PEN_LIGHT_FLOATS * i;
+        memcpy(v + PEN_LIGHT_OFFSET_DIRECTION, L->direction, 3 * sizeof(float));
+        v[PEN_LIGHT_OFFSET_RADIUS] = L->angular_radius_deg;
+        memcpy(v + PEN_LIGHT_OFFSET_IRRADIANCE, L->irradiance, 3 * sizeof(float));
     }
     f->epsilon = sc->shadow.epsilon;
     f->exp_method = (int)sc->shadow.exp;
