@@ -11,6 +11,9 @@ zlib1g-dev libpng-dev libjpeg-dev"
 PKGS="$PKGS libopenmpi-dev openmpi-bin"
 # The Python binding and its tests run on Debian's own Python 3 (/usr/bin/python3).
 PKGS="$PKGS python3 python3-numpy python3-torch"
+# `pip install .` of the binding with no network (setup.py), and its test (tests/cli_wheel.sh):
+# Debian's pip and build backend, and venv to install the wheel into.
+PKGS="$PKGS python3-pip python3-setuptools python3-wheel python3-venv"
 [ "${1:-}" = "--fuzz" ] && PKGS="$PKGS clang-14 libclang-rt-14-dev"
 missing=""
 for p in $PKGS; do
