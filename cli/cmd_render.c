@@ -10,6 +10,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 
 static const char *const CMD = "render";
 
@@ -29,11 +30,46 @@ static void usage(FILE *f) {
             "  --threads N         worker threads (default: all cores)\n"
             "  --no-cache          fit {\"fit\": N} spheres afresh, without reading or writing\n"
             "                      the fit cache (also PENUMBRA_NO_CACHE=1)\n"
+            "  --mask PATH         also write the object mask (1 where an object is visible,\n"
+            "                      0 for ground and background; .png, .exr or .hdr)\n"
+            "  --depth PATH        also write the view depth of the visible point (0 for the\n"
+            "                      background; .exr or .hdr: PNG would clamp it)\n"
+            "  --normals PATH      also write the world normals of the visible surface (.exr:\n"
+            "                      in [-1, 1]; .png: (n + 1) / 2, a normal map; 0 for background)\n"
             "  -q, --quiet         do not print the summary line\n");
+}
+
+/* Whether path ends in ext (".png", ".exr"; any case). */
+static int ends_with(const char *path, const char *ext) {
+    const size_t n = strlen(path), e = strlen(ext);
+    return n >= e && !strcasecmp(path + n - e, ext);
+}
+static int is_png(const char *path) { return ends_with(path, ".png"); }
+static int is_exr(const char *path) { return ends_with(path, ".exr"); }
+
+/* The --mask/--depth/--normals images of the forward kept in st, saved to their paths (NULL:
+ * not asked for). The outputs were checked and kept by the caller. */
+static int save_aovs(pen_context *ctx, const pen_render_state *st, const char *mask_path,
+                     const char *depth_path, const char *normals_path) {
+    pen_image mask = {0, 0, 0, NULL}, depth = {0, 0, 0, NULL}, normals = {0, 0, 0, NULL};
+    pen_status s = pen_render_state_aovs(ctx, st, mask_path ? &mask : NULL,
+                                         depth_path ? &depth : NULL,
+                                         normals_path ? &normals : NULL);
+    /* A PNG holds [0, 1]: a normal map stores (n + 1) / 2. */
+    const size_t nn = 3 * (size_t)normals.width * (size_t)normals.height;
+    if (!s && normals_path && is_png(normals_path))
+        for (size_t i = 0; i < nn; ++i)
+            normals.data[i] = 0.5f * (normals.data[i] + 1.0f);
+    if (!s && mask_path) s = pen_image_save(ctx, mask_path, &mask);
+    if (!s && depth_path) s = pen_image_save(ctx, depth_path, &depth);
+    if (!s && normals_path) s = pen_image_save(ctx, normals_path, &normals);
+    pen_image_free(&mask), pen_image_free(&depth), pen_image_free(&normals);
+    return s == PEN_OK;
 }
 
 int pen_cmd_render(int argc, char **argv) {
     const char *scene_path = NULL, *out_path = NULL;
+    const char *mask_path = NULL, *depth_path = NULL, *normals_path = NULL;
     int threads = 0, quiet = 0, no_cache = 0;
     pen_render_options opt = pen_render_options_default();
     for (int i = 1; i < argc; ++i) {
@@ -44,6 +80,9 @@ int pen_cmd_render(int argc, char **argv) {
         } else if (!strcmp(a, "-o") || !strcmp(a, "--output")) {
             if (++i >= argc) return pen_cli_usage_error(CMD, "%s needs a value", a);
             out_path = argv[i];
+        } else if (!strcmp(a, "--mask") || !strcmp(a, "--depth") || !strcmp(a, "--normals")) {
+            if (++i >= argc) return pen_cli_usage_error(CMD, "%s needs a value", a);
+            *(a[2] == 'm' ? &mask_path : a[2] == 'd' ? &depth_path : &normals_path) = argv[i];
         } else if (!strcmp(a, "--no-shadows")) {
             opt.shadows = 0;
         } else if (!strcmp(a, "--no-antialias")) {
@@ -63,10 +102,24 @@ int pen_cmd_render(int argc, char **argv) {
     if (!out_path) return pen_cli_usage_error(CMD, "missing -o OUT.(png|exr|hdr)");
     if (!pen_image_path_supported(out_path))
         return pen_cli_usage_error(CMD, "%s: the output must end in .png, .exr or .hdr", out_path);
-    /* Checked before the fits and the render; one output, written atomically by pen_image_save,
-     * so a failure leaves an existing file as it was without keeping a second name. */
+    const char *const aov_paths[3] = {mask_path, depth_path, normals_path};
+    for (int k = 0; k < 3; ++k)
+        if (aov_paths[k] && !pen_image_path_supported(aov_paths[k]))
+            return pen_cli_usage_error(CMD, "%s: the output must end in .png, .exr or .hdr",
+                                       aov_paths[k]);
+    if (depth_path && is_png(depth_path))
+        return pen_cli_usage_error(CMD, "%s: depth needs .exr or .hdr (a PNG holds [0, 1])",
+                                   depth_path);
+    if (normals_path && !is_png(normals_path) && !is_exr(normals_path))
+        return pen_cli_usage_error(CMD, "%s: normals need .exr or .png (HDR drops negative "
+                                   "values)", normals_path);
+    /* Checked before the fits and the render; written atomically by pen_image_save, and as a
+     * set: a failure leaves every existing output as it was. */
     pen_cli_outputs outputs = {0};
     if (!pen_cli_outputs_add(&outputs, CMD, out_path)) return 1;
+    for (int k = 0; k < 3; ++k)
+        if (aov_paths[k] && !pen_cli_outputs_add(&outputs, CMD, aov_paths[k])) return 1;
+    const int aovs = mask_path || depth_path || normals_path;
 
     pen_context *ctx = pen_context_create();
     if (!ctx) return pen_cli_fail(CMD, "out of memory");
@@ -102,12 +155,23 @@ int pen_cmd_render(int argc, char **argv) {
         goto out_scene;
     }
     const double t0 = omp_get_wtime();
-    if (pen_render_fwd(ctx, &scene, &opt, NULL, &image)) {
+    pen_render_state *state = NULL; /* kept only for the --mask/--depth/--normals images */
+    if ((aovs && pen_render_state_create(ctx, &state)) ||
+        pen_render_fwd(ctx, &scene, &opt, state, &image)) {
         rc = pen_cli_fail_ctx(CMD, ctx);
+        pen_render_state_free(state);
         goto out_scene;
     }
     const double seconds = omp_get_wtime() - t0;
-    if (pen_image_save(ctx, out_path, &image)) {
+    if (!pen_cli_outputs_keep(&outputs, CMD)) {
+        pen_render_state_free(state);
+        goto out_image;
+    }
+    const int saved = !pen_image_save(ctx, out_path, &image) &&
+                      (!aovs || save_aovs(ctx, state, mask_path, depth_path, normals_path));
+    pen_render_state_free(state);
+    pen_cli_outputs_end(&outputs, saved);
+    if (!saved) {
         rc = pen_cli_fail_ctx(CMD, ctx);
         goto out_image;
     }

@@ -114,6 +114,19 @@ grep -q "closed" "$T/err" && fail "a scaled closed mesh is blamed for not being 
 # The output folder does not exist: an i/o error, nothing written.
 expect_error "nodir" "$T/scene.json" -o "$T/nodir/bad.png"
 
+# Beside the image: the object mask, depth and normals of the same frame (their values:
+# tests/test_render.c test_aovs, python/tests/test_doors.py).
+"$BIN" render "$T/scene.json" -o "$T/aov.exr" --mask "$T/mask.exr" --depth "$T/depth.exr" \
+    --normals "$T/normals.exr" -q || fail "render with --mask --depth --normals"
+"$BIN" render "$T/scene.json" -o "$T/aov.png" --mask "$T/mask.png" --normals "$T/normals.png" -q ||
+    fail "render with a PNG mask and normal map"
+[ -s "$T/mask.exr" ] && [ -s "$T/depth.exr" ] && [ -s "$T/normals.exr" ] && [ -s "$T/normals.png" ] ||
+    fail "the mask, depth or normals were not written"
+expect_error "depth needs .exr or .hdr" "$T/scene.json" -o "$T/bad.png" --depth "$T/depth.png"
+expect_error "normals need .exr or .png" "$T/scene.json" -o "$T/bad.png" --normals "$T/n.hdr"
+# All or nothing: an AOV path that cannot be written leaves no image either.
+expect_error "nodir" "$T/scene.json" -o "$T/bad.png" --mask "$T/nodir/mask.png"
+
 if [ "$fails" -ne 0 ]; then
     echo "$fails failed"
     exit 1

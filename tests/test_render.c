@@ -2,6 +2,7 @@
  * output: closed-form irradiance of an unoccluded plane and of a tessellated sphere, the exact
  * cosine-weighted occlusion of a sphere above a plane, the self-shadowing rule on a convex
  * object, background colours; image losses; argument errors. */
+#include "io_fixtures.h"
 #include "render_scenes.h"
 
 static unsigned long long seed = 31337;
@@ -420,7 +421,57 @@ static void test_invalid_inputs(void) {
     pen_scene_free(&sc);
 }
 
-RUN_TESTS(TEST(test_golden_plane), TEST(test_golden_sphere),
+/* The mask, depth and normals of the last forward (render.h): the mask is the G-buffer's objects,
+ * depth the visible point's distance along the camera axis, normals unit and facing the camera;
+ * refused before a forward and into an image of another shape. */
+static void test_aovs(void) {
+    pen_scene sc = rs_ball_scene(24, 1, &seed);
+    pen_context *ctx = pen_context_create();
+    pen_render_state *st = NULL;
+    CHECK(pen_render_state_create(ctx, &st) == PEN_OK);
+    pen_image img = {0, 0, 0, NULL}, mask = {0, 0, 0, NULL}, depth = {0, 0, 0, NULL},
+              normals = {0, 0, 0, NULL};
+    CHECK_ERROR(ctx, pen_render_state_aovs(ctx, st, &mask, NULL, NULL), PEN_ERROR_ARGUMENT,
+                "no forward pass");
+    CHECK(pen_render_fwd(ctx, &sc, NULL, st, &img) == PEN_OK);
+    CHECK(pen_render_state_aovs(ctx, st, &mask, &depth, &normals) == PEN_OK);
+    CHECK(mask.width == 24 && mask.channels == 1 && depth.channels == 1 && normals.channels == 3);
+    int objects = 0, ground = 0;
+    for (int y = 0; y < 24; ++y)
+        for (int x = 0; x < 24; ++x) {
+            const size_t i = (size_t)y * 24 + (size_t)x;
+            const float *n = normals.data + 3 * i;
+            const double len = sqrt((double)n[0] * (double)n[0] + (double)n[1] * (double)n[1] +
+                                    (double)n[2] * (double)n[2]);
+            objects += mask.data[i] == 1.0f;
+            CHECK(mask.data[i] == 0.0f || mask.data[i] == 1.0f);
+            if (depth.data[i] == 0.0f) { /* the background: nothing seen */
+                CHECK(mask.data[i] == 0.0f && len == 0.0);
+                continue;
+            }
+            CHECK_MSG(fabs(len - 1.0) < 1e-5, "pixel %d %d: |n| = %g", x, y, len);
+            /* The point at that depth on the pixel's ray, seen from the side its normal faces. */
+            float dir[3];
+            pen_camera_ray(&sc.camera, (float)x + 0.5f, (float)y + 0.5f, dir);
+            double facing = 0.0;
+            for (int a = 0; a < 3; ++a)
+                facing += (double)n[a] * (double)dir[a];
+            CHECK_MSG(facing <= 1e-4, "pixel %d %d: normal faces away (%g)", x, y, facing);
+            ground += mask.data[i] == 0.0f && n[1] == 1.0f;
+        }
+    CHECK(objects > 20 && ground > 20);
+    pen_image small = {0, 0, 0, NULL};
+    CHECK(pen_image_create(ctx, 8, 8, 1, &small) == PEN_OK);
+    CHECK_ERROR(ctx, pen_render_state_aovs(ctx, st, &small, NULL, NULL), PEN_ERROR_ARGUMENT,
+                "mask image is 8x8x1");
+    pen_image_free(&small), pen_image_free(&img), pen_image_free(&mask), pen_image_free(&depth),
+        pen_image_free(&normals);
+    pen_render_state_free(st);
+    pen_context_destroy(ctx);
+    pen_scene_free(&sc);
+}
+
+RUN_TESTS(TEST(test_aovs), TEST(test_golden_plane), TEST(test_golden_sphere),
           TEST(test_shadow_depth_against_exact_occlusion),
           TEST(test_convex_object_does_not_shadow_itself), TEST(test_state_notices_new_topology), TEST(test_background_constant),
           TEST(test_losses), TEST(test_invalid_inputs))

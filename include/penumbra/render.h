@@ -199,6 +199,17 @@ PEN_API pen_status pen_render_bwd(pen_context *ctx, const pen_scene *scene,
                                   const pen_render_options *opt, pen_render_state *state,
                                   const pen_image *d_image, unsigned wrt, pen_render_grad *grad);
 
+/* What a user makes targets and loss weights from, beside the image: the last pen_render_fwd of
+ * this state as images of the camera's size, each sampled at the pixel centres (the G-buffer's
+ * visible surface, not antialiased). mask (1 channel): 1 where an object is visible, 0 for the
+ * ground and the background; depth (1 channel): the view depth of the visible point (objects and
+ * ground; the distance along the camera's forward axis), 0 for the background; normals (3
+ * channels): the unit world-space normal of the visible surface, turned towards the camera (the
+ * ground's is +Y), 0 for the background. Each may be NULL; an image whose data is NULL is
+ * allocated, otherwise it must have that shape. Fails before any forward with this state. */
+PEN_API pen_status pen_render_state_aovs(pen_context *ctx, const pen_render_state *state,
+                                         pen_image *mask, pen_image *depth, pen_image *normals);
+
 /* ---- Timings ------------------------------------------------------------------------------- */
 
 /* Wall-clock milliseconds of the last pen_render_fwd / pen_render_bwd with a state, by stage

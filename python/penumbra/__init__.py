@@ -23,7 +23,7 @@ from .batch import BatchRenderer, render_batch
 from .io import (Mesh, envmap_to_sh, fit_spheres, load_image, load_mesh, load_scene,
                  load_spheres, overlap_weights, save_image)
 from .render import (GRAD_GROUPS, Camera, Object, RenderFunction, Renderer, Scene,
-                     gradient_model, pose, render, render_scene)
+                     gradient_model, pose, render, render_aovs, render_scene)
 
 # Load the library now when it is there, so that one whose struct layout differs from this
 # package's is refused at import; a missing one is reported at first use (with where it looked).
@@ -41,5 +41,6 @@ def version():
 __all__ = ["BatchRenderer", "Camera", "GRAD_GROUPS", "Mesh", "Object", "PenumbraError",
            "RenderFunction", "Renderer", "Scene", "envmap_to_sh", "fit_spheres", "gradient_model",
            "load_image", "load_mesh",
-           "load_scene", "load_spheres", "overlap_weights", "pose", "render", "render_batch",
+           "load_scene", "load_spheres", "overlap_weights", "pose", "render", "render_aovs",
+           "render_batch",
            "render_scene", "save_image", "version"]

@@ -2,7 +2,9 @@
 few public structs (pen_image, pen_mesh, pen_spheres) the loaders use, the check of those mirrors
 against the library's own layout, and error handling.
 
-The library is looked up, in order: at penumbra._libpath.LIBRARY when that module exists (an
+The library is looked up, in order: beside this file (penumbra/libpenumbra.so, the copy a wheel
+carries: `pip install .` builds it into the package, setup.py; the package and its library come
+as one, so nothing overrides it), at penumbra._libpath.LIBRARY when that module exists (an
 installed package: `cmake --install` writes it with the installed library's absolute path), at
 $PENUMBRA_LIB (the .so file or the folder holding it), then in the repository's build/ folder next
 to this package (python/../build/libpenumbra.so). When it is loaded, the layout table the library
@@ -230,6 +232,8 @@ def check_abi(version, table, mirrors=None):
 
 def _candidates():
     """(path, how it was found) in the order they are tried."""
+    here = os.path.dirname(os.path.abspath(__file__))
+    yield os.path.join(here, LIB_NAME), "the package's own copy (pip install)"
     try:
         from . import _libpath
     except ImportError:
@@ -240,7 +244,6 @@ def _candidates():
     if env:
         yield (os.path.join(env, LIB_NAME) if os.path.isdir(env) else env), "PENUMBRA_LIB"
         return  # an explicit setting that is wrong is an error, not a reason to look elsewhere
-    here = os.path.dirname(os.path.abspath(__file__))
     yield os.path.join(here, "..", "..", "build", LIB_NAME), "the build tree"
 
 
@@ -266,6 +269,9 @@ def _declare(lib):
         "pen_flat_renderer_fwd": (I, [P, P, FSP, c_float_p]),
         "pen_flat_renderer_bwd": (I, [P, P, FSP, c_float_p, FGP]),
         "pen_flat_grad_check": (I, [P, FSP, ctypes.c_uint]),
+        "pen_flat_renderer_state": (P, [P]),
+        "pen_render_state_aovs": (I, [P, P, ctypes.POINTER(Image), ctypes.POINTER(Image),
+                                      ctypes.POINTER(Image)]),
         "pen_flat_grad_model": (ctypes.c_uint, [FSP, ctypes.POINTER(FlatObject), ctypes.c_uint]),
         "pen_flat_scene_load": (I, [P, S, I, ctypes.POINTER(P)]),
         "pen_flat_loaded_scene": (FSP, [P]),

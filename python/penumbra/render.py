@@ -395,6 +395,34 @@ class Renderer:
         self._ctx.set_threads(threads)
         self._ctx.check(fn(self._ctx.ptr, *args))
 
+    def aovs(self):
+        """The object mask (H, W), view depth (H, W) and world normals (H, W, 3) of this
+        renderer's last forward, sampled at the pixel centres (pen_render_state_aovs): mask 1
+        where an object is visible, 0 for ground and background; depth along the camera's axis,
+        0 for the background; unit normals facing the camera, 0 for the background. Float32
+        tensors, not differentiable: what targets and loss weights are made from."""
+        with self._lock:
+            if not self._ptr or self._last is None:
+                raise PenumbraError("penumbra: aovs() needs a render through this Renderer first")
+            L = _lib.lib()
+            st = L.pen_flat_renderer_state(self._ptr)
+            out = {}
+            imgs = []
+            # The forward's size, from the G-buffer: ask for an allocated mask first.
+            probe = _lib.Image()
+            self._ctx.check(L.pen_render_state_aovs(self._ctx.ptr, st, ctypes.byref(probe), None,
+                                                    None))
+            h, w = probe.height, probe.width
+            L.pen_image_free(ctypes.byref(probe))
+            for name, ch in (("mask", 1), ("depth", 1), ("normals", 3)):
+                t = torch.empty(h, w, ch, dtype=torch.float32)
+                out[name] = t
+                imgs.append(_lib.Image(w, h, ch, _lib.fptr(t)))
+            self._ctx.check(L.pen_render_state_aovs(self._ctx.ptr, st, *(ctypes.byref(i)
+                                                                           for i in imgs)))
+            out["mask"], out["depth"] = out["mask"][..., 0], out["depth"][..., 0]
+            return out
+
     def _forward(self, threads, flat, image, wrt=0):
         """Renders flat into image; returns the token its backward passes to _backward. wrt: the
         gradient groups the inputs will ask for, checked first against the model (the C
@@ -598,6 +626,17 @@ def render_scene(scene, shadows=True, antialias=True, threads=None, renderer=Non
     return RenderFunction.apply(spec, sh, ground_albedo, lights, *tensors)
 
 
+def render_aovs(scene, shadows=True, antialias=True, threads=None):
+    """Renders a Scene without gradients and returns a dict of its image (H, W, 3) and, for the
+    same frame, the object mask (H, W), view depth (H, W) and world normals (H, W, 3)
+    (Renderer.aovs; `penumbra render --mask --depth --normals` writes the same)."""
+    with Renderer(0 if threads is None else threads) as r, torch.no_grad():
+        image = r.render_scene(scene, shadows=shadows, antialias=antialias, threads=threads)
+        out = r.aovs()
+    out["image"] = image
+    return out
+
+
 def render(vertices, faces, sh, camera=None, *, uvs=None, uv_faces=None, texture=None,
            albedo=None, spheres=None, pose=None, ground=True, ground_albedo=(0.8, 0.8, 0.8),
            ground_height=0.0, ground_half_size=4.0, background=(0.0, 0.0, 0.0), envmap=None,
@@ -620,5 +659,5 @@ def render(vertices, faces, sh, camera=None, *, uvs=None, uv_faces=None, texture
                         renderer=renderer)
 
 
-__all__ = ["Camera", "Object", "Renderer", "Scene", "pose", "render", "render_scene",
-           "gradient_model", "RenderFunction", "PenumbraError", "GRAD_GROUPS"]
+__all__ = ["Camera", "Object", "Renderer", "Scene", "pose", "render", "render_aovs",
+           "render_scene", "gradient_model", "RenderFunction", "PenumbraError", "GRAD_GROUPS"]

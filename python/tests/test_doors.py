@@ -84,6 +84,24 @@ class ImageDoorsTest(unittest.TestCase):
         self.assertEqual([o.texture_filter for o in scene.objects], ["footprint", "footprint"])
         self.assertEqual(tuple(scene.lights.shape), (1, 7))
 
+    def test_aovs(self):
+        """render_aovs gives the command's --mask, --depth and --normals of the same frame."""
+        path = os.path.join(self.dir, "own.json")
+        with open(path, "w") as f:
+            f.write(OWN_SCENE % {"src": SRC})
+        names = ("mask", "depth", "normals")
+        outs = {n: os.path.join(self.dir, n + ".exr") for n in names}
+        subprocess.run([CLI, "render", path, "-o", os.path.join(self.dir, "i.exr"), "-q",
+                        "--threads", str(THREADS)] +
+                       [a for n in names for a in ("--" + n, outs[n])], check=True)
+        got = penumbra.render_aovs(penumbra.load_scene(path, threads=THREADS), threads=THREADS)
+        for n in names:
+            want = penumbra.load_image(outs[n])  # loading gives 3 channels (grey replicated)
+            g = got[n] if got[n].dim() == 3 else got[n][..., None].expand(-1, -1, 3)
+            self.assertTrue(torch.equal(g, want), n)
+        self.assertTrue(0 < float(got["mask"].mean()) < 1)
+        self.assertEqual(got["image"].shape, (72, 96, 3))
+
     @unittest.skipIf(QUICK, "512 x 512 with fits: left to the full build")
     def test_bundled_scenes(self):
         for name in ("spot_city", "spot_interior"):

@@ -83,6 +83,39 @@ void pen_render_state_timings(const pen_render_state *st, pen_render_timings *ou
     if (st) *out = st->timings;
 }
 
+/* ---- Per-pixel geometry of the last forward ---------------------------------------------------- */
+
+/* Shapes *im as width x height x channels (allocated when its data is NULL). */
+static pen_status aov_image(pen_context *ctx, const char *what, int w, int h, int channels,
+                            pen_image *im) {
+    if (!im->data) return pen_image_create(ctx, w, h, channels, im);
+    if (im->width != w || im->height != h || im->channels != channels)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "render aovs: %s image is %dx%dx%d, the frame needs %dx%dx%d", what,
+                          im->width, im->height, im->channels, w, h, channels);
+    return PEN_OK;
+}
+
+pen_status pen_render_state_aovs(pen_context *ctx, const pen_render_state *st, pen_image *mask,
+                                 pen_image *depth, pen_image *normals) {
+    if (!st || !st->valid)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "render aovs: no forward pass in this state");
+    const int W = st->width, H = st->height;
+    pen_status s = PEN_OK;
+    if (mask && (s = aov_image(ctx, "mask", W, H, 1, mask))) return s;
+    if (depth && (s = aov_image(ctx, "depth", W, H, 1, depth))) return s;
+    if (normals && (s = aov_image(ctx, "normals", W, H, 3, normals))) return s;
+    for (size_t i = 0; i < (size_t)W * (size_t)H; ++i) {
+        const int surf = st->gb.surface[i];
+        const int seen = surf >= 0 || surf == PEN_SURFACE_GROUND;
+        if (mask) mask->data[i] = surf >= 0 ? 1.0f : 0.0f;
+        if (depth) depth->data[i] = seen ? st->gb.depth[i] : 0.0f;
+        for (int a = 0; normals && a < 3; ++a)
+            normals->data[3 * i + a] = seen ? st->n.data[3 * i + a] : 0.0f;
+    }
+    return PEN_OK;
+}
+
 pen_status pen_render_state_create(pen_context *ctx, pen_render_state **out) {
     *out = pen__calloc(ctx, 1, sizeof **out, "render state");
     return *out ? PEN_OK : PEN_ERROR_MEMORY;
