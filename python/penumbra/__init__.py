@@ -1,7 +1,8 @@
 """penumbra: differentiable soft-shadow rendering (SH visibility from sphere proxies) for PyTorch.
 
-A thin ctypes binding over the C library libpenumbra.so (found where `cmake --install` put it,
-through $PENUMBRA_LIB, or in the repository's build/ folder). See docs/python.md.
+A thin ctypes binding over the C library libpenumbra.so (the copy a wheel carries inside the
+package, else where `cmake --install` put it, through $PENUMBRA_LIB, or in the repository's
+build/ folder). See docs/python.md.
 
     import penumbra, torch
     scene = penumbra.load_scene("examples/scenes/spot_city.json")   # as `penumbra render` sees it
