@@ -1,14 +1,16 @@
 #!/usr/bin/env python3
-"""Checks the library's layering from a build's object files (README, "Layout").
+"""Checks the library's layering from a build's object files (docs/design.md sec. 6.1, "Layout").
 
 For each source file under src/ it lists the other folders' internal headers it includes and the
 functions it calls in other folders (undefined symbols of its object resolved to the object that
-defines them, by nm), then reports the folder dependency graph, its cycles, pairs of files that
-call each other, source files over 900 lines, and the folders implementing each public header.
+defines them, by nm), then reports the folder dependency graph, the calls that go up the layers
+of LAYERS (or into a folder missing from it), its cycles, pairs of files that call each other,
+source files over 900 lines, and the folders implementing each public header.
 
     python3 scripts/check_layers.py [build-dir] [-v]
 
-Exits 1 when the folder graph has a cycle, two files call each other, a source file (research/ and
+Exits 1 when a folder calls or includes a folder that is not before it in LAYERS (or is not in
+LAYERS), the folder graph has a cycle, two files call each other, a source file (research/ and
 cli/ included) is over 900 lines or a public header is implemented by more than one folder, else
 0. tests/cli_layers.sh runs it in the test suite.
 """
@@ -23,6 +25,22 @@ args = [a for a in sys.argv[1:] if not a.startswith('-')]
 VERBOSE = '-v' in sys.argv
 BUILD = args[0] if args else os.path.join(ROOT, 'build')
 OBJDIR = os.path.join(BUILD, 'CMakeFiles', 'penumbra_obj.dir', 'src')
+
+
+# The folders of src/ from the bottom up (docs/design.md sec. 6.1): a folder may call only the
+# folders of the tiers before its own. A new folder is placed here.
+LAYERS = [
+    ['core'],                # context, errors, allocation, shared internals
+    ['scene'],               # the model: scene, mesh, spheres, image, camera, pose, validation
+    ['sh'],                  # spherical harmonics
+    ['lighting'],            # environment maps: SH projection, lookups, the lights found in them
+    ['io'],                  # file formats read into and written from the model
+    ['geometry'],            # sphere fit, overlap weights, Embree setup, self transfer
+    ['raster'],              # rasterizer
+    ['render'],              # visibility, shading, forward and backward, losses, flat API
+    ['reference', 'optim'],  # the ray-traced truth; inverse problems
+]
+TIER = {f: i for i, tier in enumerate(LAYERS) for f in tier}
 
 
 def folder(src):
@@ -96,6 +114,9 @@ def main():
     print('folder graph:')
     for f in sorted(graph):
         print('    %-10s -> %s' % (f, ', '.join(sorted(graph[f] - {f})) or '(nothing)'))
+    upward = sorted('%s -> %s' % (f, g) for f in graph for g in graph[f] - {f}
+                    if f not in TIER or g not in TIER or TIER[g] >= TIER[f])
+    print('calls up the layers (or into a folder not in LAYERS):', ', '.join(upward) or 'none')
     folder_cycles = cycles(graph)
     print('folder cycles:', folder_cycles or 'none')
     pairs = sorted({tuple(sorted((s, t))) for s in sources for t in calls[s] if s in calls[t]})
@@ -120,7 +141,7 @@ def main():
         if len(impl) > 1:
             split.append(h)
     print('public headers implemented in more than one folder:', ', '.join(split) or 'none')
-    return 1 if folder_cycles or pairs or big or split else 0
+    return 1 if upward or folder_cycles or pairs or big or split else 0
 
 
 if __name__ == '__main__':

@@ -1,8 +1,9 @@
 /* penumbra/envmap.h -- equirectangular environment maps: the direction of a map coordinate and
  * back, the projection of a map onto spherical harmonics, the radiance a map sends along a
  * direction, and the compact bright sources (sun, lamps) found in a map as disk lights.
- * Implemented in src/io/envmap.c and src/io/envmap_lights.c, beside the image files the maps
- * come from.
+ * Implemented in src/lighting/ (envmap.c, envmap_lights.c), below src/io, whose scene loader
+ * calls it for a map's SH and lights (docs/design.md sec. 1.14, 6.1); the maps themselves are
+ * images (pen_image_load, io.h).
  */
 #ifndef PENUMBRA_ENVMAP_H
 #define PENUMBRA_ENVMAP_H

@@ -23,7 +23,7 @@
  *
  * Texels across the poles are not neighbours (only u wraps): a source straddling a pole splits
  * in two, which no map of the development set has. */
-#include "io/io_internal.h"
+#include "core/internal.h"
 #include "penumbra/envmap.h"
 #include "penumbra/sh.h"
 

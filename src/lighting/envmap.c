@@ -20,8 +20,8 @@
  * exactly; at H = 64 they stay below 1e-3 of L_0 up to l = 7). Negative pixels (the
  * small undershoots of lossy EXR codecs) are clamped to 0 before projecting, as in lookups. The
  * sums run in double, row by row, in a fixed order (deterministic). */
+#include "core/internal.h"
 #include "penumbra/envmap.h"
-#include "io/io_internal.h"
 #include "penumbra/sh.h"
 
 #include <stdlib.h>
