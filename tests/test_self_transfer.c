@@ -482,8 +482,60 @@ static void test_spheres_mode(void) {
     pen_scene_free(&sc);
 }
 
+/* States that share (pen_render_state_share) trace each object's transfer and the ground's grid
+ * once per pose for every camera, even rendering at once on two threads, and render bitwise as
+ * states that do not share; a new pose traces again. */
+static void test_shared_states(void) {
+    unsigned long long seed = 21;
+    pen_scene sc = rs_ball_scene(40, 1, &seed);
+    CHECK(sc.shadow.self == PEN_SELF_TRANSFER && sc.ground.enabled);
+    pen_camera cams[3] = {sc.camera, sc.camera, sc.camera};
+    cams[1].eye[0] += 0.7f, cams[2].eye[2] -= 0.5f;
+    pen_context *ctx = pen_context_create();
+    pen_render_state *shared[3], *alone[3];
+    for (int v = 0; v < 3; ++v) {
+        CHECK(pen_render_state_create(ctx, &shared[v]) == PEN_OK);
+        CHECK(pen_render_state_create(ctx, &alone[v]) == PEN_OK);
+    }
+    CHECK(pen_render_state_share(ctx, shared[1], shared[0]) == PEN_OK);
+    CHECK(pen_render_state_share(ctx, shared[2], shared[1]) == PEN_OK);
+    CHECK(shared[0]->pool && shared[0]->pool == shared[2]->pool);
+    for (int pose = 0; pose < 2; ++pose) {
+        sc.objects[0].pose.translation[0] = 0.1f * (float)pose;
+        pen_image a[3], b[3];
+        pen_status sa[3], sb[3];
+        memset(a, 0, sizeof a), memset(b, 0, sizeof b);
+#pragma omp parallel for num_threads(3) schedule(static, 1)
+        for (int v = 0; v < 3; ++v) { /* the views at once, as a task's workers render them */
+            pen_context *c = pen_context_create();
+            pen_scene vs = sc;
+            vs.camera = cams[v];
+            sa[v] = pen_render_fwd(c, &vs, NULL, shared[v], &a[v]);
+            sb[v] = pen_render_fwd(c, &vs, NULL, alone[v], &b[v]);
+            pen_context_destroy(c);
+        }
+        for (int v = 0; v < 3; ++v) {
+            CHECK(sa[v] == PEN_OK && sb[v] == PEN_OK);
+            CHECK(a[v].data && b[v].data &&
+                  !memcmp(a[v].data, b[v].data, sizeof(float) * 3 * 40 * 40));
+            pen_image_free(&a[v]), pen_image_free(&b[v]);
+        }
+        /* one self transfer and one ground grid per pose, whatever the cameras */
+        CHECK_MSG(pen__pool_traces(shared[0]->pool) == 2 * (pose + 1), "pose %d: %ld traces", pose,
+                  pen__pool_traces(shared[0]->pool));
+        CHECK(shared[1]->grid.on && shared[2]->obj[0].self_valid);
+    }
+    for (int v = 0; v < 3; ++v) {
+        pen_render_state_free(shared[v]);
+        pen_render_state_free(alone[v]);
+    }
+    pen_context_destroy(ctx);
+    pen_scene_free(&sc);
+}
+
 int main(void) {
     static const check_test_ tests[] = {
+        {"test_shared_states", test_shared_states},
         {"test_convex_blocks_nothing", test_convex_blocks_nothing},
         {"test_concave_against_reference", test_concave_against_reference},
         {"test_lattice", test_lattice},

@@ -180,6 +180,15 @@ typedef struct pen_render_state pen_render_state;
 PEN_API pen_status pen_render_state_create(pen_context *ctx, pen_render_state **out);
 PEN_API void pen_render_state_free(pen_render_state *state);
 
+/* Lets `state` share the ray-traced transfers of `with` (and of every state `with` shares with):
+ * the objects' self transfers and the ground's grid (docs/design.md sec. 1.15) are in world space,
+ * so states rendering the same objects from several cameras (the views of a task, a batch) trace
+ * them once per pose instead of once per state. Images and gradients are bitwise those without
+ * sharing. States that share may render at once on different threads: a trace is made once and
+ * the others wait for it. The most recent 16 traces are kept, freed with the last state. */
+PEN_API pen_status pen_render_state_share(pen_context *ctx, pen_render_state *state,
+                                          pen_render_state *with);
+
 /* Renders the scene into `image`: if image->data is NULL it is allocated (3 channels, camera
  * size), otherwise it must already have that shape. `state` may be NULL when no backward
  * follows. Fails on an invalid camera, mesh, sphere set or lighting (NaN/Inf, bad indices), and,

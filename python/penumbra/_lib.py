@@ -270,6 +270,7 @@ def _declare(lib):
         "pen_flat_renderer_bwd": (I, [P, P, FSP, c_float_p, FGP]),
         "pen_flat_grad_check": (I, [P, FSP, ctypes.c_uint]),
         "pen_flat_renderer_state": (P, [P]),
+        "pen_render_state_share": (I, [P, P, P]),
         "pen_render_state_aovs": (I, [P, P, ctypes.POINTER(Image), ctypes.POINTER(Image),
                                       ctypes.POINTER(Image)]),
         "pen_flat_grad_model": (ctypes.c_uint, [FSP, ctypes.POINTER(FlatObject), ctypes.c_uint]),

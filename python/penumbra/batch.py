@@ -38,7 +38,10 @@ class BatchRenderer:
     def renderers(self, count):
         """The renderers of cameras 0 .. count - 1 (made as needed)."""
         while len(self._renderers) < count:
-            self._renderers.append(Renderer(self.threads))
+            r = Renderer(self.threads)
+            if self._renderers:  # one trace of the transfers per pose for every camera
+                r._share(self._renderers[0])
+            self._renderers.append(r)
         return self._renderers[:count]
 
     def render_batch(self, scene, cameras, shadows=True, antialias=True, threads=None):
@@ -93,7 +96,9 @@ def render_batch(scene, cameras, shadows=True, antialias=True, threads=None, ren
     cameras = _check_cameras(cameras)
     if threads is None:
         threads = renderer.threads if renderer is not None else 0
-    states = renderer.renderers(len(cameras)) if renderer is not None else [None] * len(cameras)
+    # Without one, fresh renderers for this call (each kept alive by its image's graph), still
+    # sharing their ray-traced transfers.
+    states = (renderer if renderer is not None else BatchRenderer(threads)).renderers(len(cameras))
     images = [render_scene(dataclasses.replace(scene, camera=cam), shadows=shadows,
                            antialias=antialias, threads=threads, renderer=r)
               for cam, r in zip(cameras, states)]

@@ -395,6 +395,15 @@ class Renderer:
         self._ctx.set_threads(threads)
         self._ctx.check(fn(self._ctx.ptr, *args))
 
+    def _share(self, other):
+        """Shares the ray-traced transfers with another Renderer's (pen_render_state_share):
+        cameras of one scene then trace them once per pose."""
+        L = _lib.lib()
+        with self._lock:
+            self._ctx.check(L.pen_render_state_share(self._ctx.ptr,
+                                                     L.pen_flat_renderer_state(self._ptr),
+                                                     L.pen_flat_renderer_state(other._ptr)))
+
     def aovs(self):
         """The object mask (H, W), view depth (H, W) and world normals (H, W, 3) of this
         renderer's last forward, sampled at the pixel centres (pen_render_state_aovs): mask 1

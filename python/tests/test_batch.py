@@ -56,6 +56,25 @@ class RenderBatch(unittest.TestCase):
             self.assertTrue(torch.allclose(a, s, rtol=1e-5, atol=1e-6 * float(s.abs().max())),
                             "input %d: max difference %g" % (k, float((a - s).abs().max())))
 
+    def test_transfer_shared_between_cameras(self):
+        """Under the default model (the transfer, ray traced), a BatchRenderer's renderers share
+        their traces (pen_render_state_share) and render each camera as a render alone does, and
+        the lighting gradient flows."""
+        sc = dataclasses.replace(scenes.ball_scene(size=16, textured=True),
+                                 self_shadow="transfer", ground_shadow="transfer")
+        sc = dataclasses.replace(sc, objects=[dataclasses.replace(o, texture_filter="footprint")
+                                              for o in sc.objects])
+        cams = _cameras(16)
+        sh = sc.sh.clone().requires_grad_()
+        with penumbra.BatchRenderer() as batch:
+            for step in range(2):  # the second step reads the shared traces
+                images = batch.render_batch(dataclasses.replace(sc, sh=sh), cams)
+                images.sum().backward()
+                for b, cam in enumerate(cams):
+                    alone = penumbra.render_scene(dataclasses.replace(sc, camera=cam))
+                    self.assertTrue(torch.equal(alone, images[b].detach()), "camera %d" % b)
+        self.assertGreater(float(sh.grad.abs().max()), 0.0)
+
     def test_renderer_kept_between_steps(self):
         sc = scenes.ball_scene(size=16)
         cams = _cameras(16)

@@ -197,7 +197,21 @@ pen_status pen__ground_shadow_prepare(pen_context *ctx, const pen_scene *sc, pen
         memcpy(gr->c, shape.c, sizeof gr->c);
         memcpy(gr->a, shape.a, sizeof gr->a);
         memcpy(gr->beta, shape.beta, sizeof gr->beta);
-        if ((s = grid_trace(ctx, sc, st, gr))) return s;
+        const size_t P = (size_t)gr->n * (size_t)gr->n, K = (size_t)st->lights.count;
+        const size_t nc = (size_t)sc->sh_bands * (size_t)sc->sh_bands;
+        if ((s = PEN__BUF_RESERVE(ctx, gr->B, nc * P + 1, "ground grid blocked part")) ||
+            (s = PEN__BUF_RESERVE(ctx, gr->frac, K * P + 1, "ground grid light fractions")))
+            return s;
+        /* Another state of the pool may have traced it (the grid is in world space). */
+        pen__pool_lock(st->pool);
+        if (!pen__pool_get(st->pool, PEN__POOL_GRID, key, nc * P, K * P, gr->B.data,
+                           gr->frac.data)) {
+            s = grid_trace(ctx, sc, st, gr);
+            if (!s) pen__pool_put(st->pool, PEN__POOL_GRID, key, nc * P, K * P, gr->B.data,
+                                  gr->frac.data);
+        }
+        pen__pool_unlock(st->pool);
+        if (s) return s;
         gr->valid = 1, gr->key = key;
     }
     gr->on = 1;

@@ -284,8 +284,29 @@ typedef struct pen__ground_grid {
     uint64_t key;
 } pen__ground_grid;
 
+/* Traced transfers shared between render states (transfer_pool.c, pen_render_state_share): the
+ * self transfers and ground grids of the most recent traces, found by their caches' keys. */
+typedef struct pen__transfer_pool pen__transfer_pool;
+enum { PEN__POOL_SELF = 1, PEN__POOL_GRID = 2 };
+pen_status pen__pool_create(pen_context *ctx, pen__transfer_pool **out);
+void pen__pool_retain(pen__transfer_pool *p);
+void pen__pool_release(pen__transfer_pool *p); /* frees it with its last reference; NULL: no-op */
+/* The miss path of a cache (look up, trace, put) runs between lock and unlock, so that states
+ * rendering at once trace each key once; NULL: no-op. */
+void pen__pool_lock(pen__transfer_pool *p);
+void pen__pool_unlock(pen__transfer_pool *p);
+/* Copies the entry of (kind, key) with nB and nfrac floats into B and frac: 1 if there is one. */
+int pen__pool_get(const pen__transfer_pool *p, int kind, uint64_t key, size_t nB, size_t nfrac,
+                  float *B, float *frac);
+/* Keeps a copy of a trace (the oldest entry makes room). */
+void pen__pool_put(pen__transfer_pool *p, int kind, uint64_t key, size_t nB, size_t nfrac,
+                   const float *B, const float *frac);
+/* Traces put over the pool's life. */
+long pen__pool_traces(const pen__transfer_pool *p);
+
 struct pen_render_state {
     int valid;              /* a forward has filled the buffers */
+    pen__transfer_pool *pool; /* shared traces (pen_render_state_share), or NULL */
     pen_render_options opt; /* the forward's options */
     int width, height;
     pen_view view;

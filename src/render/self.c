@@ -66,6 +66,33 @@ static uint64_t self_key(const pen_scene *sc, const pen_render_state *st, int o)
     return h;
 }
 
+/* Traces object o's N nodes into its self_B and self_frac (reserved by the caller). */
+static pen_status trace_self(pen_context *ctx, const pen_scene *sc, pen_render_state *st, int o,
+                             size_t N) {
+    pen__object_buf *b = &st->obj[o];
+    const pen_mesh *m = &sc->objects[o].mesh;
+    const int K = st->lights.count;
+    float *pos = pen__malloc(ctx, 6 * N, sizeof(float), "self transfer nodes");
+    if (!pos) return PEN_ERROR_MEMORY;
+    float *nrm = pos + 3 * N;
+    pen__lattice_nodes(&b->self_lat, m->indices, b->world.data, b->vnormal.data, pos, nrm);
+    const pen__transfer_mesh mesh = {m->vertex_count, m->triangle_count, b->world.data,
+                                     m->indices};
+    const pen__transfer_request rq = {1,
+                                      &mesh,
+                                      (int)N,
+                                      pos,
+                                      nrm,
+                                      sc->sh_bands,
+                                      K,
+                                      (const double(*)[3])st->lights.w,
+                                      st->lights.b,
+                                      st->ground_occludes ? &sc->ground : NULL};
+    const pen_status s = pen__transfer(ctx, &rq, b->self_B.data, b->self_frac.data);
+    free(pos);
+    return s;
+}
+
 static pen_status self_cache(pen_context *ctx, const pen_scene *sc, pen_render_state *st, int o) {
     pen__object_buf *b = &st->obj[o];
     const pen_mesh *m = &sc->objects[o].mesh;
@@ -85,24 +112,18 @@ static pen_status self_cache(pen_context *ctx, const pen_scene *sc, pen_render_s
     if ((s = PEN__BUF_RESERVE(ctx, b->self_B, nc * N + 1, "self blocked part")) ||
         (s = PEN__BUF_RESERVE(ctx, b->self_frac, (size_t)K * N + 1, "self light fractions")))
         return s;
-    float *pos = pen__malloc(ctx, 6 * N, sizeof(float), "self transfer nodes");
-    if (!pos) return PEN_ERROR_MEMORY;
-    float *nrm = pos + 3 * N;
-    pen__lattice_nodes(&b->self_lat, m->indices, b->world.data, b->vnormal.data, pos, nrm);
-    const pen__transfer_mesh mesh = {m->vertex_count, m->triangle_count, b->world.data,
-                                     m->indices};
-    const pen__transfer_request rq = {1,
-                                      &mesh,
-                                      (int)N,
-                                      pos,
-                                      nrm,
-                                      sc->sh_bands,
-                                      K,
-                                      (const double(*)[3])st->lights.w,
-                                      st->lights.b,
-                                      st->ground_occludes ? &sc->ground : NULL};
-    s = pen__transfer(ctx, &rq, b->self_B.data, b->self_frac.data);
-    free(pos);
+    /* Another state of the pool may have traced this key (the transfer is in world space). */
+    pen__pool_lock(st->pool);
+    if (pen__pool_get(st->pool, PEN__POOL_SELF, key, nc * N, (size_t)K * N, b->self_B.data,
+                      b->self_frac.data)) {
+        pen__pool_unlock(st->pool);
+        b->self_valid = 1, b->self_key = key;
+        return PEN_OK;
+    }
+    s = trace_self(ctx, sc, st, o, N);
+    if (!s) pen__pool_put(st->pool, PEN__POOL_SELF, key, nc * N, (size_t)K * N, b->self_B.data,
+                          b->self_frac.data);
+    pen__pool_unlock(st->pool);
     if (s) return s;
     b->self_valid = 1, b->self_key = key;
     return PEN_OK;

@@ -1,0 +1,116 @@
+/* Ray-traced transfers shared between render states (pen_render_state_share, render.h).
+ *
+ * Design
+ * - What is shared. An object's self transfer (self.c) and the ground's grid (ground_shadow.c)
+ *   are in world space: they depend on the posed meshes, the band count, the lights and the
+ *   ground, never on the camera. States that render the same objects from several cameras (the
+ *   views of a task, a batch of cameras) would each trace them once per pose; through a pool the
+ *   first state to need a trace makes it and the others copy its arrays.
+ * - Keys. An entry is found by the key the state's own cache uses (which hashes everything the
+ *   trace depends on) together with its kind and the arrays' sizes, so a pool never hands a state
+ *   arrays of another shape. A copy is bitwise the trace the state would have made: renders do
+ *   not depend on which state traced.
+ * - Threads. States of one pool may render at once on different threads: the whole miss path
+ *   (look up, trace, insert) runs under the pool's lock, so a trace is made once and the others
+ *   wait for it instead of tracing it again; the trace inside runs its own threads as always.
+ * - Bounds. The pool keeps the PEN_POOL_ENTRIES most recent traces (a pose task moves on and never
+ *   asks for an old pose again), each an exact copy: its memory is that many traces' arrays.
+ * - Lifetime. Counted references: the pool goes with the last state that holds it.
+ */
+#include "core/internal.h"
+#include "render/render_internal.h"
+
+#include <omp.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define PEN_POOL_ENTRIES 16
+
+typedef struct pool_entry {
+    int kind; /* PEN__POOL_SELF or PEN__POOL_GRID; 0: empty */
+    uint64_t key;
+    size_t nB, nfrac;
+    float *data; /* nB then nfrac floats */
+} pool_entry;
+
+struct pen__transfer_pool {
+    omp_lock_t lock;
+    int refs;
+    int next; /* the entry a new trace replaces (oldest first) */
+    long traces; /* traces inserted over the pool's life (tests read it) */
+    pool_entry entries[PEN_POOL_ENTRIES];
+};
+
+pen_status pen__pool_create(pen_context *ctx, pen__transfer_pool **out) {
+    pen__transfer_pool *p = pen__calloc(ctx, 1, sizeof *p, "transfer pool");
+    if (!p) return PEN_ERROR_MEMORY;
+    omp_init_lock(&p->lock);
+    p->refs = 1;
+    *out = p;
+    return PEN_OK;
+}
+
+void pen__pool_retain(pen__transfer_pool *p) {
+    if (p) __atomic_add_fetch(&p->refs, 1, __ATOMIC_ACQ_REL);
+}
+
+void pen__pool_release(pen__transfer_pool *p) {
+    if (!p || __atomic_sub_fetch(&p->refs, 1, __ATOMIC_ACQ_REL) > 0) return;
+    for (int i = 0; i < PEN_POOL_ENTRIES; ++i)
+        free(p->entries[i].data);
+    omp_destroy_lock(&p->lock);
+    free(p);
+}
+
+void pen__pool_lock(pen__transfer_pool *p) {
+    if (p) omp_set_lock(&p->lock);
+}
+
+void pen__pool_unlock(pen__transfer_pool *p) {
+    if (p) omp_unset_lock(&p->lock);
+}
+
+int pen__pool_get(const pen__transfer_pool *p, int kind, uint64_t key, size_t nB, size_t nfrac,
+                  float *B, float *frac) {
+    for (int i = 0; p && i < PEN_POOL_ENTRIES; ++i) {
+        const pool_entry *e = &p->entries[i];
+        if (e->kind != kind || e->key != key || e->nB != nB || e->nfrac != nfrac) continue;
+        memcpy(B, e->data, nB * sizeof(float));
+        if (nfrac) memcpy(frac, e->data + nB, nfrac * sizeof(float));
+        return 1;
+    }
+    return 0;
+}
+
+void pen__pool_put(pen__transfer_pool *p, int kind, uint64_t key, size_t nB, size_t nfrac,
+                   const float *B, const float *frac) {
+    if (!p) return;
+    /* Without memory the trace simply stays the state's own: the pool only saves time. */
+    float *data = malloc((nB + nfrac + 1) * sizeof(float));
+    if (!data) return;
+    memcpy(data, B, nB * sizeof(float));
+    if (nfrac) memcpy(data + nB, frac, nfrac * sizeof(float));
+    pool_entry *e = &p->entries[p->next];
+    free(e->data);
+    *e = (pool_entry){kind, key, nB, nfrac, data};
+    p->next = (p->next + 1) % PEN_POOL_ENTRIES;
+    ++p->traces;
+}
+
+long pen__pool_traces(const pen__transfer_pool *p) {
+    return p ? p->traces : 0;
+}
+
+pen_status pen_render_state_share(pen_context *ctx, pen_render_state *st, pen_render_state *with) {
+    if (!st || !with)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "render state share: NULL state");
+    if (st == with || (st->pool && st->pool == with->pool)) return PEN_OK;
+    if (!with->pool) {
+        pen_status s = pen__pool_create(ctx, &with->pool);
+        if (s) return s;
+    }
+    pen__pool_release(st->pool);
+    pen__pool_retain(with->pool);
+    st->pool = with->pool;
+    return PEN_OK;
+}
