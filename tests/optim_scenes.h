@@ -131,15 +131,35 @@ static inline size_t os_checkpoint_solver_at(const unsigned char *buf) {
     return 28 + 20 * (size_t)segs + 4 + 16 + 8;
 }
 
+/* The optimised groups as checkpoints before version 7 held them: the bits of optim.h then
+ * (lighting 1, albedo 2, pose 4, deformation 8, spheres 16, lights 32, exposure 64). */
+static inline uint32_t os_groups_v6(uint32_t groups) {
+    static const uint32_t now[] = {PEN_OPTIM_LIGHTING, PEN_OPTIM_ALBEDO, PEN_OPTIM_POSE,
+                                   PEN_OPTIM_DEFORMATION, PEN_OPTIM_SPHERES, PEN_OPTIM_LIGHTS,
+                                   PEN_OPTIM_EXPOSURE};
+    uint32_t old = 0;
+    for (int k = 0; k < 7; ++k)
+        if (groups & now[k]) old |= 1u << k;
+    return old;
+}
+
 /* Rewrites the checkpoint at `path` as a build of an older `version` wrote it where the fields
- * did not change since: the version field set and, below version 6, the scene's hash (after the
- * solver, ridge, k, the 3 weights, the target's and the initial guess's hashes) taken out; the
- * checksum recomputed. */
+ * did not change since: the version field set, below version 7 the groups in the bits of then
+ * (os_groups_v6, after the segments), and below version 6 the scene's hash (after the solver,
+ * ridge, k, the 3 weights, the target's and the initial guess's hashes) taken out; the checksum
+ * recomputed. */
 static inline void os_checkpoint_downgrade(const char *path, uint32_t version) {
     static unsigned char buf[1 << 16];
     size_t n = os_checkpoint_read(path, buf, sizeof buf);
     if (!n) return;
     memcpy(buf + 8, &version, 4);
+    if (version < 7u) {
+        uint32_t groups;
+        const size_t at = os_checkpoint_solver_at(buf) - 28; /* groups, 4 ints, shadow weight */
+        memcpy(&groups, buf + at, 4);
+        groups = os_groups_v6(groups);
+        memcpy(buf + at, &groups, 4);
+    }
     if (version < 6u) {
         const size_t at = os_checkpoint_solver_at(buf) + 4 + 8 + 4 + 24 + 8 + 8;
         memmove(buf + at, buf + at + 8, n - at - 8);

@@ -392,7 +392,33 @@ static void test_resume_version_4_single_view(void) {
     cleanup(dir);
 }
 
+/* Version 7 gave the groups the render's gradient bits (optim.h): a version-6 checkpoint holds a
+ * deformation task's groups as 8 (pose's bit now), is read in the bits of then and resumes as
+ * the run made in one go, bit for bit. */
+static void test_resume_version_6_groups(void) {
+    char dir[] = "/tmp/pen_resume_XXXXXX";
+    CHECK(mkdtemp(dir) != NULL);
+    const int j = check_quick_() ? 5 : 9;
+    pen_optim_task ta, tb;
+    pen_optim_result a = run(PEN_OPTIM_DEFORMATION, 0, NULL, 0, 0, NULL, &ta);
+    stopper stop = {j, -1, NULL, NULL};
+    pen_optim_result b = run(PEN_OPTIM_DEFORMATION, 0, dir, 0, 0, &stop, &tb);
+    CHECK(b.interrupted && b.iterations == j);
+    pen_optim_result_free(&b);
+    pen_optim_task_free(&tb);
+    os_checkpoint_downgrade(path_in(dir, "checkpoint.bin"), 6);
+    b = run(PEN_OPTIM_DEFORMATION, 0, dir, 0, 1, NULL, &tb);
+    CHECK(b.resumed_from == j);
+    check_same(&a, &ta, &b, &tb, "version 6 + resumed");
+    pen_optim_result_free(&a);
+    pen_optim_result_free(&b);
+    pen_optim_task_free(&ta);
+    pen_optim_task_free(&tb);
+    cleanup(dir);
+}
+
 RUN_TESTS(TEST(test_resume_lighting_pose), TEST(test_resume_deformation), TEST(test_resume_stopping),
           TEST(test_resume_refused), TEST(test_resume_other_scene),
           TEST(test_resume_other_regularisers),
-          TEST(test_resume_old_checkpoint), TEST(test_resume_version_4_single_view))
+          TEST(test_resume_old_checkpoint), TEST(test_resume_version_4_single_view),
+          TEST(test_resume_version_6_groups))

@@ -676,10 +676,10 @@ static void test_resume_and_outputs(void) {
                                              "lighting ridge of a multi-view task"),
               "%s", pen_context_error(ctx));
     /* and a version this build does not know, with its range */
-    os_checkpoint_downgrade(path_in(cut, "checkpoint.bin"), 7);
+    os_checkpoint_downgrade(path_in(cut, "checkpoint.bin"), 8);
     CHECK(pen_optim_run(ctx, &tb, &set, &b) == PEN_ERROR_PARSE);
-    CHECK_MSG(strstr(pen_context_error(ctx), "checkpoint.bin: checkpoint version 7, this build "
-                                             "reads 3 to 6"),
+    CHECK_MSG(strstr(pen_context_error(ctx), "checkpoint.bin: checkpoint version 8, this build "
+                                             "reads 3 to 7"),
               "%s", pen_context_error(ctx));
     pen_optim_task_free(&tb);
     /* the outputs, with two held-back views */

@@ -53,20 +53,25 @@
 extern "C" {
 #endif
 
-/* Parameter groups ("optimize" names in the task JSON). */
-#define PEN_OPTIM_LIGHTING 1u    /* "lighting": SH coefficients, every band and channel */
-#define PEN_OPTIM_ALBEDO 2u      /* "albedo": every object's texels, or its constant albedo */
-#define PEN_OPTIM_POSE 4u        /* "pose": every object's rotation and translation (not scale) */
-#define PEN_OPTIM_DEFORMATION 8u /* "deformation": every object's embedded deformation graph on
-                                    its sphere centres (moves vertices and spheres) */
-#define PEN_OPTIM_SPHERES 16u    /* "spheres": every object's sphere centres and radii */
-#define PEN_OPTIM_LIGHTS 32u     /* "lights": every disk light's direction, angular radius and
-                                    irradiance: the scene's (given, or found in its map), or,
-                                    when it has none, light_count lights that a global search
-                                    over directions creates before the descent */
-#define PEN_OPTIM_EXPOSURE 64u   /* "exposure": each view's exposure but the first's (a task with
-                                    2 or more views; the first is the gauge, below) */
+/* Parameter groups ("optimize" names in the task JSON). Each is the bit of the render's gradient
+ * group of the same meaning (render.h PEN_GRAD_*: a task's groups are the render groups it
+ * moves); "deformation" is PEN_GRAD_VERTICES, which it moves, and "exposure", no render group, a
+ * bit of its own. */
+#define PEN_OPTIM_LIGHTING 1u     /* "lighting": SH coefficients, every band and channel */
+#define PEN_OPTIM_ALBEDO 2u       /* "albedo": every object's texels, or its constant albedo */
+#define PEN_OPTIM_SPHERES 4u      /* "spheres": every object's sphere centres and radii */
+#define PEN_OPTIM_POSE 8u         /* "pose": every object's rotation and translation (not scale) */
+#define PEN_OPTIM_DEFORMATION 16u /* "deformation": every object's embedded deformation graph on
+                                     its sphere centres (moves vertices and spheres) */
+#define PEN_OPTIM_LIGHTS 32u      /* "lights": every disk light's direction, angular radius and
+                                     irradiance: the scene's (given, or found in its map), or,
+                                     when it has none, light_count lights that a global search
+                                     over directions creates before the descent */
+#define PEN_OPTIM_EXPOSURE 128u   /* "exposure": each view's exposure but the first's (a task with
+                                     2 or more views; the first is the gauge, below) */
 
+/* The image loss ("loss" in the task JSON): "l2" the mean squared error, "l1" the mean absolute
+ * error over pixels and channels. Another value is refused by pen_optim_run. */
 typedef enum pen_optim_loss { PEN_OPTIM_LOSS_L2 = 0, PEN_OPTIM_LOSS_L1 = 1 } pen_optim_loss;
 
 /* Learning rates per group (Adam step sizes, in the parameter's units). */

@@ -34,7 +34,10 @@
  * initial guess, refused by its hash with the same reason named; single-view ones read as they
  * were. Version 6 adds the scene's hash (pen__optim_scene_hash): before it, a run resumed after
  * the scene's camera, meshes, textures, ground or shadow keys had been edited went on under the
- * new scene. Older files have none and are read without that check. */
+ * new scene. Older files have none and are read without that check. Version 7 gives the groups
+ * the render's gradient bits (optim.h PEN_OPTIM_*: pose 8, deformation 16, spheres 4, exposure
+ * 128, where they were 4, 8, 16 and 64): an older file's groups are read in the bits of its day
+ * (groups.h bit_v6) and mapped, so that its run resumes as before. */
 #define _POSIX_C_SOURCE 200809L
 #include "io/io_internal.h"
 #include "optim/optim_internal.h"
@@ -46,7 +49,7 @@
 #include <unistd.h>
 
 #define CHECKPOINT_MAGIC "PENOPTCK"
-#define CHECKPOINT_VERSION 6u
+#define CHECKPOINT_VERSION 7u
 #define CHECKPOINT_VERSION_MIN 3u /* read from here on: above */
 #define CHECKPOINT_ORDER 0x01020304u
 
@@ -280,7 +283,8 @@ static pen_status check_identity(pen_context *ctx, const char *path, reader *r,
                               path, k, (unsigned long long)count, (unsigned long long)off,
                               bound_name(bound), g->count, g->offset, bound_name(g->bound));
     }
-    const uint32_t groups = get_u32(r);
+    const uint32_t file_groups = get_u32(r);
+    const unsigned groups = version < 7u ? pen__optim_groups_from_v6(file_groups) : file_groups;
     const int32_t loss = get_i32(r), shadows = get_i32(r), w = get_i32(r), h = get_i32(r);
     const double weight = get_f64(r);
     const int32_t solver = get_i32(r);
@@ -301,10 +305,14 @@ static pen_status check_identity(pen_context *ctx, const char *path, reader *r,
         return pen__error(ctx, PEN_ERROR_PARSE,
                           "%s: damaged checkpoint (loss %d, shadows %d, lighting solver %d)", path,
                           loss, shadows, solver);
-    if (groups != id->groups)
+    if (groups != id->groups) {
+        char made[160], task[160];
+        pen__optim_group_list(groups, 0, made, sizeof made);
+        pen__optim_group_list(id->groups, 0, task, sizeof task);
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                          "%s: made for another task: optimised groups 0x%x, this task's 0x%x",
-                          path, groups, id->groups);
+                          "%s: made for another task: optimised groups %s, this task's %s", path,
+                          made, task);
+    }
     if (shadows != id->shadows)
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: made %s, this run is %s", path,
                           shadows ? "with shadows" : "with --no-shadows",

@@ -5,6 +5,7 @@
 
 #include "core/internal.h"
 #include "io/io_internal.h"
+#include "optim/groups.h"
 #include "penumbra/io.h"
 #include "penumbra/mesh.h"
 #include "penumbra/optim.h"
@@ -15,19 +16,6 @@
 #include <stdint.h>
 
 /* ---- Adam (src/optim/adam.c) ----------------------------------------------------------------- */
-
-/* What a segment's values must satisfy after each step (a projection, applied in place). */
-/* The task's parameter groups by bit (optim.h PEN_OPTIM_*: bit k is names[k]), src/optim/task.c. */
-#define PEN__OPTIM_GROUPS 7
-extern const char *const pen__optim_group_names[PEN__OPTIM_GROUPS];
-
-typedef enum pen__optim_bound {
-    PEN__BOUND_NONE = 0,
-    PEN__BOUND_UNIT,   /* every value in [0, 1] (albedos) */
-    PEN__BOUND_SPHERES, /* x, y, z, r per sphere: r >= PEN__OPTIM_MIN_RADIUS */
-    PEN__BOUND_LIGHTS   /* per disk light: direction (renormalised to unit length), angular
-                           radius in the scene's range, irradiance >= 0 */
-} pen__optim_bound;
 
 #define PEN__OPTIM_MIN_RADIUS 1e-3f
 
@@ -414,10 +402,10 @@ double pen__optim_rotation_angle_deg(const float a_deg[3], const float b_deg[3])
 
 /* ---- The parameter vector (src/optim/params.c) ----------------------------------------------- */
 
-/* Where each object's parameters sit in x (SIZE_MAX: not optimised). */
+/* Where each object's parameters sit in x: the offset of each per-object group's block (groups.h;
+ * SIZE_MAX: not optimised, or nothing to move). */
 typedef struct pen__optim_object_layout {
-    size_t albedo, rotation, translation, spheres, deform;
-    size_t albedo_count; /* texel floats, or 3 */
+    size_t at[PEN__OPTIM_GROUPS];
 } pen__optim_object_layout;
 
 /* An object's deformation graph and its double-precision work buffers. */
@@ -436,11 +424,10 @@ typedef struct pen__optim_run {
                                  before the run switched it (pen_render_grad_model): part of
                                  the checkpoint's identity with the scene as rendered */
     unsigned groups;
-    size_t lighting; /* offset of the SH block, SIZE_MAX if not optimised */
-    size_t lights;   /* offset of the disk lights' block (PEN_LIGHT_FLOATS per light), SIZE_MAX
-                        if not */
-    size_t exposure; /* offset of the views' log exposures (views 1 .., one each), SIZE_MAX if
-                        not optimised */
+    /* the offset of each scene group's block (groups.h; SIZE_MAX: not optimised, or nothing to
+     * move): the SH coefficients (first in x), the disk lights (PEN_LIGHT_FLOATS each), the log
+     * exposures of views 1 .. */
+    size_t at[PEN__OPTIM_GROUPS];
     pen_optim_view *task_views; /* the task's views, where the exposures go (multi-view) */
     int task_view_count;
     pen__optim_object_layout *objects;
@@ -469,13 +456,13 @@ typedef struct pen__optim_run {
 } pen__optim_run;
 
 
-/* Cuts x into segments for the task's groups and allocates x, g, best and the deformation
- * graphs' buffers (r->sc, r->groups set by the caller). */
+/* Cuts x into segments for the task's groups (the table of groups.h: the scene's groups, then per
+ * object its own) and allocates x, g, best and the deformation graphs' buffers (r->sc, r->groups
+ * set by the caller). */
 pen_status pen__optim_layout(pen_context *ctx, pen__optim_run *r, const pen_optim_task *t);
 void pen__optim_run_free(pen__optim_run *r);
 /* to_scene 0: scene -> x; 1: x -> scene (deformed positions and sphere centres included). */
 void pen__optim_transfer(pen__optim_run *r, int to_scene);
-void pen__optim_deformation_rest(pen__optim_run *r);
 double pen__optim_regularisers(pen__optim_run *r);
 /* The lighting ridge's term of the loss, sum_c mu_c |L_c|^2 / (3 weight_sum) over nb
  * coefficients; with d (may be NULL) its gradient with respect to sh is added to d. */
@@ -483,7 +470,10 @@ double pen__optim_ridge_term(const double mu[3], double weight_sum, int nb, cons
                              double (*d)[3]);
 /* The ridge's term at the run's lighting (0 when it is not in the loss). */
 double pen__optim_ridge_loss(const pen__optim_run *r);
-void pen__optim_initial_guess(pen__optim_run *r);
+/* The groups' starts in x, after x took the scene (transfer 0): the deformation at rest, and
+ * with `black` the supplement's initial guesses (5.2: optimised lighting and albedo at 0, the
+ * albedo at 0.5 when both are optimised). */
+void pen__optim_start(pen__optim_run *r, int black);
 /* r->g = scale x the render gradient in x's layout, plus the regularisers' gradients. */
 void pen__optim_gather(pen__optim_run *r, const pen_render_grad *grad, float scale);
 /* The render gradient groups the optimised groups need. */

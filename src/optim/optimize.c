@@ -72,7 +72,7 @@ static pen_status solve_lighting(pen_context *ctx, const pen_optim_task *t,
     pen_status s = solve_into(ctx, t, opt, r, r->sc->lighting.sh);
     if (s) return s;
     for (size_t k = 0; k < nl; ++k)
-        r->x[r->lighting + k] = r->sc->lighting.sh[k / 3][k % 3];
+        r->x[r->at[PEN__OPTIM_G_LIGHTING] + k] = r->sc->lighting.sh[k / 3][k % 3];
     memcpy(r->solved_for, r->x + nl, sizeof(float) * rest);
     r->solved = 1;
     return PEN_OK;
@@ -467,7 +467,7 @@ static pen_status relayout(pen_context *ctx, const pen_optim_task *t, run *r) {
     pen_status s = pen__optim_layout(ctx, r, t);
     if (s) return s;
     pen__optim_transfer(r, 0);
-    pen__optim_deformation_rest(r);
+    pen__optim_start(r, 0);
     pen__optim_project(r->segments, r->segment_count, r->x);
     pen__optim_transfer(r, 1);
     return PEN_OK;
@@ -550,15 +550,8 @@ static pen_status check_settings(pen_context *ctx, const pen_optim_settings *set
 
 /* ---- The model of the task's gradients --------------------------------------------------------- */
 
-/* The render gradient groups a task's parameter groups move. */
-static unsigned render_groups(unsigned optim) {
-    unsigned g = 0;
-    if (optim & PEN_OPTIM_POSE) g |= PEN_GRAD_POSE;
-    if (optim & PEN_OPTIM_DEFORMATION) g |= PEN_GRAD_VERTICES;
-    if (optim & PEN_OPTIM_SPHERES) g |= PEN_GRAD_SPHERES;
-    if (optim & PEN_OPTIM_LIGHTS) g |= PEN_GRAD_LIGHTS;
-    return g;
-}
+/* The render gradient groups a task's parameter groups move: its bits are theirs (optim.h). */
+static unsigned render_groups(unsigned optim) { return optim & PEN_GRAD_ALL; }
 
 /* The scene's model as the user gave it, while the run renders with pen_render_grad_model's. */
 typedef struct saved_model {
@@ -661,20 +654,20 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
     s = pen__optim_layout(ctx, &r, task);
     if (!s) {
         pen__optim_transfer(&r, 0);
-        if (task->init_black) pen__optim_initial_guess(&r);
-        pen__optim_deformation_rest(&r);
+        pen__optim_start(&r, task->init_black);
         pen__optim_project(r.segments, r.segment_count, r.x);
         pen__optim_transfer(&r, 1);
         const int search =
             (task->optimize & PEN_OPTIM_LIGHTS) && task->scene.lighting.light_count == 0;
         if (search) s = search_lights(ctx, task, &r, out); /* (its SH replaces "fit"'s) */
-        else if (task->init_fit && r.lighting != SIZE_MAX) s = fitted_lighting(ctx, task, &r);
+        else if (task->init_fit && r.at[PEN__OPTIM_G_LIGHTING] != SIZE_MAX)
+            s = fitted_lighting(ctx, task, &r);
         if (!s && r.multi)
             s = pen__optim_views_init(ctx, &r.views, task, task->shadow_weight,
                                       (task->optimize & PEN_OPTIM_LIGHTING) != 0);
         else if (!s && task->shadow_weight > 0.0)
             s = shadow_weights(ctx, task, &r);
-        if (!s && (r.solve || (r.ridge > 0.0 && r.lighting != SIZE_MAX)))
+        if (!s && (r.solve || (r.ridge > 0.0 && r.at[PEN__OPTIM_G_LIGHTING] != SIZE_MAX)))
             s = ridge_init(ctx, task, &r);
     }
     if (!s) s = optimise(ctx, task, &set, &r, out);

@@ -381,11 +381,12 @@ static int add_metric(cJSON *m, const char *name, double v) {
     return pen__json_add(m, name, isfinite(v) ? cJSON_CreateNumber(v) : cJSON_CreateNull());
 }
 
+/* The groups' names in the table's order (groups.h). */
 static cJSON *groups_json(unsigned groups) {
     cJSON *a = cJSON_CreateArray();
     for (int k = 0; a && k < PEN__OPTIM_GROUPS; ++k)
-        if ((groups & (1u << k)) &&
-            !cJSON_AddItemToArray(a, cJSON_CreateString(pen__optim_group_names[k]))) {
+        if ((groups & pen__optim_groups[k].bit) &&
+            !cJSON_AddItemToArray(a, cJSON_CreateString(pen__optim_groups[k].name))) {
             cJSON_Delete(a);
             return NULL;
         }
@@ -415,18 +416,13 @@ static cJSON *metrics_json(const pen_optim_metrics *mt) {
     return ok ? m : NULL;
 }
 
+/* Every rate by its name in the task's "lr" (groups.h), in pen_optim_lr's order. */
 static cJSON *lr_json(const pen_optim_lr *lr) {
     cJSON *o = cJSON_CreateObject();
-    int ok =
-        o && pen__json_add(o, "lighting", pen__json_float(lr->lighting)) &&
-        pen__json_add(o, "albedo", pen__json_float(lr->albedo)) &&
-        pen__json_add(o, "rotation", pen__json_float(lr->rotation)) &&
-        pen__json_add(o, "translation", pen__json_float(lr->translation)) &&
-        pen__json_add(o, "spheres", pen__json_float(lr->spheres)) &&
-        pen__json_add(o, "deformation_rotation", pen__json_float(lr->deformation_rotation)) &&
-        pen__json_add(o, "deformation_translation", pen__json_float(lr->deformation_translation)) &&
-        pen__json_add(o, "lights", pen__json_float(lr->lights)) &&
-        pen__json_add(o, "exposure", pen__json_float(lr->exposure));
+    int ok = o != NULL;
+    for (int k = 0; ok && k < PEN__OPTIM_RATES; ++k)
+        ok = pen__json_add(o, pen__optim_rates[k].name,
+                           pen__json_float(pen__optim_rate_value(lr, k)));
     if (!ok) cJSON_Delete(o);
     return ok ? o : NULL;
 }

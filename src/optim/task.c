@@ -25,7 +25,9 @@ static where at(const where *w, const char *name) {
 }
 
 pen_optim_lr pen_optim_lr_default(void) {
-    pen_optim_lr lr = {1e-2f, 1e-2f, 1e-2f, 1e-2f, 1e-2f, 1e-3f, 1e-2f, 1e-2f, 1e-2f};
+    pen_optim_lr lr;
+    for (int k = 0; k < PEN__OPTIM_RATES; ++k)
+        *pen__optim_rate_field(&lr, k) = pen__optim_rates[k].value;
     return lr;
 }
 
@@ -138,108 +140,102 @@ static pen_status parse_target(pen_context *ctx, const char *path, const where *
     return s ? pen__json_wrap(ctx, s, &w) : PEN_OK;
 }
 
-/* The task's group names, in the order of their bits (PEN_OPTIM_LIGHTING = 1 << 0, ...). */
-const char *const pen__optim_group_names[PEN__OPTIM_GROUPS] = {
-    "lighting", "albedo", "pose", "deformation", "spheres", "lights", "exposure"};
+/* The group of `groups` that `g` cannot be optimised with (groups.h: "excludes"), or NULL. */
+static const pen__optim_group *excluded(const pen__optim_group *g, unsigned groups) {
+    for (int k = 0; k < PEN__OPTIM_GROUPS; ++k)
+        if ((g->excludes & pen__optim_groups[k].bit) && (groups & pen__optim_groups[k].bit))
+            return &pen__optim_groups[k];
+    return NULL;
+}
 
 static pen_status parse_groups(pen_context *ctx, const where *top, const cJSON *root,
                                unsigned *groups) {
-    const char *const *names = pen__optim_group_names;
+    const char *names[PEN__OPTIM_GROUPS + 1];
+    for (int k = 0; k < PEN__OPTIM_GROUPS; ++k)
+        names[k] = pen__optim_groups[k].name;
+    names[PEN__OPTIM_GROUPS] = NULL;
     where w = at(top, "optimize");
     const cJSON *a = cJSON_GetObjectItemCaseSensitive(root, "optimize");
-    if (!cJSON_IsArray(a) || cJSON_GetArraySize(a) == 0)
+    if (!cJSON_IsArray(a) || cJSON_GetArraySize(a) == 0) {
+        char list[256];
+        pen__optim_group_list(~0u, 1, list, sizeof list);
         return pen__json_error(ctx, PEN_ERROR_PARSE, &w,
-                               "expected a non-empty array of groups (\"lighting\", \"albedo\", "
-                               "\"pose\", \"deformation\", \"spheres\", \"lights\", "
-                               "\"exposure\"), got %s",
+                               "expected a non-empty array of groups (%s), got %s", list,
                                a ? (cJSON_IsArray(a) ? "an empty array" : pen__json_type_name(a))
                                  : "nothing (missing key)");
+    }
     *groups = 0;
     int i = 0;
     const cJSON *e;
     cJSON_ArrayForEach(e, a) {
         where wi;
         pen__json_index(&w, i++, &wi);
-        const char *name = NULL;
-        pen_status s = pen__json_string(ctx, &wi, e, &name);
+        int k = -1;
+        pen_status s = pen__json_choice(ctx, &wi, e, "group", names, &k);
         if (s) return s;
-        unsigned bit = 0;
-        for (int k = 0; k < PEN__OPTIM_GROUPS && !bit; ++k)
-            if (strcmp(name, names[k]) == 0) bit = 1u << k;
-        if (!bit)
+        const pen__optim_group *g = &pen__optim_groups[k];
+        if (*groups & g->bit)
+            return pen__json_error(ctx, PEN_ERROR_PARSE, &wi, "\"%s\" is listed twice", g->name);
+        const pen__optim_group *other = excluded(g, *groups);
+        if (other) { /* (named in the table's order) */
+            const pen__optim_group *first = other < g ? other : g, *second = other < g ? g : other;
             return pen__json_error(ctx, PEN_ERROR_PARSE, &wi,
-                                   "unknown group \"%s\" (expected \"lighting\", \"albedo\", "
-                                   "\"pose\", \"deformation\", \"spheres\", \"lights\" or "
-                                   "\"exposure\")",
-                                   name);
-        if (*groups & bit)
-            return pen__json_error(ctx, PEN_ERROR_PARSE, &wi, "\"%s\" is listed twice", name);
-        *groups |= bit;
-        if ((*groups & PEN_OPTIM_DEFORMATION) && (*groups & PEN_OPTIM_SPHERES))
-            return pen__json_error(ctx, PEN_ERROR_PARSE, &wi,
-                                   "\"deformation\" and \"spheres\" both move the spheres: "
-                                   "choose one");
+                                   "\"%s\" and \"%s\" both move %s: choose one", first->name,
+                                   second->name, g->shares);
+        }
+        *groups |= g->bit;
     }
     return PEN_OK;
 }
 
+/* A learning rate at wk. */
+static pen_status parse_rate(pen_context *ctx, const where *wk, const cJSON *e, double *v) {
+    const char *what = "a positive learning rate (at most 10)";
+    pen_status s = pen__json_number(ctx, wk, e, 0.0, 10.0, what, v);
+    if (!s && *v <= 0.0) s = pen__json_error(ctx, PEN_ERROR_PARSE, wk, "expected %s", what);
+    return s;
+}
+
+/* "lr": one number for every rate, or an object of rates by name (pen__optim_rates) and of
+ * groups' keys (lr_key: "pose") setting every rate of their group, those after the rates. */
 static pen_status parse_lr(pen_context *ctx, const where *top, const cJSON *root,
                            pen_optim_lr *lr) {
     where w = at(top, "lr");
     const cJSON *item = cJSON_GetObjectItemCaseSensitive(root, "lr");
     if (!item) return PEN_OK;
-    const char *what = "a positive learning rate (at most 10)";
     double v;
     if (cJSON_IsNumber(item)) {
-        pen_status s = pen__json_number(ctx, &w, item, 0.0, 10.0, what, &v);
-        if (!s && v <= 0.0) s = pen__json_error(ctx, PEN_ERROR_PARSE, &w, "expected %s", what);
-        if (s) return s;
-        lr->lighting = lr->albedo = lr->rotation = lr->translation = lr->spheres = (float)v;
-        lr->deformation_rotation = lr->deformation_translation = lr->lights = (float)v;
-        lr->exposure = (float)v;
-        return PEN_OK;
+        pen_status s = parse_rate(ctx, &w, item, &v);
+        for (int k = 0; !s && k < PEN__OPTIM_RATES; ++k)
+            *pen__optim_rate_field(lr, k) = (float)v;
+        return s;
     }
     if (!cJSON_IsObject(item))
         return pen__json_error(ctx, PEN_ERROR_PARSE, &w,
                                "expected a number or an object of per-group rates, got %s",
                                pen__json_type_name(item));
-    static const char *const known[] = {"lighting",
-                                        "albedo",
-                                        "rotation",
-                                        "translation",
-                                        "spheres",
-                                        "deformation_rotation",
-                                        "deformation_translation",
-                                        "lights",
-                                        "exposure",
-                                        "pose",
-                                        NULL};
+    const char *known[PEN__OPTIM_RATES + PEN__OPTIM_GROUPS + 1];
+    int n = 0;
+    for (int k = 0; k < PEN__OPTIM_RATES; ++k)
+        known[n++] = pen__optim_rates[k].name;
+    for (int g = 0; g < PEN__OPTIM_GROUPS; ++g)
+        if (pen__optim_groups[g].lr_key) known[n++] = pen__optim_groups[g].lr_key;
+    known[n] = NULL;
     pen_status s = pen__json_known_keys(ctx, &w, item, known);
-    if (s) return s;
-    float *fields[] = {&lr->lighting,
-                       &lr->albedo,
-                       &lr->rotation,
-                       &lr->translation,
-                       &lr->spheres,
-                       &lr->deformation_rotation,
-                       &lr->deformation_translation,
-                       &lr->lights,
-                       &lr->exposure,
-                       NULL};
-    for (int k = 0; known[k]; ++k) {
-        const cJSON *e = cJSON_GetObjectItemCaseSensitive(item, known[k]);
-        if (!e) continue;
-        where wk = at(&w, known[k]);
-        s = pen__json_number(ctx, &wk, e, 0.0, 10.0, what, &v);
-        if (!s && v <= 0.0) s = pen__json_error(ctx, PEN_ERROR_PARSE, &wk, "expected %s", what);
-        if (s) return s;
-        if (fields[k]) {
-            *fields[k] = (float)v;
-        } else { /* "pose": rotation and translation together */
-            lr->rotation = lr->translation = (float)v;
-        }
+    for (int k = 0; !s && k < PEN__OPTIM_RATES; ++k) {
+        const cJSON *e = cJSON_GetObjectItemCaseSensitive(item, pen__optim_rates[k].name);
+        where wk = at(&w, pen__optim_rates[k].name);
+        if (e && !(s = parse_rate(ctx, &wk, e, &v))) *pen__optim_rate_field(lr, k) = (float)v;
     }
-    return PEN_OK;
+    for (int g = 0; !s && g < PEN__OPTIM_GROUPS; ++g) {
+        const pen__optim_group *G = &pen__optim_groups[g];
+        const cJSON *e = G->lr_key ? cJSON_GetObjectItemCaseSensitive(item, G->lr_key) : NULL;
+        where wk = at(&w, G->lr_key ? G->lr_key : "");
+        if (!e || (s = parse_rate(ctx, &wk, e, &v))) continue;
+        for (int k = 0; k < G->segment_count; ++k)
+            *pen__optim_rate_field(lr, G->segments[k].rate) = (float)v;
+    }
+    return s;
 }
 
 /* An optional {"k": int, "<weight>": number, ...} member (a graph's neighbour count and weights):
@@ -476,24 +472,19 @@ pen_status pen__optim_task_check_groups(pen_context *ctx, const pen_optim_task *
     long spheres = 0;
     for (int o = 0; o < sc->object_count; ++o)
         spheres += sc->objects[o].spheres.count;
-    static const struct {
-        unsigned group;
-        const char *name;
-    } groups[] = {{PEN_OPTIM_ALBEDO, "albedo"}, {PEN_OPTIM_POSE, "pose"},
-                  {PEN_OPTIM_SPHERES, "spheres"}, {PEN_OPTIM_DEFORMATION, "deformation"}};
-    for (size_t g = 0; g < sizeof groups / sizeof groups[0]; ++g) {
-        if (!(t->optimize & groups[g].group)) continue;
-        const int by_spheres = groups[g].group & (PEN_OPTIM_SPHERES | PEN_OPTIM_DEFORMATION);
-        if (sc->object_count == 0)
+    for (int g = 0; g < PEN__OPTIM_GROUPS; ++g) {
+        const pen__optim_group *G = &pen__optim_groups[g];
+        if (!(t->optimize & G->bit)) continue;
+        if ((G->needs & PEN__OPTIM_NEEDS_OBJECTS) && sc->object_count == 0)
             return pen__error(ctx, PEN_ERROR_ARGUMENT,
                               "%s: optimize: \"%s\": the scene has no objects, nothing to optimise",
-                              name, groups[g].name);
-        if (by_spheres && spheres == 0)
+                              name, G->name);
+        if ((G->needs & PEN__OPTIM_NEEDS_SPHERES) && spheres == 0)
             return pen__error(ctx, PEN_ERROR_ARGUMENT,
                               "%s: optimize: \"%s\": no object of the scene has spheres, nothing "
                               "to optimise (give an object \"spheres\": a file, a list or "
                               "{\"fit\": N})",
-                              name, groups[g].name);
+                              name, G->name);
     }
     return PEN_OK;
 }
@@ -514,11 +505,11 @@ static pen_status check_exposure(pen_context *ctx, const pen_optim_task *t) {
 pen_status pen__optim_task_check(pen_context *ctx, const pen_optim_task *t) {
     const char *name = t->path ? t->path : "task";
     pen_status s;
-    if (!t->optimize || (t->optimize & ~(unsigned)(PEN_OPTIM_LIGHTING | PEN_OPTIM_ALBEDO |
-                                                   PEN_OPTIM_POSE | PEN_OPTIM_SPHERES |
-                                                   PEN_OPTIM_DEFORMATION | PEN_OPTIM_LIGHTS |
-                                                   PEN_OPTIM_EXPOSURE)) ||
-        ((t->optimize & PEN_OPTIM_SPHERES) && (t->optimize & PEN_OPTIM_DEFORMATION)))
+    int excluded_pair = 0;
+    for (int g = 0; g < PEN__OPTIM_GROUPS; ++g)
+        excluded_pair |= (t->optimize & pen__optim_groups[g].bit) &&
+                         (t->optimize & pen__optim_groups[g].excludes);
+    if (!t->optimize || (t->optimize & ~pen__optim_group_bits()) || excluded_pair)
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "%s: optimize: no group, an unknown one, or both spheres and "
                           "deformation",
@@ -589,11 +580,10 @@ pen_status pen__optim_task_check(pen_context *ctx, const pen_optim_task *t) {
     if (!isnan(t->lighting_ridge) && (!(t->lighting_ridge >= 0.0) || !isfinite(t->lighting_ridge)))
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "%s: lighting_ridge must be a finite number >= 0", name);
-    const float lr[9] = {t->lr.lighting, t->lr.albedo,  t->lr.rotation,
-                         t->lr.translation, t->lr.spheres, t->lr.deformation_rotation,
-                         t->lr.deformation_translation, t->lr.lights, t->lr.exposure};
-    for (int k = 0; k < 9; ++k)
-        if (!(lr[k] > 0.0f) || !isfinite(lr[k]))
+    for (int k = 0; k < PEN__OPTIM_RATES; ++k) {
+        const float lr = pen__optim_rate_value(&t->lr, k);
+        if (!(lr > 0.0f) || !isfinite(lr))
             return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: lr: rates must be positive", name);
+    }
     return PEN_OK;
 }
