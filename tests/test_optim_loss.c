@@ -28,12 +28,14 @@ static void test_loss_grad_fd(void) {
         weight[p] = (float)(1.0 + 9.0 * check_rand_(&seed));
     for (int i = 0; i < n; ++i) /* keep l1 away from its kink */
         if (fabsf(img.data[i] - target.data[i]) < 0.01f) img.data[i] += 0.02f;
-    for (int kind = 0; kind < 2; ++kind)
+    for (int k = 0; k < PEN__OPTIM_LOSSES; ++k) /* every loss of the table (groups.h) */
         for (int weighted = 0; weighted < 2; ++weighted) {
+            const pen_optim_loss kind = pen__optim_losses[k].kind;
+            const char *name = pen__optim_losses[k].name;
             const float *wt = weighted ? weight : NULL;
             pen_image d = {0, 0, 0, NULL};
             CHECK(pen_image_create(NULL, w, h, 3, &d) == PEN_OK);
-            pen__optim_loss_bwd((pen_optim_loss)kind, &img, &target, wt, 0.7, &d);
+            pen__optim_loss_bwd(kind, &img, &target, wt, 0.7, &d);
             double worst = 0.0;
             for (int i = 0; i < n; ++i) {
                 const float keep = img.data[i];
@@ -43,22 +45,27 @@ static void test_loss_grad_fd(void) {
                 for (int sgn = 0; sgn < 2; ++sgn) {
                     img.data[i] = keep + (sgn ? -hstep : hstep);
                     moved[sgn] = img.data[i];
-                    CHECK(pen__optim_loss_fwd(NULL, (pen_optim_loss)kind, &img, &target, wt,
-                                              &f[sgn]) == PEN_OK);
+                    CHECK(pen__optim_loss_fwd(NULL, kind, &img, &target, wt, &f[sgn]) == PEN_OK);
                 }
                 img.data[i] = keep;
                 const double fd = 0.7 * (f[0] - f[1]) / ((double)moved[0] - (double)moved[1]);
                 worst = fmax(worst, fabs(fd - (double)d.data[i]) / fmax(fabs(fd), 1e-12));
             }
-            printf("  %s %s: worst relative error %.3g\n", kind ? "l1" : "l2", weighted ? "weighted" : "plain", worst);
-            CHECK_MSG(worst < 1e-6, "%s %s: worst relative error %.3g", kind ? "l1" : "l2",
+            printf("  %s %s: worst relative error %.3g\n", name, weighted ? "weighted" : "plain",
+                   worst);
+            CHECK_MSG(worst < 1e-6, "%s %s: worst relative error %.3g", name,
                       weighted ? "weighted" : "plain", worst);
+            /* unweighted, the plain mean of render.h, its gradient alike */
+            double plain = 0.0, mean = 0.0;
+            CHECK(pen__optim_loss_fwd(NULL, kind, &img, &target, NULL, &mean) == PEN_OK);
+            CHECK(pen__optim_losses[k].plain(NULL, &img, &target, &plain, NULL) == PEN_OK);
+            CHECK_REL(plain, mean, 1e-12, 0);
             /* the backward adds */
             pen_image d2 = {0, 0, 0, NULL};
             CHECK(pen_image_create(NULL, w, h, 3, &d2) == PEN_OK);
             for (int i = 0; i < n; ++i)
                 d2.data[i] = 1.0f;
-            pen__optim_loss_bwd((pen_optim_loss)kind, &img, &target, wt, 0.7, &d2);
+            pen__optim_loss_bwd(kind, &img, &target, wt, 0.7, &d2);
             for (int i = 0; i < n; ++i)
                 CHECK_NEAR(d2.data[i] - 1.0f, d.data[i], 1e-6);
             pen_image_free(&d);
@@ -169,4 +176,48 @@ static void test_shadow_mask(void) {
     pen_scene_free(&sc);
 }
 
-RUN_TESTS(TEST(test_loss_grad_fd), TEST(test_weighted_lighting_grad), TEST(test_shadow_mask))
+/* The losses are one table (groups.h): each kind has one row and one name; a kind that is no
+ * loss (a task built in code) is refused by the run and by result.json, never written as
+ * another's name. */
+static void test_loss_table(void) {
+    for (int k = 0; k < PEN__OPTIM_LOSSES; ++k) {
+        CHECK(pen__optim_loss_find((int)pen__optim_losses[k].kind) == &pen__optim_losses[k]);
+        for (int j = 0; j < k; ++j)
+            CHECK(strcmp(pen__optim_losses[j].name, pen__optim_losses[k].name) != 0);
+    }
+    CHECK(pen_optim_task_default().loss == pen__optim_losses[0].kind);
+    const int unknown = PEN__OPTIM_LOSSES; /* (the enum's values are 0 .. count - 1) */
+    CHECK(pen__optim_loss_find(unknown) == NULL && pen__optim_loss_find(-1) == NULL);
+    pen_context *ctx = pen_context_create();
+    pen_optim_task t = pen_optim_task_default();
+    t.scene = os_egg(16, 0, 1);
+    t.optimize = PEN_OPTIM_LIGHTING;
+    t.iterations = 2;
+    t.loss = (pen_optim_loss)unknown;
+    CHECK(pen_image_create(ctx, 16, 16, 3, &t.target) == PEN_OK);
+    pen_optim_result r;
+    CHECK(pen_optim_run(ctx, &t, NULL, &r) == PEN_ERROR_ARGUMENT);
+    CHECK_MSG(strstr(pen_context_error(ctx), "task: loss: unknown loss 2"), "%s",
+              pen_context_error(ctx));
+    /* a result of the same task made with a known loss, then asked for with the unknown one */
+    t.loss = PEN_OPTIM_LOSS_L1;
+    CHECK_MSG(pen_optim_run(ctx, &t, NULL, &r) == PEN_OK, "%s", pen_context_error(ctx));
+    char *json = NULL;
+    CHECK(pen_optim_result_json(ctx, &t, NULL, &r, &json) == PEN_OK);
+    cJSON *root = json ? cJSON_Parse(json) : NULL;
+    const cJSON *loss = cJSON_GetObjectItemCaseSensitive(root, "loss");
+    CHECK(cJSON_IsString(loss) && strcmp(loss->valuestring, "l1") == 0);
+    cJSON_Delete(root);
+    free(json);
+    json = NULL;
+    t.loss = (pen_optim_loss)unknown;
+    CHECK(pen_optim_result_json(ctx, &t, NULL, &r, &json) == PEN_ERROR_ARGUMENT && !json);
+    CHECK_MSG(strstr(pen_context_error(ctx), "result.json: unknown loss 2"), "%s",
+              pen_context_error(ctx));
+    pen_optim_result_free(&r);
+    pen_optim_task_free(&t);
+    pen_context_destroy(ctx);
+}
+
+RUN_TESTS(TEST(test_loss_grad_fd), TEST(test_weighted_lighting_grad), TEST(test_shadow_mask),
+          TEST(test_loss_table))

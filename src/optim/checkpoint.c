@@ -299,8 +299,9 @@ static pen_status check_identity(pen_context *ctx, const char *path, reader *r,
     if (!r->ok) return pen__error(ctx, PEN_ERROR_PARSE, "%s: truncated checkpoint", path);
     /* Flags outside their enums would be reported below as if they were valid settings ("made
      * with shadows, this run is with shadows"): a file that holds one is damaged. */
-    if ((loss != PEN_OPTIM_LOSS_L2 && loss != PEN_OPTIM_LOSS_L1) ||
-        (shadows != 0 && shadows != 1) ||
+    const pen__optim_loss_kind *loss_made = pen__optim_loss_find(loss),
+                               *loss_task = pen__optim_loss_find(id->loss);
+    if (!loss_made || (shadows != 0 && shadows != 1) ||
         (solver != PEN_OPTIM_LIGHTING_ADAM && solver != PEN_OPTIM_LIGHTING_LEAST_SQUARES))
         return pen__error(ctx, PEN_ERROR_PARSE,
                           "%s: damaged checkpoint (loss %d, shadows %d, lighting solver %d)", path,
@@ -321,8 +322,8 @@ static pen_status check_identity(pen_context *ctx, const char *path, reader *r,
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "%s: made with another loss (%s, shadow_weight %g), this task's is %s, "
                           "shadow_weight %g",
-                          path, loss == PEN_OPTIM_LOSS_L1 ? "l1" : "l2", weight,
-                          id->loss == PEN_OPTIM_LOSS_L1 ? "l1" : "l2", id->shadow_weight);
+                          path, loss_made->name, weight, loss_task ? loss_task->name : "unknown",
+                          id->shadow_weight);
     if (solver != id->lighting_solver || ridge != id->lighting_ridge)
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "%s: made with another lighting solver (%s, ridge %g), this task's is "

@@ -97,4 +97,28 @@ static inline float pen__optim_rate_value(const pen_optim_lr *lr, int rate) {
     return *(const float *)((const char *)lr + pen__optim_rates[rate].offset);
 }
 
+/* ---- Losses (src/optim/loss.c) ---------------------------------------------------------------- */
+
+typedef struct pen__optim_loss_kind {
+    pen_optim_loss kind;
+    const char *name; /* the task's "loss", result.json's, checkpoints' messages */
+    /* The plain mean over pixels and channels (render.h): the loss, and with d_image (may be
+     * NULL) its gradient image, set. */
+    pen_status (*plain)(pen_context *ctx, const pen_image *image, const pen_image *target,
+                        double *loss, pen_image *d_image);
+    /* The mean weighted per pixel (weight NULL: 1; render/loss.h), and its backward, which adds
+     * d_loss times the gradient into d_image. */
+    pen_status (*fwd)(pen_context *ctx, const pen_image *image, const pen_image *target,
+                      const float *weight, double *loss);
+    void (*bwd)(const pen_image *image, const pen_image *target, const float *weight,
+                double d_loss, pen_image *d_image);
+    int least_squares; /* 1: the least-squares lighting minimises it exactly (optim.h) */
+} pen__optim_loss_kind;
+
+#define PEN__OPTIM_LOSSES 2
+extern const pen__optim_loss_kind pen__optim_losses[PEN__OPTIM_LOSSES];
+
+/* The row of `kind`, or NULL when it is no loss (a task built in code with another value). */
+const pen__optim_loss_kind *pen__optim_loss_find(int kind);
+
 #endif

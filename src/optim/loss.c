@@ -33,6 +33,33 @@
 #include <stdlib.h>
 #include <string.h>
 
+/* ---- The losses (groups.h) ------------------------------------------------------------------- */
+
+/* The weighted means of src/render/loss.c by kind (its flag: l1 or not), forward and backward. */
+#define WEIGHTED(name, l1)                                                                     \
+    static pen_status name##_fwd(pen_context *ctx, const pen_image *image,                     \
+                                 const pen_image *target, const float *weight, double *loss) { \
+        return pen__loss_weighted_fwd(ctx, l1, image, target, weight, loss);                   \
+    }                                                                                          \
+    static void name##_bwd(const pen_image *image, const pen_image *target,                    \
+                           const float *weight, double d_loss, pen_image *d_image) {           \
+        pen__loss_weighted_bwd(l1, image, target, weight, d_loss, d_image);                    \
+    }
+WEIGHTED(l2, 0)
+WEIGHTED(l1, 1)
+
+/* The first is the default (pen_optim_task_default). Only l2 is the least squares' objective. */
+const pen__optim_loss_kind pen__optim_losses[PEN__OPTIM_LOSSES] = {
+    {PEN_OPTIM_LOSS_L2, "l2", pen_loss_l2, l2_fwd, l2_bwd, 1},
+    {PEN_OPTIM_LOSS_L1, "l1", pen_loss_l1, l1_fwd, l1_bwd, 0},
+};
+
+const pen__optim_loss_kind *pen__optim_loss_find(int kind) {
+    for (int k = 0; k < PEN__OPTIM_LOSSES; ++k)
+        if ((int)pen__optim_losses[k].kind == kind) return &pen__optim_losses[k];
+    return NULL;
+}
+
 /* ---- The shadow mask ------------------------------------------------------------------------- */
 
 static float luminance(const float *p) { return (p[0] + p[1] + p[2]) / 3.0f; }

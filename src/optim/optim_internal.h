@@ -88,17 +88,20 @@ double pen__optim_spheres_energy(const pen__deform_graph *graph, const double *i
 
 /* ---- Weighted loss and shadow mask (src/optim/loss.c) --------------------------------------- */
 
-/* The weighted loss is computed beside the plain ones (src/render/loss.c, render/loss.h); these
- * name it by the task's loss kind. */
+/* The task's loss weighted per pixel, by its row of the losses (groups.h): a kind that is no
+ * loss is an error (the backward does nothing then). */
 static inline pen_status pen__optim_loss_fwd(pen_context *ctx, pen_optim_loss kind,
                                              const pen_image *image, const pen_image *target,
                                              const float *weight, double *loss) {
-    return pen__loss_weighted_fwd(ctx, kind == PEN_OPTIM_LOSS_L1, image, target, weight, loss);
+    const pen__optim_loss_kind *L = pen__optim_loss_find((int)kind);
+    return L ? L->fwd(ctx, image, target, weight, loss)
+             : pen__error(ctx, PEN_ERROR_ARGUMENT, "loss: unknown loss %d", (int)kind);
 }
 static inline void pen__optim_loss_bwd(pen_optim_loss kind, const pen_image *image,
                                        const pen_image *target, const float *weight, double d_loss,
                                        pen_image *d_image) {
-    pen__loss_weighted_bwd(kind == PEN_OPTIM_LOSS_L1, image, target, weight, d_loss, d_image);
+    const pen__optim_loss_kind *L = pen__optim_loss_find((int)kind);
+    if (L) L->bwd(image, target, weight, d_loss, d_image);
 }
 /* The SH lighting (sh_bands^2 rows) that best explains `target` by the scene `sc` rendered
  * without shadows (least squares per channel; refitted once over the pixels the first fit's

@@ -93,8 +93,9 @@ static pen_status evaluate(pen_context *ctx, const pen_optim_task *t, const floa
         if (!s && d_img) pen__optim_loss_bwd(t->loss, img, &t->target, weight, 1.0, d_img);
         return s;
     }
-    return t->loss == PEN_OPTIM_LOSS_L1 ? pen_loss_l1(ctx, img, &t->target, loss, d_img)
-                                        : pen_loss_l2(ctx, img, &t->target, loss, d_img);
+    const pen__optim_loss_kind *L = pen__optim_loss_find((int)t->loss);
+    return L ? L->plain(ctx, img, &t->target, loss, d_img)
+             : pen__error(ctx, PEN_ERROR_ARGUMENT, "loss: unknown loss %d", (int)t->loss);
 }
 
 /* ---- Checkpoints and snapshots --------------------------------------------------------------- */
@@ -526,7 +527,8 @@ static pen_status ridge_init(pen_context *ctx, const pen_optim_task *t, run *r) 
 static pen_optim_lighting_solver resolve_solver(pen_context *ctx, const pen_optim_task *t,
                                                 const pen_optim_settings *set) {
     if (t->lighting_solver != PEN_OPTIM_LIGHTING_AUTO) return t->lighting_solver;
-    const int solvable = (t->optimize & PEN_OPTIM_LIGHTING) && t->loss == PEN_OPTIM_LOSS_L2;
+    const pen__optim_loss_kind *L = pen__optim_loss_find((int)t->loss);
+    const int solvable = (t->optimize & PEN_OPTIM_LIGHTING) && L && L->least_squares;
     if (set->resume && set->outdir) {
         char *path = pen__optim_join(ctx, set->outdir, "checkpoint.bin");
         const int k = path ? pen__optim_checkpoint_solver(path) : -1;

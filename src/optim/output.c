@@ -454,6 +454,9 @@ pen_status pen_optim_result_json(pen_context *ctx, const pen_optim_task *t,
     *json = NULL;
     const int shadows = settings ? settings->shadows : 1;
     const int it = r->iterations;
+    const pen__optim_loss_kind *loss = pen__optim_loss_find((int)t->loss);
+    if (!loss) /* (never written as another: a reader would take it for that one) */
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "result.json: unknown loss %d", (int)t->loss);
     cJSON *root = cJSON_CreateObject();
     cJSON *losses = cJSON_CreateDoubleArray(r->losses, r->losses ? it + 1 : 0);
     static const char *const deform_names[] = {"w_rot", "w_reg"};
@@ -462,8 +465,7 @@ pen_status pen_optim_result_json(pen_context *ctx, const pen_optim_task *t,
     int ok = root && pen__json_add(root, "task", cJSON_CreateString(t->path ? t->path : "")) &&
              pen__json_add(root, "optimize", groups_json(t->optimize)) &&
              pen__json_add(root, "shadows", cJSON_CreateBool(shadows)) &&
-             pen__json_add(root, "loss",
-                           cJSON_CreateString(t->loss == PEN_OPTIM_LOSS_L1 ? "l1" : "l2")) &&
+             pen__json_add(root, "loss", cJSON_CreateString(loss->name)) &&
              pen__json_add(root, "shadow_weight", cJSON_CreateNumber(t->shadow_weight)) &&
              /* the solver and ridge used ("auto" and the default resolved) */
              pen__json_add(root, "lighting_solver",

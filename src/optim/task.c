@@ -46,7 +46,7 @@ pen_optim_task pen_optim_task_default(void) {
     memset(&t, 0, sizeof t);
     t.iterations = 500;
     t.lr = pen_optim_lr_default();
-    t.loss = PEN_OPTIM_LOSS_L2;
+    t.loss = pen__optim_losses[0].kind;
     t.tolerance = 1e-3;
     t.window = 50;
     t.init_black = 1;
@@ -303,7 +303,6 @@ static pen_status parse_options(pen_context *ctx, const where *top, const cJSON 
     }
     static const char *const encodings[] = {"srgb", "linear", NULL};
     static const char *const solvers[] = {"adam", "least_squares", "auto", NULL};
-    static const char *const losses[] = {"l2", "l1", NULL};
     static const char *const inits[] = {"black", "scene", "fit", NULL};
     int k = -1;
     if ((e = cJSON_GetObjectItemCaseSensitive(root, "lighting_solver"))) {
@@ -322,9 +321,13 @@ static pen_status parse_options(pen_context *ctx, const where *top, const cJSON 
     }
     if ((e = cJSON_GetObjectItemCaseSensitive(root, "loss"))) {
         w = at(top, "loss");
+        const char *losses[PEN__OPTIM_LOSSES + 1];
+        for (int i = 0; i < PEN__OPTIM_LOSSES; ++i)
+            losses[i] = pen__optim_losses[i].name;
+        losses[PEN__OPTIM_LOSSES] = NULL;
         s = pen__json_choice(ctx, &w, e, "loss", losses, &k);
         if (s) return s;
-        t->loss = k == 1 ? PEN_OPTIM_LOSS_L1 : PEN_OPTIM_LOSS_L2;
+        t->loss = pen__optim_losses[k].kind;
     }
     if ((e = cJSON_GetObjectItemCaseSensitive(root, "init"))) {
         w = at(top, "init");
@@ -565,8 +568,12 @@ pen_status pen__optim_task_check(pen_context *ctx, const pen_optim_task *t) {
     if (!(t->shadow_weight >= 0.0) || !isfinite(t->shadow_weight))
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: shadow_weight must be a finite number >= 0",
                           name);
+    const pen__optim_loss_kind *loss = pen__optim_loss_find((int)t->loss);
+    if (!loss)
+        return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: loss: unknown loss %d", name,
+                          (int)t->loss);
     if (t->lighting_solver == PEN_OPTIM_LIGHTING_LEAST_SQUARES &&
-        (!(t->optimize & PEN_OPTIM_LIGHTING) || t->loss != PEN_OPTIM_LOSS_L2))
+        (!(t->optimize & PEN_OPTIM_LIGHTING) || !loss->least_squares))
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "%s: lighting_solver: \"least_squares\" needs \"lighting\" in optimize "
                           "and the l2 loss",
