@@ -8,8 +8,17 @@
  * keys starting with '_' are comments. Defaults are applied here and nowhere else. The loader
  * only parses: sphere sets keep the overlap weights their JSON gives and get none otherwise
  * (the renderer computes missing weights once per render state; pen_spheres_ensure_weights
- * computes them explicitly, as the optimizer and the flat API do). */
+ * computes them explicitly, as the optimizer and the flat API do).
+ *
+ * Placement is resolved here too: "units", "pose": {"on_ground", "centre"} and "camera":
+ * {"frame"} are how a file says where an object stands and where the camera looks, as
+ * "world_to_camera" is another way to give the eye. They become the pose's scale and translation
+ * and the camera's eye and target (src/io/scene_place.c, with the maths of src/scene/place.c)
+ * once the objects are loaded, so that every door (the CLI, the C API, the flat API and Python)
+ * gets the same numbers, and pen_scene_save writes those numbers: an optimised pose is saved as
+ * it was found, not placed again. */
 #include "io/io_internal.h"
+#include "io/scene_place.h"
 #include "io/spheres_json.h"
 #include "scene/validate.h"
 #include "penumbra/envmap.h"
@@ -289,13 +298,17 @@ static pen_status parse_shadow(pen_context *ctx, const where *top, const cJSON *
     return s;
 }
 
-static pen_status parse_pose(pen_context *ctx, const where *w, const cJSON *o, pen_pose *pose) {
+static pen_status parse_pose(pen_context *ctx, const where *w, const cJSON *o, pen_pose *pose,
+                             unsigned char *place) {
     memset(pose, 0, sizeof *pose);
     pose->scale = 1.0f;
+    *place = 0;
     if (!o) return PEN_OK;
-    static const char *const known[] = {"rotation_axis_angle_deg", "translation", "scale", NULL};
+    static const char *const known[] = {
+        "rotation_axis_angle_deg", "translation", "scale", "on_ground", "centre", NULL};
     pen_status s = pen__json_need_object(ctx, w, o);
     if (!s) s = pen__json_known_keys(ctx, w, o, known);
+    if (!s) s = pen__scene_pose_place_parse(ctx, w, o, place);
     if (!s)
         s = opt_floats(ctx, w, o, "rotation_axis_angle_deg", -1e6, 1e6,
                        pose->rotation_axis_angle_deg);
@@ -444,6 +457,11 @@ static pen_status parse_albedo(pen_context *ctx, const char *path, const where *
                        obj->texture.height);
     if (s) {
         pen_image_free(&img);
+        const pen_mesh_material *mt =
+            tex_rel || material < 0 ? NULL : &obj->mesh.materials[material];
+        if (mt && mt->texture_source) /* the statement that named it, as baking says */
+            s = pen__error_prefix(ctx, s, "%s: map_Kd of material '%s': ", mt->texture_source,
+                                  mt->name);
         return pen__json_wrap(ctx, s, wtex);
     }
     pen_image_free(&obj->texture);
@@ -452,17 +470,18 @@ static pen_status parse_albedo(pen_context *ctx, const char *path, const where *
 }
 
 static pen_status parse_object(pen_context *ctx, const char *path, const where *w, const cJSON *o,
-                               pen_object *obj) {
+                               pen_object *obj, unsigned char *place) {
     static const char *const known[] = {
         "mesh", "albedo_texture", "albedo_texture_layout", "texture_filter", "albedo", "spheres",
-        "pose", NULL};
+        "pose", "units", NULL};
     pen_status s = pen__json_need_object(ctx, w, o);
     if (!s) s = pen__json_known_keys(ctx, w, o, known);
     where wm = at(w, "mesh");
     const char *mesh_rel = NULL;
     if (!s) s = pen__json_string(ctx, &wm, pen__json_member(o, "mesh"), &mesh_rel);
     where wp = at(w, "pose"), ws = at(w, "spheres");
-    if (!s) s = parse_pose(ctx, &wp, pen__json_member(o, "pose"), &obj->pose);
+    if (!s) s = parse_pose(ctx, &wp, pen__json_member(o, "pose"), &obj->pose, place);
+    if (!s) s = pen__scene_units_parse(ctx, w, o, &obj->pose);
     if (s) return s;
 
     obj->mesh_path = pen__io_path_resolve(ctx, path, mesh_rel);
@@ -474,7 +493,7 @@ static pen_status parse_object(pen_context *ctx, const char *path, const where *
 }
 
 static pen_status parse_objects(pen_context *ctx, const char *path, const where *top,
-                                const cJSON *root, pen_scene *sc) {
+                                const cJSON *root, pen_scene *sc, pen__placement *pl) {
     where w = at(top, "objects");
     const cJSON *list = pen__json_member(root, "objects");
     if (!cJSON_IsArray(list))
@@ -486,14 +505,16 @@ static pen_status parse_objects(pen_context *ctx, const char *path, const where 
                                SCENE_MAX_OBJECTS);
     if (n == 0) return PEN_OK;
     sc->objects = pen__calloc(ctx, (size_t)n, sizeof *sc->objects, "objects");
-    if (!sc->objects) return PEN_ERROR_MEMORY;
+    pl->flags = pen__calloc(ctx, (size_t)n, 1, "objects");
+    if (!sc->objects || !pl->flags) return PEN_ERROR_MEMORY;
     int i = 0;
     const cJSON *o;
     cJSON_ArrayForEach(o, list) {
         where wi;
         pen__json_index(&w, i, &wi);
         sc->object_count = i + 1; /* so that pen_scene_free sees this object on failure */
-        pen_status s = parse_object(ctx, path, &wi, o, &sc->objects[i++]);
+        pen_status s = parse_object(ctx, path, &wi, o, &sc->objects[i], &pl->flags[i]);
+        ++i;
         if (s) return s;
     }
     return PEN_OK;
@@ -561,15 +582,15 @@ static pen_status parse_scene(pen_context *ctx, const char *path, const cJSON *r
     if (!s && pen__json_member(root, "sh_bands"))
         s = pen__json_int(ctx, &wb, pen__json_member(root, "sh_bands"), 1, PEN_SH_MAX_BANDS,
                           "an integer in [1, 8]", &sc->sh_bands);
-    if (!s) {
-        where wc = at(&top, "camera");
-        s = pen__io_camera_parse(ctx, &wc, pen__json_member(root, "camera"), &sc->camera);
-    }
+    pen__placement pl = {0};
+    if (!s) s = pen__scene_camera_parse(ctx, &top, root, &sc->camera, &pl);
     if (!s) s = parse_shadow(ctx, &top, root, sc->sh_bands, &sc->shadow);
     if (!s) s = parse_ground(ctx, &top, root, &sc->ground);
     if (!s) s = parse_lighting(ctx, path, &top, root, sc->sh_bands, &sc->lighting);
     if (!s) s = parse_background(ctx, &top, root, sc);
-    if (!s) s = parse_objects(ctx, path, &top, root, sc);
+    if (!s) s = parse_objects(ctx, path, &top, root, sc, &pl);
+    if (!s) s = pen__scene_place(ctx, &top, sc, &pl);
+    free(pl.flags);
     return s;
 }
 
