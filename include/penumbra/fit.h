@@ -1,4 +1,7 @@
-/* penumbra/fit.h -- fitting a set of spheres to a closed triangle mesh (supplement sec. 2).
+/* penumbra/fit.h -- fitting a set of spheres to a closed triangle mesh (supplement sec. 2); with
+ * it, a scene made ready to render (pen_scene_prepare: the fits and overlap weights) and what a
+ * user is told before it renders (pen_scene_check: bounds, lights, likely mistakes;
+ * pen_mesh_edges_count: whether a mesh is closed, as the fit needs).
  *
  * The fit voxelizes the mesh's padded bounding box, classifies every voxel centre as inside or
  * outside the mesh, samples points on the surface, places N spheres inside the mesh (k-means on
@@ -126,6 +129,72 @@ PEN_API pen_status pen_spheres_preview(pen_context *ctx, const pen_mesh *mesh,
  * call). Errors name the scene file and the object: "scene.json: objects[1].spheres: ...". */
 PEN_API pen_status pen_scene_prepare(pen_context *ctx, pen_scene *scene, int shadows,
                                      pen_fit_metrics *metrics);
+
+/* ---- What to tell a user about a scene and a mesh (src/geometry/scene_check.c) -------------- */
+
+/* Likely mistakes in a scene that loads and renders; none stops a render. */
+typedef enum pen_scene_warning_kind {
+    PEN_SCENE_WARNING_CAMERA_INSIDE = 1,  /* the camera's eye inside an object's posed bounds, or
+                                             inside one of its spheres */
+    PEN_SCENE_WARNING_OBJECT_TINY = 2,    /* an object's largest side under 1 % of the ground
+                                             square's side */
+    PEN_SCENE_WARNING_OBJECT_HUGE = 3,    /* ... over the ground square's side */
+    PEN_SCENE_WARNING_MTLLIB_MISSING = 4, /* an OBJ's material library not found: its materials
+                                             are lost (the mesh loader passes over it) */
+    PEN_SCENE_WARNING_TEXTURE_MISSING = 5 /* a material's map_Kd not found (a used one fails the
+                                             load unless the object's own albedo overrides it) */
+} pen_scene_warning_kind;
+
+#define PEN_SCENE_WARNING_CHARS 1024
+typedef struct pen_scene_warning {
+    pen_scene_warning_kind kind;
+    int object;                            /* the object concerned (objects[object]), or -1 */
+    char message[PEN_SCENE_WARNING_CHARS]; /* one line without a newline: what is wrong and
+                                              what to do, e.g. "objects[0] (chair.obj) is 90 x
+                                              84 x 60 but the ground square is 8 x 8: ..." */
+} pen_scene_warning;
+
+/* A disk light in the words a person uses. */
+typedef struct pen_light_summary {
+    float elevation_deg; /* above the horizon: asin of the direction's y */
+    float azimuth_deg;   /* about +Y, from +Z towards +X (as the camera frame's azimuth_deg) */
+    float share;         /* its part of all the light reaching the scene, in [0, 1]: the
+                            luminance (0.2126 R + 0.7152 G + 0.0722 B) integrated over the sky of
+                            the disk, 2 E / (1 + cos b), over that of the lights and the SH
+                            lighting (sqrt(4 pi) times its first coefficient). For lights found in
+                            a map, their share of the map's light */
+} pen_light_summary;
+
+typedef struct pen_scene_report {
+    int object_count;
+    float *bounds;   /* 6 floats per object: the posed vertices' lowest x, y, z, then highest
+                        x, y, z (world coordinates) */
+    int light_count; /* the scene's lighting.light_count */
+    pen_light_summary lights[PEN_SCENE_MAX_LIGHTS];
+    int warning_count;
+    pen_scene_warning *warnings;
+} pen_scene_report;
+
+/* Measures a loaded scene and lists its likely mistakes (pen_scene_warning_kind), without
+ * printing anything: `penumbra render` and `optimize` print the warnings on stderr, `penumbra
+ * info` prints everything. Reads each OBJ's material libraries again (pen_mesh_files_load) to
+ * find missing files. On success *out owns its arrays (pen_scene_report_free); on failure it is
+ * zeroed. */
+PEN_API pen_status pen_scene_check(pen_context *ctx, const pen_scene *scene, pen_scene_report *out);
+/* Frees the report's arrays and zeroes it; NULL is a no-op. */
+PEN_API void pen_scene_report_free(pen_scene_report *report);
+
+/* How closed a mesh is, as the fit's inside test needs it: positions welded (equal coordinates
+ * are one vertex), each edge counted over the triangles that use it. Closed (watertight): no
+ * open and no non-manifold edge. */
+typedef struct pen_mesh_edges {
+    long edges;                /* distinct edges */
+    long open_edges;           /* in one triangle only: the border of a hole */
+    long nonmanifold_edges;    /* in three or more triangles */
+    long degenerate_triangles; /* with two corners at one position (left out of the count) */
+} pen_mesh_edges;
+PEN_API pen_status pen_mesh_edges_count(pen_context *ctx, const pen_mesh *mesh,
+                                        pen_mesh_edges *out);
 
 /* Fits every object of a loaded scene that asks for it ("spheres": {"fit": N}, so fit_spheres > 0
  * and no spheres yet) with pen_spheres_fit_cached and the default settings (cached in the user's

@@ -65,7 +65,11 @@ PEN_API void pen_camera_set_free(pen_camera_set *set);
  * "albedo_texture", else its "albedo", else what its mesh's materials or vertex colours give
  * (pen_mesh_albedo_plan; several materials or colours are baked into one texture with
  * pen_mesh_bake_albedo, pen_object.texture_layout PEN_TEXTURE_LAYOUT_BAKED). On failure *out is
- * zeroed. */
+ * zeroed. Placement keys are resolved here (docs/file-formats.md, "Placing objects and the
+ * camera"): an object's "units" multiplies its pose scale, "pose": {"on_ground", "centre"} sets
+ * its translation from its posed vertices, and "camera": {"frame"} sets the camera's eye, target
+ * and up (0, 1, 0) to frame the objects so placed; the scene holds the numbers, which
+ * pen_scene_save writes. */
 PEN_API pen_status pen_scene_load(pen_context *ctx, const char *path, pen_scene *out);
 /* The same from JSON text (e.g. a scene embedded in a task file, printed back to text): `path`
  * names the text in messages and is the base of its relative paths. */
@@ -96,6 +100,32 @@ PEN_API pen_status pen_scene_save_ex(pen_context *ctx, const char *path, const p
 PEN_API pen_status pen_mesh_load(pen_context *ctx, const char *path, pen_mesh *out);
 PEN_API pen_status pen_mesh_load_obj(pen_context *ctx, const char *path, pen_mesh *out);
 PEN_API pen_status pen_mesh_load_ply(pen_context *ctx, const char *path, pen_mesh *out);
+/* The files a mesh file names and whether each can be opened: an OBJ's material libraries (its
+ * mtllib statements, each library once) and the map_Kd texture of every material in the
+ * libraries found. pen_mesh_load passes over a library it cannot open (the mesh then has no
+ * materials) and opens no texture, so this is how a missing one comes to light (`penumbra info`,
+ * pen_scene_check in penumbra/fit.h). A PLY names no file (count 0). Reads the OBJ and its
+ * libraries with the loader's limits; at most PEN_MESH_FILES_MAX_LIBRARIES libraries. On success
+ * *out owns its entries (pen_mesh_files_free); on failure it is zeroed. */
+typedef enum pen_mesh_file_kind {
+    PEN_MESH_FILE_MTLLIB = 0, /* a material library (mtllib) */
+    PEN_MESH_FILE_TEXTURE = 1 /* a material's diffuse texture (map_Kd) */
+} pen_mesh_file_kind;
+typedef struct pen_mesh_file {
+    pen_mesh_file_kind kind;
+    char *path;     /* resolved: relative to the OBJ (mtllib) or to its .mtl file (map_Kd) */
+    char *source;   /* "file:line" of the statement that names it */
+    char *material; /* the material of a map_Kd; NULL for a library */
+    int found;      /* 1 when the file could be opened for reading */
+} pen_mesh_file;
+typedef struct pen_mesh_files {
+    int count;
+    pen_mesh_file *files; /* libraries in file order, then textures in material order */
+} pen_mesh_files;
+#define PEN_MESH_FILES_MAX_LIBRARIES 4096
+PEN_API pen_status pen_mesh_files_load(pen_context *ctx, const char *path, pen_mesh_files *out);
+/* Frees the entries and zeroes *files; NULL is a no-op. */
+PEN_API void pen_mesh_files_free(pen_mesh_files *files);
 /* Writes a Wavefront OBJ (v, vt, vn, f with 1-based v/vt/vn references; no material or vertex
  * colour). Atomic:
  * temporary file + rename. pen_mesh_save picks the format by extension (.obj only). */

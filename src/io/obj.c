@@ -624,6 +624,149 @@ pen_status pen_mesh_load_obj(pen_context *ctx, const char *path, pen_mesh *out) 
     return PEN_OK;
 }
 
+/* ---- The files an OBJ names ------------------------------------------------------------------ */
+
+/* The loader passes over a library it cannot open and opens no texture (see the design note
+ * above); this lists what the file names and whether each exists, for `penumbra info` and
+ * pen_scene_check. The same line splitting, tokens and MTL reader as the loader, so both see the
+ * same files; the OBJ itself is streamed, not held. A library named twice is listed once. */
+
+#define FILES_LINE_MAX 8192 /* bytes of an mtllib line (a path) */
+
+static int can_open(const char *path) {
+    FILE *f = fopen(path, "rb");
+    if (f) fclose(f);
+    return f != NULL;
+}
+
+/* Appends an entry; takes `path`, `source` and `material` over (freeing them on failure). */
+static pen_status files_add(pen_context *ctx, pen_mesh_files *out, int *cap,
+                            pen_mesh_file_kind kind, char *path, char *source, char *material) {
+    if (path && source && out->count == *cap) {
+        const int grown = *cap ? 2 * *cap : 8;
+        pen_mesh_file *f = realloc(out->files, (size_t)grown * sizeof *f);
+        if (f) out->files = f, *cap = grown;
+    }
+    if (!path || !source || out->count == *cap) {
+        free(path);
+        free(source);
+        free(material);
+        return pen__error(ctx, PEN_ERROR_MEMORY, "out of memory listing a mesh's files");
+    }
+    out->files[out->count++] = (pen_mesh_file){kind, path, source, material, can_open(path)};
+    return PEN_OK;
+}
+
+static int listed(const pen_mesh_files *out, const char *path) {
+    for (int i = 0; i < out->count; ++i)
+        if (out->files[i].kind == PEN_MESH_FILE_MTLLIB && strcmp(out->files[i].path, path) == 0)
+            return 1;
+    return 0;
+}
+
+/* What pen_mesh_files_load gathers: the entries, the materials of the libraries found. */
+typedef struct files_state {
+    pen_context *ctx;
+    const char *path;
+    pen_mesh_files *out;
+    int cap, libraries;
+    materials mats;
+} files_state;
+
+/* One line of the OBJ: an mtllib adds its library (once) and reads the materials it defines.
+ * `cut`: the line was longer than the part held. */
+static pen_status library_line(files_state *st, const line *ln, int cut) {
+    const char *p = ln->p, *t;
+    size_t n = next_token(&p, ln->end, &t);
+    if (!token_is(t, n, "mtllib")) return PEN_OK;
+    if (cut)
+        return pen__error(st->ctx, PEN_ERROR_PARSE, "%s:%d: mtllib line longer than %d bytes",
+                          st->path, ln->number, FILES_LINE_MAX);
+    char *name = rest_of_line(st->ctx, p, ln->end);
+    char *mtl = name ? pen__io_path_resolve(st->ctx, st->path, name) : NULL;
+    free(name);
+    if (mtl && listed(st->out, mtl)) {
+        free(mtl);
+        return PEN_OK;
+    }
+    if (mtl && ++st->libraries > PEN_MESH_FILES_MAX_LIBRARIES) {
+        free(mtl);
+        return pen__error(st->ctx, PEN_ERROR_PARSE, "%s:%d: more than %d material libraries",
+                          st->path, ln->number, PEN_MESH_FILES_MAX_LIBRARIES);
+    }
+    pen_status s = files_add(st->ctx, st->out, &st->cap, PEN_MESH_FILE_MTLLIB, mtl,
+                             source_of(st->ctx, st->path, ln->number), NULL);
+    if (!s && st->out->files[st->out->count - 1].found) s = mtl_read(st->ctx, mtl, &st->mats);
+    return s;
+}
+
+/* Streams the OBJ in chunks, holding the first FILES_LINE_MAX bytes of each line only: the file
+ * may be large and only its mtllib lines matter. Lines end at '\n' (a '\r' before it dropped), as
+ * the loader splits them. */
+static pen_status scan_libraries(files_state *st, FILE *f) {
+    enum { CHUNK = 1 << 16 };
+    char *chunk = pen__malloc(st->ctx, CHUNK, 1, "mesh files");
+    char *head = pen__malloc(st->ctx, FILES_LINE_MAX, 1, "mesh files");
+    pen_status s = chunk && head ? PEN_OK : PEN_ERROR_MEMORY;
+    size_t kept = 0, got;
+    int cut = 0, number = 1, pending = 0;
+    while (!s && (got = fread(chunk, 1, CHUNK, f)) > 0) {
+        for (size_t i = 0; !s && i < got; ++i) {
+            if (chunk[i] != '\n') {
+                if (kept < FILES_LINE_MAX)
+                    head[kept++] = chunk[i];
+                else
+                    cut = 1;
+                pending = 1;
+                continue;
+            }
+            const size_t n = kept > 0 && head[kept - 1] == '\r' ? kept - 1 : kept;
+            s = library_line(st, &(line){head, head + n, number++}, cut);
+            kept = 0, cut = 0, pending = 0;
+        }
+    }
+    if (!s && ferror(f)) s = pen__error(st->ctx, PEN_ERROR_IO, "%s: read error", st->path);
+    if (!s && pending) {
+        const size_t n = kept > 0 && head[kept - 1] == '\r' ? kept - 1 : kept;
+        s = library_line(st, &(line){head, head + n, number}, cut);
+    }
+    free(chunk);
+    free(head);
+    return s;
+}
+
+pen_status pen_mesh_files_load(pen_context *ctx, const char *path, pen_mesh_files *out) {
+    memset(out, 0, sizeof *out);
+    if (!path) return pen__error(ctx, PEN_ERROR_ARGUMENT, "mesh files: no path");
+    if (!pen__io_has_ext(path, "obj")) return PEN_OK; /* PLY names no file */
+    FILE *f = fopen(path, "rb");
+    if (!f) return pen__error(ctx, PEN_ERROR_IO, "%s: cannot open: %s", path, strerror(errno));
+    files_state st = {.ctx = ctx, .path = path, .out = out};
+    pen_status s = scan_libraries(&st, f);
+    fclose(f);
+    for (int k = 0; !s && k < st.mats.count; ++k) {
+        const pen_mesh_material *m = &st.mats.items[k];
+        if (!m->texture_path) continue;
+        s = files_add(ctx, out, &st.cap, PEN_MESH_FILE_TEXTURE,
+                      pen__io_strdup(ctx, m->texture_path), pen__io_strdup(ctx, m->texture_source),
+                      pen__io_strdup(ctx, m->name));
+    }
+    materials_free(&st.mats);
+    if (s) pen_mesh_files_free(out);
+    return s;
+}
+
+void pen_mesh_files_free(pen_mesh_files *files) {
+    if (!files) return;
+    for (int i = 0; i < files->count; ++i) {
+        free(files->files[i].path);
+        free(files->files[i].source);
+        free(files->files[i].material);
+    }
+    free(files->files);
+    memset(files, 0, sizeof *files);
+}
+
 /* ---- Writing --------------------------------------------------------------------------------- */
 
 pen_status pen_mesh_save_obj(pen_context *ctx, const char *path, const pen_mesh *mesh) {
