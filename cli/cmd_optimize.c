@@ -189,6 +189,13 @@ int pen_cmd_optimize(int argc, char **argv) {
         goto out_ctx;
     }
     if (iterations > 0) task.iterations = iterations;
+    pen_scene_report report; /* the scene's likely mistakes (pen_scene_check), on stderr */
+    if (pen_scene_check(ctx, &task.scene, &report)) {
+        rc = fail_rank(set.ranks, ctx);
+        goto out_task;
+    }
+    if (root) pen_cli_print_warnings(CMD, &report);
+    pen_scene_report_free(&report);
     if (interrupted) {
         pen_cli_fail(CMD, "interrupted before the optimisation started");
         rc = 130;

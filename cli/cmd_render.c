@@ -1,7 +1,9 @@
 /* penumbra render: the SH-shadow render of a scene JSON into a PNG (sRGB), EXR or HDR (linear).
  * The scene is made ready by pen_scene_prepare, the call every door makes: objects whose spheres
  * are {"fit": N} get a fitted set first (cached in the user's cache folder and reused); each
- * fit's metrics are printed. */
+ * fit's metrics are printed, then the disk lights found in the map (or given) and, on stderr, the
+ * scene's likely mistakes (pen_scene_check: the camera inside an object, an object tiny or huge
+ * against the ground, a material library or texture missing). */
 #include "commands.h"
 
 #include "penumbra/fit.h"
@@ -154,6 +156,16 @@ int pen_cmd_render(int argc, char **argv) {
         rc = pen_cli_fail_ctx(CMD, ctx);
         goto out_scene;
     }
+    /* What the user should know before looking at the image: likely mistakes on stderr (even
+     * with -q), the disk lights that cast the main shadows on stdout. */
+    pen_scene_report report;
+    if (pen_scene_check(ctx, &scene, &report)) {
+        rc = pen_cli_fail_ctx(CMD, ctx);
+        goto out_scene;
+    }
+    pen_cli_print_warnings(CMD, &report);
+    if (!quiet) pen_cli_print_lights(stdout, &scene, &report, "");
+    pen_scene_report_free(&report);
     const double t0 = omp_get_wtime();
     pen_render_state *state = NULL; /* kept only for the --mask/--depth/--normals images */
     if ((aovs && pen_render_state_create(ctx, &state)) ||

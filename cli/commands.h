@@ -7,6 +7,8 @@
 
 #include "penumbra/penumbra.h"
 
+#include <stdio.h>
+
 typedef struct pen_command {
     const char *name;
     const char *summary;                 /* one line for `penumbra --help` */
@@ -22,6 +24,18 @@ int pen_cmd_compare(int argc, char **argv);
 int pen_cmd_optimize(int argc, char **argv);
 int pen_cmd_bench(int argc, char **argv);
 int pen_cmd_import_cameras(int argc, char **argv);
+int pen_cmd_info(int argc, char **argv);
+
+/* ---- What a scene holds, printed (cli/cmd_info.c; pen_scene_check in penumbra/fit.h) ---- */
+
+/* One line per disk light of the scene (from the report of pen_scene_check), each beginning with
+ * indent: "light 0 (found in sky.hdr): elevation 40.0 deg, azimuth 60.0 deg, angular radius 2.10
+ * deg, direction (...), irradiance (...), 61 % of the light"; "no light found in sky.hdr: SH
+ * lighting only" when a map gave none. */
+void pen_cli_print_lights(FILE *f, const pen_scene *sc, const pen_scene_report *report,
+                          const char *indent);
+/* Each warning of the report as one line on stderr: "penumbra <cmd>: warning: <message>". */
+void pen_cli_print_warnings(const char *cmd, const pen_scene_report *report);
 
 /* ---- MPI (cli/mpi.c) ---- */
 

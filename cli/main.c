@@ -5,6 +5,8 @@
 #include <string.h>
 
 static const pen_command commands[] = {
+    {"info", "what a mesh or scene holds: size, units, materials, closed, camera, lights",
+     pen_cmd_info},
     {"render", "SH-shadow render of a scene JSON into .png/.exr/.hdr", pen_cmd_render},
     {"reference", "ray-traced Monte-Carlo ground truth of a scene (Embree)", pen_cmd_reference},
     {"fit-spheres", "fit a sphere set to a closed mesh", pen_cmd_fit_spheres},
