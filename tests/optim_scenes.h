@@ -6,6 +6,7 @@
 #include "render_scenes.h"
 
 #include "core/internal.h" /* pen__fnv1a: the checkpoints' checksum */
+#include "optim/groups.h"  /* the segments' bounds in a checkpoint */
 
 #include <stdio.h>
 #include <string.h>
@@ -144,10 +145,11 @@ static inline uint32_t os_groups_v6(uint32_t groups) {
 }
 
 /* Rewrites the checkpoint at `path` as a build of an older `version` wrote it where the fields
- * did not change since: the version field set, below version 7 the groups in the bits of then
- * (os_groups_v6, after the segments), and below version 6 the scene's hash (after the solver,
- * ridge, k, the 3 weights, the target's and the initial guess's hashes) taken out; the checksum
- * recomputed. */
+ * did not change since: the version field set; below version 7 the groups in the bits of then
+ * (os_groups_v6, after the segments) and the lighting's and the log exposures' segments
+ * unbounded (their bounds came with version 7); below version 6 the scene's hash (after the
+ * solver, ridge, k, the 3 weights, the target's and the initial guess's hashes) taken out; the
+ * checksum recomputed. */
 static inline void os_checkpoint_downgrade(const char *path, uint32_t version) {
     static unsigned char buf[1 << 16];
     size_t n = os_checkpoint_read(path, buf, sizeof buf);
@@ -159,6 +161,13 @@ static inline void os_checkpoint_downgrade(const char *path, uint32_t version) {
         memcpy(&groups, buf + at, 4);
         groups = os_groups_v6(groups);
         memcpy(buf + at, &groups, 4);
+        uint32_t segs, bound;
+        memcpy(&segs, buf + 24, 4);
+        for (uint32_t k = 0; k < segs; ++k) { /* {u64 offset, u64 count, u32 bound} from 28 */
+            memcpy(&bound, buf + 28 + 20 * (size_t)k + 16, 4);
+            if (bound == PEN__BOUND_SH || bound == PEN__BOUND_LOG_EXPOSURE) bound = PEN__BOUND_NONE;
+            memcpy(buf + 28 + 20 * (size_t)k + 16, &bound, 4);
+        }
     }
     if (version < 6u) {
         const size_t at = os_checkpoint_solver_at(buf) + 4 + 8 + 4 + 24 + 8 + 8;

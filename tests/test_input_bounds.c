@@ -11,6 +11,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <dirent.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -438,6 +439,103 @@ static void test_overflow_bounds(void) {
     pen_context_destroy(ctx);
 }
 
+/* ---- 8. What the optimizer writes reads back --------------------------------------------------- */
+
+/* Removes the files of the folder dir_/name and the folder. */
+static void remove_folder(const char *name) {
+    DIR *d = opendir(at(name));
+    if (!d) return;
+    const struct dirent *e;
+    char path[512];
+    while ((e = readdir(d)) != NULL) {
+        if (strcmp(e->d_name, ".") == 0 || strcmp(e->d_name, "..") == 0) continue;
+        snprintf(path, sizeof path, "%s/%s", at(name), e->d_name);
+        remove(path);
+    }
+    closedir(d);
+    CHECK_MSG(rmdir(at(name)) == 0, "%s: not empty", at(name));
+}
+
+/* A 1e9 target on a ground of albedo 1e-6 solves by least squares to SH coefficients of about
+ * 3.4e14, beyond what a scene file holds (PEN_SCENE_MAX_SH): the solved lighting is held to that
+ * bound, as Adam's steps are (test_optim.c: test_adam_bounds), and the written scene.json loads
+ * (and renders). */
+static void test_written_scene_reads_back(void) {
+    pen_context *ctx = pen_context_create();
+    write_image(ctx, at("bright.exr"), 8, 8, (float)PEN_SCENE_MAX_RADIANCE);
+    pen_optim_task t;
+    CHECK_MSG(parse_text(ctx, "\"albedo\": [1e-6, 1e-6, 1e-6]",
+                         "\"optimize\": [\"lighting\"], \"target\": \"bright.exr\"", &t) == PEN_OK,
+              "%s", pen_context_error(ctx));
+    pen_optim_result r;
+    CHECK_MSG(pen_optim_run(ctx, &t, NULL, &r) == PEN_OK, "%s", pen_context_error(ctx));
+    CHECK(r.solved && r.lighting_solver == PEN_OPTIM_LIGHTING_LEAST_SQUARES);
+    for (int c = 0; c < 3; ++c) /* at the bound: the solve wanted more */
+        CHECK_MSG(t.scene.lighting.sh[0][c] == (float)PEN_SCENE_MAX_SH, "%g",
+                  (double)t.scene.lighting.sh[0][c]);
+    CHECK_MSG(pen_optim_write(ctx, at("sh_out"), &t, NULL, &r) == PEN_OK, "%s",
+              pen_context_error(ctx));
+    pen_scene back;
+    CHECK_MSG(pen_scene_load(ctx, at("sh_out/scene.json"), &back) == PEN_OK, "%s",
+              pen_context_error(ctx));
+    CHECK(back.lighting.sh[0][0] == t.scene.lighting.sh[0][0]);
+    pen_image img = {0, 0, 0, NULL};
+    pen_render_options opt = pen_render_options_default();
+    CHECK_MSG(pen_render_fwd(ctx, &back, &opt, NULL, &img) == PEN_OK, "%s",
+              pen_context_error(ctx));
+    pen_image_free(&img);
+    pen_scene_free(&back);
+    pen_optim_result_free(&r);
+    pen_optim_task_free(&t);
+    remove_folder("sh_out");
+    pen_context_destroy(ctx);
+}
+
+/* Adam at rate 10 on the log exposure of a view whose target is 1e8 times brighter than the
+ * render took its exposure to 1.7e9, and the written views.json was refused on reload (exposures
+ * in [1e-6, 1e6], views.c): the log exposure is held to that range, and views.json reads back as
+ * a later task's views. A task built in code with an exposure out of it is refused by the run. */
+static void test_written_views_read_back(void) {
+    pen_context *ctx = views_context();
+    write_image(ctx, at("far_bright.exr"), 8, 8, 1e8f);
+    char rest[1024];
+    snprintf(rest, sizeof rest,
+             "\"optimize\": [\"exposure\"], \"iterations\": 4, \"lr\": {\"exposure\": 10}, "
+             "\"views\": [{\"camera\": %s, \"target\": \"a.exr\"}, "
+             "{\"camera\": %s, \"target\": \"far_bright.exr\"}]",
+             CAM, CAM);
+    pen_optim_task t;
+    CHECK_MSG(parse_text(ctx, "", rest, &t) == PEN_OK, "%s", pen_context_error(ctx));
+    pen_optim_result r;
+    CHECK_MSG(pen_optim_run(ctx, &t, NULL, &r) == PEN_OK, "%s", pen_context_error(ctx));
+    const double x = t.views[1].exposure;
+    CHECK_MSG(x <= 1e6 && x > 0.99999e6, "exposure %.17g", x); /* at the bound */
+    CHECK_MSG(pen_optim_write(ctx, at("views_out"), &t, NULL, &r) == PEN_OK, "%s",
+              pen_context_error(ctx));
+    pen_optim_task back;
+    CHECK_MSG(parse_text(ctx, "",
+                         "\"optimize\": [\"lighting\"], \"views\": \"views_out/views.json\"",
+                         &back) == PEN_OK,
+              "%s", pen_context_error(ctx));
+    /* (the file's 15 digits: cJSON prints a double that way when it reads back within rounding) */
+    CHECK_MSG(back.view_count == 2 && back.views && fabs(back.views[1].exposure - x) <= 1e-9 * x,
+              "%d views, exposure %.17g", back.view_count,
+              back.views ? back.views[1].exposure : 0.0);
+    pen_optim_task_free(&back);
+    pen_optim_result_free(&r);
+    remove_folder("views_out");
+    /* built in code: refused when the run starts, as the reader refuses it */
+    t.views[1].exposure = 2e6;
+    expect_error(pen_optim_run(ctx, &t, NULL, &r), ctx,
+                 "task.json: views[1].exposure: expected an exposure in [1e-6, 1e6] (or 0, which "
+                 "stands for 1), got 2e+06");
+    t.views[1].exposure = 0.0; /* (stands for 1) */
+    CHECK_MSG(pen_optim_run(ctx, &t, NULL, &r) == PEN_OK, "%s", pen_context_error(ctx));
+    pen_optim_result_free(&r);
+    pen_optim_task_free(&t);
+    pen_context_destroy(ctx);
+}
+
 /* ---- 7. The minimum disk-light radius --------------------------------------------------------- */
 
 static pen_status light_scene(pen_context *ctx, const char *radius, pen_scene *sc) {
@@ -506,7 +604,7 @@ static void teardown(void) {
     static const char *const files[] = {
         "a.exr", "b.exr", "none.png", "all.png", "huge.exr", "bright.exr", "transforms.json",
         "far_views.json", "far_saved.json", "far_code.json", "light_saved.json", "far/cameras.txt",
-        "far/images.txt", "nul/cameras.txt", "nul/images.txt", "far", "nul"};
+        "far/images.txt", "nul/cameras.txt", "nul/images.txt", "far", "nul", "far_bright.exr"};
     for (size_t i = 0; i < sizeof files / sizeof files[0]; ++i)
         remove(at(files[i]));
     CHECK_MSG(rmdir(dir_) == 0, "%s: left files behind", dir_);
@@ -515,4 +613,4 @@ static void teardown(void) {
 RUN_TESTS(TEST(setup), TEST(test_far_camera_round_trip), TEST(test_colmap_nul),
           TEST(test_transforms_distortion), TEST(test_transforms_matrix),
           TEST(test_exposure_gauge), TEST(test_overflow_bounds), TEST(test_light_radius),
-          TEST(teardown))
+          TEST(test_written_scene_reads_back), TEST(test_written_views_read_back), TEST(teardown))

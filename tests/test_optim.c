@@ -53,6 +53,31 @@ static void test_adam_quadratic(void) {
     pen__optim_adam_free(&a2);
 }
 
+/* The bounds that keep what the optimizer writes readable: the SH lighting within what a scene
+ * file holds (a least-squares solve reached 3.4e14), a log exposure within what a views file
+ * holds (Adam at rate 10 reached an exposure of 1.7e9); NaN is left for the run to report. */
+static void test_adam_bounds(void) {
+    float x[4] = {3.4e14f, -3.4e14f, 5.0f, NAN};
+    const pen__optim_segment sh = {0, 4, 0.01f, PEN__BOUND_SH};
+    pen__optim_project(&sh, 1, x);
+    CHECK(x[0] == (float)PEN_SCENE_MAX_SH && x[1] == -(float)PEN_SCENE_MAX_SH && x[2] == 5.0f &&
+          isnan(x[3]));
+    CHECK((double)x[0] <= PEN_SCENE_MAX_SH);
+    /* two steps of 10 in log exposure, up and down, from the gauge's 1 */
+    float y[2] = {0.0f, 0.0f};
+    const float gy[2] = {-1.0f, 1.0f};
+    const pen__optim_segment ex = {0, 2, 10.0f, PEN__BOUND_LOG_EXPOSURE};
+    pen__adam adam;
+    CHECK(pen__optim_adam_init(NULL, &adam, 2) == PEN_OK);
+    for (int it = 0; it < 2; ++it)
+        pen__optim_adam_step(&adam, &ex, 1, y, gy);
+    const double up = exp((double)y[0]), down = exp((double)y[1]);
+    CHECK_MSG(up <= PEN__OPTIM_MAX_EXPOSURE && up > 0.99999 * PEN__OPTIM_MAX_EXPOSURE, "%.17g", up);
+    CHECK_MSG(down >= PEN__OPTIM_MIN_EXPOSURE && down < 1.00001 * PEN__OPTIM_MIN_EXPOSURE, "%.17g",
+              down);
+    pen__optim_adam_free(&adam);
+}
+
 static void test_stopping_rule(void) {
     double l[200];
     /* Falls 1% per iteration: never stalled with tolerance 1e-3. */
@@ -579,7 +604,7 @@ static void test_albedo_shadows_beat_baseline(void) {
     }
 }
 
-RUN_TESTS(TEST(test_adam_quadratic), TEST(test_stopping_rule), TEST(test_rotation_angle),
+RUN_TESTS(TEST(test_adam_quadratic), TEST(test_adam_bounds), TEST(test_stopping_rule), TEST(test_rotation_angle),
           TEST(test_lighting), TEST(test_shadows_beat_baseline), TEST(test_albedo_constant),
           TEST(test_albedo_texture), TEST(test_albedo_metrics), TEST(test_albedo_shadow_metrics),
           TEST(test_albedo_shadows_beat_baseline),

@@ -12,20 +12,25 @@
  *       "tolerance": 0.001, "window": 50, "init": "black",
  *       "ground_truth": "truth.json" or {...} }
  *
- * Usage:
+ * Usage (a task file, run as `penumbra optimize TASK.json -o out` runs it):
  *
+ *     // given: ctx, task_path
  *     pen_optim_task task;
- *     pen_optim_task_load(ctx, "task.json", &task);
+ *     pen_optim_task_load(ctx, task_path, &task);
  *     pen_optim_settings set = pen_optim_settings_default();
  *     pen_optim_result res;
- *     pen_optim_run(ctx, &task, &set, &res);        task.scene now holds the recovered scene
- *     pen_optim_write(ctx, "out", &task, &set, &res);
- *     pen_optim_result_free(&res); pen_optim_task_free(&task);
+ *     pen_optim_run(ctx, &task, &set, &res);            // task.scene: the recovered scene
+ *     printf("%d iterations, loss %g\n", res.iterations, res.final_loss);
+ *     pen_optim_write(ctx, "out", &task, &set, &res);   // result.json, scene.json, renders
+ *     pen_optim_result_free(&res);
+ *     pen_optim_task_free(&task);
  *
  * The optimiser is Adam with one learning rate per parameter group (supplement section 5.1:
  * 1e-2 for lighting, texture and pose). Rotations are optimised as axis-angle vectors in radians
  * (the scene stores degrees), so a learning rate of 1e-2 moves a rotation by about half a degree
- * per step. Albedos are kept in [0, 1], sphere radii positive. It stops after `iterations` steps or
+ * per step. Albedos are kept in [0, 1], sphere radii positive, SH coefficients within
+ * +-PEN_SCENE_MAX_SH (solved ones too) and exposures in [1e-6, 1e6], so that the scene and views
+ * files pen_optim_write writes read back. It stops after `iterations` steps or
  * when the objective has stopped falling: the lowest loss of the last `window` iterations is
  * less than `tolerance` (relative) below the lowest before them. This is the supplement's rule
  * (Theta_{n-1} - Theta_n) / Theta_n <= 0.001 applied to best losses over a window, because
@@ -186,7 +191,7 @@ typedef struct pen_optim_view {
     float *mask;        /* one per pixel, 1 (counts) or 0; NULL: every pixel counts */
     char *mask_path;    /* NULL without a mask */
     double weight;      /* >= 0 (default 1) */
-    double exposure;    /* > 0 (default 1; 0, a view zeroed in code, stands for 1);
+    double exposure;    /* in [1e-6, 1e6] (default 1; 0, a view zeroed in code, stands for 1);
                            pen_optim_run leaves the recovered ones here */
 } pen_optim_view;
 

@@ -47,10 +47,32 @@ void pen__optim_adam_free(pen__adam *adam) {
     adam->n = 0;
 }
 
+/* Clamps to [-bound, bound]; NaN stays NaN (a failure the run reports, not a value to hide). */
+static void clamp_symmetric(float *p, size_t n, float bound) {
+    for (size_t i = 0; i < n; ++i)
+        p[i] = p[i] < -bound ? -bound : p[i] > bound ? bound : p[i];
+}
+
+/* The largest float b with exp(b) <= PEN__OPTIM_MAX_EXPOSURE and exp(-b) >=
+ * PEN__OPTIM_MIN_EXPOSURE: a log exposure in [-b, b] makes (exp in double, params.c) an exposure
+ * that a views file holds (views.c), so views.json reads back. */
+static float log_exposure_bound(void) {
+    float b = (float)log(PEN__OPTIM_MAX_EXPOSURE);
+    while (exp((double)b) > PEN__OPTIM_MAX_EXPOSURE || exp(-(double)b) < PEN__OPTIM_MIN_EXPOSURE)
+        b = nextafterf(b, 0.0f);
+    return b;
+}
+
 static void project_segment(const pen__optim_segment *s, float *x) {
     float *p = x + s->offset;
     switch (s->bound) {
     case PEN__BOUND_NONE:
+        break;
+    case PEN__BOUND_SH: /* what a scene file holds: the written scene.json reads back */
+        clamp_symmetric(p, s->count, (float)PEN_SCENE_MAX_SH);
+        break;
+    case PEN__BOUND_LOG_EXPOSURE:
+        clamp_symmetric(p, s->count, log_exposure_bound());
         break;
     case PEN__BOUND_UNIT:
         for (size_t i = 0; i < s->count; ++i)

@@ -37,7 +37,9 @@
  * new scene. Older files have none and are read without that check. Version 7 gives the groups
  * the render's gradient bits (optim.h PEN_OPTIM_*: pose 8, deformation 16, spheres 4, exposure
  * 128, where they were 4, 8, 16 and 64): an older file's groups are read in the bits of its day
- * (groups.h bit_v6) and mapped, so that its run resumes as before. */
+ * (groups.h bit_v6) and mapped, so that its run resumes as before; it also bounds the lighting
+ * (PEN__BOUND_SH) and the log exposures (PEN__BOUND_LOG_EXPOSURE), unbounded in older files
+ * (same_bound). */
 #define _POSIX_C_SOURCE 200809L
 #include "io/io_internal.h"
 #include "optim/optim_internal.h"
@@ -241,10 +243,20 @@ READER_GET(get_u64, uint64_t)
 READER_GET(get_f64, double)
 
 static const char *bound_name(unsigned b) {
-    return b == PEN__BOUND_UNIT      ? "unit"
-           : b == PEN__BOUND_SPHERES ? "spheres"
-           : b == PEN__BOUND_LIGHTS  ? "lights"
-                                     : "none";
+    return b == PEN__BOUND_UNIT           ? "unit"
+           : b == PEN__BOUND_SPHERES      ? "spheres"
+           : b == PEN__BOUND_LIGHTS       ? "lights"
+           : b == PEN__BOUND_SH           ? "sh"
+           : b == PEN__BOUND_LOG_EXPOSURE ? "log exposure"
+                                          : "none";
+}
+
+/* Before version 7 the lighting and the log exposures were unbounded: their bounds then only
+ * clip values whose scene or views file would be refused, so such a file resumes under them. */
+static int same_bound(uint32_t version, uint32_t file, pen__optim_bound run) {
+    return file == (uint32_t)run ||
+           (version < 7u && file == PEN__BOUND_NONE &&
+            (run == PEN__BOUND_SH || run == PEN__BOUND_LOG_EXPOSURE));
 }
 
 /* The file's preamble: magic, version and byte-order marker. Returns 0 for a checkpoint this
@@ -276,7 +288,7 @@ static pen_status check_identity(pen_context *ctx, const char *path, reader *r,
         const uint32_t bound = get_u32(r);
         const pen__optim_segment *g = &id->segments[k];
         if (r->ok && (off != (uint64_t)g->offset || count != (uint64_t)g->count ||
-                      bound != (uint32_t)g->bound))
+                      !same_bound(version, bound, g->bound)))
             return pen__error(ctx, PEN_ERROR_ARGUMENT,
                               "%s: made for another task: segment %d holds %llu parameters at "
                               "%llu (bound %s), this task's %zu at %zu (bound %s)",

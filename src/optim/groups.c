@@ -43,7 +43,7 @@ _Static_assert(sizeof(pen_optim_lr) == PEN__OPTIM_RATES * sizeof(float),
 const pen__optim_group pen__optim_groups[PEN__OPTIM_GROUPS] = {
     /* SH coefficients, 3 channels each */
     [PEN__OPTIM_G_LIGHTING] = {"lighting", PEN_OPTIM_LIGHTING, 1u, PEN_GRAD_LIGHTING, 0, 0,
-                               ONE(3, LIGHTING, PEN__BOUND_NONE), NULL, 0, NULL},
+                               ONE(3, LIGHTING, PEN__BOUND_SH), NULL, 0, NULL},
     /* texel floats, or the constant albedo's 3 */
     [PEN__OPTIM_G_ALBEDO] = {"albedo", PEN_OPTIM_ALBEDO, 2u, PEN_GRAD_ALBEDO, 1, NEEDS_OBJECTS,
                              ONE(1, ALBEDO, PEN__BOUND_UNIT), NULL, 0, NULL},
@@ -66,7 +66,7 @@ const pen__optim_group pen__optim_groups[PEN__OPTIM_GROUPS] = {
                              ONE(PEN_LIGHT_FLOATS, LIGHTS, PEN__BOUND_LIGHTS), NULL, 0, NULL},
     /* log exposure per view but the first (the gauge); no render group: views.c */
     [PEN__OPTIM_G_EXPOSURE] = {"exposure", PEN_OPTIM_EXPOSURE, 64u, 0u, 0, 0,
-                               ONE(1, EXPOSURE, PEN__BOUND_NONE), NULL, 0, NULL},
+                               ONE(1, EXPOSURE, PEN__BOUND_LOG_EXPOSURE), NULL, 0, NULL},
 };
 
 unsigned pen__optim_group_bits(void) {

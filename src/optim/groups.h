@@ -20,8 +20,13 @@ typedef enum pen__optim_bound {
     PEN__BOUND_NONE = 0,
     PEN__BOUND_UNIT,    /* every value in [0, 1] (albedos) */
     PEN__BOUND_SPHERES, /* x, y, z, r per sphere: r >= PEN__OPTIM_MIN_RADIUS */
-    PEN__BOUND_LIGHTS   /* per disk light: direction (renormalised to unit length), angular
+    PEN__BOUND_LIGHTS,  /* per disk light: direction (renormalised to unit length), angular
                            radius in the scene's range, irradiance >= 0 */
+    PEN__BOUND_SH,      /* every value in [-PEN_SCENE_MAX_SH, PEN_SCENE_MAX_SH] (SH lighting: what
+                           a scene file holds, so that the recovered scene.json reads back) */
+    PEN__BOUND_LOG_EXPOSURE /* every value a log exposure whose exposure is in
+                               [PEN__OPTIM_MIN_EXPOSURE, PEN__OPTIM_MAX_EXPOSURE] (optim_internal.h:
+                               what a views file holds, so that views.json reads back) */
 } pen__optim_bound;
 
 /* ---- Parameter groups ------------------------------------------------------------------------ */

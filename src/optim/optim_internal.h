@@ -19,6 +19,15 @@
 
 #define PEN__OPTIM_MIN_RADIUS 1e-3f
 
+/* What a view's exposure may be (pen_optim_view; views.c reads views files to it, the task's
+ * checks hold tasks built in code to it, and the exposure group's log bound keeps recovered ones
+ * in it): a camera's gain, 1e-6 .. 1e6 (20 stops either way, beyond any bracket), so that the
+ * fits' target over the exposure (a target is at most PEN_SCENE_MAX_RADIANCE: at most 1e15) and
+ * their factor s^2 stay finite (an exposure of 1e-40 is a float denormal, its target over it
+ * infinite). */
+#define PEN__OPTIM_MIN_EXPOSURE 1e-6
+#define PEN__OPTIM_MAX_EXPOSURE 1e6
+
 /* A run of parameters sharing a learning rate and a bound: x[offset .. offset + count). */
 typedef struct pen__optim_segment {
     size_t offset, count;
@@ -466,6 +475,9 @@ pen_status pen__optim_layout(pen_context *ctx, pen__optim_run *r, const pen_opti
 void pen__optim_run_free(pen__optim_run *r);
 /* to_scene 0: scene -> x; 1: x -> scene (deformed positions and sphere centres included). */
 void pen__optim_transfer(pen__optim_run *r, int to_scene);
+/* The lighting the scene holds now (a least-squares solve, a fit) into x, projected onto its
+ * bound (PEN__BOUND_SH), and back into the scene; nothing when the lighting is not optimised. */
+void pen__optim_lighting_take(pen__optim_run *r);
 double pen__optim_regularisers(pen__optim_run *r);
 /* The lighting ridge's term of the loss, sum_c mu_c |L_c|^2 / (3 weight_sum) over nb
  * coefficients; with d (may be NULL) its gradient with respect to sh is added to d. */

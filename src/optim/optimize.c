@@ -71,8 +71,9 @@ static pen_status solve_lighting(pen_context *ctx, const pen_optim_task *t,
     if (r->solved && memcmp(r->solved_for, r->x + nl, sizeof(float) * rest) == 0) return PEN_OK;
     pen_status s = solve_into(ctx, t, opt, r, r->sc->lighting.sh);
     if (s) return s;
-    for (size_t k = 0; k < nl; ++k)
-        r->x[r->at[PEN__OPTIM_G_LIGHTING] + k] = r->sc->lighting.sh[k / 3][k % 3];
+    /* within what a scene file holds, as Adam's steps are: a 1e9 target on a ground of albedo
+     * 1e-6 solves to coefficients of 3e14, which the written scene.json could not hold */
+    pen__optim_lighting_take(r);
     memcpy(r->solved_for, r->x + nl, sizeof(float) * rest);
     r->solved = 1;
     return PEN_OK;
@@ -444,6 +445,7 @@ static pen_status fitted_lighting(pen_context *ctx, const pen_optim_task *t, run
         pen_status s = pen__optim_fit_lighting(ctx, &t->scene, &t->target, PEN__OPTIM_RIDGE_INIT,
                                               r->sc->lighting.sh);
         if (!s) pen__optim_transfer(r, 0);
+        if (!s) pen__optim_lighting_take(r); /* (on its bound) */
         return s;
     }
     view_eyes e;
@@ -453,6 +455,7 @@ static pen_status fitted_lighting(pen_context *ctx, const pen_optim_task *t, run
                                      r->sc->lighting.sh);
     view_eyes_free(&e);
     if (!s) pen__optim_transfer(r, 0);
+    if (!s) pen__optim_lighting_take(r);
     return s;
 }
 

@@ -447,6 +447,15 @@ void pen__optim_transfer(run *r, int to_scene) {
                 OPS[g].transfer(r, o, r->x + r->objects[o].at[g], to_scene);
 }
 
+void pen__optim_lighting_take(run *r) {
+    const size_t at = r->at[PEN__OPTIM_G_LIGHTING];
+    if (at == SIZE_MAX) return;
+    lighting_transfer(r, -1, r->x + at, 0);
+    for (int k = 0; k < r->segment_count; ++k)
+        if (r->segments[k].offset == at) pen__optim_project(&r->segments[k], 1, r->x);
+    lighting_transfer(r, -1, r->x + at, 1);
+}
+
 void pen__optim_start(run *r, int black) {
     for (int g = 0; g < PEN__OPTIM_GROUPS; ++g)
         if (r->at[g] != SIZE_MAX && OPS[g].start) OPS[g].start(r, -1, r->x + r->at[g], black);

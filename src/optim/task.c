@@ -548,9 +548,13 @@ pen_status pen__optim_task_check(pen_context *ctx, const pen_optim_task *t) {
         if (!(v->weight >= 0.0) || !isfinite(v->weight))
             return pen__error(ctx, PEN_ERROR_ARGUMENT,
                               "%s: %s[%d].weight: expected a finite number >= 0", name, key, k);
-        if (!(v->exposure >= 0.0) || !isfinite(v->exposure)) /* (0: 1, optim.h) */
+        /* as a views file holds it (views.c; 0, a view zeroed in code, stands for 1: optim.h) */
+        if (v->exposure != 0.0 && !(v->exposure >= PEN__OPTIM_MIN_EXPOSURE &&
+                                    v->exposure <= PEN__OPTIM_MAX_EXPOSURE))
             return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                              "%s: %s[%d].exposure: expected a finite number > 0", name, key, k);
+                              "%s: %s[%d].exposure: expected an exposure in [1e-6, 1e6] (or 0, "
+                              "which stands for 1), got %g",
+                              name, key, k, v->exposure);
     }
     s = check_exposure(ctx, t);
     if (s) return s;

@@ -41,11 +41,8 @@ typedef pen__json_where where;
  * the bound of every radiance a scene holds (PEN_SCENE_MAX_RADIANCE: its map, its background;
  * pen_optim_task_set_target holds a single target to it too): its squares and the least-squares
  * lighting that explains it stay far inside float (a 3e38 target made the solved SH
- * coefficients infinite). An exposure is a camera's gain, 1e-6 .. 1e6 (20 stops either way,
- * beyond any bracket), so that the fits' target over the exposure (at most 1e15) and their factor
- * s^2 stay finite too (an exposure of 1e-40 is a float denormal, its target over it infinite). */
-#define PEN__OPTIM_MIN_EXPOSURE 1e-6
-#define PEN__OPTIM_MAX_EXPOSURE 1e6
+ * coefficients infinite). An exposure is in [PEN__OPTIM_MIN_EXPOSURE, PEN__OPTIM_MAX_EXPOSURE]
+ * (optim_internal.h says why). */
 
 /* ---- Parsing --------------------------------------------------------------------------------- */
 
