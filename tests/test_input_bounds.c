@@ -439,7 +439,7 @@ static void test_overflow_bounds(void) {
     pen_context_destroy(ctx);
 }
 
-/* ---- 8. What the optimizer writes reads back --------------------------------------------------- */
+/* ---- 8. What the optimizer writes reads back ------------------------------------------------- */
 
 /* Removes the files of the folder dir_/name and the folder. */
 static void remove_folder(const char *name) {

@@ -604,7 +604,8 @@ static void test_albedo_shadows_beat_baseline(void) {
     }
 }
 
-RUN_TESTS(TEST(test_adam_quadratic), TEST(test_adam_bounds), TEST(test_stopping_rule), TEST(test_rotation_angle),
+RUN_TESTS(TEST(test_adam_quadratic), TEST(test_adam_bounds), TEST(test_stopping_rule),
+          TEST(test_rotation_angle),
           TEST(test_lighting), TEST(test_shadows_beat_baseline), TEST(test_albedo_constant),
           TEST(test_albedo_texture), TEST(test_albedo_metrics), TEST(test_albedo_shadow_metrics),
           TEST(test_albedo_shadows_beat_baseline),

@@ -102,7 +102,7 @@ static inline float pen__optim_rate_value(const pen_optim_lr *lr, int rate) {
     return *(const float *)((const char *)lr + pen__optim_rates[rate].offset);
 }
 
-/* ---- Losses (src/optim/loss.c) ---------------------------------------------------------------- */
+/* ---- Losses (src/optim/loss.c) --------------------------------------------------------------- */
 
 typedef struct pen__optim_loss_kind {
     pen_optim_loss kind;
