@@ -11,9 +11,10 @@
 #   4. solve the headline inverse problem: Spot's lighting and 6-D pose recovered together from
 #      a ray-traced image (256x256), with shadows and with --no-shadows, metrics side by side
 #      (the SH light alone, "lights": "none" in examples/optimize);
-#   5. the sun found from one image (examples/sun/run.sh, small): Spot under the full city map,
-#      SH from black and no lights at the start; the optimizer's global search creates the sun's
-#      disk light, Adam refines it with the SH, and the SH alone is fitted beside it.
+#   5. the sun found from one image (research/experiments/sun/run.sh, small): Spot under the
+#      full city map, SH from black and no lights at the start; the optimizer's global search
+#      creates the sun's disk light, Adam refines it with the SH, and the SH alone is fitted
+#      beside it.
 # A few minutes on two cores (the first run also fits Spot's 32 spheres, then caches them).
 set -e
 PEN=${1:-build/penumbra}
@@ -78,8 +79,9 @@ row "image RMSE vs target" "%.4f" image_rmse
 echo "   outputs: $OUT/inverse_shadows/ and $OUT/inverse_no-shadows/ (compare.png: target,"
 echo "   start, result, error; result.json, scene.json, loss.svg, snapshots/)"
 echo
-echo "== The sun found from one image (examples/sun/run.sh at 64 spp and 100 iterations)"
-PEN_SUN_OUT="$OUT/sun" PEN_SUN_SPP=64 PEN_SUN_ITERATIONS=100 sh "$ROOT/examples/sun/run.sh" "$PEN"
+echo "== The sun found from one image (research/experiments/sun/run.sh, 64 spp, 100 iterations)"
+PEN_SUN_OUT="$OUT/sun" PEN_SUN_SPP=64 PEN_SUN_ITERATIONS=100 \
+    sh "$ROOT/research/experiments/sun/run.sh" "$PEN"
 echo
 echo "penumbra demo: images and tables are in $OUT/ (spot_<map>.png: render with the lights,"
 echo "spot_<map>_nolights.png: SH light alone, spot_<map>_truth.png: ray-traced under the full map);"

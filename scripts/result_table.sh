@@ -1,5 +1,5 @@
 # Shell helpers, sourced by scripts that print members of two result.json files side by side
-# (scripts/demo.sh, examples/sun/run.sh).
+# (scripts/demo.sh, research/experiments/sun/run.sh).
 
 # result_field FILE NAME: the first member NAME of a result.json, "-" when absent.
 result_field() {

@@ -1,6 +1,7 @@
-"""Side-by-side pictures of cells of scripts/lights_table.py (the README's lights table).
+"""Side-by-side pictures of cells of lights_table.py (docs/results/lights.md's table).
 
-Usage: python3 scripts/lights_sheet.py OUTDIR SHEET.png [--suffix S] [--cells mesh:map,...]
+Usage: python3 research/experiments/accuracy/lights_sheet.py OUTDIR SHEET.png [--suffix S]
+                                                             [--cells mesh:map,...]
 
 One row per cell, four columns: the full-map truth (reference --lighting envmap), the default
 render (its lights found in the map), "lights": "none" (the SH light alone) and --no-shadows, read

@@ -2,8 +2,8 @@
 
 Disk lights: docs/design.md sec. 1.13.
 
-Usage: python3 scripts/lights_table.py PENUMBRA_BIN OUTDIR [--size S] [--spp N] [--meshes a,b]
-                                      [--maps a,b] [--suffix S] [--self MODE]
+Usage: python3 research/experiments/accuracy/lights_table.py PENUMBRA_BIN OUTDIR [--size S]
+           [--spp N] [--meshes a,b] [--maps a,b] [--suffix S] [--self MODE]
 
 For every mesh x map cell it measures rel. RMSE against `penumbra reference --lighting envmap`
 (the full environment map, importance-sampled, with exact visibility against the real mesh and
@@ -15,7 +15,7 @@ ground: the light users' photos have) of three renders of the same scene:
 over the whole image, over the surfaces (object and ground: the reference's coverage) and over the
 object's own pixels (coverage of the scene without its ground). The truth's own noise is measured
 from a second reference at N/4 spp (seed 2): noise = err(second vs truth) / sqrt(5).
-Scenes, poses, cameras and map scales are those of scripts/visibility_table.py (whose functions
+Scenes, poses, cameras and map scales are those of visibility_table.py beside it (whose functions
 this script uses); 32 fitted spheres ("spheres": {"fit": 32}, cached). Existing images are reused;
 --suffix S names the renders (not the truths) so that a second binary is compared with the same
 truths; --self MODE writes "shadow": {"self": MODE} into every scene (visibility_table.py's

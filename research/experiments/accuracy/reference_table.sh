@@ -2,8 +2,8 @@
 # Accuracy of `render` against the Embree reference on the bundled scenes (Spot and Bob on the
 # ground plane, city and interior maps, 512x512), and what the reference costs. The scenes use the
 # SH light alone ("lights": "none"), as the README's table was measured before disk lights;
-# scripts/lights_table.py measures the default, with the lights found in the map.
-# Usage: sh scripts/reference_table.sh PENUMBRA_BIN OUTDIR [SPP] [SIZE]
+# lights_table.py beside it measures the default, with the lights found in the map.
+# Usage: sh research/experiments/accuracy/reference_table.sh PENUMBRA_BIN OUTDIR [SPP] [SIZE]
 #   SPP  samples per pixel of the ground truth (default 1024), SIZE the image side (default 512).
 #   REUSE=1 keeps the reference images (and their rows) of an earlier run into the same OUTDIR
 #   and redoes only the `render` rows. OVERLAP=none renders with the plain sphere sum (scene
@@ -30,7 +30,7 @@ BIN=$1
 OUT=$2
 SPP=${3:-1024}
 SIZE=${4:-512}
-DATA=$(cd "$(dirname "$0")/../data" && pwd)
+DATA=$(cd "$(dirname "$0")/../../../data" && pwd)
 mkdir -p "$OUT/scenes"
 
 # The scenes follow examples/scenes/spot_*.json (camera, pose, map scale and rotation); Bob

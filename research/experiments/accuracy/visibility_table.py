@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
 """Self-shadowing accuracy of `penumbra render` on the development meshes (design.md sec. 1.15).
 
-Usage: python3 scripts/visibility_table.py PENUMBRA_BIN OUTDIR [--size S] [--spp N]
-                                          [--meshes a,b] [--maps a,b] [--no-proxy] [--suffix S]
-                                          [--plain] [--self MODE] [--quick]
+Usage: python3 research/experiments/accuracy/visibility_table.py PENUMBRA_BIN OUTDIR [--size S]
+           [--spp N] [--meshes a,b] [--maps a,b] [--no-proxy] [--suffix S] [--plain] [--self MODE]
+           [--quick]
 
 For every mesh x map cell (data/meshes x data/envmaps/*.exr) it renders the scene with
 `penumbra render` and measures rel. RMSE against `penumbra reference --lighting sh` (exact
@@ -62,7 +62,7 @@ import sys
 import zlib
 from itertools import accumulate
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "..")
 DATA = os.path.join(ROOT, "data")
 MESHES = ["spot_triangulated", "bob_tri", "blub", "scorpion", "koala", "goathead"]
 MAPS = ["city", "night", "courtyard", "interior", "forest", "sunset"]

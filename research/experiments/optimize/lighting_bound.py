@@ -17,7 +17,7 @@ The "exact" column is what a renderer with perfect visibility could reach from t
 this ridge: the floor of the problem, not of the model.
 
 Usage (from the repository root, after `make`):
-    PYTHONPATH=python python3 examples/optimize/lighting_bound.py build/penumbra \\
+    PYTHONPATH=python python3 research/experiments/optimize/lighting_bound.py build/penumbra \\
         examples/optimize/spot_truth.json out/optimize/targets/spot.exr [--spp 512]
         [--ridges 1e-3,3e-3,1e-2,3e-2] [--envmap interior]
 The scene's lighting (its map's projection, or its "sh") is the truth. --envmap interior swaps

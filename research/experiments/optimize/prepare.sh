@@ -1,8 +1,8 @@
-# Sourced by run_table.sh and examples/views/run_views_shape.sh: the generated inputs of the
-# deformation and shape-from-shadow tasks, made once and kept (the bent mesh, bend_obj.py; the
-# fitted and perturbed spheres, perturb_spheres.py), so that both experiments start from the same
-# files. Usage: pen_prepare OPTDIR ROOT BIN GEN MESH (MESH spot or bob; GEN holds meshes/ and
-# spheres/).
+# Sourced by run_table.sh and research/experiments/views/run_views_shape.sh: the generated
+# inputs of the deformation and shape-from-shadow tasks, made once and kept (the bent mesh,
+# bend_obj.py; the fitted and perturbed spheres, perturb_spheres.py), so that both experiments
+# start from the same files. Usage: pen_prepare OPTDIR ROOT BIN GEN MESH (MESH spot or bob; GEN
+# holds meshes/ and spheres/).
 pen_prepare() {
     case $5 in
     spot) _obj=spot_triangulated.obj _along=z _toward=x ;;

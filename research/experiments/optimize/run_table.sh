@@ -1,34 +1,37 @@
 #!/bin/sh
-# The inverse-problem experiment table of docs/optimize.md: every task of this folder solved with
+# The inverse-problem experiment table of docs/results/optimize.md: every task solved with
 # shadows and with --no-shadows, against targets ray-traced by `penumbra reference` from the
 # ground-truth scenes. Tasks (per mesh, Spot and Bob):
-#   lighting, albedo, pose, lighting_pose   the scene of <mesh>_truth.json (256x256, city map)
+#   lighting, albedo, pose, lighting_pose   the scene of <mesh>_truth.json (256x256, city map);
+#                        these tasks and scenes are the user examples of examples/optimize/
 #   deformation          the mesh bent sideways (bend_obj.py) recovered through the embedded
 #                        deformation graph from the unbent mesh
 #   shape_from_shadow    the proxy spheres recovered from the shadows alone (the spheres are not
 #                        drawn; the camera looks straight down at the object, its whole shadow
 #                        in the frame, <mesh>_shadow_truth.json), from a perturbed start
 #                        (perturb_spheres.py); own lighting, a 4-band sun (sun_sh.py)
-# Usage: sh examples/optimize/run_table.sh PENUMBRA_BIN [LIGHTING [MESH ...]]
+# Usage: sh research/experiments/optimize/run_table.sh PENUMBRA_BIN [LIGHTING [MESH ...]]
 #   LIGHTING  the targets' light: envmap (default; the map itself, so sharp shadows the 4-band
 #             model cannot reproduce) or sh (the map's 4-band projection, which the model
 #             represents exactly: what is left is the error of the proxies and SH visibility).
 #             The shape-from-shadow targets are lit by their scene's SH sun either way.
 #   MESH      spot, bob (default both)
+# The tasks run from copies in out/tasks_ENVMAP[_lights-L]/: examples/optimize's JSONs and this
+#   folder's (deformation and shape from shadow, whose inputs prepare.sh makes), side by side.
 # Environment: PEN_TABLE_ENVMAP (city, default, or interior) picks the bundled map of the
-#   scenes and targets: for interior every JSON of this folder is copied to out/tasks_interior/
-#   with city.hdr replaced by interior.hdr (same scale and rotation), and the results go to
-#   out/optimize/interior_LIGHTING/; PEN_TABLE_TASKS (default "lighting albedo pose lighting_pose deformation
-#   shape_from_shadow") picks rows; PEN_TABLE_ITERATIONS caps every run's iterations (a quick
-#   smoke run of the whole table: PEN_TABLE_ITERATIONS=5); PEN_TABLE_LIGHTS picks the disk lights
-#   of the tasks' scenes: none (default: the scenes' "lights": "none", the SH light alone), map
+#   scenes and targets: for interior city.hdr is replaced by interior.hdr in the copies (same
+#   scale and rotation), and the results go to out/optimize/interior_LIGHTING/; PEN_TABLE_TASKS
+#   (default "lighting albedo pose lighting_pose deformation shape_from_shadow") picks rows;
+#   PEN_TABLE_ITERATIONS caps every run's iterations (a quick smoke run of the whole table:
+#   PEN_TABLE_ITERATIONS=5); PEN_TABLE_LIGHTS picks the disk lights of the tasks' scenes: none
+#   (default: the scenes' "lights": "none", the SH light alone), map
 #   (the lights the loader finds in the map, the scenes' "lights" key removed: for the pose,
 #   albedo, deformation and shape rows the lighting is known, so the map's lights are the right
 #   model; the lighting rows solve the SH part with the found lights held at their true values)
 #   or search (as map, but the lighting rows start from a scene without lights and optimise
 #   ["lighting", "lights"] with "light_count": 1: the optimizer's global search for a sun; the
-#   ground truth keeps the map's lights). With lights the JSONs are copied to
-#   out/tasks_ENVMAP_lights-L/ and the results go to out/optimize/[interior_]LIGHTING_lights-L/.
+#   ground truth keeps the map's lights). With lights the results go to
+#   out/optimize/[interior_]LIGHTING_lights-L/.
 # Writes out/optimize/ (ignored by git): meshes/<mesh>_bent.obj, spheres/<mesh>_start.json,
 # targets/<mesh>.exr (envmap), <mesh>_sh.exr, <mesh>_bent[_sh].exr, <mesh>_shadow.exr, one folder
 # per run (LIGHTING/<mesh>_<task>_<shadows|no-shadows>/ with result.json, scene.json, final.png,
@@ -36,7 +39,7 @@
 # table on stdout.
 # Cost on the 2-core development machine (shared): about 0.1-0.3 s per shadowed iteration at
 # 256x256 and 0.01-0.2 s unshadowed; the whole table for one LIGHTING and both meshes takes
-# about an hour (docs/optimize.md lists the measured iterations and s/it of every row).
+# about an hour (docs/results/optimize.md lists the measured iterations and s/it of every row).
 set -eu
 BIN=$1
 LIGHTING=${2:-envmap}
@@ -44,7 +47,8 @@ LIGHTING=${2:-envmap}
 MESHES=${*:-spot bob}
 TASKS=${PEN_TABLE_TASKS:-lighting albedo pose lighting_pose deformation shape_from_shadow}
 HERE=$(cd "$(dirname "$0")" && pwd)
-ROOT=$HERE/../..
+ROOT=$(cd "$HERE/../../.." && pwd)
+EXAMPLES=$ROOT/examples/optimize
 GEN=$ROOT/out/optimize
 TARGETS=$GEN/targets
 ENVMAP=${PEN_TABLE_ENVMAP:-city}
@@ -55,7 +59,7 @@ interior) env=_interior OUT=$GEN/interior_$LIGHTING ;;
 *) echo "unknown envmap $ENVMAP (expected city or interior)" >&2 && exit 2 ;;
 esac
 case $LIGHTS in
-none) TASKS_DIR=$HERE lights="" ;;
+none) lights="" ;;
 map|search) lights=_lights-$LIGHTS OUT=${OUT}_lights-$LIGHTS ;;
 *) echo "unknown PEN_TABLE_LIGHTS $LIGHTS (expected none, map or search)" >&2 && exit 2 ;;
 esac
@@ -65,30 +69,31 @@ envmap) suffix="" ;;
 sh) suffix=_sh$lights ;;
 *) echo "unknown lighting $LIGHTING (expected envmap or sh)" >&2 && exit 2 ;;
 esac
-# Copies of this folder's JSONs when the map or the lights change; two folders below the root,
-# like this one, so that the copies' relative paths still hold. Without lights each scene's
-# "lights": "none" is dropped (the loader then finds the map's lights); for the search the
-# original scenes stay beside them as *_nolights.json, the lighting rows' starting scenes.
-if [ $ENVMAP != city ] || [ $LIGHTS != none ]; then
-    TASKS_DIR=$ROOT/out/tasks_$ENVMAP$lights
-    mkdir -p "$TASKS_DIR"
-    for f in "$HERE"/*.json; do
-        b=$(basename "$f" .json)
-        sed "s#/city\\.hdr#/$ENVMAP.hdr#g" "$f" > "$TASKS_DIR/${b}_nolights.json"
-        if [ $LIGHTS = none ]; then
-            mv "$TASKS_DIR/${b}_nolights.json" "$TASKS_DIR/$b.json"
-        else
-            sed 's#,[[:space:]]*"lights":[[:space:]]*"none"##' "$TASKS_DIR/${b}_nolights.json" \
-                > "$TASKS_DIR/$b.json"
-        fi
-    done
-    if [ $LIGHTS = search ]; then
-        for f in "$TASKS_DIR"/*_lighting.json "$TASKS_DIR"/*_lighting_pose.json; do
-            sed -e 's#"scene": "\([^"]*\)\.json"#"scene": "\1_nolights.json"#' \
-                -e 's#"optimize": \["lighting"#"light_count": 1, "optimize": ["lighting", "lights"#' \
-                "$f" > "$f.tmp" && mv "$f.tmp" "$f"
-        done
+# The tasks and scenes in one folder two below the root, like examples/optimize, so that their
+# relative paths hold: examples/optimize's as they are, this folder's (three below the root) with
+# their paths made two-deep and their references to examples/optimize made local. Each scene's map
+# is the chosen one; without lights each scene's "lights": "none" is dropped (the loader then
+# finds the map's lights); for the search the original scenes stay beside them as
+# *_nolights.json, the lighting rows' starting scenes.
+TASKS_DIR=$ROOT/out/tasks_$ENVMAP$lights
+mkdir -p "$TASKS_DIR"
+for f in "$EXAMPLES"/*.json "$HERE"/*.json; do
+    b=$(basename "$f" .json)
+    sed -e "s#/city\\.hdr#/$ENVMAP.hdr#g" -e 's#"\.\./\.\./\.\./examples/optimize/#"#g' \
+        -e 's#"\.\./\.\./\.\./#"../../#g' "$f" > "$TASKS_DIR/${b}_nolights.json"
+    if [ $LIGHTS = none ]; then
+        mv "$TASKS_DIR/${b}_nolights.json" "$TASKS_DIR/$b.json"
+    else
+        sed 's#,[[:space:]]*"lights":[[:space:]]*"none"##' "$TASKS_DIR/${b}_nolights.json" \
+            > "$TASKS_DIR/$b.json"
     fi
+done
+if [ $LIGHTS = search ]; then
+    for f in "$TASKS_DIR"/*_lighting.json "$TASKS_DIR"/*_lighting_pose.json; do
+        sed -e 's#"scene": "\([^"]*\)\.json"#"scene": "\1_nolights.json"#' \
+            -e 's#"optimize": \["lighting"#"light_count": 1, "optimize": ["lighting", "lights"#' \
+            "$f" > "$f.tmp" && mv "$f.tmp" "$f"
+    done
 fi
 mkdir -p "$TARGETS" "$OUT" "$GEN/meshes" "$GEN/spheres"
 

@@ -16,9 +16,10 @@ import math
 import os
 import sys
 
-# The real SH basis of the code generator, the same recurrence as src/sh/sh_ops.inc.
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "scripts"))
-from gen_sh_fast import sh_eval  # noqa: E402
+# The real SH basis of the code generators (scripts/sh_common.py: src/sh/sh_ops.inc's recurrence).
+ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "..")
+sys.path.insert(0, os.path.join(ROOT, "scripts"))
+from sh_common import sh_eval  # noqa: E402
 
 
 def main():

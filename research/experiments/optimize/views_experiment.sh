@@ -1,19 +1,19 @@
 #!/bin/sh
-# The multi-view lighting experiment of docs/optimize.md ("Several views"): Spot under the city
-# map, targets ray-traced by `penumbra reference` (128x128, 64 spp) from 4 cameras around it and
-# one held-back camera (views_setup.py), lit by the map itself and by its 4-band projection
+# The first multi-view lighting experiment (docs/results/views.md): Spot under the city map,
+# targets ray-traced by `penumbra reference` (128x128, 64 spp) from 4 cameras around it and one
+# held-back camera (views_setup.py), lit by the map itself and by its 4-band projection
 # (_sh); the lighting recovered by least squares from 1, 2 and 4 of them (ridge 1e-2, the
 # default, and 1e-4), and, for the map's targets, by Adam from the unshadowed fit over the same
 # views ("init": "fit", at most 300 iterations). Prints one line per run: the lighting errors,
 # the image error on the held-back view, and first the same error of the true map's 4-band
 # projection rendered by penumbra there (what the true lighting achieves in this model).
-# Usage: sh examples/optimize/views_experiment.sh PENUMBRA_BIN
+# Usage: sh research/experiments/optimize/views_experiment.sh PENUMBRA_BIN
 # Writes out/optimize/views/ (ignored by git; finished runs are kept and not run again). About
 # 8 minutes on the shared 2-core machine, most of it Adam's runs.
 set -eu
 BIN=$1
 HERE=$(cd "$(dirname "$0")" && pwd)
-OUT=$HERE/../../out/optimize/views
+OUT=$HERE/../../../out/optimize/views
 python3 "$HERE/views_setup.py" "$OUT"
 cd "$OUT"
 for c in 0 1 2 3 val; do

@@ -1,13 +1,14 @@
 """Cameras, scenes, views files and tasks of the multi-view experiment (views_experiment.sh).
 
-Spot under the city map (spot_truth.json), seen by cameras on a circle around it at the height
-and distance of the scene's own camera; 128x128. The view lists grow as 1, 2 (opposite), 4 (every
-90 degrees); one held-back view between them (45 degrees on, a little higher) is the validation
-view of every task. Writes into OUT: cam_<i>.json (the truth scene with camera i, paths made
-absolute, for `penumbra reference`), views_<n>[_sh].json, views_val[_sh].json,
-task_<n>_<solver>[_sh].json (solver: ls = least squares with the default ridge 1e-2, ls1e-4 =
-ridge 1e-4, adam_fit = Adam from the unshadowed least-squares fit over the same views, at most
-300 iterations; _sh: the targets lit by the map's 4-band projection, least squares only).
+Spot under the city map (examples/optimize/spot_truth.json), seen by cameras on a circle around it
+at the height and distance of the scene's own camera; 128x128. The view lists grow as 1, 2
+(opposite), 4 (every 90 degrees); one held-back view between them (45 degrees on, a little
+higher) is the validation view of every task. Writes into OUT: cam_<i>.json (the truth scene
+with camera i, paths made absolute, for `penumbra reference`), views_<n>[_sh].json,
+views_val[_sh].json, task_<n>_<solver>[_sh].json (solver: ls = least squares with the default
+ridge 1e-2, ls1e-4 = ridge 1e-4, adam_fit = Adam from the unshadowed least-squares fit over the
+same views, at most 300 iterations; _sh: the targets lit by the map's 4-band projection, least
+squares only).
 Usage: python3 views_setup.py OUT
 """
 import json
@@ -16,16 +17,17 @@ import os
 import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
+EXAMPLES = os.path.join(HERE, "..", "..", "..", "examples", "optimize")
 OUT = os.path.abspath(sys.argv[1])
 SIZE = 128
-TRUTH = os.path.join(HERE, "spot_truth.json")
+TRUTH = os.path.normpath(os.path.join(EXAMPLES, "spot_truth.json"))
 
 with open(TRUTH) as f:
     truth = json.load(f)
 
 
 def absolute(path):
-    return os.path.normpath(os.path.join(HERE, path))
+    return os.path.normpath(os.path.join(EXAMPLES, path))
 
 
 truth["lighting"]["envmap"] = absolute(truth["lighting"]["envmap"])

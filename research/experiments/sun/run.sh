@@ -1,15 +1,17 @@
-# The sun-recovery experiment (README "The sun found from one image", docs/optimize.md "Lights"):
+# The sun-recovery experiment (docs/results/optimize.md "The sun found from one image",
+# docs/optimize.md "Finding the lights"):
 # Spot under the full city map, one ray-traced image (128x128), SH lighting from black and no
 # lights at the start. Recovers the SH environment plus one disk light (the optimizer's global
 # search creates it, then Adam refines everything), and the SH environment alone beside it; both
 # judged by the angle to the map's sun and by the recovered lighting rendered from a novel view
 # against the full-map truth there.
-#   sh examples/sun/run.sh [build/penumbra]     (env: PEN_SUN_OUT, PEN_SUN_SPP, PEN_SUN_ITERATIONS)
+#   sh research/experiments/sun/run.sh [build/penumbra]
+#   (env: PEN_SUN_OUT, PEN_SUN_SPP, PEN_SUN_ITERATIONS)
 # About 1.5 minutes on the shared 2-core machine (nice'd), most of it the search and the descent.
 set -e
 PEN=${1:-build/penumbra}
-ROOT=$(cd "$(dirname "$0")/../.." && pwd)
-HERE="$ROOT/examples/sun"
+HERE=$(cd "$(dirname "$0")" && pwd)
+ROOT=$(cd "$HERE/../../.." && pwd)
 OUT=${PEN_SUN_OUT:-out/sun}
 SPP=${PEN_SUN_SPP:-256}
 ITER=${PEN_SUN_ITERATIONS:+--iterations $PEN_SUN_ITERATIONS}
@@ -30,7 +32,7 @@ floor=$("$PEN" compare "$OUT/novel_model.exr" "$OUT/novel.exr" |
 OUTABS=$(cd "$OUT" && pwd)
 for run in lights sh_only; do
     # the task with its paths made absolute and its images in $OUT
-    sed -e "s|\"sun_|\"$HERE/sun_|g" -e "s|[.][.]/[.][.]/out/sun/|$OUTABS/|g" \
+    sed -e "s|\"sun_|\"$HERE/sun_|g" -e "s|[.][.]/[.][.]/[.][.]/out/sun/|$OUTABS/|g" \
         "$HERE/sun_$run.json" > "$OUT/sun_$run.json"
     nice "$PEN" optimize "$OUT/sun_$run.json" -o "$OUT/$run" $ITER -q
 done
@@ -39,7 +41,7 @@ row() { # label printf-format name
     result_row "$1" "$2" "$3" "$OUT/lights" "$OUT/sh_only" 44 14
 }
 echo "== The sun found from one image: Spot under the full city map, 128x128, $SPP spp,"
-echo "   SH from black and no lights at the start (examples/sun)"
+echo "   SH from black and no lights at the start (research/experiments/sun)"
 printf "   %-44s %14s %14s\n" "" "SH + 1 light" "SH only"
 row "light's angle to the sun (deg, goal <= 3)" "%.2f" light_direction_error_deg
 row "novel view rel. RMSE vs full-map truth (<= 0.12)" "%.4f" image_rel_rmse

@@ -1,5 +1,5 @@
 """How much of the multi-view lighting error lies below the horizon, where the ground hides the
-light from every camera (the multi-view experiment's 0.5x question; docs/optimize.md, "What the
+light from every camera (the multi-view experiment's 0.5x question; docs/results/views.md, "What the
 views cannot see: the light below the horizon").
 
 The lighting error of result.json is |e| / |t| over all SH coefficients (e the recovered minus the
@@ -17,7 +17,7 @@ each run's scene.json and the true lighting from the truth scene loaded by the P
 (truth.json: the map's 4-band projection; truth_lights.json: the map's residual after its lights).
 M is integrated exactly (Gauss-Legendre in y, uniform in phi) with the basis of
 scripts/sh_common.py, which is src/sh's.
-Usage: PYTHONPATH=python python3 examples/views/hidden_share.py [CASE ...]
+Usage: PYTHONPATH=python python3 research/experiments/views/hidden_share.py [CASE ...]
        (CASE as spot_city; default: Spot and Bob under city and interior)
 """
 import json
@@ -26,7 +26,7 @@ import os
 import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-ROOT = os.path.join(HERE, "..", "..")
+ROOT = os.path.join(HERE, "..", "..", "..")
 sys.path.insert(0, os.path.join(ROOT, "scripts"))
 from sh_common import gauss_legendre, sh_eval  # noqa: E402
 

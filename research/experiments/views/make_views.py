@@ -36,7 +36,10 @@ import os
 import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-TASKS = os.path.join(HERE, "..", "optimize")
+# The scenes and tasks read: the user examples' (the truths, the pose starts) and the experiments'
+# own (deformation and shape from shadow); a name is looked up in this order.
+TASKS = (os.path.join(HERE, "..", "..", "..", "examples", "optimize"),
+         os.path.join(HERE, "..", "optimize"))
 SIZE = 128
 COUNTS = (1, 2, 4, 8)
 SOLVERS = {"ls": {"lighting_solver": "least_squares"},
@@ -48,14 +51,24 @@ ELEV = ((0, None), (180, 70), (90, 40), (270, 15), (45, 89), (225, 40), (135, 15
 VALIDATION = {"val1": (60, 30), "val2": (250, 55)}
 
 
-def absolute(path):
-    return os.path.normpath(os.path.join(TASKS, path))
+def task_path(name):
+    """The path of NAME.json in the first folder of TASKS that has it."""
+    for folder in TASKS:
+        path = os.path.normpath(os.path.join(folder, name + ".json"))
+        if os.path.exists(path):
+            return path
+    sys.exit("make_views: %s.json is in none of %s" % (name, ", ".join(TASKS)))
 
 
 def load_scene(name, envmap="city"):
-    """examples/optimize/NAME.json with absolute paths (its map replaced by the bundled ENVMAP)."""
-    with open(os.path.join(TASKS, name + ".json")) as f:
+    """NAME.json of TASKS with absolute paths (its map replaced by the bundled ENVMAP)."""
+    path = task_path(name)
+    with open(path) as f:
         scene = json.load(f)
+
+    def absolute(p):
+        return os.path.normpath(os.path.join(os.path.dirname(path), p))
+
     if "envmap" in scene["lighting"]:
         scene["lighting"]["envmap"] = absolute(scene["lighting"]["envmap"]).replace(
             "/city.hdr", "/%s.hdr" % envmap)
@@ -119,7 +132,7 @@ def main():
             json.dump(obj, f, indent=1)
 
     write("truth.json", truth)
-    with open(os.path.join(TASKS, "%s_pose_init.json" % mesh)) as f:
+    with open(task_path("%s_pose_init" % mesh)) as f:
         pose_init = json.load(f)
     pose_init.update(lighting=truth["lighting"], objects=[
         dict(ob, pose=p["pose"]) for ob, p in zip(truth["objects"], pose_init["objects"])])

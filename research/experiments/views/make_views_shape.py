@@ -1,10 +1,10 @@
 """Scenes, cameras, views files and tasks of the multi-view deformation and shape-from-shadow
-experiment (run_views_shape.sh; docs/optimize.md, "Deformation and shape from shadow from
+experiment (run_views_shape.sh; docs/results/views.md, "Deformation and shape from shadow from
 several views").
 
-The two single-view tasks of examples/optimize, with their settings (groups, iterations,
-smoothness; "target", "scene" and "ground_truth" replaced), given 1, 2, 4 and 8 views instead
-of one target:
+The two single-view tasks of research/experiments/optimize, with their settings (groups,
+iterations, smoothness; "target", "scene" and "ground_truth" replaced), given 1, 2, 4 and 8 views
+instead of one target:
 
   deformation  start <mesh>_truth.json (the unbent mesh), truth <mesh>_bent_truth.json (the
                mesh bent sideways by bend_obj.py), the city map with "lights": "none"
@@ -32,7 +32,7 @@ import math
 import os
 import sys
 
-from make_views import COUNTS, SIZE, TASKS, load_scene, placements
+from make_views import COUNTS, SIZE, load_scene, placements, task_path
 
 TOP_ELEVATION = 50
 TASKS_OF = {"deformation": ("truth", "bent_truth", "deformation", ("ring",)),
@@ -73,7 +73,7 @@ def main():
         truth_scene = load_scene("%s_%s" % (mesh, truth))
         write("start_%s.json" % task, load_scene("%s_%s" % (mesh, start)))
         write("truth_%s.json" % task, truth_scene)
-        with open(os.path.join(TASKS, "%s_%s.json" % (mesh, single))) as f:
+        with open(task_path("%s_%s" % (mesh, single))) as f:
             settings = json.load(f)
         for key in ("_comment", "scene", "target", "ground_truth"):
             settings.pop(key, None)

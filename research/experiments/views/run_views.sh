@@ -1,5 +1,5 @@
 #!/bin/sh
-# The multi-view lighting experiment of docs/optimize.md ("Views, placements and solvers"):
+# The multi-view lighting experiment of docs/results/views.md ("Placements, more views"):
 # can 4 views reach half the 1-view lighting error? For each MESH:ENVMAP (default
 # spot:city), make_views.py writes the cameras of four placements (ring = today's single
 # elevation, ring_far, ring_near, elev = several elevations up to top-down), each with 1, 2, 4
@@ -8,7 +8,7 @@
 # map's 4-band projection is the true lighting); the lighting is then recovered from black
 # (4 bands, everything else known) by each solver: ls (least squares, default ridge 1e-2), ls4
 # (ridge 1e-4), adam (Adam with the task defaults: no ridge, 500 iterations at most).
-# Usage: sh examples/views/run_views.sh PENUMBRA_BIN [MESH:ENVMAP ...]
+# Usage: sh research/experiments/views/run_views.sh PENUMBRA_BIN [MESH:ENVMAP ...]
 #   MESH spot or bob (examples/optimize/MESH_truth.json), ENVMAP a bundled .hdr (city, interior)
 # Environment: PEN_VIEWS_PLACEMENTS (default "ring elev ring_far ring_near"), PEN_VIEWS_COUNTS
 #   (default "1 2 4 8"), PEN_VIEWS_SOLVERS (default "ls ls4 adam") pick the runs;
@@ -35,7 +35,7 @@ COUNTS=${PEN_VIEWS_COUNTS:-1 2 4 8}
 SOLVERS=${PEN_VIEWS_SOLVERS:-ls ls4 adam}
 TARGETS=${PEN_VIEWS_TARGETS:-map}
 HERE=$(cd "$(dirname "$0")" && pwd)
-ROOT=$(cd "$HERE/../.." && pwd)
+ROOT=$(cd "$HERE/../../.." && pwd)
 for c in $CASES; do
     mesh=${c%%:*} envmap=${c#*:}
     dir=$ROOT/out/views/${mesh}_$envmap

@@ -1,22 +1,22 @@
-"""The multi-view lighting experiment again, with the map's lights (docs/optimize.md, "With the
+"""The multi-view lighting experiment again, with the map's lights (docs/results/views.md, "With the
 map's lights held"): the scenes of run_views.sh keep the disk lights the loader finds in the map
 (their "lights": "none" removed), the lights are held at those values and the SH part is solved
 by least squares (default ridge) from 1, 2, 4 and 8 views of the ring and ring_near placements,
 against the same full-map targets. The held-back views are compared with the truth's own render
 with its lights (penumbra, the model's floor there).
 
-Usage: python3 examples/views/run_views_lights.py PENUMBRA_BIN [MESH_ENVMAP ...]
-  after `sh examples/views/run_views.sh PENUMBRA_BIN MESH:ENVMAP` has made out/views/MESH_ENVMAP
-  (default: spot_city spot_interior bob_city bob_interior). Writes truth_lights.json,
-  cam_val*_lights.json, true_val*_lights.exr, task_<placement>_<n>_lights.json and
-  run_<placement>_<n>_lights/ into each folder and a markdown table on stdout.
+Usage: python3 research/experiments/views/run_views_lights.py PENUMBRA_BIN [MESH_ENVMAP ...]
+  after `sh research/experiments/views/run_views.sh PENUMBRA_BIN MESH:ENVMAP` has made
+  out/views/MESH_ENVMAP (default: spot_city spot_interior bob_city bob_interior). Writes
+  truth_lights.json, cam_val*_lights.json, true_val*_lights.exr, task_<placement>_<n>_lights.json
+  and run_<placement>_<n>_lights/ into each folder and a markdown table on stdout.
 """
 import json
 import os
 import subprocess
 import sys
 
-ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")
+ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "..")
 
 
 def without_lights_none(src, dst):

@@ -1,12 +1,12 @@
 #!/bin/sh
 # The deformation and shape-from-shadow tasks from 1, 2, 4 and 8 views (multi-view experiments;
-# docs/optimize.md, "Deformation and shape from shadow from several views"). For each MESH
+# docs/results/views.md, "Deformation and shape from shadow from several views"). For each MESH
 # (default spot), make_views_shape.py writes the scenes, cameras and tasks (the single-view
 # tasks' settings, otherwise defaults); `penumbra reference` ray-traces every camera's target
 # (128x128, PEN_VIEWS_SPP samples per pixel, default 256): the bent truth under the full city
 # map, the shadow truth under its own 4-band sun; then each task runs from each placement's
 # first 1, 2, 4 and 8 cameras (deformation: ring; shape: ring and top, make_views_shape.py).
-# Usage: sh examples/views/run_views_shape.sh PENUMBRA_BIN [MESH ...]   (MESH spot or bob)
+# Usage: sh research/experiments/views/run_views_shape.sh PENUMBRA_BIN [MESH ...]  (spot or bob)
 # Environment: PEN_VIEWS_SHAPE_RUNS (default "deformation_ring shape_ring shape_top") and
 #   PEN_VIEWS_COUNTS (default "1 2 4 8") pick the runs; PEN_VIEWS_SPP the targets' samples;
 #   PEN_VIEWS_ITERATIONS overrides the tasks' iteration limit (runs run_..._it<N>/, beside the
@@ -22,7 +22,7 @@
 # The inputs the single-view table makes (run_table.sh) are made here too when missing, by the
 # same commands: out/optimize/meshes/MESH_bent.obj and out/optimize/spheres/MESH_start.json.
 # Cost on the shared 2-core machine (nice'd, loaded): about 5 minutes per mesh; the targets 2-5 s
-# each, an iteration 0.02-0.04 s per view (docs/optimize.md has the measured s/it).
+# each, an iteration 0.02-0.04 s per view (docs/results/views.md has the measured s/it).
 set -eu
 BIN=$(cd "$(dirname "$1")" && pwd)/$(basename "$1")
 [ $# -ge 1 ] && shift
@@ -31,8 +31,8 @@ RUNS=${PEN_VIEWS_SHAPE_RUNS:-deformation_ring shape_ring shape_top}
 COUNTS=${PEN_VIEWS_COUNTS:-1 2 4 8}
 SPP=${PEN_VIEWS_SPP:-256}
 HERE=$(cd "$(dirname "$0")" && pwd)
-ROOT=$(cd "$HERE/../.." && pwd)
-OPT=$ROOT/examples/optimize
+ROOT=$(cd "$HERE/../../.." && pwd)
+OPT=$ROOT/research/experiments/optimize
 . "$OPT/prepare.sh"
 GEN=$ROOT/out/optimize
 mkdir -p "$GEN/meshes" "$GEN/spheres"

@@ -1,4 +1,4 @@
-"""The lights found from 1, 2, 4 and 8 views (docs/optimize.md, "The lights found from several
+"""The lights found from 1, 2, 4 and 8 views (docs/results/views.md, "The lights found from several
 views"): the scenes of run_views.sh start with no disk lights and the SH lighting from black,
 and the task optimises ["lighting", "lights"] with "light_count" lights: the global search
 creates them over every view, then Adam refines directions, radii, irradiances and the SH
@@ -7,11 +7,12 @@ the ring placement. Judged by each found light's angle to the nearest light the 
 the map, the SH part's error against the map's residual (the truth with its lights), and the
 held-back views' image error over that of the truth's own lights rendered by penumbra there.
 
-Usage: python3 examples/views/run_views_sun.py PENUMBRA_BIN [MESH_ENVMAP[:COUNT] ...]
-  after `sh examples/views/run_views.sh PENUMBRA_BIN MESH:ENVMAP` made out/views/MESH_ENVMAP and
-  `python3 examples/views/run_views_lights.py PENUMBRA_BIN` its truth_lights.json and
-  true_val*_lights.exr (default: spot_city:1 bob_city:1; COUNT the lights to find). Writes
-  task_ring_<n>_sun.json and run_ring_<n>_sun/ into each folder and a markdown table on stdout.
+Usage: python3 research/experiments/views/run_views_sun.py PENUMBRA_BIN [MESH_ENVMAP[:COUNT] ...]
+  after `sh research/experiments/views/run_views.sh PENUMBRA_BIN MESH:ENVMAP` made
+  out/views/MESH_ENVMAP and `python3 research/experiments/views/run_views_lights.py PENUMBRA_BIN`
+  its truth_lights.json and true_val*_lights.exr (default: spot_city:1 bob_city:1; COUNT the
+  lights to find). Writes task_ring_<n>_sun.json and run_ring_<n>_sun/ into each folder and a
+  markdown table on stdout.
 Environment: PEN_SUN_RIDGE=R sets the task's "lighting_ridge" (Adam's default is none; the search
   solves its SH at 1e-2 either way); its files are then named ..._sun_r<R>.
 """
@@ -22,7 +23,7 @@ import sys
 
 from run_views_lights import held_back_floor
 
-ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")
+ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "..")
 
 
 def main():

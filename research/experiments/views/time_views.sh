@@ -6,7 +6,7 @@
 # examples/optimize/spot_truth.json with each view's camera (the timing does not need ray-traced
 # targets). Each cell is the best of R runs of a fixed number of Adam steps (the stopping rule
 # cannot end a run early: its window is longer than the run).
-# Usage: sh examples/views/time_views.sh PENUMBRA_BIN
+# Usage: sh research/experiments/views/time_views.sh PENUMBRA_BIN
 # Environment: PEN_TIME_SIZES (default "128 256"), PEN_TIME_VIEWS (default "1 2 4 8"),
 #   PEN_TIME_REPEAT (default 3), PEN_TIME_STEPS (default "20 8": Adam steps at each size).
 # Modes: t1 (1 thread), t2_turn (2 threads, views one after the other), t2_once (2 threads, 2
@@ -14,11 +14,11 @@
 # with a CLI built without MPI).
 # Writes out/views/timing/ (ignored by git): targets, tasks, runs, and timing.tsv; a markdown
 # table on stdout. Run it on an otherwise idle machine: the cells compare ways of spending the
-# same cores, which another job's load distorts (see the noisy table in docs/optimize.md).
+# same cores, which another job's load distorts (see the noisy table in docs/results/views.md).
 set -eu
 BIN=$(cd "$(dirname "$1")" && pwd)/$(basename "$1")
 HERE=$(cd "$(dirname "$0")" && pwd)
-ROOT=$(cd "$HERE/../.." && pwd)
+ROOT=$(cd "$HERE/../../.." && pwd)
 OUT=$ROOT/out/views/timing
 SIZES=${PEN_TIME_SIZES:-128 256}
 COUNTS=${PEN_TIME_VIEWS:-1 2 4 8}

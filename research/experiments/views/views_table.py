@@ -68,7 +68,7 @@ with open(os.path.join(out, "results.tsv"), "w") as f:
                                    r["true"], r["val_ratio"], r["iterations"], r["stop"],
                                    r["s_per_it"]))
 
-# The summary of docs/optimize.md: per case, targets, solver and placement the lighting error
+# The summary of docs/results/views.md: per case, targets, solver and placement the lighting error
 # (sky) at 1, 2, 4 and 8 views, 4 views against the 1-view ring run, and the held-back ratio at
 # 4 views (the views at every count for Adam: its iterations and stop reason).
 print()
