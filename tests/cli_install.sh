@@ -2,10 +2,11 @@
 # The library as others get it: `cmake --install` of this build into an empty prefix, then
 #  - only the public API in libpenumbra.so (no pen__ symbol; every PEN_API function present, and
 #    every public declaration marked PEN_API: scripts/pen_api.sh --check),
-#  - an outside C program (tests/install/outside.c: load a bundled scene, render, L2 loss,
-#    backward, save) built with `pkg-config --cflags --libs penumbra` alone, and run; the same
-#    program linked statically from libpenumbra.a with `pkg-config --static`; and once more
-#    through find_package(penumbra),
+#  - the C examples (examples/c: render.c renders a scene; fit_lighting.c recovers its lighting
+#    through the loss and the backward pass) built with `pkg-config --cflags --libs penumbra`
+#    alone and run on the installed bundled scene, made small; fit_lighting.c also with the rpath
+#    of docs/library.md, linked statically from libpenumbra.a with `pkg-config --static`, and
+#    both through find_package(penumbra) (examples/c/CMakeLists.txt),
 #  - the installed CLI finding its bundled data under share/penumbra, with no source path in it,
 #  - the installed Python package (Debian's /usr/bin/python3) importing and rendering with no
 #    environment variable. Exit 77 (ctest: skipped) when only this last part cannot run because
@@ -73,45 +74,69 @@ grep -ho '"pen_[a-z0-9_]*"' "$SRC"/python/penumbra/*.py | tr -d '"' | sort -u |
 missing=$(comm -23 "$T/python_uses" "$T/exported")
 [ -z "$missing" ] || fail "python/penumbra uses symbols not exported: $(echo $missing)"
 
-# ---- The outside program: pkg-config alone (shared), pkg-config --static, find_package --------
+# ---- The C examples: pkg-config alone (shared), with an rpath, --static, find_package ---------
+# The installed bundled scene at 48x48 with 8 fitted spheres (seconds, not minutes), its paths
+# into the installed data.
 SCENE=$P/share/penumbra/examples/scenes/spot_city.json
-OUT=$SRC/tests/install/outside.c
+sed -e 's/"width": [0-9]*/"width": 48/' -e 's/"height": [0-9]*/"height": 48/' \
+    -e 's/"fit": [0-9]*/"fit": 8/' -e "s#\"\.\./\.\./data/#\"$P/share/penumbra/data/#g" \
+    "$SCENE" >"$T/small.json"
+EX=$SRC/examples/c
+FIT=$EX/fit_lighting.c
+# fit_lighting exits 1 unless its loss fell; 30 Adam steps take it down by orders of magnitude.
+fit() { # program image [env ...]
+    _prog=$1 _img=$2
+    shift 2
+    env "$@" "$_prog" "$T/small.json" "$_img" 30 >"$T/fit.out" 2>&1 && [ -s "$_img" ] &&
+        grep -q "^fit_lighting: penumbra .*, 48x48, 30 steps, loss" "$T/fit.out" ||
+        { cat "$T/fit.out"; return 1; }
+}
 # shellcheck disable=SC2046
-if $CC $SAN -o "$T/outside" "$OUT" $(pkg-config --cflags --libs penumbra); then
-    LD_LIBRARY_PATH=$LIBDIR "$T/outside" "$SCENE" "$T/outside.png" || fail "outside (shared) ran"
-    [ -s "$T/outside.png" ] || fail "outside (shared) wrote no image"
+if $CC $SAN -o "$T/render" "$EX/render.c" $(pkg-config --cflags --libs penumbra); then
+    LD_LIBRARY_PATH=$LIBDIR "$T/render" "$T/small.json" "$T/render.png" ||
+        fail "render (shared) ran"
+    [ -s "$T/render.png" ] || fail "render (shared) wrote no image"
     # It runs against the installed library, not the build's.
-    LD_LIBRARY_PATH=$LIBDIR ldd "$T/outside" | grep -q "$LIBDIR/libpenumbra.so.0" ||
-        fail "outside not linked to the installed libpenumbra.so.0"
+    LD_LIBRARY_PATH=$LIBDIR ldd "$T/render" | grep -q "$LIBDIR/libpenumbra.so.0" ||
+        fail "render not linked to the installed libpenumbra.so.0"
 else
-    fail "outside.c does not build with pkg-config --cflags --libs penumbra"
+    fail "render.c does not build with pkg-config --cflags --libs penumbra"
+fi
+# shellcheck disable=SC2046
+if $CC $SAN -o "$T/fit" "$FIT" $(pkg-config --cflags --libs penumbra) -lm; then
+    fit "$T/fit" "$T/fit.png" LD_LIBRARY_PATH="$LIBDIR" || fail "fit_lighting (shared) ran"
+else
+    fail "fit_lighting.c does not build with pkg-config --cflags --libs penumbra"
 fi
 # As docs/library.md builds it for a prefix of one's own: the rpath from pkg-config's libdir, so
 # that it runs with no LD_LIBRARY_PATH.
 # shellcheck disable=SC2046
-if $CC $SAN -o "$T/outside_rpath" "$OUT" $(pkg-config --cflags --libs penumbra) \
+if $CC $SAN -o "$T/fit_rpath" "$FIT" $(pkg-config --cflags --libs penumbra) -lm \
     -Wl,-rpath,"$(pkg-config --variable=libdir penumbra)"; then
-    env -u LD_LIBRARY_PATH "$T/outside_rpath" "$SCENE" "$T/outside_rpath.png" ||
-        fail "outside (rpath, no LD_LIBRARY_PATH) ran"
+    fit "$T/fit_rpath" "$T/fit_rpath.png" -u LD_LIBRARY_PATH ||
+        fail "fit_lighting (rpath, no LD_LIBRARY_PATH) ran"
 else
-    fail "outside.c does not build with the rpath of docs/library.md"
+    fail "fit_lighting.c does not build with the rpath of docs/library.md"
 fi
 STATIC_LIBS=$(pkg-config --static --libs penumbra | sed 's/\(^\| \)-lpenumbra\( \|$\)/ /')
 # shellcheck disable=SC2046,SC2086
-if $CC $SAN -o "$T/outside_static" "$OUT" $(pkg-config --cflags penumbra) "$LIBDIR/libpenumbra.a" \
-    $STATIC_LIBS; then
-    "$T/outside_static" "$SCENE" "$T/outside_static.png" || fail "outside (static) ran"
+if $CC $SAN -o "$T/fit_static" "$FIT" $(pkg-config --cflags penumbra) "$LIBDIR/libpenumbra.a" \
+    $STATIC_LIBS -lm; then
+    fit "$T/fit_static" "$T/fit_static.png" || fail "fit_lighting (static) ran"
 else
-    fail "outside.c does not link libpenumbra.a with pkg-config --static --libs penumbra"
+    fail "fit_lighting.c does not link libpenumbra.a with pkg-config --static --libs penumbra"
 fi
-if cmake -S "$SRC/tests/install" -B "$T/fp" -DCMAKE_PREFIX_PATH="$P" -DCMAKE_BUILD_TYPE=Release \
+if cmake -S "$EX" -B "$T/fp" -DCMAKE_PREFIX_PATH="$P" -DCMAKE_BUILD_TYPE=Release \
     -DCMAKE_C_FLAGS="$SAN" -DCMAKE_EXE_LINKER_FLAGS="$SAN" >"$T/fp.log" 2>&1 &&
     cmake --build "$T/fp" >>"$T/fp.log" 2>&1; then
     # The imported target carries no rpath into the prefix: the loader is told where.
-    LD_LIBRARY_PATH=$LIBDIR "$T/fp/outside" "$SCENE" "$T/fp.png" || fail "outside (find_package)"
+    LD_LIBRARY_PATH=$LIBDIR "$T/fp/render" "$T/small.json" "$T/fp.png" ||
+        fail "render (find_package)"
+    fit "$T/fp/fit_lighting" "$T/fp_fit.png" LD_LIBRARY_PATH="$LIBDIR" ||
+        fail "fit_lighting (find_package)"
 else
     cat "$T/fp.log"
-    fail "outside.c does not build with find_package(penumbra)"
+    fail "examples/c does not build with find_package(penumbra)"
 fi
 
 # ---- The installed CLI: bundled data found beside it, no source path compiled in -------------
