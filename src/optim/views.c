@@ -273,6 +273,10 @@ pen_status pen__optim_views_init(pen_context *ctx, pen__optim_views *V, const pe
         if (pixels > V->max_pixels) V->max_pixels = pixels;
         s = pen_render_state_create(ctx, &V->state[i]);
         if (!s) s = pen_render_state_create(ctx, &V->solve_state[i]);
+        /* The views see one scene: the transfers are traced once per pose for all of them
+         * (pen_render_state_share), not once per view. */
+        if (!s && i > 0) s = pen_render_state_share(ctx, V->state[i], V->state[0]);
+        if (!s) s = pen_render_state_share(ctx, V->solve_state[i], V->state[0]);
         if (!s) s = pen_image_create(ctx, v->camera.width, v->camera.height, 3, &V->d_img[i]);
         /* the target over the exposure, for the fits of the lighting (pen__optim_view_eye) */
         pen__optim_eye eye;
