@@ -53,7 +53,7 @@ PEN_API int pen_context_fit_cache(const pen_context *ctx);
 
 /* A short name for a status code ("parse error", ...). */
 PEN_API const char *pen_status_string(pen_status status);
-/* The library's version string, e.g. "0.1.0": PEN_VERSION_STRING of penumbra/version.h as the
+/* The library's version string, e.g. "0.2.0": PEN_VERSION_STRING of penumbra/version.h as the
  * library was built (compare it with the macro to catch a header/library mismatch). */
 PEN_API const char *pen_version(void);
 
