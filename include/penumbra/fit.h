@@ -15,13 +15,25 @@
  * sigma^2 is a length scale that makes the energy independent of the mesh's units and keeps tanh
  * out of saturation; see docs/fit-spheres.md for its definition and the measured defaults.
  *
- * Usage:
+ * Usage (32 spheres for a mesh file, saved as a scene's "spheres" file, as `fit-spheres` does):
+ *
+ *     // given: ctx, mesh_path (a closed mesh)
+ *     pen_mesh mesh;
+ *     pen_mesh_load(ctx, mesh_path, &mesh);                      // io.h
  *     pen_fit_settings s;
  *     pen_fit_settings_default(&s);
  *     pen_spheres spheres;
  *     pen_fit_metrics m;
- *     if (pen_spheres_fit(ctx, &mesh, 32, &s, &spheres, &m) != PEN_OK) ... pen_context_error(ctx)
- *     ... pen_spheres_free(&spheres);
+ *     if (pen_spheres_fit(ctx, &mesh, 32, &s, &spheres, &m) != PEN_OK) {
+ *         fprintf(stderr, "%s\n", pen_context_error(ctx));       // what is wrong, and where
+ *         return 1;
+ *     }
+ *     printf("%.1f %% of the surface covered\n", 100 * m.surface_coverage);
+ *     char extra[2048];                                          // the metrics and settings
+ *     pen_fit_json(&s, &m, extra, sizeof extra);
+ *     pen_spheres_save(ctx, "spheres.json", &spheres, extra);    // io.h
+ *     pen_spheres_free(&spheres);
+ *     pen_mesh_free(&mesh);
  *
  * Inside test: every voxel centre gets six votes, one per half-ray along +-x, +-y, +-z from the
  * centre to outside the bounds; a vote says "inside" when the winding number counted along that

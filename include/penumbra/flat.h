@@ -13,21 +13,35 @@
  * shape optimiser asks for the sphere model first (pen_flat_grad_model, the rule `penumbra
  * optimize` follows).
  *
- * Usage (one object, one step):
+ * Usage (one object, one step: the gradients of the lighting and the pose):
  *
+ *     // given: ctx
+ *     static const float xyz[] = {0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1};     // a tetrahedron
+ *     static const uint32_t tri[] = {0, 2, 1, 0, 1, 3, 0, 3, 2, 1, 2, 3};  // its 4 faces
+ *     static const float xyzr[] = {0.25f, 0.25f, 0.25f, 0.3f};             // its one sphere
+ *     float sh[16 * 3] = {1, 1, 1};                      // 4 bands; a uniform sky, RGB 1
  *     pen_flat_object ob = {0};
- *     ob.vertex_count = V; ob.triangle_count = T; ob.positions = xyz; ob.indices = tri;
+ *     ob.vertex_count = 4; ob.triangle_count = 4; ob.positions = xyz; ob.indices = tri;
  *     ob.albedo[0] = ob.albedo[1] = ob.albedo[2] = 0.7f;
- *     ob.sphere_count = S; ob.spheres = xyzr;
- *     ob.pose[6] = 1.0f;                                       scale 1, no rotation/translation
- *     pen_flat_scene sc = pen_flat_scene_default();            fills camera, ground, options
- *     sc.width = 64; sc.height = 64; sc.sh_bands = 4; sc.sh = sh16x3;
+ *     ob.sphere_count = 1; ob.spheres = xyzr;
+ *     ob.pose[6] = 1.0f;                                 // scale 1, no rotation or translation
+ *     pen_flat_scene sc = pen_flat_scene_default();      // fills camera, ground, options
+ *     sc.width = 64; sc.height = 64; sc.sh_bands = 4; sc.sh = sh;
  *     sc.object_count = 1; sc.objects = &ob;
- *     pen_render_state *st; pen_render_state_create(ctx, &st);
- *     pen_flat_render_fwd(ctx, &sc, st, image);                image: 3 * 64 * 64 floats
- *     float d_sh[16 * 3] = {0};
- *     pen_flat_grad g = {0}; g.sh = d_sh;                      NULL fields are not computed
- *     pen_flat_render_bwd(ctx, &sc, st, d_image, &g);          d_sh += dLoss/dsh
+ *     pen_flat_grad_model(&sc, &ob, PEN_GRAD_POSE);      // self_shadow 1: a pose gradient
+ *     pen_render_state *st = NULL;
+ *     pen_render_state_create(ctx, &st);
+ *     static float image[3 * 64 * 64], d_image[3 * 64 * 64];
+ *     pen_flat_render_fwd(ctx, &sc, st, image);
+ *     for (int i = 0; i < 3 * 64 * 64; ++i)              // loss = sum (image - 0.5)^2 / 2
+ *         d_image[i] = image[i] - 0.5f;
+ *     float d_sh[16 * 3] = {0}, d_pose[7] = {0};
+ *     pen_flat_object_grad og = {0};                     // NULL fields are not computed
+ *     og.pose = d_pose;
+ *     pen_flat_grad g = {0};
+ *     g.sh = d_sh; g.objects = &og;
+ *     pen_flat_render_bwd(ctx, &sc, st, d_image, &g);    // d_sh, d_pose += dloss/dsh, dloss/dpose
+ *     pen_render_state_free(st);
  *
  * For many steps, a pen_flat_renderer (below) keeps the state and the calls' scratch between
  * them; pen_flat_abi reports the structs' layout so that a binding can check its mirror of them.

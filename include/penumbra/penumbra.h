@@ -4,6 +4,12 @@
  * exponential of the summed per-sphere log-visibilities (Lyu et al., ICCV 2021), shades diffuse
  * surfaces under SH environment lighting on top of a rasterizer, and differentiates every stage.
  * Include this header for the whole public API; each concern has its own header below.
+ *
+ * The headers' usage examples (under a " * Usage" line in their first comment, render.h's for
+ * one) are C that compiles and runs as written inside a main(), given the names their first line
+ * lists (`// given: ctx, scene_path`); tests/cli_header_examples.sh runs every one. They leave
+ * most statuses unchecked to stay short: a failed call leaves its message in the context
+ * (pen_context_error, core.h), and a program checks each (README.md's C program shows how).
  */
 #ifndef PENUMBRA_H
 #define PENUMBRA_H

@@ -2,23 +2,43 @@
  * antialiasing: the differentiable visibility stage of the renderer (the rigid pose it starts
  * from, forward and backward, is the model's: penumbra/scene.h).
  *
- * Data flow of one frame (the shading pipeline in src/render drives it):
+ * Usage (one frame of a mesh and its backward, the calls the shading pipeline in src/render makes):
  *
- *     pen_view_init(ctx, &scene->camera, &view);
- *     pen_pose_points_fwd(&obj->pose, n, obj->mesh.positions, world);        object -> world
- *     pen_vertex_normals_fwd(ctx, n, world, t, indices, normals);             smooth normals
- *     pen_raster_gbuffer(ctx, &view, meshes, count, &scene->ground, &gb);       visibility
- *     pen_interpolate_fwd(&gb, object, indices, world, 3, position);          per-pixel attributes
- *     (normals likewise, then pen_normalize_fwd; UVs with the mesh's uv_indices)
- *     ... shade every pixel into `color` (RGB) ...
- *     pen_antialias_fwd(ctx, &gb, &view, meshes, count, color, 3, image);     silhouette blending
- *   backward, in reverse:
- *     pen_antialias_bwd(...)    d_image -> d_color, d_world (silhouette edges)
- *     ... shading backward: d_color -> d_position, d_normal, d_uv ...
- *     pen_interpolate_bwd(...)  d_position -> d_world (direct), d_bary
- *     pen_raster_bary_bwd(...)  d_bary -> d_world (the pixel's point slides over the triangle)
- *     pen_vertex_normals_bwd(...)  d_normals -> d_world
- *     pen_pose_points_bwd(...)  d_world -> d_pose
+ *     // given: ctx
+ *     static const float tet[] = {0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1};       // 4 vertices
+ *     static const uint32_t tri[] = {0, 2, 1, 0, 1, 3, 0, 3, 2, 1, 2, 3};    // 4 triangles
+ *     enum { V = 4, T = 4, W = 32, H = 32, P = W * H };
+ *     pen_camera cam = {.width = W, .height = H, .fov_y_deg = 40, .eye = {0, 1, 3},
+ *                       .target = {0, 0.3f, 0}, .up = {0, 1, 0}};
+ *     pen_pose pose = {.rotation_axis_angle_deg = {0, 30, 0}, .scale = 1};
+ *     float world[3 * V], normals[3 * V];
+ *     int32_t adjacency[3 * T];
+ *     static float color[3 * P], image[3 * P];
+ *     pen_view view;
+ *     pen_gbuffer gb;
+ *     pen_view_init(ctx, &cam, &view);
+ *     pen_pose_points_fwd(&pose, V, tet, world);                         // object -> world
+ *     pen_vertex_normals_fwd(ctx, V, world, T, tri, normals);            // smooth normals
+ *     pen_raster_adjacency(ctx, V, T, tri, adjacency);                   // for the antialiasing
+ *     pen_raster_mesh mesh = {V, T, world, tri, adjacency};
+ *     pen_gbuffer_create(ctx, W, H, &gb);
+ *     pen_raster_gbuffer(ctx, &view, &mesh, 1, NULL, &gb);               // visibility, no ground
+ *     pen_interpolate_fwd(&gb, 0, tri, normals, 3, color);               // per-pixel attributes
+ *     // ... shade every pixel into `color` (RGB): here the colour is the normal; a shader also
+ *     // interpolates positions and UVs (uv_indices) and normalises (pen_normalize_fwd) ...
+ *     pen_antialias_fwd(ctx, &gb, &view, &mesh, 1, color, 3, image);     // silhouette blending
+ *     // backward, in reverse, of loss = the sum of the image (d_image = 1):
+ *     static float d_image[3 * P], d_color[3 * P], d_bary[2 * P];
+ *     float d_world[3 * V] = {0}, d_normals[3 * V] = {0}, *d_meshes[1] = {d_world};
+ *     for (int i = 0; i < 3 * P; ++i) d_image[i] = 1;
+ *     pen_antialias_bwd(ctx, &gb, &view, &mesh, 1, color, 3, d_image, d_color, d_meshes);
+ *     // ... shading backward: d_color -> d_position, d_normal, d_uv ...
+ *     pen_interpolate_bwd(&gb, 0, tri, normals, 3, d_color, d_normals, d_bary);
+ *     pen_raster_bary_bwd(ctx, &view, &mesh, 1, &gb, d_bary, d_meshes);  // the point slides
+ *     pen_vertex_normals_bwd(ctx, V, world, T, tri, d_normals, d_world);
+ *     pen_pose_grad d_pose = {0};
+ *     pen_pose_points_bwd(&pose, V, tet, d_world, &d_pose, NULL);        // world -> pose
+ *     pen_gbuffer_free(&gb);
  *
  * Conventions:
  *   - Right-handed world, Y up. Camera per penumbra/scene.h: pinhole, row 0 at the top, pixel

@@ -29,12 +29,19 @@
  * depends only on the scene, spp and seed, never on the thread count or scheduling.
  * Threads: pen_context_threads (0 = all cores).
  *
- * Usage:
+ * Usage (the ground truth of a scene JSON, as `penumbra reference` renders it):
+ *
+ *     // given: ctx, scene_path
+ *     pen_scene scene;
+ *     pen_scene_load(ctx, scene_path, &scene);                 // io.h; no spheres needed
  *     pen_reference *ref = NULL;
  *     pen_reference_create(ctx, &scene, PEN_REFERENCE_LIGHTING_AUTO, &ref);
  *     pen_image img;
- *     pen_reference_render(ctx, ref, 256, 1, &img);
+ *     pen_reference_render(ctx, ref, 256, 1, &img);            // 256 samples per pixel, seed 1
+ *     pen_image_save(ctx, "reference.exr", &img);              // linear radiance
+ *     pen_image_free(&img);
  *     pen_reference_destroy(ref);
+ *     pen_scene_free(&scene);                                  // after ref, which borrows it
  */
 #ifndef PENUMBRA_REFERENCE_H
 #define PENUMBRA_REFERENCE_H

@@ -1,22 +1,36 @@
 /* penumbra/render.h -- the differentiable soft-shadow renderer: forward image, image losses, and
  * the backward pass into every scene parameter.
  *
- * Usage (one optimisation step of a pose, from a scene JSON):
+ * Usage (an object's position recovered from an image by gradient descent, from a scene JSON):
  *
- *     pen_scene scene;               pen_scene_load(ctx, "scene.json", &scene);     io.h
- *     pen_scene_prepare(ctx, &scene, 1, NULL);   fits {"fit": N} spheres, as `penumbra render`
- *     pen_render_grad_model(&scene, PEN_GRAD_POSE);  the model whose pose gradient is exact
+ *     // given: ctx, scene_path, target (an image of the scene camera's size)
+ *     pen_scene scene;
+ *     pen_scene_load(ctx, scene_path, &scene);          // io.h
+ *     pen_scene_prepare(ctx, &scene, 1, NULL);          // fits {"fit": N} spheres (fit.h)
+ *     pen_render_grad_model(&scene, PEN_GRAD_POSE);     // the model whose pose gradient is exact
  *     pen_render_options opt = pen_render_options_default();
- *     pen_render_state *st = NULL;   pen_render_state_create(ctx, &st);
- *     pen_render_grad grad;          pen_render_grad_create(ctx, &scene, &grad);
- *     pen_image img = {0}, d_img = {0};
- *     for (int step = 0; step < 100; ++step) {
- *         pen_render_fwd(ctx, &scene, &opt, st, &img);         allocates img on first use
- *         double loss; pen_loss_l2(ctx, &img, &target, &loss, &d_img);   sets d_img
- *         pen_render_grad_zero(&grad);
+ *     pen_render_state *st = NULL;
+ *     pen_render_state_create(ctx, &st);
+ *     pen_render_grad grad;
+ *     pen_render_grad_create(ctx, &scene, &grad);
+ *     pen_image img = {0}, d_img = {0};                 // allocated by their first use
+ *     double loss = 0;
+ *     for (int step = 0; step < 50; ++step) {
+ *         pen_render_fwd(ctx, &scene, &opt, st, &img);
+ *         pen_loss_l2(ctx, &img, &target, &loss, &d_img);   // sets (not adds) d_img
+ *         pen_render_grad_zero(&grad);                      // the backward adds into grad
  *         pen_render_bwd(ctx, &scene, &opt, st, &d_img, PEN_GRAD_POSE, &grad);
- *         ... move scene.objects[0].pose against grad.objects[0].pose ...
+ *         for (int k = 0; k < 3; ++k)                       // a step against the gradient
+ *             scene.objects[0].pose.translation[k] -= 0.3f * grad.objects[0].pose.translation[k];
  *     }
+ *     pen_image_free(&img);
+ *     pen_image_free(&d_img);
+ *     pen_render_grad_free(&grad);
+ *     pen_render_state_free(st);
+ *     pen_scene_free(&scene);
+ *
+ * The step 0.3 suits this loss's scale, not every scene's; pen_optim_run (optim.h) moves every
+ * group with Adam instead.
  *
  * The model (docs/design.md sec. 1.15): a scene's objects shade their own shadows, and their
  * shadows on the ground, with the ray-traced transfer of their meshes by default ("shadow":
