@@ -25,9 +25,15 @@ cat > "$T/task.json" <<JSON
 JSON
 out=$("$BIN" optimize "$T/task.json" -o "$T/out") || fail "optimize lighting"
 case "$out" in *"$T/out: "*"iterations"*"lighting_rel_error"*) ;; *) fail "summary line: $out" ;; esac
-for f in result.json scene.json final.exr final.png compare.png loss.svg; do
+for f in result.json scene.json final.exr final.png compare.png loss.svg loss.png; do
     [ -s "$T/out/$f" ] || fail "no $f written"
 done
+grep -q '"seconds_per_iteration":[[:space:]]*[0-9]' "$T/out/result.json" ||
+    fail "60 Adam steps: seconds_per_iteration is not a number"
+case "$out" in
+*"  adam ("*" iterations, "*" s/it): "*" -> "*) ;;
+*) fail "adam stage line: $out" ;;
+esac
 for key in '"iterations"' '"seconds"' '"seconds_per_iteration"' '"final_loss"' '"converged"' \
     '"metrics"' '"image_rmse"' '"lighting_rel_error"' '"losses"' '"shadows":[[:space:]]*true'; do
     grep -q "$key" "$T/out/result.json" || fail "result.json lacks $key"
@@ -51,6 +57,42 @@ for key in '"lighting_solver":[[:space:]]*"least_squares"' '"lighting_ridge":[[:
     '"final_image_loss"' '"final_ridge_loss"'; do
     grep -q "$key" "$T/auto/result.json" || fail "auto: result.json lacks $key"
 done
+# Its summary starts from the initial guess (black lighting), before the solve: the one stage,
+# least squares, goes from there down; with no Adam step there is no time per step.
+json_number() { # file key: the first "key": number of a result.json
+    sed -n "s/^[[:space:]]*\"$2\":[[:space:]]*\([-+.0-9eE]*\),\{0,1\}\$/\1/p" "$1" | head -n 1
+}
+case "$out" in
+*"  least squares: "*" -> "*) ;;
+*) fail "auto: no least squares stage line: $out" ;;
+esac
+before=$(json_number "$T/auto/result.json" loss_before)
+after=$(json_number "$T/auto/result.json" loss_after)
+initial=$(json_number "$T/auto/result.json" initial_loss)
+final=$(json_number "$T/auto/result.json" final_loss)
+grep -q '"name":[[:space:]]*"least_squares"' "$T/auto/result.json" ||
+    fail "auto: no least_squares stage"
+awk -v b="$before" -v a="$after" 'BEGIN { exit !(b > 10 * a && a > 0) }' ||
+    fail "auto: least squares stage $before -> $after does not fall"
+[ -n "$initial" ] && [ "$initial" = "$before" ] ||
+    fail "auto: initial_loss $initial is not the loss before the solve $before"
+awk -v i="$initial" -v f="$final" 'BEGIN { exit !(i > 10 * f) }' ||
+    fail "auto: initial_loss $initial, final_loss $final"
+first=$(printf '%s\n' "$out" | sed -n 's/.*, loss \([^ ]*\) -> .*/\1/p' | head -n 1)
+awk -v p="$first" -v i="$initial" 'BEGIN { exit !(p > 0 && (p - i) * (p - i) < 1e-6 * i * i) }' ||
+    fail "auto: the summary line's initial loss $first is not $initial"
+grep -q '"seconds_per_iteration":[[:space:]]*null' "$T/auto/result.json" ||
+    fail "auto: seconds_per_iteration is not null with 0 iterations"
+# loss.png: a PNG of 640 x 400 that decodes (compare reads it), and a plot of its own run's
+# losses: the least-squares run's differs from the Adam run's.
+[ "$(head -c 8 "$T/auto/loss.png" | od -An -tx1 | tr -d ' \n')" = 89504e470d0a1a0a ] ||
+    fail "loss.png is not a PNG"
+plots=$("$BIN" compare "$T/auto/loss.png" "$T/out/loss.png") || fail "compare the loss.png files"
+case "$plots" in *'"pixels": 256000'*) ;; *) fail "loss.png is not 640 x 400: $plots" ;; esac
+rmse=$(printf '%s' "$plots" | sed 's/.*"rmse": *\([^,]*\),.*/\1/')
+awk -v r="$rmse" 'BEGIN { exit !(r > 0.01) }' ||
+    fail "the two runs' loss.png are alike (rmse $rmse)"
+
 printf '{"scene": "truth.json", "target": "target.exr", "optimize": ["lighting", "pose"], "iterations": 2}\n' \
     > "$T/auto_lp.json"
 "$BIN" optimize "$T/auto_lp.json" -o "$T/auto_lp" -q || fail "optimize lighting + pose (auto)"

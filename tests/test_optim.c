@@ -174,16 +174,26 @@ static pen_optim_result solve(pen_optim_task *t, int shadows) {
     return r;
 }
 
-/* Result fields hold together: the loss curve starts at the initial render's loss, the final
- * render is the best iterate's and reproduces final_loss (plus `reg`, the regulariser at the
- * recovered parameters; 0 at the start), the best is no worse than any. */
+/* Result fields hold together: the run starts at the initial render's loss (initial_loss, before
+ * every stage: the loss curve's start when the descent is the only stage, else the first stage's
+ * loss before it), the stages chain from there to final_loss, the final render is the best
+ * iterate's and reproduces final_loss (plus `reg`, the regulariser at the recovered parameters; 0
+ * at the start), the best is no worse than any. */
 static void check_result_reg(const pen_optim_task *t, const pen_optim_result *r, double reg) {
     CHECK(r->losses && r->initial.data && r->final.data);
     if (!r->losses || !r->final.data) return;
     double l0 = 0.0, lf = 0.0;
     CHECK(pen_loss_l2(NULL, &r->initial, &t->target, &l0, NULL) == PEN_OK);
     CHECK(pen_loss_l2(NULL, &r->final, &t->target, &lf, NULL) == PEN_OK);
-    CHECK_REL(l0, r->losses[0], 1e-9, 0);
+    CHECK_REL(l0, r->initial_loss, 1e-9, 0);
+    const int n = r->stage_count;
+    CHECK(n >= 1 && n <= PEN_OPTIM_MAX_STAGES && strcmp(r->stages[n - 1].name, "adam") == 0);
+    if (n < 1 || n > PEN_OPTIM_MAX_STAGES) return;
+    CHECK(r->stages[0].loss_before == r->initial_loss);
+    for (int k = 0; k + 1 < n; ++k)
+        CHECK(r->stages[k].loss_after == r->stages[k + 1].loss_before);
+    CHECK(r->stages[n - 1].loss_before == r->losses[0]);
+    CHECK(r->stages[n - 1].loss_after == r->final_loss);
     CHECK_REL(lf + reg, r->final_loss, 1e-9, 0);
     for (int i = 0; i <= r->iterations; ++i)
         CHECK(r->final_loss <= r->losses[i] * (1 + 1e-12));

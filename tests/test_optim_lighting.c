@@ -11,10 +11,18 @@
  * - The ridge's gradient (Adam's) against central differences; the default solver ("auto") of a
  *   lighting-only task is least squares, and Adam on the same stated loss reaches its loss.
  * - The task is refused with the l1 loss or without "lighting" in optimize.
+ * - The run's stages: the summary, result.json and compare.png start from the initial guess
+ *   before the solve, the stages' losses chain, seconds_per_iteration is null without a step,
+ *   and loss.png reads back as the plot of that course.
  * Fixture: tests/optim_scenes.h (the ellipsoid over the ground, targets ray-traced at 256 spp). */
+#define _POSIX_C_SOURCE 200809L
 #include "optim_scenes.h"
 
 #include "optim/optim_internal.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <unistd.h>
 
 #define SIZE 40
 
@@ -247,6 +255,132 @@ static void test_refused(void) {
     pen_context_destroy(ctx);
 }
 
+/* result.json of a run, parsed (NULL on failure, checked). */
+static cJSON *result_json(pen_optim_task *t, const pen_optim_result *r) {
+    pen_context *ctx = pen_context_create();
+    char *json = NULL;
+    CHECK_MSG(pen_optim_result_json(ctx, t, NULL, r, &json) == PEN_OK, "%s",
+              pen_context_error(ctx));
+    cJSON *root = json ? cJSON_Parse(json) : NULL;
+    CHECK(root != NULL);
+    free(json);
+    pen_context_destroy(ctx);
+    return root;
+}
+
+static double json_number(const cJSON *o, const char *name) {
+    const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, name);
+    CHECK_MSG(cJSON_IsNumber(v), "%s is not a number", name);
+    return cJSON_IsNumber(v) ? v->valuedouble : (double)NAN;
+}
+
+/* The curve's pixels in loss.png (sRGB #cc3333, read raw): their count, and the row of the
+ * highest one and of the lowest one in the columns [x0, x1]. */
+static int curve_pixels(const pen_image *im, int x0, int x1, int *top, int *bottom) {
+    int n = 0;
+    *top = im->height, *bottom = -1;
+    for (int y = 0; y < im->height; ++y)
+        for (int x = 0; x < im->width; ++x) {
+            const float *p = im->data + 3 * ((size_t)y * (size_t)im->width + (size_t)x);
+            if (lroundf(255.0f * p[0]) != 0xcc || lroundf(255.0f * p[1]) != 0x33 ||
+                lroundf(255.0f * p[2]) != 0x33)
+                continue;
+            ++n;
+            if (x < x0 || x > x1) continue;
+            if (y < *top) *top = y;
+            if (y > *bottom) *bottom = y;
+        }
+    return n;
+}
+
+/* A lighting-only least-squares task (from black) is one stage, the solve: the summary's initial
+ * loss is the loss before it (the black initial guess, which compare.png's initial panel shows),
+ * the stage goes from there down to losses[0], result.json lists it, and seconds_per_iteration
+ * is null (no Adam step). loss.png is the plot 640 x 400 whose curve falls from the plot's left
+ * edge (the loss before the solve) to its right edge (after it). With pose too, the solve is
+ * followed by the descent, whose seconds per iteration are its own time over its steps. */
+static void test_stages(void) {
+    pen_optim_task t = lsq_task(2, PEN_OPTIM_LIGHTING, 1e-2);
+    pen_optim_result r = run(&t, 1);
+    CHECK(r.solved && r.iterations == 0 && r.stage_count == 1);
+    const pen_optim_stage *st = &r.stages[0];
+    CHECK(st->name && strcmp(st->name, "least_squares") == 0 && st->iterations == 0);
+    printf("  least squares: %.6g -> %.6g (%.3f s)\n", st->loss_before, st->loss_after,
+           st->seconds);
+    CHECK(st->loss_before > 10.0 * st->loss_after); /* black lighting against the solve */
+    CHECK(r.initial_loss == st->loss_before && st->loss_after == r.losses[0]);
+    CHECK_REL(r.final_loss, st->loss_after, 1e-12, 0);
+    /* the initial panel is the black guess: its image loss is the loss before the solve (the
+     * ridge's term is 0 at black lighting) */
+    double initial = 0.0;
+    CHECK(pen_loss_l2(NULL, &r.initial, &t.target, &initial, NULL) == PEN_OK);
+    CHECK_REL(initial, st->loss_before, 1e-12, 0);
+
+    cJSON *root = result_json(&t, &r);
+    CHECK(cJSON_IsNull(cJSON_GetObjectItemCaseSensitive(root, "seconds_per_iteration")));
+    /* (cJSON writes 15 digits where they read back within an ulp or so) */
+    CHECK_REL(json_number(root, "initial_loss"), st->loss_before, 1e-14, 0);
+    const cJSON *stages = cJSON_GetObjectItemCaseSensitive(root, "stages");
+    CHECK(cJSON_IsArray(stages) && cJSON_GetArraySize(stages) == 1);
+    const cJSON *s0 = cJSON_GetArrayItem(stages, 0);
+    const cJSON *name = cJSON_GetObjectItemCaseSensitive(s0, "name");
+    CHECK(cJSON_IsString(name) && strcmp(name->valuestring, "least_squares") == 0);
+    CHECK(json_number(s0, "loss_before") > json_number(s0, "loss_after"));
+    CHECK_REL(json_number(s0, "loss_before"), st->loss_before, 1e-14, 0);
+    CHECK(json_number(s0, "iterations") == 0.0 && json_number(s0, "seconds") >= 0.0);
+    cJSON_Delete(root);
+
+    char dir[] = "/tmp/pen_stages_XXXXXX";
+    CHECK(mkdtemp(dir) != NULL);
+    pen_context *ctx = pen_context_create();
+    char path[64];
+    snprintf(path, sizeof path, "%s/egg.obj", dir); /* (scene.json names the mesh's file) */
+    CHECK(pen_mesh_save_obj(ctx, path, &t.scene.objects[0].mesh) == PEN_OK);
+    t.scene.objects[0].mesh_path = strdup(path);
+    CHECK_MSG(pen_optim_write(ctx, dir, &t, NULL, &r) == PEN_OK, "%s", pen_context_error(ctx));
+    snprintf(path, sizeof path, "%s/loss.png", dir);
+    pen_image plot = {0, 0, 0, NULL};
+    CHECK_MSG(pen_image_load_ex(ctx, path, PEN_IMAGE_LOAD_RAW, &plot) == PEN_OK, "%s",
+              pen_context_error(ctx));
+    CHECK(plot.width == 640 && plot.height == 400);
+    int top[2] = {0, 0}, bottom[2] = {0, 0};
+    const int left_edge = 70, right_edge = 620; /* the plot's frame (output.c) */
+    const int n =
+        plot.data ? curve_pixels(&plot, left_edge - 2, left_edge + 3, &top[0], &bottom[0]) : 0;
+    if (plot.data) curve_pixels(&plot, right_edge - 3, right_edge + 2, &top[1], &bottom[1]);
+    printf("  loss.png: %d curve pixels, from row %d at the left to row %d at the right\n", n,
+           top[0], bottom[1]);
+    CHECK(n > 500);                  /* a line across the plot, not a dot */
+    CHECK(top[0] + 100 < bottom[1]); /* two decades and more down, left to right */
+    pen_image_free(&plot);
+    static const char *const files[] = {"result.json", "scene.json", "final.exr", "final.png",
+                                        "compare.png", "loss.svg",  "loss.png", "egg.obj"};
+    for (size_t k = 0; k < sizeof files / sizeof files[0]; ++k) {
+        snprintf(path, sizeof path, "%s/%s", dir, files[k]);
+        CHECK_MSG(remove(path) == 0, "no %s", files[k]);
+    }
+    CHECK(rmdir(dir) == 0);
+    pen_context_destroy(ctx);
+    pen_optim_result_free(&r);
+    pen_optim_task_free(&t);
+
+    t = lsq_task(2, PEN_OPTIM_LIGHTING | PEN_OPTIM_POSE, 1e-2);
+    t.iterations = 3;
+    r = run(&t, 1);
+    CHECK(!r.solved && r.iterations == 3 && r.stage_count == 2);
+    CHECK(strcmp(r.stages[0].name, "least_squares") == 0 && strcmp(r.stages[1].name, "adam") == 0);
+    CHECK(r.stages[0].loss_before > r.stages[0].loss_after);
+    CHECK(r.stages[0].loss_after == r.losses[0] && r.stages[1].loss_before == r.losses[0]);
+    CHECK(r.stages[1].loss_after == r.final_loss && r.stages[1].iterations == 3);
+    CHECK(r.stages[1].seconds == r.seconds && r.initial_loss == r.stages[0].loss_before);
+    root = result_json(&t, &r);
+    CHECK_REL(json_number(root, "seconds_per_iteration"), r.seconds / 3, 1e-14, 0);
+    CHECK(cJSON_GetArraySize(cJSON_GetObjectItemCaseSensitive(root, "stages")) == 2);
+    cJSON_Delete(root);
+    pen_optim_result_free(&r);
+    pen_optim_task_free(&t);
+}
+
 RUN_TESTS(TEST(test_exact_on_own_render), TEST(test_stationary_and_ridge),
           TEST(test_shadows_beat_baseline), TEST(test_lighting_pose), TEST(test_ridge_gradient),
-          TEST(test_auto_converges), TEST(test_refused))
+          TEST(test_auto_converges), TEST(test_refused), TEST(test_stages))

@@ -139,6 +139,14 @@ static void test_search_finds_light(void) {
         CHECK(err < 2.0);
         for (int k = 0; k < 3; ++k)
             CHECK(fabsf(got->irradiance[k] - 3.0f) < 0.6f);
+        /* the search is the run's first stage (optim.h): from the black SH's loss down to the
+         * descent's start; its time is light_search's */
+        CHECK(r.stage_count == 2 && strcmp(r.stages[0].name, "light_search") == 0 &&
+              strcmp(r.stages[1].name, "adam") == 0);
+        CHECK_MSG(r.stages[0].loss_before > 10.0 * r.stages[0].loss_after, "search: %.4g -> %.4g",
+                  r.stages[0].loss_before, r.stages[0].loss_after);
+        CHECK(r.initial_loss == r.stages[0].loss_before && r.stages[0].loss_after == r.losses[0]);
+        CHECK(r.stages[0].seconds == r.search_seconds);
         memcpy(dirs[run], got->direction, sizeof dirs[run]);
         losses[run] = r.losses ? r.losses[0] : -1.0;
         char *json = NULL;
@@ -220,6 +228,10 @@ static void search_views(int exposed) {
                   "the second view's exposure after the steps: %.17g", t.views[1].exposure);
     CHECK(err[0] < 2.0 && err[1] < 2.0);
     CHECK(fabs(r.metrics.light_direction_error_deg - fmax(err[0], err[1])) < 1e-3);
+    /* the loss before the search is the views' at the black SH, without lights */
+    CHECK(r.stage_count == 2 && strcmp(r.stages[0].name, "light_search") == 0);
+    CHECK_MSG(r.stages[0].loss_before > 10.0 * r.stages[0].loss_after, "search: %.4g -> %.4g",
+              r.stages[0].loss_before, r.stages[0].loss_after);
     /* not both on one true light */
     CHECK(angle_deg(t.scene.lighting.lights[0].direction, t.scene.lighting.lights[1].direction) >
           30.0);
@@ -251,6 +263,11 @@ static void test_search_resume(void) {
     CHECK_MSG(pen_optim_run(ctx, &rest, &set, &c) == PEN_OK, "%s", pen_context_error(ctx));
     CHECK(c.resumed_from == 3 && c.iterations == a.iterations);
     CHECK(memcmp(a.losses, c.losses, sizeof(double) * (size_t)(a.iterations + 1)) == 0);
+    /* the resumed run's stages, searched again, are the run in one go's */
+    CHECK(c.stage_count == 2 && a.stage_count == 2);
+    for (int k = 0; k < 2; ++k)
+        CHECK(c.stages[k].loss_before == a.stages[k].loss_before &&
+              c.stages[k].loss_after == a.stages[k].loss_after);
     CHECK(memcmp(one.scene.lighting.lights, rest.scene.lighting.lights, sizeof(pen_light)) == 0);
     CHECK(memcmp(one.scene.lighting.sh, rest.scene.lighting.sh, sizeof one.scene.lighting.sh) == 0);
     pen_optim_result_free(&a);

@@ -374,6 +374,27 @@ typedef struct pen_optim_view_metrics {
     double rel_rmse; /* rmse / the target's RMS over those pixels */
 } pen_optim_view_metrics;
 
+/* One stage of a run (pen_optim_result.stages), in the order the stages ran. Before the descent
+ * a run may move its lighting, and only its lighting, in up to three stages: the global search
+ * of disk lights ("light_search", light_count), the unshadowed fit of "init": "fit"
+ * ("lighting_fit") and the first least-squares solve of "lighting_solver": "least_squares"
+ * ("least_squares"; a lighting-only task ends there). Then comes the descent ("adam"), unless the
+ * solve ended the task. The losses are the run's objective, as losses[] gives it (the image loss
+ * with the run's shadow weights, plus the regularisers and the lighting ridge with the mu of the
+ * whole run), at the parameters before and after the stage: a stage's loss_after is the next
+ * one's loss_before, the last stage before the descent ends at losses[0], the descent at
+ * final_loss. */
+typedef struct pen_optim_stage {
+    const char *name;   /* "light_search", "lighting_fit", "least_squares" or "adam" (static) */
+    double loss_before;
+    double loss_after;
+    double seconds;     /* its time; the descent's is `seconds` */
+    int iterations;     /* Adam steps: the descent's `iterations`, 0 for the other stages */
+} pen_optim_stage;
+
+/* The most stages a run has: the three before the descent and the descent. */
+#define PEN_OPTIM_MAX_STAGES 4
+
 typedef struct pen_optim_result {
     int iterations;       /* Adam steps taken */
     double seconds;       /* the optimisation loop (renders, backward passes, updates) */
@@ -386,7 +407,8 @@ typedef struct pen_optim_result {
     int interrupted;      /* 1: the progress callback asked to stop */
     int resumed_from;     /* the iteration the run continued from a checkpoint (0: none) */
     double *losses;       /* iterations + 1 losses: losses[i] of the parameters after i steps */
-    pen_image initial;    /* render of the initial guess (after the init rule); view 0's */
+    pen_image initial;    /* render of the initial guess (after the init rule, before every
+                             stage: a solved or searched lighting shows in `final`); view 0's */
     pen_image final;      /* render of the recovered scene; view 0's in a multi-view task */
     pen_optim_metrics metrics; /* multi-view: image_rmse over every view's mask pixels */
     int view_count;       /* the task's views (0: single view) */
@@ -405,6 +427,10 @@ typedef struct pen_optim_result {
     double lighting_ridge; /* the ridge used (the default resolved) */
     int solved;           /* 1: the least-squares solve ended the task (the lighting alone: 0
                              Adam steps; converged is 1 too) */
+    double initial_loss;  /* the objective at the initial guess, before every stage:
+                             stages[0].loss_before (losses[0] when the descent is the only stage) */
+    int stage_count;      /* 1 .. PEN_OPTIM_MAX_STAGES */
+    pen_optim_stage stages[PEN_OPTIM_MAX_STAGES];
 } pen_optim_result;
 
 /* Runs the task: fits sphere sets the scene asks for ({"fit": N}, cached as pen_spheres_fit_cached says; only
@@ -420,8 +446,9 @@ PEN_API void pen_optim_result_free(pen_optim_result *result);
 /* Writes into folder `outdir` (created if missing): result.json, scene.json (the recovered scene,
  * SH lighting inline, renderable by `penumbra render`; optimised textures beside it as
  * texture_<object>.png), final.exr and final.png (the final render), compare.png (target |
- * initial | result | 4x absolute error, side by side), loss.svg (the loss curve). Every file is
- * written atomically; if any write fails the files already written by this call are removed. */
+ * initial | result | 4x absolute error, side by side), loss.svg and loss.png (the loss curve
+ * through the stages, log scale). Every file is written atomically; if any write fails the files
+ * already written by this call are removed. */
 PEN_API pen_status pen_optim_write(pen_context *ctx, const char *outdir, const pen_optim_task *task,
                                    const pen_optim_settings *settings,
                                    const pen_optim_result *result);

@@ -20,7 +20,11 @@
  * Record keeping: losses[i] is the objective after i steps (the image loss plus the regularisers:
  * the deformation's, the spheres' smoothness, the lighting's ridge); the stopping rule looks at
  * them after each render, and when it fires no further step is taken. The parameters of the lowest objective
- * are kept (the best iterate) and rendered once more if they are not the last ones. */
+ * are kept (the best iterate) and rendered once more if they are not the last ones. The stages
+ * before the first step (the lights' search, the "fit" lighting, the first least-squares solve)
+ * move only the lighting: each is recorded with the lighting it started from, and the objective
+ * there is measured just before the loop (stage_losses), so that the result's stages, its initial
+ * loss and its initial render start from the initial guess, not from the descent's start. */
 #include "optim/optim_internal.h"
 #include "scene/validate.h"
 
@@ -251,8 +255,75 @@ static pen_status picture(pen_context *ctx, const pen_optim_task *t, const run *
     return s;
 }
 
+/* ---- Stages before the descent --------------------------------------------------------------- */
+
+/* A stage before the descent (optim.h, pen_optim_stage: the light search, the "fit" lighting, the
+ * first least-squares solve). Each moves the scene's lighting and nothing else, so the lighting it
+ * started from is all it takes to measure the loss before it. That is done once the objective is
+ * whole (the shadow weights and the ridge's mu exist only after the stages), just before the
+ * descent, with the same renders as the loop's. */
+typedef struct prestage {
+    const char *name; /* pen_optim_stage's */
+    double seconds;
+    float sh[PEN_SH_MAX_COEFFS][3]; /* the scene's lighting when the stage began */
+    int light_count;
+} prestage;
+
+typedef struct prestages {
+    prestage at[PEN_OPTIM_MAX_STAGES - 1];
+    int count;
+} prestages;
+
+/* Records the start of a stage named `name` from the scene's lighting now. */
+static prestage *stage_begin(prestages *p, const pen_scene *sc, const char *name) {
+    prestage *a = &p->at[p->count++];
+    a->name = name;
+    a->seconds = 0.0;
+    memcpy(a->sh, sc->lighting.sh, sizeof a->sh);
+    a->light_count = sc->lighting.light_count;
+    return a;
+}
+
+/* The objective at the start of every stage into before[] (image term and regularisers, as
+ * losses[] has them), and the render of the first stage's start, the initial guess, into
+ * initial. The scene's lighting is put back as it was, bit for bit. */
+static pen_status stage_losses(pen_context *ctx, pen_optim_task *t, run *r, const prestages *p,
+                               pen_image *img, double *before, pen_image *initial) {
+    pen_lighting *L = &t->scene.lighting;
+    float sh[PEN_SH_MAX_COEFFS][3];
+    memcpy(sh, L->sh, sizeof sh);
+    const int light_count = L->light_count;
+    pen_status s = PEN_OK;
+    for (int j = 0; !s && j < p->count; ++j) {
+        memcpy(L->sh, p->at[j].sh, sizeof L->sh);
+        L->light_count = p->at[j].light_count;
+        s = image_term(ctx, t, r, NULL, img, &before[j], NULL);
+        if (!s) before[j] += pen__optim_regularisers(r);
+        if (!s && j == 0) s = picture(ctx, t, r, initial);
+    }
+    memcpy(L->sh, sh, sizeof sh);
+    L->light_count = light_count;
+    return s;
+}
+
+/* res->stages and res->initial_loss, once the descent is over: the stages before it (their start
+ * losses in before[]; the last ends where the descent starts, at losses[0]) and the descent,
+ * unless the solve ended the task. */
+static void stages_record(const prestages *p, const double *before, pen_optim_result *res) {
+    int n = 0;
+    for (int j = 0; j < p->count; ++j)
+        res->stages[n++] = (pen_optim_stage){p->at[j].name, before[j],
+                                             j + 1 < p->count ? before[j + 1] : res->losses[0],
+                                             p->at[j].seconds, 0};
+    if (!res->solved)
+        res->stages[n++] = (pen_optim_stage){"adam", res->losses[0], res->final_loss,
+                                             res->seconds, res->iterations};
+    res->stage_count = n;
+    res->initial_loss = res->stages[0].loss_before;
+}
+
 static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_settings *set,
-                           run *r, pen_optim_result *res) {
+                           run *r, const prestages *pre, pen_optim_result *res) {
     const pen_render_options opt = r->opt;
     pen_render_state *state = NULL;
     pen_render_grad grad;
@@ -269,7 +340,13 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
         res->losses = pen__calloc(ctx, (size_t)t->iterations + 1, sizeof(double), "loss curve");
         if (!res->losses) s = PEN_ERROR_MEMORY;
     }
-    if (!s) s = picture(ctx, t, r, &res->initial);
+    const unsigned wrt = pen__optim_grad_mask(r->groups, r->solve);
+    /* (the views' plan before their first pass: the stages' losses render them) */
+    if (!s && r->multi) s = pen__optim_views_plan(ctx, &r->views, &t->scene, set, wrt);
+    double pre_loss[PEN_OPTIM_MAX_STAGES];
+    if (!s)
+        s = pre->count ? stage_losses(ctx, t, r, pre, &img, pre_loss, &res->initial)
+                       : picture(ctx, t, r, &res->initial);
     /* (the hashes read the target and the parameters: only checkpoints need them) */
     pen__optim_identity id;
     memset(&id, 0, sizeof id);
@@ -283,14 +360,12 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
     const double before = st.seconds; /* spent by the runs this one continues */
     const float scale =
         r->multi ? 3.0f * (float)r->views.max_pixels : 3.0f * (float)w * (float)h;
-    const unsigned wrt = pen__optim_grad_mask(r->groups, r->solve);
     /* solved lighting alone: nothing for Adam to move, the solve is the answer */
     const int alone = r->solve && r->n == 3 * (size_t)r->sc->sh_bands * (size_t)r->sc->sh_bands;
     /* (under several ranks only rank 0 writes: pen_optim_ranks) */
     const int writes = set->outdir && (!set->ranks || set->ranks->rank == 0);
     const int K = writes ? set->checkpoint_every : 0;
     const int S = writes ? set->snapshot_every : 0;
-    if (!s && r->multi) s = pen__optim_views_plan(ctx, &r->views, &t->scene, set, wrt);
     const double t0 = omp_get_wtime();
     int i = start, shown = -1; /* the iteration whose parameters img shows, -1 after a step */
     for (; !s && i < t->iterations; ++i) {
@@ -372,6 +447,7 @@ static pen_status optimise(pen_context *ctx, pen_optim_task *t, const pen_optim_
     if (!s) {
         res->final = img;
         img.data = NULL;
+        stages_record(pre, pre_loss, res);
     }
     created_finish(&made, s != PEN_OK);
     pen_image_free(&img);
@@ -657,6 +733,7 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
     r.task_views = task->views;
     r.task_view_count = task->view_count;
     s = pen__optim_layout(ctx, &r, task);
+    prestages pre = {.count = 0};
     if (!s) {
         pen__optim_transfer(&r, 0);
         pen__optim_start(&r, task->init_black);
@@ -664,18 +741,30 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
         pen__optim_transfer(&r, 1);
         const int search =
             (task->optimize & PEN_OPTIM_LIGHTS) && task->scene.lighting.light_count == 0;
-        if (search) s = search_lights(ctx, task, &r, out); /* (its SH replaces "fit"'s) */
-        else if (task->init_fit && r.at[PEN__OPTIM_G_LIGHTING] != SIZE_MAX)
+        double t0 = omp_get_wtime();
+        if (search) { /* (its SH replaces "fit"'s) */
+            prestage *p = stage_begin(&pre, &task->scene, "light_search");
+            s = search_lights(ctx, task, &r, out);
+            p->seconds = out->search_seconds;
+        } else if (task->init_fit && r.at[PEN__OPTIM_G_LIGHTING] != SIZE_MAX) {
+            prestage *p = stage_begin(&pre, &task->scene, "lighting_fit");
             s = fitted_lighting(ctx, task, &r);
+            p->seconds = omp_get_wtime() - t0;
+        }
         if (!s && r.multi)
             s = pen__optim_views_init(ctx, &r.views, task, task->shadow_weight,
                                       (task->optimize & PEN_OPTIM_LIGHTING) != 0);
         else if (!s && task->shadow_weight > 0.0)
             s = shadow_weights(ctx, task, &r);
-        if (!s && (r.solve || (r.ridge > 0.0 && r.at[PEN__OPTIM_G_LIGHTING] != SIZE_MAX)))
+        if (!s && (r.solve || (r.ridge > 0.0 && r.at[PEN__OPTIM_G_LIGHTING] != SIZE_MAX))) {
+            /* (Adam's ridge takes only mu from its solve: no stage, the lighting stays) */
+            prestage *p = r.solve ? stage_begin(&pre, &task->scene, "least_squares") : NULL;
+            t0 = omp_get_wtime();
             s = ridge_init(ctx, task, &r);
+            if (p) p->seconds = omp_get_wtime() - t0;
+        }
     }
-    if (!s) s = optimise(ctx, task, &set, &r, out);
+    if (!s) s = optimise(ctx, task, &set, &r, &pre, out);
     if (!s) {
         pen_image_error e = {0.0, 0.0, 0.0, 0};
         if (r.multi) { /* every view of the recovered scene; image_rmse over all of them */

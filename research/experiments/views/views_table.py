@@ -62,11 +62,13 @@ with open(os.path.join(out, "results.tsv"), "w") as f:
         r["sky_x1"] = r["sky"] / b["sky"] if b else float("nan")
         r["val_ratio"] = r["val"] / r["true"]
         f.write("\t".join(str(r[c]) for c in cols) + "\n")
+        # (seconds_per_iteration is null for a solve without Adam steps)
+        s_per_it = "-" if r["s_per_it"] is None else "%.3f" % r["s_per_it"]
         print("| %s | %s | %s | %d | %s | %.3f (%.2fx) | %.3f | %.3f (%.2fx) | %.4f / %.4f (%.2f) "
-              "| %d, %s | %.3f |" % (r["case"], r["targets"], r["placement"], r["n"], r["solver"], r["err"],
-                                   r["err_x1"], r["b02"], r["sky"], r["sky_x1"], r["val"],
-                                   r["true"], r["val_ratio"], r["iterations"], r["stop"],
-                                   r["s_per_it"]))
+              "| %d, %s | %s |" % (r["case"], r["targets"], r["placement"], r["n"], r["solver"], r["err"],
+                                 r["err_x1"], r["b02"], r["sky"], r["sky_x1"], r["val"],
+                                 r["true"], r["val_ratio"], r["iterations"], r["stop"],
+                                 s_per_it))
 
 # The summary of docs/results/views.md: per case, targets, solver and placement the lighting error
 # (sky) at 1, 2, 4 and 8 views, 4 views against the 1-view ring run, and the held-back ratio at
