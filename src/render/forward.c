@@ -202,12 +202,18 @@ static const double *group_horizon(const pen_render_state *st, int g) {
 static void shade_lights_fwd(pen_render_state *st, const pen__tile_ws *ws, int ncull, int g,
                              const int *pix, int cnt) {
     const double *G = group_horizon(st, g);
-    for (int k = 0; k < cnt; ++k) {
-        const size_t i = (size_t)pix[k];
-        float *V = st->lights_V_valid ? st->lights_V.data + (size_t)st->lights.count * i : NULL;
-        pen__lights_fwd(&st->lights, G, ncull, st->spheres.data, st->kappa.data, ws->cull,
-                        st->x.data + 3 * i, st->n.data + 3 * i, st->rho.data + 3 * i,
-                        st->color.data + 3 * i, V);
+    for (int k0 = 0; k0 < cnt; k0 += PEN_LIGHTS_BLOCK) {
+        const int nb = cnt - k0 < PEN_LIGHTS_BLOCK ? cnt - k0 : PEN_LIGHTS_BLOCK;
+        pen__lights_candidates(&st->lights, ncull, st->spheres.data, ws->cull, nb, st->x.data,
+                               st->n.data, pix + k0, ws->cand, ws->ncand);
+        for (int k = 0; k < nb; ++k) {
+            const size_t i = (size_t)pix[k0 + k];
+            float *V =
+                st->lights_V_valid ? st->lights_V.data + (size_t)st->lights.count * i : NULL;
+            pen__lights_fwd(&st->lights, G, ws->ncand[k], st->spheres.data, st->kappa.data,
+                            ws->cand + (size_t)k * (size_t)ncull, st->x.data + 3 * i,
+                            st->n.data + 3 * i, st->rho.data + 3 * i, st->color.data + 3 * i, V);
+        }
     }
 }
 

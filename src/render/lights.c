@@ -22,6 +22,11 @@
  *   relative precision down to the smallest radius accepted (0.01 deg).
  * - Derivatives of the two closed forms come from forward-mode dual numbers (3 partials) over the
  *   same expressions, so the derivative is the derivative of the value that was computed.
+ * - Cost. A sun is small, so most (receiver, sphere) pairs of a tile cannot touch it: the
+ *   renderer passes each receiver only the spheres that a float prefilter (lights_fast.c, in the
+ *   machine's vector width) keeps, and a disk that is clear of a cap or wholly inside it is told
+ *   from the cosines alone; only partial overlaps take the angles (atan2) and the lens formula.
+ *   Both shortcuts take the branch the full computation would take, so the image is unchanged.
  */
 #include "render/lights_internal.h"
 
@@ -136,6 +141,12 @@ static dual cap_area(dual h) {
     return dscale(dmul(s, s), 4.0 * PEN_PI);
 }
 
+/* A cap's solid angle 4 pi sin^2(h/2) in plain doubles (the forward's full-overlap value). */
+static double cap_full_area(double h) {
+    const double s = sin(0.5 * h);
+    return 4.0 * PEN_PI * s * s;
+}
+
 /* tan(x/2) from sin x and cos x, x in [0, pi], without cancellation at either end. */
 static double half_tan(double sx, double cx) {
     return cx >= 0.0 ? sx / (1.0 + cx) : (1.0 - cx) / sx;
@@ -151,9 +162,9 @@ double pen__cap_overlap(double a, double b, double g, double d[3]) {
     if (!d) {
         /* the same in plain doubles: the forward's (hot) path */
         if (s - g <= 0.0) return 0.0;
+        if (s - a <= 0.0) return cap_full_area(b);
+        if (s - b <= 0.0) return cap_full_area(a);
         const double hb = sin(0.5 * b), ha = sin(0.5 * a);
-        if (s - a <= 0.0) return 4.0 * PEN_PI * hb * hb;
-        if (s - b <= 0.0) return 4.0 * PEN_PI * ha * ha;
         if (s >= PEN_PI) return 4.0 * PEN_PI * (ha * ha + hb * hb - 1.0);
         /* sine and cosine of each (one sincos each) give the half-angle tangents */
         const double ss = sin(s), ssa = sin(s - a), ssb = sin(s - b), ssg = sin(s - g);
@@ -353,7 +364,12 @@ static void sphere_view_cap(sphere_view *sv) {
         sv->da_dD = da_dt * 2.0 * r * r / (D * D * D);
         sv->da_dr = da_dt * -2.0 * r / (D * D);
     }
-    sv->a = atan2(sv->sin_a, sv->cos_a);
+    sv->a = -1.0; /* the angle itself only where a partial overlap needs it (sphere_view_angle) */
+}
+
+static double sphere_view_angle(sphere_view *sv) {
+    if (sv->a < 0.0) sv->a = atan2(sv->sin_a, sv->cos_a);
+    return sv->a;
 }
 
 /* The fraction of light l's disk inside the sphere's cap, and (when fd is not NULL) its partials
@@ -366,12 +382,20 @@ static double disk_fraction(const pen__lights *L, int l, sphere_view *sv, double
     sphere_view_cap(sv);
     const double *w = L->w[l], *d = sv->d;
     const double cg = d[0] * w[0] + d[1] * w[1] + d[2] * w[2];
+    /* The two common cases without the angles: the disk clear of the cap (g >= a + b, where
+     * a + b < pi) or wholly inside it (g <= a - b), decided on cosines with a margin of 1e-9 that
+     * is far above their rounding, so pen__cap_overlap would take the same branch. Inside,
+     * f = 1 and its partials are 0 (the disk's own area cancels), exactly. */
+    const double ca = sv->cos_a, sa = sv->sin_a, cb = L->cos_b[l], sb = L->sin_b[l];
+    if (sa * cb + ca * sb > 0.0 && cg < ca * cb - sa * sb - 1e-9) return 0.0;
+    if (sv->a != PEN_PI && sa * cb - ca * sb > 0.0 && cg > ca * cb + sa * sb + 1e-9)
+        return 1.0; /* = cap_full_area(b) / area, the same expression as L->area */
     const double cx = d[1] * w[2] - d[2] * w[1], cy = d[2] * w[0] - d[0] * w[2],
                  cz = d[0] * w[1] - d[1] * w[0];
     const double sg = sqrt(cx * cx + cy * cy + cz * cz), g = atan2(sg, cg);
     *sin_g = sg;
     const double area = L->area[l];
-    const double f = pen__cap_overlap(sv->a, L->b[l], g, fd) / area;
+    const double f = pen__cap_overlap(sphere_view_angle(sv), L->b[l], g, fd) / area;
     if (fd) {
         fd[0] /= area;
         fd[1] = (fd[1] - f * 2.0 * PEN_PI * L->sin_b[l]) / area;

@@ -51,6 +51,18 @@ double pen__lights_horizon(const pen__lights *L, int l, double t, double *d_t, d
 int pen__lights_cull(const pen__lights *L, int sphere_count, const float *spheres,
                      const double lo[3], const double hi[3], int *idx);
 
+/* Receivers that pen__lights_candidates takes at once. */
+#define PEN_LIGHTS_BLOCK 16
+
+/* A float prefilter of the n spheres idx (NULL: 0 .. n - 1) for cnt <= PEN_LIGHTS_BLOCK
+ * receivers k at x + 3 at[k], nrm + 3 at[k] (at NULL: k): into list + k n the spheres, in idx's
+ * order, that may shadow some light at receiver k, their number into count[k]. Conservative: a
+ * sphere left out has weight 0 or f = 0 for every light there, so passing a receiver's list to
+ * pen__lights_fwd / bwd gives the same result, bit for bit, as passing idx. */
+void pen__lights_candidates(const pen__lights *L, int n, const float *spheres, const int *idx,
+                            int cnt, const float *x, const float *nrm, const int *at, int *list,
+                            int *count);
+
 /* Adds the lights' radiance at a receiver (x, n, rho) into rgb:
  *   rgb[ch] += rho[ch] / pi * sum_l E_l[ch] D(n . w_l, b_l) G_l V_l(x),
  *   V_l = prod_i (1 - (1 - exp(-eps w_i kappa_i)) f_il),

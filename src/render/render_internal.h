@@ -453,6 +453,7 @@ typedef struct pen__tile_ws {
     int *idx;
     float *x, *n, *rho, *out, *dx, *dn, *drho; /* 3 floats per compacted pixel */
     int *cull; /* the spheres that may shadow a disk light in the tile (pen__tile_lights_cull) */
+    int *cand, *ncand; /* per receiver of a block, its own of them (pen__lights_candidates) */
     void *kernel;
 } pen__tile_ws;
 

@@ -1,6 +1,7 @@
 /* Run-time choice of the fast shading kernel: the pen__shade_fast_* entry points the renderer
  * calls, forwarded to one of the kernel's variants (shade_fast.c, compiled once per instruction
- * set), and pen_render_fast_lanes.
+ * set), and pen_render_fast_lanes; the disk lights' prefilter (lights_fast.c) goes with the
+ * same variant.
  *
  * Design
  * - Why at run time. The kernel is nearly all of a step's arithmetic, and its speed is the width
@@ -31,6 +32,8 @@ extern const pen__shade_fast_ops pen__shade_fast_ops_avx512, pen__shade_fast_ops
     pen__shade_fast_ops_sse2;
 static const pen__shade_fast_ops *const variants[] = {
     &pen__shade_fast_ops_avx512, &pen__shade_fast_ops_avx2, &pen__shade_fast_ops_sse2};
+#define CANDIDATES(isa) pen__lights_candidates_##isa
+#define CANDIDATE_VARIANTS {CANDIDATES(avx512), CANDIDATES(avx2), CANDIDATES(sse2)}
 
 static int cpu_runs(int v) {
     __builtin_cpu_init();
@@ -49,6 +52,8 @@ static int cpu_runs(int v) {
 #else
 extern const pen__shade_fast_ops pen__shade_fast_ops_generic;
 static const pen__shade_fast_ops *const variants[] = {&pen__shade_fast_ops_generic};
+#define CANDIDATES(isa) pen__lights_candidates_##isa
+#define CANDIDATE_VARIANTS {CANDIDATES(generic)}
 
 static int cpu_runs(int v) {
     (void)v;
@@ -131,4 +136,29 @@ void pen__shade_fast_bwd(const pen__shade_params *p, const float (*sh)[3], int s
 
 int pen_render_fast_lanes(void) {
     return ops()->lanes;
+}
+
+
+/* The disk lights' prefilter (lights_fast.c), in the variant the kernel uses. */
+#define CANDIDATES_DECL(isa)                                                                     \
+    void CANDIDATES(isa)(const pen__lights *L, int n, const float *spheres, const int *idx,       \
+                         int cnt, const float *x, const float *nrm, const int *at, int *list,     \
+                         int *count)
+#if defined(__x86_64__)
+CANDIDATES_DECL(avx512);
+CANDIDATES_DECL(avx2);
+CANDIDATES_DECL(sse2);
+#else
+CANDIDATES_DECL(generic);
+#endif
+typedef void (*candidates_fn)(const pen__lights *, int, const float *, const int *, int,
+                              const float *, const float *, const int *, int *, int *);
+static const candidates_fn candidates[] = CANDIDATE_VARIANTS;
+
+void pen__lights_candidates(const pen__lights *L, int n, const float *spheres, const int *idx,
+                            int cnt, const float *x, const float *nrm, const int *at, int *list,
+                            int *count) {
+    (void)ops(); /* the variant chosen */
+    candidates[__atomic_load_n(&chosen, __ATOMIC_ACQUIRE)](L, n, spheres, idx, cnt, x, nrm, at,
+                                                            list, count);
 }

@@ -30,8 +30,8 @@ double pen__render_ms_since(double t0) {
 
 static size_t tile_ws_bytes(const pen__shade_params *p, int spheres) {
     const size_t b = sizeof(int) * PEN_TILE_PX + 7 * 3 * sizeof(float) * PEN_TILE_PX +
-                     sizeof(int) * (size_t)spheres +
-                     pen__shade_fast_scratch_bytes(p, spheres, PEN_TILE_PX);
+                     sizeof(int) * (size_t)spheres * (1 + PEN_LIGHTS_BLOCK) +
+                     sizeof(int) * PEN_LIGHTS_BLOCK + pen__shade_fast_scratch_bytes(p, spheres, PEN_TILE_PX);
     return (b + 127) & ~(size_t)127; /* threads' blocks on separate cache lines */
 }
 
@@ -51,7 +51,9 @@ static pen__tile_ws tile_ws_at(pen_render_state *st, size_t bytes, int spheres) 
     w.x = f, w.n = f + 3 * PEN_TILE_PX, w.rho = f + 6 * PEN_TILE_PX, w.out = f + 9 * PEN_TILE_PX;
     w.dx = f + 12 * PEN_TILE_PX, w.dn = f + 15 * PEN_TILE_PX, w.drho = f + 18 * PEN_TILE_PX;
     w.cull = (int *)(f + 21 * PEN_TILE_PX);
-    w.kernel = w.cull + spheres; /* the kernel's scratch is float data: 4-byte alignment */
+    w.cand = w.cull + spheres;
+    w.ncand = w.cand + (size_t)spheres * PEN_LIGHTS_BLOCK;
+    w.kernel = w.ncand + PEN_LIGHTS_BLOCK; /* the kernel's scratch is float data: 4 bytes */
     return w;
 }
 
