@@ -549,6 +549,62 @@ static void test_thread_count_independent(void) {
     pen_scene_free(&sc);
 }
 
+/* The texel gradient of footprint lookups, scattered by row bands in parallel, equals the serial
+ * scatter's bit for bit: a frame large enough for the threads, 1 against 2 and 3 threads, and
+ * against pen__texture_footprint_bwd pixel by pixel in pixel order. */
+static void test_texel_scatter_threads(void) {
+    pen_scene sc = rs_ball_scene(96, 1, &seed);
+    CHECK(sc.objects[0].texture_filter == PEN_TEXTURE_FILTER_FOOTPRINT);
+    const unsigned wrt = PEN_GRAD_ALBEDO | PEN_GRAD_LIGHTING;
+    pen_render_grad g[3];
+    pen_render_state *st0 = NULL;
+    pen_context *ctx0 = NULL;
+    for (int k = 0; k < 3; ++k) {
+        pen_context *ctx = pen_context_create();
+        pen_context_set_threads(ctx, k + 1);
+        pen_render_state *st = NULL;
+        pen_render_state_create(ctx, &st);
+        pen_image im = {0, 0, 0, NULL}, d = {0, 0, 0, NULL};
+        CHECK(pen_render_fwd(ctx, &sc, NULL, st, &im) == PEN_OK);
+        pen_image_create(ctx, im.width, im.height, 3, &d);
+        unsigned long long s2 = 7;
+        for (int i = 0; i < 3 * im.width * im.height; ++i)
+            d.data[i] = (float)check_rand_(&s2);
+        pen_render_grad_create(ctx, &sc, &g[k]);
+        CHECK(pen_render_bwd(ctx, &sc, NULL, st, &d, wrt, &g[k]) == PEN_OK);
+        pen_image_free(&im), pen_image_free(&d);
+        if (k == 0) {
+            st0 = st, ctx0 = ctx;
+            continue;
+        }
+        pen_render_state_free(st);
+        pen_context_destroy(ctx);
+    }
+    const pen_object_grad *a = &g[0].objects[0];
+    size_t nonzero = 0;
+    for (size_t i = 0; i < 3 * (size_t)a->texel_count; ++i)
+        nonzero += a->texture[i] != 0.0f;
+    CHECK(nonzero > 0);
+    for (int k = 1; k < 3; ++k)
+        CHECK(memcmp(a->texture, g[k].objects[0].texture, sizeof(float) * 3 * (size_t)a->texel_count) ==
+              0);
+    /* the serial reference, from the 1-thread state's pixels */
+    float *ref = calloc(3 * (size_t)a->texel_count, sizeof(float));
+    const size_t np = (size_t)st0->width * (size_t)st0->height;
+    for (size_t i = 0; i < np; ++i)
+        if (st0->gb.surface[i] == 0)
+            pen__texture_footprint_bwd(&sc.objects[0].texture, st0->uv.data + 2 * i,
+                                       st0->uvj.data + 4 * i, st0->d_rho.data + 3 * i, ref, NULL,
+                                       NULL);
+    CHECK(memcmp(ref, a->texture, sizeof(float) * 3 * (size_t)a->texel_count) == 0);
+    free(ref);
+    for (int k = 0; k < 3; ++k)
+        pen_render_grad_free(&g[k]);
+    pen_render_state_free(st0);
+    pen_context_destroy(ctx0);
+    pen_scene_free(&sc);
+}
+
 static int grad_finite(const pen_render_grad *g) {
     int ok = rs_all_finite(&g->sh[0][0], sizeof g->sh / sizeof(float)) &&
              rs_all_finite(g->ground_albedo, 3);
@@ -771,6 +827,7 @@ RUN_TESTS(TEST(test_lighting_and_albedo), TEST(test_ground_border_gradients), TE
           TEST(test_self_shadowing_gradients), TEST(test_two_objects), TEST(test_pose_gradients),
           TEST(test_vertex_gradients), TEST(test_silhouette_gradients),
           TEST(test_disk_light_gradients),
-          TEST(test_thread_count_independent), TEST(test_torture_finite),
+          TEST(test_thread_count_independent), TEST(test_texel_scatter_threads),
+          TEST(test_torture_finite),
           TEST(test_footprint_gradients), TEST(test_footprint_checkerboard),
           TEST(test_grad_model_rule))

@@ -369,6 +369,29 @@ unsigned pen_render_grad_model(pen_scene *sc, unsigned wrt) {
     return changed;
 }
 
+/* The geometry's serial scatter: the interpolations' backward into the vertices and barycentrics,
+ * the footprints' into the vertices, the vertex normals'. */
+static pen_status geometry_scatter(pen_context *ctx, const pen_scene *sc, pen_render_state *st) {
+    pen_status s = PEN_OK;
+    for (int o = 0; o < sc->object_count && !s; ++o) {
+        const pen_object *ob = &sc->objects[o];
+        pen__object_buf *b = &st->obj[o];
+        pen_interpolate_bwd(&st->gb, o, ob->mesh.indices, b->world.data, 3, st->d_x.data,
+                            b->d_world.data, st->d_bary.data);
+        pen_interpolate_bwd(&st->gb, o, ob->mesh.indices, b->vnormal.data, 3, st->d_nraw.data,
+                            b->d_vnormal.data, st->d_bary.data);
+        if (ob->texture.data) {
+            pen_interpolate_bwd(&st->gb, o, ob->mesh.uv_indices, ob->mesh.uvs, 2, st->d_uv.data,
+                                NULL, st->d_bary.data);
+            if (pen__render_footprint(ob)) pen__uv_footprint_bwd(st, ob, o, b->d_world.data);
+        }
+        s = pen_vertex_normals_bwd(ctx, ob->mesh.vertex_count, b->world.data,
+                                   ob->mesh.triangle_count, ob->mesh.indices, b->d_vnormal.data,
+                                   b->d_world.data);
+    }
+    return s;
+}
+
 pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_render_options *opt,
                           pen_render_state *st, const pen_image *d_image, unsigned wrt,
                           pen_render_grad *grad) {
@@ -558,40 +581,33 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
         }
     free(sum);
 
-    /* Two independent serial scatters, side by side on two threads: the texels (in pixel order,
-     * so every texel sums its pixels in the same order whatever the threads) and the geometry's
-     * interpolation and vertex-normal backward (into the vertex and barycentric buffers). */
+    /* Two independent scatters in one parallel loop of work items: item 0 the geometry's
+     * interpolation and vertex-normal backward (serial: into the vertex and barycentric buffers),
+     * items 1 .. bands the texels, a band of texture rows each. A band visits every pixel in
+     * pixel order and adds only into its own rows, so every texel sums its pixels in the same
+     * order whatever the threads (pen__texture_scatter_rows). */
     pen_status s_geom = PEN_OK;
     if (want_geom) memset(st->d_bary.data, 0, sizeof(float) * 2 * np);
-#pragma omp parallel sections num_threads(nt > 1 ? 2 : 1) if (np >= PEN_RENDER_PARALLEL_MIN_PIXELS)
-    {
-#pragma omp section
-        if (want_albedo)
-            for (size_t i = 0; i < np; ++i) {
-                const int surf = st->gb.surface[i];
-                if (surf < 0 || !sc->objects[surf].texture.data) continue;
-                pen__render_texture_bwd(st, &sc->objects[surf], i, st->d_rho.data + 3 * i,
-                                        grad->objects[surf].texture, NULL, NULL);
-            }
-#pragma omp section
-        if (want_geom)
-            for (int o = 0; o < O && !s_geom; ++o) {
-                const pen_object *ob = &sc->objects[o];
-                pen__object_buf *b = &st->obj[o];
-                pen_interpolate_bwd(&st->gb, o, ob->mesh.indices, b->world.data, 3, st->d_x.data,
-                                    b->d_world.data, st->d_bary.data);
-                pen_interpolate_bwd(&st->gb, o, ob->mesh.indices, b->vnormal.data, 3,
-                                    st->d_nraw.data, b->d_vnormal.data, st->d_bary.data);
-                if (ob->texture.data) {
-                    pen_interpolate_bwd(&st->gb, o, ob->mesh.uv_indices, ob->mesh.uvs, 2,
-                                        st->d_uv.data, NULL, st->d_bary.data);
-                    if (pen__render_footprint(ob))
-                        pen__uv_footprint_bwd(st, ob, o, b->d_world.data);
-                }
-                s_geom = pen_vertex_normals_bwd(ctx, ob->mesh.vertex_count, b->world.data,
-                                                ob->mesh.triangle_count, ob->mesh.indices,
-                                                b->d_vnormal.data, b->d_world.data);
-            }
+    const int bands = want_albedo ? (nt > 1 ? 4 * nt : 1) : 0;
+#pragma omp parallel for schedule(dynamic, 1) num_threads(nt)                                     \
+    if (nt > 1 && np >= PEN_RENDER_PARALLEL_MIN_PIXELS)
+    for (int item = 0; item <= bands; ++item) {
+        if (item == 0) {
+            if (want_geom) s_geom = geometry_scatter(ctx, sc, st);
+            continue;
+        }
+        for (size_t i = 0; i < np; ++i) {
+            const int surf = st->gb.surface[i];
+            if (surf < 0) continue;
+            const pen_object *ob = &sc->objects[surf];
+            if (!ob->texture.data) continue;
+            const long th = ob->texture.height;
+            const long r0 = th * (item - 1) / bands, r1 = th * item / bands;
+            pen__texture_scatter_rows(&ob->texture, st->uv.data + 2 * i,
+                                      pen__render_footprint(ob) ? st->uvj.data + 4 * i : NULL,
+                                      st->d_rho.data + 3 * i, grad->objects[surf].texture, r0,
+                                      r1);
+        }
     }
 
     /* Geometry: barycentrics, pose. */

@@ -56,6 +56,21 @@ static bilinear bilinear_at(const pen_image *tex, double u, double v) {
     return s;
 }
 
+/* Adds the texel part of lerp_bwd for the texels of rows [r0, r1) only. */
+static void lerp_bwd_rows(const pen_image *tex, const bilinear *s, const float d_rgb[3],
+                          float *d_texels, long r0, long r1) {
+    const int nch = tex->channels;
+    const size_t w = (size_t)tex->width;
+    const float wt[4] = {(1 - s->a) * (1 - s->b), s->a * (1 - s->b), (1 - s->a) * s->b,
+                         s->a * s->b};
+    for (int q = 0; q < 4; ++q) {
+        const long row = (long)(s->idx[q] / w);
+        if (row < r0 || row >= r1) continue;
+        for (int ch = 0; ch < 3 && ch < nch; ++ch)
+            d_texels[s->idx[q] * (size_t)nch + (size_t)ch] += wt[q] * d_rgb[ch];
+    }
+}
+
 /* rgb = the bilinear lookup at s. */
 static void lerp_fwd(const pen_image *tex, const bilinear *s, float rgb[3]) {
     const float wt[4] = {(1 - s->a) * (1 - s->b), s->a * (1 - s->b), (1 - s->a) * s->b,
@@ -151,5 +166,39 @@ void pen__texture_footprint_bwd(const pen_image *tex, const float uv[2], const f
             const float oy = ((float)(k / n) + 0.5f) / n - 0.5f;
             d_J[0] += g[0] * ox, d_J[1] += g[0] * oy, d_J[2] += g[1] * ox, d_J[3] += g[1] * oy;
         }
+    }
+}
+
+/* Whether the lookup may read a texel of rows [r0, r1): the rows around v - |dv| .. v + |dv|,
+ * |dv| = the footprint's reach along v (the grid's offsets are at most 1/2), wrapped. Anything
+ * not finite, or a reach over the whole image, may read every row. */
+static int lookup_may_read_rows(const pen_image *tex, const float uv[2], const float J[4], long r0,
+                                long r1) {
+    const double reach = J ? 0.5 * (fabs((double)J[2]) + fabs((double)J[3])) : 0.0;
+    const double H = (double)tex->height;
+    const double lo = (1.0 - ((double)uv[1] + reach)) * H - 0.5;
+    const double hi = (1.0 - ((double)uv[1] - reach)) * H - 0.5;
+    if (!(lo >= -1e9 && hi <= 1e9) || hi - lo >= H - 4.0) return 1;
+    /* rows a .. b, unwrapped, a row more on each side than the samples' floor() can reach */
+    const long a = (long)floor(lo) - 1, b = (long)floor(hi) + 2;
+    const long h = tex->height;
+    const long wa = ((a % h) + h) % h, wb = ((b % h) + h) % h;
+    if (wa <= wb) return wa < r1 && wb >= r0;
+    return wa < r1 || wb >= r0; /* across the last row: [wa, h) and [0, wb] */
+}
+
+void pen__texture_scatter_rows(const pen_image *tex, const float uv[2], const float J[4],
+                               const float d_rgb[3], float *d_texels, long r0, long r1) {
+    if (!lookup_may_read_rows(tex, uv, J, r0, r1)) return;
+    if (!J) {
+        const bilinear s = bilinear_at(tex, (double)uv[0], (double)uv[1]);
+        lerp_bwd_rows(tex, &s, d_rgb, d_texels, r0, r1);
+        return;
+    }
+    const float inv = 1.0f / PEN__TEXTURE_SAMPLES;
+    const float d_k[3] = {d_rgb[0] * inv, d_rgb[1] * inv, d_rgb[2] * inv};
+    for (int k = 0; k < PEN__TEXTURE_SAMPLES; ++k) {
+        const bilinear s = footprint_sample(tex, uv, J, k);
+        lerp_bwd_rows(tex, &s, d_k, d_texels, r0, r1);
     }
 }

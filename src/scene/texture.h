@@ -24,4 +24,11 @@ void pen__texture_footprint_bwd(const pen_image *tex, const float uv[2], const f
                                 const float d_rgb[3], float *d_texels, float d_uv[2],
                                 float d_J[4]);
 
+/* The texel part of pen__texture_bwd (J NULL) or pen__texture_footprint_bwd, for the texels of
+ * rows [r0, r1) only: each texel receives exactly the terms, in the same order, that the full
+ * backward gives it, so disjoint row bands can be scattered by different threads with the same
+ * result (the renderer's texel scatter). */
+void pen__texture_scatter_rows(const pen_image *tex, const float uv[2], const float J[4],
+                               const float d_rgb[3], float *d_texels, long r0, long r1);
+
 #endif
