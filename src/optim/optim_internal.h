@@ -325,12 +325,14 @@ pen_status pen__optim_views_bwd(pen_context *ctx, pen__optim_views *V, const pen
                                 const pen_render_options *opt, pen_render_grad *grad);
 /* Renders the scene from every view (finals, count of them) and measures it over each view's
  * mask (metrics); sq (may be NULL) accumulates the squared error and the value count over the
- * views of positive weight. Both arrays are allocated (also on failure: free them). */
+ * views of positive weight. Both arrays are allocated (also on failure: free them). The renders
+ * share one state, and through it the ray-traced transfers of `with` (may be NULL: the loop's
+ * first view state), so that the transfers are traced once, not once per view. */
 pen_status pen__optim_views_finish(pen_context *ctx, const pen_scene *sc,
                                    const pen_render_options *opt, pen_optim_loss kind,
                                    const pen_optim_view *views, int count,
-                                   pen_optim_view_metrics **metrics, pen_image **finals,
-                                   double sq[2]);
+                                   pen_render_state *with, pen_optim_view_metrics **metrics,
+                                   pen_image **finals, double sq[2]);
 
 /* ---- Checkpoints (src/optim/checkpoint.c) ---------------------------------------------------- */
 

@@ -244,13 +244,24 @@ static pen_status image_term(pen_context *ctx, const pen_optim_task *t, run *r,
     return s ? s : evaluate(ctx, t, r->weight, img, loss, d_img);
 }
 
+/* The loop's first view state, whose ray-traced transfers the other renders of a multi-view task
+ * share (NULL when there is none). */
+static pen_render_state *views_state(const run *r) {
+    return r->multi && r->views.count > 0 && r->views.state ? r->views.state[0] : NULL;
+}
+
 /* The picture of the current parameters (initial, final, snapshots): the scene's camera, or the
- * first view's in a multi-view task. */
+ * first view's in a multi-view task, there with a state sharing the views' transfers (traced
+ * once per pose, not once per picture). */
 static pen_status picture(pen_context *ctx, const pen_optim_task *t, const run *r,
                           pen_image *img) {
     const pen_scene v =
         r->multi ? pen__optim_view_scene(&t->scene, &t->views[0].camera) : t->scene;
-    pen_status s = pen_render_fwd(ctx, &v, &r->opt, NULL, img);
+    pen_render_state *st = NULL, *with = views_state(r);
+    pen_status s = with ? pen_render_state_create(ctx, &st) : PEN_OK;
+    if (!s && with) s = pen_render_state_share(ctx, st, with);
+    if (!s) s = pen_render_fwd(ctx, &v, &r->opt, st, img);
+    pen_render_state_free(st);
     if (!s && r->multi) pen__optim_view_expose(img, pen__optim_exposure(&t->views[0]));
     return s;
 }
@@ -771,7 +782,8 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
             double sq[2] = {0.0, 0.0};
             out->view_count = task->view_count;
             s = pen__optim_views_finish(ctx, &task->scene, &r.opt, task->loss, task->views,
-                                        task->view_count, &out->views, &out->view_finals, sq);
+                                        task->view_count, views_state(&r), &out->views,
+                                        &out->view_finals, sq);
             e.rmse = sq[1] > 0.0 ? sqrt(sq[0] / sq[1]) : (double)NAN;
         } else {
             s = pen_image_compare(ctx, &out->final, &task->target, NULL, &e, NULL);
@@ -779,8 +791,8 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
         if (!s && task->validation_count > 0) { /* held back: rendered, never in the loss */
             out->validation_count = task->validation_count;
             s = pen__optim_views_finish(ctx, &task->scene, &r.opt, task->loss, task->validation,
-                                        task->validation_count, &out->validation,
-                                        &out->validation_finals, NULL);
+                                        task->validation_count, views_state(&r),
+                                        &out->validation, &out->validation_finals, NULL);
         }
         model_restore(&task->scene, &model);
         if (!s && task->has_ground_truth) s = pen__optim_metrics(ctx, task, &out->metrics);

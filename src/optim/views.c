@@ -423,19 +423,36 @@ pen_status pen__optim_views_bwd(pen_context *ctx, pen__optim_views *V, const pen
 
 /* ---- The recovered scene from each view ------------------------------------------------------ */
 
+static pen_status views_finish(pen_context *ctx, const pen_scene *sc,
+                               const pen_render_options *opt, pen_optim_loss kind,
+                               const pen_optim_view *views, int count, pen_render_state *st,
+                               pen_optim_view_metrics *metrics_, pen_image *finals, double sq[2]);
+
 pen_status pen__optim_views_finish(pen_context *ctx, const pen_scene *sc,
                                    const pen_render_options *opt, pen_optim_loss kind,
                                    const pen_optim_view *views, int count,
-                                   pen_optim_view_metrics **metrics, pen_image **finals,
-                                   double sq[2]) {
+                                   pen_render_state *with, pen_optim_view_metrics **metrics,
+                                   pen_image **finals, double sq[2]) {
     *metrics = pen__calloc(ctx, (size_t)count + 1, sizeof **metrics, "view metrics");
     *finals = pen__calloc(ctx, (size_t)count + 1, sizeof **finals, "view renders");
     if (!*metrics || !*finals) return PEN_ERROR_MEMORY;
+    pen_render_state *st = NULL;
+    pen_status s = pen_render_state_create(ctx, &st);
+    if (!s && with) s = pen_render_state_share(ctx, st, with);
+    if (!s) s = views_finish(ctx, sc, opt, kind, views, count, st, *metrics, *finals, sq);
+    pen_render_state_free(st);
+    return s;
+}
+
+static pen_status views_finish(pen_context *ctx, const pen_scene *sc,
+                               const pen_render_options *opt, pen_optim_loss kind,
+                               const pen_optim_view *views, int count, pen_render_state *st,
+                               pen_optim_view_metrics *metrics_, pen_image *finals, double sq[2]) {
     for (int i = 0; i < count; ++i) {
         const pen_optim_view *v = &views[i];
         const pen_scene vs = pen__optim_view_scene(sc, &v->camera);
-        pen_image *img = &(*finals)[i];
-        pen_status s = pen_render_fwd(ctx, &vs, opt, NULL, img);
+        pen_image *img = &finals[i];
+        pen_status s = pen_render_fwd(ctx, &vs, opt, st, img);
         if (s) return s;
         pen__optim_view_expose(img, pen__optim_exposure(v));
         const size_t pixels = (size_t)img->width * (size_t)img->height;
@@ -450,7 +467,7 @@ pen_status pen__optim_views_finish(pen_context *ctx, const pen_scene *sc,
                 ref += b * b;
             }
         }
-        pen_optim_view_metrics *m = &(*metrics)[i];
+        pen_optim_view_metrics *m = &metrics_[i];
         m->loss = m->rmse = m->rel_rmse = (double)NAN;
         if (counted > 0.0) {
             s = pen__optim_loss_fwd(ctx, kind, img, &v->target, v->mask, &m->loss);
