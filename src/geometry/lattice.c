@@ -72,17 +72,22 @@ pen_status pen__lattice_build(pen_context *ctx, pen__lattice *lat, int level, in
     return PEN_OK;
 }
 
-int pen__lattice_level(int vertex_count, const float *positions, int triangle_count,
-                       const uint32_t *indices, double spacing, double max_nodes) {
-    if (vertex_count <= 0 || triangle_count <= 0 || !(spacing > 0.0)) return 1;
+/* The diagonal of the vertices' bounding box. */
+static double bbox_diagonal(int vertex_count, const float *positions) {
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
     for (int v = 0; v < vertex_count; ++v)
         for (int a = 0; a < 3; ++a) {
             lo[a] = fmin(lo[a], (double)positions[3 * (size_t)v + a]);
             hi[a] = fmax(hi[a], (double)positions[3 * (size_t)v + a]);
         }
-    const double diag = sqrt((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) +
-                             (hi[2] - lo[2]) * (hi[2] - lo[2]));
+    return sqrt((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) +
+                (hi[2] - lo[2]) * (hi[2] - lo[2]));
+}
+
+int pen__lattice_level(int vertex_count, const float *positions, int triangle_count,
+                       const uint32_t *indices, double spacing, double max_nodes) {
+    if (vertex_count <= 0 || triangle_count <= 0 || !(spacing > 0.0)) return 1;
+    const double diag = bbox_diagonal(vertex_count, positions);
     double sum = 0.0;
     for (size_t s = 0; s < 3 * (size_t)triangle_count; ++s) {
         const float *p = positions + 3 * (size_t)indices[s];
@@ -101,6 +106,43 @@ int pen__lattice_level(int vertex_count, const float *positions, int triangle_co
                         max_nodes)
         --L;
     return L;
+}
+
+static void sub3(const float *p, const float *q, double d[3]) {
+    for (int a = 0; a < 3; ++a)
+        d[a] = (double)p[a] - (double)q[a];
+}
+
+int pen__lattice_convex(int vertex_count, const float *positions, int triangle_count,
+                        const uint32_t *indices, double max_pairs) {
+    if (vertex_count <= 0 || triangle_count <= 0) return 0;
+    if ((double)vertex_count * (double)triangle_count > max_pairs) return 0;
+    const double diag = bbox_diagonal(vertex_count, positions);
+    if (!(diag > 0.0) || !isfinite(diag)) return 0;
+    const double tol = 1e-5 * diag;
+    int faces = 0;
+    for (int t = 0; t < triangle_count; ++t) {
+        const float *p0 = positions + 3 * (size_t)indices[3 * (size_t)t];
+        const float *p1 = positions + 3 * (size_t)indices[3 * (size_t)t + 1];
+        const float *p2 = positions + 3 * (size_t)indices[3 * (size_t)t + 2];
+        double e1[3], e2[3];
+        sub3(p1, p0, e1), sub3(p2, p0, e2);
+        double n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
+                       e1[0] * e2[1] - e1[1] * e2[0]};
+        const double len = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+        /* A sliver has no reliable plane; its neighbours' planes and its vertices still count. */
+        if (!(len > 1e-12 * diag * diag)) continue;
+        for (int a = 0; a < 3; ++a)
+            n[a] /= len;
+        ++faces;
+        for (int v = 0; v < vertex_count; ++v) {
+            double d[3];
+            sub3(positions + 3 * (size_t)v, p0, d);
+            const double h = n[0] * d[0] + n[1] * d[1] + n[2] * d[2];
+            if (h > tol) return 0;
+        }
+    }
+    return faces > 0;
 }
 
 /* The node at lattice point (a, b) of triangle t: barycentrics (L - a - b, a, b) / L. */

@@ -34,6 +34,15 @@ void pen__lattice_free(pen__lattice *lat);
 int pen__lattice_level(int vertex_count, const float *positions, int triangle_count,
                        const uint32_t *indices, double spacing, double max_nodes);
 
+/* Whether the mesh (3 floats per vertex) is convex: every vertex lies on or behind the plane of
+ * every non-degenerate triangle (its outward side by the counter-clockwise winding), within
+ * 1e-5 of the bounding diagonal (float positions read from text). Such a mesh blocks nothing of
+ * a vertex's clamped cosine: with the vertex normal a positive sum of its triangles' normals, the
+ * whole mesh lies behind the vertex's tangent plane (docs/design.md sec. 1.15). 0 for an empty
+ * mesh, and 0 without testing when V x T exceeds max_pairs (the test is O(V T)). */
+int pen__lattice_convex(int vertex_count, const float *positions, int triangle_count,
+                        const uint32_t *indices, double max_pairs);
+
 /* Node positions and normals (3 floats each per node): the vertices' own, then the linear
  * interpolation of the triangle's corners at the node's barycentrics (normals not renormalised:
  * their length does not matter to the transfer). */

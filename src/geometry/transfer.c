@@ -4,8 +4,10 @@
  *
  * Design
  * - One Embree scene of the mesh, built per call: the renderer calls this only when the posed
- *   vertices, the band count or the lights change. The ground square, when asked, is a plane test
- *   from the vertex itself (ground_blocks), not a triangle in the scene.
+ *   vertices, the band count or the lights change, on one device for all objects of a frame.
+ *   The ground square, when asked, is a plane test from the vertex itself (ground_blocks), not a
+ *   triangle in the scene; a request without triangles (a convex mesh's own vertices, which it
+ *   cannot shadow) makes no Embree device.
  * - SH transfer by a control variate: T_self = H_n - B, the clamped cosine H_n known exactly
  *   (the renderer evaluates it at the pixel's own normal), and only its blocked part B estimated,
  *   by N = 256 cosine-weighted directions stratified on a 16 x 16 grid of the unit square (pdf
@@ -63,7 +65,8 @@ static int ground_blocks(const pen_ground *g, const double p[3], const double d[
 }
 
 /* Which of n <= 16 directions d from the point p (rays from o, p moved along its normal) are
- * blocked: the ground first, by the plane test, then the rest as one Embree packet. */
+ * blocked: the ground first, by the plane test, then the rest as one Embree packet (none when
+ * scene is NULL: no triangles). */
 static void blocked16(RTCScene scene, const pen_ground *g, const double p[3], const double o[3],
                       const double (*d)[3], const int *want, int n, int *hit) {
     const float of[3] = {(float)o[0], (float)o[1], (float)o[2]};
@@ -76,7 +79,7 @@ static void blocked16(RTCScene scene, const pen_ground *g, const double p[3], co
         for (int a = 0; a < 3; ++a)
             df[i][a] = (float)d[i][a];
     }
-    if (!any) return;
+    if (!any || !scene) return;
     int h[16];
     pen__embree_occluded16(scene, of, (const float(*)[3])df, n, trace, 0.0f, h);
     for (int i = 0; i < n; ++i)
@@ -90,7 +93,8 @@ static void frame(const double a[3], double t[3], double b[3]) {
     b[0] = f, b[1] = s + a[1] * a[1] * e, b[2] = -a[1];
 }
 
-/* One point: the blocked part B of its clamped cosine (nc values) and its light fractions. */
+/* One point: the blocked part B of its clamped cosine (nc values) and its light fractions; scene
+ * NULL when only the ground occludes. */
 static void point_transfer(RTCScene scene, const pen__transfer_request *rq, double offset, int v,
                            float *B, float *frac) {
     const int nc = rq->bands * rq->bands, K = frac ? rq->light_count : 0;
@@ -163,7 +167,26 @@ static void point_transfer(RTCScene scene, const pen__transfer_request *rq, doub
     }
 }
 
+void *pen__transfer_device(pen_context *ctx) {
+    char config[64];
+    snprintf(config, sizeof config, "threads=%d", pen__threads(ctx));
+    RTCDevice dev = rtcNewDevice(config);
+    if (!dev)
+        pen__error(ctx, PEN_ERROR_INTERNAL, "self transfer: Embree device: error %d",
+                   (int)rtcGetDeviceError(NULL));
+    return dev;
+}
+
+void pen__transfer_device_free(void *device) {
+    if (device) rtcReleaseDevice((RTCDevice)device);
+}
+
 pen_status pen__transfer(pen_context *ctx, const pen__transfer_request *rq, float *B, float *frac) {
+    return pen__transfer_on(ctx, NULL, rq, B, frac);
+}
+
+pen_status pen__transfer_on(pen_context *ctx, void *device, const pen__transfer_request *rq,
+                            float *B, float *frac) {
     const int P = rq->point_count, nc = rq->bands * rq->bands;
     if (P <= 0) return PEN_OK;
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
@@ -178,32 +201,38 @@ pen_status pen__transfer(pen_context *ctx, const pen__transfer_request *rq, floa
                                               (hi[2] - lo[2]) * (hi[2] - lo[2]))
                                        : 0.0;
     const int threads = pen__threads(ctx);
-    char config[64];
-    snprintf(config, sizeof config, "threads=%d", threads);
-    RTCDevice dev = rtcNewDevice(config);
-    if (!dev)
-        return pen__error(ctx, PEN_ERROR_INTERNAL, "self transfer: Embree device: error %d",
-                          (int)rtcGetDeviceError(NULL));
-    RTCScene scene = rtcNewScene(dev);
+    const double offset = 1e-4 * (diag > 0.0 ? diag : 1.0);
+    size_t triangles = 0;
+    for (int g = 0; g < rq->mesh_count; ++g)
+        triangles += rq->meshes[g].triangle_count > 0 ? (size_t)rq->meshes[g].triangle_count : 0;
+    /* Without triangles (a convex mesh's own nodes, self.c) the ground's plane tests alone, no
+     * Embree. */
+    RTCDevice dev = NULL;
+    RTCScene scene = NULL;
     pen_status s = PEN_OK;
-    for (int g = 0; g < rq->mesh_count && !s; ++g) {
-        const pen__transfer_mesh *m = &rq->meshes[g];
-        if (m->triangle_count > 0 && !attach(dev, scene, m->positions, (size_t)m->vertex_count,
-                                             m->indices, (size_t)m->triangle_count))
-            s = embree_status(ctx, dev, "allocating mesh buffers");
+    if (triangles) {
+        if (!(dev = device ? (RTCDevice)device : pen__transfer_device(ctx)))
+            return PEN_ERROR_INTERNAL;
+        scene = rtcNewScene(dev);
+        for (int g = 0; g < rq->mesh_count && !s; ++g) {
+            const pen__transfer_mesh *m = &rq->meshes[g];
+            if (m->triangle_count > 0 && !attach(dev, scene, m->positions,
+                                                 (size_t)m->vertex_count, m->indices,
+                                                 (size_t)m->triangle_count))
+                s = embree_status(ctx, dev, "allocating mesh buffers");
+        }
+        if (!s) {
+            rtcCommitScene(scene);
+            s = embree_status(ctx, dev, "building the scene");
+        }
     }
     if (!s) {
-        rtcCommitScene(scene);
-        s = embree_status(ctx, dev, "building the scene");
-    }
-    if (!s) {
-        const double offset = 1e-4 * (diag > 0.0 ? diag : 1.0);
 #pragma omp parallel for schedule(dynamic, 64) num_threads(threads)
         for (int v = 0; v < P; ++v)
             point_transfer(scene, rq, offset, v, B + (size_t)nc * (size_t)v,
                            frac ? frac + (size_t)rq->light_count * (size_t)v : NULL);
     }
-    rtcReleaseScene(scene);
-    rtcReleaseDevice(dev);
+    if (scene) rtcReleaseScene(scene);
+    if (dev && !device) rtcReleaseDevice(dev);
     return s;
 }

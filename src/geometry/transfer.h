@@ -45,4 +45,14 @@ typedef struct pen__transfer_request {
  * or nodes refined from them. */
 pen_status pen__transfer(pen_context *ctx, const pen__transfer_request *rq, float *B, float *frac);
 
+/* The same on an Embree device made by pen__transfer_device (NULL: one for this call), for a
+ * caller with many requests (the renderer: one per object with the transfer), which would
+ * otherwise pay a device per request (about 0.5 ms, bench/NOTES.md "Many small objects"). */
+pen_status pen__transfer_on(pen_context *ctx, void *device, const pen__transfer_request *rq,
+                            float *B, float *frac);
+/* An Embree device with the context's thread count, or NULL after setting ctx's error; released
+ * by pen__transfer_device_free (NULL: nothing). */
+void *pen__transfer_device(pen_context *ctx);
+void pen__transfer_device_free(void *device);
+
 #endif

@@ -47,6 +47,10 @@
  * each, a few seconds once per pose. A mesh of long thin triangles (a tube, a scan with slivers)
  * keeps its vertices' spacing instead of asking for millions of nodes. */
 #define PEN_SELF_MAX_NODES 200000.0
+/* The convexity test (geometry/lattice.h) costs O(V T), less for a mesh that is not convex (it
+ * stops at the first vertex in front of a plane); beyond this many vertex-triangle pairs (some
+ * 10 ms) a mesh is traced as not convex. */
+#define PEN_SELF_CONVEX_PAIRS 1.6e7
 
 /* The cache key of object o: what its transfer depends on. */
 static uint64_t self_key(const pen_scene *sc, const pen_render_state *st, int o) {
@@ -66,9 +70,11 @@ static uint64_t self_key(const pen_scene *sc, const pen_render_state *st, int o)
     return h;
 }
 
-/* Traces object o's N nodes into its self_B and self_frac (reserved by the caller). */
+/* Traces object o's N nodes into its self_B and self_frac (reserved by the caller); a convex
+ * mesh (traced at its vertices) blocks none of their rays, so only the ground is traced. *device:
+ * the frame's Embree device, made here by the first object that needs one. */
 static pen_status trace_self(pen_context *ctx, const pen_scene *sc, pen_render_state *st, int o,
-                             size_t N) {
+                             size_t N, int convex, void **device) {
     pen__object_buf *b = &st->obj[o];
     const pen_mesh *m = &sc->objects[o].mesh;
     const int K = st->lights.count;
@@ -78,7 +84,7 @@ static pen_status trace_self(pen_context *ctx, const pen_scene *sc, pen_render_s
     pen__lattice_nodes(&b->self_lat, m->indices, b->world.data, b->vnormal.data, pos, nrm);
     const pen__transfer_mesh mesh = {m->vertex_count, m->triangle_count, b->world.data,
                                      m->indices};
-    const pen__transfer_request rq = {1,
+    const pen__transfer_request rq = {convex ? 0 : 1,
                                       &mesh,
                                       (int)N,
                                       pos,
@@ -88,21 +94,31 @@ static pen_status trace_self(pen_context *ctx, const pen_scene *sc, pen_render_s
                                       (const double(*)[3])st->lights.w,
                                       st->lights.b,
                                       st->ground_occludes ? &sc->ground : NULL};
-    const pen_status s = pen__transfer(ctx, &rq, b->self_B.data, b->self_frac.data);
+    pen_status s = PEN_OK;
+    if (!convex && !*device && !(*device = pen__transfer_device(ctx))) s = PEN_ERROR_INTERNAL;
+    if (!s) s = pen__transfer_on(ctx, *device, &rq, b->self_B.data, b->self_frac.data);
     free(pos);
     return s;
 }
 
-static pen_status self_cache(pen_context *ctx, const pen_scene *sc, pen_render_state *st, int o) {
+static pen_status self_cache(pen_context *ctx, const pen_scene *sc, pen_render_state *st, int o,
+                             void **device) {
     pen__object_buf *b = &st->obj[o];
     const pen_mesh *m = &sc->objects[o].mesh;
     const uint64_t key = self_key(sc, st, o);
     if (b->self_valid && b->self_key == key) return PEN_OK;
     b->self_valid = 0;
-    /* The level from the unposed mesh, so that a pose never changes it. */
-    const int level = pen__lattice_level(m->vertex_count, m->positions, m->triangle_count,
-                                         m->indices, PEN_SELF_NODE_SPACING,
-                                         PEN_SELF_MAX_NODES);
+    /* The level from the unposed mesh, so that a pose never changes it. A convex mesh cannot
+     * shadow its vertices (it lies behind their tangent planes): their transfer holds the
+     * ground's occlusion alone, smooth over the object, and the vertices suffice. Between them
+     * this drops what the lattice saw of flat faces blocking their leaning interpolated normals
+     * (measured in docs/design.md sec. 1.15). */
+    const int convex = pen__lattice_convex(m->vertex_count, m->positions, m->triangle_count,
+                                           m->indices, PEN_SELF_CONVEX_PAIRS);
+    const int level =
+        convex ? 1
+               : pen__lattice_level(m->vertex_count, m->positions, m->triangle_count, m->indices,
+                                    PEN_SELF_NODE_SPACING, PEN_SELF_MAX_NODES);
     pen_status s = pen__lattice_build(ctx, &b->self_lat, level, m->vertex_count,
                                       m->triangle_count, m->indices);
     if (s) return s;
@@ -120,7 +136,7 @@ static pen_status self_cache(pen_context *ctx, const pen_scene *sc, pen_render_s
         b->self_valid = 1, b->self_key = key;
         return PEN_OK;
     }
-    s = trace_self(ctx, sc, st, o, N);
+    s = trace_self(ctx, sc, st, o, N, convex, device);
     if (!s) pen__pool_put(st->pool, PEN__POOL_SELF, key, nc * N, (size_t)K * N, b->self_B.data,
                           b->self_frac.data);
     pen__pool_unlock(st->pool);
@@ -144,15 +160,17 @@ pen_status pen__self_prepare(pen_context *ctx, const pen_scene *sc, const pen_re
     pen_status s = PEN__BUF_RESERVE(ctx, st->kappa_self,
                                     (size_t)sc->object_count * (size_t)S + 1, "self kappa");
     if (s) return s;
-    for (int o = 0; o < sc->object_count; ++o) {
+    void *device = NULL; /* one Embree device for the frame's objects, made when first needed */
+    for (int o = 0; o < sc->object_count && !s; ++o) {
         if (!st->obj[o].self_on) continue;
         float *k = st->kappa_self.data + (size_t)o * (size_t)S;
         memcpy(k, st->kappa.data, sizeof(float) * (size_t)S);
         for (int i = st->sphere_first[o]; i < st->sphere_first[o + 1]; ++i)
             k[i] = 0.0f;
-        if ((s = self_cache(ctx, sc, st, o))) return s;
+        s = self_cache(ctx, sc, st, o, &device);
     }
-    return PEN_OK;
+    pen__transfer_device_free(device);
+    return s;
 }
 
 /* The blocked part and the light fractions at pixel i of object o, interpolated linearly on the
