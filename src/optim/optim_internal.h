@@ -334,6 +334,13 @@ pen_status pen__optim_views_finish(pen_context *ctx, const pen_scene *sc,
                                    pen_render_state *with, pen_optim_view_metrics **metrics,
                                    pen_image **finals, double sq[2]);
 
+/* ---- The loss curve (src/optim/loss_plot.c) ---------------------------------------------------- */
+
+/* loss.svg's text (*svg, allocated) and loss.png's pixels (png, allocated) of r's loss curve: log10
+ * of the loss through the stages and the iterations, one layout drawn both ways. */
+pen_status pen__optim_loss_plots(pen_context *ctx, const pen_optim_result *r, int shadows,
+                                 char **svg, pen_image *png);
+
 /* ---- Checkpoints (src/optim/checkpoint.c) ---------------------------------------------------- */
 
 /* What a checkpoint belongs to; a resumed run must match all of it. */
