@@ -12,7 +12,8 @@ static void usage(FILE *f) {
             "Usage: penumbra fit-spheres MESH -n N -o SPHERES.json [options]\n\n"
             "Fits N spheres to a closed mesh (.obj, .ply) by minimizing outside volume plus\n"
             "uncovered surface (docs/fit-spheres.md) and writes them with their metrics.\n"
-            "Prints the metrics as JSON on stdout.\n\n"
+            "Prints the metrics as JSON on stdout, and a warning on stderr when the spheres\n"
+            "leave more than %.0f%% of the surface uncovered (metrics \"uncovered\").\n\n"
             "Options (defaults in brackets):\n"
             "  -n N                    number of spheres, 1..%d\n"
             "  -o FILE                 output sphere set (.json)\n"
@@ -26,7 +27,7 @@ static void usage(FILE *f) {
             "  --threads T             threads (0: all cores) [0]\n"
             "  --preview FILE          also write a picture of the spheres over the mesh\n"
             "  --view AZ EL            the picture's azimuth and elevation in degrees [145 20]\n",
-            PEN_FIT_MAX_SPHERES);
+            100 * PEN_SPHERES_COVERAGE_WARN, PEN_FIT_MAX_SPHERES);
 }
 
 /* Value of the option at argv[*i] (advancing *i), or NULL when it is missing. */
@@ -112,7 +113,7 @@ int pen_cmd_fit_spheres(int argc, char **argv) {
     if (!rc && preview_path &&
         pen_spheres_preview(ctx, &mesh, &spheres, (float)az, (float)el, 400, &picture))
         rc = pen_cli_fail(CMD, "%s: %s", mesh_path, pen_context_error(ctx));
-    char json[2048];
+    char json[4096];
     pen_fit_json(&s, &m, json, sizeof json);
     if (!rc && !pen_cli_outputs_keep(&outputs, CMD)) rc = 1;
     if (!rc && pen_spheres_save(ctx, out_path, &spheres, json)) rc = pen_cli_fail_ctx(CMD, ctx);
@@ -120,6 +121,19 @@ int pen_cmd_fit_spheres(int argc, char **argv) {
         rc = pen_cli_fail_ctx(CMD, ctx);
     pen_cli_outputs_end(&outputs, rc == 0); /* a failed write puts the old files back */
     if (!rc) printf("%s\n", json);
+    /* A part left without spheres is missing from the shadow: say where (fit.h, coverage). */
+    const pen_coverage_report *c = &m.coverage;
+    if (!rc && c->uncovered > PEN_SPHERES_COVERAGE_WARN)
+        fprintf(stderr,
+                "penumbra %s: warning: %s: %d sphere%s leave%s %.1f%% of the surface farther than "
+                "%.3g outside; the largest such part, %.1f%% of the surface, is around "
+                "(%.3g, %.3g, %.3g), within (%.3g, %.3g, %.3g) to (%.3g, %.3g, %.3g); raise -n\n",
+                CMD, mesh_path, count, count == 1 ? "" : "s", count == 1 ? "s" : "",
+                100 * c->uncovered, c->tolerance, 100 * c->largest_share,
+                (double)c->largest_centre[0], (double)c->largest_centre[1],
+                (double)c->largest_centre[2], (double)c->largest_lo[0], (double)c->largest_lo[1],
+                (double)c->largest_lo[2], (double)c->largest_hi[0], (double)c->largest_hi[1],
+                (double)c->largest_hi[2]);
     pen_image_free(&picture);
     pen_spheres_free(&spheres);
     pen_mesh_free(&mesh);

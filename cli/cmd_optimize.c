@@ -205,6 +205,14 @@ int pen_cmd_optimize(int argc, char **argv) {
         goto out_ctx;
     }
     if (iterations > 0) task.iterations = iterations;
+    /* The fits first (cached; pen_optim_run prepares the same way and finds them made), so that
+     * the check below measures what the fitted spheres leave uncovered, as `render` does. */
+    const unsigned needs_spheres = PEN_OPTIM_DEFORMATION | PEN_OPTIM_SPHERES;
+    if (pen_scene_prepare(ctx, &task.scene, set.shadows || (task.optimize & needs_spheres),
+                          NULL)) {
+        rc = fail_rank(set.ranks, ctx);
+        goto out_task;
+    }
     pen_scene_report report; /* the scene's likely mistakes (pen_scene_check), on stderr */
     if (pen_scene_check(ctx, &task.scene, &report)) {
         rc = fail_rank(set.ranks, ctx);

@@ -16,6 +16,41 @@ grep -q '"surface_coverage"' "$T/s.json" || fail "no metrics in the file"
 grep -q '"sov_fraction"' "$T/out" || fail "metrics not printed"
 [ "$(grep -c '"radius"' "$T/s.json")" -eq 6 ] || fail "not 6 spheres"
 [ "$(grep -c '"weight"' "$T/s.json")" -eq 6 ] || fail "not 6 overlap weights"
+grep -q '"uncovered": {"tolerance"' "$T/out" || fail "no coverage report in the metrics"
+grep -q "warning" "$T/err" && fail "a fit that covers its mesh warned: $(cat "$T/err")"
+
+# A fit that leaves much of the surface uncovered says so, and where, on one stderr line; the
+# spheres are written all the same.
+"$BIN" fit-spheres "$SRC/data/meshes/blub.obj" -n 1 --voxels 24 --iterations 60 \
+    -o "$T/one.json" > "$T/out" 2> "$T/err" || fail "one-sphere fit exited $?: $(cat "$T/err")"
+[ -s "$T/one.json" ] || fail "no sphere file for the one-sphere fit"
+[ "$(wc -l < "$T/err")" -eq 1 ] || fail "expected one warning line, got: $(cat "$T/err")"
+grep -q "^penumbra fit-spheres: warning: .*blub.obj: 1 sphere leaves .*% of the surface .* around (" \
+    "$T/err" || fail "warning: $(cat "$T/err")"
+
+# render warns about an object whose fitted spheres leave much of it uncovered (pen_scene_check
+# after the fits), once, naming the object; the bundled scene, fitted at its default, does not.
+cat > "$T/few.json" <<EOF
+{"camera": {"width": 24, "height": 24, "fov_y_deg": 40, "eye": [3, 2, 3], "target": [0, 0.4, 0]},
+ "lighting": {"envmap": "$SRC/data/envmaps/city.hdr", "scale": 0.25},
+ "objects": [{"mesh": "$SRC/data/meshes/blub.obj", "spheres": {"fit": 1}}]}
+EOF
+"$BIN" render "$T/few.json" -o "$T/few.png" -q 2> "$T/err" || fail "render exited $?: $(cat "$T/err")"
+[ "$(grep -c "leaves .*uncovered" "$T/err")" -eq 1 ] || fail "render: no coverage warning: $(cat "$T/err")"
+grep -q 'objects\[0\] (blub.obj): its 1 sphere leaves .*raise "fit"' "$T/err" ||
+    fail "render warning: $(cat "$T/err")"
+# optimize says the same before it starts (it fits first, then checks, as render does).
+"$BIN" render "$T/few.json" -o "$T/few.exr" -q 2> /dev/null || fail "render few.exr exited $?"
+echo "{\"scene\": \"$T/few.json\", \"target\": \"$T/few.exr\", \"optimize\": [\"lighting\"]}" \
+    > "$T/few_task.json"
+"$BIN" optimize "$T/few_task.json" -o "$T/few_out" -q 2> "$T/err" ||
+    fail "optimize exited $?: $(cat "$T/err")"
+[ "$(grep -c 'objects\[0\] (blub.obj): its 1 sphere leaves .*uncovered' "$T/err")" -eq 1 ] ||
+    fail "optimize: no coverage warning: $(cat "$T/err")"
+sed -e 's|"width": 512, "height": 512|"width": 24, "height": 24|' -e "s|[.][.]/[.][.]/data|$SRC/data|g" \
+    "$SRC/examples/scenes/spot_city.json" > "$T/city.json"
+"$BIN" render "$T/city.json" -o "$T/city.png" -q 2> "$T/err" || fail "city: $(cat "$T/err")"
+grep -q "uncovered" "$T/err" && fail "the bundled scene warns about its spheres: $(cat "$T/err")"
 
 # Usage errors: exit 2, nothing written.
 "$BIN" fit-spheres "$SRC/data/meshes/blub.obj" -o "$T/a.json" 2> "$T/err"

@@ -4,8 +4,8 @@
  * (pen_scene_load, pen_scene_prepare, pen_render_fwd) and by the flat API's loader and renderer
  * (what Python's load_scene and render_scene call), with the thread count pinned. The images must
  * agree within 1e-6 relative RMSE (today they are equal bit for bit). python/tests/test_doors.py
- * holds the binding to the same command images. Also: the sphere-fit cache keys fits by thread
- * count, so that no door is handed a fit made with another count. */
+ * holds the binding to the same command images. Also: the sphere-fit cache hands every thread
+ * count the same file, since the fit does not depend on the count. */
 #include "io_fixtures.h"
 
 #include "penumbra/fit.h"
@@ -113,7 +113,8 @@ static void test_own_scene(void) {
     check_doors(own_scene(), "textures, a light, two objects");
 }
 
-/* A fit made on one thread count is not what another count reads from the cache. */
+/* The fit is the same on every thread count (its sums are added in a fixed order), so every
+ * count reads the same cache file. */
 static void test_fit_cache_threads(void) {
     pen_context *ctx = pen_context_create();
     pen_mesh m;
@@ -123,7 +124,7 @@ static void test_fit_cache_threads(void) {
     CHECK(pen_spheres_fit_cache_path(ctx, &m, "blub.obj", 8, NULL, &one) == PEN_OK);
     pen_context_set_threads(ctx, 2);
     CHECK(pen_spheres_fit_cache_path(ctx, &m, "blub.obj", 8, NULL, &two) == PEN_OK);
-    CHECK(one && two && strcmp(one, two) != 0);
+    CHECK(one && two && strcmp(one, two) == 0);
     free(one), free(two);
     pen_mesh_free(&m);
     pen_context_destroy(ctx);

@@ -5,7 +5,9 @@
  *
  * The fit voxelizes the mesh's padded bounding box, classifies every voxel centre as inside or
  * outside the mesh, samples points on the surface, places N spheres inside the mesh (k-means on
- * the inside voxels, radius = distance to the surface) and then minimizes with Adam
+ * the inside voxels, radius = distance to the surface), moves some of them to parts the seeds
+ * left without (thin parts, from each sample's medial ball: the allocation, docs/fit-spheres.md)
+ * and then minimizes with Adam
  *
  *     E = E_SOV + w_s * E_surface                                   (supplement eq. 5)
  *     E_SOV     = sum over outside voxels v   of 1 - prod_i phi(s_i(v))   (eq. 3, Og = 1 only)
@@ -60,8 +62,8 @@ extern "C" {
 #define PEN_FIT_MAX_VOXELS 512
 
 /* Fit settings. A field left at 0 takes its default (pen_fit_settings_default fills them in). The
- * result depends on the settings and, in its last bits, on the thread count (sums run per thread
- * in a fixed order, so one thread count always gives the same spheres). */
+ * result depends on the settings and the mesh only: the same spheres, bit for bit, for any
+ * thread count (sums run per cell and are added in a fixed order). */
 typedef struct pen_fit_settings {
     int voxels;            /* voxels along the longest axis of the padded bounds (cubic voxels) */
     double surface_weight; /* w_s of eq. 5 */
@@ -72,7 +74,37 @@ typedef struct pen_fit_settings {
     unsigned long long seed;       /* k-means++ seeding and surface sampling */
 } pen_fit_settings;
 
-/* What the fit achieved, measured with hard sphere tests on its own voxel grid and samples. */
+/* What a sphere set leaves of a mesh's surface uncovered (pen_spheres_coverage): the surface
+ * points farther than `tolerance` outside every sphere, measured on area-uniform samples, and
+ * the largest connected part they form (samples closer than a few sample spacings linked). */
+typedef struct pen_coverage_report {
+    double tolerance;         /* PEN_SPHERES_COVERAGE_TOLERANCE x the mesh's longest side */
+    double uncovered;         /* share of the surface area left uncovered, in [0, 1] */
+    double largest_share;     /* share of the whole surface area in the largest uncovered part */
+    float largest_centre[3];  /* that part's centre (mean of its samples), mesh coordinates */
+    float largest_lo[3];      /* its bounding box */
+    float largest_hi[3];
+    int parts;                /* connected uncovered parts */
+    int samples;              /* surface samples measured (PEN_SPHERES_COVERAGE_SAMPLES) */
+} pen_coverage_report;
+
+/* The tolerance, as a share of the mesh's longest side: a gap of 1 % between spheres and surface
+ * changes a shadow little; a part left out entirely (a leg, a handle) is farther out than that. */
+#define PEN_SPHERES_COVERAGE_TOLERANCE 0.01
+#define PEN_SPHERES_COVERAGE_SAMPLES 16384
+/* Above this uncovered share `penumbra fit-spheres`, `render` and `optimize` warn (the fits of
+ * the bundled scenes leave 1 to 3 %; docs/fit-spheres.md, "Coverage report"). */
+#define PEN_SPHERES_COVERAGE_WARN 0.10
+
+/* Measures what `spheres` leave of `mesh`'s surface uncovered (both in the same coordinates),
+ * on PEN_SPHERES_COVERAGE_SAMPLES area-uniform samples with a fixed seed: deterministic, and
+ * independent of the thread count and of any fit setting. An empty set leaves everything
+ * uncovered. Errors: an invalid mesh, a sphere with a non-finite value or a negative radius. */
+PEN_API pen_status pen_spheres_coverage(pen_context *ctx, const pen_mesh *mesh,
+                                        const pen_spheres *spheres, pen_coverage_report *out);
+
+/* What the fit achieved, measured with hard sphere tests on its own voxel grid and samples (the
+ * coverage report on samples of its own). */
 typedef struct pen_fit_metrics {
     double sov_fraction;     /* voxels inside some sphere and outside the mesh / voxels inside */
     double surface_coverage; /* surface samples inside some sphere / surface samples */
@@ -85,6 +117,8 @@ typedef struct pen_fit_metrics {
     long inside_voxels;
     int surface_samples;
     int from_cache; /* pen_spheres_fit_cached: 1 if read from the cache file */
+    pen_coverage_report coverage; /* what the returned spheres leave uncovered
+                                      (pen_spheres_coverage of the returned set) */
 } pen_fit_metrics;
 
 /* The defaults (measured on the bundled meshes; docs/fit-spheres.md). */
@@ -94,8 +128,10 @@ PEN_API void pen_fit_settings_default(pen_fit_settings *settings);
  * (defaults); metrics may be NULL. Uses the context's thread count. On success *out owns a new
  * array of `count` spheres (free with pen_spheres_free); on failure *out is zeroed. Errors: a
  * mesh with no triangles, out-of-range indices, NaN/Inf positions, a degenerate (flat) bounding
- * box, a bounding box whose longest side is outside [1e-9, 1e9] (rescale the mesh), fewer inside
- * voxels than spheres (mesh too thin for the grid, or not closed). */
+ * box, a bounding box whose longest side is outside [1e-9, 1e9] (rescale the mesh), no voxel
+ * inside the mesh (not closed, or thinner than the grid everywhere). Parts thinner than a voxel
+ * get spheres too (they start from the surface, docs/fit-spheres.md); metrics->coverage says
+ * what the spheres leave uncovered. */
 PEN_API pen_status pen_spheres_fit(pen_context *ctx, const pen_mesh *mesh, int count,
                                    const pen_fit_settings *settings, pen_spheres *out,
                                    pen_fit_metrics *metrics);
@@ -133,12 +169,14 @@ PEN_API pen_status pen_spheres_preview(pen_context *ctx, const pen_mesh *mesh,
 /* Gets a loaded scene (pen_scene_load) ready to render as `penumbra render` renders it: the one
  * call the CLI, the optimizer and the Python binding's load_scene make. With shadows != 0, every
  * object that asks for fitted spheres ("spheres": {"fit": N}: fit_spheres > 0, none yet) gets
- * them from pen_spheres_fit_cached with the default settings (cached in the user's cache folder,
- * keyed by the context's thread count too); then every sphere set gets its overlap weights
+ * them from pen_spheres_fit_cached with the default settings (cached in the user's cache folder);
+ * then every sphere set gets its overlap weights
  * (pen_spheres_ensure_weights), computed once here. The lights of the environment map
  * ("lights": {"max": K}, the default) were found by pen_scene_load. metrics: NULL, or
  * object_count entries, each set to that object's fit (zero for an object not fitted by this
- * call). Errors name the scene file and the object: "scene.json: objects[1].spheres: ...". */
+ * call), its coverage included; pen_scene_check (after this call) turns a large uncovered share
+ * into a warning. Errors name the scene file and the object: "scene.json: objects[1].spheres:
+ * ...". */
 PEN_API pen_status pen_scene_prepare(pen_context *ctx, pen_scene *scene, int shadows,
                                      pen_fit_metrics *metrics);
 
@@ -153,8 +191,12 @@ typedef enum pen_scene_warning_kind {
     PEN_SCENE_WARNING_OBJECT_HUGE = 3,    /* ... over the ground square's side */
     PEN_SCENE_WARNING_MTLLIB_MISSING = 4, /* an OBJ's material library not found: its materials
                                              are lost (the mesh loader passes over it) */
-    PEN_SCENE_WARNING_TEXTURE_MISSING = 5 /* a material's map_Kd not found (a used one fails the
-                                             load unless the object's own albedo overrides it) */
+    PEN_SCENE_WARNING_TEXTURE_MISSING = 5, /* a material's map_Kd not found (a used one fails the
+                                              load unless the object's own albedo overrides it) */
+    PEN_SCENE_WARNING_SPHERES_UNCOVERED = 6 /* an object's fitted spheres ("fit": N) leave
+                                               more than PEN_SPHERES_COVERAGE_WARN of its surface
+                                               uncovered (pen_spheres_coverage): its shadow lacks
+                                               a part (a set given in a file is not judged) */
 } pen_scene_warning_kind;
 
 #define PEN_SCENE_WARNING_CHARS 1024
@@ -190,7 +232,10 @@ typedef struct pen_scene_report {
 /* Measures a loaded scene and lists its likely mistakes (pen_scene_warning_kind), without
  * printing anything: `penumbra render` and `optimize` print the warnings on stderr, `penumbra
  * info` prints everything. Reads each OBJ's material libraries again (pen_mesh_files_load) to
- * find missing files. On success *out owns its arrays (pen_scene_report_free); on failure it is
+ * find missing files. Measures what each object's spheres leave of its surface uncovered
+ * (pen_spheres_coverage; a few milliseconds an object): call it after pen_scene_prepare, so that
+ * the fitted sets ("spheres": {"fit": N}) are measured too; an object still waiting for its fit
+ * is passed over. On success *out owns its arrays (pen_scene_report_free); on failure it is
  * zeroed. */
 PEN_API pen_status pen_scene_check(pen_context *ctx, const pen_scene *scene, pen_scene_report *out);
 /* Frees the report's arrays and zeroes it; NULL is a no-op. */
@@ -231,7 +276,8 @@ PEN_API int pen_fit_json(const pen_fit_settings *settings, const pen_fit_metrics
  * about the target, k coincident copies about target / k each. Invariant under a pose (computed
  * in object space). Fails on a radius <= 0 or a non-finite value, and on a set of more than
  * PEN_SPHERES_OVERLAP_MAX spheres (the time grows about linearly with the count, from a fraction
- * of a second for 32 spheres to about 15 s for 4096 on two cores, and faster than linearly beyond:
+ * of a second for 32 spheres to about 10 s for a fitted set of 4096 on two cores, and faster than
+ * linearly beyond:
  * give such a set weights in its file, or render it with "overlap": "none"). */
 #define PEN_SPHERES_OVERLAP_MAX 4096
 PEN_API pen_status pen_spheres_overlap_weights(pen_context *ctx, const pen_spheres *spheres,

@@ -9,9 +9,10 @@
  * meshes with the same name in different folders do not replace each other's files, and a user
  * can tell which cache file belongs to which mesh.
  * Key: FNV-1a 64 over the fitter's version, the sphere count, the resolved settings (as text, so
- * defaults given explicitly or by zero fields hash alike), the thread count the fit runs on and
- * the bytes of the mesh's positions and indices. The file repeats the key ("fit_key"); a file whose key, sphere count or format is
- * wrong is ignored and overwritten, never trusted.
+ * defaults given explicitly or by zero fields hash alike) and the bytes of the mesh's positions
+ * and indices; not the thread count, since the fit's sums are added in a fixed order whatever
+ * the threads (fit.c). The file repeats the key ("fit_key"); a file whose key, sphere count or
+ * format is wrong is ignored and overwritten, never trusted.
  */
 #define _DEFAULT_SOURCE /* realpath */
 #include "geometry/fit_internal.h"
@@ -27,19 +28,17 @@
 
 /* Bump when a change of the fitter changes its results, so old cache files are not reused (3:
  * the fits cached by an earlier fitter differed from what the fitter now computes under the
- * same key, found when a fresh clone's demo disagreed with the working tree's). */
-#define FIT_VERSION "penumbra-fit-3"
+ * same key, found when a fresh clone's demo disagreed with the working tree's; 4: spheres
+ * allocated to thin parts, fits independent of the thread count, the coverage report). */
+#define FIT_VERSION "penumbra-fit-4"
 /* Cache files are small (a few kB per hundred spheres); anything larger is not ours. */
 #define FIT_CACHE_MAX_BYTES (16u << 20)
 
-/* The thread count is part of the key: the fitter's energy is summed per thread (fit.c), so
- * fits with different counts differ in the last bits, and a cached fit must not hand one caller
- * (the CLI on all cores, a binding pinned to one thread) the fit of another. */
-static uint64_t fit_key(const pen_mesh *mesh, int count, const pen_fit_settings *s, int threads) {
+static uint64_t fit_key(const pen_mesh *mesh, int count, const pen_fit_settings *s) {
     char text[512];
-    int n = snprintf(text, sizeof text, "%s %d %d %.17g %.17g %.17g %d %.17g %llu threads %d",
-                     FIT_VERSION, count, s->voxels, s->surface_weight, s->margin_voxels,
-                     s->samples_per_voxel_area, s->iterations, s->learning_rate, s->seed, threads);
+    int n = snprintf(text, sizeof text, "%s %d %d %.17g %.17g %.17g %d %.17g %llu", FIT_VERSION,
+                     count, s->voxels, s->surface_weight, s->margin_voxels,
+                     s->samples_per_voxel_area, s->iterations, s->learning_rate, s->seed);
     uint64_t h = pen__fnv1a(PEN__FNV1A_SEED, text, (size_t)n);
     h = pen__fnv1a(h, mesh->positions, 3 * sizeof(float) * (size_t)mesh->vertex_count);
     return pen__fnv1a(h, mesh->indices, 3 * sizeof(uint32_t) * (size_t)mesh->triangle_count);
@@ -96,6 +95,20 @@ static int cache_read(const char *path, const char *key, int count, pen_spheres 
             const cJSON *e = cJSON_GetArrayItem(g, a);
             metrics->grid[a] = cJSON_IsNumber(e) ? e->valueint : 0;
         }
+        const cJSON *u = cJSON_GetObjectItemCaseSensitive(m, "uncovered");
+        pen_coverage_report *c = &metrics->coverage;
+        c->tolerance = number_or(u, "tolerance", NAN);
+        c->uncovered = number_or(u, "fraction", NAN);
+        c->parts = (int)number_or(u, "parts", 0);
+        c->largest_share = number_or(u, "largest_share", NAN);
+        c->samples = (int)number_or(u, "samples", 0);
+        static const char *const vec[3] = {"largest_centre", "largest_lo", "largest_hi"};
+        float *dst[3] = {c->largest_centre, c->largest_lo, c->largest_hi};
+        for (int v = 0; v < 3; ++v)
+            for (int a = 0; a < 3; ++a) {
+                const cJSON *e = cJSON_GetArrayItem(cJSON_GetObjectItemCaseSensitive(u, vec[v]), a);
+                dst[v][a] = cJSON_IsNumber(e) ? (float)e->valuedouble : NAN;
+            }
         metrics->from_cache = 1;
     }
     cJSON_Delete(root);
@@ -147,7 +160,7 @@ static pen_status cache_name(pen_context *ctx, const pen_mesh *mesh, const char 
     pen_status st = pen__fit_check_mesh(ctx, mesh, lo, hi);
     if (st) return st;
     if (!mesh_path) return pen__error(ctx, PEN_ERROR_ARGUMENT, "fit: no mesh path for the cache");
-    snprintf(key, 17, "%016llx", (unsigned long long)fit_key(mesh, count, s, pen__threads(ctx)));
+    snprintf(key, 17, "%016llx", (unsigned long long)fit_key(mesh, count, s));
     char dir[PATH_MAX];
     if (!cache_dir(dir, sizeof dir))
         return pen__error(ctx, PEN_ERROR_IO,
@@ -215,7 +228,7 @@ static pen_status cached_fit(pen_context *ctx, const pen_mesh *mesh, const char 
         return st;
     }
     if (metrics) *metrics = m;
-    char body[1024], extra[1100];
+    char body[4096], extra[4200];
     pen_fit_json(&s, &m, body, sizeof body);
     snprintf(extra, sizeof extra, "{\"fit_key\": \"%s\", %s", key, body + 1);
     /* The cache only saves time: a folder we cannot write to is not an error. */

@@ -43,6 +43,15 @@ pen_status pen__fit_check_mesh(pen_context *ctx, const pen_mesh *mesh, float lo[
     return PEN_OK;
 }
 
+pen_status pen__fit_mesh_side(pen_context *ctx, const pen_mesh *mesh, double *side) {
+    float lo[3], hi[3];
+    *side = 0;
+    pen_status st = pen__fit_check_mesh(ctx, mesh, lo, hi);
+    for (int a = 0; !st && a < 3; ++a)
+        *side = fmax(*side, (double)hi[a] - (double)lo[a]);
+    return st;
+}
+
 void pen__fit_grid_free(pen__fit_grid *grid) {
     if (!grid) return;
     free(grid->inside);
@@ -126,7 +135,8 @@ static int tidy_crossings(const pen_mesh *mesh, int axis, double h, crossing *hi
 
 /* ---- Voxelization --------------------------------------------------------------------------- */
 
-static RTCScene build_scene(pen_context *ctx, RTCDevice device, const pen_mesh *mesh) {
+RTCScene pen__fit_embree_scene(pen_context *ctx, RTCDevice device, const pen_mesh *mesh,
+                               RTCFilterFunctionN filter) {
     RTCScene scene = rtcNewScene(device);
     RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
     if (!scene || !geom) {
@@ -143,7 +153,7 @@ static RTCScene build_scene(pen_context *ctx, RTCDevice device, const pen_mesh *
         pen__error(ctx, PEN_ERROR_MEMORY, "fit: cannot allocate the Embree buffers");
         return NULL;
     }
-    rtcSetGeometryIntersectFilterFunction(geom, record_hit);
+    if (filter) rtcSetGeometryIntersectFilterFunction(geom, filter);
     rtcCommitGeometry(geom);
     rtcAttachGeometry(scene, geom);
     rtcReleaseGeometry(geom);
@@ -223,11 +233,10 @@ pen_status pen__fit_voxelize(pen_context *ctx, const pen_mesh *mesh, int voxels,
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "fit: voxels %d out of range [2, %d]", voxels,
                           PEN_FIT_MAX_VOXELS);
     float lo[3], hi[3];
-    pen_status st = pen__fit_check_mesh(ctx, mesh, lo, hi);
+    double longest;
+    pen_status st = pen__fit_mesh_side(ctx, mesh, &longest);
     if (st) return st;
-    double longest = 0;
-    for (int a = 0; a < 3; ++a)
-        longest = fmax(longest, (double)hi[a] - (double)lo[a]);
+    pen_mesh_bounds(mesh, lo, hi);
     double padded = longest * (1 + 2 * pad);
     out->h = padded / voxels;
     static const double jitter[3] = {0.0137, 0.0291, 0.0419}; /* of a voxel, see the top */
@@ -249,7 +258,7 @@ pen_status pen__fit_voxelize(pen_context *ctx, const pen_mesh *mesh, int voxels,
         free(votes);
         return pen__error(ctx, PEN_ERROR_INTERNAL, "fit: cannot create an Embree device");
     }
-    RTCScene scene = build_scene(ctx, device, mesh);
+    RTCScene scene = pen__fit_embree_scene(ctx, device, mesh, record_hit);
     if (!scene) {
         rtcReleaseDevice(device);
         free(votes);
@@ -291,7 +300,7 @@ static double triangle_area(const pen_mesh *mesh, int t) {
 }
 
 pen_status pen__fit_sample_surface(pen_context *ctx, const pen_mesh *mesh, int count, uint64_t seed,
-                                   float *points, double *area) {
+                                   float *points, int *tri_of, double *area) {
     double *cdf = pen__malloc(ctx, (size_t)mesh->triangle_count, sizeof(double), "fit: area table");
     if (!cdf) return PEN_ERROR_MEMORY;
     double sum = 0;
@@ -316,6 +325,7 @@ pen_status pen__fit_sample_surface(pen_context *ctx, const pen_mesh *mesh, int c
         double r1 = sqrt(pen__splitmix_uniform(&rng)), r2 = pen__splitmix_uniform(&rng);
         double wa = 1 - r1, wb = r1 * (1 - r2), wc = r1 * r2; /* uniform barycentrics */
         const uint32_t *tri = mesh->indices + 3 * (size_t)lo;
+        if (tri_of) tri_of[s] = lo;
         for (int k = 0; k < 3; ++k)
             points[3 * (size_t)s + k] =
                 (float)(wa * (double)mesh->positions[3 * (size_t)tri[0] + k] +

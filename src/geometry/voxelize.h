@@ -4,6 +4,7 @@
 #define PEN_GEOMETRY_VOXELIZE_H
 
 #include "core/internal.h"
+#include "geometry/embree.h"
 #include "penumbra/fit.h" /* PEN_FIT_MAX_VOXELS */
 #include "penumbra/mesh.h"
 
@@ -25,6 +26,8 @@ typedef struct pen__fit_grid {
 /* pen_mesh_validate, a bounding box that is not a point and whose longest side is within
  * [PEN__FIT_MIN_SIDE, PEN__FIT_MAX_SIDE]; on success lo/hi are the bounds. */
 pen_status pen__fit_check_mesh(pen_context *ctx, const pen_mesh *mesh, float lo[3], float hi[3]);
+/* pen__fit_check_mesh, and the longest side of the bounds into *side. */
+pen_status pen__fit_mesh_side(pen_context *ctx, const pen_mesh *mesh, double *side);
 /* Builds the grid over the mesh bounds padded by `pad` of the longest extent on every side, with
  * `voxels` voxels along the longest padded axis, and classifies every centre (six-vote winding
  * number test, see fit.h). */
@@ -32,8 +35,15 @@ pen_status pen__fit_voxelize(pen_context *ctx, const pen_mesh *mesh, int voxels,
                              pen__fit_grid *out);
 void pen__fit_grid_free(pen__fit_grid *grid);
 
-/* Area-uniform random points on the surface: 3 * count floats. Also returns the total area. */
+/* Area-uniform random points on the surface: 3 * count floats, and when tri is not NULL the
+ * triangle of each point. Also returns the total area. */
 pen_status pen__fit_sample_surface(pen_context *ctx, const pen_mesh *mesh, int count, uint64_t seed,
-                                   float *points, double *area);
+                                   float *points, int *tri, double *area);
+
+/* A committed Embree scene of the mesh's triangles on `device` (geometry 0, primitive = triangle
+ * index), with `filter` as its intersection filter when not NULL. NULL on failure (recorded in
+ * ctx). */
+RTCScene pen__fit_embree_scene(pen_context *ctx, RTCDevice device, const pen_mesh *mesh,
+                               RTCFilterFunctionN filter);
 
 #endif
