@@ -1,9 +1,11 @@
 """Writes frame.obj: an object made only of thin tubes (a stool's frame: four legs, a square
 of top rails and a ring of lower braces), every tube a closed 12-sided prism with caps, radius
 1 % of the object's size (its longest side, 1 unit). The parts overlap where they meet, as welded
-tubes do; each is closed, so the fitter and the reference see a solid.
+tubes do; each is closed, so the fitter and the reference see a solid. With --seat a flat box
+(1.1 x 0.05 x 1.1) lies on the top rails, its lower face on their axes: a chair whose seat meets
+its frame at an edge.
 
-    python3 make_frame.py OUT.obj
+    python3 make_frame.py OUT.obj [--seat]
 """
 import math
 import sys
@@ -41,8 +43,22 @@ def tube(verts, faces, a, b, r=RADIUS):
         faces.append((cb, q0, q1))
 
 
+def box(verts, faces, lo, hi):
+    """A closed axis-aligned box, faces counter-clockwise seen from outside. Each face has its own
+    four corners, so that a loader averaging normals over shared vertices keeps them flat (shared
+    corners would lean every face's normals 55 degrees at its corners, and the seat would shade
+    itself)."""
+    corner = [[hi[k] if (i >> k) & 1 else lo[k] for k in range(3)] for i in range(8)]
+    for q in ((0, 4, 6, 2), (1, 3, 7, 5), (0, 1, 5, 4), (2, 6, 7, 3), (0, 2, 3, 1), (4, 5, 7, 6)):
+        base = len(verts)
+        verts.extend(corner[i] for i in q)
+        faces.append((base, base + 1, base + 2))
+        faces.append((base, base + 2, base + 3))
+
+
 def main():
-    out = sys.argv[1] if len(sys.argv) > 1 else "frame.obj"
+    args = [a for a in sys.argv[1:] if a != "--seat"]
+    out = args[0] if args else "frame.obj"
     verts, faces = [], []
     w, top, low = 0.5, 1.0, 0.35  # half width of the top square, heights of the rails
     corners = [(-w, -w), (w, -w), (w, w), (-w, w)]
@@ -54,6 +70,8 @@ def main():
         s = 1.1 - 0.1 * low / top  # the legs' position at the braces' height
         tube(verts, faces, (s * x0, low, s * z0), (s * x1, low, s * z1))
     tube(verts, faces, (-w, top, -w), (w, top, w))  # one diagonal, so that turns are not symmetric
+    if "--seat" in sys.argv[1:]:
+        box(verts, faces, (-0.55, top, -0.55), (0.55, top + 0.05, 0.55))
     with open(out, "w") as f:
         f.write("# thin-tube frame, research/experiments/thin_pose/make_frame.py\n")
         for p in verts:
