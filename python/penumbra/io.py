@@ -45,8 +45,8 @@ def load_scene(path, fit_spheres=True, threads=0):
     the map's SH projection (or the "sh" given) with the lights given or found in the map, objects
     keep their texture (or constant albedo), texture filter, spheres with their overlap weights
     and pose, and the shadow model keys are kept. With fit_spheres, objects whose spheres are
-    {"fit": N} get the fitted set (cached in $XDG_CACHE_HOME/penumbra, shared with the CLI, keyed
-    by the thread count too); otherwise they have none (spheres None: render them without
+    {"fit": N} get the fitted set (cached in $XDG_CACHE_HOME/penumbra, shared with the CLI; the
+    same fit on any thread count); otherwise they have none (spheres None: render them without
     shadows). threads: the fit's threads (0: all cores, as the CLI)."""
     L = _lib.lib()
     with _lib.Context(threads) as c:
