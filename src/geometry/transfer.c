@@ -20,6 +20,8 @@
  *   weighs the part below.
  * - Jitter within each stratum comes from splitmix64 seeded by the vertex index, and vertices are
  *   independent, so the result is the same for any thread count.
+ * - The lights alone (pen__transfer_lights) skip B's 256 rays: the ground's shadows per pixel
+ *   (ground_shadow.c) need only the disks' fractions, and first one ray per light to find where.
  */
 #include "geometry/transfer.h"
 
@@ -93,16 +95,20 @@ static void frame(const double a[3], double t[3], double b[3]) {
     b[0] = f, b[1] = s + a[1] * a[1] * e, b[2] = -a[1];
 }
 
-/* One point: the blocked part B of its clamped cosine (nc values) and its light fractions; scene
- * NULL when only the ground occludes. */
+/* What a call traces per point: B and the disk samples, the disk samples alone, or one ray to
+ * each light's centre. */
+enum { TRACE_ALL, TRACE_DISKS, TRACE_CENTRES };
+
+/* One point: the blocked part B of its clamped cosine (nc values, unless mode skips it) and its
+ * light fractions; scene NULL when only the ground occludes. */
 static void point_transfer(RTCScene scene, const pen__transfer_request *rq, double offset, int v,
-                           float *B, float *frac) {
+                           int mode, float *B, float *frac) {
     const int nc = rq->bands * rq->bands, K = frac ? rq->light_count : 0;
     const float *pn = rq->normals + 3 * (size_t)v, *pp = rq->points + 3 * (size_t)v;
     double n[3] = {pn[0], pn[1], pn[2]};
     const double len = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
     if (!(len > 1e-30)) {
-        for (int k = 0; k < nc; ++k)
+        for (int k = 0; k < nc && mode == TRACE_ALL; ++k)
             B[k] = 0.0f;
         for (int l = 0; l < K; ++l)
             frac[l] = 1.0f;
@@ -121,7 +127,7 @@ static void point_transfer(RTCScene scene, const pen__transfer_request *rq, doub
     const int side = 16, N = side * side; /* PEN_TRANSFER_DIRECTIONS: 16 packets of 16 */
     double d[16][3];
     int want[16], hit[16];
-    for (int s0 = 0; s0 < N; s0 += 16) {
+    for (int s0 = 0; s0 < N && mode == TRACE_ALL; s0 += 16) {
         for (int i = 0; i < 16; ++i) {
             const int s = s0 + i;
             const double u1 = ((s / side) + pen__splitmix_uniform(&rng)) / side;
@@ -139,8 +145,17 @@ static void point_transfer(RTCScene scene, const pen__transfer_request *rq, doub
                 lost[k] += y[k];
         }
     }
-    for (int k = 0; k < nc; ++k)
+    for (int k = 0; k < nc && mode == TRACE_ALL; ++k)
         B[k] = (float)(PEN_PI / N * lost[k]);
+    if (mode == TRACE_CENTRES) {
+        for (int l = 0; l < K; ++l) {
+            const double *w = rq->light_w[l];
+            want[0] = w[0] * n[0] + w[1] * n[1] + w[2] * n[2] > 0.0;
+            blocked16(scene, g, p, o, (const double(*)[3])w, want, 1, hit);
+            frac[l] = want[0] && hit[0] ? 0.0f : 1.0f;
+        }
+        return;
+    }
     const int dside = 8; /* PEN_TRANSFER_DISK_SAMPLES: 4 packets of 16 */
     for (int l = 0; l < K; ++l) {
         const double *w = rq->light_w[l], cb = cos(rq->light_b[l]);
@@ -185,8 +200,9 @@ pen_status pen__transfer(pen_context *ctx, const pen__transfer_request *rq, floa
     return pen__transfer_on(ctx, NULL, rq, B, frac);
 }
 
-pen_status pen__transfer_on(pen_context *ctx, void *device, const pen__transfer_request *rq,
-                            float *B, float *frac) {
+/* Traces the request in one of the modes above; B is not touched unless TRACE_ALL. */
+static pen_status trace(pen_context *ctx, void *device, const pen__transfer_request *rq, int mode,
+                        float *B, float *frac) {
     const int P = rq->point_count, nc = rq->bands * rq->bands;
     if (P <= 0) return PEN_OK;
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
@@ -229,10 +245,21 @@ pen_status pen__transfer_on(pen_context *ctx, void *device, const pen__transfer_
     if (!s) {
 #pragma omp parallel for schedule(dynamic, 64) num_threads(threads)
         for (int v = 0; v < P; ++v)
-            point_transfer(scene, rq, offset, v, B + (size_t)nc * (size_t)v,
+            point_transfer(scene, rq, offset, v, mode,
+                           mode == TRACE_ALL ? B + (size_t)nc * (size_t)v : NULL,
                            frac ? frac + (size_t)rq->light_count * (size_t)v : NULL);
     }
     if (scene) rtcReleaseScene(scene);
     if (dev && !device) rtcReleaseDevice(dev);
     return s;
+}
+
+pen_status pen__transfer_on(pen_context *ctx, void *device, const pen__transfer_request *rq,
+                            float *B, float *frac) {
+    return trace(ctx, device, rq, TRACE_ALL, B, frac);
+}
+
+pen_status pen__transfer_lights(pen_context *ctx, const pen__transfer_request *rq, int centres,
+                                float *frac) {
+    return trace(ctx, NULL, rq, centres ? TRACE_CENTRES : TRACE_DISKS, NULL, frac);
 }

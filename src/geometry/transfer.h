@@ -50,6 +50,12 @@ pen_status pen__transfer(pen_context *ctx, const pen__transfer_request *rq, floa
  * otherwise pay a device per request (about 0.5 ms, bench/NOTES.md "Many small objects"). */
 pen_status pen__transfer_on(pen_context *ctx, void *device, const pen__transfer_request *rq,
                             float *B, float *frac);
+/* The light fractions alone (rq->bands and B unused): with centres 0, the disk samples as
+ * pen__transfer draws them; with centres 1, one ray towards each light's centre, frac 0 where it
+ * is blocked and 1 otherwise (or below the tangent plane). frac must hold light_count floats per
+ * point. */
+pen_status pen__transfer_lights(pen_context *ctx, const pen__transfer_request *rq, int centres,
+                                float *frac);
 /* An Embree device with the context's thread count, or NULL after setting ctx's error; released
  * by pen__transfer_device_free (NULL: nothing). */
 void *pen__transfer_device(pen_context *ctx);
