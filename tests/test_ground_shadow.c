@@ -11,13 +11,18 @@
  *   same for any thread count.
  * - A thin bar over the ground, covered by fat spheres: against the ray-traced reference the
  *   grid's ground shadow is much closer than the spheres'.
+ * - A thin rod whose shadow falls between the grid's nodes: the light's share of each ground
+ *   pixel follows an exact ray test (the pixels' own disk fractions), without beads.
  * - "self": "spheres" (what pose, shape, sphere and light-direction optimisers switch to)
- *   turns the grid off; the cache is kept while the pose stays and rebuilt when it moves. */
+ *   turns the grid off; the cache is kept while the pose stays and rebuilt when it moves; the
+ *   pixels' light fractions are kept with it and traced again when the camera moves. */
 #include "check.h"
 #include "render_scenes.h"
 
 #include "render/render_internal.h"
 
+#include <math.h>
+#include <stdlib.h>
 #include <string.h>
 
 /* ---- Scenes ---------------------------------------------------------------------------------- */
@@ -65,6 +70,33 @@ static void add_light(pen_scene *sc) {
 }
 
 /* ---- Tests ----------------------------------------------------------------------------------- */
+
+/* The thin rod of test_thin_rod: 1.2 long, 0.04 thick, 0.3 over the ground, turned by ROD_TURN
+ * radians about +Y (x' = c x + s z, z' = c z - s x) in its vertices, so that the analytic ray
+ * test below needs no pose convention. */
+#define ROD_TURN 0.35
+#define ROD_HALF 0.02
+static int cmp_double(const void *a, const void *b) {
+    const double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+static int rod_blocks(const float *p, const double *w) {
+    const double c = cos(ROD_TURN), s = sin(ROD_TURN), h[3] = {0.6, ROD_HALF, ROD_HALF};
+    const double px = (double)p[0], pz = (double)p[2];
+    const double q[3] = {c * px - s * pz, (double)p[1] - 0.3, s * px + c * pz};
+    const double d[3] = {c * w[0] - s * w[2], w[1], s * w[0] + c * w[2]};
+    double t0 = 0.0, t1 = 1e30;
+    for (int a = 0; a < 3; ++a) {
+        if (fabs(d[a]) < 1e-12) {
+            if (fabs(q[a]) > h[a]) return 0;
+            continue;
+        }
+        const double ta = (-h[a] - q[a]) / d[a], tb = (h[a] - q[a]) / d[a];
+        t0 = fmax(t0, fmin(ta, tb)), t1 = fmin(t1, fmax(ta, tb));
+    }
+    return t0 <= t1;
+}
 
 static void test_frame_gradients(void) {
     pen_scene sc = bar_scene(40);
@@ -225,6 +257,75 @@ static void test_bar_against_reference(void) {
     pen_scene_free(&sc);
 }
 
+/* A rod whose ground shadow (two pixels wide) is far narrower than the grid's spacing (a 16-node
+ * grid: about 0.1 apart near it): interpolated, the nodes miss the line or catch it at a few of
+ * them (beads). The disk light's share of each ground pixel (its render with the light minus
+ * without, over the brightest) must follow an exact ray test of the rod: dark where the pixel's
+ * ray meets it, lit two pixels away from every such pixel. */
+static void test_thin_rod(void) {
+    pen_scene sc = bar_scene(96);
+    pen_mesh m = box_mesh(0.6f, ROD_HALF, ROD_HALF);
+    const double c = cos(ROD_TURN), s = sin(ROD_TURN);
+    for (int v = 0; v < m.vertex_count; ++v) {
+        float *p = m.positions + 3 * (size_t)v;
+        const double x = p[0], z = p[2];
+        p[0] = (float)(c * x + s * z), p[2] = (float)(c * z - s * x), p[1] += 0.3f;
+    }
+    pen_mesh_free(&sc.objects[0].mesh);
+    sc.objects[0].mesh = m;
+    sc.objects[0].pose.translation[1] = 0.0f, sc.objects[0].pose.rotation_axis_angle_deg[1] = 0.0f;
+    for (int k = 0; k < 3; ++k) /* the spheres sit on the rod; they shade only other objects */
+        sc.objects[0].spheres.data[4 * k + 1] = 0.3f;
+    add_light(&sc);
+    const float dir[3] = {0.3f, 0.9f, 0.2f};
+    memcpy(sc.lighting.lights[0].direction, dir, sizeof dir);
+    sc.lighting.lights[0].angular_radius_deg = 0.3f;
+    sc.shadow.ground_grid = 16;
+    pen_context *ctx = pen_context_create();
+    pen_render_options opt = pen_render_options_default();
+    pen_image lit, dark;
+    pen_render_state *st = rs_render_kept(ctx, &sc, &opt, &lit);
+    for (int ch = 0; ch < 3; ++ch)
+        sc.lighting.lights[0].irradiance[ch] = 0.0f;
+    pen_render_state *s2 = rs_render_kept(ctx, &sc, &opt, &dark);
+    const int W = lit.width, H = lit.height;
+    const size_t np = (size_t)W * (size_t)H;
+    unsigned char *hit = calloc(np, 1);
+    double *clear = calloc(np, sizeof(double)), in = 0.0;
+    for (size_t i = 0; i < np; ++i)
+        if (st->gb.surface[i] == PEN_SURFACE_GROUND)
+            hit[i] = (unsigned char)rod_blocks(st->x.data + 3 * i, st->lights.w[0]);
+    int nin = 0, nout = 0;
+    for (int y = 2; y < H - 2; ++y)
+        for (int x = 2; x < W - 2; ++x) {
+            const size_t i = (size_t)y * (size_t)W + (size_t)x;
+            if (st->gb.surface[i] != PEN_SURFACE_GROUND) continue;
+            const double share = (double)lit.data[3 * i] - (double)dark.data[3 * i];
+            int near = 0;
+            for (int v = -2; v <= 2; ++v)
+                for (int u = -2; u <= 2; ++u)
+                    near |= hit[i + (size_t)((long)v * W + u)];
+            if (hit[i]) in += share, ++nin;
+            else if (!near) clear[nout++] = share;
+        }
+    /* The light's full share: the median over the clear pixels (the same on the whole plane). */
+    qsort(clear, (size_t)nout, sizeof(double), cmp_double);
+    const double full = clear[nout / 2];
+    int lit_ok = 0;
+    for (int k = 0; k < nout; ++k)
+        lit_ok += fabs(clear[k] - full) <= 0.03 * full;
+    in /= nin * full;
+    printf("  thin rod: light's share on %d pixels the rod blocks %.3f; %d of %d clear ones lit\n",
+           nin, in, lit_ok, nout);
+    CHECK(nin > 40 && in < 0.25 && lit_ok >= 0.99 * nout);
+    free(clear);
+    free(hit);
+    pen_image_free(&lit), pen_image_free(&dark);
+    pen_render_state_free(st), pen_render_state_free(s2);
+    pen_context_destroy(ctx);
+    pen_scene_free(&sc);
+}
+
 static void test_cache(void) {
     pen_scene sc = bar_scene(32);
     add_light(&sc);
@@ -234,7 +335,8 @@ static void test_cache(void) {
     pen_render_state *st = rs_render_kept(ctx, &sc, &opt, &img);
     pen__ground_grid *gr = &st->grid;
     CHECK(gr->on && gr->valid && gr->n == 96);
-    const uint64_t key = gr->key;
+    const uint64_t key = gr->key, pkey = gr->pkey;
+    CHECK(gr->pvalid);
     const float marker = 4321.0f;
     gr->B.data[0] = marker;
     /* Other lighting and albedos: kept. */
@@ -242,6 +344,11 @@ static void test_cache(void) {
     sc.ground.albedo[1] = 0.2f;
     CHECK(pen_render_fwd(ctx, &sc, &opt, st, &img) == PEN_OK);
     CHECK(gr->key == key && gr->B.data[0] == marker);
+    CHECK(gr->pvalid && gr->pkey == pkey); /* the pixels' fractions too */
+    /* The camera moves: the grid is kept, the pixels' fractions traced again. */
+    sc.camera.eye[0] += 0.2f;
+    CHECK(pen_render_fwd(ctx, &sc, &opt, st, &img) == PEN_OK);
+    CHECK(gr->key == key && gr->B.data[0] == marker && gr->pvalid && gr->pkey != pkey);
     /* The pose moves: traced again. */
     sc.objects[0].pose.translation[2] = 0.1f;
     CHECK(pen_render_fwd(ctx, &sc, &opt, st, &img) == PEN_OK);
@@ -280,6 +387,7 @@ int main(void) {
         {"test_far_object_sees_nothing", test_far_object_sees_nothing},
         {"test_spheres_mode_and_threads", test_spheres_mode_and_threads},
         {"test_bar_against_reference", test_bar_against_reference},
+        {"test_thin_rod", test_thin_rod},
         {"test_cache", test_cache},
     };
     return check_run_(tests, (int)(sizeof tests / sizeof tests[0]));

@@ -282,6 +282,12 @@ typedef struct pen__ground_grid {
     pen__buf_float kappa;       /* per sphere: kappa, 0 on the transferred objects' spheres */
     int valid;
     uint64_t key;
+    /* The disk lights' fractions per pixel where the grid cannot be trusted (one per light per
+     * pixel, negative: the grid's), for this camera: keyed by the grid's key and the ground
+     * pixels' points. */
+    pen__buf_float pfrac;
+    int pvalid;
+    uint64_t pkey;
 } pen__ground_grid;
 
 /* Traced transfers shared between render states (transfer_pool.c, pen_render_state_share): the

@@ -135,6 +135,7 @@ void pen_render_state_free(pen_render_state *st) {
     PEN__BUF_FREE(st->spheres), PEN__BUF_FREE(st->kappa), PEN__BUF_FREE(st->kappa_key);
     PEN__BUF_FREE(st->kappa_first), PEN__BUF_FREE(st->kappa_self);
     PEN__BUF_FREE(st->grid.B), PEN__BUF_FREE(st->grid.frac), PEN__BUF_FREE(st->grid.kappa);
+    PEN__BUF_FREE(st->grid.pfrac);
     pen__buf_float *px[PIXEL_BUFFERS];
     pixel_buffers(st, px);
     for (int i = 0; i < PIXEL_BUFFERS; ++i)
