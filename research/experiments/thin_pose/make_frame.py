@@ -80,4 +80,5 @@ def main():
             f.write("f %d %d %d\n" % (t[0] + 1, t[1] + 1, t[2] + 1))
 
 
-main()
+if __name__ == "__main__":  # thin/make_frame.py imports the tubes
+    main()
