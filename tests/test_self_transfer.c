@@ -21,7 +21,7 @@
 #include "core/random.h"
 #include "geometry/lattice.h"
 #include "geometry/transfer.h"
-#include "render/render_internal.h"
+#include "render/transfer_pool.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -655,9 +655,62 @@ static void test_shared_states(void) {
     pen_scene_free(&sc);
 }
 
+/* The states of a pool read one trace by reference, not each a copy: the same arrays and the
+ * same lattice after rendering the same pose from two cameras; and a state keeps reading its
+ * trace, rendering bitwise as before, after the pool evicted it (more than PEN_POOL_ENTRIES
+ * other keys put), the blob living on with the state's reference (ASan sees a use after free). */
+static void test_shared_by_reference(void) {
+    unsigned long long seed = 23;
+    pen_scene sc = rs_ball_scene(40, 1, &seed);
+    pen_camera cams[2] = {sc.camera, sc.camera};
+    cams[1].eye[0] += 0.7f;
+    pen_context *ctx = pen_context_create();
+    pen_render_state *st[2];
+    for (int v = 0; v < 2; ++v)
+        CHECK(pen_render_state_create(ctx, &st[v]) == PEN_OK);
+    CHECK(pen_render_state_share(ctx, st[1], st[0]) == PEN_OK);
+    pen_image img[2], again = {0};
+    memset(img, 0, sizeof img);
+    for (int v = 0; v < 2; ++v) {
+        pen_scene vs = sc;
+        vs.camera = cams[v];
+        CHECK(pen_render_fwd(ctx, &vs, NULL, st[v], &img[v]) == PEN_OK);
+    }
+    const pen__object_buf *b0 = &st[0]->obj[0], *b1 = &st[1]->obj[0];
+    CHECK(b0->self_valid && b1->self_valid && b0->self_blob);
+    CHECK(b0->self_blob == b1->self_blob);
+    CHECK(b0->self_B.data == b1->self_B.data && b0->self_frac.data == b1->self_frac.data);
+    CHECK(b0->self_lat.tri_edges == b1->self_lat.tri_edges);
+    CHECK(pen__pool_traces(st[0]->pool) == 2); /* one self transfer, one ground grid */
+    /* Evict: the pool drops its reference to the trace, the states keep theirs. */
+    const float dummy[2] = {1.0f, 2.0f};
+    for (uint64_t k = 1; k <= 40; ++k)
+        pen__pool_put(st[0]->pool, PEN__POOL_SELF, k * 0x9E3779B97F4A7C15ull, 1, 1, dummy,
+                      dummy + 1);
+    CHECK(!pen__pool_find(st[0]->pool, PEN__POOL_SELF, b0->self_key));
+    CHECK(b0->self_blob->refs == 2); /* the two states */
+    pen_scene vs = sc;
+    vs.camera = cams[1];
+    CHECK(pen_render_fwd(ctx, &vs, NULL, st[1], &again) == PEN_OK);
+    CHECK(again.data && !memcmp(again.data, img[1].data, sizeof(float) * 3 * 40 * 40));
+    pen_image_free(&again);
+    /* The first state frees its reference; the second still renders from the blob. */
+    pen_render_state_free(st[0]);
+    CHECK(b1->self_blob->refs == 1);
+    CHECK(pen_render_fwd(ctx, &vs, NULL, st[1], &again) == PEN_OK);
+    CHECK(again.data && !memcmp(again.data, img[1].data, sizeof(float) * 3 * 40 * 40));
+    pen_image_free(&again);
+    pen_render_state_free(st[1]);
+    for (int v = 0; v < 2; ++v)
+        pen_image_free(&img[v]);
+    pen_context_destroy(ctx);
+    pen_scene_free(&sc);
+}
+
 int main(void) {
     static const check_test_ tests[] = {
         {"test_shared_states", test_shared_states},
+        {"test_shared_by_reference", test_shared_by_reference},
         {"test_convex_blocks_nothing", test_convex_blocks_nothing},
         {"test_convexity", test_convexity},
         {"test_convex_vertices", test_convex_vertices},

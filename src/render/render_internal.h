@@ -264,8 +264,11 @@ typedef struct pen__object_buf {
      * coefficients of the blocked part of the clamped cosine and one unblocked disk fraction per
      * light) with the key it was built from. */
     int self_on, self_others;
-    pen__buf_float self_B, self_frac; /* per node of self_lat */
-    pen__lattice self_lat;            /* the nodes: the vertices, refined on coarse meshes */
+    /* The trace is a shared blob (transfer_pool.h): this state's reference, and views of its
+     * arrays and lattice, read only (states of a pool read the same memory, never a copy). */
+    struct pen__transfer_blob *self_blob;
+    pen__buf_float self_B, self_frac; /* per node of self_lat; not owned: self_blob's */
+    pen__lattice self_lat;            /* the nodes (vertices, refined on coarse meshes): a view */
     int self_valid;
     uint64_t self_key;
 } pen__object_buf;

@@ -34,7 +34,7 @@
  */
 #include "core/internal.h"
 #include "geometry/transfer.h"
-#include "render/render_internal.h"
+#include "render/transfer_pool.h"
 
 #include <stdlib.h>
 #include <string.h>
@@ -70,7 +70,7 @@ static uint64_t self_key(const pen_scene *sc, const pen_render_state *st, int o)
     return h;
 }
 
-/* Traces object o's N nodes into its self_B and self_frac (reserved by the caller); a convex
+/* Traces object o's N nodes into its self_B and self_frac (its blob's, not yet shared); a convex
  * mesh (traced at its vertices) blocks none of their rays, so only the ground is traced. *device:
  * the frame's Embree device, made here by the first object that needs one. */
 static pen_status trace_self(pen_context *ctx, const pen_scene *sc, pen_render_state *st, int o,
@@ -101,6 +101,16 @@ static pen_status trace_self(pen_context *ctx, const pen_scene *sc, pen_render_s
     return s;
 }
 
+/* Makes blob (the caller's reference, handed over) object o's trace, read through the views. */
+static void self_use(pen__object_buf *b, pen__transfer_blob *blob, uint64_t key) {
+    pen__blob_release(b->self_blob);
+    b->self_blob = blob;
+    b->self_B.data = blob->B, b->self_B.cap = 0;
+    b->self_frac.data = blob->frac, b->self_frac.cap = 0;
+    b->self_lat = blob->lat; /* a shallow view: the blob owns tri_edges */
+    b->self_valid = 1, b->self_key = key;
+}
+
 static pen_status self_cache(pen_context *ctx, const pen_scene *sc, pen_render_state *st, int o,
                              void **device) {
     pen__object_buf *b = &st->obj[o];
@@ -115,33 +125,45 @@ static pen_status self_cache(pen_context *ctx, const pen_scene *sc, pen_render_s
      * (measured in docs/design.md sec. 1.15). */
     const int convex = pen__lattice_convex(m->vertex_count, m->positions, m->triangle_count,
                                            m->indices, PEN_SELF_CONVEX_PAIRS);
-    const int level =
-        convex ? 1
-               : pen__lattice_level(m->vertex_count, m->positions, m->triangle_count, m->indices,
-                                    PEN_SELF_NODE_SPACING, PEN_SELF_MAX_NODES);
-    pen_status s = pen__lattice_build(ctx, &b->self_lat, level, m->vertex_count,
-                                      m->triangle_count, m->indices);
-    if (s) return s;
-    const size_t N = (size_t)b->self_lat.node_count;
+    int level = convex ? 1
+                       : pen__lattice_level(m->vertex_count, m->positions, m->triangle_count,
+                                            m->indices, PEN_SELF_NODE_SPACING, PEN_SELF_MAX_NODES);
+    level = level < 1 ? 1 : level > PEN_LATTICE_MAX_LEVEL ? PEN_LATTICE_MAX_LEVEL : level;
     const size_t nc = (size_t)sc->sh_bands * (size_t)sc->sh_bands;
-    const int K = st->lights.count;
-    if ((s = PEN__BUF_RESERVE(ctx, b->self_B, nc * N + 1, "self blocked part")) ||
-        (s = PEN__BUF_RESERVE(ctx, b->self_frac, (size_t)K * N + 1, "self light fractions")))
-        return s;
-    /* Another state of the pool may have traced this key (the transfer is in world space). */
+    const size_t K = (size_t)st->lights.count;
+    /* Another state of the pool may have traced this key (the transfer is in world space): use
+     * its blob, lattice included, if it has this mesh's shape. */
     pen__pool_lock(st->pool);
-    if (pen__pool_get(st->pool, PEN__POOL_SELF, key, nc * N, (size_t)K * N, b->self_B.data,
-                      b->self_frac.data)) {
-        pen__pool_unlock(st->pool);
-        b->self_valid = 1, b->self_key = key;
-        return PEN_OK;
+    pen__transfer_blob *blob = pen__pool_find(st->pool, PEN__POOL_SELF, key);
+    if (blob) {
+        const pen__lattice *L = &blob->lat;
+        const size_t N = (size_t)L->node_count;
+        if (L->level == level && L->vertex_count == m->vertex_count &&
+            L->triangle_count == m->triangle_count && blob->nB == nc * N && blob->nfrac == K * N) {
+            pen__pool_unlock(st->pool);
+            self_use(b, blob, key);
+            return PEN_OK;
+        }
+        pen__blob_release(blob);
     }
+    pen__lattice lat = {0};
+    pen_status s = pen__lattice_build(ctx, &lat, level, m->vertex_count, m->triangle_count,
+                                      m->indices);
+    const size_t N = (size_t)lat.node_count;
+    if (!s && !(blob = pen__blob_create(ctx, nc * N, K * N))) s = PEN_ERROR_MEMORY;
+    if (s) {
+        pen__pool_unlock(st->pool);
+        pen__lattice_free(&lat);
+        return s;
+    }
+    blob->lat = lat;
+    self_use(b, blob, key); /* not yet valid for others: the pool gets it once traced */
+    b->self_valid = 0;
     s = trace_self(ctx, sc, st, o, N, convex, device);
-    if (!s) pen__pool_put(st->pool, PEN__POOL_SELF, key, nc * N, (size_t)K * N, b->self_B.data,
-                          b->self_frac.data);
+    if (!s) pen__pool_insert(st->pool, PEN__POOL_SELF, key, blob);
     pen__pool_unlock(st->pool);
     if (s) return s;
-    b->self_valid = 1, b->self_key = key;
+    b->self_valid = 1;
     return PEN_OK;
 }
 

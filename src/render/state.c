@@ -19,7 +19,7 @@
  *   object's precomputed self transfer (self.c, keyed by the posed vertices, bands and lights).
  */
 #include "core/internal.h"
-#include "render/render_internal.h"
+#include "render/transfer_pool.h"
 
 #include <stdlib.h>
 #include <string.h>
@@ -128,8 +128,7 @@ void pen_render_state_free(pen_render_state *st) {
         pen__object_buf *b = &st->obj[o];
         PEN__BUF_FREE(b->world), PEN__BUF_FREE(b->vnormal), PEN__BUF_FREE(b->d_world);
         PEN__BUF_FREE(b->d_vnormal), PEN__BUF_FREE(b->adjacency);
-        PEN__BUF_FREE(b->self_B), PEN__BUF_FREE(b->self_frac);
-        pen__lattice_free(&b->self_lat);
+        pen__blob_release(b->self_blob); /* self_B, self_frac and self_lat are its views */
     }
     free(st->obj), free(st->meshes), free(st->sphere_first);
     PEN__BUF_FREE(st->spheres), PEN__BUF_FREE(st->kappa), PEN__BUF_FREE(st->kappa_key);

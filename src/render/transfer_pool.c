@@ -5,20 +5,29 @@
  *   are in world space: they depend on the posed meshes, the band count, the lights and the
  *   ground, never on the camera. States that render the same objects from several cameras (the
  *   views of a task, a batch of cameras) would each trace them once per pose; through a pool the
- *   first state to need a trace makes it and the others copy its arrays.
+ *   first state to need a trace makes it and the others use it.
+ * - By reference. A trace is an immutable blob (transfer_pool.h) with a counted reference per
+ *   holder: the pool's entry and every state that renders with it. A state reads the blob's
+ *   arrays and, for a self transfer, its node lattice through its reference, so a task of a
+ *   thousand views holds one copy of each trace, not one per view (a copy per state cost the
+ *   1000-view lighting task some 2.3 GB and a memcpy per view per pose), and the lattice is
+ *   built once per trace instead of once per state. A state drops its reference when its key
+ *   changes or it is freed; the blob goes with its last holder, so evicting an entry never frees
+ *   arrays a state still reads. The grid can still take a copy (pen__pool_get / pen__pool_put).
  * - Keys. An entry is found by the key the state's own cache uses (which hashes everything the
  *   trace depends on) together with its kind and the arrays' sizes, so a pool never hands a state
- *   arrays of another shape. A copy is bitwise the trace the state would have made: renders do
- *   not depend on which state traced.
+ *   arrays of another shape. The shared blob is bitwise the trace the state would have made:
+ *   renders do not depend on which state traced.
  * - Threads. States of one pool may render at once on different threads: the whole miss path
  *   (look up, trace, insert) runs under the pool's lock, so a trace is made once and the others
  *   wait for it instead of tracing it again; the trace inside runs its own threads as always.
+ *   Blobs are never written once inserted, so readers need no lock; the counts are atomic.
  * - Bounds. The pool keeps the PEN_POOL_ENTRIES most recent traces (a pose task moves on and never
- *   asks for an old pose again), each an exact copy: its memory is that many traces' arrays.
+ *   asks for an old pose again); states add at most their own current trace each.
  * - Lifetime. Counted references: the pool goes with the last state that holds it.
  */
 #include "core/internal.h"
-#include "render/render_internal.h"
+#include "render/transfer_pool.h"
 
 #include <omp.h>
 #include <stdlib.h>
@@ -29,8 +38,7 @@
 typedef struct pool_entry {
     int kind; /* PEN__POOL_SELF or PEN__POOL_GRID; 0: empty */
     uint64_t key;
-    size_t nB, nfrac;
-    float *data; /* nB then nfrac floats */
+    pen__transfer_blob *blob; /* the pool's reference */
 } pool_entry;
 
 struct pen__transfer_pool {
@@ -57,7 +65,7 @@ void pen__pool_retain(pen__transfer_pool *p) {
 void pen__pool_release(pen__transfer_pool *p) {
     if (!p || __atomic_sub_fetch(&p->refs, 1, __ATOMIC_ACQ_REL) > 0) return;
     for (int i = 0; i < PEN_POOL_ENTRIES; ++i)
-        free(p->entries[i].data);
+        pen__blob_release(p->entries[i].blob);
     omp_destroy_lock(&p->lock);
     free(p);
 }
@@ -70,31 +78,82 @@ void pen__pool_unlock(pen__transfer_pool *p) {
     if (p) omp_unset_lock(&p->lock);
 }
 
-int pen__pool_get(const pen__transfer_pool *p, int kind, uint64_t key, size_t nB, size_t nfrac,
-                  float *B, float *frac) {
+/* ---- Blobs ----------------------------------------------------------------------------------- */
+
+pen__transfer_blob *pen__blob_create(pen_context *ctx, size_t nB, size_t nfrac) {
+    pen__transfer_blob *b = pen__calloc(ctx, 1, sizeof *b, "shared transfer");
+    if (!b) return NULL;
+    if (!(b->B = pen__malloc(ctx, nB + nfrac + 1, sizeof(float), "shared transfer"))) {
+        free(b);
+        return NULL;
+    }
+    b->frac = b->B + nB;
+    b->nB = nB, b->nfrac = nfrac, b->refs = 1;
+    return b;
+}
+
+void pen__blob_retain(pen__transfer_blob *b) {
+    if (b) __atomic_add_fetch(&b->refs, 1, __ATOMIC_ACQ_REL);
+}
+
+void pen__blob_release(pen__transfer_blob *b) {
+    if (!b || __atomic_sub_fetch(&b->refs, 1, __ATOMIC_ACQ_REL) > 0) return;
+    pen__lattice_free(&b->lat);
+    free(b->B);
+    free(b);
+}
+
+/* ---- Entries --------------------------------------------------------------------------------- */
+
+static const pool_entry *find(const pen__transfer_pool *p, int kind, uint64_t key, size_t nB,
+                              size_t nfrac) {
     for (int i = 0; p && i < PEN_POOL_ENTRIES; ++i) {
         const pool_entry *e = &p->entries[i];
-        if (e->kind != kind || e->key != key || e->nB != nB || e->nfrac != nfrac) continue;
-        memcpy(B, e->data, nB * sizeof(float));
-        if (nfrac) memcpy(frac, e->data + nB, nfrac * sizeof(float));
-        return 1;
+        if (e->kind == kind && e->key == key && e->blob->nB == nB && e->blob->nfrac == nfrac)
+            return e;
     }
-    return 0;
+    return NULL;
+}
+
+pen__transfer_blob *pen__pool_find(const pen__transfer_pool *p, int kind, uint64_t key) {
+    for (int i = 0; p && i < PEN_POOL_ENTRIES; ++i) {
+        const pool_entry *e = &p->entries[i];
+        if (e->kind != kind || e->key != key) continue;
+        pen__blob_retain(e->blob);
+        return e->blob;
+    }
+    return NULL;
+}
+
+void pen__pool_insert(pen__transfer_pool *p, int kind, uint64_t key, pen__transfer_blob *blob) {
+    if (!p || !blob) return;
+    pen__blob_retain(blob);
+    pool_entry *e = &p->entries[p->next];
+    pen__blob_release(e->blob); /* states that still read it keep it */
+    *e = (pool_entry){kind, key, blob};
+    p->next = (p->next + 1) % PEN_POOL_ENTRIES;
+    ++p->traces;
+}
+
+int pen__pool_get(const pen__transfer_pool *p, int kind, uint64_t key, size_t nB, size_t nfrac,
+                  float *B, float *frac) {
+    const pool_entry *e = find(p, kind, key, nB, nfrac);
+    if (!e) return 0;
+    memcpy(B, e->blob->B, nB * sizeof(float));
+    if (nfrac) memcpy(frac, e->blob->frac, nfrac * sizeof(float));
+    return 1;
 }
 
 void pen__pool_put(pen__transfer_pool *p, int kind, uint64_t key, size_t nB, size_t nfrac,
                    const float *B, const float *frac) {
     if (!p) return;
     /* Without memory the trace simply stays the state's own: the pool only saves time. */
-    float *data = malloc((nB + nfrac + 1) * sizeof(float));
-    if (!data) return;
-    memcpy(data, B, nB * sizeof(float));
-    if (nfrac) memcpy(data + nB, frac, nfrac * sizeof(float));
-    pool_entry *e = &p->entries[p->next];
-    free(e->data);
-    *e = (pool_entry){kind, key, nB, nfrac, data};
-    p->next = (p->next + 1) % PEN_POOL_ENTRIES;
-    ++p->traces;
+    pen__transfer_blob *blob = pen__blob_create(NULL, nB, nfrac);
+    if (!blob) return;
+    memcpy(blob->B, B, nB * sizeof(float));
+    if (nfrac) memcpy(blob->frac, frac, nfrac * sizeof(float));
+    pen__pool_insert(p, kind, key, blob);
+    pen__blob_release(blob);
 }
 
 long pen__pool_traces(const pen__transfer_pool *p) {
