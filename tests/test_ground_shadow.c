@@ -20,6 +20,7 @@
 #include "render_scenes.h"
 
 #include "render/render_internal.h"
+#include "render/transfer_pool.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -155,9 +156,9 @@ static void test_far_object_sees_nothing(void) {
     const size_t nodes = (size_t)gr->n * (size_t)gr->n;
     double worst = 0.0, fworst = 0.0;
     for (size_t k = 0; k < 16 * nodes; ++k)
-        worst = fmax(worst, fabs((double)gr->B.data[k]));
+        worst = fmax(worst, fabs((double)gr->B[k]));
     for (size_t k = 0; k < nodes; ++k)
-        fworst = fmax(fworst, fabs((double)gr->frac.data[k] - 1.0));
+        fworst = fmax(fworst, fabs((double)gr->frac[k] - 1.0));
     CHECK_MSG(worst == 0.0 && fworst == 0.0, "far object: |B| up to %g, |1 - frac| up to %g",
               worst, fworst);
     opt.shadows = 0;
@@ -338,21 +339,21 @@ static void test_cache(void) {
     const uint64_t key = gr->key, pkey = gr->pkey;
     CHECK(gr->pvalid);
     const float marker = 4321.0f;
-    gr->B.data[0] = marker;
+    gr->blob->B[0] = marker; /* the state's own trace: no pool shares it */
     /* Other lighting and albedos: kept. */
     sc.lighting.sh[1][0] += 0.3f;
     sc.ground.albedo[1] = 0.2f;
     CHECK(pen_render_fwd(ctx, &sc, &opt, st, &img) == PEN_OK);
-    CHECK(gr->key == key && gr->B.data[0] == marker);
+    CHECK(gr->key == key && gr->B[0] == marker);
     CHECK(gr->pvalid && gr->pkey == pkey); /* the pixels' fractions too */
     /* The camera moves: the grid is kept, the pixels' fractions traced again. */
     sc.camera.eye[0] += 0.2f;
     CHECK(pen_render_fwd(ctx, &sc, &opt, st, &img) == PEN_OK);
-    CHECK(gr->key == key && gr->B.data[0] == marker && gr->pvalid && gr->pkey != pkey);
+    CHECK(gr->key == key && gr->B[0] == marker && gr->pvalid && gr->pkey != pkey);
     /* The pose moves: traced again. */
     sc.objects[0].pose.translation[2] = 0.1f;
     CHECK(pen_render_fwd(ctx, &sc, &opt, st, &img) == PEN_OK);
-    CHECK(gr->key != key && gr->B.data[0] != marker);
+    CHECK(gr->key != key && gr->B[0] != marker);
     /* The light's irradiance: kept (a gradient, not a trace); its direction or size: traced
      * again (the key takes them through the object's own transfer key, self.c). */
     uint64_t k1 = gr->key;

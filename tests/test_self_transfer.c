@@ -682,13 +682,19 @@ static void test_shared_by_reference(void) {
     CHECK(b0->self_B.data == b1->self_B.data && b0->self_frac.data == b1->self_frac.data);
     CHECK(b0->self_lat.tri_edges == b1->self_lat.tri_edges);
     CHECK(pen__pool_traces(st[0]->pool) == 2); /* one self transfer, one ground grid */
+    CHECK(st[0]->grid.valid && st[0]->grid.blob && st[0]->grid.blob == st[1]->grid.blob);
+    CHECK(st[0]->grid.B == st[1]->grid.B && st[0]->grid.blob->refs == 3); /* pool, 2 states */
     /* Evict: the pool drops its reference to the trace, the states keep theirs. */
-    const float dummy[2] = {1.0f, 2.0f};
-    for (uint64_t k = 1; k <= 40; ++k)
-        pen__pool_put(st[0]->pool, PEN__POOL_SELF, k * 0x9E3779B97F4A7C15ull, 1, 1, dummy,
-                      dummy + 1);
+    for (uint64_t k = 1; k <= 40; ++k) {
+        pen__transfer_blob *dummy = pen__blob_create(ctx, 1, 1);
+        CHECK(dummy);
+        dummy->B[0] = 1.0f, dummy->frac[0] = 2.0f;
+        pen__pool_insert(st[0]->pool, PEN__POOL_SELF, k * 0x9E3779B97F4A7C15ull, dummy);
+        pen__blob_release(dummy);
+    }
     CHECK(!pen__pool_find(st[0]->pool, PEN__POOL_SELF, b0->self_key));
     CHECK(b0->self_blob->refs == 2); /* the two states */
+    CHECK(st[0]->grid.blob->refs == 2);
     pen_scene vs = sc;
     vs.camera = cams[1];
     CHECK(pen_render_fwd(ctx, &vs, NULL, st[1], &again) == PEN_OK);
@@ -696,7 +702,7 @@ static void test_shared_by_reference(void) {
     pen_image_free(&again);
     /* The first state frees its reference; the second still renders from the blob. */
     pen_render_state_free(st[0]);
-    CHECK(b1->self_blob->refs == 1);
+    CHECK(b1->self_blob->refs == 1 && st[1]->grid.blob->refs == 1);
     CHECK(pen_render_fwd(ctx, &vs, NULL, st[1], &again) == PEN_OK);
     CHECK(again.data && !memcmp(again.data, img[1].data, sizeof(float) * 3 * 40 * 40));
     pen_image_free(&again);

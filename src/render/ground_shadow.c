@@ -27,6 +27,8 @@
  * - The cache. In the render state with a key: every transferred object's posed vertices and
  *   indices, the band count, the lights, the ground's height and size and the grid's size. A
  *   lighting, albedo or texture optimisation pays the trace once; a pose change pays it again.
+ *   The grid is in world space: the states of a pool (the views of a task) hold one immutable
+ *   trace by reference (transfer_pool.h), not a copy each (0.6 MB a view at 4 bands).
  * - The lights per pixel. A thin part's shadow under a low sun is narrower than the node spacing
  *   where it falls: interpolated, the fractions draw it as beads where nodes catch it and lose it
  *   between (a tube frame under a sun 8 degrees up: cast-shadow error 1.35 times an 8x finer
@@ -48,6 +50,7 @@
 #include "core/internal.h"
 #include "geometry/transfer.h"
 #include "render/render_internal.h"
+#include "render/transfer_pool.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -159,15 +162,12 @@ static pen__transfer_request request(const pen_scene *sc, const pen_render_state
                                    NULL}; /* the ground does not shadow itself */
 }
 
-/* Traces the nodes against the transferred objects' meshes into gr->B and gr->frac. */
-static pen_status grid_trace(pen_context *ctx, const pen_scene *sc, pen_render_state *st,
-                             pen__ground_grid *gr) {
-    const int N = gr->n, K = st->lights.count, O = sc->object_count;
-    const size_t P = (size_t)N * (size_t)N, nc = (size_t)sc->sh_bands * (size_t)sc->sh_bands;
+/* Traces the nodes of grid gr against the transferred objects' meshes into blob's arrays. */
+static pen_status grid_trace(pen_context *ctx, const pen_scene *sc, const pen_render_state *st,
+                             const pen__ground_grid *gr, pen__transfer_blob *blob) {
+    const int N = gr->n, O = sc->object_count;
+    const size_t P = (size_t)N * (size_t)N;
     pen_status s;
-    if ((s = PEN__BUF_RESERVE(ctx, gr->B, nc * P + 1, "ground grid blocked part")) ||
-        (s = PEN__BUF_RESERVE(ctx, gr->frac, (size_t)K * P + 1, "ground grid light fractions")))
-        return s;
     float *pts = pen__malloc(ctx, 6 * P, sizeof(float), "ground grid nodes");
     pen__transfer_mesh *meshes = pen__calloc(ctx, (size_t)O + 1, sizeof *meshes, "grid meshes");
     if (!pts || !meshes) {
@@ -185,7 +185,7 @@ static pen_status grid_trace(pen_context *ctx, const pen_scene *sc, pen_render_s
             nrm[3 * k] = 0.0f, nrm[3 * k + 1] = 1.0f, nrm[3 * k + 2] = 0.0f;
         }
     const pen__transfer_request rq = request(sc, st, meshes, (int)P, pts, nrm);
-    s = pen__transfer(ctx, &rq, gr->B.data, gr->frac.data);
+    s = pen__transfer(ctx, &rq, blob->B, blob->frac);
     free(pts), free(meshes);
     return s;
 }
@@ -232,7 +232,7 @@ static void pixel_flags(const pen_render_state *st, size_t m, const int *pix, co
         for (int l = 0; l < K && !flag[pix[q]]; ++l) {
             double v = 0.0, lo = 1.0, hi = 0.0;
             for (int r = 0; r < 4; ++r) {
-                const double f = (double)gr->frac.data[(size_t)K * k[r] + (size_t)l];
+                const double f = (double)gr->frac[(size_t)K * k[r] + (size_t)l];
                 v += w[r] * f, lo = fmin(lo, f), hi = fmax(hi, f);
             }
             flag[pix[q]] = hi - lo > CORNER_SPREAD || fabs((double)c[(size_t)K * q + l] - v) > 0.5;
@@ -337,19 +337,26 @@ pen_status pen__ground_shadow_prepare(pen_context *ctx, const pen_scene *sc, pen
         memcpy(gr->beta, shape.beta, sizeof gr->beta);
         const size_t P = (size_t)gr->n * (size_t)gr->n, K = (size_t)st->lights.count;
         const size_t nc = (size_t)sc->sh_bands * (size_t)sc->sh_bands;
-        if ((s = PEN__BUF_RESERVE(ctx, gr->B, nc * P + 1, "ground grid blocked part")) ||
-            (s = PEN__BUF_RESERVE(ctx, gr->frac, K * P + 1, "ground grid light fractions")))
-            return s;
-        /* Another state of the pool may have traced it (the grid is in world space). */
+        /* Another state of the pool may have traced it (the grid is in world space): its blob
+         * is used by reference, as a self transfer's (self.c). */
         pen__pool_lock(st->pool);
-        if (!pen__pool_get(st->pool, PEN__POOL_GRID, key, nc * P, K * P, gr->B.data,
-                           gr->frac.data)) {
-            s = grid_trace(ctx, sc, st, gr);
-            if (!s) pen__pool_put(st->pool, PEN__POOL_GRID, key, nc * P, K * P, gr->B.data,
-                                  gr->frac.data);
+        pen__transfer_blob *blob = pen__pool_find(st->pool, PEN__POOL_GRID, key);
+        if (blob && (blob->nB != nc * P || blob->nfrac != K * P)) {
+            pen__blob_release(blob);
+            blob = NULL;
+        }
+        if (!blob) {
+            blob = pen__blob_create(ctx, nc * P, K * P);
+            s = blob ? grid_trace(ctx, sc, st, gr, blob) : PEN_ERROR_MEMORY;
+            if (!s) pen__pool_insert(st->pool, PEN__POOL_GRID, key, blob);
         }
         pen__pool_unlock(st->pool);
-        if (s) return s;
+        if (s) {
+            pen__blob_release(blob);
+            return s;
+        }
+        pen__blob_release(gr->blob);
+        gr->blob = blob, gr->B = blob->B, gr->frac = blob->frac;
         gr->valid = 1, gr->key = key;
     }
     gr->on = 1;
@@ -370,14 +377,14 @@ static void grid_at(const pen_render_state *st, size_t i, const float *x, float 
     for (int c = 0; c < nc; ++c) {
         double v = 0.0;
         for (int q = 0; q < 4; ++q)
-            v += w[q] * (double)gr->B.data[(size_t)nc * k[q] + (size_t)c];
+            v += w[q] * (double)gr->B[(size_t)nc * k[q] + (size_t)c];
         B[c] = (float)v;
     }
     const float *own = gr->pvalid && K ? gr->pfrac.data + (size_t)K * i : NULL;
     for (int l = 0; l < K; ++l) {
         double v = 0.0;
         for (int q = 0; q < 4; ++q)
-            v += w[q] * (double)gr->frac.data[(size_t)K * k[q] + (size_t)l];
+            v += w[q] * (double)gr->frac[(size_t)K * k[q] + (size_t)l];
         frac[l] = own && own[l] >= 0.0f ? (double)own[l] : v;
     }
 }

@@ -281,7 +281,10 @@ typedef struct pen__ground_grid {
     int n;      /* nodes per side */
     double c[2], a[2], beta[2][2]; /* x = c + a sinh(beta[side] s) per axis (x, z), side s < 0,
                                       s >= 0 */
-    pen__buf_float B, frac;     /* per node (row z, column x): bands^2, and one per light */
+    /* The trace, a shared blob (transfer_pool.h) like a self transfer: this state's reference;
+     * B (bands^2 per node, row z, column x) and frac (one per light per node) are its arrays. */
+    struct pen__transfer_blob *blob;
+    const float *B, *frac;
     pen__buf_float kappa;       /* per sphere: kappa, 0 on the transferred objects' spheres */
     int valid;
     uint64_t key;
@@ -304,12 +307,6 @@ void pen__pool_release(pen__transfer_pool *p); /* frees it with its last referen
  * rendering at once trace each key once; NULL: no-op. */
 void pen__pool_lock(pen__transfer_pool *p);
 void pen__pool_unlock(pen__transfer_pool *p);
-/* Copies the entry of (kind, key) with nB and nfrac floats into B and frac: 1 if there is one. */
-int pen__pool_get(const pen__transfer_pool *p, int kind, uint64_t key, size_t nB, size_t nfrac,
-                  float *B, float *frac);
-/* Keeps a copy of a trace (the oldest entry makes room). */
-void pen__pool_put(pen__transfer_pool *p, int kind, uint64_t key, size_t nB, size_t nfrac,
-                   const float *B, const float *frac);
 /* Traces put over the pool's life. */
 long pen__pool_traces(const pen__transfer_pool *p);
 

@@ -133,7 +133,8 @@ void pen_render_state_free(pen_render_state *st) {
     free(st->obj), free(st->meshes), free(st->sphere_first);
     PEN__BUF_FREE(st->spheres), PEN__BUF_FREE(st->kappa), PEN__BUF_FREE(st->kappa_key);
     PEN__BUF_FREE(st->kappa_first), PEN__BUF_FREE(st->kappa_self);
-    PEN__BUF_FREE(st->grid.B), PEN__BUF_FREE(st->grid.frac), PEN__BUF_FREE(st->grid.kappa);
+    pen__blob_release(st->grid.blob); /* grid.B and grid.frac are its arrays */
+    PEN__BUF_FREE(st->grid.kappa);
     PEN__BUF_FREE(st->grid.pfrac);
     pen__buf_float *px[PIXEL_BUFFERS];
     pixel_buffers(st, px);

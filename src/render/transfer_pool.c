@@ -13,7 +13,7 @@
  *   1000-view lighting task some 2.3 GB and a memcpy per view per pose), and the lattice is
  *   built once per trace instead of once per state. A state drops its reference when its key
  *   changes or it is freed; the blob goes with its last holder, so evicting an entry never frees
- *   arrays a state still reads. The grid can still take a copy (pen__pool_get / pen__pool_put).
+ *   arrays a state still reads. The ground's grid is held the same way.
  * - Keys. An entry is found by the key the state's own cache uses (which hashes everything the
  *   trace depends on) together with its kind and the arrays' sizes, so a pool never hands a state
  *   arrays of another shape. The shared blob is bitwise the trace the state would have made:
@@ -31,7 +31,6 @@
 
 #include <omp.h>
 #include <stdlib.h>
-#include <string.h>
 
 #define PEN_POOL_ENTRIES 16
 
@@ -105,16 +104,6 @@ void pen__blob_release(pen__transfer_blob *b) {
 
 /* ---- Entries --------------------------------------------------------------------------------- */
 
-static const pool_entry *find(const pen__transfer_pool *p, int kind, uint64_t key, size_t nB,
-                              size_t nfrac) {
-    for (int i = 0; p && i < PEN_POOL_ENTRIES; ++i) {
-        const pool_entry *e = &p->entries[i];
-        if (e->kind == kind && e->key == key && e->blob->nB == nB && e->blob->nfrac == nfrac)
-            return e;
-    }
-    return NULL;
-}
-
 pen__transfer_blob *pen__pool_find(const pen__transfer_pool *p, int kind, uint64_t key) {
     for (int i = 0; p && i < PEN_POOL_ENTRIES; ++i) {
         const pool_entry *e = &p->entries[i];
@@ -133,27 +122,6 @@ void pen__pool_insert(pen__transfer_pool *p, int kind, uint64_t key, pen__transf
     *e = (pool_entry){kind, key, blob};
     p->next = (p->next + 1) % PEN_POOL_ENTRIES;
     ++p->traces;
-}
-
-int pen__pool_get(const pen__transfer_pool *p, int kind, uint64_t key, size_t nB, size_t nfrac,
-                  float *B, float *frac) {
-    const pool_entry *e = find(p, kind, key, nB, nfrac);
-    if (!e) return 0;
-    memcpy(B, e->blob->B, nB * sizeof(float));
-    if (nfrac) memcpy(frac, e->blob->frac, nfrac * sizeof(float));
-    return 1;
-}
-
-void pen__pool_put(pen__transfer_pool *p, int kind, uint64_t key, size_t nB, size_t nfrac,
-                   const float *B, const float *frac) {
-    if (!p) return;
-    /* Without memory the trace simply stays the state's own: the pool only saves time. */
-    pen__transfer_blob *blob = pen__blob_create(NULL, nB, nfrac);
-    if (!blob) return;
-    memcpy(blob->B, B, nB * sizeof(float));
-    if (nfrac) memcpy(blob->frac, frac, nfrac * sizeof(float));
-    pen__pool_insert(p, kind, key, blob);
-    pen__blob_release(blob);
 }
 
 long pen__pool_traces(const pen__transfer_pool *p) {
