@@ -684,6 +684,7 @@ static void test_shared_by_reference(void) {
     CHECK(pen__pool_traces(st[0]->pool) == 2); /* one self transfer, one ground grid */
     CHECK(st[0]->grid.valid && st[0]->grid.blob && st[0]->grid.blob == st[1]->grid.blob);
     CHECK(st[0]->grid.B == st[1]->grid.B && st[0]->grid.blob->refs == 3); /* pool, 2 states */
+    CHECK(st[0]->grid.blob->bvh); /* the occluders both cameras' pixels were traced against */
     /* Evict: the pool drops its reference to the trace, the states keep theirs. */
     for (uint64_t k = 1; k <= 40; ++k) {
         pen__transfer_blob *dummy = pen__blob_create(ctx, 1, 1);

@@ -50,12 +50,21 @@ pen_status pen__transfer(pen_context *ctx, const pen__transfer_request *rq, floa
  * otherwise pay a device per request (about 0.5 ms, bench/NOTES.md "Many small objects"). */
 pen_status pen__transfer_on(pen_context *ctx, void *device, const pen__transfer_request *rq,
                             float *B, float *frac);
+/* A request's occluders built once (an Embree scene on a device of its own) for many requests
+ * with the same meshes; immutable once built, so threads may trace it at once. */
+typedef struct pen__transfer_bvh pen__transfer_bvh;
+pen_status pen__transfer_bvh_build(pen_context *ctx, const pen__transfer_request *rq,
+                                   pen__transfer_bvh **out);
+void pen__transfer_bvh_free(pen__transfer_bvh *bvh); /* NULL: nothing */
+/* pen__transfer on occluders built by pen__transfer_bvh_build from the same meshes. */
+pen_status pen__transfer_bvh_trace(pen_context *ctx, const pen__transfer_bvh *bvh,
+                                   const pen__transfer_request *rq, float *B, float *frac);
 /* The light fractions alone (rq->bands and B unused): with centres 0, the disk samples as
  * pen__transfer draws them; with centres 1, one ray towards each light's centre, frac 0 where it
  * is blocked and 1 otherwise (or below the tangent plane). frac must hold light_count floats per
- * point. */
-pen_status pen__transfer_lights(pen_context *ctx, const pen__transfer_request *rq, int centres,
-                                float *frac);
+ * point. bvh: rq's occluders built by pen__transfer_bvh_build, or NULL to build them here. */
+pen_status pen__transfer_lights(pen_context *ctx, const pen__transfer_bvh *bvh,
+                                const pen__transfer_request *rq, int centres, float *frac);
 /* An Embree device with the context's thread count, or NULL after setting ctx's error; released
  * by pen__transfer_device_free (NULL: nothing). */
 void *pen__transfer_device(pen_context *ctx);

@@ -184,8 +184,10 @@ static pen_status grid_trace(pen_context *ctx, const pen_scene *sc, const pen_re
             pts[3 * k + 2] = (float)grid_pos(gr, 1, sj);
             nrm[3 * k] = 0.0f, nrm[3 * k + 1] = 1.0f, nrm[3 * k + 2] = 0.0f;
         }
+    /* The occluders stay with the trace: every camera's pixels trace them again (pixel_trace). */
     const pen__transfer_request rq = request(sc, st, meshes, (int)P, pts, nrm);
-    s = pen__transfer(ctx, &rq, blob->B, blob->frac);
+    s = pen__transfer_bvh_build(ctx, &rq, &blob->bvh);
+    if (!s) s = pen__transfer_bvh_trace(ctx, blob->bvh, &rq, blob->B, blob->frac);
     free(pts), free(meshes);
     return s;
 }
@@ -288,7 +290,7 @@ static pen_status pixel_trace(pen_context *ctx, const pen_scene *sc, pen_render_
         gr->pvalid = 0;
         pen__transfer_request rq = request(sc, st, meshes, (int)m, pts, nrm);
         if (!(s = PEN__BUF_RESERVE(ctx, gr->pfrac, (size_t)K * np + 1, "ground pixel lights")) &&
-            !(s = pen__transfer_lights(ctx, &rq, 1, c))) {
+            !(s = pen__transfer_lights(ctx, gr->blob->bvh, &rq, 1, c))) {
             pixel_flags(st, m, pix, pts, c, flag);
             dilate(st, flag, flag + np);
             size_t f = 0; /* the flagged pixels, compacted in place */
@@ -300,7 +302,7 @@ static pen_status pixel_trace(pen_context *ctx, const pen_scene *sc, pen_render_
             for (size_t i = 0; i < (size_t)K * np; ++i)
                 gr->pfrac.data[i] = -1.0f;
             rq.point_count = (int)f, rq.normals = nrm; /* still +Y: nrm is past the m points */
-            if (f && !(s = pen__transfer_lights(ctx, &rq, 0, c)))
+            if (f && !(s = pen__transfer_lights(ctx, gr->blob->bvh, &rq, 0, c)))
                 for (size_t q = 0; q < f; ++q)
                     memcpy(gr->pfrac.data + (size_t)K * (size_t)pix[q], c + (size_t)K * q,
                            (size_t)K * sizeof(float));

@@ -27,6 +27,7 @@
  * - Lifetime. Counted references: the pool goes with the last state that holds it.
  */
 #include "core/internal.h"
+#include "geometry/transfer.h"
 #include "render/transfer_pool.h"
 
 #include <omp.h>
@@ -98,6 +99,7 @@ void pen__blob_retain(pen__transfer_blob *b) {
 void pen__blob_release(pen__transfer_blob *b) {
     if (!b || __atomic_sub_fetch(&b->refs, 1, __ATOMIC_ACQ_REL) > 0) return;
     pen__lattice_free(&b->lat);
+    pen__transfer_bvh_free(b->bvh);
     free(b->B);
     free(b);
 }

@@ -14,13 +14,15 @@ typedef struct pen__transfer_blob {
     size_t nB, nfrac;      /* floats in B and frac */
     float *B, *frac;       /* one allocation: nB then nfrac floats */
     pen__lattice lat;      /* the nodes of a self transfer (level 0: none, the ground's grid) */
+    struct pen__transfer_bvh *bvh; /* the grid's occluders, traced again per camera; or NULL */
 } pen__transfer_blob;
 
 /* A blob of nB + nfrac uninitialised floats and an empty lattice, with one reference (the
  * caller's); the caller fills it before anyone else sees it. NULL without memory. */
 pen__transfer_blob *pen__blob_create(pen_context *ctx, size_t nB, size_t nfrac);
 void pen__blob_retain(pen__transfer_blob *b);
-/* Drops a reference; frees the arrays and the lattice with the last one. NULL: no-op. */
+/* Drops a reference; frees the arrays, the lattice and the occluders with the last one. NULL:
+ * no-op. */
 void pen__blob_release(pen__transfer_blob *b);
 
 /* The entry of (kind, key), with a new reference for the caller (who releases it), or NULL.
