@@ -88,6 +88,8 @@ static void usage(FILE *f) {
             "  --checkpoint-every K  checkpoint every K iterations (default 50; 0: at the end)\n"
             "  --snapshot-every K  render snapshot every K iterations (default 50; 0: none)\n"
             "  --threads N         worker threads (default: all cores; per rank under mpirun)\n"
+            "  --memory-limit GB   refuse a task estimated to need more memory (default:\n"
+            "                      the machine's; result.json has the estimate and the peak)\n"
             "  --view-workers N    views rendered at once (default 0: as many as threads when\n"
             "                      there are as many views; 1: one after the other, each with\n"
             "                      every thread); the result does not depend on it\n"
@@ -170,6 +172,11 @@ int pen_cmd_optimize(int argc, char **argv) {
             if (!pen_cli_parse_int(CMD, a, i + 1 < argc ? argv[++i] : NULL, 0, 4096,
                                    &set.view_workers))
                 return 2;
+        } else if (!strcmp(a, "--memory-limit")) {
+            double gb = 0.0;
+            if (!pen_cli_parse_float(CMD, a, i + 1 < argc ? argv[++i] : NULL, 0.001, 1e6, &gb))
+                return 2;
+            set.memory_limit = gb * 1e9;
         } else if (!strcmp(a, "-q") || !strcmp(a, "--quiet")) {
             quiet = 1;
         } else if (!strcmp(a, "--no-cache")) {
@@ -225,6 +232,11 @@ int pen_cmd_optimize(int argc, char **argv) {
         rc = 130;
         goto out_task;
     }
+    /* A task that will hold gigabytes says so before it starts (pen_optim_run refuses one the
+     * machine or --memory-limit cannot hold). */
+    const double need = pen_optim_memory_estimate(ctx, &task, &set);
+    if (root && !quiet && need >= 1e9)
+        fprintf(stderr, "%s: %s: about %.1f GB of memory estimated\n", CMD, task_path, need / 1e9);
     progress p = {root && isatty(fileno(stderr)), -1, 0.0};
     set.outdir = outdir;
     set.progress = on_progress;

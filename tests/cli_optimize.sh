@@ -144,8 +144,8 @@ same_run() { # dir-a dir-b what
     for f in final.exr scene.json; do
         cmp -s "$1/$f" "$2/$f" || fail "$3: $f differs"
     done
-    grep -v -e '"seconds' -e '"resumed_from"' "$1/result.json" > "$T/ra"
-    grep -v -e '"seconds' -e '"resumed_from"' "$2/result.json" > "$T/rb"
+    grep -v -e '"seconds' -e '"resumed_from"' -e '"memory_' "$1/result.json" > "$T/ra"
+    grep -v -e '"seconds' -e '"resumed_from"' -e '"memory_' "$2/result.json" > "$T/rb"
     cmp -s "$T/ra" "$T/rb" || fail "$3: result.json differs: $(diff "$T/ra" "$T/rb" | head -4)"
 }
 "$BIN" optimize "$T/task.json" -o "$T/once" --iterations 40 --checkpoint-every 7 \
@@ -371,6 +371,20 @@ printf '{"scene": "truth.json", "views": "views.json", "target": "v0.exr", "opti
 grep -q 'both.json: views: a task has either "views" or a "target", not both' "$T/err" ||
     fail "views + target error: $(cat "$T/err")"
 [ -e "$T/both_out" ] && fail "output folder left after a views error"
+# Memory: result.json has the estimate made before the run and the peak it held, within a factor
+# of 2 of each other; a limit below the estimate refuses the task before it starts, in one line
+# naming the task and the bytes, with no output folder.
+est=$(json_number "$T/out/result.json" memory_estimate_bytes)
+peak=$(json_number "$T/out/result.json" memory_peak_bytes)
+awk -v e="$est" -v p="$peak" 'BEGIN { exit !(e > 0 && p > 0 && e < 2 * p && p < 2 * e) }' ||
+    fail "memory estimate $est against peak $peak"
+rm -rf "$T/memout"
+"$BIN" optimize "$T/task.json" -o "$T/memout" --memory-limit 0.01 2>"$T/err" >/dev/null &&
+    fail "a task over --memory-limit ran"
+grep -q 'task.json: needs about 0\.[0-9] GB of memory, more than the 0\.0 GB allowed (--memory-limit)' \
+    "$T/err" || fail "memory limit error: $(cat "$T/err")"
+[ "$(wc -l < "$T/err")" -eq 1 ] || fail "memory limit: not one line: $(cat "$T/err")"
+[ -e "$T/memout" ] && fail "output folder left after the memory limit"
 # Usage errors exit 2.
 "$BIN" optimize "$T/task.json" 2>/dev/null
 [ $? -eq 2 ] || fail "missing -o is not a usage error"

@@ -298,6 +298,9 @@ typedef struct pen_optim_settings {
      * and the views' gradients are summed in view order (docs/optimize.md, "Several views"). */
     int view_workers;
     const struct pen_optim_ranks *ranks; /* NULL: one process; else the views are split */
+    /* Bytes the run may hold (pen_optim_memory_estimate); a task estimated above it is refused
+     * before anything is allocated. 0: the machine's physical memory. */
+    double memory_limit;
 } pen_optim_settings;
 
 /* Several processes sharing one multi-view task (`mpirun`: cli/mpi.c implements it with MPI).
@@ -431,7 +434,17 @@ typedef struct pen_optim_result {
                              stages[0].loss_before (losses[0] when the descent is the only stage) */
     int stage_count;      /* 1 .. PEN_OPTIM_MAX_STAGES */
     pen_optim_stage stages[PEN_OPTIM_MAX_STAGES];
+    double memory_estimate; /* bytes, pen_optim_memory_estimate before the run */
+    double memory_peak;     /* the process's peak resident bytes when the run ended (0: unknown) */
 } pen_optim_result;
+
+/* About the bytes a run of the task will hold at its peak (the loaded task, the render states
+ * of its views or rank's views, their images, the shared traces, the process), from its sizes
+ * and ctx's thread count alone: pen_optim_run refuses a task estimated above settings->memory_limit
+ * (default the machine's memory) before it allocates. Call after the scene's spheres are
+ * prepared (pen_scene_prepare). Measured against the peak resident memory in bench/NOTES.md. */
+PEN_API double pen_optim_memory_estimate(pen_context *ctx, const pen_optim_task *task,
+                                         const pen_optim_settings *settings);
 
 /* Runs the task: fits sphere sets the scene asks for ({"fit": N}, cached as pen_spheres_fit_cached says; only
  * with shadows), applies the initial guesses, runs Adam until the stopping rule fires or the

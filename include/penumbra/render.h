@@ -193,6 +193,12 @@ typedef struct pen_render_state pen_render_state;
 
 PEN_API pen_status pen_render_state_create(pen_context *ctx, pen_render_state **out);
 PEN_API void pen_render_state_free(pen_render_state *state);
+/* About the bytes a render state holds once it has rendered sc with `threads` threads, forward
+ * and, when wrt (PEN_GRAD_*) is not 0, backward for those groups: its pixel, per-object and
+ * per-thread buffers, not the traces it shares nor sc itself. For sizing many states (the views
+ * of a task) before making them; from the sizes alone (bench/NOTES.md, "Memory before a task",
+ * has it against the resident memory). */
+PEN_API double pen_render_state_bytes(const pen_scene *sc, unsigned wrt, int threads);
 
 /* Lets `state` share the ray-traced transfers of `with` (and of every state `with` shares with):
  * the objects' self transfers and the ground's grid (docs/design.md sec. 1.15) are in world space,

@@ -15,6 +15,17 @@
 
 #include <stdint.h>
 
+/* ---- Memory (src/optim/memory.c) ------------------------------------------------------------- */
+
+/* The machine's physical memory and the process's peak resident memory so far, in bytes (0:
+ * unknown). */
+double pen__optim_machine_bytes(void);
+double pen__optim_peak_bytes(void);
+/* *estimate = pen_optim_memory_estimate; refuses a task above settings->memory_limit (or the
+ * machine's memory) with one line naming the task, the bytes and the way out. */
+pen_status pen__optim_check_memory(pen_context *ctx, const pen_optim_task *t,
+                                   const pen_optim_settings *settings, double *estimate);
+
 /* ---- Adam (src/optim/adam.c) ----------------------------------------------------------------- */
 
 #define PEN__OPTIM_MIN_RADIUS 1e-3f

@@ -41,7 +41,7 @@
 typedef pen__optim_run run;
 
 pen_optim_settings pen_optim_settings_default(void) {
-    pen_optim_settings s = {1, NULL, NULL, NULL, 0, 0, 0, 0, NULL};
+    pen_optim_settings s = {1, NULL, NULL, NULL, 0, 0, 0, 0, NULL, 0.0};
     return s;
 }
 
@@ -716,6 +716,8 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
         if (s) return s;
     }
     s = pen__optim_task_check_groups(ctx, task);
+    double estimate = 0.0; /* before the views' states exist: a task too large is refused */
+    if (!s) s = pen__optim_check_memory(ctx, task, &set, &estimate);
     if (s) return s;
     run r;
     memset(&r, 0, sizeof r);
@@ -800,6 +802,7 @@ pen_status pen_optim_run(pen_context *ctx, pen_optim_task *task, const pen_optim
     }
     model_restore(&task->scene, &model);
     pen__optim_run_free(&r);
+    out->memory_estimate = estimate, out->memory_peak = pen__optim_peak_bytes();
     if (s) pen_optim_result_free(out);
     return s;
 }

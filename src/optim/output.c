@@ -427,6 +427,9 @@ pen_status pen_optim_result_json(pen_context *ctx, const pen_optim_task *t,
              /* the descent's own time per step: none without a step */
              pen__json_add(root, "seconds_per_iteration",
                            it > 0 ? cJSON_CreateNumber(r->seconds / it) : cJSON_CreateNull()) &&
+             /* what the run was estimated to need before it started, and what it held */
+             pen__json_add(root, "memory_estimate_bytes", cJSON_CreateNumber(r->memory_estimate)) &&
+             pen__json_add(root, "memory_peak_bytes", cJSON_CreateNumber(r->memory_peak)) &&
              pen__json_add(root, "initial_loss", cJSON_CreateNumber(initial_loss(r))) &&
              pen__json_add(root, "final_loss", cJSON_CreateNumber(r->final_loss)) &&
              pen__json_add(root, "final_image_loss", cJSON_CreateNumber(r->final_image_loss)) &&

@@ -76,6 +76,44 @@ size_t pen__render_pixel_bytes(int bands, int store) {
     return b;
 }
 
+double pen_render_state_bytes(const pen_scene *sc, unsigned wrt, int threads) {
+    if (!sc || sc->sh_bands < 1 || sc->sh_bands > PEN_SH_MAX_BANDS) return 0.0;
+    const double px = (double)sc->camera.width * (double)sc->camera.height;
+    const double K = (double)sc->lighting.light_count, nc = (double)sc->sh_bands * sc->sh_bands;
+    int textured = 0;
+    double spheres = 0.0, b = 0.0;
+    for (int o = 0; o < sc->object_count; ++o) {
+        const pen_object *ob = &sc->objects[o];
+        textured |= ob->texture.data && ob->texture_filter == PEN_TEXTURE_FILTER_FOOTPRINT;
+        b += 24.0 * ob->mesh.vertex_count + 12.0 * ob->mesh.triangle_count; /* posed, adjacency */
+        spheres += ob->spheres.count;
+    }
+    const unsigned geometry = PEN_GRAD_SPHERES | PEN_GRAD_POSE | PEN_GRAD_VERTICES;
+    /* Per pixel, the buffers a frame writes (pages never written are not resident, so a buffer
+     * counts only when the frame uses it): the forward's seven, the G-buffer, the background
+     * cache, the footprints, the lights' visibilities and the ground's own disk fractions; with
+     * a backward the fast kernel's store (bands^2) and the colour and albedo gradients, and the
+     * geometry's five, its barycentric scratch and footprint gradients when it is asked for. */
+    double per = 7.0 * 12.0 + 20.0 + 12.0 * (sc->background_envmap != 0) + 16.0 * textured +
+                 8.0 * K;
+    if (wrt) per += 4.0 * nc + 24.0;
+    if (wrt & geometry) per += 5.0 * 12.0 + 36.0 + 16.0 * textured;
+    b += px * per;
+    if (wrt & geometry)
+        for (int o = 0; o < sc->object_count; ++o)
+            b += 24.0 * sc->objects[o].mesh.vertex_count; /* vertex and normal gradients */
+    /* about 20 buffers, each resident in whole 4 KiB pages: half a page each on average (a
+     * tenth of a 16 x 16 view's state) */
+    b += 20.0 * 2048.0;
+    /* the state and its per-object caches; posed spheres, weights and their keys; each
+     * thread's tile workspace (pixel lists, the fast kernel's lane arrays of F and V) */
+    b += (double)sizeof(pen_render_state) + (double)sizeof(pen__object_buf) * sc->object_count;
+    b += 40.0 * spheres + (threads > 0 ? threads : 1) * PEN_TILE_PX * (88.0 + 8.0 * nc);
+    /* the backward's rows per tile: lighting, spheres, lights, in double */
+    if (wrt) b += 8.0 * (3.0 * nc + 4.0 * spheres + 8.0 * K + 16.0) * (px / PEN_TILE_PX + 1.0);
+    return b;
+}
+
 /* ---- Create, free, timings ------------------------------------------------------------------- */
 
 void pen_render_state_timings(const pen_render_state *st, pen_render_timings *out) {
