@@ -148,6 +148,19 @@ static const float *lights_V(const pen_render_state *st, size_t i) {
     return st->lights_V_valid ? st->lights_V.data + (size_t)st->lights.count * i : NULL;
 }
 
+/* Where the fast forward kept the F of the run's transfer pixels (after the kernel's batches of
+ * the run's other pixels, pen__tile_run_store), or NULL (the scalar kernel's frame, no store). */
+static const float *self_F(const pen_render_state *st, const float *store, const int *pix,
+                           int cnt) {
+    if (!st->fast || !store || !st->self_any) return NULL;
+    int nk = 0; /* the kernel's pixels of the run, as the forward counted them */
+    for (int k = 0; k < cnt; ++k) {
+        const size_t i = (size_t)pix[k];
+        nk += !pen__ground_shadow_pixel(st, i) && pen__self_object(st, i) < 0;
+    }
+    return store + pen__shade_fast_store_floats(&st->params, nk);
+}
+
 /* Backward of tile t into the tile's double accumulators and the per-pixel gradients d_x,
  * d_nraw, d_uv, d_rho (zeroed here for every pixel of the tile), in the forward's groups. */
 static void shade_tile_bwd(const void *job_, int t, pen__tile_ws *ws, pen__shade_fast_ticks *tk) {
@@ -192,7 +205,9 @@ static void shade_tile_bwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
         double *d_lights = bw->lights ? row + bw->rl.lights : NULL;
         /* Pixels shaded with their object's own transfer (self.c), as the forward split them;
          * the rest, nk of them, compacted into ws (ws->idx) for the kernel. */
-        int nk = 0;
+        const float *Ftr = self_F(st, store, pix, cnt);
+        const size_t nc = (size_t)sc->sh_bands * (size_t)sc->sh_bands;
+        int nk = 0, ntr = 0;
         for (int k = 0; k < cnt; ++k) {
             const size_t i = (size_t)pix[k];
             const int grid = pen__ground_shadow_pixel(st, i);
@@ -200,6 +215,8 @@ static void shade_tile_bwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
                 ws->idx[nk++] = (int)i;
                 continue;
             }
+            /* the fast forward's F of the run's ntr-th transfer pixel (pen__tile_run_store) */
+            const int itr = grid ? -1 : ntr++;
             const float *dc = st->d_color.data + 3 * i;
             if (dc[0] == 0.0f && dc[1] == 0.0f && dc[2] == 0.0f) continue;
             if (grid) { /* the ground's grid (ground_shadow.c): the ground's group, d_sh */
@@ -217,7 +234,7 @@ static void shade_tile_bwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
             /* the scene's own lighting: the traced ground replaces the object's `seen` */
             pen__self_shade_bwd(st, (const float(*)[3])sc->lighting.sh, ncull, ws->cull, i, dc,
                                 !st->fast && job->store ? job->store + nfv * i : NULL,
-                                lights_V(st, i),
+                                Ftr ? Ftr + nc * (size_t)itr : NULL, lights_V(st, i),
                                 bw->light ? (double(*)[3])(row + bw->rl.sh) : NULL, d_sph,
                                 geom ? st->d_x.data + 3 * i : NULL, geom ? d_n : NULL,
                                 need_rho ? st->d_rho.data + 3 * i : NULL, d_lights);
@@ -259,7 +276,7 @@ static void shade_tile_bwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
                             g == 0 ? nk : 0, ws->x, ws->n, ws->rho, ws->out, store, ws->kernel,
                             d_sh, d_sph, bw->geom ? ws->dx : NULL, bw->geom ? ws->dn : NULL,
                             ws->drho, tk);
-        if (store) store += pen__shade_fast_store_floats(&st->params, cnt); /* the run's layout */
+        if (store) store += pen__tile_run_store(st, cnt); /* the run's layout */
         for (int k0 = 0; st->lights.count && k0 < nk; k0 += PEN_LIGHTS_BLOCK) {
             const int nb = nk - k0 < PEN_LIGHTS_BLOCK ? nk - k0 : PEN_LIGHTS_BLOCK;
             pen__lights_candidates(&st->lights, ncull, st->spheres.data, ws->cull, nb,

@@ -20,7 +20,9 @@
  *   scalar function whichever kernel ran (no SIMD version yet: bench/NOTES.md).
  * - Objects shaded with their own precomputed transfer (self.c, docs/design.md sec. 1.15): their
  *   pixels leave each run before the kernel and are shaded, SH and lights, by self.c's scalar
- *   path whichever kernel the frame uses; the runs and the fast store's layout stay as grouped.
+ *   path; under the fast kernel their other spheres' sum F comes from it (one call per object of
+ *   the run, after the run's other pixels) and is kept after the run's batches in the store
+ *   (pen__tile_run_store). The runs stay as grouped.
  *   Ground pixels under such objects leave the same way to ground_shadow.c's grid.
  * - What the backward needs stays in the state (state.c): the per-pixel attributes, the groups,
  *   and the kernel's store (F, or F and V, per pixel), kept only when the caller passed a state
@@ -67,6 +69,38 @@ static pen_status check_spheres(pen_context *ctx, const pen_scene *sc) {
                           o, name);
     }
     return PEN_OK;
+}
+
+/* Corner values of pixel i's triangle (indices) interpolated with its barycentrics: the sum of
+ * pen_interpolate_fwd, in the same double arithmetic (the same bits). */
+static void interpolate_pixel(const pen_gbuffer *gb, size_t i, const uint32_t *indices,
+                              const float *values, int dim, float *out) {
+    const uint32_t *idx = indices + 3 * (size_t)gb->triangle[i];
+    const double u = (double)gb->bary[2 * i], v = (double)gb->bary[2 * i + 1], w = 1.0 - u - v;
+    const float *a0 = values + (size_t)idx[0] * (size_t)dim;
+    const float *a1 = values + (size_t)idx[1] * (size_t)dim;
+    const float *a2 = values + (size_t)idx[2] * (size_t)dim;
+    for (int c = 0; c < dim; ++c)
+        out[c] = (float)(w * (double)a0[c] + u * (double)a1[c] + v * (double)a2[c]);
+}
+
+/* The objects' pixels' point, raw normal and UV in one pass over the image: a pass per object
+ * (pen_interpolate_fwd) costs objects x pixels, 2 x 4096 x 512^2 visits with many small objects
+ * (bench/NOTES.md "Many small objects"). */
+static void interpolate_attributes(const pen_scene *sc, pen_render_state *st) {
+    const size_t np = (size_t)st->width * (size_t)st->height;
+    for (size_t i = 0; i < np; ++i) {
+        const int o = st->gb.surface[i];
+        if (o < 0) continue;
+        const pen_object *ob = &sc->objects[o];
+        interpolate_pixel(&st->gb, i, ob->mesh.indices, st->obj[o].world.data, 3,
+                          st->x.data + 3 * i);
+        interpolate_pixel(&st->gb, i, ob->mesh.indices, st->obj[o].vnormal.data, 3,
+                          st->nraw.data + 3 * i);
+        if (ob->texture.data)
+            interpolate_pixel(&st->gb, i, ob->mesh.uv_indices, ob->mesh.uvs, 2,
+                              st->uv.data + 2 * i);
+    }
 }
 
 /* Poses the geometry, rasterizes, and interpolates the per-pixel attributes into st. */
@@ -125,13 +159,10 @@ static pen_status prepare(pen_context *ctx, const pen_scene *sc, const pen_rende
                                 &st->gb)))
         return s;
     pen_gbuffer_points(&st->view, &st->gb, st->x.data);
+    interpolate_attributes(sc, st);
     for (int o = 0; o < sc->object_count; ++o) {
         const pen_object *ob = &sc->objects[o];
-        pen_interpolate_fwd(&st->gb, o, ob->mesh.indices, st->obj[o].world.data, 3, st->x.data);
-        pen_interpolate_fwd(&st->gb, o, ob->mesh.indices, st->obj[o].vnormal.data, 3,
-                            st->nraw.data);
         if (ob->texture.data) {
-            pen_interpolate_fwd(&st->gb, o, ob->mesh.uv_indices, ob->mesh.uvs, 2, st->uv.data);
             if ((s = PEN__BUF_RESERVE(ctx, st->uvj, 4 * np, "texture footprints"))) return s;
             if (pen__render_footprint(ob)) pen__uv_footprint_fwd(st, ob, o, pen__threads(ctx));
         }
@@ -242,13 +273,18 @@ static void shade_tile_fwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
         int cnt;
         const int g = pen__tile_run(st, t, r, &pix, &cnt);
         const float(*sh)[3] = pen__tile_group_lighting(sc, st, g);
-        /* Pixels shaded with their object's own transfer (self.c) leave the run; the rest, nk of
-         * them, go compacted into ws (their indices in ws->idx) to the kernel. */
-        int nk = 0;
+        /* Pixels shaded with their object's own transfer (self.c) leave the run (under the fast
+         * kernel collected in tr, shaded after the run's other pixels); the rest, nk of them, go
+         * compacted into ws (their indices in ws->idx) to the kernel. */
+        int nk = 0, ntr = 0, tr[PEN_TILE_PX];
         for (int k = 0; k < cnt; ++k) {
             const size_t i = (size_t)pix[k];
+            if (pen__self_object(st, i) >= 0 && st->fast) {
+                tr[ntr++] = (int)i;
+                continue;
+            }
             if (pen__self_object(st, i) >= 0) {
-                float *fv = !st->fast && job->store ? job->store + nfv * i : NULL;
+                float *fv = job->store ? job->store + nfv * i : NULL;
                 float *V = st->lights_V_valid ? st->lights_V.data + (size_t)st->lights.count * i
                                               : NULL;
                 pen__self_shade_fwd(st, (const float(*)[3])sc->lighting.sh, ncull, ws->cull, i, fv,
@@ -278,10 +314,17 @@ static void shade_tile_fwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
         pen__shade_fast_fwd(&st->params, sh, st->sphere_count, st->spheres.data, st->kappa.data,
                             nk, g == 0 ? nk : 0, ws->x, ws->n, ws->rho, ws->out, store,
                             ws->kernel, tk);
-        if (store) store += pen__shade_fast_store_floats(&st->params, cnt); /* the run's layout */
         for (int k = 0; k < nk; ++k)
             memcpy(st->color.data + 3 * (size_t)ws->idx[k], ws->out + 3 * k, 3 * sizeof(float));
         if (st->lights.count) shade_lights_fwd(st, ws, ncull, g, ws->idx, nk);
+        /* The transfer pixels (ws is free again), their F kept after the kernel's batches. */
+        if (ntr)
+            pen__self_shade_fast_fwd(st, (const float(*)[3])sc->lighting.sh, ncull, ws->cull, tr,
+                                     ntr, ws,
+                                     store ? store + pen__shade_fast_store_floats(&st->params, nk)
+                                           : NULL,
+                                     tk);
+        if (store) store += pen__tile_run_store(st, cnt); /* the run's layout */
     }
 }
 

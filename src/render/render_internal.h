@@ -95,6 +95,30 @@ void pen__shade_self_bwd_d(const pen__shade_params *p, const double (*sh)[3], in
                            const double n[3], const double *B, const double rho[3],
                            const double d_rgb[3], const double *fv, double (*d_sh)[3],
                            double *d_spheres, double d_x[3], double d_n[3], double d_rho[3]);
+/* The same with F, the other spheres' log-visibility, summed by the caller (the fast kernel's
+ * lanes, pen__shade_fast_fwd with the object's kappa; bands^2 values): V = exp*(F) and the rest
+ * are done here, in the backward from F again (V recomputed). The spheres are still passed for
+ * the backward's gradients by x, n and the spheres (not wanted under the transfer model). */
+void pen__shade_self_given_fwd(const pen__shade_params *p, const float (*sh)[3],
+                               int sphere_count, const float *spheres, const float *kappa,
+                               const float x[3], const float n[3], const float *B,
+                               const float *F, const float rho[3], float rgb[3], float *fv);
+void pen__shade_self_given_fwd_d(const pen__shade_params *p, const double (*sh)[3],
+                                 int sphere_count, const double *spheres, const double *kappa,
+                                 const double x[3], const double n[3], const double *B,
+                                 const double *F, const double rho[3], double rgb[3], double *fv);
+void pen__shade_self_given_bwd(const pen__shade_params *p, const float (*sh)[3],
+                               int sphere_count, const float *spheres, const float *kappa,
+                               const float x[3], const float n[3], const float *B,
+                               const float *F, const float rho[3], const float d_rgb[3],
+                               double (*d_sh)[3], double *d_spheres, float d_x[3], float d_n[3],
+                               float d_rho[3]);
+void pen__shade_self_given_bwd_d(const pen__shade_params *p, const double (*sh)[3],
+                                 int sphere_count, const double *spheres, const double *kappa,
+                                 const double x[3], const double n[3], const double *B,
+                                 const double *F, const double rho[3], const double d_rgb[3],
+                                 double (*d_sh)[3], double *d_spheres, double d_x[3],
+                                 double d_n[3], double d_rho[3]);
 
 /* ---- Fast kernel (shade_fast.c, shade_fast_dispatch.c) -----------------------------------------
  * The same shading as pen__shade_fwd / pen__shade_bwd, for many pixels at once: pixels go in
@@ -129,6 +153,9 @@ int pen__shade_fast_supported(const pen__shade_params *p);
 /* Floats per pixel of the forward's store (F, for the backward), in whole batches: a call with
  * `count` pixels needs pen__shade_fast_store_floats(p, count) floats. */
 size_t pen__shade_fast_store_floats(const pen__shade_params *p, int count);
+/* Pixel j's F (bands^2 floats) from the store of a forward call (batches of lanes, F_k of a
+ * batch's lanes side by side). */
+void pen__shade_fast_store_pixel(const pen__shade_params *p, const float *store, int j, float *F);
 /* Bytes of per-thread scratch for calls of up to max_count pixels. */
 size_t pen__shade_fast_scratch_bytes(const pen__shade_params *p, int sphere_count, int max_count);
 /* count pixels, AoS: x, n, rho and rgb 3 floats per pixel; the first `ground` of them lie on the
@@ -420,11 +447,21 @@ static inline int pen__self_object(const pen_render_state *st, size_t i);
  * NULL. V: the lights' visibilities to keep, or NULL. */
 void pen__self_shade_fwd(pen_render_state *st, const float (*sh)[3], int ncull, const int *cull,
                          size_t i, float *fv, float *V);
-/* Its backward, the arguments as pen__shade_bwd and pen__lights_bwd. */
+struct pen__tile_ws; /* a thread's workspace (tiles.c, below) */
+/* The same for the fast kernel's frames: a run's transfer pixels pix[0 .. count - 1] (in the
+ * run's order), their other spheres' sum F by pen__shade_fast_fwd with each object's kappa_self
+ * (compacted per object into ws), the rest per pixel as above. Within float rounding of
+ * pen__self_shade_fwd (the sum's order differs), not bit for bit. F: where to keep each pixel's F
+ * for the backward (bands^2 floats each, in pix order), or NULL. */
+void pen__self_shade_fast_fwd(pen_render_state *st, const float (*sh)[3], int ncull,
+                              const int *cull, const int *pix, int count, struct pen__tile_ws *ws,
+                              float *F, pen__shade_fast_ticks *tk);
+/* Its backward (either forward), the arguments as pen__shade_bwd and pen__lights_bwd. F: the
+ * pixel's F kept by pen__self_shade_fast_fwd (then fv is NULL), or NULL. */
 void pen__self_shade_bwd(const pen_render_state *st, const float (*sh)[3], int ncull,
                          const int *cull, size_t i, const float *dc, const float *fv,
-                         const float *V, double (*d_sh)[3], double *d_sph, float *d_x, float *d_n,
-                         float *d_rho, double *d_lights);
+                         const float *F, const float *V, double (*d_sh)[3], double *d_sph,
+                         float *d_x, float *d_n, float *d_rho, double *d_lights);
 
 /* ---- ground_shadow.c ---- */
 
@@ -460,6 +497,7 @@ typedef struct pen__tile_ws {
     float *x, *n, *rho, *out, *dx, *dn, *drho; /* 3 floats per compacted pixel */
     int *cull; /* the spheres that may shadow a disk light in the tile (pen__tile_lights_cull) */
     int *cand, *ncand; /* per receiver of a block, its own of them (pen__lights_candidates) */
+    float *fstore;     /* a fast call's store for up to PEN_TILE_PX pixels (self.c's F) */
     void *kernel;
 } pen__tile_ws;
 
@@ -520,6 +558,9 @@ int pen__tile_run(const pen_render_state *st, int t, int r, const int **pix, int
 int pen__tile_group_object(const pen_render_state *st, int g);
 /* The lighting of group g. */
 const float (*pen__tile_group_lighting(const pen_scene *sc, const pen_render_state *st, int g))[3];
+/* Floats of the fast store for a run of count pixels: the kernel's batches of the pixels it
+ * shades, then, in a frame with transfer pixels, their F (self.c) one pixel after another. */
+size_t pen__tile_run_store(const pen_render_state *st, int count);
 /* Where each tile's part of the fast kernel's store begins (ntiles + 1 offsets in floats). */
 pen_status pen__tile_store_layout(pen_context *ctx, pen_render_state *st, int ntiles);
 

@@ -134,6 +134,14 @@ void pen__shade_fast_bwd(const pen__shade_params *p, const float (*sh)[3], int s
                d_sh, d_spheres, d_x, d_n, d_rho, ticks);
 }
 
+void pen__shade_fast_store_pixel(const pen__shade_params *p, const float *store, int j,
+                                 float *F) {
+    const size_t L = (size_t)ops()->lanes, nc = (size_t)p->bands * (size_t)p->bands;
+    const float *b = store + ((size_t)j / L) * L * nc + (size_t)j % L; /* batch j / L, lane j % L */
+    for (size_t k = 0; k < nc; ++k)
+        F[k] = b[k * L];
+}
+
 int pen_render_fast_lanes(void) {
     return ops()->lanes;
 }

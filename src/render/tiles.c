@@ -31,7 +31,9 @@ double pen__render_ms_since(double t0) {
 static size_t tile_ws_bytes(const pen__shade_params *p, int spheres) {
     const size_t b = sizeof(int) * PEN_TILE_PX + 7 * 3 * sizeof(float) * PEN_TILE_PX +
                      sizeof(int) * (size_t)spheres * (1 + PEN_LIGHTS_BLOCK) +
-                     sizeof(int) * PEN_LIGHTS_BLOCK + pen__shade_fast_scratch_bytes(p, spheres, PEN_TILE_PX);
+                     sizeof(int) * PEN_LIGHTS_BLOCK +
+                     sizeof(float) * pen__shade_fast_store_floats(p, PEN_TILE_PX) +
+                     pen__shade_fast_scratch_bytes(p, spheres, PEN_TILE_PX);
     return (b + 127) & ~(size_t)127; /* threads' blocks on separate cache lines */
 }
 
@@ -43,6 +45,7 @@ pen_status pen__tile_ws_reserve(pen_context *ctx, pen_render_state *st, int thre
 
 /* The calling thread's workspace. */
 static pen__tile_ws tile_ws_at(pen_render_state *st, size_t bytes, int spheres) {
+    const size_t fstore = pen__shade_fast_store_floats(&st->params, PEN_TILE_PX);
     const int tid = omp_get_thread_num();
     unsigned char *b = st->ws.data + bytes * (size_t)tid;
     pen__tile_ws w;
@@ -53,7 +56,8 @@ static pen__tile_ws tile_ws_at(pen_render_state *st, size_t bytes, int spheres) 
     w.cull = (int *)(f + 21 * PEN_TILE_PX);
     w.cand = w.cull + spheres;
     w.ncand = w.cand + (size_t)spheres * PEN_LIGHTS_BLOCK;
-    w.kernel = w.ncand + PEN_LIGHTS_BLOCK; /* the kernel's scratch is float data: 4 bytes */
+    w.fstore = (float *)(w.ncand + PEN_LIGHTS_BLOCK);
+    w.kernel = w.fstore + fstore; /* the kernel's scratch is float data: 4 bytes */
     return w;
 }
 
@@ -167,8 +171,15 @@ void pen__tile_group(const void *job_, int t, pen__tile_ws *ws, pen__shade_fast_
         for (b = a; b < n && grp[b] == grp[a]; ++b) {
         }
         tg->end[tg->runs++] = b;
-        tg->store += pen__shade_fast_store_floats(&st->params, b - a);
+        tg->store += pen__tile_run_store(st, b - a);
     }
+}
+
+size_t pen__tile_run_store(const pen_render_state *st, int count) {
+    /* The kernel's batches of the run's other pixels, then F of its transfer pixels one after
+     * another: store_floats(nk) + (count - nk) bands^2 < store_floats(count) + one batch. */
+    return pen__shade_fast_store_floats(&st->params, count) +
+           (st->self_any ? pen__shade_fast_store_floats(&st->params, 1) : 0);
 }
 
 int pen__tile_run(const pen_render_state *st, int t, int r, const int **pix, int *count) {
