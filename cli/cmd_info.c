@@ -1,9 +1,10 @@
 /* penumbra info: what a mesh or a scene holds, before one renders it. For a mesh (OBJ, PLY): its
  * counts, bounds and size, the units its size suggests, whether it is closed (the sphere fit
- * needs it), its materials and the files it names, found or not (pen_mesh_files_load). For a
- * scene JSON: the camera, each object with its bounds after its pose and where it stands against
- * the ground, the ground, the lighting with the disk lights found in the map, and the warnings
- * `render` prints (pen_scene_check). Text for people, --json for programs.
+ * needs it) and how many of its shells face inwards (they lose the self transfer), its materials
+ * and the files it names, found or not (pen_mesh_files_load). For a scene JSON: the camera, each
+ * object with its bounds after its pose and where it stands against the ground, the ground, the
+ * lighting with the disk lights found in the map, and the warnings `render` prints
+ * (pen_scene_check). Text for people, --json for programs.
  *
  * Also the two printers `render` and `optimize` share: the lights line by line, the warnings on
  * stderr (commands.h). */
@@ -25,8 +26,9 @@ static void usage(FILE *f) {
             "What a mesh or a scene holds, before rendering it.\n"
             "A mesh: vertex and triangle counts, bounds (min, max, size, centre), the units its\n"
             "size suggests, whether it is closed (every edge in two triangles: the sphere fit\n"
-            "needs it), its materials and the files it names (material libraries, textures),\n"
-            "found or missing.\n"
+            "needs it) and how many of its shells face inwards (wound clockwise seen from\n"
+            "outside: they render without their own shadows), its materials and the files it\n"
+            "names (material libraries, textures), found or missing.\n"
             "A scene: the camera, each object's bounds after its pose and its height over the\n"
             "ground, the ground, the lighting with the disk lights found in the map (direction,\n"
             "elevation, angular radius, share of the light), and the warnings `render` prints.\n\n"
@@ -148,6 +150,77 @@ static const char *units_hint(double largest) {
     return NULL;
 }
 
+/* The closed shells of a closed mesh and how many face inwards: triangles joined through shared
+ * corners (vertices welded by equal position, as pen_mesh_edges_count does), each shell's signed
+ * volume summed from its triangles; a negative one is wound clockwise seen from outside. The
+ * renderer shades a triangle seen from its back with the spheres, not with the mesh's own ray
+ * traced shadows, so an inside-out shell loses them (docs/results/accuracy.md, "A thin-limbed
+ * figure under a low sun"). Returns 0 when out of memory. */
+typedef struct weld_key {
+    float p[3];
+    int v;
+} weld_key;
+
+static int weld_cmp(const void *a, const void *b) {
+    const weld_key *x = a, *y = b;
+    for (int k = 0; k < 3; ++k)
+        if (x->p[k] != y->p[k]) return x->p[k] < y->p[k] ? -1 : 1;
+    return (x->v > y->v) - (x->v < y->v);
+}
+
+static int shell_root(int *parent, int v) {
+    while (parent[v] != v)
+        v = parent[v] = parent[parent[v]];
+    return v;
+}
+
+static int count_shells(const pen_mesh *m, const double centre[3], long *shells, long *inward) {
+    const int nv = m->vertex_count;
+    *shells = *inward = 0;
+    weld_key *key = malloc(sizeof *key * (size_t)(nv > 0 ? nv : 1));
+    int *weld = malloc(sizeof *weld * (size_t)(nv > 0 ? nv : 1));
+    int *parent = malloc(sizeof *parent * (size_t)(nv > 0 ? nv : 1));
+    double *volume = calloc((size_t)(nv > 0 ? nv : 1), sizeof *volume);
+    const int ok = key && weld && parent && volume;
+    if (ok) {
+        for (int v = 0; v < nv; ++v) {
+            memcpy(key[v].p, m->positions + 3 * (size_t)v, sizeof key[v].p);
+            key[v].v = v;
+            parent[v] = v;
+        }
+        qsort(key, (size_t)nv, sizeof *key, weld_cmp);
+        for (int i = 0; i < nv; ++i) /* the first of equal positions stands for them all */
+            weld[key[i].v] = i > 0 && !memcmp(key[i].p, key[i - 1].p, sizeof key[i].p)
+                                 ? weld[key[i - 1].v]
+                                 : key[i].v;
+        for (int t = 0; t < m->triangle_count; ++t) {
+            const uint32_t *c = m->indices + 3 * (size_t)t;
+            const int a = shell_root(parent, weld[c[0]]);
+            for (int k = 1; k < 3; ++k) {
+                const int b = shell_root(parent, weld[c[k]]);
+                if (b != a) parent[b] = a;
+            }
+        }
+        for (int t = 0; t < m->triangle_count; ++t) {
+            const uint32_t *c = m->indices + 3 * (size_t)t;
+            double q[3][3];
+            for (int k = 0; k < 3; ++k)
+                for (int a = 0; a < 3; ++a)
+                    q[k][a] = (double)m->positions[3 * (size_t)c[k] + a] - centre[a];
+            volume[shell_root(parent, weld[c[0]])] +=
+                (q[0][0] * (q[1][1] * q[2][2] - q[1][2] * q[2][1]) +
+                 q[0][1] * (q[1][2] * q[2][0] - q[1][0] * q[2][2]) +
+                 q[0][2] * (q[1][0] * q[2][1] - q[1][1] * q[2][0])) /
+                6.0;
+        }
+        for (int v = 0; v < nv; ++v) /* a root that holds triangles is a shell */
+            if (shell_root(parent, v) == v && volume[v] != 0.0)
+                *shells += 1, *inward += volume[v] < 0.0;
+    }
+    free(key), free(weld), free(parent), free(volume);
+    return ok;
+}
+
 static const char *plan_name(pen_mesh_albedo_kind k) {
     return k == PEN_MESH_ALBEDO_CONSTANT  ? "constant"
            : k == PEN_MESH_ALBEDO_TEXTURE ? "texture"
@@ -184,6 +257,14 @@ static int mesh_info(pen_context *ctx, const char *path, int json) {
     }
     const char *hint = units_hint(largest);
     const int closed = edges.open_edges == 0 && edges.nonmanifold_edges == 0;
+    const double centre[3] = {0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), 0.5 * (lo[2] + hi[2])};
+    long shells = 0, inward = 0; /* only for a closed mesh: an open one has no volume */
+    if (closed && !count_shells(&m, centre, &shells, &inward)) {
+        free(used);
+        pen_mesh_free(&m);
+        pen_mesh_files_free(&files);
+        return pen_cli_fail(CMD, "out of memory");
+    }
     int material = -1;
     const pen_mesh_albedo_kind plan = pen_mesh_albedo_plan(&m, &material);
     const char *format =
@@ -197,9 +278,14 @@ static int mesh_info(pen_context *ctx, const char *path, int json) {
         json_bounds(lo, hi);
         fputs(", \"units_hint\": ", stdout), json_string(hint);
         printf(", \"closed\": %s, \"edges\": %ld, \"open_edges\": %ld, \"nonmanifold_edges\": "
-               "%ld, \"degenerate_triangles\": %ld, \"albedo\": \"%s\", \"materials\": [",
+               "%ld, \"degenerate_triangles\": %ld, ",
                closed ? "true" : "false", edges.edges, edges.open_edges, edges.nonmanifold_edges,
-               edges.degenerate_triangles, plan_name(plan));
+               edges.degenerate_triangles);
+        if (closed)
+            printf("\"shells\": %ld, \"inward_shells\": %ld, ", shells, inward);
+        else
+            fputs("\"shells\": null, \"inward_shells\": null, ", stdout);
+        printf("\"albedo\": \"%s\", \"materials\": [", plan_name(plan));
         for (int k = 0; k < m.material_count; ++k) {
             const pen_mesh_material *mt = &m.materials[k];
             fputs(k ? ", {\"name\": " : "{\"name\": ", stdout), json_string(mt->name);
@@ -237,9 +323,16 @@ static int mesh_info(pen_context *ctx, const char *path, int json) {
             printf("likely metres, the scene's unit (no \"units\" needed)\n");
         else
             printf("likely %s: give the object \"units\": \"%s\"\n", hint, hint);
-        if (closed)
+        if (closed && inward)
             printf("  closed: yes, every edge in two triangles ({\"fit\": N} spheres can be "
-                   "fitted)\n");
+                   "fitted); but %ld of its %ld shells face inwards (wound clockwise seen from "
+                   "outside): the renderer shades triangles seen from their back with the "
+                   "spheres, without the mesh's own shadows: reverse their triangles\n",
+                   inward, shells);
+        else if (closed)
+            printf("  closed: yes, every edge in two triangles ({\"fit\": N} spheres can be "
+                   "fitted), %ld shell%s facing outwards\n",
+                   shells, shells == 1 ? "" : "s");
         else
             printf("  closed: no: %ld open edges (borders of holes), %ld edges in three or more "
                    "triangles. The sphere fit tells inside from outside by rays: small holes are "

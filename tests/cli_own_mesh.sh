@@ -7,7 +7,7 @@
 # chair must stand on the ground (penumbra info of the scene), render must print the sun it found
 # and no warning, and Python's image must be the command's. Then the mistakes a first scene makes
 # must be told: a centimetre mesh without "units", the camera inside it, a missing .mtl, a missing
-# texture, an open mesh.
+# texture, an open mesh, a mesh wound inside out.
 # Exit 77 (skipped) only when /usr/bin/python3 cannot import torch, after everything else passed.
 # Usage: sh cli_own_mesh.sh PENUMBRA_BIN SRC_DIR
 set -u
@@ -103,6 +103,14 @@ grep -q "^penumbra render: .*chair.json: objects\[0\].mesh: .*chair.mtl:3: map_K
 mv wood.away wood.jpg
 head -n -1 chair.obj > open.obj # the back's last quad left out
 "$BIN" info open.obj | grep -q 'closed: no: 4 open edges' || fail "info: an open mesh"
+"$BIN" info chair.obj | grep -q 'closed: yes.* facing outwards' || fail "info: shells outwards"
+# Every face's corners in reverse order: the same closed mesh wound inside out.
+awk '$1 == "f" { s = "f"; for (i = NF; i > 1; i--) s = s " " $i; print s; next } { print }' \
+    chair.obj > inside_out.obj
+"$BIN" info inside_out.obj | grep -q 'but \([0-9]*\) of its \1 shells face inwards' ||
+    fail "info: an inside-out mesh"
+"$BIN" info inside_out.obj --json | grep -q '"inward_shells": [1-9]' ||
+    fail "info --json: inward shells"
 "$BIN" info nothing.obj 2> "$T/none.err" && fail "info of a missing file succeeded"
 grep -q '^penumbra info: nothing.obj: ' "$T/none.err" || fail "info: missing file error"
 
