@@ -293,7 +293,7 @@ static pen_status trace(pen_context *ctx, void *device, const pen__transfer_bvh 
         const int threads = pen__threads(ctx);
         RTCScene scene = bvh->scene;
         const double offset = bvh->offset;
-#pragma omp parallel for schedule(dynamic, 64) num_threads(threads)
+#pragma omp parallel for schedule(dynamic, 64) num_threads(threads) if (P > 64)
         for (int v = 0; v < P; ++v)
             point_transfer(scene, rq, offset, v, mode,
                            mode == TRACE_ALL ? B + (size_t)nc * (size_t)v : NULL,
