@@ -73,6 +73,16 @@ static pen_scene v_scene_k(int size, int k) {
 
 static pen_scene v_scene(int size) { return v_scene_k(size, 16); }
 
+/* The scene's one disk light: direction d, angular radius in degrees, grey irradiance. */
+static void one_light(pen_scene *sc, const float d[3], float radius_deg, float irradiance) {
+    sc->lighting.light_count = 1;
+    sc->lighting.lights_mode = PEN_LIGHTS_GIVEN;
+    pen_light *L = &sc->lighting.lights[0];
+    memcpy(L->direction, d, 3 * sizeof(float));
+    L->angular_radius_deg = radius_deg;
+    L->irradiance[0] = L->irradiance[1] = L->irradiance[2] = irradiance;
+}
+
 static pen_image reference_of(const pen_scene *sc, int spp) {
     pen_image img = {0, 0, 0, NULL};
     pen_context *ctx = pen_context_create();
@@ -249,13 +259,8 @@ static void test_concave_against_reference(void) {
     for (int lit = 0; lit < 2; ++lit) {
         pen_scene sc = v_scene(64);
         if (lit) {
-            sc.lighting.light_count = 1;
-            sc.lighting.lights_mode = PEN_LIGHTS_GIVEN;
-            pen_light *L = &sc.lighting.lights[0];
             const float d[3] = {0.8f, 0.45f, 0.2f};
-            memcpy(L->direction, d, sizeof d);
-            L->angular_radius_deg = 3.0f;
-            L->irradiance[0] = L->irradiance[1] = L->irradiance[2] = 2.5f;
+            one_light(&sc, d, 3.0f, 2.5f);
         }
         pen_image ref = reference_of(&sc, check_quick_() ? 64 : 512);
         pen_render_options opt = pen_render_options_default();
@@ -314,13 +319,8 @@ static void test_buried_nodes(void) {
     const float eye[3] = {0.6f, 1.3f, 1.6f}, target[3] = {0.4f, 0.5f, 0.0f};
     memcpy(sc.camera.eye, eye, sizeof eye);
     memcpy(sc.camera.target, target, sizeof target);
-    sc.lighting.light_count = 1;
-    sc.lighting.lights_mode = PEN_LIGHTS_GIVEN;
-    pen_light *L = &sc.lighting.lights[0];
     const float d[3] = {0.3f, 0.35f, 0.9f};
-    memcpy(L->direction, d, sizeof d);
-    L->angular_radius_deg = 1.0f;
-    L->irradiance[0] = L->irradiance[1] = L->irradiance[2] = 3.0f;
+    one_light(&sc, d, 1.0f, 3.0f);
     pen_image ref = reference_of(&sc, check_quick_() ? 64 : 512);
     pen_render_options opt = pen_render_options_default();
     pen_image tr = {0, 0, 0, NULL};
