@@ -28,6 +28,8 @@
  * its normal equations sum the views' with factor w_v / sum_p m_vp (loss.c), the same weighting
  * as E, so the solve minimises the objective the loop reports. */
 #include "optim/optim_internal.h"
+#include "render/render_internal.h"
+#include "scene/validate.h"
 
 #include "penumbra/metrics.h"
 
@@ -335,6 +337,10 @@ typedef struct pass {
     int grad;
 } pass;
 
+/* What the views' renders are vouched for (pen__render_fwd_vouched): the scene of a pass is
+ * validated once before its views render, and no task edits the environment map's pixels. */
+#define VOUCHED (PEN__VOUCH_VALID | PEN__VOUCH_MAP)
+
 /* View order[j]'s image term: its render times the exposure, V->loss[j] (w_v E_v and, with
  * p->grad, its derivative in log s_v) and (with p->grad) its d_img. */
 static pen_status view_fwd(pen_context *ctx, void *user, int j, pen_render_grad *unused) {
@@ -345,7 +351,8 @@ static pen_status view_fwd(pen_context *ctx, void *user, int j, pen_render_grad 
     const pen_optim_view *v = &V->views[i];
     const pen_scene vs = pen__optim_view_scene(p->sc, &v->camera);
     double e = 0.0;
-    pen_status s = pen_render_fwd(ctx, &vs, p->opt, V->state[i], &V->img[i]);
+    pen_status s =
+        pen__render_fwd_vouched(ctx, &vs, p->opt, V->state[i], &V->img[i], VOUCHED);
     if (!s) pen__optim_view_expose(&V->img[i], pen__optim_exposure(v));
     if (!s) s = pen__optim_loss_fwd(ctx, p->kind, &V->img[i], &v->target, V->weight[i], &e);
     if (s) return s;
@@ -396,7 +403,8 @@ pen_status pen__optim_views_fwd(pen_context *ctx, pen__optim_views *V, const pen
                                 const pen_render_options *opt, pen_optim_loss kind, int grad,
                                 double *loss) {
     pass p = {V, sc, opt, kind, grad};
-    pen_status s = pen__optim_workers_run(ctx, &V->workers, V->lo, V->hi, view_fwd, &p);
+    pen_status s = pen__scene_validate(ctx, sc, "render"); /* once for every view (VOUCHED) */
+    if (!s) s = pen__optim_workers_run(ctx, &V->workers, V->lo, V->hi, view_fwd, &p);
     if (!s) s = pen__optim_exchange(ctx, V->ranks, V->taking_part, V->loss, sizeof *V->loss);
     if (s) return s;
     double sum = 0.0;
@@ -448,11 +456,12 @@ static pen_status views_finish(pen_context *ctx, const pen_scene *sc,
                                const pen_render_options *opt, pen_optim_loss kind,
                                const pen_optim_view *views, int count, pen_render_state *st,
                                pen_optim_view_metrics *metrics_, pen_image *finals, double sq[2]) {
-    for (int i = 0; i < count; ++i) {
+    pen_status s = pen__scene_validate(ctx, sc, "render"); /* once for every view (VOUCHED) */
+    for (int i = 0; !s && i < count; ++i) {
         const pen_optim_view *v = &views[i];
         const pen_scene vs = pen__optim_view_scene(sc, &v->camera);
         pen_image *img = &finals[i];
-        pen_status s = pen_render_fwd(ctx, &vs, opt, st, img);
+        s = pen__render_fwd_vouched(ctx, &vs, opt, st, img, VOUCHED);
         if (s) return s;
         pen__optim_view_expose(img, pen__optim_exposure(v));
         const size_t pixels = (size_t)img->width * (size_t)img->height;
@@ -480,5 +489,5 @@ static pen_status views_finish(pen_context *ctx, const pen_scene *sc,
             sq[1] += 3.0 * counted;
         }
     }
-    return PEN_OK;
+    return s;
 }

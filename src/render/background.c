@@ -54,7 +54,9 @@ void pen__background_prepare(pen_context *ctx, const pen_scene *sc, pen_render_s
     k.width = sc->lighting.envmap.width, k.height = sc->lighting.envmap.height;
     k.channels = sc->lighting.envmap.channels;
     k.rotation_y_deg = sc->lighting.rotation_y_deg, k.scale = sc->lighting.scale;
-    k.hash = envmap_hash(&sc->lighting.envmap);
+    /* (a caller that vouches for the map's pixels keeps the hash of the previous forward) */
+    k.hash = st->vouched & PEN__VOUCH_MAP && st->bg_valid ? st->bg_key.hash
+                                                          : envmap_hash(&sc->lighting.envmap);
     if (st->bg_valid && !memcmp(&k, &st->bg_key, sizeof k)) {
         st->bg_use = 2;
         return;

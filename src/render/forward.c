@@ -106,7 +106,8 @@ static void interpolate_attributes(const pen_scene *sc, pen_render_state *st) {
 /* Poses the geometry, rasterizes, and interpolates the per-pixel attributes into st. */
 static pen_status prepare(pen_context *ctx, const pen_scene *sc, const pen_render_options *opt,
                           pen_render_state *st) {
-    pen_status s = pen__scene_validate(ctx, sc, "render");
+    pen_status s = st->vouched & PEN__VOUCH_VALID ? pen_camera_validate(ctx, &sc->camera)
+                                                  : pen__scene_validate(ctx, sc, "render");
     if (!s && opt->shadows) s = check_spheres(ctx, sc);
     if (s) return s;
     if ((s = pen_view_init(ctx, &sc->camera, &st->view))) return s; /* validated: fills the view */
@@ -348,6 +349,16 @@ static pen_status check_frame_memory(pen_context *ctx, const pen_scene *sc,
                       "render: camera %d x %d needs about %.1f GB (limit %.1f GB, "
                       "PEN_RENDER_MAX_BYTES); lower camera.width and camera.height",
                       c->width, c->height, need / 1e9, PEN_RENDER_MAX_BYTES / 1e9);
+}
+
+pen_status pen__render_fwd_vouched(pen_context *ctx, const pen_scene *sc,
+                                   const pen_render_options *opt, pen_render_state *state,
+                                   pen_image *image, unsigned vouched) {
+    if (!state) return pen_render_fwd(ctx, sc, opt, state, image); /* nothing to vouch for */
+    state->vouched = vouched;
+    const pen_status s = pen_render_fwd(ctx, sc, opt, state, image);
+    state->vouched = 0;
+    return s;
 }
 
 pen_status pen_render_fwd(pen_context *ctx, const pen_scene *sc, const pen_render_options *opt,

@@ -339,6 +339,7 @@ long pen__pool_traces(const pen__transfer_pool *p);
 
 struct pen_render_state {
     int valid;              /* a forward has filled the buffers */
+    unsigned vouched;       /* PEN__VOUCH_* of the forward under way (pen__render_fwd_vouched) */
     pen__transfer_pool *pool; /* shared traces (pen_render_state_share), or NULL */
     pen_render_options opt; /* the forward's options */
     int width, height;
@@ -393,6 +394,17 @@ pen_status pen__render_state_reserve(pen_context *ctx, pen_render_state *st, siz
 /* Bytes per pixel a frame allocates (state.c's pixel buffers, G-buffer, output image), with the
  * store the backward reads when `store` (its scalar-kernel size, the larger). */
 size_t pen__render_pixel_bytes(int bands, int store);
+
+/* What a caller of pen__render_fwd_vouched has established about its scene: that it passed
+ * pen__scene_validate since it last changed (the camera is still checked), and that the
+ * environment map's pixels are those of the state's previous forward (its hash is not taken
+ * again). The optimiser renders every view of a pass from one scene: it validates it once per
+ * pass, and never edits the map; per view, the scan of a 1024^2 texture for non-finite texels and
+ * the map's hash took a third of a 1000-view task's time (bench/NOTES.md). */
+enum { PEN__VOUCH_VALID = 1u, PEN__VOUCH_MAP = 2u };
+pen_status pen__render_fwd_vouched(pen_context *ctx, const pen_scene *sc,
+                                   const pen_render_options *opt, pen_render_state *state,
+                                   pen_image *image, unsigned vouched);
 /* Sizes one object's buffers for V vertices and T triangles. */
 pen_status pen__render_object_reserve(pen_context *ctx, pen__object_buf *b, size_t V, size_t T);
 /* b->adjacency for the mesh, rebuilt only when its topology changed. */
