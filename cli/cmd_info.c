@@ -190,7 +190,9 @@ static int count_shells(const pen_mesh *m, const double centre[3], long *shells,
         }
         qsort(key, (size_t)nv, sizeof *key, weld_cmp);
         for (int i = 0; i < nv; ++i) /* the first of equal positions stands for them all */
-            weld[key[i].v] = i > 0 && !memcmp(key[i].p, key[i - 1].p, sizeof key[i].p)
+            weld[key[i].v] = i > 0 && key[i].p[0] == key[i - 1].p[0] &&
+                                     key[i].p[1] == key[i - 1].p[1] &&
+                                     key[i].p[2] == key[i - 1].p[2] /* as weld_cmp: -0 == 0 */
                                  ? weld[key[i - 1].v]
                                  : key[i].v;
         for (int t = 0; t < m->triangle_count; ++t) {
@@ -327,7 +329,8 @@ static int mesh_info(pen_context *ctx, const char *path, int json) {
             printf("  closed: yes, every edge in two triangles ({\"fit\": N} spheres can be "
                    "fitted); but %ld of its %ld shells face inwards (wound clockwise seen from "
                    "outside): the renderer shades triangles seen from their back with the "
-                   "spheres, without the mesh's own shadows: reverse their triangles\n",
+                   "spheres, without the mesh's own shadows: reverse their triangles (unless "
+                   "they are the walls of a cavity inside another shell)\n",
                    inward, shells);
         else if (closed)
             printf("  closed: yes, every edge in two triangles ({\"fit\": N} spheres can be "

@@ -299,7 +299,8 @@ typedef struct pen_optim_settings {
     int view_workers;
     const struct pen_optim_ranks *ranks; /* NULL: one process; else the views are split */
     /* Bytes the run may hold (pen_optim_memory_estimate); a task estimated above it is refused
-     * before anything is allocated. 0: the machine's physical memory. */
+     * before its views' render states are made. 0: the machine's physical memory (not a
+     * container's limit). Under ranks each judges its own block: one rank's refusal is the task's. */
     double memory_limit;
 } pen_optim_settings;
 
@@ -441,7 +442,7 @@ typedef struct pen_optim_result {
 /* About the bytes a run of the task will hold at its peak (the loaded task, the render states
  * of its views or rank's views, their images, the shared traces, the process), from its sizes
  * and ctx's thread count alone: pen_optim_run refuses a task estimated above settings->memory_limit
- * (default the machine's memory) before it allocates. Call after the scene's spheres are
+ * (default the machine's memory) before it makes the views' render states. Call after the scene's spheres are
  * prepared (pen_scene_prepare). Measured against the peak resident memory in bench/NOTES.md. */
 PEN_API double pen_optim_memory_estimate(pen_context *ctx, const pen_optim_task *task,
                                          const pen_optim_settings *settings);

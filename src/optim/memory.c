@@ -1,6 +1,6 @@
-/* The memory a run will hold, predicted from the task's sizes before anything is allocated
- * (pen_optim_memory_estimate, optim.h), and the machine's, so that a task too large for it is
- * refused in a second with the numbers instead of running out of memory an hour in.
+/* The memory a run will hold, predicted from the task's sizes before its views' render states
+ * are made (pen_optim_memory_estimate, optim.h), and the machine's, so that a task too large for
+ * it is refused with the numbers instead of running out of memory an hour in.
  *
  * Design
  * - What is counted. The loaded task (meshes, textures, the map, the targets and masks), every
@@ -10,10 +10,13 @@
  *   over the exposure, the weights), the traces the states share (each transferred object's
  *   nodes and the ground's grid, with the occluders kept for the per-pixel fractions), and the
  *   process's libraries. Under MPI a rank keeps the states of its own block of views only.
- * - An estimate, on the safe side: every buffer a frame may need is counted whether or not the
- *   scene needs it, and a transferred object's nodes are taken as its vertices (coarse meshes
- *   get more, few in bytes). Measured against the peak resident memory in bench/NOTES.md
- *   ("Memory before a task").
+ * - An estimate from sizes: a buffer counts when the frame writes it (pages never written are
+ *   not resident), and a transferred object's nodes are taken as its vertices (coarse meshes get
+ *   more, few in bytes). Measured against the peak resident memory in bench/NOTES.md ("Memory
+ *   before a task"): 0.89-1.32 of it. The default limit is the machine's physical memory, not a
+ *   container's limit.
+ * - Under MPI each rank judges its own block: a library caller with its own ranks must treat
+ *   one rank's refusal as the task's (the CLI aborts every rank).
  */
 #include "optim/optim_internal.h"
 
@@ -100,15 +103,27 @@ double pen_optim_memory_estimate(pen_context *ctx, const pen_optim_task *t,
         b += (2.0 + solve) * pen_render_state_bytes(sc, wrt, threads);
         return b;
     }
-    const int size = settings && settings->ranks ? settings->ranks->size : 1;
-    const int rank = settings && settings->ranks ? settings->ranks->rank : 0;
-    const int per = (t->view_count + size - 1) / size; /* the views of this rank's block */
+    /* this rank's block of the views taking part (weight > 0), as pen__optim_views_plan cuts
+     * them; every rank renders every view and validation view at the end (their finals) */
+    const pen_optim_ranks *R =
+        settings && settings->ranks && settings->ranks->size > 1 ? settings->ranks : NULL;
+    int taking = 0, lo = 0, hi = 0;
+    for (int i = 0; i < t->view_count; ++i)
+        taking += t->views[i].weight > 0.0;
+    hi = taking;
+    if (R) pen__optim_block(taking, R->rank, R->size, &lo, &hi);
+    for (int i = 0; i < t->validation_count; ++i) {
+        const pen_optim_view *w = &t->validation[i];
+        const double px = (double)w->camera.width * w->camera.height;
+        b += image_bytes(&w->target) + (w->mask ? 4.0 * px : 0.0) + 12.0 * px;
+    }
     double largest = 0.0;
-    for (int i = 0; i < t->view_count; ++i) {
+    for (int i = 0, j = -1; i < t->view_count; ++i) {
         const pen_optim_view *w = &t->views[i];
         const double px = (double)w->camera.width * w->camera.height;
-        b += image_bytes(&w->target) + (w->mask ? 4.0 * px : 0.0);
-        if (i / per != rank) continue;
+        b += image_bytes(&w->target) + (w->mask ? 4.0 * px : 0.0) + 12.0 * px; /* its final */
+        j += w->weight > 0.0;
+        if (!(w->weight > 0.0) || j < lo || j >= hi) continue;
         v.camera = w->camera;
         const double st = pen_render_state_bytes(&v, wrt, threads);
         largest = st > largest ? st : largest;

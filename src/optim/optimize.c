@@ -634,6 +634,9 @@ static pen_status check_settings(pen_context *ctx, const pen_optim_settings *set
     if (set->checkpoint_every < 0 || set->snapshot_every < 0)
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "optimize: checkpoint and snapshot intervals must be >= 0");
+    if (!(set->memory_limit >= 0.0)) /* NaN too */
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "optimize: memory_limit must be 0 (the machine's) or a number of bytes");
     if (set->resume && !set->outdir)
         return pen__error(ctx, PEN_ERROR_ARGUMENT,
                           "optimize: resuming needs the output folder of the earlier run");
