@@ -1,7 +1,7 @@
 // flopcount: the floating-point operations the per-pixel shading kernel executes, counted from
 // the code itself, on a real frame (bench/NOTES.md).
 //
-// The kernel is written once in src/render/shade_ops.inc and src/sh/sh_ops.inc over a type REAL;
+// The kernel is written once in src/shade/shade_ops.inc and src/sh/sh_ops.inc over a type REAL;
 // the library compiles it with float and double. This tool compiles the same text a third time,
 // as C++ with REAL = R, a float that counts every +, -, *, /, sqrt, exp and comparison it takes
 // part in. Values the kernel derives only from per-frame constants (the Gaunt values, SH
@@ -186,7 +186,7 @@ static void w_product_bwd(const pen_sh_gaunt *g, const R *a, const R *b, const R
 #define pen_sh_exp_bwd_cnt w_exp_bwd
 #define pen_sh_product_cnt w_product
 #define pen_sh_product_bwd_cnt w_product_bwd
-#include "render/shade_ops.inc"
+#include "shade/shade_ops.inc"
 
 // ---- The frame ----------------------------------------------------------------------------------
 

@@ -5,14 +5,16 @@ For each source file under src/ it lists the other folders' internal headers it 
 functions it calls in other folders (undefined symbols of its object resolved to the object that
 defines them, by nm), then reports the folder dependency graph, the calls that go up the layers
 of LAYERS (or into a folder missing from it), its cycles, pairs of files that call each other,
-source files over 900 lines, and the folders implementing each public header.
+source files over 900 lines, the folders implementing each public header, and the backend seam
+(docs/design.md sec. 6.4): the kernels (src/shade) free of threads, the frame (src/render outside
+its backends' folders) calling no kernel and reaching a backend only through its table.
 
     python3 scripts/check_layers.py [build-dir] [-v]
 
 Exits 1 when a folder calls or includes a folder that is not before it in LAYERS (or is not in
 LAYERS), the folder graph has a cycle, two files call each other, a source file (research/ and
-cli/ included) is over 900 lines or a public header is implemented by more than one folder, else
-0. tests/cli_layers.sh runs it in the test suite.
+cli/ included) is over 900 lines, a public header is implemented by more than one folder or the
+backend seam is crossed, else 0. tests/cli_layers.sh runs it in the test suite.
 """
 import collections
 import os
@@ -37,7 +39,8 @@ LAYERS = [
     ['io'],                  # file formats read into and written from the model
     ['geometry'],            # sphere fit, overlap weights, Embree setup, self transfer
     ['raster'],              # rasterizer
-    ['render'],              # visibility, shading, forward and backward, losses, flat API
+    ['shade'],               # the shading kernels: SH visibility and shading, disk lights
+    ['render'],              # the frame, its backends (render/cpu), losses, flat API
     ['reference', 'optim'],  # the ray-traced truth; inverse problems
 ]
 TIER = {f: i for i, tier in enumerate(LAYERS) for f in tier}
@@ -45,6 +48,44 @@ TIER = {f: i for i, tier in enumerate(LAYERS) for f in tier}
 
 def folder(src):
     return src.split('/')[0]
+
+
+# The backend seam (docs/design.md sec. 6.4). The kernels' folder; the renderer's backends (each
+# a folder under render/ whose table the frame gets from its one entry point); and the frame.
+KERNELS = 'shade'
+BACKENDS = {'render/cpu': 'pen__backend_cpu'}
+
+
+def backend_of(src):
+    return next((b for b in BACKENDS if src.startswith(b + '/')), None)
+
+
+def seam(sources, calls, defined):
+    """The seam's violations: a kernel file that threads, a frame file that calls a kernel or
+    includes a kernel header itself, or that calls into a backend past its table; a backend that
+    calls the frame's passes."""
+    bad = []
+    for s in sources:
+        text = open(os.path.join(ROOT, 'src', s), errors='replace').read()
+        if folder(s) == KERNELS and re.search(r'#\s*(include\s*<omp\.h>|pragma\s+omp)', text):
+            bad.append('%s: threads (omp) in a kernel' % s)
+        if folder(s) != 'render':
+            continue
+        b = backend_of(s)
+        for t, syms in sorted(calls[s].items()):
+            if b is None and folder(t) == KERNELS:
+                bad.append('%s calls kernels: %s' % (s, ' '.join(sorted(syms))))
+            tb = backend_of(t)
+            if b is None and tb is not None and syms - {BACKENDS[tb]}:
+                bad.append('%s calls backend %s past its table: %s'
+                           % (s, tb, ' '.join(sorted(syms - {BACKENDS[tb]}))))
+            if b is not None and t in ('render/forward.c', 'render/backward.c'):
+                bad.append('%s calls the frame\'s pass %s' % (s, t))
+        if b is None and s != 'render/render_internal.h':
+            for m in re.finditer(r'#include "(%s/[a-z_]+\.(?:h|inc))"' % KERNELS, text):
+                bad.append('%s includes %s (the frame sees the kernels\' types through '
+                           'render_internal.h only)' % (s, m.group(1)))
+    return bad
 
 
 def cycles(graph):
@@ -141,7 +182,9 @@ def main():
         if len(impl) > 1:
             split.append(h)
     print('public headers implemented in more than one folder:', ', '.join(split) or 'none')
-    return 1 if upward or folder_cycles or pairs or big or split else 0
+    crossed = seam(sources, calls, defined)
+    print('backend seam crossed:', '; '.join(crossed) or 'none')
+    return 1 if upward or folder_cycles or pairs or big or split or crossed else 0
 
 
 if __name__ == '__main__':

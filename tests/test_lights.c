@@ -1,11 +1,11 @@
-/* Disk lights (src/render/lights.c, docs/design.md sec. 1.13): the disk's clamped cosine against
+/* Disk lights (src/shade/lights.c, docs/design.md sec. 1.13): the disk's clamped cosine against
  * quadrature over the disk, the cap-disk overlap against Monte Carlo on the sphere (overlapping,
  * contained, disjoint, tiny suns), the per-pixel light term's backward against central finite
  * differences in double, and lighting.lights in the scene JSON (forms, errors, round trip). */
 #include "io_fixtures.h" /* first: it sets the feature-test macros */
 
 #include "optim/optim_internal.h"
-#include "render/lights_internal.h"
+#include "shade/lights.h"
 #include "render_scenes.h"
 
 #include <math.h>

@@ -1,4 +1,4 @@
-/* Tests of the fast shading kernel (src/render/shade_fast.c) against the scalar double-precision
+/* Tests of the fast shading kernel (src/shade/shade_fast.c) against the scalar double-precision
  * reference (pen__shade_fwd_d / pen__shade_bwd_d): random pixels for every supported band count,
  * both fast exponentials and no-shadows, sphere counts 0 .. 33 (not multiples of the lane count),
  * pixel counts not multiples of the lane count, receivers inside spheres, overlap weights kappa

@@ -1,4 +1,4 @@
-/* Tests of the per-pixel shading kernel (src/render/shade_ops.inc) and texture sampling:
+/* Tests of the per-pixel shading kernel (src/shade/shade_ops.inc) and texture sampling:
  * closed-form irradiance without occluders, finite differences in double for every input of the
  * backward, float against double, the self-shadowing rule (continuity, spheres behind the tangent
  * plane), and finite results at singular inputs. */

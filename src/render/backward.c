@@ -3,21 +3,22 @@
  * gradient struct.
  *
  * Design
- * - Antialiasing backward gives d_colour (and silhouette vertex gradients); a parallel pass over
- *   the forward's tiles and lighting groups (tiles.c) runs the kernel's backward, writing per-pixel
- *   d_x, d_raw-normal, d_uv, d_rho, and per-tile double buffers for the small dense gradients
- *   (lighting, constant albedos, ground albedo, world-space spheres). Tiles are reduced in order,
- *   so the result does not depend on the thread count. Then the texel scatter (in pixel order)
- *   beside the per-object interpolation and vertex-normal backward (two threads, disjoint
+ * - Antialiasing backward gives d_colour (and silhouette vertex gradients); the backend
+ *   (backend.h, the forward's) runs the kernels' backward into per-pixel d_x, d_raw-normal, d_uv,
+ *   d_footprint and d_rho and its own accumulators of the small dense gradients, and reduces
+ *   those in a fixed order into the gradient struct (lighting, lights, albedos, spheres and their
+ *   pose part), so the result does not depend on the thread count. Then the texel scatter (in
+ *   pixel order) beside the per-object interpolation and vertex-normal backward (disjoint
  *   outputs), the barycentric backward (the pixel's point slides on its ray as the triangle
- *   moves), and the pose backward, which splits world-space gradients of vertices and spheres
- *   into object-space and pose parts.
+ *   moves), and the pose backward, which splits world-space gradients of vertices into
+ *   object-space and pose parts.
  * - Gradients are added into the caller's pen_render_grad (so several losses accumulate); only
  *   the groups asked for in `wrt` are computed.
  */
 #include "penumbra/render.h"
 
 #include "core/internal.h"
+#include "render/backend.h"
 #include "render/render_internal.h"
 #include "raster/raster_internal.h"
 
@@ -86,223 +87,6 @@ void pen_render_grad_free(pen_render_grad *g) {
 }
 
 /* ---- Backward -------------------------------------------------------------------------------- */
-
-/* Layout of one tile's double accumulators (the backward's small dense gradients). */
-typedef struct row_layout {
-    size_t sh, sh_obj, ground, albedo, spheres, lights, light_G, stride;
-} row_layout;
-
-/* sh: the lighting gradient of pixels shaded with the scene's lighting; sh_obj (with ground
- * occlusion, `seen` objects, else none): per object, of its pixels shaded with its `seen`, mapped
- * back after the reduction. */
-static row_layout rows_layout(int bands, int objects, int seen, int spheres, int lights) {
-    row_layout r;
-    r.sh = 0;
-    r.sh_obj = r.sh + 3 * (size_t)bands * (size_t)bands;
-    r.ground = r.sh_obj + 3 * (size_t)bands * (size_t)bands * (size_t)seen;
-    r.albedo = r.ground + 3;
-    r.spheres = r.albedo + 3 * (size_t)objects;
-    r.lights = r.spheres + 4 * (size_t)spheres;            /* PEN_LIGHT_GRAD_DOUBLES per light */
-    r.light_G = r.lights + PEN_LIGHT_GRAD_DOUBLES * (size_t)lights; /* per `seen` object, light */
-    r.stride = r.light_G + (size_t)seen * (size_t)lights;
-    return r;
-}
-
-/* What the backward computes (the request a pen__tile_job carries to shade_tile_bwd). */
-typedef struct pen__bwd_want {
-    int geom, spheres, light, albedo;
-    int seen; /* the gradient of each object's `seen` lighting (for the lighting or the pose) */
-    row_layout rl;
-    int lights;  /* the disk lights' own gradient */
-    int light_G; /* the gradient of the objects' horizon factors (for the lights or the pose) */
-} bwd_want;
-
-/* After the kernel's backward of surface pixel i: its albedo gradient into the tile's sums (ground,
- * constant albedo) or through the texture lookup to uv, and d_n through the facing sign and the
- * normalisation to the raw normal. d_rho is st->d_rho of the pixel. */
-static void pixel_bwd_tail(const pen_scene *sc, pen_render_state *st, const bwd_want *bw,
-                           double *row, size_t i, int surf, float d_n[3]) {
-    const float *d_rho = st->d_rho.data + 3 * i;
-    if (surf < 0) {
-        if (bw->albedo)
-            for (int ch = 0; ch < 3; ++ch)
-                row[bw->rl.ground + ch] += (double)d_rho[ch];
-        return;
-    }
-    const pen_object *ob = &sc->objects[surf];
-    if (!ob->texture.data && bw->albedo)
-        for (int ch = 0; ch < 3; ++ch)
-            row[bw->rl.albedo + 3 * (size_t)surf + ch] += (double)d_rho[ch];
-    if (!bw->geom) return;
-    if (ob->texture.data)
-        pen__render_texture_bwd(st, ob, i, d_rho, NULL, st->d_uv.data + 2 * i,
-                                st->d_uvj.data + 4 * i);
-    const float sign = st->nsign.data[i];
-    for (int a = 0; a < 3; ++a)
-        d_n[a] *= sign;
-    pen_normalize_bwd(1, st->nraw.data + 3 * i, d_n, st->d_nraw.data + 3 * i);
-}
-
-/* The disk lights' visibilities the forward kept for pixel i, or NULL. */
-static const float *lights_V(const pen_render_state *st, size_t i) {
-    return st->lights_V_valid ? st->lights_V.data + (size_t)st->lights.count * i : NULL;
-}
-
-/* Where the fast forward kept the F of the run's transfer pixels (after the kernel's batches of
- * the run's other pixels, pen__tile_run_store), or NULL (the scalar kernel's frame, no store). */
-static const float *self_F(const pen_render_state *st, const float *store, const int *pix,
-                           int cnt) {
-    if (!st->fast || !store || !st->self_any) return NULL;
-    int nk = 0; /* the kernel's pixels of the run, as the forward counted them */
-    for (int k = 0; k < cnt; ++k) {
-        const size_t i = (size_t)pix[k];
-        nk += !pen__ground_shadow_pixel(st, i) && pen__self_object(st, i) < 0;
-    }
-    return store + pen__shade_fast_store_floats(&st->params, nk);
-}
-
-/* Backward of tile t into the tile's double accumulators and the per-pixel gradients d_x,
- * d_nraw, d_uv, d_rho (zeroed here for every pixel of the tile), in the forward's groups. */
-static void shade_tile_bwd(const void *job_, int t, pen__tile_ws *ws, pen__shade_fast_ticks *tk) {
-    const pen__tile_job *job = job_;
-    const pen_scene *sc = job->sc;
-    pen_render_state *st = job->st;
-    const bwd_want *bw = job->bw;
-    const float *store = pen__tile_store_of(job, t);
-    const size_t nfv = 2 * (size_t)sc->sh_bands * (size_t)sc->sh_bands;
-    const size_t nsh = 3 * (size_t)sc->sh_bands * (size_t)sc->sh_bands;
-    const int S = st->sphere_count;
-    double *row = st->rows.data + bw->rl.stride * (size_t)t;
-    double *d_sph = bw->spheres ? row + bw->rl.spheres : NULL;
-    int x0, y0, x1, y1;
-    pen__tile_rect(st, t, &x0, &y0, &x1, &y1);
-    for (int py = y0; py < y1; ++py)
-        for (int px = x0; px < x1; ++px) {
-            const size_t i = (size_t)py * (size_t)st->width + (size_t)px;
-            float *d_x = st->d_x.data + 3 * i, *d_rho = st->d_rho.data + 3 * i;
-            float *d_nraw = st->d_nraw.data + 3 * i, *d_uv = st->d_uv.data + 2 * i;
-            for (int a = 0; a < 3; ++a)
-                d_x[a] = d_nraw[a] = d_rho[a] = 0.0f;
-            d_uv[0] = d_uv[1] = 0.0f;
-            if (bw->geom) memset(st->d_uvj.data + 4 * i, 0, 4 * sizeof(float));
-        }
-    const int ncull = st->lights.count ? pen__tile_lights_cull(st, t, ws) : 0;
-    for (int r = 0; r < st->groups.data[t].runs; ++r) {
-        const int *pix;
-        int cnt;
-        const int g = pen__tile_run(st, t, r, &pix, &cnt);
-        const float(*sh)[3] = pen__tile_group_lighting(sc, st, g);
-        /* where this group's lighting gradient goes: an object's own `seen`, or the lighting */
-        const int own = pen__tile_group_object(st, g);
-        double(*d_sh)[3] =
-            own >= 0 ? (bw->seen ? (double(*)[3])(row + bw->rl.sh_obj + nsh * (size_t)own) : NULL)
-                     : (bw->light ? (double(*)[3])(row + bw->rl.sh) : NULL);
-        /* the disk lights: their horizon factors (objects with ground occlusion) and gradients */
-        const double *G = own >= 0 ? st->obj[own].light_G : NULL;
-        double *d_G = own >= 0 && bw->light_G
-                          ? row + bw->rl.light_G + (size_t)own * (size_t)st->lights.count
-                          : NULL;
-        double *d_lights = bw->lights ? row + bw->rl.lights : NULL;
-        /* Pixels shaded with their object's own transfer (self.c), as the forward split them;
-         * the rest, nk of them, compacted into ws (ws->idx) for the kernel. */
-        const float *Ftr = self_F(st, store, pix, cnt);
-        const size_t nc = (size_t)sc->sh_bands * (size_t)sc->sh_bands;
-        int nk = 0, ntr = 0;
-        for (int k = 0; k < cnt; ++k) {
-            const size_t i = (size_t)pix[k];
-            const int grid = pen__ground_shadow_pixel(st, i);
-            if (!grid && pen__self_object(st, i) < 0) {
-                ws->idx[nk++] = (int)i;
-                continue;
-            }
-            /* the fast forward's F of the run's ntr-th transfer pixel (pen__tile_run_store) */
-            const int itr = grid ? -1 : ntr++;
-            const float *dc = st->d_color.data + 3 * i;
-            if (dc[0] == 0.0f && dc[1] == 0.0f && dc[2] == 0.0f) continue;
-            if (grid) { /* the ground's grid (ground_shadow.c): the ground's group, d_sh */
-                pen__ground_shadow_bwd(st, sh, ncull, ws->cull, i, dc,
-                                       !st->fast && job->store ? job->store + nfv * i : NULL,
-                                       lights_V(st, i), d_sh, d_sph,
-                                       bw->albedo ? st->d_rho.data + 3 * i : NULL, d_lights);
-                pixel_bwd_tail(sc, st, bw, row, i, PEN_SURFACE_GROUND, NULL);
-                continue;
-            }
-            const int surf = st->gb.surface[i];
-            const int geom = bw->geom;
-            const int need_rho = bw->albedo || (geom && sc->objects[surf].texture.data != NULL);
-            float d_n[3] = {0.0f, 0.0f, 0.0f};
-            /* the scene's own lighting: the traced ground replaces the object's `seen` */
-            pen__self_shade_bwd(st, (const float(*)[3])sc->lighting.sh, ncull, ws->cull, i, dc,
-                                !st->fast && job->store ? job->store + nfv * i : NULL,
-                                Ftr ? Ftr + nc * (size_t)itr : NULL, lights_V(st, i),
-                                bw->light ? (double(*)[3])(row + bw->rl.sh) : NULL, d_sph,
-                                geom ? st->d_x.data + 3 * i : NULL, geom ? d_n : NULL,
-                                need_rho ? st->d_rho.data + 3 * i : NULL, d_lights);
-            pixel_bwd_tail(sc, st, bw, row, i, surf, d_n);
-        }
-        if (!st->fast) {
-            for (int k = 0; k < nk; ++k) {
-                const size_t i = (size_t)ws->idx[k];
-                const int surf = st->gb.surface[i];
-                const float *dc = st->d_color.data + 3 * i;
-                if (dc[0] == 0.0f && dc[1] == 0.0f && dc[2] == 0.0f) continue;
-                const int geom = surf >= 0 && bw->geom;
-                const int need_rho = bw->albedo || (geom && sc->objects[surf].texture.data != NULL);
-                float d_n[3] = {0.0f, 0.0f, 0.0f};
-                pen__shade_bwd(&st->params, sh, S, st->spheres.data, st->kappa.data,
-                               st->x.data + 3 * i, st->n.data + 3 * i, st->rho.data + 3 * i, dc,
-                               job->store ? job->store + nfv * i : NULL, d_sh, d_sph,
-                               geom ? st->d_x.data + 3 * i : NULL, geom ? d_n : NULL,
-                               need_rho ? st->d_rho.data + 3 * i : NULL);
-                if (st->lights.count)
-                    pen__lights_bwd(&st->lights, G, ncull, st->spheres.data, st->kappa.data,
-                                    ws->cull, st->x.data + 3 * i, st->n.data + 3 * i,
-                                    st->rho.data + 3 * i, dc, lights_V(st, i), d_sph, geom ? st->d_x.data + 3 * i : NULL,
-                                    geom ? d_n : NULL, need_rho ? st->d_rho.data + 3 * i : NULL,
-                                    d_lights, d_G);
-                pixel_bwd_tail(sc, st, bw, row, i, surf, d_n);
-            }
-            continue;
-        }
-        for (int k = 0; k < nk; ++k) {
-            const size_t i = (size_t)ws->idx[k];
-            memcpy(ws->out + 3 * k, st->d_color.data + 3 * i, 3 * sizeof(float));
-            pen__tile_ws_push(ws, k, st, i);
-        }
-        memset(ws->dx, 0, 3 * sizeof(float) * (size_t)nk);
-        memset(ws->dn, 0, 3 * sizeof(float) * (size_t)nk);
-        memset(ws->drho, 0, 3 * sizeof(float) * (size_t)nk);
-        pen__shade_fast_bwd(&st->params, sh, S, st->spheres.data, st->kappa.data, nk,
-                            g == 0 ? nk : 0, ws->x, ws->n, ws->rho, ws->out, store, ws->kernel,
-                            d_sh, d_sph, bw->geom ? ws->dx : NULL, bw->geom ? ws->dn : NULL,
-                            ws->drho, tk);
-        if (store) store += pen__tile_run_store(st, cnt); /* the run's layout */
-        for (int k0 = 0; st->lights.count && k0 < nk; k0 += PEN_LIGHTS_BLOCK) {
-            const int nb = nk - k0 < PEN_LIGHTS_BLOCK ? nk - k0 : PEN_LIGHTS_BLOCK;
-            pen__lights_candidates(&st->lights, ncull, st->spheres.data, ws->cull, nb,
-                                   ws->x + 3 * k0, ws->n + 3 * k0, NULL, ws->cand, ws->ncand);
-            for (int kb = 0; kb < nb; ++kb) {
-                const int k = k0 + kb;
-                const size_t i = (size_t)ws->idx[k];
-                const int geom = g != 0 && bw->geom; /* ground pixels: no d_x, d_n wanted */
-                pen__lights_bwd(&st->lights, G, ws->ncand[kb], st->spheres.data, st->kappa.data,
-                                ws->cand + (size_t)kb * (size_t)ncull, ws->x + 3 * k,
-                                ws->n + 3 * k, ws->rho + 3 * k, st->d_color.data + 3 * i,
-                                lights_V(st, i), d_sph, geom ? ws->dx + 3 * k : NULL,
-                                geom ? ws->dn + 3 * k : NULL, ws->drho + 3 * k, d_lights, d_G);
-            }
-        }
-        for (int k = 0; k < nk; ++k) {
-            const size_t i = (size_t)ws->idx[k];
-            const int surf = st->gb.surface[i];
-            const int geom = surf >= 0 && bw->geom;
-            if (bw->albedo || (geom && sc->objects[surf].texture.data))
-                memcpy(st->d_rho.data + 3 * i, ws->drho + 3 * k, 3 * sizeof(float));
-            if (geom) memcpy(st->d_x.data + 3 * i, ws->dx + 3 * k, 3 * sizeof(float));
-            pixel_bwd_tail(sc, st, bw, row, i, surf, ws->dn + 3 * k);
-        }
-    }
-}
 
 static pen_status check_grad_shape(pen_context *ctx, const pen_scene *sc,
                                    const pen_render_grad *g) {
@@ -438,15 +222,9 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
                           "render backward: the scene changed since the forward pass");
     if ((s = check_grad_shape(ctx, sc, grad))) return s;
     const size_t np = (size_t)W * (size_t)H;
-    const int O = sc->object_count, S = st->sphere_count, nc = sc->sh_bands * sc->sh_bands;
+    const int O = sc->object_count, nt = pen__threads(ctx);
     const int want_geom = (wrt & (PEN_GRAD_POSE | PEN_GRAD_VERTICES)) != 0;
-    const int want_sph = (wrt & (PEN_GRAD_SPHERES | PEN_GRAD_POSE)) != 0;
-    const int want_light = (wrt & PEN_GRAD_LIGHTING) != 0;
     const int want_albedo = (wrt & PEN_GRAD_ALBEDO) != 0;
-    const int want_lights =
-        (wrt & (PEN_GRAD_LIGHTS | PEN_GRAD_LIGHT_IRRADIANCE)) != 0 && st->lights.count > 0;
-    const int want_light_geometry = (wrt & PEN_GRAD_LIGHTS) != 0; /* direction and radius */
-    const int K = st->lights.count;
 
     /* World-space vertex gradient buffers. */
     float **d_world = NULL;
@@ -492,111 +270,18 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
     }
     tm->bwd_antialias_ms = pen__render_ms_since(t0);
 
-    /* Per-pixel backward, tiles in parallel, each tile into its own accumulators. */
-    const int seen = st->ground_occludes ? O : 0;
-    const row_layout rl = rows_layout(sc->sh_bands, O, seen, S, K);
-    const int ntiles = pen__tile_count(st);
-    if ((s = PEN__BUF_RESERVE(ctx, st->rows, rl.stride * (size_t)ntiles,
-                              "tile gradient buffers")) ||
-        (want_geom && (s = PEN__BUF_RESERVE(ctx, st->d_uvj, 4 * np, "footprint gradient")))) {
-        free(d_world);
-        return s;
-    }
-    memset(st->rows.data, 0, sizeof(double) * rl.stride * (size_t)ntiles);
-    const int nt = pen__threads(ctx);
-    size_t wsb = 0;
-    if ((s = pen__tile_ws_reserve(ctx, st, nt, &wsb))) {
-        free(d_world);
-        return s;
-    }
-    const int want_height = (wrt & PEN_GRAD_POSE) != 0 && st->ground_occludes;
-    const bwd_want bw = {want_geom,
-                         want_sph,
-                         want_light,
-                         want_albedo,
-                         seen > 0 && (want_light || want_height),
-                         rl,
-                         want_lights,
-                         seen > 0 && K > 0 && (want_lights || want_height)};
-    float *fv_all = st->fv_valid ? st->fv.data : NULL;
-    const pen__tile_job job = {sc, st, &bw, fv_all, st->fast ? st->tile_off.data : NULL};
+    /* The backend's: per-pixel gradients into the state, the dense ones reduced into grad. */
     t0 = omp_get_wtime();
-    const pen__loop_ticks lt = pen__tiles_run(st, nt, wsb, shade_tile_bwd, &job);
+    if ((s = st->backend->shade_bwd(ctx, sc, st, wrt))) {
+        free(d_world);
+        return s;
+    }
     tm->bwd_shade_ms = pen__render_ms_since(t0);
-    tm->bwd_visibility_ms = pen__stage_ms(tm->bwd_shade_ms, lt.visibility, lt.total);
-    tm->bwd_exp_ms = pen__stage_ms(tm->bwd_shade_ms, lt.exp, lt.total);
     t0 = omp_get_wtime();
-
-    /* Reduce the tiles in order. */
-    double *sum = pen__calloc(ctx, rl.stride + 1, sizeof(double), "gradient sums");
-    if (!sum) {
+    if ((s = st->backend->reduce(ctx, sc, st, wrt, grad))) {
         free(d_world);
-        return PEN_ERROR_MEMORY;
+        return s;
     }
-    for (int t = 0; t < ntiles; ++t) {
-        const double *row = st->rows.data + rl.stride * (size_t)t;
-        for (size_t k = 0; k < rl.stride; ++k)
-            sum[k] += row[k];
-    }
-    /* Lighting: the scene's own, plus what reaches it through the objects' `seen` (ground.c,
-     * which also gives the objects' heights their share). */
-    double d_sh[PEN_SH_MAX_COEFFS][3];
-    for (int k = 0; k < nc; ++k)
-        for (int ch = 0; ch < 3; ++ch)
-            d_sh[k][ch] = sum[rl.sh + 3 * (size_t)k + ch];
-    pen__ground_occlusion_bwd(sc, st, sum + rl.sh_obj, want_light ? d_sh : NULL,
-                              want_height ? grad : NULL);
-    if (want_light)
-        for (int k = 0; k < nc; ++k)
-            for (int ch = 0; ch < 3; ++ch)
-                grad->sh[k][ch] += (float)d_sh[k][ch];
-    /* Disk lights: the pixels' share and the horizon factors' (ground.c), then through the
-     * normalisation of the stored direction and degrees. */
-    if (bw.light_G)
-        pen__ground_lights_bwd(sc, st, sum + rl.light_G, want_lights ? sum + rl.lights : NULL,
-                               want_height ? grad : NULL);
-    if (want_lights)
-        for (int l = 0; l < K; ++l) {
-            const double *dl = sum + rl.lights + PEN_LIGHT_GRAD_DOUBLES * (size_t)l;
-            const double *w = st->lights.w[l];
-            const double wd = w[0] * dl[0] + w[1] * dl[1] + w[2] * dl[2];
-            pen_light_grad *lg = &grad->lights[l];
-            for (int a = 0; a < 3; ++a)
-                lg->irradiance[a] += (float)dl[4 + a];
-            if (!want_light_geometry) continue;
-            for (int a = 0; a < 3; ++a)
-                lg->direction[a] += (float)((dl[a] - w[a] * wd) / st->lights.len[l]);
-            lg->angular_radius_deg += (float)(dl[3] * (PEN_PI / 180.0));
-        }
-    if (want_albedo) {
-        for (int ch = 0; ch < 3; ++ch)
-            grad->ground_albedo[ch] += (float)sum[rl.ground + ch];
-        for (int o = 0; o < O; ++o)
-            for (int ch = 0; ch < 3; ++ch)
-                grad->objects[o].albedo[ch] += (float)sum[rl.albedo + 3 * (size_t)o + ch];
-    }
-
-    /* Spheres: world-space gradients -> object space and pose. */
-    if (want_sph)
-        for (int o = 0; o < O; ++o) {
-            const pen_object *ob = &sc->objects[o];
-            pen_object_grad *og = &grad->objects[o];
-            for (int i = 0; i < ob->spheres.count; ++i) {
-                const double *dw = sum + rl.spheres + 4 * (size_t)(st->sphere_first[o] + i);
-                const float *c = ob->spheres.data + 4 * (size_t)i;
-                const float d_c[3] = {(float)dw[0], (float)dw[1], (float)dw[2]};
-                float d_co[3] = {0.0f, 0.0f, 0.0f};
-                pen_pose_apply_bwd(&ob->pose, c, d_c, (wrt & PEN_GRAD_POSE) ? &og->pose : NULL,
-                                   d_co);
-                if (wrt & PEN_GRAD_SPHERES) {
-                    for (int a = 0; a < 3; ++a)
-                        og->spheres[4 * (size_t)i + a] += d_co[a];
-                    og->spheres[4 * (size_t)i + 3] += (float)(dw[3] * (double)ob->pose.scale);
-                }
-                if (wrt & PEN_GRAD_POSE) og->pose.scale += (float)(dw[3] * (double)c[3]);
-            }
-        }
-    free(sum);
 
     /* Two independent scatters in one parallel loop of work items: item 0 the geometry's
      * interpolation and vertex-normal backward (serial: into the vertex and barycentric buffers),

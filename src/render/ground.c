@@ -15,12 +15,14 @@
  *   everywhere) nothing is occluded.
  * - The backward maps the gradient of `seen` back through M^T = M into the lighting, and through
  *   dM/dt dt/dh into the pose's vertical translation. It takes the per-object gradients of
- *   `seen` that the tiles summed (the pixels of object o shade with its own `seen`: tiles.c's
+ *   `seen` that the tiles summed (the pixels of object o shade with its own `seen`: cpu/tiles.c's
  *   lighting groups).
  * - Disk lights (docs/design.md sec. 1.13): an object receives the fraction of each disk above
  *   the same horizon y > -t (the overlap of the disk with the cap of half-angle acos(-t) around
  *   +Y, continuous as the sun sets), one factor per object and light, with its derivatives by the
- *   height and by the light's direction and radius for the backward.
+ *   height and by the light's direction and radius for the backward. The backend's prepare
+ *   computes them from t and dt/dh kept here (a kernel: src/shade/lights.c); the backward's map
+ *   back to the height and the lights is here.
  */
 #include "core/internal.h"
 #include "render/render_internal.h"
@@ -52,13 +54,8 @@ void pen__ground_occlusion_prepare(const pen_scene *sc, const pen_render_options
                 b->seen[j][ch] = (float)v;
                 b->d_seen_dh[j][ch] = dv * dt_dh;
             }
-        /* The disk lights: the part of each disk above the same horizon y > -t. */
-        for (int l = 0; l < st->lights.count; ++l) {
-            double d_t;
-            b->light_G[l] = pen__lights_horizon(&st->lights, l, t, &d_t, b->light_G_dw[l],
-                                                &b->light_G_db[l]);
-            b->light_G_dh[l] = d_t * dt_dh;
-        }
+        /* The disk lights see the same horizon: their factors are the backend's (backend.h). */
+        b->ground_t = t, b->ground_dt_dh = dt_dh;
     }
 }
 

@@ -365,12 +365,12 @@ pen_status pen__ground_shadow_prepare(pen_context *ctx, const pen_scene *sc, pen
     return pixel_trace(ctx, sc, st);
 }
 
-/* ---- Shading --------------------------------------------------------------------------------- */
+/* ---- At a pixel: what the backend shades with ----------------------------------------------- */
 
 /* The blocked part and the light fractions at ground pixel i (point x): bilinear in the grid's
  * s, the fractions the pixel's own where it has them. */
-static void grid_at(const pen_render_state *st, size_t i, const float *x, float *B,
-                    double *frac) {
+void pen__ground_grid_at(const pen_render_state *st, size_t i, float *B, double *frac) {
+    const float *x = st->x.data + 3 * i;
     const pen__ground_grid *gr = &st->grid;
     const int nc = st->params.bands * st->params.bands, K = st->lights.count;
     size_t k[4];
@@ -389,35 +389,4 @@ static void grid_at(const pen_render_state *st, size_t i, const float *x, float 
             v += w[q] * (double)gr->frac[(size_t)K * k[q] + (size_t)l];
         frac[l] = own && own[l] >= 0.0f ? (double)own[l] : v;
     }
-}
-
-void pen__ground_shadow_fwd(pen_render_state *st, const float (*sh)[3], int ncull, const int *cull,
-                            size_t i, float *fv, float *V) {
-    float B[PEN_SH_MAX_COEFFS];
-    double frac[PEN_SCENE_MAX_LIGHTS];
-    const float *x = st->x.data + 3 * i, *n = st->n.data + 3 * i, *rho = st->rho.data + 3 * i;
-    grid_at(st, i, x, B, frac);
-    const int count = st->grid.others ? st->sphere_count : 0;
-    float *rgb = st->color.data + 3 * i;
-    pen__shade_self_fwd(&st->params, sh, count, st->spheres.data, st->grid.kappa.data, x, n, B,
-                        rho, rgb, fv);
-    if (st->lights.count)
-        pen__lights_fwd(&st->lights, frac, ncull, st->spheres.data, st->grid.kappa.data, cull, x,
-                        n, rho, rgb, V);
-}
-
-void pen__ground_shadow_bwd(const pen_render_state *st, const float (*sh)[3], int ncull,
-                            const int *cull, size_t i, const float *dc, const float *fv,
-                            const float *V, double (*d_sh)[3], double *d_sph, float *d_rho,
-                            double *d_lights) {
-    float B[PEN_SH_MAX_COEFFS];
-    double frac[PEN_SCENE_MAX_LIGHTS];
-    const float *x = st->x.data + 3 * i, *n = st->n.data + 3 * i, *rho = st->rho.data + 3 * i;
-    grid_at(st, i, x, B, frac);
-    const int count = st->grid.others ? st->sphere_count : 0;
-    pen__shade_self_bwd(&st->params, sh, count, st->spheres.data, st->grid.kappa.data, x, n, B,
-                        rho, dc, fv, d_sh, d_sph, NULL, NULL, d_rho);
-    if (st->lights.count) /* the fractions enter as the lights' G, constants */
-        pen__lights_bwd(&st->lights, frac, ncull, st->spheres.data, st->grid.kappa.data, cull, x,
-                        n, rho, dc, V, d_sph, NULL, NULL, d_rho, d_lights, NULL);
 }

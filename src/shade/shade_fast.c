@@ -40,7 +40,7 @@
  *   the chain through memory (see bench/NOTES.md).
  */
 #include "core/internal.h"
-#include "render/render_internal.h"
+#include "shade/shade.h"
 #include "sh/sh_internal.h"
 
 #include <math.h>
@@ -296,16 +296,16 @@ static void frame_init(frame *fr, const pen__shade_params *p, const float (*sh)[
 #include "sh/sh_fast_product_6.inc"
 
 #define FB 3
-#include "render/shade_fast_ops.inc"
+#include "shade/shade_fast_ops.inc"
 #undef FB
 #define FB 4
-#include "render/shade_fast_ops.inc"
+#include "shade/shade_fast_ops.inc"
 #undef FB
 #define FB 5
-#include "render/shade_fast_ops.inc"
+#include "shade/shade_fast_ops.inc"
 #undef FB
 #define FB 6
-#include "render/shade_fast_ops.inc"
+#include "shade/shade_fast_ops.inc"
 #undef FB
 
 /* ---- Entry points -------------------------------------------------------------------------------- */

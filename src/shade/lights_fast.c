@@ -1,4 +1,4 @@
-/* The disk lights' float prefilter (pen__lights_candidates, lights_internal.h), compiled once
+/* The disk lights' float prefilter (pen__lights_candidates, lights.h), compiled once
  * per instruction set like the fast kernel (CMakeLists.txt, shade_fast_dispatch.c), so that its
  * lanes are the machine's vector width: it visits every (receiver, sphere) pair of a tile, and the
  * exact double tests of lights.c then run only for the pairs it keeps.
@@ -8,7 +8,7 @@
  *   (sphere_view_weight, cap_may_reach) drop too, so the light term and its gradients are bit for
  *   bit what the unfiltered loop gives, in every variant (the golden test checks it).
  */
-#include "render/render_internal.h"
+#include "shade/shade.h"
 
 #include <math.h>
 

@@ -1,6 +1,6 @@
 /* Run-time choice of the fast shading kernel: the pen__shade_fast_* entry points the renderer
  * calls, forwarded to one of the kernel's variants (shade_fast.c, compiled once per instruction
- * set), and pen_render_fast_lanes; the disk lights' prefilter (lights_fast.c) goes with the
+ * set); the disk lights' prefilter (lights_fast.c) goes with the
  * same variant.
  *
  * Design
@@ -16,13 +16,12 @@
  * - PEN_CPU. The environment variable PEN_CPU = avx512, avx2 or sse2 asks for a variant no wider
  *   than the processor allows (for tests and benchmarks of the narrower ones on a wide machine);
  *   an unknown name, or a variant the processor cannot run, is ignored and the widest is used.
- *   pen_render_fast_lanes tells which width a process ended up with.
+ *   pen_render_fast_lanes (the CPU backend's) tells which width a process ended up with.
  * - What the processor runs. libgcc's __builtin_cpu_supports reads CPUID and, for AVX and
  *   AVX-512, whether the operating system saves the wide registers; the variant's compiler flags
  *   (CMakeLists.txt) and the features tested here are the same list.
  */
-#include "penumbra/render.h"
-#include "render/render_internal.h"
+#include "shade/shade.h"
 
 #include <stdlib.h>
 #include <string.h>
@@ -140,10 +139,6 @@ void pen__shade_fast_store_pixel(const pen__shade_params *p, const float *store,
     const float *b = store + ((size_t)j / L) * L * nc + (size_t)j % L; /* batch j / L, lane j % L */
     for (size_t k = 0; k < nc; ++k)
         F[k] = b[k * L];
-}
-
-int pen_render_fast_lanes(void) {
-    return ops()->lanes;
 }
 
 

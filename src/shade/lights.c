@@ -28,11 +28,11 @@
  *   from the cosines alone; only partial overlaps take the angles (atan2) and the lens formula.
  *   Both shortcuts take the branch the full computation would take, so the image is unchanged.
  */
-#include "render/lights_internal.h"
+#include "shade/lights.h"
 
 #include "core/internal.h"
 #include "penumbra/sh.h"
-#include "render/render_internal.h"
+#include "shade/shade.h"
 
 #include <math.h>
 #include <string.h>
@@ -406,12 +406,12 @@ static double disk_fraction(const pen__lights *L, int l, sphere_view *sv, double
 
 #define IN float
 #define SUF(name) name
-#include "render/lights_ops.inc"
+#include "shade/lights_ops.inc"
 #undef IN
 #undef SUF
 
 #define IN double
 #define SUF(name) name##_d
-#include "render/lights_ops.inc"
+#include "shade/lights_ops.inc"
 #undef IN
 #undef SUF

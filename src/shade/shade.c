@@ -2,19 +2,19 @@
  * per-frame parameters. The texture lookup that feeds it the albedo is the model's
  * (src/scene/texture.c), shared with the reference renderer. */
 #include "core/internal.h"
-#include "render/render_internal.h"
+#include "shade/shade.h"
 
 #include <tgmath.h>
 
 #define REAL float
 #define SUF(name) name
-#include "render/shade_ops.inc"
+#include "shade/shade_ops.inc"
 #undef REAL
 #undef SUF
 
 #define REAL double
 #define SUF(name) name##_d
-#include "render/shade_ops.inc"
+#include "shade/shade_ops.inc"
 #undef REAL
 #undef SUF
 

@@ -1,11 +1,11 @@
-/* Internal interface of the disk lights (src/render/lights.c, docs/design.md sec. 1.13): the
+/* Internal interface of the disk lights (src/shade/lights.c, docs/design.md sec. 1.13): the
  * disk's clamped-cosine integral, the overlap of a sphere's cap with a disk, a frame's lights,
  * and the per-pixel light term with its backward. Everything is computed in double; the
  * per-pixel pair exists for float inputs (the renderer) and double inputs (`_d`, the gradient
  * checks). Both shading kernels (scalar and fast) call the same per-pixel functions, so they give
  * the same light term. */
-#ifndef PEN_RENDER_LIGHTS_INTERNAL_H
-#define PEN_RENDER_LIGHTS_INTERNAL_H
+#ifndef PEN_SHADE_LIGHTS_H
+#define PEN_SHADE_LIGHTS_H
 
 #include "penumbra/scene.h"
 

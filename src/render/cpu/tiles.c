@@ -1,4 +1,4 @@
-/* The tile scheduler of the full frame: 16 x 16 screen tiles, the threads' workspaces, and each
+/* The CPU backend's tile scheduler: 16 x 16 screen tiles, the threads' workspaces, and each
  * tile's shaded pixels sorted into lighting groups.
  *
  * Design
@@ -16,15 +16,11 @@
  *   threads and splits its wall time in their ratios (pen__stage_ms).
  */
 #include "core/internal.h"
-#include "render/render_internal.h"
+#include "render/cpu/cpu.h"
 
 #include <math.h>
 #include <omp.h>
 #include <string.h>
-
-double pen__render_ms_since(double t0) {
-    return 1e3 * (omp_get_wtime() - t0);
-}
 
 /* ---- Workspaces ------------------------------------------------------------------------------ */
 
