@@ -31,15 +31,21 @@
  *   this convex box-constrained quadratic; it starts from kappa0.
  * Cost: N * K lines (K = lines per sphere, fewer for large sets). Each line finds the spheres it
  * crosses through a bounding-volume tree over the spheres' boxes (O(log N + hits) per line rather
- * than N tests), and its hit list is sorted by sphere index, so the lists, and every sum over
- * them, are exactly those of testing every sphere in order: the weights do not depend on the tree.
- * The solve needs G only through products (G kappa)_i: small sets assemble G (cheap per sweep),
- * larger ones (above GRAM_MAX_SPHERES) sum over the lines through sphere i instead, since a line
- * through a compact set crosses a fair part of it and G fills up (2000 spheres: 0.8 N^2 entries,
- * 20000: gigabytes). Memory and the time of one sweep are then linear in the total hit count, N K
- * times the hits per line (plus N K log N for the tree); the number of sweeps grows with N too
- * (about 20 for 32 spheres, 165 for 2000), which is why sets above PEN_SPHERES_OVERLAP_MAX (fit.h)
- * are refused rather than left to run for minutes.
+ * than N tests), and its hit list comes out in sphere index order (marked in a bitmap, read back
+ * in order), so the lists, and every sum over them, are exactly those of testing every sphere in
+ * order: the weights do not depend on the tree. The solve needs G only through products
+ * (G kappa)_i: small sets assemble G (cheap per sweep). Above GRAM_MAX_SPHERES a line through a
+ * compact set crosses a fair part of it and G fills up (2000 spheres: 0.8 N^2 entries, 20000:
+ * gigabytes), so the larger sets start by sweeping over the lines, (G kappa)_i summed over the
+ * lines through sphere i (memory and time per sweep linear in the total hit count, N K times the
+ * hits per line). A dense set (a fitted one) leaves most weights at 0 after that first sweep, and
+ * a weight at 0 adds nothing to any product: such a set continues on G assembled over the support
+ * alone (a fraction of N^2, and far cheaper per sweep than the lines), which grows in rounds by
+ * the spheres outside whose step would move them (solve_lines); a sparse set, most weights above
+ * 0, keeps sweeping over the lines. Either way the fixed point is that of sweeping every sphere.
+ * The number of sweeps grows with N (about 20 for 32 spheres, 165 for 2000, 200 to 300 for
+ * Spot's 4096 fitted spheres), which is why sets above PEN_SPHERES_OVERLAP_MAX (fit.h) are
+ * refused rather than left to run for minutes.
  */
 #include "core/internal.h"
 #include "core/random.h"
@@ -57,6 +63,10 @@
 #define GRAM_MAX_SPHERES 1024
 /* The larger sets' stopping change (solve_lines says why). */
 #define LINES_TOL 1e-7
+/* The solve on the support (solve_lines): its first rounds' stopping change, and the least
+ * ratio of hits to (spheres above 0 after the first sweep)^2 for which it is taken. */
+#define LINES_LOOSE 1e-4
+#define SUPPORT_RATIO 2.0
 
 /* The settings pen_spheres_overlap_weights uses (docs/fit-spheres.md has the measurements). */
 typedef struct overlap_settings {
@@ -95,12 +105,13 @@ static void sample_line(const overlap_settings *s, const float *sph, int i, int 
         p[a3] = (double)c[a3] + u * e1[a3] + v * e2[a3];
 }
 
-/* 1 when the line (p, d) passes through sphere j (closer to its centre than its radius). */
-static int line_hits(const double p[3], const double d[3], const float *s4) {
-    const double q[3] = {(double)s4[0] - p[0], (double)s4[1] - p[1], (double)s4[2] - p[2]};
+/* 1 when the line (p, d) passes through the ball c (centre c[0..2], squared radius c[3]): closer
+ * to its centre than its radius. */
+static int line_hits(const double p[3], const double d[3], const double c[4]) {
+    const double q[3] = {c[0] - p[0], c[1] - p[1], c[2] - p[2]};
     const double t = q[0] * d[0] + q[1] * d[1] + q[2] * d[2];
     const double d2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] - t * t;
-    return d2 < (double)s4[3] * (double)s4[3];
+    return d2 < c[3];
 }
 
 /* ---- Bounding-volume tree over the spheres' boxes ---------------------------------------- */
@@ -114,8 +125,9 @@ typedef struct bvh_node {
 
 typedef struct bvh {
     bvh_node *nodes;
-    int *order;    /* sphere indices, leaves' ranges */
-    double extent; /* the largest |centre coordinate| + radius */
+    int *order;        /* sphere indices, leaves' ranges */
+    double (*ball)[4]; /* per entry of order: the sphere's centre and squared radius */
+    double extent;     /* the largest |centre coordinate| + radius */
     int node_count;
 } bvh;
 
@@ -199,45 +211,52 @@ static pen_status bvh_build(pen_context *ctx, const float *sph, int n, bvh *B) {
         B->extent = fmax(B->extent, m + (double)c[3]);
     }
     B->node_count = bvh_build_node(B, sph, 0, n, 0);
+    B->ball = pen__malloc(ctx, (size_t)n, sizeof *B->ball, "overlap: tree");
+    if (!B->ball) return PEN_ERROR_MEMORY;
+    for (int e = 0; e < n; ++e) {
+        const float *c = sph + 4 * (size_t)B->order[e];
+        for (int a = 0; a < 3; ++a)
+            B->ball[e][a] = (double)c[a];
+        B->ball[e][3] = (double)c[3] * (double)c[3];
+    }
     return PEN_OK;
 }
 
 static void bvh_free(bvh *B) {
-    free(B->nodes), free(B->order);
+    free(B->nodes), free(B->order), free(B->ball);
 }
 
-/* Whether the (infinite) line p + t d meets the box: the slabs' t intervals overlap. */
+/* Whether the (infinite) line p + t d meets the box: the slabs' t intervals overlap. A zero
+ * component of d makes inv +-inf, and where p lies on that slab's face 0 * inf = NaN: the
+ * comparisons skip a NaN bound, so that slab does not cull (the exact test decides). */
 static int line_meets_box(const double p[3], const double inv[3], const double lo[3],
                           const double hi[3]) {
     double t0 = -HUGE_VAL, t1 = HUGE_VAL;
     for (int a = 0; a < 3; ++a) {
-        if (isinf(inv[a])) {
-            if (p[a] < lo[a] || p[a] > hi[a]) return 0;
-            continue;
-        }
-        double ta = (lo[a] - p[a]) * inv[a], tb = (hi[a] - p[a]) * inv[a];
-        if (ta > tb) {
-            const double t = ta;
-            ta = tb, tb = t;
-        }
-        t0 = ta > t0 ? ta : t0, t1 = tb < t1 ? tb : t1;
-        if (t0 > t1) return 0;
+        const double ta = (lo[a] - p[a]) * inv[a], tb = (hi[a] - p[a]) * inv[a];
+        const double near = inv[a] >= 0.0 ? ta : tb, far = inv[a] >= 0.0 ? tb : ta;
+        t0 = near > t0 ? near : t0;
+        t1 = far < t1 ? far : t1;
     }
-    return 1;
+    return t0 <= t1;
 }
 
-/* The spheres line (i, k) crosses, in increasing index order, written to out (if not NULL);
- * returns their count. The proposal's own sphere always counts (the line was drawn through its
- * disk). `buf` has room for n indices (the hits before sorting). */
+/* The spheres line (i, k) crosses, in increasing index order, written to out; returns their
+ * count. The proposal's own sphere always counts (the line was drawn through its disk). The
+ * traversal marks the hits in `bits` (n bits, all clear), and reading the marked words in order
+ * yields the sorted list and clears them again: a scan of n / 64 words rather than a sort of the
+ * list (tens of hits per line in a dense set, whose insertion sort cost more than the tree). */
 static int line_hit_list(const overlap_settings *s, const bvh *B, const float *sph, int i, int k,
-                         int *buf, int *out) {
+                         uint64_t *bits, int *out) {
     double p[3], d[3], inv[3];
     sample_line(s, sph, i, k, p, d);
     for (int a = 0; a < 3; ++a)
         inv[a] = 1.0 / d[a]; /* +-inf for a zero component */
+    int wlo = i >> 6, whi = i >> 6;
+    bits[i >> 6] |= 1ull << (i & 63);
     /* The tree splits at the median, so its depth is at most log2(n) + 1 < 33: the stack holds at
      * most one entry per level plus one. */
-    int h = 0, own = 0, stack[64], sp = 0;
+    int stack[64], sp = 0;
     stack[sp++] = 0;
     while (sp > 0) {
         const bvh_node *nd = &B->nodes[stack[--sp]];
@@ -249,22 +268,18 @@ static int line_hit_list(const overlap_settings *s, const bvh *B, const float *s
         }
         for (int e = nd->first; e < nd->first + nd->count; ++e) {
             const int j = B->order[e];
-            if (j == i || line_hits(p, d, sph + 4 * (size_t)j)) {
-                buf[h++] = j;
-                own |= j == i;
+            if (line_hits(p, d, B->ball[e])) {
+                bits[j >> 6] |= 1ull << (j & 63);
+                wlo = (j >> 6) < wlo ? j >> 6 : wlo, whi = (j >> 6) > whi ? j >> 6 : whi;
             }
         }
     }
-    if (!own) buf[h++] = i;
-    /* Insertion sort: hit lists are short. */
-    for (int a = 1; a < h; ++a) {
-        const int v = buf[a];
-        int b = a - 1;
-        while (b >= 0 && buf[b] > v)
-            buf[b + 1] = buf[b], --b;
-        buf[b + 1] = v;
+    int h = 0;
+    for (int w = wlo; w <= whi; ++w) {
+        for (uint64_t x = bits[w]; x; x &= x - 1)
+            out[h++] = 64 * w + __builtin_ctzll(x);
+        bits[w] = 0;
     }
-    if (out) memcpy(out, buf, sizeof(int) * (size_t)h);
     return h;
 }
 
@@ -288,7 +303,8 @@ static pen_status lines_build(pen_context *ctx, const overlap_settings *s, const
     L->start = pen__calloc(ctx, (size_t)L->count + 1, sizeof(long), "overlap: line offsets");
     L->omega = pen__malloc(ctx, (size_t)L->count, sizeof(double), "overlap: line weights");
     L->by_start = pen__calloc(ctx, (size_t)n + 1, sizeof(long), "overlap: sphere offsets");
-    int *buf = pen__malloc(ctx, (size_t)threads * (size_t)n, sizeof(int), "overlap: hit lists");
+    const size_t words = ((size_t)n + 63) / 64;
+    uint64_t *buf = pen__calloc(ctx, (size_t)threads * words, sizeof(uint64_t), "overlap: hits");
     bvh B;
     pen_status st = bvh_build(ctx, sph, n, &B);
     if (!st && (!L->start || !L->omega || !L->by_start || !buf)) st = PEN_ERROR_MEMORY;
@@ -309,7 +325,7 @@ static pen_status lines_build(pen_context *ctx, const overlap_settings *s, const
     int failed = 0;
 #pragma omp parallel num_threads(threads) reduction(| : failed)
     {
-        int *b = buf + (size_t)omp_get_thread_num() * (size_t)n;
+        uint64_t *b = buf + (size_t)omp_get_thread_num() * words;
         long cap = 0;
         int *acc = NULL;
 #pragma omp for schedule(dynamic, 1)
@@ -410,92 +426,274 @@ static double gs_step(const overlap_settings *s, double g, double W, double k0, 
     return change;
 }
 
-/* The solve with G assembled as sparse rows: cheaper per sweep while the rows are short. A line
- * through a compact set crosses a good part of it, so the rows fill up as the set grows (about
- * 0.8 n^2 entries for 2000 spheres filling a cube): larger sets use solve_lines. */
-static pen_status solve_gram(pen_context *ctx, const overlap_settings *s, const lines *L, int n,
-                             int threads, const double *W, const double *k0, double *kappa) {
-    long *rs = pen__calloc(ctx, (size_t)n + 1, sizeof(long), "overlap: Gram offsets");
-    double *acc = pen__calloc(ctx, (size_t)threads * (size_t)n, sizeof(double), "overlap: rows");
-    int *touched = pen__malloc(ctx, (size_t)threads * (size_t)n, sizeof(int), "overlap: rows");
-    int *idx = NULL;
-    double *val = NULL;
-    pen_status st = rs && acc && touched ? PEN_OK : PEN_ERROR_MEMORY;
-    /* Two passes over the rows: their sizes, then (after the prefix sum) their entries. */
-    for (int pass = 0; pass < 2 && !st; ++pass) {
-#pragma omp parallel for schedule(dynamic, 4) num_threads(threads)
-        for (int i = 0; i < n; ++i) {
-            const size_t t = (size_t)omp_get_thread_num() * (size_t)n;
-            if (pass == 0)
-                rs[i + 1] = gram_row(L, i, acc + t, touched + t, NULL, NULL);
-            else
-                gram_row(L, i, acc + t, touched + t, idx + rs[i], val + rs[i]);
-        }
-        if (pass == 0) {
-            for (int i = 0; i < n; ++i)
-                rs[i + 1] += rs[i];
-            idx = pen__malloc(ctx, (size_t)rs[n] + 1, sizeof(int), "overlap: Gram indices");
-            val = pen__malloc(ctx, (size_t)rs[n] + 1, sizeof(double), "overlap: Gram values");
-            if (!idx || !val) st = PEN_ERROR_MEMORY;
+/* G as sparse rows (row i: len[i] entries, column idx[i][e], value val[i][e]). */
+typedef struct gram {
+    int *len, **idx;
+    double **val;
+} gram;
+
+static void gram_free(gram *M, int n) {
+    for (int i = 0; i < n && M->idx && M->val; ++i)
+        free(M->idx[i]), free(M->val[i]);
+    free(M->len), free(M->idx), free(M->val);
+    memset(M, 0, sizeof *M);
+}
+
+/* G is symmetric: the new rows' (marked 2) entries in the columns of the rows already there
+ * (marked 1) are appended to those rows, new spheres in increasing order, each row grown once. */
+static int gram_mirror(gram *M, int n, const unsigned char *in) {
+    int *more = calloc((size_t)n, sizeof(int));
+    if (!more) return 0;
+    for (int b = 0; b < n; ++b) {
+        if (in[b] != 2) continue;
+        for (int e = 0; e < M->len[b]; ++e)
+            more[M->idx[b][e]] += in[M->idx[b][e]] == 1;
+    }
+    int ok = 1;
+    for (int j = 0; j < n && ok; ++j) {
+        if (!more[j]) continue;
+        const size_t m = (size_t)(M->len[j] + more[j]);
+        int *ix = realloc(M->idx[j], sizeof(int) * m);
+        if (ix) M->idx[j] = ix;
+        double *v = ix ? realloc(M->val[j], sizeof(double) * m) : NULL;
+        if (v) M->val[j] = v;
+        ok = v != NULL;
+    }
+    for (int b = 0; b < n && ok; ++b) {
+        if (in[b] != 2) continue;
+        for (int e = 0; e < M->len[b]; ++e) {
+            const int j = M->idx[b][e];
+            if (in[j] == 1) M->idx[j][M->len[j]] = b, M->val[j][M->len[j]++] = M->val[b][e];
         }
     }
-    free(acc), free(touched);
-    for (int i = 0; i < n; ++i)
-        kappa[i] = k0[i];
-    for (int sweep = 0; sweep < s->max_sweeps && !st; ++sweep) {
+    free(more);
+    return ok;
+}
+
+/* Adds the rows of the spheres marked 2 in `in` (all when `in` is NULL) from the lines' hit
+ * lists, which hold the spheres marked 1 or 2; one pass, each row computed into its thread's
+ * scratch; then gram_mirror, and all are marked 1. The order of every row's entries depends on
+ * the set and the marks alone. */
+static pen_status gram_grow(pen_context *ctx, const lines *L, int n, int threads, unsigned char *in,
+                            gram *M) {
+    if (!M->len) {
+        M->len = pen__calloc(ctx, (size_t)n, sizeof(int), "overlap: Gram rows");
+        M->idx = pen__calloc(ctx, (size_t)n, sizeof(int *), "overlap: Gram rows");
+        M->val = pen__calloc(ctx, (size_t)n, sizeof(double *), "overlap: Gram rows");
+    }
+    const size_t tn = (size_t)threads * (size_t)n;
+    double *acc = pen__calloc(ctx, tn, sizeof(double), "overlap: rows");
+    double *vs = pen__malloc(ctx, tn, sizeof(double), "overlap: rows");
+    int *touched = pen__malloc(ctx, tn, sizeof(int), "overlap: rows");
+    int *is = pen__malloc(ctx, tn, sizeof(int), "overlap: rows");
+    int failed = !M->len || !M->idx || !M->val || !acc || !vs || !touched || !is;
+#pragma omp parallel for schedule(dynamic, 4) num_threads(threads) reduction(| : failed)
+    for (int i = 0; i < n; ++i) {
+        const size_t t = (size_t)omp_get_thread_num() * (size_t)n;
+        if (failed || (in && in[i] != 2)) continue;
+        const int m = gram_row(L, i, acc + t, touched + t, is + t, vs + t);
+        M->idx[i] = malloc(sizeof(int) * (size_t)m + 1);
+        M->val[i] = malloc(sizeof(double) * (size_t)m + 1);
+        if (!M->idx[i] || !M->val[i]) {
+            failed = 1;
+            continue;
+        }
+        memcpy(M->idx[i], is + t, sizeof(int) * (size_t)m);
+        memcpy(M->val[i], vs + t, sizeof(double) * (size_t)m);
+        M->len[i] = m;
+    }
+    free(acc), free(vs), free(touched), free(is);
+    if (in && !failed) failed = !gram_mirror(M, n, in);
+    for (int i = 0; i < n && in; ++i)
+        in[i] = in[i] != 0;
+    return failed ? pen__error(ctx, PEN_ERROR_MEMORY, "overlap: out of memory for the Gram rows")
+                  : PEN_OK;
+}
+
+/* (G kappa)_i. `split` sums the row in four interleaved partial sums (the larger sets' rows are
+ * a thousand entries and more, and one running sum waits on each addition); 0 keeps the single
+ * sum, and with it the bits of the small sets' weights as they were. */
+static double gram_dot(const gram *M, int i, const double *kappa, int split) {
+    const int *ix = M->idx[i], m = M->len[i];
+    const double *v = M->val[i];
+    if (!split) {
+        double g = 0.0;
+        for (int e = 0; e < m; ++e)
+            g += v[e] * kappa[ix[e]];
+        return g;
+    }
+    double g[4] = {0.0, 0.0, 0.0, 0.0};
+    int e = 0;
+    for (; e + 4 <= m; e += 4)
+        for (int q = 0; q < 4; ++q)
+            g[q] += v[e + q] * kappa[ix[e + q]];
+    for (; e < m; ++e)
+        g[0] += v[e] * kappa[ix[e]];
+    return (g[0] + g[1]) + (g[2] + g[3]);
+}
+
+/* Projected Gauss-Seidel sweeps over the marked spheres (all when `in` is NULL) from the given
+ * kappa, until no step moves a weight by `tol` (or max_sweeps). */
+static void gram_sweeps(const overlap_settings *s, const gram *M, int n, const double *W,
+                        const double *k0, const unsigned char *in, double tol, double *kappa) {
+    for (int sweep = 0; sweep < s->max_sweeps; ++sweep) {
         double change = 0.0;
         for (int i = 0; i < n; ++i) {
-            if (!(W[i] > 0.0)) continue;
-            double g = 0.0; /* (G kappa)_i */
-            for (long e = rs[i]; e < rs[i + 1]; ++e)
-                g += val[e] * kappa[idx[e]];
+            if (!(W[i] > 0.0) || (in && !in[i])) continue;
+            const double g = gram_dot(M, i, kappa, in != NULL);
             change = fmax(change, fabs(gs_step(s, g, W[i], k0[i], &kappa[i])));
         }
-        if (change < 1e-9) break;
+        if (change < tol) break;
     }
-    free(rs), free(idx), free(val);
+}
+
+/* The solve with G assembled: cheaper per sweep while the rows are short. A line through a
+ * compact set crosses a good part of it, so the rows fill up as the set grows (about 0.8 n^2
+ * entries for 2000 spheres filling a cube): larger sets use solve_lines. */
+static pen_status solve_gram(pen_context *ctx, const overlap_settings *s, const lines *L, int n,
+                             int threads, const double *W, const double *k0, double *kappa) {
+    gram M = {0};
+    pen_status st = gram_grow(ctx, L, n, threads, NULL, &M);
+    if (!st) gram_sweeps(s, &M, n, W, k0, NULL, 1e-9, kappa);
+    gram_free(&M, n);
     return st;
 }
 
-/* The same iteration without G: (G kappa)_i = sum over the lines l through i of omega_l S_l with
- * S_l = sum of kappa over the spheres l crosses, kept current as kappa_i changes. A sweep costs
- * the total hit count (n K times the mean hits per line) and the memory is two doubles per line
- * (omega_l beside S_l: one cache line per visit of a line instead of two), both linear in n. It
- * stops at a change of LINES_TOL (solve_gram: 1e-9): the weights of thousands of spheres are
- * limited by the line sampling long before (K = 32 or 64 lines per sphere give weights that differ
- * by a few hundredths), and the sweeps, hundreds of them, are the cost. */
-static pen_status solve_lines(pen_context *ctx, const overlap_settings *s, const lines *L, int n,
-                              const double *W, const double *k0, double *kappa) {
-    double(*line)[2] = pen__malloc(ctx, (size_t)L->count, 2 * sizeof(double), "overlap: lines");
-    if (!line) return PEN_ERROR_MEMORY;
-    for (int i = 0; i < n; ++i)
-        kappa[i] = k0[i];
+/* S_l = the sum of kappa over the spheres line l crosses, for every line (line[l][1]). */
+static void line_sums(const lines *L, const double *kappa, int threads, double (*line)[2]) {
+#pragma omp parallel for num_threads(threads) schedule(static)
     for (long l = 0; l < L->count; ++l) {
         double sum = 0.0;
         for (long e = L->start[l]; e < L->start[l + 1]; ++e)
             sum += kappa[L->hit[e]];
-        line[l][0] = L->omega[l];
         line[l][1] = sum;
     }
-    for (int sweep = 0; sweep < s->max_sweeps; ++sweep) {
-        double change = 0.0;
-        for (int i = 0; i < n; ++i) {
-            if (!(W[i] > 0.0)) continue;
-            double g = 0.0;
-            for (long e = L->by_start[i]; e < L->by_start[i + 1]; ++e) {
-                const double *ls = line[L->by_line[e]];
-                g += ls[0] * ls[1];
-            }
-            const double d = gs_step(s, g, W[i], k0[i], &kappa[i]);
-            if (d != 0.0)
-                for (long e = L->by_start[i]; e < L->by_start[i + 1]; ++e)
-                    line[L->by_line[e]][1] += d;
-            change = fmax(change, fabs(d));
-        }
-        if (change < LINES_TOL) break;
+}
+
+/* (G kappa)_i = sum over the lines l through i of omega_l S_l. */
+static double line_dot(const lines *L, int i, const double (*line)[2]) {
+    double g = 0.0;
+    for (long e = L->by_start[i]; e < L->by_start[i + 1]; ++e) {
+        const double *ls = line[L->by_line[e]];
+        g += ls[0] * ls[1];
     }
-    free(line);
+    return g;
+}
+
+/* One sweep of the same iteration without G: (G kappa)_i by line_dot, each S_l kept current as
+ * kappa_i changes (line[l] = {omega_l, S_l}: one cache line per visit of a line). A sweep costs
+ * twice the total hit count in scattered reads and writes; returns the largest change. */
+static double lines_sweep(const overlap_settings *s, const lines *L, int n, const double *W,
+                          const double *k0, double (*line)[2], double *kappa) {
+    double change = 0.0;
+    for (int i = 0; i < n; ++i) {
+        if (!(W[i] > 0.0)) continue;
+        const double d =
+            gs_step(s, line_dot(L, i, (const double(*)[2])line), W[i], k0[i], &kappa[i]);
+        if (d != 0.0)
+            for (long e = L->by_start[i]; e < L->by_start[i + 1]; ++e)
+                line[L->by_line[e]][1] += d;
+        change = fmax(change, fabs(d));
+    }
+    return change;
+}
+
+/* The lines' hit lists cut down to the spheres marked in `in` (sharing L's weights and its
+ * lines-through-each-sphere lists, which stay valid for the marked spheres). */
+static pen_status lines_restrict(pen_context *ctx, const lines *L, const unsigned char *in,
+                                 int threads, lines *R) {
+    *R = *L;
+    R->start = pen__calloc(ctx, (size_t)L->count + 1, sizeof(long), "overlap: support lines");
+    if (!R->start) return PEN_ERROR_MEMORY;
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (long l = 0; l < L->count; ++l) {
+        long m = 0;
+        for (long e = L->start[l]; e < L->start[l + 1]; ++e)
+            m += in[L->hit[e]] != 0;
+        R->start[l + 1] = m;
+    }
+    for (long l = 0; l < L->count; ++l)
+        R->start[l + 1] += R->start[l];
+    R->hit =
+        pen__malloc(ctx, (size_t)R->start[L->count] + 1, sizeof(int), "overlap: support lines");
+    if (!R->hit) {
+        free(R->start);
+        return PEN_ERROR_MEMORY;
+    }
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (long l = 0; l < L->count; ++l) {
+        long f = R->start[l];
+        for (long e = L->start[l]; e < L->start[l + 1]; ++e)
+            if (in[L->hit[e]]) R->hit[f++] = L->hit[e];
+    }
     return PEN_OK;
+}
+
+/* Larger sets. A sweep over the lines from kappa0 (lines_sweep, G never assembled) first. If the
+ * spheres left above 0 are few (their count squared below the hits / SUPPORT_RATIO), as in a
+ * dense set, where most weights end at 0 (Spot's 4096 fitted spheres: 1365 above 0 after the
+ * first sweep, 1310 at the end), the iteration goes on with G restricted to the marked spheres
+ * (a sphere at 0 adds nothing to any (G kappa)_i): G's rows over them, assembled from the lines
+ * cut down to them (Spot's 4096: a million entries, a sweep in a millisecond instead of 50), are
+ * swept to a change of LINES_LOOSE, then one product over all the lines gives the step each
+ * sphere outside would take; those that would move by the stopping change join (their rows are
+ * added, and their columns to the rows there), and the round repeats, at LINES_TOL once none
+ * joins at the loose one, until none joins at LINES_TOL: then no step of a sweep over every
+ * sphere moves a weight by more than a sweep over the lines would have stopped at. Otherwise
+ * (most weights above 0: G on them would be as large as the lines) the sweeps over the lines go
+ * on to LINES_TOL, as they always did. Every sum runs in an order fixed by the set (per line,
+ * per sphere, per row), none by the threads. */
+static pen_status solve_lines(pen_context *ctx, const overlap_settings *s, const lines *L, int n,
+                              int threads, const double *W, const double *k0, double *kappa) {
+    double(*line)[2] = pen__malloc(ctx, (size_t)L->count, 2 * sizeof(double), "overlap: lines");
+    unsigned char *in = pen__calloc(ctx, (size_t)n, 1, "overlap: support");
+    if (!line || !in) {
+        free(line), free(in);
+        return PEN_ERROR_MEMORY;
+    }
+    for (long l = 0; l < L->count; ++l)
+        line[l][0] = L->omega[l];
+    line_sums(L, kappa, threads, line);
+    double change = lines_sweep(s, L, n, W, k0, line, kappa);
+    double support = 0.0;
+    for (int i = 0; i < n; ++i)
+        if (W[i] > 0.0 && kappa[i] > 0.0) in[i] = 2, support += 1.0;
+    if (support * support * SUPPORT_RATIO > (double)L->start[L->count]) {
+        /* Most weights stay above 0: G on the support would be about as large as the lines. */
+        for (int sweep = 1; sweep < s->max_sweeps && change >= LINES_TOL; ++sweep)
+            change = lines_sweep(s, L, n, W, k0, line, kappa);
+        free(line), free(in);
+        return PEN_OK;
+    }
+    pen_status st = PEN_OK;
+    gram M = {0};
+    double tol = LINES_LOOSE;
+    for (int grown = 1; !st;) {
+        if (grown) {
+            lines R;
+            st = lines_restrict(ctx, L, in, threads, &R);
+            if (st) break;
+            st = gram_grow(ctx, &R, n, threads, in, &M);
+            free(R.start), free(R.hit);
+            if (st) break;
+        }
+        gram_sweeps(s, &M, n, W, k0, in, tol, kappa);
+        /* The would-be step of each sphere outside, from the lines' sums. */
+        line_sums(L, kappa, threads, line);
+        grown = 0;
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 16) reduction(| : grown)
+        for (int i = 0; i < n; ++i) {
+            if (in[i] || !(W[i] > 0.0)) continue;
+            double k = kappa[i];
+            const double g = line_dot(L, i, (const double(*)[2])line);
+            if (fabs(gs_step(s, g, W[i], k0[i], &k)) >= tol) in[i] = 2, grown = 1;
+        }
+        if (!grown && tol == LINES_TOL) break;
+        if (!grown) tol = LINES_TOL;
+    }
+    gram_free(&M, n);
+    free(line), free(in);
+    return st;
 }
 
 pen_status pen_spheres_overlap_weights(pen_context *ctx, const pen_spheres *spheres, float *kappa) {
@@ -530,6 +728,7 @@ pen_status pen_spheres_overlap_weights(pen_context *ctx, const pen_spheres *sphe
     lines L;
     pen_status st = lines_build(ctx, s, spheres->data, n, K, threads, &L);
     if (!st) {
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 16)
         for (int i = 0; i < n; ++i) {
             double a = 0.0, b = 0.0;
             for (long e = L.by_start[i]; e < L.by_start[i + 1]; ++e) {
@@ -540,8 +739,10 @@ pen_status pen_spheres_overlap_weights(pen_context *ctx, const pen_spheres *sphe
             W[i] = a;
             k0[i] = a > 0.0 ? b / a : 1.0;
         }
+        for (int i = 0; i < n; ++i)
+            out[i] = k0[i];
         st = n <= GRAM_MAX_SPHERES ? solve_gram(ctx, s, &L, n, threads, W, k0, out)
-                                   : solve_lines(ctx, s, &L, n, W, k0, out);
+                                   : solve_lines(ctx, s, &L, n, threads, W, k0, out);
     }
     lines_free(&L);
     /* Solved for a count of 1; the objective is quadratic, so the solution for the target T is
