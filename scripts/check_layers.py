@@ -60,19 +60,50 @@ def backend_of(src):
     return next((b for b in BACKENDS if src.startswith(b + '/')), None)
 
 
-def seam(sources, calls, defined):
-    """The seam's violations: a kernel file that threads, a frame file that calls a kernel or
-    includes a kernel header itself, or that calls into a backend past its table; a backend that
-    calls the frame's passes."""
+def source_files(top):
+    """Every C source, header and included text under src/<top>, relative to src/."""
+    out = []
+    for dirpath, _, files in os.walk(os.path.join(ROOT, 'src', top)):
+        out += [os.path.relpath(os.path.join(dirpath, f), os.path.join(ROOT, 'src'))
+                for f in files if f.endswith(('.c', '.h', '.inc', '.cpp'))]
+    return sorted(out)
+
+
+def kernel_objects():
+    """The objects compiled from src/<KERNELS>, in every target (the fast kernel is built once
+    per instruction set in targets of its own)."""
+    top = os.path.join(BUILD, 'CMakeFiles')
+    return sorted(os.path.join(dirpath, f) for d in os.listdir(top) if d.startswith('penumbra')
+                  for dirpath, _, files in os.walk(os.path.join(top, d, 'src', KERNELS))
+                  for f in files if f.endswith('.o'))
+
+
+def seam(sources, calls):
+    """The seam's violations, from the text of every file under src/shade and src/render and
+    from the objects: a kernel that threads (OpenMP in its text or its objects); a frame file
+    (src/render outside a backend's folder) that calls a kernel, includes a kernel's or a
+    backend's header itself, or calls into a backend past its table; a backend that calls the
+    frame's passes."""
     bad = []
-    for s in sources:
-        text = open(os.path.join(ROOT, 'src', s), errors='replace').read()
-        if folder(s) == KERNELS and re.search(r'#\s*(include\s*<omp\.h>|pragma\s+omp)', text):
+    omp = re.compile(r'#\s*(include\s*<omp\.h>|pragma\s+omp)|_Pragma\s*\(\s*"\s*omp')
+    for s in source_files(KERNELS):
+        if omp.search(open(os.path.join(ROOT, 'src', s), errors='replace').read()):
             bad.append('%s: threads (omp) in a kernel' % s)
-        if folder(s) != 'render':
-            continue
+    for o in kernel_objects():
+        out = subprocess.run(['nm', '-u', o], capture_output=True, text=True).stdout
+        syms = sorted({w for w in out.split() if w.startswith(('omp_', 'GOMP_'))})
+        if syms:
+            bad.append('%s: threads in a kernel object: %s' % (os.path.basename(o), ' '.join(syms)))
+    for s in source_files('render'):
         b = backend_of(s)
-        for t, syms in sorted(calls[s].items()):
+        text = open(os.path.join(ROOT, 'src', s), errors='replace').read()
+        if b is None:
+            for m in re.finditer(r'#include "((?:%s|%s)/[a-z_]+\.(?:h|inc))"'
+                                 % (KERNELS, '|'.join(BACKENDS)), text):
+                if s == 'render/render_internal.h' and m.group(1).startswith(KERNELS + '/'):
+                    continue  # the state holds the kernels' parameter types
+                bad.append('%s includes %s' % (s, m.group(1)))
+        for t, syms in sorted(calls.get(s, {}).items()):
             if b is None and folder(t) == KERNELS:
                 bad.append('%s calls kernels: %s' % (s, ' '.join(sorted(syms))))
             tb = backend_of(t)
@@ -81,10 +112,6 @@ def seam(sources, calls, defined):
                            % (s, tb, ' '.join(sorted(syms - {BACKENDS[tb]}))))
             if b is not None and t in ('render/forward.c', 'render/backward.c'):
                 bad.append('%s calls the frame\'s pass %s' % (s, t))
-        if b is None and s != 'render/render_internal.h':
-            for m in re.finditer(r'#include "(%s/[a-z_]+\.(?:h|inc))"' % KERNELS, text):
-                bad.append('%s includes %s (the frame sees the kernels\' types through '
-                           'render_internal.h only)' % (s, m.group(1)))
     return bad
 
 
@@ -182,7 +209,7 @@ def main():
         if len(impl) > 1:
             split.append(h)
     print('public headers implemented in more than one folder:', ', '.join(split) or 'none')
-    crossed = seam(sources, calls, defined)
+    crossed = seam(sources, calls)
     print('backend seam crossed:', '; '.join(crossed) or 'none')
     return 1 if upward or folder_cycles or pairs or big or split or crossed else 0
 

@@ -312,7 +312,7 @@ static void test_pixel_grad(void) {
         snprintf(what, sizeof what, "random %d", trial);
         px_check(&r2, what);
     }
-    /* The inside rule (render_internal.h): receivers in the fade band of spheres (0.9 r < |c - x|
+    /* The inside rule (shade/shade.h): receivers in the fade band of spheres (0.9 r < |c - x|
      * < r), deeper inside and just outside, the centres towards the lights. */
     for (int trial = 0; trial < 20; ++trial) {
         px_case r2;

@@ -155,7 +155,7 @@ static void place_at(setup *S, int i, double q, double r) {
     S->s[4 * i + 3] = r;
 }
 
-/* The inside rule (render_internal.h): finite differences in double with receivers in the fade
+/* The inside rule (shade/shade.h): finite differences in double with receivers in the fade
  * band (0.9 r < |c - x| < r), deeper inside (weight 0, gradient 0) and outside, with and without
  * overlap weights; then the weight's ends: a sphere containing the receiver deeper than 0.9 r
  * shades exactly as no sphere, with exactly zero gradient. */

@@ -25,7 +25,9 @@
  * - reduce: those accumulators summed in a fixed order (gradients independent of the thread
  *   count) and added into grad: the lighting (with the objects' `seen` mapped back), the lights,
  *   the albedos, the spheres and through them the pose.
- * A backend keeps its buffers in the render state; the frame sizes nothing for it. */
+ * The CPU backend keeps its buffers (tile groups, the kernel's store, accumulator rows,
+ * workspaces) in the render state, whose struct, release and memory estimate are the frame's
+ * (render_internal.h, state.c): a second backend would add its own there too. */
 #ifndef PEN_RENDER_BACKEND_H
 #define PEN_RENDER_BACKEND_H
 

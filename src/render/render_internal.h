@@ -19,16 +19,15 @@
 /* ---- Frame: what the files of the full frame share --------------------------------------------
  * Who calls whom: forward.c calls state.c, footprint.c, background.c, ground.c, self.c,
  * ground_shadow.c and the backend's table; backward.c calls state.c, footprint.c and the
- * backend's table; self.c and ground_shadow.c call state.c (and src/geometry's transfer);
- * background.c and footprint.c call state.c; ground.c and state.c call no other file of the
- * frame. The CPU backend (cpu/) calls these files, never forward.c or backward.c. */
+ * backend's table; self.c and ground_shadow.c call state.c and transfer_pool.c (and
+ * src/geometry's transfer); background.c and footprint.c call state.c; state.c calls
+ * transfer_pool.c; ground.c and transfer_pool.c call no other file of the frame. The CPU backend (cpu/) calls these files, never forward.c or backward.c. */
 #include "geometry/lattice.h" /* the self transfer's nodes */
 #include "penumbra/render.h" /* the state's options, view, G-buffer and timings */
 
 #include <stddef.h>
 #include <stdint.h>
 #include <stdlib.h> /* free, in PEN__BUF_FREE */
-#include <string.h> /* memcpy, in pen__tile_ws_push */
 
 /* Screen tiles: the unit of parallel work and of the fast kernel's calls (its batches are the
  * tile's shaded pixels), and of the backward's double accumulators. */

@@ -3,8 +3,8 @@
  *
  * Design
  * - What the state keeps. The G-buffer and per-pixel x, raw normal, n, rho, uv and the
- *   pre-antialiasing colour, each tile's shaded pixels in lighting groups (cpu/tiles.c: one parallel
- *   pass before the shading, read again by the backward), and the kernel's store: F per pixel
+ *   pre-antialiasing colour, each tile's shaded pixels in lighting groups (cpu/tiles.c: one
+ *   parallel pass before the shading, read again by the backward), and the kernel's store: F per pixel
  *   (fast kernel, in its batch layout per tile) or F and V per pixel (scalar kernel). The
  *   per-sphere terms are recomputed in the backward (cheaper than storing bands^2 x spheres
  *   floats per pixel). Per object: the posed vertices, their normals and gradient buffers.
@@ -34,12 +34,12 @@ void *pen__buf_grow(pen_context *ctx, void *data, size_t *cap, size_t count, siz
     return p;
 }
 
-/* 8 interleaved multiplicative lanes, vectorised: a fraction of a millisecond for a 1024 x 512
- * map. */
 double pen__render_ms_since(double t0) {
     return 1e3 * (omp_get_wtime() - t0);
 }
 
+/* 8 interleaved multiplicative lanes, vectorised: a fraction of a millisecond for a 1024 x 512
+ * map. */
 uint64_t pen__render_hash32(const void *data, size_t n) {
     const unsigned char *b = data;
     uint64_t h[8] = {1, 2, 3, 4, 5, 6, 7, 8};

@@ -4,13 +4,15 @@
  * only files of the renderer that call the kernels (src/shade) or start threads for them;
  * scripts/check_layers.py holds the frame to that.
  * Who calls whom: backend.c calls shade_fwd.c and shade_bwd.c; they call tiles.c and
- * transfer_shade.c; transfer_shade.c calls tiles.c (the workspace); all of them call the frame's
+ * transfer_shade.c (which uses tiles.c's workspace inline); all of them call the frame's
  * state.c, footprint.c, background.c, ground.c, self.c and ground_shadow.c for their data, never
  * forward.c or backward.c. */
 #ifndef PEN_RENDER_CPU_H
 #define PEN_RENDER_CPU_H
 
 #include "render/render_internal.h"
+
+#include <string.h> /* memcpy, in pen__tile_ws_push */
 
 /* ---- shade_fwd.c, shade_bwd.c: the backend's stages (backend.h) ---- */
 
@@ -33,7 +35,7 @@ typedef struct pen__tile_ws {
     float *x, *n, *rho, *out, *dx, *dn, *drho; /* 3 floats per compacted pixel */
     int *cull; /* the spheres that may shadow a disk light in the tile (pen__tile_lights_cull) */
     int *cand, *ncand; /* per receiver of a block, its own of them (pen__lights_candidates) */
-    float *fstore;     /* a fast call's store for up to PEN_TILE_PX pixels (self.c's F) */
+    float *fstore; /* a fast call's store for up to PEN_TILE_PX pixels (the transfer pixels' F) */
     void *kernel;
 } pen__tile_ws;
 
@@ -72,7 +74,7 @@ double pen__stage_ms(double loop_ms, unsigned long long stage, unsigned long lon
 
 /* A pass over the tiles: store is the fast kernel's store (tile t's part at tile_off[t]) or the
  * scalar kernel's per-pixel F and V (tile_off NULL), or NULL when nothing is kept; bw is the
- * backward's request (backward.c; NULL in the forward). */
+ * backward's request (shade_bwd.c; NULL in the forward). */
 struct pen__bwd_want;
 typedef struct pen__tile_job {
     const pen_scene *sc;
@@ -95,7 +97,8 @@ int pen__tile_group_object(const pen_render_state *st, int g);
 /* The lighting of group g. */
 const float (*pen__tile_group_lighting(const pen_scene *sc, const pen_render_state *st, int g))[3];
 /* Floats of the fast store for a run of count pixels: the kernel's batches of the pixels it
- * shades, then, in a frame with transfer pixels, their F (self.c) one pixel after another. */
+ * shades, then, in a frame with transfer pixels, their F (transfer_shade.c) one pixel
+ * after another. */
 size_t pen__tile_run_store(const pen_render_state *st, int count);
 /* Where each tile's part of the fast kernel's store begins (ntiles + 1 offsets in floats). */
 pen_status pen__tile_store_layout(pen_context *ctx, pen_render_state *st, int ntiles);
