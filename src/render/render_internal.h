@@ -177,6 +177,7 @@ struct pen_render_state {
                          * at the pixel centre, the texture's footprint (texture.h) */
     pen__buf_float d_uvj; /* its gradient (4 floats per pixel) */
     pen__buf_float bary_scratch; /* pen_raster_bary_bwd_scratch's 9 floats per pixel */
+    PEN__BUF(int) tx_span, tx_cut; /* the texel scatter's bands (backward.c) */
     PEN__BUF(size_t) tile_off;   /* the fast store's layout per tile (pen__tile_store_layout) */
     PEN__BUF(pen__tile_groups) groups; /* per tile, of the last forward */
     pen__buf_float fv; /* scalar kernel: F and V per pixel (2 bands^2); fast: its store, per tile */

@@ -186,6 +186,7 @@ void pen_render_state_free(pen_render_state *st) {
     PEN__BUF_FREE(st->fv), PEN__BUF_FREE(st->lights_V), PEN__BUF_FREE(st->rows), PEN__BUF_FREE(st->ws), PEN__BUF_FREE(st->bg);
     PEN__BUF_FREE(st->uvj), PEN__BUF_FREE(st->d_uvj);
     PEN__BUF_FREE(st->bary_scratch), PEN__BUF_FREE(st->tile_off), PEN__BUF_FREE(st->groups);
+    PEN__BUF_FREE(st->tx_span), PEN__BUF_FREE(st->tx_cut);
     pen__pool_release(st->pool);
     free(st);
 }

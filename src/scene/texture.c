@@ -169,20 +169,25 @@ void pen__texture_footprint_bwd(const pen_image *tex, const float uv[2], const f
     }
 }
 
-/* Whether the lookup may read a texel of rows [r0, r1): the rows around v - |dv| .. v + |dv|,
- * |dv| = the footprint's reach along v (the grid's offsets are at most 1/2), wrapped. Anything
- * not finite, or a reach over the whole image, may read every row. */
-static int lookup_may_read_rows(const pen_image *tex, const float uv[2], const float J[4], long r0,
-                                long r1) {
+int pen__texture_rows(const pen_image *tex, const float uv[2], const float J[4], long *first,
+                      long *last) {
     const double reach = J ? 0.5 * (fabs((double)J[2]) + fabs((double)J[3])) : 0.0;
     const double H = (double)tex->height;
     const double lo = (1.0 - ((double)uv[1] + reach)) * H - 0.5;
     const double hi = (1.0 - ((double)uv[1] - reach)) * H - 0.5;
-    if (!(lo >= -1e9 && hi <= 1e9) || hi - lo >= H - 4.0) return 1;
+    if (!(lo >= -1e9 && hi <= 1e9) || hi - lo >= H - 4.0) return 0;
     /* rows a .. b, unwrapped, a row more on each side than the samples' floor() can reach */
     const long a = (long)floor(lo) - 1, b = (long)floor(hi) + 2;
     const long h = tex->height;
-    const long wa = ((a % h) + h) % h, wb = ((b % h) + h) % h;
+    *first = ((a % h) + h) % h, *last = ((b % h) + h) % h;
+    return 1;
+}
+
+/* Whether the lookup may read a texel of rows [r0, r1) (pen__texture_rows). */
+static int lookup_may_read_rows(const pen_image *tex, const float uv[2], const float J[4], long r0,
+                                long r1) {
+    long wa, wb;
+    if (!pen__texture_rows(tex, uv, J, &wa, &wb)) return 1;
     if (wa <= wb) return wa < r1 && wb >= r0;
     return wa < r1 || wb >= r0; /* across the last row: [wa, h) and [0, wb] */
 }

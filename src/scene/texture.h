@@ -24,6 +24,13 @@ void pen__texture_footprint_bwd(const pen_image *tex, const float uv[2], const f
                                 const float d_rgb[3], float *d_texels, float d_uv[2],
                                 float d_J[4]);
 
+/* The rows a lookup at uv (over the footprint J, or NULL for a point) may read: first .. last,
+ * wrapped (first > last: first .. height - 1 and 0 .. last), a row more on each side than its
+ * samples reach. Returns 0, leaving them alone, when it may read any row (a footprint over the
+ * whole image, or coordinates that are not finite). */
+int pen__texture_rows(const pen_image *tex, const float uv[2], const float J[4], long *first,
+                      long *last);
+
 /* The texel part of pen__texture_bwd (J NULL) or pen__texture_footprint_bwd, for the texels of
  * rows [r0, r1) only: each texel receives exactly the terms, in the same order, that the full
  * backward gives it, so disjoint row bands can be scattered by different threads with the same
