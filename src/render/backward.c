@@ -240,12 +240,13 @@ static pen_status texel_bands(pen_context *ctx, const pen_scene *sc, pen_render_
         const pen_object *ob = &sc->objects[surf];
         long a = 0, b = 0;
         if (!pen__texture_rows(&ob->texture, st->uv.data + 2 * i,
-                               pen__render_footprint(ob) ? st->uvj.data + 4 * i : NULL, &a, &b))
+                               pen__render_footprint(ob) ? st->uvj.data + 4 * i : NULL, &a, &b)) {
             span[2 * i] = -2;
-        else
-            span[2 * i] = (int)row_bin(a, ob->texture.height),
-                     span[2 * i + 1] = (int)row_bin(b, ob->texture.height);
-        if (span[2 * i] >= 0 && a > b && span[2 * i] == span[2 * i + 1])
+            continue;
+        }
+        span[2 * i] = (int)row_bin(a, ob->texture.height);
+        span[2 * i + 1] = (int)row_bin(b, ob->texture.height);
+        if (a > b && span[2 * i] == span[2 * i + 1])
             span[2 * i] = -2; /* wraps from a bin round to the same one */
     }
     /* Cuts at equal shares of the pixels by their first bin. */
