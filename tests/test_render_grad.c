@@ -552,8 +552,7 @@ static void test_thread_count_independent(void) {
 /* The texel gradient of footprint lookups, scattered by row bands in parallel, equals the serial
  * scatter's bit for bit: a frame large enough for the threads, 1 against 2 and 3 threads, and
  * against pen__texture_footprint_bwd pixel by pixel in pixel order. */
-static void test_texel_scatter_threads(void) {
-    pen_scene sc = rs_ball_scene(96, 1, &seed);
+static void texel_scatter_case(pen_scene sc) {
     CHECK(sc.objects[0].texture_filter == PEN_TEXTURE_FILTER_FOOTPRINT);
     const unsigned wrt = PEN_GRAD_ALBEDO | PEN_GRAD_LIGHTING;
     pen_render_grad g[3];
@@ -603,6 +602,22 @@ static void test_texel_scatter_threads(void) {
     pen_render_state_free(st0);
     pen_context_destroy(ctx0);
     pen_scene_free(&sc);
+}
+
+/* The bands (backward.c, texel_bands) are cut where the pixels' rows fall: the ball's own
+ * texture coordinates; coordinates repeated 3.3 times down the texture from 0.37, so lookups wrap
+ * across its last row into its first; and repeated 150 times, so footprints reach every row. */
+static void test_texel_scatter_threads(void) {
+    const float repeat[3] = {1.0f, 3.3f, 150.0f};
+    for (int c = 0; c < 3; ++c) {
+        pen_scene sc = rs_ball_scene(96, 1, &seed);
+        pen_mesh *m = &sc.objects[0].mesh;
+        for (int k = 0; c > 0 && k < m->uv_count; ++k) {
+            m->uvs[2 * k] *= repeat[c];
+            m->uvs[2 * k + 1] = 0.37f + repeat[c] * m->uvs[2 * k + 1];
+        }
+        texel_scatter_case(sc);
+    }
 }
 
 static int grad_finite(const pen_render_grad *g) {
