@@ -100,7 +100,9 @@ double pen_optim_memory_estimate(pen_context *ctx, const pen_optim_task *t,
     b += image_bytes(&t->target) + 2.0 * image_bytes(&t->target); /* render, its gradient */
     pen_scene v = *sc;
     if (t->view_count <= 0) {
-        b += (2.0 + solve) * pen_render_state_bytes(sc, wrt, threads);
+        /* the loop's state(s) and the evaluations' own, which no backward uses */
+        b += (1.0 + solve) * pen_render_state_bytes(sc, wrt, threads) +
+             pen_render_state_bytes(sc, 0, threads);
         return b;
     }
     /* this rank's block of the views taking part (weight > 0), as pen__optim_views_plan cuts
@@ -126,13 +128,14 @@ double pen_optim_memory_estimate(pen_context *ctx, const pen_optim_task *t,
         if (!(w->weight > 0.0) || j < lo || j >= hi) continue;
         v.camera = w->camera;
         const double st = pen_render_state_bytes(&v, wrt, threads);
-        largest = st > largest ? st : largest;
+        const double eval = pen_render_state_bytes(&v, 0, threads);
+        largest = eval > largest ? eval : largest;
         /* its state(s); its render, gradient, target over the exposure and weights */
         const int eye = (t->optimize & PEN_OPTIM_EXPOSURE) ||
                         (w->exposure != 1.0 && w->exposure != 0.0);
         b += (1.0 + solve) * st + (24.0 + 12.0 * eye + (w->mask ? 4.0 : 0.0)) * px;
     }
-    return b + largest; /* the evaluations' own state */
+    return b + largest; /* the evaluations' own state, which no backward uses */
 }
 
 double pen__optim_machine_bytes(void) {
