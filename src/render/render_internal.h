@@ -186,6 +186,7 @@ struct pen_render_state {
     int lights_V_valid;      /* the forward kept lights_V (a state, shadows on, lights) */
     int fast;          /* the forward used the fast kernel */
     PEN__BUF(double) rows;      /* the backward's double accumulators, one block per tile */
+    PEN__BUF(size_t) row_off;   /* where each tile's block begins (cpu/shade_bwd.c) */
     PEN__BUF(unsigned char) ws; /* per-thread workspaces (pen__tile_ws) */
     pen__buf_float bg;          /* environment-map background of the last frame, 3 per pixel */
     int bg_use;         /* this frame: 0 none, 2 read bg (filled by pen__background_prepare) */

@@ -114,14 +114,15 @@ double pen_render_state_bytes(const pen_scene *sc, unsigned wrt, int threads) {
      * thread's tile workspace (pixel lists, the fast kernel's lane arrays of F and V) */
     b += (double)sizeof(pen_render_state) + (double)sizeof(pen__object_buf) * sc->object_count;
     b += 40.0 * spheres + (threads > 0 ? threads : 1) * PEN_TILE_PX * (88.0 + 8.0 * nc);
-    /* the backward's rows per tile, in double (the CPU backend's layout, cpu/shade_bwd.c): the
-     * lighting, each object's albedo, the spheres, the lights; under ground occlusion each
-     * object's `seen` lighting and horizon factors too, 1.6 GB for 4096 objects at 512^2 */
-    const double O = (double)sc->object_count;
-    const double seen = sc->ground.enabled && sc->shadow.ground == PEN_GROUND_OCCLUDES ? O : 0.0;
+    /* the backward's rows, in double (the CPU backend's layout, cpu/shade_bwd.c): per tile the
+     * lighting, each object's albedo, the spheres, the lights; under ground occlusion an entry
+     * for each object a tile shows (its `seen` lighting and horizon factors), taken as one per
+     * tile and one per object beyond */
+    const double O = (double)sc->object_count, tiles = px / PEN_TILE_PX + 1.0;
+    const int seen = sc->ground.enabled && sc->shadow.ground == PEN_GROUND_OCCLUDES && O > 0.0;
     if (wrt)
-        b += 8.0 * (3.0 * nc * (1.0 + seen) + 3.0 * O + 4.0 * spheres + (7.0 + seen) * K + 3.0) *
-             (px / PEN_TILE_PX + 1.0);
+        b += 8.0 * ((3.0 * nc + 3.0 * O + 4.0 * spheres + 7.0 * K + 3.0) * tiles +
+                    (seen ? (3.0 * nc + K) * (tiles + O) : 0.0));
     return b;
 }
 
@@ -192,7 +193,7 @@ void pen_render_state_free(pen_render_state *st) {
     PEN__BUF_FREE(st->fv), PEN__BUF_FREE(st->lights_V), PEN__BUF_FREE(st->rows), PEN__BUF_FREE(st->ws), PEN__BUF_FREE(st->bg);
     PEN__BUF_FREE(st->uvj), PEN__BUF_FREE(st->d_uvj);
     PEN__BUF_FREE(st->bary_scratch), PEN__BUF_FREE(st->tile_off), PEN__BUF_FREE(st->groups);
-    PEN__BUF_FREE(st->tx_span), PEN__BUF_FREE(st->tx_cut);
+    PEN__BUF_FREE(st->tx_span), PEN__BUF_FREE(st->tx_cut), PEN__BUF_FREE(st->row_off);
     pen__pool_release(st->pool);
     free(st);
 }

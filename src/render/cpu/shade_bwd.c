@@ -20,25 +20,43 @@
 #include <stdlib.h>
 #include <string.h>
 
-/* Layout of one tile's double accumulators (the backward's small dense gradients). */
+/* Layout of the backward's double accumulators. A tile's row holds the dense part, [0, dense):
+ * sh, the lighting gradient of pixels shaded with the scene's lighting, the ground's and the
+ * objects' constant albedos, the world-space spheres, the lights; then, with ground occlusion,
+ * one entry of `entry` doubles per object the tile shows (its runs' order): the gradient of its
+ * `seen` lighting (3 bands^2) and of its horizon factors (one per light). Kept per object in every
+ * tile, those took 3 bands^2 doubles per object and tile: 1.6 GB for 4096 objects at 512^2. The
+ * reduction's sums lay the same dense part out first, then every object's `seen` (sh_obj) and
+ * horizon factors (light_G), mapped back after it (ground.c); stride is their size. */
 typedef struct row_layout {
-    size_t sh, sh_obj, ground, albedo, spheres, lights, light_G, stride;
+    size_t sh, ground, albedo, spheres, lights, dense, entry, sh_obj, light_G, stride;
 } row_layout;
 
-/* sh: the lighting gradient of pixels shaded with the scene's lighting; sh_obj (with ground
- * occlusion, `seen` objects, else none): per object, of its pixels shaded with its `seen`, mapped
- * back after the reduction. */
 static row_layout rows_layout(int bands, int objects, int seen, int spheres, int lights) {
+    const size_t nsh = 3 * (size_t)bands * (size_t)bands;
     row_layout r;
     r.sh = 0;
-    r.sh_obj = r.sh + 3 * (size_t)bands * (size_t)bands;
-    r.ground = r.sh_obj + 3 * (size_t)bands * (size_t)bands * (size_t)seen;
+    r.ground = r.sh + nsh;
     r.albedo = r.ground + 3;
     r.spheres = r.albedo + 3 * (size_t)objects;
     r.lights = r.spheres + 4 * (size_t)spheres; /* PEN_LIGHT_GRAD_DOUBLES per light */
-    r.light_G = r.lights + PEN_LIGHT_GRAD_DOUBLES * (size_t)lights; /* per `seen` object, light */
+    r.dense = r.lights + PEN_LIGHT_GRAD_DOUBLES * (size_t)lights;
+    r.entry = seen ? nsh + (size_t)lights : 0;
+    r.sh_obj = r.dense;
+    r.light_G = r.sh_obj + nsh * (size_t)seen; /* per `seen` object, light */
     r.stride = r.light_G + (size_t)seen * (size_t)lights;
     return r;
+}
+
+/* The runs of tile t shaded with an object's own `seen` lighting (one per object it shows). */
+static int tile_entries(const pen_render_state *st, int t) {
+    int e = 0;
+    for (int r = 0; r < st->groups.data[t].runs; ++r) {
+        const int *pix;
+        int cnt;
+        e += pen__tile_group_object(st, pen__tile_run(st, t, r, &pix, &cnt)) >= 0;
+    }
+    return e;
 }
 
 /* What the backward computes (the request a pen__tile_job carries to shade_tile_bwd). */
@@ -106,7 +124,7 @@ static void shade_tile_bwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
     const size_t nfv = 2 * (size_t)sc->sh_bands * (size_t)sc->sh_bands;
     const size_t nsh = 3 * (size_t)sc->sh_bands * (size_t)sc->sh_bands;
     const int S = st->sphere_count;
-    double *row = st->rows.data + bw->rl.stride * (size_t)t;
+    double *row = st->rows.data + st->row_off.data[t], *entry = row + bw->rl.dense;
     double *d_sph = bw->spheres ? row + bw->rl.spheres : NULL;
     int x0, y0, x1, y1;
     pen__tile_rect(st, t, &x0, &y0, &x1, &y1);
@@ -128,14 +146,13 @@ static void shade_tile_bwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
         const float(*sh)[3] = pen__tile_group_lighting(sc, st, g);
         /* where this group's lighting gradient goes: an object's own `seen`, or the lighting */
         const int own = pen__tile_group_object(st, g);
-        double(*d_sh)[3] =
-            own >= 0 ? (bw->seen ? (double(*)[3])(row + bw->rl.sh_obj + nsh * (size_t)own) : NULL)
-                     : (bw->light ? (double(*)[3])(row + bw->rl.sh) : NULL);
+        double *own_entry = own >= 0 ? entry : NULL; /* the tile's next object entry */
+        if (own >= 0) entry += bw->rl.entry;
+        double(*d_sh)[3] = own >= 0 ? (bw->seen ? (double(*)[3])own_entry : NULL)
+                                    : (bw->light ? (double(*)[3])(row + bw->rl.sh) : NULL);
         /* the disk lights: their horizon factors (objects with ground occlusion) and gradients */
         const double *G = own >= 0 ? st->obj[own].light_G : NULL;
-        double *d_G = own >= 0 && bw->light_G
-                          ? row + bw->rl.light_G + (size_t)own * (size_t)st->lights.count
-                          : NULL;
+        double *d_G = own >= 0 && bw->light_G ? own_entry + nsh : NULL;
         double *d_lights = bw->lights ? row + bw->rl.lights : NULL;
         /* Pixels shaded with their object's own transfer (self.c), as the forward split them;
          * the rest, nk of them, compacted into ws (ws->idx) for the kernel. */
@@ -263,11 +280,16 @@ pen_status pen__cpu_shade_bwd(pen_context *ctx, const pen_scene *sc, pen_render_
     const bwd_want bw = request(sc, st, wrt);
     const size_t np = (size_t)st->width * (size_t)st->height;
     const int ntiles = pen__tile_count(st);
-    if ((s = PEN__BUF_RESERVE(ctx, st->rows, bw.rl.stride * (size_t)ntiles,
-                              "tile gradient buffers")) ||
+    if ((s = PEN__BUF_RESERVE(ctx, st->row_off, (size_t)ntiles + 1, "tile gradient layout")))
+        return s;
+    size_t *off = st->row_off.data;
+    off[0] = 0;
+    for (int t = 0; t < ntiles; ++t)
+        off[t + 1] = off[t] + bw.rl.dense + (bw.rl.entry ? bw.rl.entry * tile_entries(st, t) : 0);
+    if ((s = PEN__BUF_RESERVE(ctx, st->rows, off[ntiles] + 1, "tile gradient buffers")) ||
         (bw.geom && (s = PEN__BUF_RESERVE(ctx, st->d_uvj, 4 * np, "footprint gradient"))))
         return s;
-    memset(st->rows.data, 0, sizeof(double) * bw.rl.stride * (size_t)ntiles);
+    memset(st->rows.data, 0, sizeof(double) * off[ntiles]);
     const int nt = pen__threads(ctx);
     size_t wsb = 0;
     if ((s = pen__tile_ws_reserve(ctx, st, nt, &wsb))) return s;
@@ -290,10 +312,25 @@ pen_status pen__cpu_reduce(pen_context *ctx, const pen_scene *sc, pen_render_sta
     /* Reduce the tiles in order. */
     double *sum = pen__calloc(ctx, bw.rl.stride + 1, sizeof(double), "gradient sums");
     if (!sum) return PEN_ERROR_MEMORY;
+    const size_t nsh = 3 * (size_t)nc;
     for (int t = 0; t < ntiles; ++t) {
-        const double *row = st->rows.data + bw.rl.stride * (size_t)t;
-        for (size_t k = 0; k < bw.rl.stride; ++k)
+        const double *row = st->rows.data + st->row_off.data[t];
+        for (size_t k = 0; k < bw.rl.dense; ++k)
             sum[k] += row[k];
+        /* each object the tile shows, in its runs' order: its `seen` and horizon factors */
+        const double *entry = row + bw.rl.dense;
+        for (int r = 0; bw.rl.entry && r < st->groups.data[t].runs; ++r) {
+            const int *pix;
+            int cnt;
+            const int o = pen__tile_group_object(st, pen__tile_run(st, t, r, &pix, &cnt));
+            if (o < 0) continue;
+            double *so = sum + bw.rl.sh_obj + nsh * (size_t)o, *go = sum + bw.rl.light_G;
+            for (size_t k = 0; k < nsh; ++k)
+                so[k] += entry[k];
+            for (int l = 0; l < K; ++l)
+                go[(size_t)o * (size_t)K + (size_t)l] += entry[nsh + (size_t)l];
+            entry += bw.rl.entry;
+        }
     }
     /* Lighting: the scene's own, plus what reaches it through the objects' `seen` (ground.c,
      * which also gives the objects' heights their share). */
