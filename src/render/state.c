@@ -115,14 +115,15 @@ double pen_render_state_bytes(const pen_scene *sc, unsigned wrt, int threads) {
     b += (double)sizeof(pen_render_state) + (double)sizeof(pen__object_buf) * sc->object_count;
     b += 40.0 * spheres + (threads > 0 ? threads : 1) * PEN_TILE_PX * (88.0 + 8.0 * nc);
     /* the backward's rows, in double (the CPU backend's layout, cpu/shade_bwd.c): per tile the
-     * lighting, each object's albedo, the spheres, the lights; under ground occlusion an entry
-     * for each object a tile shows (its `seen` lighting and horizon factors), taken as one per
-     * tile and one per object beyond */
+     * lighting and the ground's albedo, and what wrt asks for of the objects' albedos, the
+     * spheres and the lights; under ground occlusion an entry for each object a tile shows (its
+     * `seen` lighting and horizon factors), taken as one per tile and one per object beyond */
     const double O = (double)sc->object_count, tiles = px / PEN_TILE_PX + 1.0;
     const int seen = sc->ground.enabled && sc->shadow.ground == PEN_GROUND_OCCLUDES && O > 0.0;
-    if (wrt)
-        b += 8.0 * ((3.0 * nc + 3.0 * O + 4.0 * spheres + 7.0 * K + 3.0) * tiles +
-                    (seen ? (3.0 * nc + K) * (tiles + O) : 0.0));
+    const double dense = 3.0 * nc + 3.0 + 3.0 * O * ((wrt & PEN_GRAD_ALBEDO) != 0) +
+                         4.0 * spheres * ((wrt & (PEN_GRAD_SPHERES | PEN_GRAD_POSE)) != 0) +
+                         7.0 * K * ((wrt & (PEN_GRAD_LIGHTS | PEN_GRAD_LIGHT_IRRADIANCE)) != 0);
+    if (wrt) b += 8.0 * (dense * tiles + (seen ? (3.0 * nc + K) * (tiles + O) : 0.0));
     return b;
 }
 
