@@ -45,9 +45,13 @@
  * jumps: when a silhouette vertex whose two edges lie on both sides of 45 degrees crosses a row
  * (column) of pixel centres, the pair there changes exit edge and with it scheme.
  *
- * Passes: (1) in parallel over rows, each pair's receiver and weight; (2) in parallel over
- * pixels, each pixel gathers its up-to-four pairs. The backward mirrors this and scatters the
- * vertex gradients serially in pair order, so the results do not depend on the thread count.
+ * Passes: (1) in parallel over chunks of rows, each pair's receiver and weight, of which only
+ * the pairs that blend are kept (the hits, row by row in x order: the outline's pairs, a small
+ * part of the 2 W H); (2) in parallel over rows, the pixels no hit touches are copied (added,
+ * backward) and each touched pixel gathers its up-to-four hits. The backward mirrors this and
+ * scatters the vertex gradients serially in pair order, so the results do not depend on the
+ * thread count. The ground border blend (below) finds its candidate pixels by one branch-free
+ * scan of each row's surfaces and casts rays only from them.
  */
 #include "core/internal.h"
 #include "raster/raster_internal.h"
@@ -251,22 +255,60 @@ static pen_status check_args(pen_context *ctx, const pen_gbuffer *gb, const pen_
     return PEN_OK;
 }
 
+/* A pair that blends (receiver != 0), at column x of its row. */
+typedef struct aa_hit {
+    int x;
+    aa_pair pr;
+} aa_hit;
+
 /* Everything both directions need: validated arguments, the screen position of every vertex,
- * and each pair's blend (horizontal pairs at y * (W-1) + x, then vertical ones at y * W + x). */
+ * and the pairs that blend, row by row: row y's horizontal pairs (x, y)-(x+1, y) are
+ * hits[row[3y] .. row[3y+1]), its vertical pairs (x, y)-(x, y+1) hits[row[3y+1] .. row[3y+2]),
+ * each in increasing x. Only a pixel touched by one of them changes (few: the outline), so the
+ * blend, its transpose and the position gradient visit these, never the whole image's pairs. */
 typedef struct aa_state {
     aa_ctx ac;
-    aa_pair *pairs;
+    aa_hit *hits;
+    size_t *row;
     size_t *first_vertex, *first_edge;
     double *screen;
     uint8_t *silhouette;
 } aa_state;
 
 static void aa_end(aa_state *st) {
-    free(st->pairs);
+    free(st->hits);
+    free(st->row);
     free(st->first_vertex);
     free(st->first_edge);
     free(st->screen);
     free(st->silhouette);
+}
+
+/* Analyzes the pairs of rows [y0, y1), writing the blending ones from hits[at] on and their
+ * ranges into row[3 y0 .. 3 y1). A pair of two pixels with the same surface and triangle never
+ * blends (analyze_pair's first test), and most pairs are such: they are passed without a call. */
+static void analyze_rows(const aa_ctx *ac, int y0, int y1, aa_hit *hits, size_t at, size_t *row) {
+    const int W = ac->gb->width, H = ac->gb->height;
+    const int32_t *surface = ac->gb->surface, *triangle = ac->gb->triangle;
+    for (int y = y0; y < y1; ++y) {
+        const size_t i = (size_t)y * (size_t)W;
+        row[3 * (size_t)y] = at;
+        for (int x = 0; x + 1 < W; ++x) {
+            if (surface[i + x] == surface[i + x + 1] && triangle[i + x] == triangle[i + x + 1])
+                continue;
+            aa_pair pr = analyze_pair(ac, x, y, 0, NULL);
+            if (pr.receiver) hits[at].x = x, hits[at++].pr = pr;
+        }
+        row[3 * (size_t)y + 1] = at;
+        if (y + 1 < H)
+            for (int x = 0; x < W; ++x) {
+                const size_t j = i + (size_t)x + (size_t)W;
+                if (surface[i + x] == surface[j] && triangle[i + x] == triangle[j]) continue;
+                aa_pair pr = analyze_pair(ac, x, y, 1, NULL);
+                if (pr.receiver) hits[at].x = x, hits[at++].pr = pr;
+            }
+        row[3 * (size_t)y + 2] = at;
+    }
 }
 
 static pen_status aa_begin(pen_context *ctx, const pen_gbuffer *gb, const pen_view *view,
@@ -277,8 +319,7 @@ static pen_status aa_begin(pen_context *ctx, const pen_gbuffer *gb, const pen_vi
     if (status) return status;
     int W = gb->width, H = gb->height;
     int threads = pen__raster_threads_for(ctx, (size_t)W * (size_t)H);
-    size_t nh = (size_t)(W - 1) * (size_t)H, nv = (size_t)W * (size_t)(H - 1), total = 0;
-    size_t edges = 0;
+    size_t total = 0, edges = 0;
     st->first_vertex = pen__malloc(ctx, (size_t)mesh_count + 1, sizeof(size_t), "antialias");
     st->first_edge = pen__malloc(ctx, (size_t)mesh_count + 1, sizeof(size_t), "antialias");
     if (!st->first_vertex || !st->first_edge) {
@@ -290,10 +331,14 @@ static pen_status aa_begin(pen_context *ctx, const pen_gbuffer *gb, const pen_vi
         total += (size_t)meshes[m].vertex_count;
         edges += 3 * (size_t)meshes[m].triangle_count;
     }
+    /* Room for every pair (2W - 1 a row); each chunk of rows packs its hits from its first
+     * row's share on, so only the pages the few hits reach are ever touched. */
+    const size_t per_row = 2 * (size_t)W - 1;
     st->screen = pen__malloc(ctx, 3 * total + 1, sizeof(double), "antialias screen vertices");
     st->silhouette = pen__malloc(ctx, edges + 1, 1, "antialias silhouette flags");
-    st->pairs = pen__malloc(ctx, nh + nv + 1, sizeof *st->pairs, "antialias pairs");
-    if (!st->screen || !st->silhouette || !st->pairs) {
+    st->hits = pen__malloc(ctx, per_row * (size_t)H + 1, sizeof *st->hits, "antialias pairs");
+    st->row = pen__malloc(ctx, 3 * (size_t)H + 1, sizeof *st->row, "antialias rows");
+    if (!st->screen || !st->silhouette || !st->hits || !st->row) {
         aa_end(st);
         return PEN_ERROR_MEMORY;
     }
@@ -321,15 +366,14 @@ static pen_status aa_begin(pen_context *ctx, const pen_gbuffer *gb, const pen_vi
     aa_ctx ac = {gb,         view,           meshes,        mesh_count, st->first_vertex,
                  st->screen, st->first_edge, st->silhouette};
     st->ac = ac;
-    aa_pair *pairs = st->pairs;
-#pragma omp parallel for num_threads(threads) schedule(static)
-    for (int y = 0; y < H; ++y) {
-        for (int x = 0; x + 1 < W; ++x)
-            pairs[(size_t)y * (size_t)(W - 1) + (size_t)x] = analyze_pair(&st->ac, x, y, 0, NULL);
-        if (y + 1 < H)
-            for (int x = 0; x < W; ++x)
-                pairs[nh + (size_t)y * (size_t)W + (size_t)x] =
-                    analyze_pair(&st->ac, x, y, 1, NULL);
+    /* The walks crowd into the outline's rows: chunks of a few rows, handed out dynamically,
+     * keep the threads busy. What a pair gets does not depend on which thread analyzes it. */
+    const int chunks = threads > 1 ? (H < 8 * threads ? H : 8 * threads) : 1;
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 1)
+    for (int c = 0; c < chunks; ++c) {
+        const int y0 = (int)((long long)H * c / chunks);
+        const int y1 = (int)((long long)H * (c + 1) / chunks);
+        analyze_rows(&st->ac, y0, y1, st->hits, (size_t)y0 * per_row, st->row);
     }
     return PEN_OK;
 }
@@ -368,18 +412,49 @@ static void blend_pixel(const aa_pair *pr, const int *first, const size_t *other
     }
 }
 
-static void apply_blend(int threads, const aa_pair *pairs, int W, int H, const float *v,
-                        int channels, int transpose, float *dst) {
+/* One row of the blend: pixels that no hit touches get A's identity row and column (a copy
+ * forward, an add backward: blend_pixel with no pairs gives exactly these), and each touched
+ * pixel gathers its pairs in pixel_pairs' order (left, right, up, down) by merging the row's
+ * horizontal hits, the vertical hits above it and those below it, all sorted by x. */
+static void blend_row(const aa_state *st, int y, const float *v, int channels, int transpose,
+                      float *dst) {
+    const int W = st->ac.gb->width;
+    const size_t *row = st->row + 3 * (size_t)y, base = (size_t)y * (size_t)W;
+    const aa_hit *hl = st->hits + row[0], *hr = hl, *he = st->hits + row[1];
+    const aa_hit *d = he, *de = st->hits + row[2];
+    const aa_hit *u = y > 0 ? st->hits + row[-2] : de, *ue = y > 0 ? st->hits + row[-1] : de;
+    int done = 0; /* the row's pixels before this one are written */
+    for (;;) {
+        int x = W;
+        if (hl < he && hl->x + 1 < x) x = hl->x + 1;
+        if (hr < he && hr->x < x) x = hr->x;
+        if (u < ue && u->x < x) x = u->x;
+        if (d < de && d->x < x) x = d->x;
+        const size_t i = base + (size_t)x, ch = (size_t)channels, k0 = (base + (size_t)done) * ch;
+        if (transpose)
+            for (size_t k = k0; k < i * ch; ++k)
+                dst[k] += v[k];
+        else
+            memcpy(dst + k0, v + k0, sizeof(float) * (i * ch - k0));
+        if (x == W) return;
+        aa_pair pr[4];
+        int first[4], n = 0;
+        size_t other[4];
+        if (hl < he && hl->x + 1 == x) pr[n] = hl++->pr, first[n] = 0, other[n++] = i - 1;
+        if (hr < he && hr->x == x) pr[n] = hr++->pr, first[n] = 1, other[n++] = i + 1;
+        if (u < ue && u->x == x) pr[n] = u++->pr, first[n] = 0, other[n++] = i - (size_t)W;
+        if (d < de && d->x == x) pr[n] = d++->pr, first[n] = 1, other[n++] = i + (size_t)W;
+        blend_pixel(pr, first, other, n, i, v, channels, transpose, dst + i * ch);
+        done = x + 1;
+    }
+}
+
+static void apply_blend(int threads, const aa_state *st, const float *v, int channels,
+                        int transpose, float *dst) {
+    const int H = st->ac.gb->height;
 #pragma omp parallel for num_threads(threads) schedule(static)
     for (int y = 0; y < H; ++y)
-        for (int x = 0; x < W; ++x) {
-            size_t i = (size_t)y * (size_t)W + (size_t)x, idx[4], other[4];
-            int first[4], n = pixel_pairs(W, H, x, y, idx, first, other);
-            aa_pair pr[4];
-            for (int j = 0; j < n; ++j)
-                pr[j] = pairs[idx[j]];
-            blend_pixel(pr, first, other, n, i, v, channels, transpose, dst + i * (size_t)channels);
-        }
+        blend_row(st, y, v, channels, transpose, dst);
 }
 
 /* ---- The ground square's border ----------------------------------------------------------------
@@ -452,28 +527,44 @@ static aa_pair ground_pair(const pen_gbuffer *gb, const pen_view *view, const pe
     return pair_at(alpha, occ);
 }
 
-/* 1 when pixel i may lie on the border: a ground pixel beside a background one or the reverse,
- * told from the surfaces alone (most pixels are not: four reads, no ray). */
-static int border_candidate(const pen_gbuffer *gb, int x, int y) {
-    const int W = gb->width, H = gb->height;
-    const size_t i = (size_t)y * (size_t)W + (size_t)x;
-    const int s = gb->surface[i];
-    if (s != PEN_SURFACE_GROUND && s != PEN_SURFACE_BACKGROUND) return 0; /* an object's */
-    const int want = s == PEN_SURFACE_GROUND ? PEN_SURFACE_BACKGROUND : PEN_SURFACE_GROUND;
-    return (x > 0 && gb->surface[i - 1] == want) || (x + 1 < W && gb->surface[i + 1] == want) ||
-           (y > 0 && gb->surface[i - (size_t)W] == want) ||
-           (y + 1 < H && gb->surface[i + (size_t)W] == want);
+/* 1 when a pixel of surface c whose neighbours are l, r, u, d may lie on the border: ground
+ * beside background or the reverse. */
+static inline int border_test(int32_t c, int32_t l, int32_t r, int32_t u, int32_t d) {
+    const int nb = (l == PEN_SURFACE_BACKGROUND) | (r == PEN_SURFACE_BACKGROUND) |
+                   (u == PEN_SURFACE_BACKGROUND) | (d == PEN_SURFACE_BACKGROUND);
+    const int ng = (l == PEN_SURFACE_GROUND) | (r == PEN_SURFACE_GROUND) |
+                   (u == PEN_SURFACE_GROUND) | (d == PEN_SURFACE_GROUND);
+    return ((c == PEN_SURFACE_GROUND) & nb) | ((c == PEN_SURFACE_BACKGROUND) & ng);
 }
 
-/* The pairs touching pixel (x, y) (pixel_pairs' order) as the border sees them; returns how many
- * blend (0: the pixel keeps its colour). Only a candidate's pairs are looked at (ground_pair
- * leaves any pair but a ground pixel and a background one alone). */
+/* Marks mask[x] = 1 for the pixels of row y that may lie on the border, told from the surfaces
+ * alone; returns how many. A neighbour off the image is replaced by the pixel itself, which is
+ * never the other kind, so the inner loop has no branch and vectorizes (every pixel is looked
+ * at, and most rows have none). */
+static int border_row(const pen_gbuffer *gb, int y, uint8_t *mask) {
+    const int W = gb->width, H = gb->height;
+    const int32_t *s = gb->surface + (size_t)y * (size_t)W;
+    const int32_t *up = y > 0 ? s - W : s, *dn = y + 1 < H ? s + W : s;
+    int count = mask[0] = (uint8_t)border_test(s[0], s[0], s[W > 1], up[0], dn[0]);
+    for (int x = 1; x + 1 < W; ++x) {
+        const int m = border_test(s[x], s[x - 1], s[x + 1], up[x], dn[x]);
+        mask[x] = (uint8_t)m;
+        count += m;
+    }
+    if (W > 1) {
+        mask[W - 1] = (uint8_t)border_test(s[W - 1], s[W - 2], s[W - 1], up[W - 1], dn[W - 1]);
+        count += mask[W - 1];
+    }
+    return count;
+}
+
+/* The pairs touching a candidate pixel (x, y) (pixel_pairs' order) as the border sees them;
+ * returns how many blend (0: the pixel keeps its colour). ground_pair leaves any pair but a
+ * ground pixel and a background one alone. */
 static int border_pixel(const pen_gbuffer *gb, const pen_view *view, const pen_ground *g, int x,
                         int y, aa_pair pr[4], int first[4], size_t other[4], int *n) {
     const int W = gb->width, H = gb->height;
     const size_t nh = (size_t)(W - 1) * (size_t)H;
-    *n = 0;
-    if (!border_candidate(gb, x, y)) return 0;
     size_t idx[4];
     *n = pixel_pairs(W, H, x, y, idx, first, other);
     int blending = 0;
@@ -502,13 +593,16 @@ pen_status pen__ground_border_fwd(pen_context *ctx, const pen_gbuffer *gb, const
      * unchanged image, and written once every row is done (rows read their neighbours). */
     const int W = gb->width, H = gb->height;
     int *count = pen__calloc(ctx, (size_t)H + 1, sizeof *count, "ground border");
-    if (!count) return PEN_ERROR_MEMORY;
+    uint8_t *mask = pen__malloc(ctx, (size_t)W * (size_t)H, 1, "ground border");
+    if (!count || !mask) {
+        free(count);
+        free(mask);
+        return PEN_ERROR_MEMORY;
+    }
     const int threads = pen__raster_threads_for(ctx, (size_t)W * (size_t)H);
 #pragma omp parallel for num_threads(threads) schedule(static)
-    for (int y = 0; y < H; ++y)
-        for (int x = 0; x < W; ++x) {
-            count[y + 1] += border_candidate(gb, x, y); /* (room for each: a bound) */
-        }
+    for (int y = 0; y < H; ++y) /* (room for each candidate: a bound) */
+        count[y + 1] = border_row(gb, y, mask + (size_t)y * (size_t)W);
     for (int y = 0; y < H; ++y)
         count[y + 1] += count[y];
     border_out *staged = NULL;
@@ -516,23 +610,25 @@ pen_status pen__ground_border_fwd(pen_context *ctx, const pen_gbuffer *gb, const
         staged = pen__malloc(ctx, (size_t)count[H], sizeof *staged, "ground border");
         if (!staged) {
             free(count);
+            free(mask);
             return PEN_ERROR_MEMORY;
         }
     }
 #pragma omp parallel for num_threads(threads) schedule(static)
     for (int y = 0; y < H; ++y) {
+        const uint8_t *m = mask + (size_t)y * (size_t)W, *hit;
         int at = count[y];
-        for (int x = 0; x < W && at < count[y + 1]; ++x) {
+        for (int x = 0; at < count[y + 1]; ++x, ++at) {
+            hit = memchr(m + x, 1, (size_t)(W - x)); /* there is one: count[] says so */
+            x = (int)(hit - m);
             aa_pair pr[4];
             int first[4], n;
             size_t other[4], i = (size_t)y * (size_t)W + (size_t)x;
-            if (!border_candidate(gb, x, y)) continue;
             staged[at].i = SIZE_MAX; /* a candidate that does not blend */
             if (border_pixel(gb, view, ground, x, y, pr, first, other, &n)) {
                 staged[at].i = i;
                 blend_pixel(pr, first, other, n, i, color, channels, 0, staged[at].c);
             }
-            ++at;
         }
     }
     for (int k = 0; k < count[H]; ++k)
@@ -541,6 +637,7 @@ pen_status pen__ground_border_fwd(pen_context *ctx, const pen_gbuffer *gb, const
                    sizeof(float) * (size_t)channels);
     free(staged);
     free(count);
+    free(mask);
     return PEN_OK;
 }
 
@@ -554,10 +651,15 @@ pen_status pen__ground_border_bwd(pen_context *ctx, const pen_gbuffer *gb, const
     if (!view || !gb->surface || !ground || !ground->enabled) return PEN_OK;
     /* Off the border A's column is the identity's (the copy above); on it each pixel gathers
      * its column from d_out, which nothing writes, so rows run in parallel. */
+    uint8_t *mask = pen__malloc(ctx, (size_t)W * (size_t)H, 1, "ground border");
+    if (!mask) return PEN_ERROR_MEMORY;
     const int threads = pen__raster_threads_for(ctx, (size_t)W * (size_t)H);
 #pragma omp parallel for num_threads(threads) schedule(static)
-    for (int y = 0; y < H; ++y)
-        for (int x = 0; x < W; ++x) {
+    for (int y = 0; y < H; ++y) {
+        uint8_t *m = mask + (size_t)y * (size_t)W;
+        int left = border_row(gb, y, m);
+        for (int x = 0; left > 0; ++x, --left) {
+            x = (int)((uint8_t *)memchr(m + x, 1, (size_t)(W - x)) - m);
             aa_pair pr[4];
             int first[4], n;
             size_t other[4], i = (size_t)y * (size_t)W + (size_t)x;
@@ -567,6 +669,8 @@ pen_status pen__ground_border_bwd(pen_context *ctx, const pen_gbuffer *gb, const
                 out[c] = 0.0f;
             blend_pixel(pr, first, other, n, i, d_out, channels, 1, out);
         }
+    }
+    free(mask);
     return PEN_OK;
 }
 
@@ -578,8 +682,8 @@ pen_status pen_antialias_fwd(pen_context *ctx, const pen_gbuffer *gb, const pen_
     aa_state st;
     pen_status status = aa_begin(ctx, gb, view, meshes, mesh_count, channels, &st);
     if (status) return status;
-    apply_blend(pen__raster_threads_for(ctx, (size_t)gb->width * (size_t)gb->height), st.pairs,
-                gb->width, gb->height, color, channels, 0, out);
+    apply_blend(pen__raster_threads_for(ctx, (size_t)gb->width * (size_t)gb->height), &st, color,
+                channels, 0, out);
     aa_end(&st);
     return PEN_OK;
 }
@@ -593,42 +697,42 @@ pen_status pen_antialias_bwd(pen_context *ctx, const pen_gbuffer *gb, const pen_
     aa_state st;
     pen_status status = aa_begin(ctx, gb, view, meshes, mesh_count, channels, &st);
     if (status) return status;
-    const aa_pair *pairs = st.pairs;
     int W = gb->width, H = gb->height;
     if (d_color)
-        apply_blend(pen__raster_threads_for(ctx, (size_t)W * (size_t)H), pairs, W, H, d_out,
-                    channels, 1, d_color);
+        apply_blend(pen__raster_threads_for(ctx, (size_t)W * (size_t)H), &st, d_out, channels, 1,
+                    d_color);
     if (d_positions) {
-        /* Serial, in pair order: few pairs blend, and vertices are shared between them. */
-        size_t nh = (size_t)(W - 1) * (size_t)H, np = nh + (size_t)W * (size_t)(H - 1);
-        for (size_t pi = 0; pi < np; ++pi) {
-            if (!pairs[pi].receiver) continue;
-            int axis = pi >= nh;
-            size_t r = axis ? pi - nh : pi;
-            int rw = axis ? W : W - 1, x = (int)(r % (size_t)rw), y = (int)(r / (size_t)rw);
-            aa_edge e;
-            aa_pair pr = analyze_pair(&st.ac, x, y, axis, &e);
-            if (!pr.receiver || !d_positions[e.mesh]) continue;
-            size_t i0 = (size_t)y * (size_t)W + (size_t)x;
-            size_t i1 = axis ? i0 + (size_t)W : i0 + 1;
-            size_t ir = pr.receiver == 1 ? i0 : i1, is = pr.receiver == 1 ? i1 : i0;
-            double dw = 0.0;
-            for (int c = 0; c < channels; ++c)
-                dw += ((double)color[is * channels + c] - (double)color[ir * channels + c]) *
-                      (double)d_out[ir * channels + c];
-            double da = dw * pr.slope;
-            if (da == 0.0) continue;
-            const float *pos = meshes[e.mesh].positions;
-            for (int k = 0; k < 2; ++k) {
-                double p[3], s[3], J[9];
-                pen__load3_d(pos + 3 * (size_t)e.v[k], p);
-                pen__raster_project_d(view, p, s, J);
-                double gx = da * e.dalpha[2 * k], gy = da * e.dalpha[2 * k + 1];
-                float *d = d_positions[e.mesh] + 3 * (size_t)e.v[k];
-                for (int c = 0; c < 3; ++c)
-                    d[c] += (float)(J[c] * gx + J[3 + c] * gy);
-            }
-        }
+        /* Serial, in pair order (every row's horizontal hits, then every row's vertical ones):
+         * few pairs blend, and vertices are shared between them. */
+        for (int axis = 0; axis < 2; ++axis)
+            for (int y = 0; y < H; ++y)
+                for (size_t h = st.row[3 * (size_t)y + (size_t)axis];
+                     h < st.row[3 * (size_t)y + (size_t)axis + 1]; ++h) {
+                    int x = st.hits[h].x;
+                    aa_edge e;
+                    aa_pair pr = analyze_pair(&st.ac, x, y, axis, &e);
+                    if (!pr.receiver || !d_positions[e.mesh]) continue;
+                    size_t i0 = (size_t)y * (size_t)W + (size_t)x;
+                    size_t i1 = axis ? i0 + (size_t)W : i0 + 1;
+                    size_t ir = pr.receiver == 1 ? i0 : i1, is = pr.receiver == 1 ? i1 : i0;
+                    double dw = 0.0;
+                    for (int c = 0; c < channels; ++c)
+                        dw +=
+                            ((double)color[is * channels + c] - (double)color[ir * channels + c]) *
+                            (double)d_out[ir * channels + c];
+                    double da = dw * pr.slope;
+                    if (da == 0.0) continue;
+                    const float *pos = meshes[e.mesh].positions;
+                    for (int k = 0; k < 2; ++k) {
+                        double p[3], s[3], J[9];
+                        pen__load3_d(pos + 3 * (size_t)e.v[k], p);
+                        pen__raster_project_d(view, p, s, J);
+                        double gx = da * e.dalpha[2 * k], gy = da * e.dalpha[2 * k + 1];
+                        float *dp = d_positions[e.mesh] + 3 * (size_t)e.v[k];
+                        for (int c = 0; c < 3; ++c)
+                            dp[c] += (float)(J[c] * gx + J[3 + c] * gy);
+                    }
+                }
     }
     aa_end(&st);
     return PEN_OK;
