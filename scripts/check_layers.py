@@ -70,12 +70,29 @@ def source_files(top):
 
 
 def kernel_objects():
-    """The objects compiled from src/<KERNELS>, in every target (the fast kernel is built once
-    per instruction set in targets of its own)."""
-    top = os.path.join(BUILD, 'CMakeFiles')
-    return sorted(os.path.join(dirpath, f) for d in os.listdir(top) if d.startswith('penumbra')
-                  for dirpath, _, files in os.walk(os.path.join(top, d, 'src', KERNELS))
-                  for f in files if f.endswith('.o'))
+    """The objects compiled from src/<KERNELS> in every target (the fast kernel is built once
+    per instruction set in targets of its own), as (object, source relative to src/); objects of
+    sources that have since moved are left out."""
+    top, out = os.path.join(BUILD, 'CMakeFiles'), []
+    for d in sorted(os.listdir(top)):
+        base = os.path.join(top, d, 'src')
+        if not d.startswith('penumbra'):
+            continue
+        for dirpath, _, files in os.walk(os.path.join(base, KERNELS)):
+            for f in files:
+                src = os.path.relpath(os.path.join(dirpath, f), base)[:-2]
+                if f.endswith('.o') and os.path.exists(os.path.join(ROOT, 'src', src)):
+                    out.append((os.path.join(dirpath, f), src))
+    return sorted(out)
+
+
+def resolve_include(s, name):
+    """A quoted include of src/<s> as a path relative to src/: the including file's folder first
+    (as the compiler looks), then src/."""
+    here = os.path.normpath(os.path.join(os.path.dirname(s), name))
+    if os.path.exists(os.path.join(ROOT, 'src', here)):
+        return here
+    return os.path.normpath(name)
 
 
 def seam(sources, calls):
@@ -89,7 +106,7 @@ def seam(sources, calls):
     for s in source_files(KERNELS):
         if omp.search(open(os.path.join(ROOT, 'src', s), errors='replace').read()):
             bad.append('%s: threads (omp) in a kernel' % s)
-    for o in kernel_objects():
+    for o, _ in kernel_objects():
         out = subprocess.run(['nm', '-u', o], capture_output=True, text=True).stdout
         syms = sorted({w for w in out.split() if w.startswith(('omp_', 'GOMP_'))})
         if syms:
@@ -98,11 +115,13 @@ def seam(sources, calls):
         b = backend_of(s)
         text = open(os.path.join(ROOT, 'src', s), errors='replace').read()
         if b is None:
-            for m in re.finditer(r'#include "((?:%s|%s)/[a-z_]+\.(?:h|inc))"'
-                                 % (KERNELS, '|'.join(BACKENDS)), text):
-                if s == 'render/render_internal.h' and m.group(1).startswith(KERNELS + '/'):
+            for m in re.finditer(r'#\s*include\s*"([^"]+)"', text):
+                inc = resolve_include(s, m.group(1))
+                if not (inc.startswith(KERNELS + '/') or backend_of(inc)):
+                    continue
+                if s == 'render/render_internal.h' and inc.startswith(KERNELS + '/'):
                     continue  # the state holds the kernels' parameter types
-                bad.append('%s includes %s' % (s, m.group(1)))
+                bad.append('%s includes %s' % (s, inc))
         for t, syms in sorted(calls.get(s, {}).items()):
             if b is None and folder(t) == KERNELS:
                 bad.append('%s calls kernels: %s' % (s, ' '.join(sorted(syms))))
@@ -157,6 +176,12 @@ def main():
                     defined.setdefault(p[2], src)
                 elif len(p) == 2 and p[0] == 'U':
                     undefined[src].add(p[1])
+    for path, src in kernel_objects():  # the per-instruction-set builds' symbols too
+        out = subprocess.run(['nm', path], capture_output=True, text=True, check=True).stdout
+        for line in out.splitlines():
+            p = line.split()
+            if len(p) == 3 and p[1] in 'TDBRW':
+                defined.setdefault(p[2], src)
     sources = sorted(set(undefined) | set(defined.values()))
     calls = collections.defaultdict(lambda: collections.defaultdict(set))
     for s in sources:

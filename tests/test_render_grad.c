@@ -606,15 +606,21 @@ static void texel_scatter_case(pen_scene sc) {
 
 /* The bands (backward.c, texel_bands) are cut where the pixels' rows fall: the ball's own
  * texture coordinates; coordinates repeated 3.3 times down the texture from 0.37, so lookups wrap
- * across its last row into its first; and repeated 150 times, so footprints reach every row. */
+ * across its last row into its first; and repeated 150 times, so footprints reach every row; the
+ * same three on a texture of 5000 rows (more than the 4096 bins: a bin holds two rows, and a band
+ * many), where footprints are a few rows high and bands have rows to split. */
 static void test_texel_scatter_threads(void) {
     const float repeat[3] = {1.0f, 3.3f, 150.0f};
-    for (int c = 0; c < 3; ++c) {
+    for (int c = 0; c < 6; ++c) {
         pen_scene sc = rs_ball_scene(96, 1, &seed);
+        if (c >= 3) {
+            pen_image_free(&sc.objects[0].texture);
+            sc.objects[0].texture = rs_texture(7, 5000, &seed);
+        }
         pen_mesh *m = &sc.objects[0].mesh;
-        for (int k = 0; c > 0 && k < m->uv_count; ++k) {
-            m->uvs[2 * k] *= repeat[c];
-            m->uvs[2 * k + 1] = 0.37f + repeat[c] * m->uvs[2 * k + 1];
+        for (int k = 0; c % 3 > 0 && k < m->uv_count; ++k) {
+            m->uvs[2 * k] *= repeat[c % 3];
+            m->uvs[2 * k + 1] = 0.37f + repeat[c % 3] * m->uvs[2 * k + 1];
         }
         texel_scatter_case(sc);
     }

@@ -486,9 +486,13 @@ static pen_status gram_grow(pen_context *ctx, const lines *L, int n, int threads
     double *vs = pen__malloc(ctx, tn, sizeof(double), "overlap: rows");
     int *touched = pen__malloc(ctx, tn, sizeof(int), "overlap: rows");
     int *is = pen__malloc(ctx, tn, sizeof(int), "overlap: rows");
-    int failed = !M->len || !M->idx || !M->val || !acc || !vs || !touched || !is;
-#pragma omp parallel for schedule(dynamic, 4) num_threads(threads) reduction(| : failed)
-    for (int i = 0; i < n; ++i) {
+    /* Allocation failures before the loop are kept apart: a reduction's private copies start
+     * at 0 and would not see them. */
+    const int lacking = !M->len || !M->idx || !M->val || !acc || !vs || !touched || !is;
+    int failed = 0;
+#pragma omp parallel for schedule(dynamic, 4) num_threads(threads) reduction(| : failed)          \
+    if (!lacking)
+    for (int i = 0; i < (lacking ? 0 : n); ++i) {
         const size_t t = (size_t)omp_get_thread_num() * (size_t)n;
         if (failed || (in && in[i] != 2)) continue;
         const int m = gram_row(L, i, acc + t, touched + t, is + t, vs + t);
@@ -503,6 +507,7 @@ static pen_status gram_grow(pen_context *ctx, const lines *L, int n, int threads
         M->len[i] = m;
     }
     free(acc), free(vs), free(touched), free(is);
+    failed |= lacking;
     if (in && !failed) failed = !gram_mirror(M, n, in);
     for (int i = 0; i < n && in; ++i)
         in[i] = in[i] != 0;

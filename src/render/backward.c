@@ -384,7 +384,10 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
      * (pen__texture_scatter_rows). */
     pen_status s_geom = PEN_OK;
     if (want_geom) memset(st->d_bary.data, 0, sizeof(float) * 2 * np);
-    const int bands = want_albedo ? (nt > 1 ? TEXEL_BANDS_PER_THREAD * nt : 1) : 0;
+    int textured = 0;
+    for (int o = 0; o < O; ++o)
+        textured |= sc->objects[o].texture.data != NULL;
+    const int bands = want_albedo && textured ? (nt > 1 ? TEXEL_BANDS_PER_THREAD * nt : 1) : 0;
     if (bands > 1 && (s = texel_bands(ctx, sc, st, bands, nt))) {
         free(d_world);
         return s;

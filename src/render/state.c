@@ -85,11 +85,12 @@ double pen_render_state_bytes(const pen_scene *sc, unsigned wrt, int threads) {
     if (!sc || sc->sh_bands < 1 || sc->sh_bands > PEN_SH_MAX_BANDS) return 0.0;
     const double px = (double)sc->camera.width * (double)sc->camera.height;
     const double K = (double)sc->lighting.light_count, nc = (double)sc->sh_bands * sc->sh_bands;
-    int textured = 0;
+    int textured = 0, texels = 0;
     double spheres = 0.0, b = 0.0;
     for (int o = 0; o < sc->object_count; ++o) {
         const pen_object *ob = &sc->objects[o];
         textured |= ob->texture.data && ob->texture_filter == PEN_TEXTURE_FILTER_FOOTPRINT;
+        texels |= ob->texture.data != NULL;
         b += 24.0 * ob->mesh.vertex_count + 12.0 * ob->mesh.triangle_count; /* posed, adjacency */
         spheres += ob->spheres.count;
     }
@@ -119,11 +120,16 @@ double pen_render_state_bytes(const pen_scene *sc, unsigned wrt, int threads) {
      * spheres and the lights; under ground occlusion an entry for each object a tile shows (its
      * `seen` lighting and horizon factors), taken as one per tile and one per object beyond */
     const double O = (double)sc->object_count, tiles = px / PEN_TILE_PX + 1.0;
-    const int seen = sc->ground.enabled && sc->shadow.ground == PEN_GROUND_OCCLUDES && O > 0.0;
+    const unsigned through_seen =
+        PEN_GRAD_LIGHTING | PEN_GRAD_POSE | PEN_GRAD_LIGHTS | PEN_GRAD_LIGHT_IRRADIANCE;
+    const int seen = sc->ground.enabled && sc->shadow.ground == PEN_GROUND_OCCLUDES && O > 0.0 &&
+                     (wrt & through_seen) != 0;
     const double dense = 3.0 * nc + 3.0 + 3.0 * O * ((wrt & PEN_GRAD_ALBEDO) != 0) +
                          4.0 * spheres * ((wrt & (PEN_GRAD_SPHERES | PEN_GRAD_POSE)) != 0) +
                          7.0 * K * ((wrt & (PEN_GRAD_LIGHTS | PEN_GRAD_LIGHT_IRRADIANCE)) != 0);
     if (wrt) b += 8.0 * (dense * tiles + (seen ? (3.0 * nc + K) * (tiles + O) : 0.0));
+    /* the texel scatter's bands of each pixel (backward.c), with more than one thread */
+    if ((wrt & PEN_GRAD_ALBEDO) && texels && threads > 1) b += 8.0 * px;
     return b;
 }
 

@@ -269,15 +269,18 @@ static bwd_want request(const pen_scene *sc, const pen_render_state *st, unsigne
     const int want_height = (wrt & PEN_GRAD_POSE) != 0 && st->ground_occludes;
     const int want_spheres = (wrt & (PEN_GRAD_SPHERES | PEN_GRAD_POSE)) != 0;
     const int want_albedo = (wrt & PEN_GRAD_ALBEDO) != 0;
+    const int want_seen = seen > 0 && (want_light || want_height);
+    const int want_G = seen > 0 && K > 0 && (want_lights || want_height);
     const bwd_want bw = {(wrt & (PEN_GRAD_POSE | PEN_GRAD_VERTICES)) != 0,
                          want_spheres,
                          want_light,
                          want_albedo,
-                         seen > 0 && (want_light || want_height),
-                         rows_layout(sc->sh_bands, want_albedo ? O : 0, seen,
+                         want_seen,
+                         rows_layout(sc->sh_bands, want_albedo ? O : 0,
+                                     want_seen || want_G ? seen : 0,
                                      want_spheres ? st->sphere_count : 0, K, want_lights ? K : 0),
                          want_lights,
-                         seen > 0 && K > 0 && (want_lights || want_height),
+                         want_G,
                          want_height};
     return bw;
 }
