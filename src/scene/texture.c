@@ -22,8 +22,13 @@
 #include <math.h>
 #include <stddef.h>
 
+/* The lookup's pieces are inlined into the footprint's loops, which keeps a sample's texel
+ * offsets in registers instead of a returned struct. */
+#define INLINE static inline __attribute__((always_inline))
+
 typedef struct bilinear {
     size_t idx[4]; /* texel offsets (in texels) of (i0,j0), (i1,j0), (i0,j1), (i1,j1) */
+    long row[2];   /* j0 and j1: the rows of idx[0..1] and idx[2..3] */
     float a, b;    /* fractions along u (columns) and down the rows */
 } bilinear;
 
@@ -34,21 +39,30 @@ static int wrap(long i, int n) {
     return (int)(r < 0 ? r + n : r);
 }
 
-/* Double for the texel coordinate: u * W loses the fraction in float for large u. */
-static bilinear bilinear_at(const pen_image *tex, double u, double v) {
-    const double fx = u * tex->width - 0.5;
-    const double fy = (1.0 - v) * tex->height - 0.5;
+/* The lookup at texel coordinates (fx, fy) = (u W - 1/2, (1 - v) H - 1/2). Inside the texture
+ * and short of its last column and row, the common case, floor() is the truncation and nothing
+ * wraps: the general branch's result bit for bit, without its tests and divisions. */
+INLINE bilinear bilinear_from(const pen_image *tex, double fx, double fy) {
     bilinear s;
-    double x0 = floor(fx), y0 = floor(fy);
-    if (!isfinite(x0) || fabs(x0) > 1e9) x0 = 0.0; /* garbage uv: a defined texel */
-    if (!isfinite(y0) || fabs(y0) > 1e9) y0 = 0.0;
-    s.a = (float)(isfinite(fx) ? fx - x0 : 0.0);
-    s.b = (float)(isfinite(fy) ? fy - y0 : 0.0);
-    if (!(s.a >= 0.0f && s.a <= 1.0f)) s.a = 0.0f;
-    if (!(s.b >= 0.0f && s.b <= 1.0f)) s.b = 0.0f;
-    const int i0 = wrap((long)x0, tex->width), i1 = wrap((long)x0 + 1, tex->width);
-    const int j0 = wrap((long)y0, tex->height), j1 = wrap((long)y0 + 1, tex->height);
+    long i0, i1, j0, j1;
+    if (fx >= 0.0 && fx < (double)(tex->width - 1) && fy >= 0.0 && fy < (double)(tex->height - 1)) {
+        i0 = (long)fx, j0 = (long)fy;
+        s.a = (float)(fx - (double)i0);
+        s.b = (float)(fy - (double)j0);
+        i1 = i0 + 1, j1 = j0 + 1;
+    } else {
+        double x0 = floor(fx), y0 = floor(fy);
+        if (!isfinite(x0) || fabs(x0) > 1e9) x0 = 0.0; /* garbage uv: a defined texel */
+        if (!isfinite(y0) || fabs(y0) > 1e9) y0 = 0.0;
+        s.a = (float)(isfinite(fx) ? fx - x0 : 0.0);
+        s.b = (float)(isfinite(fy) ? fy - y0 : 0.0);
+        if (!(s.a >= 0.0f && s.a <= 1.0f)) s.a = 0.0f;
+        if (!(s.b >= 0.0f && s.b <= 1.0f)) s.b = 0.0f;
+        i0 = wrap((long)x0, tex->width), i1 = wrap((long)x0 + 1, tex->width);
+        j0 = wrap((long)y0, tex->height), j1 = wrap((long)y0 + 1, tex->height);
+    }
     const size_t w = (size_t)tex->width;
+    s.row[0] = j0, s.row[1] = j1;
     s.idx[0] = (size_t)j0 * w + (size_t)i0;
     s.idx[1] = (size_t)j0 * w + (size_t)i1;
     s.idx[2] = (size_t)j1 * w + (size_t)i0;
@@ -56,15 +70,19 @@ static bilinear bilinear_at(const pen_image *tex, double u, double v) {
     return s;
 }
 
+/* Double for the texel coordinate: u * W loses the fraction in float for large u. */
+INLINE bilinear bilinear_at(const pen_image *tex, double u, double v) {
+    return bilinear_from(tex, u * tex->width - 0.5, (1.0 - v) * tex->height - 0.5);
+}
+
 /* Adds the texel part of lerp_bwd for the texels of rows [r0, r1) only. */
-static void lerp_bwd_rows(const pen_image *tex, const bilinear *s, const float d_rgb[3],
+INLINE void lerp_bwd_rows(const pen_image *tex, const bilinear *s, const float d_rgb[3],
                           float *d_texels, long r0, long r1) {
     const int nch = tex->channels;
-    const size_t w = (size_t)tex->width;
     const float wt[4] = {(1 - s->a) * (1 - s->b), s->a * (1 - s->b), (1 - s->a) * s->b,
                          s->a * s->b};
     for (int q = 0; q < 4; ++q) {
-        const long row = (long)(s->idx[q] / w);
+        const long row = s->row[q >> 1];
         if (row < r0 || row >= r1) continue;
         for (int ch = 0; ch < 3 && ch < nch; ++ch)
             d_texels[s->idx[q] * (size_t)nch + (size_t)ch] += wt[q] * d_rgb[ch];
@@ -72,7 +90,7 @@ static void lerp_bwd_rows(const pen_image *tex, const bilinear *s, const float d
 }
 
 /* rgb = the bilinear lookup at s. */
-static void lerp_fwd(const pen_image *tex, const bilinear *s, float rgb[3]) {
+INLINE void lerp_fwd(const pen_image *tex, const bilinear *s, float rgb[3]) {
     const float wt[4] = {(1 - s->a) * (1 - s->b), s->a * (1 - s->b), (1 - s->a) * s->b,
                          s->a * s->b};
     const int nch = tex->channels;
@@ -86,8 +104,8 @@ static void lerp_fwd(const pen_image *tex, const bilinear *s, float rgb[3]) {
 }
 
 /* Adds the bilinear lookup's backward at s into d_texels and d_uv (each may be NULL). */
-static void lerp_bwd(const pen_image *tex, const bilinear *s, const float d_rgb[3],
-                     float *d_texels, float d_uv[2]) {
+INLINE void lerp_bwd(const pen_image *tex, const bilinear *s, const float d_rgb[3], float *d_texels,
+                     float d_uv[2]) {
     const int nch = tex->channels;
     if (d_texels) {
         const float wt[4] = {(1 - s->a) * (1 - s->b), s->a * (1 - s->b), (1 - s->a) * s->b,
@@ -127,8 +145,7 @@ void pen__texture_bwd(const pen_image *tex, const float uv[2], const float d_rgb
 }
 
 /* The k-th sample point of the footprint grid (k < PEN__TEXTURE_SAMPLES). */
-static bilinear footprint_sample(const pen_image *tex, const float uv[2], const float J[4],
-                                 int k) {
+INLINE bilinear footprint_sample(const pen_image *tex, const float uv[2], const float J[4], int k) {
     const int n = PEN__TEXTURE_GRID;
     const double ox = ((k % n) + 0.5) / n - 0.5, oy = ((k / n) + 0.5) / n - 0.5;
     const double u = (double)uv[0] + (double)J[0] * ox + (double)J[1] * oy;
