@@ -19,7 +19,11 @@
  *   is a difference of O(1) angles in the textbook formula. Here every angle comes from atan2 or
  *   half-angle forms of differences of the sides (s - a, s - b, s - g), the lens is two sectors
  *   minus the kite of two triangles (L'Huilier's formula), so the overlap keeps about 1e-12 of its
- *   relative precision down to the smallest radius accepted (0.01 deg).
+ *   relative precision down to the smallest radius accepted (0.01 deg). Disks from
+ *   PEN_LIGHTS_COS_LENS_DEG (1 deg) up take the same lens from the cosines the visibility test
+ *   already has (pen__cap_overlap_cos: three atan, no sincos, partials from the boundary arcs):
+ *   there it agrees with the angle form to under 1e-13 of the disk's area (1e-12 checked), while
+ *   under 0.1 deg the cosines' cancellation would cost it digits (tests/test_lights.c).
  * - Derivatives of the two closed forms come from forward-mode dual numbers (3 partials) over the
  *   same expressions, so the derivative is the derivative of the value that was computed.
  * - Cost. A sun is small, so most (receiver, sphere) pairs of a tile cannot touch it: the
@@ -200,6 +204,48 @@ double pen__cap_overlap(double a, double b, double g, double d[3]) {
     }
     if (d) memcpy(d, r.d, sizeof r.d);
     return r.v;
+}
+
+/* The same lens from the cosines and sines of a, b, g (g = the angle between the centres), for
+ * the wide disks (pen__cap_overlap_cos, lights.h). The triangle (cap centre, disk centre, a corner
+ * of the lens) has the sides g, a, b; with Y_a = cos b - cos a cos g and X_a = sin a sin g,
+ * Delta = X_a^2 - Y_a^2 is its Gram determinant (the same from each corner), phi_a =
+ * atan2(sqrt Delta, Y_a) and phi_b likewise, and its excess is E = 2 atan2(sqrt Delta,
+ * 1 + cos a + cos b + cos g) (the solid angle of the triangle of the three unit vectors). The
+ * lens is the two sectors minus the kite, 2 phi_a (1 - cos a) + 2 phi_b (1 - cos b) - 2 E, as in
+ * pen__cap_overlap, without the angles a and g (two atan2) and the half-sides' sines and
+ * tangents (five sincos, tan). Cancellation: 1 - cos x from sin^2 x / (1 + cos x), each Y from
+ * the 1 - cos terms (exact differences of small terms), Delta from the corner whose angle is
+ * nearest pi/2 as (X - |Y|)(X + |Y|). Partials: the boundary arcs, dA/da = 2 phi_a sin a,
+ * dA/db = 2 phi_b sin b, dA/dg = -2 sin b sin phi_b = -2 sqrt(Delta) / sin g. */
+static double one_minus_cos(double c, double s) {
+    return c > 0.0 ? s * s / (1.0 + c) : 1.0 - c;
+}
+
+/* atan2(s, c) for s > 0 with one atan (cheaper than atan2; absolute error a few ulps of pi). */
+static double angle_of(double s, double c) {
+    return c > 0.0 ? atan(s / c) : 0.5 * PEN_PI - atan(c / s);
+}
+
+double pen__cap_overlap_cos(double ca, double sa, double cb, double sb, double cg, double sg,
+                            double d[3]) {
+    if (!(ca + cb > 0.0)) return -1.0; /* a + b >= pi: the band case is possible */
+    const double oa = one_minus_cos(ca, sa), ob = one_minus_cos(cb, sb), og = one_minus_cos(cg, sg);
+    const double Ya = oa + ca * og - ob; /* cos b - cos a cos g */
+    const double Yb = ob + cb * og - oa; /* cos a - cos b cos g */
+    const double Yc = oa + ca * ob - og; /* cos g - cos a cos b */
+    const double Xa = sa * sg, Xb = sb * sg, Xc = sa * sb;
+    /* the corner with the smallest |cos|: |Y| / X least */
+    double X = Xa, Y = fabs(Ya);
+    if (fabs(Yb) * X < Y * Xb) X = Xb, Y = fabs(Yb);
+    if (fabs(Yc) * X < Y * Xc) X = Xc, Y = fabs(Yc);
+    const double Delta = (X - Y) * (X + Y);
+    if (!(Delta > 0.0)) return -1.0; /* degenerate (tangent): the closed form decides */
+    const double q = sqrt(Delta);
+    const double pa = angle_of(q, Ya), pb = angle_of(q, Yb);
+    const double E = 2.0 * angle_of(q, 1.0 + ca + cb + cg);
+    if (d) d[0] = 2.0 * pa * sa, d[1] = 2.0 * pb * sb, d[2] = -2.0 * q / sg;
+    return 2.0 * (pa * oa + pb * ob) - 2.0 * E;
 }
 
 /* ---- A frame's lights ------------------------------------------------------------------------ */
@@ -392,10 +438,17 @@ static double disk_fraction(const pen__lights *L, int l, sphere_view *sv, double
         return 1.0; /* = cap_full_area(b) / area, the same expression as L->area */
     const double cx = d[1] * w[2] - d[2] * w[1], cy = d[2] * w[0] - d[0] * w[2],
                  cz = d[0] * w[1] - d[1] * w[0];
-    const double sg = sqrt(cx * cx + cy * cy + cz * cz), g = atan2(sg, cg);
+    const double sg = sqrt(cx * cx + cy * cy + cz * cz);
     *sin_g = sg;
     const double area = L->area[l];
-    const double f = pen__cap_overlap(sphere_view_angle(sv), L->b[l], g, fd) / area;
+    double A = -1.0;
+    if (L->b[l] >= PEN_LIGHTS_COS_LENS_DEG * (PEN_PI / 180.0)) {
+        /* the cosine and sine of g as atan2 takes them: of unit d and w to rounding only */
+        const double h = 1.0 / sqrt(cg * cg + sg * sg);
+        A = pen__cap_overlap_cos(ca, sa, cb, sb, cg * h, sg * h, fd);
+    }
+    if (A < 0.0) A = pen__cap_overlap(sphere_view_angle(sv), L->b[l], atan2(sg, cg), fd);
+    const double f = A / area;
     if (fd) {
         fd[0] /= area;
         fd[1] = (fd[1] - f * 2.0 * PEN_PI * L->sin_b[l]) / area;

@@ -25,6 +25,16 @@ double pen__disk_clamped_cosine(double c, double b, double *dD_dc, double *dD_db
  * g (d may be NULL). */
 double pen__cap_overlap(double a, double b, double g, double d[3]);
 
+/* The same overlap from the cosines and sines of a, b and g (a + b < pi), without their angles
+ * (the Gram determinant of the triangle of the two centres and a corner of the lens), and its
+ * partials d[0..2] by a, b, g (d may be NULL); -1 where it does not apply (a + b >= pi, or the
+ * caps tangent or one inside the other to rounding): then pen__cap_overlap. Cheaper than the
+ * angle form (three atan, no sincos), and as precise relative to the disk's area only for disks
+ * wider than PEN_LIGHTS_COS_LENS_DEG (tests/test_lights.c checks both). */
+#define PEN_LIGHTS_COS_LENS_DEG 1.0
+double pen__cap_overlap_cos(double ca, double sa, double cb, double sb, double cg, double sg,
+                            double d[3]);
+
 /* A frame's disk lights, as the per-pixel functions use them. */
 typedef struct pen__lights {
     int count;
