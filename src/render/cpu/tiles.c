@@ -70,14 +70,18 @@ int pen__tile_lights_cull(const pen_render_state *st, int t, pen__tile_ws *ws) {
     const pen__tile_groups *tg = &st->groups.data[t];
     const int n = tg->runs ? tg->end[tg->runs - 1] : 0;
     if (n == 0) return 0;
-    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    /* the box in float (a NaN coordinate left out, as fmin / fmax would), then widened exactly:
+     * the same box as one taken in double, without a libm call per coordinate */
+    float flo[3] = {INFINITY, INFINITY, INFINITY}, fhi[3] = {-INFINITY, -INFINITY, -INFINITY};
     for (int k = 0; k < n; ++k) {
         const float *x = st->x.data + 3 * (size_t)tg->pix[k];
         for (int a = 0; a < 3; ++a) {
-            lo[a] = fmin(lo[a], (double)x[a]);
-            hi[a] = fmax(hi[a], (double)x[a]);
+            flo[a] = x[a] < flo[a] ? x[a] : flo[a];
+            fhi[a] = x[a] > fhi[a] ? x[a] : fhi[a];
         }
     }
+    const double lo[3] = {(double)flo[0], (double)flo[1], (double)flo[2]};
+    const double hi[3] = {(double)fhi[0], (double)fhi[1], (double)fhi[2]};
     return pen__lights_cull(&st->lights, st->sphere_count, st->spheres.data, lo, hi, ws->cull);
 }
 
