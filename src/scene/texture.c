@@ -144,10 +144,18 @@ void pen__texture_bwd(const pen_image *tex, const float uv[2], const float d_rgb
     lerp_bwd(tex, &s, d_rgb, d_texels, d_uv);
 }
 
+/* The grid's cell centres o_i = (i + 1/2) / n - 1/2, i < n, in double for the sample points and
+ * in float for the backward's d_J: constants, where each sample used to divide for them (the
+ * same values: the compiler rounds the constant expressions as the divisions did). */
+_Static_assert(PEN__TEXTURE_GRID == 3, "grid_o and grid_of are written out for a 3 x 3 grid");
+static const double grid_o[3] = {(0 + 0.5) / 3 - 0.5, (1 + 0.5) / 3 - 0.5, (2 + 0.5) / 3 - 0.5};
+static const float grid_of[3] = {(0.0f + 0.5f) / 3 - 0.5f, (1.0f + 0.5f) / 3 - 0.5f,
+                                 (2.0f + 0.5f) / 3 - 0.5f};
+
 /* The k-th sample point of the footprint grid (k < PEN__TEXTURE_SAMPLES). */
 INLINE bilinear footprint_sample(const pen_image *tex, const float uv[2], const float J[4], int k) {
     const int n = PEN__TEXTURE_GRID;
-    const double ox = ((k % n) + 0.5) / n - 0.5, oy = ((k / n) + 0.5) / n - 0.5;
+    const double ox = grid_o[k % n], oy = grid_o[k / n];
     const double u = (double)uv[0] + (double)J[0] * ox + (double)J[1] * oy;
     const double v = (double)uv[1] + (double)J[2] * ox + (double)J[3] * oy;
     return bilinear_at(tex, u, v);
@@ -179,8 +187,7 @@ void pen__texture_footprint_bwd(const pen_image *tex, const float uv[2], const f
         lerp_bwd(tex, &s, d_k, d_texels, d_uv || d_J ? g : NULL);
         if (d_uv) d_uv[0] += g[0], d_uv[1] += g[1];
         if (d_J) {
-            const float ox = ((float)(k % n) + 0.5f) / n - 0.5f;
-            const float oy = ((float)(k / n) + 0.5f) / n - 0.5f;
+            const float ox = grid_of[k % n], oy = grid_of[k / n];
             d_J[0] += g[0] * ox, d_J[1] += g[0] * oy, d_J[2] += g[1] * ox, d_J[3] += g[1] * oy;
         }
     }
