@@ -476,8 +476,13 @@ void pen_raster_bary_bwd_scratch(pen_context *ctx, const pen_view *view,
 }
 
 void pen_gbuffer_points(const pen_view *view, const pen_gbuffer *gb, float *out) {
-    int W = gb->width, H = gb->height;
-    for (int y = 0; y < H; ++y)
+    pen__gbuffer_points_rows(view, gb, 0, gb->height, out);
+}
+
+void pen__gbuffer_points_rows(const pen_view *view, const pen_gbuffer *gb, int y0, int y1,
+                              float *out) {
+    const int W = gb->width;
+    for (int y = y0; y < y1; ++y)
         for (int x = 0; x < W; ++x) {
             size_t i = (size_t)y * (size_t)W + (size_t)x;
             float *o = out + 3 * i;

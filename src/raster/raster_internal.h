@@ -22,6 +22,10 @@ void pen__raster_ray_bary_bwd_d(const double eye[3], const double dir[3], const 
                                 const double d_x[3], double d_p0[3], double d_p1[3],
                                 double d_p2[3]);
 
+/* pen_gbuffer_points for the rows [y0, y1) only (a caller's threads take a band of rows each). */
+void pen__gbuffer_points_rows(const pen_view *view, const pen_gbuffer *gb, int y0, int y1,
+                              float *out);
+
 /* Validates a mesh list (counts, NULL arrays, finite positions, indices in range); *total gets
  * the number of triangles. */
 pen_status pen__raster_check_meshes(pen_context *ctx, const pen_raster_mesh *meshes, int mesh_count,

@@ -26,9 +26,9 @@
 #include "penumbra/render.h"
 
 #include "core/internal.h"
+#include "raster/raster_internal.h"
 #include "render/backend.h"
 #include "render/render_internal.h"
-#include "raster/raster_internal.h"
 #include "scene/validate.h"
 
 #include <omp.h>
@@ -80,22 +80,31 @@ static void interpolate_pixel(const pen_gbuffer *gb, size_t i, const uint32_t *i
         out[c] = (float)(w * (double)a0[c] + u * (double)a1[c] + v * (double)a2[c]);
 }
 
-/* The objects' pixels' point, raw normal and UV in one pass over the image: a pass per object
- * (pen_interpolate_fwd) costs objects x pixels, 2 x 4096 x 512^2 visits with many small objects
- * (bench/NOTES.md "Many small objects"). */
-static void interpolate_attributes(const pen_scene *sc, pen_render_state *st) {
-    const size_t np = (size_t)st->width * (size_t)st->height;
-    for (size_t i = 0; i < np; ++i) {
-        const int o = st->gb.surface[i];
-        if (o < 0) continue;
-        const pen_object *ob = &sc->objects[o];
-        interpolate_pixel(&st->gb, i, ob->mesh.indices, st->obj[o].world.data, 3,
-                          st->x.data + 3 * i);
-        interpolate_pixel(&st->gb, i, ob->mesh.indices, st->obj[o].vnormal.data, 3,
-                          st->nraw.data + 3 * i);
-        if (ob->texture.data)
-            interpolate_pixel(&st->gb, i, ob->mesh.uv_indices, ob->mesh.uvs, 2,
-                              st->uv.data + 2 * i);
+/* Every pixel's point (pen_gbuffer_points: from the depth, on the ground and the objects), then the
+ * objects' pixels' point, raw normal and UV, in one pass over the image, a band of rows a thread
+ * (each pixel's values are its own, so any split gives the same bits). One pass, not a pass per
+ * object (pen_interpolate_fwd), which costs objects x pixels: 2 x 4096 x 512^2 visits with many
+ * small objects (bench/NOTES.md "Many small objects"). */
+static void interpolate_attributes(const pen_scene *sc, pen_render_state *st, int nt) {
+    const int W = st->width, H = st->height;
+    const int chunks = nt > 1 && (size_t)W * (size_t)H >= PEN_RENDER_PARALLEL_MIN_PIXELS ? nt : 1;
+#pragma omp parallel for schedule(static) num_threads(chunks) if (chunks > 1)
+    for (int c = 0; c < chunks; ++c) {
+        const int y0 = (int)((long long)H * c / chunks),
+                  y1 = (int)((long long)H * (c + 1) / chunks);
+        pen__gbuffer_points_rows(&st->view, &st->gb, y0, y1, st->x.data);
+        for (size_t i = (size_t)y0 * (size_t)W; i < (size_t)y1 * (size_t)W; ++i) {
+            const int o = st->gb.surface[i];
+            if (o < 0) continue;
+            const pen_object *ob = &sc->objects[o];
+            interpolate_pixel(&st->gb, i, ob->mesh.indices, st->obj[o].world.data, 3,
+                              st->x.data + 3 * i);
+            interpolate_pixel(&st->gb, i, ob->mesh.indices, st->obj[o].vnormal.data, 3,
+                              st->nraw.data + 3 * i);
+            if (ob->texture.data)
+                interpolate_pixel(&st->gb, i, ob->mesh.uv_indices, ob->mesh.uvs, 2,
+                                  st->uv.data + 2 * i);
+        }
     }
 }
 
@@ -155,8 +164,7 @@ static pen_status prepare(pen_context *ctx, const pen_scene *sc, const pen_rende
     if ((s = pen_raster_gbuffer(ctx, &st->view, st->meshes, sc->object_count, &sc->ground,
                                 &st->gb)))
         return s;
-    pen_gbuffer_points(&st->view, &st->gb, st->x.data);
-    interpolate_attributes(sc, st);
+    interpolate_attributes(sc, st, pen__threads(ctx));
     for (int o = 0; o < sc->object_count; ++o) {
         const pen_object *ob = &sc->objects[o];
         if (ob->texture.data) {
