@@ -260,11 +260,22 @@ static pen_status configure(pen_context *ctx, pen_scene *sc, const bench_case *c
         const int old = sc->sh_bands * sc->sh_bands, nc = c->bands * c->bands;
         for (int k = old; k < nc; ++k)
             sc->lighting.sh[k][0] = sc->lighting.sh[k][1] = sc->lighting.sh[k][2] = 0.0f;
-        if (sc->lighting.envmap.data) { /* as the loader does: lights found, the rest projected */
-            pen_lighting *L = &sc->lighting;
-            int max = L->lights_mode == PEN_LIGHTS_AUTO && L->lights_max > 0 ? L->lights_max : 0;
+        pen_lighting *L = &sc->lighting;
+        if (L->envmap.data && L->lights_mode == PEN_LIGHTS_AUTO) {
+            /* as the loader does: lights found, the rest projected, the added ones after */
+            pen_light added[PEN_SCENE_MAX_LIGHTS];
+            const int n_added = L->lights_added, max = L->lights_max;
+            memcpy(added, L->lights + (L->light_count - n_added),
+                   sizeof(pen_light) * (size_t)n_added);
+            L->light_count = 0;
             pen_status s = pen_envmap_lighting(ctx, &L->envmap, c->bands, L->rotation_y_deg,
                                                L->scale, max, L->sh, L->lights, &L->light_count);
+            if (s) return s;
+            memcpy(L->lights + L->light_count, added, sizeof(pen_light) * (size_t)n_added);
+            L->light_count += n_added;
+        } else if (L->envmap.data) {
+            pen_status s = pen_envmap_lighting(ctx, &L->envmap, c->bands, L->rotation_y_deg,
+                                               L->scale, 0, L->sh, L->lights, &L->light_count);
             if (s) return s;
         }
         sc->sh_bands = c->bands;

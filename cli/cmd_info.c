@@ -45,6 +45,8 @@ void pen_cli_print_lights(FILE *f, const pen_scene *sc, const pen_scene_report *
     map = map ? map + 1 : L->envmap_path;
     if (report->light_count == 0 && L->lights_mode == PEN_LIGHTS_AUTO && L->envmap.data)
         fprintf(f, "%sno light found in %s: SH lighting only\n", indent, map);
+    /* With lights AUTO, the first ones were found in the map and the last lights_added given. */
+    const int found = L->lights_mode == PEN_LIGHTS_AUTO ? L->light_count - L->lights_added : 0;
     for (int i = 0; i < report->light_count; ++i) {
         const pen_light *l = &L->lights[i];
         const pen_light_summary *s = &report->lights[i];
@@ -52,11 +54,11 @@ void pen_cli_print_lights(FILE *f, const pen_scene *sc, const pen_scene_report *
                 "%slight %d (%s%s): elevation %.1f deg, azimuth %.1f deg, angular radius %.2f "
                 "deg, direction (%.3f, %.3f, %.3f), irradiance (%.4g, %.4g, %.4g), %.0f %% of "
                 "the light\n",
-                indent, i, L->lights_mode == PEN_LIGHTS_AUTO ? "found in " : "given",
-                L->lights_mode == PEN_LIGHTS_AUTO && map ? map : "", (double)s->elevation_deg,
-                (double)s->azimuth_deg, (double)l->angular_radius_deg, (double)l->direction[0],
-                (double)l->direction[1], (double)l->direction[2], (double)l->irradiance[0],
-                (double)l->irradiance[1], (double)l->irradiance[2], 100.0 * (double)s->share);
+                indent, i, i < found ? "found in " : "given", i < found && map ? map : "",
+                (double)s->elevation_deg, (double)s->azimuth_deg, (double)l->angular_radius_deg,
+                (double)l->direction[0], (double)l->direction[1], (double)l->direction[2],
+                (double)l->irradiance[0], (double)l->irradiance[1], (double)l->irradiance[2],
+                100.0 * (double)s->share);
     }
 }
 
@@ -508,6 +510,8 @@ static void scene_text(const pen_scene *sc, const pen_scene_report *r) {
     else
         printf("  lighting: SH coefficients; disk lights: %s", lights_mode_name(L->lights_mode));
     if (L->lights_mode == PEN_LIGHTS_AUTO) printf(" (at most %d)", L->lights_max);
+    if (L->lights_mode == PEN_LIGHTS_AUTO && L->lights_added > 0)
+        printf(" plus %d given", L->lights_added);
     printf(", %d\n", r->light_count);
     pen_cli_print_lights(stdout, sc, r, "    ");
     if (r->warning_count == 0) printf("  warnings: none\n");

@@ -3,10 +3,12 @@
 # optimize` write from a calibrated camera far from the origin looking away (its look-at target
 # once landed beyond +-1e6) is read back by `optimize`, `render` and `import-cameras`' readers;
 # a disk light of the documented minimum radius 0.01 renders and reference-renders, and 0.0099
-# is refused by both with the same line.
+# is refused by both with the same line; "lights": {"max": 4, "add": [...]} gives the map's sun
+# and the listed light, and a bad "add" is one line naming the key.
 # Usage: sh cli_input_bounds.sh PENUMBRA_BIN SOURCE_DIR
 set -u
 BIN=$1
+SRC=$2
 T=$(mktemp -d)
 trap 'rm -rf "$T"' EXIT
 fails=0
@@ -76,6 +78,25 @@ grep -q 'light.json: lighting.lights\[0\].angular_radius_deg: expected a number 
 [ "$(sed 's/^penumbra [a-z]*: //' "$T/err_render")" = "$(sed 's/^penumbra [a-z]*: //' "$T/err_reference")" ] ||
     fail "the messages differ: $(cat "$T/err_render") / $(cat "$T/err_reference")"
 [ ! -e "$T/l2.exr" ] && [ ! -e "$T/lr2.exr" ] || fail "an output was written on failure"
+
+# Found and added lights: the city map's sun first, then the listed light; a bad "add", one line.
+added() {
+    cat > "$T/add.json" <<JSON
+{"camera": {"width": 8, "height": 8, "fov_y_deg": 40, "eye": [0, 1, 3], "target": [0, 0, 0]},
+ "lighting": {"envmap": "$SRC/data/envmaps/city.hdr", "scale": 0.25,
+   "lights": {"max": 4, "add": $1}}, "sh_bands": 1, "objects": []}
+JSON
+}
+added '[{"direction": [0, 1, 0.2], "angular_radius_deg": 1, "irradiance": [2, 2, 2]}]'
+"$BIN" info "$T/add.json" > "$T/info" 2> "$T/err" || fail "info with added lights: $(cat "$T/err")"
+grep -q 'light 0 (found in city.hdr)' "$T/info" && grep -q 'light 1 (given)' "$T/info" &&
+    ! grep -q 'light 2 ' "$T/info" || fail "info's lights: $(cat "$T/info")"
+added 3
+"$BIN" render "$T/add.json" -o "$T/a.exr" > /dev/null 2> "$T/err" && fail "render accepted \"add\": 3"
+[ "$(wc -l < "$T/err")" -eq 1 ] &&
+    grep -q 'add.json: lighting.lights.add: expected an array of lights, got ' "$T/err" ||
+    fail "a bad \"add\": $(cat "$T/err")"
+[ ! -e "$T/a.exr" ] || fail "an output was written on failure"
 
 [ $fails -eq 0 ] && echo "cli_input_bounds: ok"
 exit $((fails > 0))

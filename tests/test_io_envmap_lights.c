@@ -2,8 +2,9 @@
  * synthetic sun is found where it is, with its size and irradiance; the residual plus the lights
  * carry the map's SH (the DC exactly); a map without a compact source gives none; max_lights 0
  * is the plain projection bit for bit; the bundled city map's sun is found; loading a scene with
- * a map finds it (lights AUTO); and with "lights": "none" it loads the scene as before lights
- * existed (the whole map's projection, no lights). */
+ * a map finds it (lights AUTO); with "lights": "none" it loads the scene as before lights
+ * existed (the whole map's projection, no lights); and {"max": 4, "add": [...]} gives the found
+ * lights, then the added ones, over the default's SH, saved and read back the same. */
 #include "io_fixtures.h"
 
 #include <stdint.h>
@@ -218,5 +219,163 @@ static void test_scene_auto_and_none(void) {
     pen_context_destroy(c2);
 }
 
+/* The file at `path` as a NUL-terminated string (at most 64 KiB); NULL if unreadable. */
+static char *read_text(const char *path) {
+    FILE *f = fopen(path, "rb");
+    if (!f) return NULL;
+    char *text = calloc(1, 1 << 16);
+    size_t got = text ? fread(text, 1, (1 << 16) - 1, f) : 0;
+    fclose(f);
+    if (got == 0) free(text);
+    return got ? text : NULL;
+}
+
+/* `text` with `insert` put right after the first `key`; NULL when key is absent. */
+static char *insert_after(const char *text, const char *key, const char *insert) {
+    const char *at = strstr(text, key);
+    if (!at) return NULL;
+    char *out = calloc(1, strlen(text) + strlen(insert) + 1);
+    size_t head = (size_t)(at - text) + strlen(key);
+    memcpy(out, text, head);
+    strcat(out, insert);
+    strcat(out, text + head);
+    return out;
+}
+
+static int same_lighting(const pen_scene *a, const pen_scene *b) {
+    const pen_lighting *x = &a->lighting, *y = &b->lighting;
+    return a->sh_bands == b->sh_bands && x->light_count == y->light_count &&
+           memcmp(x->lights, y->lights, sizeof(pen_light) * (size_t)x->light_count) == 0 &&
+           memcmp(x->sh, y->sh, sizeof(float) * 3 * (size_t)(a->sh_bands * a->sh_bands)) == 0;
+}
+
+#define ADDED_LIGHTS                                                                               \
+    "[{\"direction\": [0, 0, 2], \"angular_radius_deg\": 0.5, \"irradiance\": [3, 2, 1]}, "        \
+    "{\"direction\": [-1, 0, 0], \"angular_radius_deg\": 5, \"irradiance\": [0.5, 0.5, 0.5]}]"
+
+static void test_scene_found_and_added(void) {
+    char path[512];
+    snprintf(path, sizeof path, "%s/examples/scenes/spot_city.json", PEN_SOURCE_DIR);
+    pen_context *c2 = pen_context_create();
+    pen_context_set_threads(c2, 2);
+    pen_scene def, sc;
+    CHECK(pen_scene_load(c2, path, &def) == PEN_OK);
+    CHECK(def.lighting.light_count == 1); /* the city's sun */
+    char *text = read_text(path);
+    CHECK(text != NULL);
+    char *edited = text ? insert_after(text, "\"lighting\": {",
+                                       "\"lights\": {\"max\": 4, \"add\": " ADDED_LIGHTS "}, ")
+                        : NULL;
+    CHECK(edited != NULL);
+    if (!edited || pen_scene_parse(c2, edited, path, &sc) != PEN_OK) {
+        CHECK_MSG(0, "%s", pen_context_error(c2));
+        free(edited), free(text), pen_scene_free(&def), pen_context_destroy(c2);
+        return;
+    }
+    /* The found sun first, then the added lights as listed (normalised); the SH is the
+     * default's, the projection of the map without the sun. */
+    const pen_lighting *L = &sc.lighting;
+    CHECK(L->lights_mode == PEN_LIGHTS_AUTO && L->lights_max == 4 && L->lights_added == 2);
+    CHECK(L->light_count == 3);
+    CHECK(memcmp(&L->lights[0], &def.lighting.lights[0], sizeof(pen_light)) == 0);
+    CHECK(L->lights[1].direction[0] == 0.0f && L->lights[1].direction[2] == 1.0f);
+    CHECK(L->lights[1].angular_radius_deg == 0.5f && L->lights[1].irradiance[0] == 3.0f);
+    CHECK(L->lights[2].direction[0] == -1.0f && L->lights[2].angular_radius_deg == 5.0f);
+    CHECK(memcmp(L->sh, def.lighting.sh, sizeof(float) * 3 * (size_t)(sc.sh_bands * sc.sh_bands)) ==
+          0);
+
+    /* Saved and read back: {"max": 4, "add": [...]} again, the same lights, order and SH. */
+    pen_scene back;
+    CHECK_MSG(pen_scene_save(c2, fixture_path("added.json"), &sc) == PEN_OK, "%s",
+              pen_context_error(c2));
+    char *saved = read_text(fixture_path("added.json"));
+    CHECK(saved && strstr(saved, "\"add\"") && strstr(saved, "\"max\""));
+    free(saved);
+    CHECK_MSG(pen_scene_load(c2, fixture_path("added.json"), &back) == PEN_OK, "%s",
+              pen_context_error(c2));
+    CHECK(same_lighting(&sc, &back));
+    CHECK(back.lighting.lights_mode == PEN_LIGHTS_AUTO && back.lighting.lights_max == 4 &&
+          back.lighting.lights_added == 2);
+    pen_scene_free(&back);
+    /* With the coefficients written (recovered lighting), the sun cannot be found again: every
+     * light is listed, found ones first, and the same scene loads. */
+    CHECK(pen_scene_save_ex(c2, fixture_path("added_sh.json"), &sc, PEN_SCENE_SAVE_SH_LIGHTING) ==
+          PEN_OK);
+    CHECK_MSG(pen_scene_load(c2, fixture_path("added_sh.json"), &back) == PEN_OK, "%s",
+              pen_context_error(c2));
+    CHECK(same_lighting(&sc, &back) && back.lighting.lights_mode == PEN_LIGHTS_GIVEN);
+    pen_scene_free(&back);
+
+    /* "max": 0 with "add": the added lights only, over the whole map's projection. */
+    free(edited);
+    edited = insert_after(text, "\"lighting\": {",
+                          "\"lights\": {\"max\": 0, \"add\": " ADDED_LIGHTS "}, ");
+    CHECK(edited && pen_scene_parse(c2, edited, path, &back) == PEN_OK);
+    if (edited && back.lighting.light_count == 2) {
+        float full[PEN_SH_MAX_COEFFS][3];
+        const pen_lighting *B = &back.lighting;
+        CHECK(pen_envmap_to_sh(c2, &B->envmap, back.sh_bands, B->rotation_y_deg, B->scale, full) ==
+              PEN_OK);
+        CHECK(memcmp(&B->lights[0], &L->lights[1], 2 * sizeof(pen_light)) == 0);
+        CHECK(memcmp(B->sh, full, sizeof(float) * 3 * (size_t)(back.sh_bands * back.sh_bands)) ==
+              0);
+    } else {
+        CHECK_MSG(0, "max 0 + add: %d lights", edited ? back.lighting.light_count : -1);
+    }
+    pen_scene_free(&back);
+    free(edited);
+    free(text);
+    pen_scene_free(&sc);
+    pen_scene_free(&def);
+    pen_context_destroy(c2);
+}
+
+/* "add" without a map (only the added lights, round trip included) and each bad "add" with its
+ * one-line error naming the file and the key. */
+static void test_scene_add_forms(void) {
+    fixture_text("tri.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+#define SCENE_HEAD                                                                                 \
+    "{\"camera\": {\"width\": 8, \"height\": 8, \"fov_y_deg\": 40, \"eye\": [0, 0, 3], "           \
+    "\"target\": [0, 0, 0]}, \"sh_bands\": 1, \"objects\": [{\"mesh\": \"tri.obj\"}], "            \
+    "\"lighting\": {\"sh\": [[1, 1, 1]], \"lights\": "
+    pen_scene sc, back;
+    CHECK(pen_scene_parse(ctx, SCENE_HEAD "{\"add\": " ADDED_LIGHTS "}}}", fixture_path("a.json"),
+                          &sc) == PEN_OK);
+    CHECK(sc.lighting.lights_mode == PEN_LIGHTS_AUTO && sc.lighting.light_count == 2 &&
+          sc.lighting.lights_added == 2 && sc.lighting.lights_max == PEN_LIGHTS_DEFAULT_MAX);
+    CHECK(pen_scene_save(ctx, fixture_path("a_saved.json"), &sc) == PEN_OK);
+    CHECK(pen_scene_load(ctx, fixture_path("a_saved.json"), &back) == PEN_OK);
+    CHECK(same_lighting(&sc, &back) && back.lighting.lights_mode == PEN_LIGHTS_AUTO &&
+          back.lighting.lights_added == 2);
+    pen_scene_free(&back);
+    pen_scene_free(&sc);
+    static const char *const bad[][2] = {
+        {"{\"max\": 2, \"add\": 3}",
+         "bad.json: lighting.lights.add: expected an array of lights, got"},
+        {"{\"add\": {}}", "bad.json: lighting.lights.add: expected an array of lights, got"},
+        {"{\"add\": [{\"direction\": [0, 0, 0], \"angular_radius_deg\": 1, \"irradiance\": [1, 1, "
+         "1]}]}",
+         "bad.json: lighting.lights.add[0].direction: must not be the zero vector"},
+        {"{\"add\": [{\"direction\": [0, 1, 0], \"angular_radius_deg\": 1, \"irradiance\": [1, 1, "
+         "1]}, {\"direction\": [0, 1, 0], \"irradiance\": [1, 1, 1]}]}",
+         "bad.json: lighting.lights.add[1].angular_radius_deg: missing"},
+        {"{\"add\": [3]}", "bad.json: lighting.lights.add[0]"},
+        {"{\"max\": 15, \"add\": " ADDED_LIGHTS "}",
+         "bad.json: lighting.lights.add: 2 lights, at most 1 (16 minus \"max\")"},
+        {"{\"max\": 2, \"added\": []}", "bad.json: lighting.lights"},
+    };
+    for (size_t i = 0; i < sizeof bad / sizeof bad[0]; ++i) {
+        char text[2048];
+        snprintf(text, sizeof text, SCENE_HEAD "%s}}", bad[i][0]);
+        const pen_status s = pen_scene_parse(ctx, text, fixture_path("bad.json"), &sc);
+        CHECK_MSG(s == PEN_ERROR_PARSE, "case %zu parsed", i);
+        const char *msg = pen_context_error(ctx);
+        CHECK_MSG(strstr(msg, bad[i][1]) != NULL && !strchr(msg, '\n'), "case %zu: %s", i, msg);
+        if (s == PEN_OK) pen_scene_free(&sc);
+    }
+#undef SCENE_HEAD
+}
+
 RUN_TESTS(TEST(test_synthetic_sun), TEST(test_no_lights), TEST(test_bundled_city),
-          TEST(test_scene_auto_and_none))
+          TEST(test_scene_auto_and_none), TEST(test_scene_found_and_added),
+          TEST(test_scene_add_forms))

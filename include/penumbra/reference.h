@@ -16,7 +16,8 @@
  *                                  cosine-sampled estimate of the light blockers remove.
  * Disk lights (lighting.lights, radiance E / (pi sin^2 b) over each disk) are rendered exactly,
  * one cone sample per light, combined with the other samples by the balance heuristic. ENVMAP
- * adds only lights the scene gives (PEN_LIGHTS_GIVEN): lights found in the map are in it already.
+ * adds only lights the scene gives (PEN_LIGHTS_GIVEN, or the lights_added after the found ones):
+ * lights found in the map are in it already.
  * SH adds every light: it is the lighting `render` uses (docs/design.md sec. 2).
  * Surfaces: meshes are shaded with smooth area-weighted vertex normals (interpolated, renormalised)
  * and lit from the side the camera sees (two-sided); the ground plane has normal +Y. Albedo is

@@ -171,7 +171,8 @@ typedef struct pen_light {
 
 /* Where a scene's disk lights come from (lighting.lights in the JSON). */
 typedef enum pen_lights_mode {
-    PEN_LIGHTS_AUTO = 0,  /* found in the environment map (up to lights_max), none without one */
+    PEN_LIGHTS_AUTO = 0,  /* found in the environment map (up to lights_max), none without one,
+                             then the lights_added listed under "add" */
     PEN_LIGHTS_NONE = 1,  /* "none": SH lighting only */
     PEN_LIGHTS_GIVEN = 2  /* listed in the JSON (or set by the caller) */
 } pen_lights_mode;
@@ -182,6 +183,9 @@ typedef struct pen_lighting {
     pen_light lights[PEN_SCENE_MAX_LIGHTS];
     pen_lights_mode lights_mode;
     int lights_max;                 /* PEN_LIGHTS_AUTO: at most this many lights are extracted */
+    int lights_added;               /* PEN_LIGHTS_AUTO: the last lights_added of lights[] were
+                                       listed ({"max": K, "add": [...]}), the others found in the
+                                       map; 0 (all found) in every other mode and by default */
     pen_image envmap;       /* raw map as loaded (not rotated or scaled); data == NULL if none */
     char *envmap_path;
     float scale;            /* applied to the map (projection and lookups); 1 without a map */

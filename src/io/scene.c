@@ -113,63 +113,95 @@ static pen_status parse_light(pen_context *ctx, const where *w, const cJSON *o, 
     return s;
 }
 
-/* lighting.lights: an array of lights (GIVEN), "none", or {"max": K} (AUTO); absent: AUTO with
- * PEN_LIGHTS_DEFAULT_MAX. */
+/* An array of at most `room` lights at `w` into lights[0 .. *n). */
+static pen_status parse_light_array(pen_context *ctx, const where *w, const cJSON *item, int room,
+                                    const char *what, pen_light *lights, int *n) {
+    const int count = cJSON_GetArraySize(item);
+    if (count > room)
+        return pen__json_error(ctx, PEN_ERROR_PARSE, w, "%d lights, at most %d%s", count, room,
+                               what);
+    int i = 0;
+    const cJSON *e;
+    cJSON_ArrayForEach(e, item) {
+        where wi;
+        pen__json_index(w, i, &wi);
+        pen_status s = parse_light(ctx, &wi, e, &lights[i]);
+        if (s) return s;
+        *n = ++i;
+    }
+    return PEN_OK;
+}
+
+/* lighting.lights: an array of lights (GIVEN), "none", or {"max": K, "add": [lights]} (AUTO:
+ * up to K found in the map, then the added ones); absent: AUTO with PEN_LIGHTS_DEFAULT_MAX.
+ * Added lights are parsed into lights[0 ..) here and moved behind the found ones by
+ * envmap_lighting, once the map is read. */
 static pen_status parse_lights(pen_context *ctx, const where *wl, const cJSON *o, pen_lighting *L) {
     const cJSON *item = pen__json_member(o, "lights");
     where w = at(wl, "lights");
     L->light_count = 0;
     L->lights_mode = PEN_LIGHTS_AUTO;
     L->lights_max = PEN_LIGHTS_DEFAULT_MAX;
+    L->lights_added = 0;
     if (!item) return PEN_OK;
     if (cJSON_IsString(item)) {
         if (strcmp(item->valuestring, "none") != 0)
             return pen__json_error(ctx, PEN_ERROR_PARSE, &w,
                                    "unknown value \"%s\" (expected an array of lights, \"none\" "
-                                   "or {\"max\": K})",
+                                   "or {\"max\": K, \"add\": [lights]})",
                                    item->valuestring);
         L->lights_mode = PEN_LIGHTS_NONE;
         L->lights_max = 0;
         return PEN_OK;
     }
     if (cJSON_IsObject(item)) {
-        static const char *const known[] = {"max", NULL};
+        static const char *const known[] = {"max", "add", NULL};
         pen_status s = pen__json_known_keys(ctx, &w, item, known);
-        if (s || !pen__json_member(item, "max")) return s;
-        where wm = at(&w, "max");
-        return pen__json_int(ctx, &wm, pen__json_member(item, "max"), 0, PEN_SCENE_MAX_LIGHTS,
-                             "an integer in [0, 16]", &L->lights_max);
+        if (!s && pen__json_member(item, "max")) {
+            where wm = at(&w, "max");
+            s = pen__json_int(ctx, &wm, pen__json_member(item, "max"), 0, PEN_SCENE_MAX_LIGHTS,
+                              "an integer in [0, 16]", &L->lights_max);
+        }
+        const cJSON *add = pen__json_member(item, "add");
+        if (s || !add) return s;
+        where wa = at(&w, "add");
+        if (!cJSON_IsArray(add))
+            return pen__json_error(ctx, PEN_ERROR_PARSE, &wa, "expected an array of lights, got %s",
+                                   pen__json_type_name(add));
+        /* Room for the most the map may give: the total stays within PEN_SCENE_MAX_LIGHTS
+         * whatever the map holds. */
+        s = parse_light_array(ctx, &wa, add, PEN_SCENE_MAX_LIGHTS - L->lights_max,
+                              " (16 minus \"max\")", L->lights, &L->light_count);
+        L->lights_added = L->light_count;
+        return s;
     }
     if (!cJSON_IsArray(item))
         return pen__json_error(ctx, PEN_ERROR_PARSE, &w,
-                               "expected an array of lights, \"none\" or {\"max\": K}, got %s",
+                               "expected an array of lights, \"none\" or {\"max\": K, \"add\": "
+                               "[lights]}, got %s",
                                pen__json_type_name(item));
-    const int n = cJSON_GetArraySize(item);
-    if (n > PEN_SCENE_MAX_LIGHTS)
-        return pen__json_error(ctx, PEN_ERROR_PARSE, &w, "%d lights, at most %d", n,
-                               PEN_SCENE_MAX_LIGHTS);
     L->lights_mode = PEN_LIGHTS_GIVEN;
     L->lights_max = 0;
-    int i = 0;
-    const cJSON *e;
-    cJSON_ArrayForEach(e, item) {
-        where wi;
-        pen__json_index(&w, i, &wi);
-        pen_status s = parse_light(ctx, &wi, e, &L->lights[i]);
-        if (s) return s;
-        L->light_count = ++i;
-    }
-    return PEN_OK;
+    return parse_light_array(ctx, &w, item, PEN_SCENE_MAX_LIGHTS, "", L->lights, &L->light_count);
 }
 
 /* The SH lighting of a map (no "sh" given): with lights AUTO, the lights found in it and the
- * projection of the rest (docs/design.md sec. 1.14); with "none" or given lights, the
- * projection of the whole map, as before lights existed. Runs after the whole "lighting" object
- * is read, so that the lights' mode and maximum are known. */
+ * projection of the rest (docs/design.md sec. 1.14), followed by the added lights; with "none"
+ * or given lights, the projection of the whole map, as before lights existed. Runs after the
+ * whole "lighting" object is read, so that the lights' mode and maximum are known. */
 static pen_status envmap_lighting(pen_context *ctx, int bands, pen_lighting *L) {
     int max = L->lights_mode == PEN_LIGHTS_AUTO && L->lights_max > 0 ? L->lights_max : 0;
-    return pen_envmap_lighting(ctx, &L->envmap, bands, L->rotation_y_deg, L->scale, max, L->sh,
-                               L->lights, &L->light_count);
+    pen_light added[PEN_SCENE_MAX_LIGHTS];
+    const int n_added = L->lights_mode == PEN_LIGHTS_AUTO ? L->lights_added : 0;
+    memcpy(added, L->lights, sizeof(pen_light) * (size_t)n_added);
+    if (L->lights_mode == PEN_LIGHTS_AUTO) L->light_count = 0; /* max 0 leaves the count alone */
+    pen_status s = pen_envmap_lighting(ctx, &L->envmap, bands, L->rotation_y_deg, L->scale, max,
+                                       L->sh, L->lights, &L->light_count);
+    if (s) return s;
+    if (L->lights_mode != PEN_LIGHTS_AUTO) return PEN_OK; /* given lights: kept as listed */
+    memcpy(L->lights + L->light_count, added, sizeof(pen_light) * (size_t)n_added);
+    L->light_count += n_added;
+    return PEN_OK;
 }
 
 static pen_status parse_lighting(pen_context *ctx, const char *path, const where *top,
@@ -634,23 +666,12 @@ static int add_path(pen_context *ctx, cJSON *obj, const char *name, const char *
     return ok;
 }
 
-/* lighting.lights as parse_lights reads it: GIVEN as the array, NONE as "none", AUTO as
- * {"max": K} unless K is the default (then nothing). Lights found in the map are written as an
- * array too when the coefficients are written (`sh_written`): a file with "sh" finds no lights on
- * load, so they would be lost. Returns 0 on exhaustion. */
-static int lights_json(const pen_lighting *L, int sh_written, cJSON *o) {
-    if (L->lights_mode == PEN_LIGHTS_NONE)
-        return pen__json_add(o, "lights", cJSON_CreateString("none"));
-    if (L->lights_mode == PEN_LIGHTS_AUTO && !(sh_written && L->light_count > 0)) {
-        if (L->lights_max == PEN_LIGHTS_DEFAULT_MAX) return 1;
-        cJSON *m = cJSON_CreateObject();
-        return pen__json_add(o, "lights", m) &&
-               pen__json_add(m, "max", cJSON_CreateNumber(L->lights_max));
-    }
+/* lights[0 .. n) as a JSON array, added as `name` of o. Returns 0 on exhaustion. */
+static int lights_array_json(const pen_light *lights, int n, const char *name, cJSON *o) {
     cJSON *arr = cJSON_CreateArray();
-    int ok = pen__json_add(o, "lights", arr);
-    for (int i = 0; ok && i < L->light_count; ++i) {
-        const pen_light *l = &L->lights[i];
+    int ok = pen__json_add(o, name, arr);
+    for (int i = 0; ok && i < n; ++i) {
+        const pen_light *l = &lights[i];
         cJSON *e = cJSON_CreateObject();
         if (!e || !cJSON_AddItemToArray(arr, e)) {
             cJSON_Delete(e);
@@ -661,6 +682,27 @@ static int lights_json(const pen_lighting *L, int sh_written, cJSON *o) {
              pen__json_add(e, "irradiance", pen__json_float_array(l->irradiance, 3));
     }
     return ok;
+}
+
+/* lighting.lights as parse_lights reads it: GIVEN as the array, NONE as "none", AUTO as
+ * {"max": K, "add": [the added lights]} (nothing when K is the default and none were added; the
+ * found ones are found again on load, the same lights in the same order, since finding is
+ * deterministic). Lights found in the map are written as an array with the added ones after them
+ * when the coefficients are written (`sh_written`): a file with "sh" finds no lights on load, so
+ * they would be lost. Returns 0 on exhaustion. */
+static int lights_json(const pen_lighting *L, int sh_written, cJSON *o) {
+    if (L->lights_mode == PEN_LIGHTS_NONE)
+        return pen__json_add(o, "lights", cJSON_CreateString("none"));
+    const int added = L->lights_mode == PEN_LIGHTS_AUTO ? L->lights_added : 0;
+    const int found = L->lights_mode == PEN_LIGHTS_AUTO ? L->light_count - added : 0;
+    if (L->lights_mode == PEN_LIGHTS_AUTO && !(sh_written && found > 0)) {
+        if (L->lights_max == PEN_LIGHTS_DEFAULT_MAX && added == 0) return 1;
+        cJSON *m = cJSON_CreateObject();
+        return pen__json_add(o, "lights", m) &&
+               pen__json_add(m, "max", cJSON_CreateNumber(L->lights_max)) &&
+               (added == 0 || lights_array_json(L->lights + found, added, "add", m));
+    }
+    return lights_array_json(L->lights, L->light_count, "lights", o);
 }
 
 static cJSON *lighting_json(pen_context *ctx, const char *path, const pen_scene *sc,

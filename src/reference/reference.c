@@ -588,11 +588,17 @@ pen_status pen_reference_create(pen_context *ctx, const pen_scene *scene,
     ref->eps = 1e-5f * fmaxf(extent, 1.0f);
     if (!st && lighting == PEN_REFERENCE_LIGHTING_ENVMAP)
         st = pen__envmap_sampler_init(ctx, &scene->lighting.envmap, &ref->sampler);
-    /* The full map already holds the lights found in it: only given ones are added to it. The
-     * SH lighting is render's, the SH part plus every light (docs/design.md sec. 2). */
-    if (!st && (lighting == PEN_REFERENCE_LIGHTING_SH ||
-                scene->lighting.lights_mode == PEN_LIGHTS_GIVEN))
-        pen__ref_lights_init(scene->lighting.lights, scene->lighting.light_count, &ref->lights);
+    /* The full map already holds the lights found in it: only given ones (listed, or added
+     * after the found ones) are added to it. The SH lighting is render's, the SH part plus every
+     * light (docs/design.md sec. 2). */
+    const pen_lighting *lt = &scene->lighting;
+    const int added = lt->lights_mode == PEN_LIGHTS_GIVEN  ? lt->light_count
+                      : lt->lights_mode == PEN_LIGHTS_AUTO ? lt->lights_added
+                                                           : 0;
+    if (!st && lighting == PEN_REFERENCE_LIGHTING_SH)
+        pen__ref_lights_init(lt->lights, lt->light_count, &ref->lights);
+    else if (!st && added > 0 && added <= lt->light_count)
+        pen__ref_lights_init(lt->lights + (lt->light_count - added), added, &ref->lights);
     if (!st) st = build_embree(ctx, ref);
     if (st) {
         pen_reference_destroy(ref);

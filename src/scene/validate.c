@@ -53,6 +53,14 @@ pen_status pen__lights_validate(pen_context *ctx, const pen_lighting *L, const c
     if (L->light_count < 0 || L->light_count > PEN_SCENE_MAX_LIGHTS)
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "%s: lighting.lights: %d lights, at most %d",
                           who, L->light_count, PEN_SCENE_MAX_LIGHTS);
+    /* The loader's bound: K found plus the added ones stay within PEN_SCENE_MAX_LIGHTS. */
+    const int room = PEN_SCENE_MAX_LIGHTS - L->lights_max,
+              added_hi = L->light_count < room ? L->light_count : room;
+    if (L->lights_mode == PEN_LIGHTS_AUTO && (L->lights_added < 0 || L->lights_added > added_hi))
+        return pen__error(ctx, PEN_ERROR_ARGUMENT,
+                          "%s: lighting.lights: %d added lights outside [0, %d] (%d lights, max "
+                          "%d)",
+                          who, L->lights_added, added_hi, L->light_count, L->lights_max);
     for (int i = 0; i < L->light_count; ++i) {
         const pen_light *l = &L->lights[i];
         const double len2 = (double)l->direction[0] * (double)l->direction[0] +

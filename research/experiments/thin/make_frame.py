@@ -3,7 +3,13 @@
 the ground"): a box seat panel on a frame of closed 12-sided tubes whose radius is 1 % of the
 object's size (1.7 units tall), and scenes under a sun 8 degrees above the horizon with the city
 map. Writes frame.obj, frame.json (the object), frame_empty.json (the ground alone, for the mask
-of the cast shadows). Usage: make_frame.py OUTDIR"""
+of the cast shadows). Usage: make_frame.py OUTDIR [--find-map-lights]
+
+The scenes list the low sun ("lights": [SUN]), so the loader finds no light in the map and the
+map's own sun (47.8 degrees up) is projected onto the SH with the rest of it (the tables measured
+so far). --find-map-lights writes "lights": {"max": 4, "add": [SUN]} instead: the map's sun found
+as a disk light, the low sun after it, the SH the projection of what the found one leaves
+(docs/file-formats.md, "Lights found in a map")."""
 import importlib.util
 import json
 import math
@@ -68,15 +74,16 @@ def chair():
     return m
 
 
-def scene(obj, with_object, ground_grid=None):
+def scene(obj, with_object, ground_grid=None, find_map_lights=False):
     el, az = math.radians(8.0), math.radians(-60.0)
     sun = [math.cos(el) * math.sin(az), math.sin(el), math.cos(el) * math.cos(az)]
+    lights = [{"direction": sun, "angular_radius_deg": 0.27, "irradiance": [3.0, 2.9, 2.7]}]
     sc = {"camera": {"width": 384, "height": 384, "fov_y_deg": 40, "eye": [3.2, 3.6, 4.2],
                      "target": [1.1, 0.2, -0.4], "up": [0, 1, 0]},
           "lighting": {"envmap": os.path.abspath(os.path.join(os.path.dirname(__file__),
                                                               "../../../data/envmaps/city.hdr")),
-                       "scale": 0.25, "lights": [{"direction": sun, "angular_radius_deg": 0.27,
-                                                   "irradiance": [3.0, 2.9, 2.7]}]},
+                       "scale": 0.25,
+                       "lights": {"max": 4, "add": lights} if find_map_lights else lights},
           "sh_bands": 4, "shadow": {"exp": "calibrated"},
           "objects": [], "ground": {"height": 0, "albedo": [0.8, 0.8, 0.8], "half_size": 4},
           "background": [0, 0, 0]}
@@ -88,16 +95,21 @@ def scene(obj, with_object, ground_grid=None):
 
 
 def main():
-    out = sys.argv[1] if len(sys.argv) > 1 else "."
+    args = sys.argv[1:]
+    found = "--find-map-lights" in args
+    args = [a for a in args if a != "--find-map-lights"]
+    if any(a.startswith("-") for a in args) or len(args) > 1:
+        sys.exit(__doc__)
+    out = args[0] if args else "."
     os.makedirs(out, exist_ok=True)
     obj = os.path.abspath(os.path.join(out, "frame.obj"))
     chair().write(obj)
     with open(os.path.join(out, "frame_empty.json"), "w") as f:
-        json.dump(scene(obj, False), f, indent=1)
+        json.dump(scene(obj, False, None, found), f, indent=1)
     for g in (None, 192, 384, 768):
         name = "frame.json" if g is None else "frame_g%d.json" % g
         with open(os.path.join(out, name), "w") as f:
-            json.dump(scene(obj, True, g), f, indent=1)
+            json.dump(scene(obj, True, g, found), f, indent=1)
 
 
 if __name__ == "__main__":

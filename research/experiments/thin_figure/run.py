@@ -8,7 +8,7 @@ tube chair of thin/make_frame.py under its sun, against the same truth and again
 truth (`--lighting envmap`).
 
     /usr/bin/python3 research/experiments/thin_figure/run.py PENUMBRA [--out out/thin_figure]
-        [--sizes 256,384] [--spp 1024] [--no-chair] [--candidate PENUMBRA2]
+        [--sizes 256,384] [--spp 1024] [--no-chair] [--candidate PENUMBRA2] [--find-map-lights]
 
 Per scene: the truth at N spp (seed 1) and a second at N/2 (seed 2); the truth's own noise is
 err(second vs truth) / sqrt(3) (e^2 = s^2 (2/N + 1/N) for independent estimates) and is removed
@@ -18,7 +18,9 @@ of the object's mean; map_figure_256.png is docs/images/thin_figure_low_sun.png)
 markdown tables. Existing images are reused (delete them to
 start over). --candidate: a second binary (a candidate change of the renderer) whose default
 render is measured against the same truths, one more row per table. About 15 minutes at 256 and
-384 with 1024 spp on 2 shared cores, the chair's two truths included.
+384 with 1024 spp on 2 shared cores, the chair's two truths included. --find-map-lights: the
+chair's scene as `make_frame.py --find-map-lights` writes it (the city map's own sun found as a
+disk light besides the listed low sun), in OUTDIR/chair_found.
 """
 import json
 import math
@@ -98,7 +100,7 @@ def main():
         sys.exit(__doc__)
     opts, flags = parse_options(sys.argv[2:], {"--out": "out/thin_figure", "--sizes": "256,384",
                                                "--spp": "1024", "--candidate": ""},
-                                ("--no-chair",))
+                                ("--no-chair", "--find-map-lights"))
     pen, out = os.path.abspath(sys.argv[1]), os.path.abspath(opts["--out"])
     sizes, spp = [int(s) for s in opts["--sizes"].split(",")], int(opts["--spp"])
     subprocess.run([sys.executable, os.path.join(HERE, "make_figure.py"), out, "--sizes",
@@ -122,9 +124,10 @@ def main():
               " shadow captured %.2f" % (a["pixels"], a["too_bright_share"], a["captured"]))
     if "--no-chair" in flags:
         return
-    chair = os.path.join(out, "chair")
-    subprocess.run([sys.executable, os.path.join(HERE, "..", "thin", "make_frame.py"), chair],
-                   check=True)
+    found = "--find-map-lights" in flags
+    chair = os.path.join(out, "chair_found" if found else "chair")
+    subprocess.run([sys.executable, os.path.join(HERE, "..", "thin", "make_frame.py"), chair]
+                   + (["--find-map-lights"] if found else []), check=True)
     with open(os.path.join(chair, "frame.json")) as f:
         sc = json.load(f)
     del sc["ground"]
