@@ -197,6 +197,13 @@ struct pen_render_state {
     int self_any;             /* some object shades with its transfer this frame (self.c) */
     pen__buf_float kappa_self; /* per object (sphere_count each): kappa, 0 on its own spheres */
     pen__ground_grid grid;     /* the ground's shadows of those objects (ground_shadow.c) */
+    /* The transfer pixels' own disk fractions (K per pixel, -1: the nodes' interpolation),
+     * traced where the nodes cannot be trusted (self.c, pixel_trace); kept between frames while
+     * self_pkey (the objects' transfer keys and their pixels' points) holds, so the backward
+     * reads the forward's values and a lighting or albedo optimisation traces them once. */
+    pen__buf_float self_pfrac;
+    int self_pvalid;
+    uint64_t self_pkey;
 };
 
 /* ---- state.c ---- */

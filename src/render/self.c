@@ -35,11 +35,18 @@
  *   follows every pose change.
  * - Back faces. The transfer is traced for the side the vertex normal points to; a pixel seeing
  *   a triangle from its other side (open meshes) shades with the spheres as before.
+ * - The lights per pixel. A thin part's shadow under a small disk light is narrower than the
+ *   nodes, which draw it as beads and gaps; where a pixel is finer than its triangle's nodes and
+ *   they cannot be trusted, the pixel traces the disks itself (pixel_trace, as the ground's
+ *   pixels do in ground_shadow.c). The fractions are kept in the state (self_pfrac) under their
+ *   own key, so the backward shades with the forward's (docs/visibility.md, "On the objects'
+ *   own pixels").
  */
 #include "core/internal.h"
 #include "geometry/transfer.h"
 #include "render/transfer_pool.h"
 
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -176,6 +183,8 @@ static pen_status self_cache(pen_context *ctx, const pen_scene *sc, pen_render_s
     return PEN_OK;
 }
 
+static pen_status pixel_trace(pen_context *ctx, const pen_scene *sc, pen_render_state *st);
+
 pen_status pen__self_prepare(pen_context *ctx, const pen_scene *sc, const pen_render_options *opt,
                              pen_render_state *st) {
     st->self_any = 0;
@@ -201,18 +210,20 @@ pen_status pen__self_prepare(pen_context *ctx, const pen_scene *sc, const pen_re
         s = self_cache(ctx, sc, st, o, &device);
     }
     pen__transfer_device_free(device);
-    return s;
+    return s ? s : pixel_trace(ctx, sc, st);
 }
 
-/* The blocked part and the light fractions at pixel i of object o, interpolated linearly on the
- * sub-triangle of the node lattice that holds the pixel's barycentrics (at level 1 the triangle
- * itself, as the normal is interpolated). A node that found every one of its directions blocked
- * (B's DC coefficient the whole pi Y00: BURIED_DC) is buried inside another closed shell of the
- * mesh, where a part joins the body; left in, it spreads its darkness over the visible part of
- * its triangles as far as the next node. It is left out and the others' weights renormalised,
- * unless all three are buried (docs/results/accuracy.md, "A thin-limbed figure under a low sun":
- * the figure's object error 0.059 -> 0.042, the tube chair's 0.069 -> 0.037). */
-void pen__self_transfer_at(const pen_render_state *st, int o, size_t i, float *B, double *frac) {
+/* The blocked part (B, may be NULL) and the light fractions at pixel i of object o, interpolated
+ * linearly on the sub-triangle of the node lattice that holds the pixel's barycentrics (at level 1
+ * the triangle itself, as the normal is interpolated). A node that found every one of its
+ * directions blocked (B's DC coefficient the whole pi Y00: BURIED_DC) is buried inside another
+ * closed shell of the mesh, where a part joins the body; left in, it spreads its darkness over the
+ * visible part of its triangles as far as the next node. It is left out and the others' weights
+ * renormalised, unless all three are buried (docs/results/accuracy.md, "A thin-limbed figure under
+ * a low sun": the figure's object error 0.059 -> 0.042, the tube chair's 0.069 -> 0.037). spread
+ * (may be NULL): the largest difference of a light's fraction between the nodes that count. */
+static void nodes_at(const pen_render_state *st, int o, size_t i, float *B, double *frac,
+                     double *spread) {
     const pen__object_buf *b = &st->obj[o];
     int node[3];
     double w[3];
@@ -227,16 +238,218 @@ void pen__self_transfer_at(const pen_render_state *st, int o, size_t i, float *B
     if (kept > 0.0) /* (all three buried: the plain interpolation, as dark as they are) */
         for (int c = 0; c < 3; ++c)
             w[c] = wk[c] / kept;
-    for (int k = 0; k < nc; ++k) {
+    for (int k = 0; B && k < nc; ++k) {
         double t = 0.0;
         for (int c = 0; c < 3; ++c)
             t += w[c] * (double)b->self_B.data[(size_t)nc * (size_t)node[c] + (size_t)k];
         B[k] = (float)t;
     }
+    if (spread) *spread = 0.0;
     for (int l = 0; l < K; ++l) {
-        double f = 0.0;
-        for (int c = 0; c < 3; ++c)
-            f += w[c] * (double)b->self_frac.data[(size_t)K * (size_t)node[c] + (size_t)l];
+        double f = 0.0, lo = 1.0, hi = 0.0;
+        for (int c = 0; c < 3; ++c) {
+            const double v = (double)b->self_frac.data[(size_t)K * (size_t)node[c] + (size_t)l];
+            f += w[c] * v;
+            if (w[c] > 0.0) lo = fmin(lo, v), hi = fmax(hi, v);
+        }
         frac[l] = f;
+        if (spread && hi - lo > *spread) *spread = hi - lo;
     }
+}
+
+void pen__self_transfer_at(const pen_render_state *st, int o, size_t i, float *B, double *frac) {
+    nodes_at(st, o, i, B, frac, NULL);
+    const int K = st->lights.count;
+    const float *own = st->self_pvalid && K ? st->self_pfrac.data + (size_t)K * i : NULL;
+    for (int l = 0; own && l < K; ++l)
+        if (own[l] >= 0.0f) frac[l] = (double)own[l];
+}
+
+/* ---- The lights per pixel -------------------------------------------------------------------- */
+
+/* A pixel whose nodes' fractions of a light differ by more than this lies on an edge of its
+ * shadow, which the linear interpolation draws as a ramp between the nodes (beads along a thin
+ * part's shadow), so it traces the disk itself. */
+#define NODE_SPREAD 0.02
+/* Pixels around one whose centre ray disagrees with the nodes that trace their disks too (in
+ * pixels, each way): a shadow one or two pixels wide is hit by some centre rays and missed by
+ * their neighbours, and its penumbra reaches past the ray's hit. */
+#define DILATE 2
+
+/* The object whose transfer pixel i would shade with, or -1: as pen__self_object, which reads the
+ * facing sign the shading pass sets later; here the triangle's geometric normal against the view
+ * (cpu/shade_fwd.c, facing_sign), and the unit normal facing that side into n. */
+static int pixel_object(const pen_scene *sc, const pen_render_state *st, size_t i, float n[3]) {
+    const int o = st->gb.surface[i];
+    if (o < 0 || !st->obj[o].self_on) return -1;
+    const uint32_t *idx = sc->objects[o].mesh.indices + 3 * (size_t)st->gb.triangle[i];
+    const float *w = st->obj[o].world.data;
+    const float *p0 = w + 3 * (size_t)idx[0], *p1 = w + 3 * (size_t)idx[1],
+                *p2 = w + 3 * (size_t)idx[2];
+    double e1[3], e2[3], v[3], nn = 0.0;
+    for (int a = 0; a < 3; ++a) {
+        e1[a] = (double)p1[a] - (double)p0[a];
+        e2[a] = (double)p2[a] - (double)p0[a];
+        v[a] = st->view.eye[a] - (double)st->x.data[3 * i + a];
+        nn += (double)st->nraw.data[3 * i + a] * (double)st->nraw.data[3 * i + a];
+    }
+    const double g = (e1[1] * e2[2] - e1[2] * e2[1]) * v[0] +
+                     (e1[2] * e2[0] - e1[0] * e2[2]) * v[1] +
+                     (e1[0] * e2[1] - e1[1] * e2[0]) * v[2];
+    if (g < 0.0 || !(nn > 0.0)) return -1; /* seen from behind: the spheres shade it */
+    for (int a = 0; a < 3; ++a)
+        n[a] = (float)((double)st->nraw.data[3 * i + a] / sqrt(nn));
+    return o;
+}
+
+/* Whether pixel i of object o is finer than the nodes around it: its footprint (the nearer of
+ * its neighbours on the object, per axis) at most half the node spacing of its triangle (the
+ * longest edge over the lattice's level). A pixel wider than that is better served by the nodes:
+ * the truth averages a shadow edge over the pixel, which their linear ramp approximates and the
+ * traced centre does not (docs/results/accuracy.md, the chair's decomposition: the dev meshes at
+ * 160 x 160). */
+static int finer(const pen_scene *sc, const pen_render_state *st, const int *obj, int o, int i) {
+    const int W = st->width, H = st->height, x = i % W, y = i / W;
+    const float *p = st->x.data + 3 * (size_t)i;
+    double foot = 0.0;
+    int known = 0;
+    for (int a = 0; a < 2; ++a) {
+        const int step = a ? W : 1, at = a ? y : x, lim = a ? H : W;
+        double best = HUGE_VAL;
+        for (int side = -1; side <= 1; side += 2) {
+            if (at + side < 0 || at + side >= lim || obj[i + side * step] != o) continue;
+            const float *q = st->x.data + 3 * (size_t)(i + side * step);
+            double d2 = 0.0;
+            for (int t = 0; t < 3; ++t)
+                d2 += ((double)q[t] - (double)p[t]) * ((double)q[t] - (double)p[t]);
+            best = fmin(best, sqrt(d2));
+        }
+        if (best < HUGE_VAL) foot = fmax(foot, best), known = 1;
+    }
+    if (!known) return 1;
+    const uint32_t *idx = sc->objects[o].mesh.indices + 3 * (size_t)st->gb.triangle[i];
+    const float *w = st->obj[o].world.data;
+    double edge = 0.0;
+    for (int c = 0; c < 3; ++c) {
+        const float *a = w + 3 * (size_t)idx[c], *b = w + 3 * (size_t)idx[(c + 1) % 3];
+        double d2 = 0.0;
+        for (int t = 0; t < 3; ++t)
+            d2 += ((double)a[t] - (double)b[t]) * ((double)a[t] - (double)b[t]);
+        edge = fmax(edge, sqrt(d2));
+    }
+    return 2.0 * foot <= edge / st->obj[o].self_lat.level;
+}
+
+/* The disk lights' fractions per pixel (self_pfrac) where the nodes cannot be trusted, as the
+ * ground's (ground_shadow.c, pixel_trace): per object, one ray per transfer pixel towards each
+ * light's centre against its own mesh (and the ground when it occludes), then the transfer's disk
+ * sampling at the pixels whose nodes disagree or whose ray disagrees with them, and around those.
+ * Keyed by the objects' keys and their pixels' points (the camera): a lighting or albedo
+ * optimisation pays it once. */
+static pen_status pixel_trace(pen_context *ctx, const pen_scene *sc, pen_render_state *st) {
+    const int K = st->lights.count, O = sc->object_count, W = st->width, H = st->height;
+    const size_t np = (size_t)W * (size_t)H;
+    if (!K) return PEN_OK;
+    int *obj = pen__malloc(ctx, np + 1, sizeof(int), "transfer pixel objects");
+    size_t *first = pen__calloc(ctx, (size_t)O + 2, sizeof(size_t), "transfer pixel counts");
+    float *nall = pen__malloc(ctx, 3 * np + 1, sizeof(float), "transfer pixel normals");
+    if (!obj || !first || !nall) {
+        free(obj), free(first), free(nall);
+        return PEN_ERROR_MEMORY;
+    }
+    uint64_t key = ((uint64_t)np << 40) * 0x9E3779B97F4A7C15ull;
+    size_t m = 0;
+    for (size_t i = 0; i < np; ++i) {
+        obj[i] = pixel_object(sc, st, i, nall + 3 * i);
+        if (obj[i] < 0) continue;
+        ++first[obj[i] + 1], ++m;
+        key =
+            (key ^ pen__render_hash32(st->x.data + 3 * i, 3) ^ (uint64_t)i) * 0x9E3779B97F4A7C15ull;
+        key = (key ^ st->obj[obj[i]].self_key) * 0x9E3779B97F4A7C15ull;
+    }
+    if (!m || (st->self_pvalid && st->self_pkey == key)) {
+        /* (no transfer pixel: an older frame's fractions, perhaps of fewer pixels, must not be
+         * read by a pixel that pen__self_object takes for one after all) */
+        if (!m) st->self_pvalid = 0;
+        free(obj), free(first), free(nall);
+        return PEN_OK;
+    }
+    st->self_pvalid = 0;
+    for (int o = 0; o < O; ++o)
+        first[o + 1] += first[o];
+    float *pts = pen__malloc(ctx, 6 * m + 1, sizeof(float), "transfer pixels");
+    float *c = pen__malloc(ctx, (size_t)K * m + 1, sizeof(float), "transfer pixel rays");
+    int *pix = pen__malloc(ctx, m + 1, sizeof(int), "transfer pixel list");
+    unsigned char *flag = pen__calloc(ctx, 2 * np, 1, "transfer pixel flags");
+    size_t *at = pen__malloc(ctx, (size_t)O + 1, sizeof(size_t), "transfer pixel cursor");
+    pen_status s = pts && c && pix && flag && at ? PEN_OK : PEN_ERROR_MEMORY;
+    if (!s) s = PEN__BUF_RESERVE(ctx, st->self_pfrac, (size_t)K * np + 1, "transfer pixel lights");
+    if (!s) {
+        memcpy(at, first, (size_t)O * sizeof(size_t));
+        for (size_t i = 0; i < np; ++i)
+            if (obj[i] >= 0) pix[at[obj[i]]++] = (int)i;
+        for (size_t i = 0; i < (size_t)K * np; ++i)
+            st->self_pfrac.data[i] = -1.0f;
+    }
+    for (int o = 0; o < O && !s; ++o) {
+        const size_t q0 = first[o], n = first[o + 1] - q0;
+        if (!n) continue;
+        int *px = pix + q0;
+        float *nrm = pts + 3 * m; /* after the points; n <= m */
+        for (size_t q = 0; q < n; ++q) {
+            memcpy(pts + 3 * q, st->x.data + 3 * (size_t)px[q], 3 * sizeof(float));
+            memcpy(nrm + 3 * q, nall + 3 * (size_t)px[q], 3 * sizeof(float));
+        }
+        const pen_mesh *me = &sc->objects[o].mesh;
+        const pen__transfer_mesh mesh = {me->vertex_count, me->triangle_count,
+                                         st->obj[o].world.data, me->indices};
+        pen__transfer_request rq = {1,
+                                    &mesh,
+                                    (int)n,
+                                    pts,
+                                    nrm,
+                                    sc->sh_bands,
+                                    K,
+                                    (const double(*)[3])st->lights.w,
+                                    st->lights.b,
+                                    st->ground_occludes ? &sc->ground : NULL};
+        pen__transfer_bvh *bvh = NULL;
+        s = pen__transfer_bvh_build(ctx, &rq, &bvh);
+        if (!s) s = pen__transfer_lights(ctx, bvh, &rq, 1, c);
+        if (!s) {
+            double f[PEN_SCENE_MAX_LIGHTS], spread;
+            for (size_t q = 0; q < n; ++q) {
+                nodes_at(st, o, (size_t)px[q], NULL, f, &spread);
+                int bad = spread > NODE_SPREAD;
+                for (int l = 0; l < K && !bad; ++l)
+                    bad = fabs((double)c[(size_t)K * q + (size_t)l] - f[l]) > 0.5;
+                flag[px[q]] = (unsigned char)(bad && finer(sc, st, obj, o, px[q]));
+            }
+            for (size_t q = 0; q < n; ++q) { /* dilated over the object's transfer pixels */
+                if (!flag[px[q]]) continue;
+                const int x = px[q] % W, y = px[q] / W;
+                for (int v = y - DILATE > 0 ? y - DILATE : 0; v <= y + DILATE && v < H; ++v)
+                    for (int u = x - DILATE > 0 ? x - DILATE : 0; u <= x + DILATE && u < W; ++u) {
+                        const size_t j = (size_t)v * (size_t)W + (size_t)u;
+                        flag[np + j] |= obj[j] == o && finer(sc, st, obj, o, (int)j);
+                    }
+            }
+            size_t k = 0; /* the flagged pixels, compacted in place */
+            for (size_t q = 0; q < n; ++q) {
+                if (!flag[np + (size_t)px[q]]) continue;
+                memmove(pts + 3 * k, pts + 3 * q, 3 * sizeof(float));
+                memmove(nrm + 3 * k, nrm + 3 * q, 3 * sizeof(float));
+                px[k++] = px[q];
+            }
+            rq.point_count = (int)k;
+            if (k && !(s = pen__transfer_lights(ctx, bvh, &rq, 0, c)))
+                for (size_t q = 0; q < k; ++q)
+                    memcpy(st->self_pfrac.data + (size_t)K * (size_t)px[q], c + (size_t)K * q,
+                           (size_t)K * sizeof(float));
+        }
+        pen__transfer_bvh_free(bvh);
+    }
+    if (!s) st->self_pvalid = 1, st->self_pkey = key;
+    free(obj), free(first), free(nall), free(pts), free(c), free(pix), free(flag), free(at);
+    return s;
 }

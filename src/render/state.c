@@ -102,6 +102,11 @@ double pen_render_state_bytes(const pen_scene *sc, unsigned wrt, int threads) {
      * geometry's five, its barycentric scratch and footprint gradients when it is asked for. */
     double per = 7.0 * 12.0 + 20.0 + 12.0 * (sc->background_envmap != 0) + 16.0 * textured +
                  8.0 * K;
+    /* with the self transfer and disk lights, the transfer pixels' own disk fractions (kept
+     * between frames) and, while self.c's pixel_trace runs, its lists: object and normal per
+     * pixel, two flags, and per transfer pixel its point, normal, index and K ray results (taken
+     * as every pixel: an estimate that errs on the safe side) */
+    if (sc->shadow.self == PEN_SELF_TRANSFER && K > 0.0) per += 4.0 * K + 46.0 + 4.0 * K;
     if (wrt) per += 4.0 * nc + 24.0;
     if (wrt & geometry) per += 5.0 * 12.0 + 36.0 + 16.0 * textured;
     b += px * per;
@@ -193,6 +198,7 @@ void pen_render_state_free(pen_render_state *st) {
     pen__blob_release(st->grid.blob); /* grid.B and grid.frac are its arrays */
     PEN__BUF_FREE(st->grid.kappa);
     PEN__BUF_FREE(st->grid.pfrac);
+    PEN__BUF_FREE(st->self_pfrac);
     pen__buf_float *px[PIXEL_BUFFERS];
     pixel_buffers(st, px);
     for (int i = 0; i < PIXEL_BUFFERS; ++i)
