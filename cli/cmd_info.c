@@ -43,8 +43,10 @@ void pen_cli_print_lights(FILE *f, const pen_scene *sc, const pen_scene_report *
     const pen_lighting *L = &sc->lighting;
     const char *map = L->envmap_path ? strrchr(L->envmap_path, '/') : NULL;
     map = map ? map + 1 : L->envmap_path;
-    if (report->light_count == 0 && L->lights_mode == PEN_LIGHTS_AUTO && L->envmap.data)
-        fprintf(f, "%sno light found in %s: SH lighting only\n", indent, map);
+    if (report->light_count == L->lights_added && L->lights_mode == PEN_LIGHTS_AUTO &&
+        L->envmap.data)
+        fprintf(f, "%sno light found in %s%s\n", indent, map,
+                L->lights_added ? "" : ": SH lighting only");
     /* With lights AUTO, the first ones were found in the map and the last lights_added given. */
     const int found = L->lights_mode == PEN_LIGHTS_AUTO ? L->light_count - L->lights_added : 0;
     for (int i = 0; i < report->light_count; ++i) {

@@ -161,7 +161,7 @@ static void test_rod_on_plate(void) {
     e_img /= nb, e_nodes /= nb;
     printf("  rod on plate: %d band pixels (%d traced), mean |share - exact| %.4f, nodes %.4f\n",
            nb, traced, e_img, e_nodes);
-    CHECK(nb > 100 && nclear > 1000 && full > 0.0);
+    CHECK(nb > 100 && nclear > 1000 && full > 0.0 && traced > 0);
     CHECK_MSG(e_img < 0.5 * e_nodes, "per pixel %.4f against the nodes' %.4f", e_img, e_nodes);
     free(clear);
     free(band);

@@ -185,7 +185,7 @@ typedef struct pen_lighting {
     int lights_max;                 /* PEN_LIGHTS_AUTO: at most this many lights are extracted */
     int lights_added;               /* PEN_LIGHTS_AUTO: the last lights_added of lights[] were
                                        listed ({"max": K, "add": [...]}), the others found in the
-                                       map; 0 (all found) in every other mode and by default */
+                                       map; ignored in the other modes (0 by default) */
     pen_image envmap;       /* raw map as loaded (not rotated or scaled); data == NULL if none */
     char *envmap_path;
     float scale;            /* applied to the map (projection and lookups); 1 without a map */

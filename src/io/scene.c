@@ -171,7 +171,9 @@ static pen_status parse_lights(pen_context *ctx, const where *wl, const cJSON *o
         /* Room for the most the map may give: the total stays within PEN_SCENE_MAX_LIGHTS
          * whatever the map holds. */
         s = parse_light_array(ctx, &wa, add, PEN_SCENE_MAX_LIGHTS - L->lights_max,
-                              " (16 minus \"max\")", L->lights, &L->light_count);
+                              pen__json_member(item, "max") ? " (16 minus \"max\")"
+                                                            : " (16 minus \"max\", 4 by default)",
+                              L->lights, &L->light_count);
         L->lights_added = L->light_count;
         return s;
     }

@@ -230,6 +230,7 @@ static double angle_of(double s, double c) {
 double pen__cap_overlap_cos(double ca, double sa, double cb, double sb, double cg, double sg,
                             double d[3]) {
     if (!(ca + cb > 0.0)) return -1.0; /* a + b >= pi: the band case is possible */
+    if (!(sg > 0.0)) return -1.0;      /* d along w: dA/dg = -2 sqrt(Delta) / sin g is undefined */
     const double oa = one_minus_cos(ca, sa), ob = one_minus_cos(cb, sb), og = one_minus_cos(cg, sg);
     const double Ya = oa + ca * og - ob; /* cos b - cos a cos g */
     const double Yb = ob + cb * og - oa; /* cos a - cos b cos g */
