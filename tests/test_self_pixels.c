@@ -215,6 +215,45 @@ static void test_backward_reads_them(void) {
     pen_scene_free(&sc);
 }
 
+/* One kept state through frames that change what the traced fractions depend on (the camera, the
+ * size, a frame without transfer pixels and back): each render equals a fresh state's bit for
+ * bit, so the cache is never read where it no longer holds. */
+static void test_cache_follows_the_frame(void) {
+    pen_scene sc = rod_plate_scene(96);
+    pen_context *ctx = pen_context_create();
+    const pen_render_options opt = pen_render_options_default();
+    pen_render_state *kept = NULL;
+    CHECK(pen_render_state_create(ctx, &kept) == PEN_OK);
+    const float eye0[3] = {sc.camera.eye[0], sc.camera.eye[1], sc.camera.eye[2]};
+    const float target0[3] = {sc.camera.target[0], sc.camera.target[1], sc.camera.target[2]};
+    /* size, eye moved along z, looking away (the plate behind the camera: no transfer pixels) */
+    static const struct {
+        int size;
+        float dz;
+        int away;
+    } frames[] = {{96, 0.0f, 0}, {96, 0.3f, 0}, {64, 0.3f, 0}, {64, 0.0f, 1}, {64, 0.0f, 0}};
+    for (int f = 0; f < (int)(sizeof frames / sizeof frames[0]); ++f) {
+        sc.camera.width = sc.camera.height = frames[f].size;
+        for (int a = 0; a < 3; ++a)
+            sc.camera.eye[a] = eye0[a], sc.camera.target[a] = target0[a];
+        sc.camera.eye[2] += frames[f].dz;
+        if (frames[f].away) sc.camera.target[2] = sc.camera.eye[2] + 5.0f;
+        pen_image a = {0, 0, 0, NULL}, b;
+        CHECK(pen_render_fwd(ctx, &sc, &opt, kept, &a) == PEN_OK);
+        pen_render_state *fresh = rs_render_kept(ctx, &sc, &opt, &b);
+        CHECK_MSG(a.data && b.data &&
+                      !memcmp(a.data, b.data, sizeof(float) * 3 * (size_t)a.width * a.height),
+                  "frame %d: the kept state's render differs from a fresh state's", f);
+        CHECK_MSG(kept->self_pvalid == !frames[f].away, "frame %d: traced fractions %s", f,
+                  kept->self_pvalid ? "kept without transfer pixels" : "missing");
+        pen_image_free(&a), pen_image_free(&b);
+        pen_render_state_free(fresh);
+    }
+    pen_render_state_free(kept);
+    pen_context_destroy(ctx);
+    pen_scene_free(&sc);
+}
+
 static void test_threads(void) {
     pen_scene sc = rod_plate_scene(96);
     pen_render_options opt = pen_render_options_default();
@@ -230,6 +269,7 @@ int main(void) {
     static const check_test_ tests[] = {
         {"test_rod_on_plate", test_rod_on_plate},
         {"test_backward_reads_them", test_backward_reads_them},
+        {"test_cache_follows_the_frame", test_cache_follows_the_frame},
         {"test_threads", test_threads},
     };
     return check_run_(tests, (int)(sizeof tests / sizeof tests[0]));
