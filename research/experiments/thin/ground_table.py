@@ -5,10 +5,16 @@ over the truth's cast shadows on the ground (ground pixels the chair darkens by 
 with the render's wall time (the minimum of --runs).
 
     python3 research/experiments/thin/ground_table.py PENUMBRA [--out out/thin_ground]
-        [--grids 0,192,384,768] [--runs 3] [--lighting envmap|sh]
+        [--grids 0,192,384,768] [--runs 3] [--lighting envmap|sh] [--find-map-lights]
+        [--truth-spp 256]
 
 --lighting sh: the truth lit as `render` is (the map's SH plus the sun), so that only the
-visibility differs.
+visibility differs. --find-map-lights: the scenes as `make_frame.py --find-map-lights` writes them
+(the map's sun found as a disk light, the low sun added). The truth and the mask are kept in OUT
+between runs, so use one OUT per lighting, scene form and --truth-spp. --truth-spp: the truth's
+samples per pixel; with the map's sun found, the truth's own noise at 256 spp is most of the
+render's error over the cast shadows (two seeds' truths differ by more than the render from
+either), and 2048 brings it to about a third.
 
 Grid 0 is the default. About two minutes on the shared 2-core machine.
 """
@@ -24,18 +30,20 @@ from visibility_table import parse_options, rgb, run, write_png  # noqa: E402
 
 
 def main():
-    opts, _ = parse_options(sys.argv[2:], {"--out": "out/thin_ground", "--grids": "0,192,384,768",
-                                          "--runs": "3",
-                                          "--lighting": "envmap"})
+    opts, flags = parse_options(sys.argv[2:], {"--out": "out/thin_ground",
+                                               "--grids": "0,192,384,768", "--runs": "3",
+                                               "--lighting": "envmap", "--truth-spp": "256"},
+                                ("--find-map-lights",))
     pen = os.path.abspath(sys.argv[1])
     out = os.path.abspath(opts["--out"])
-    subprocess.run([sys.executable, os.path.join(HERE, "make_frame.py"), out], check=True)
+    subprocess.run([sys.executable, os.path.join(HERE, "make_frame.py"), out]
+                   + sorted(flags), check=True)
     truth, bare = os.path.join(out, "truth.exr"), os.path.join(out, "bare.exr")
     cover, mask = os.path.join(out, "cover.exr"), os.path.join(out, "cast.png")
     if not os.path.exists(mask):
         if not os.path.exists(truth):  # the truth is kept between builds
-            run([pen, "reference", os.path.join(out, "frame.json"), "-o", truth, "--spp", "256",
-                 "--lighting", opts["--lighting"]])
+            run([pen, "reference", os.path.join(out, "frame.json"), "-o", truth,
+                 "--spp", opts["--truth-spp"], "--lighting", opts["--lighting"]])
         run([pen, "reference", os.path.join(out, "frame_empty.json"), "-o", bare, "--spp", "64",
              "--lighting", opts["--lighting"]])
         with open(os.path.join(out, "frame.json")) as f:
