@@ -39,28 +39,35 @@ static int wrap(long i, int n) {
     return (int)(r < 0 ? r + n : r);
 }
 
-/* The lookup at texel coordinates (fx, fy) = (u W - 1/2, (1 - v) H - 1/2). Inside the texture
- * and short of its last column and row, the common case, floor() is the truncation and nothing
- * wraps: the general branch's result bit for bit, without its tests and divisions. */
-INLINE bilinear bilinear_from(const pen_image *tex, double fx, double fy) {
+/* The lookup at texel coordinates (fx, fy) inside the texture and short of its last column and
+ * row (bilinear_from's common case): floor() is the truncation and nothing wraps. */
+INLINE bilinear bilinear_inside(const pen_image *tex, double fx, double fy) {
     bilinear s;
-    long i0, i1, j0, j1;
-    if (fx >= 0.0 && fx < (double)(tex->width - 1) && fy >= 0.0 && fy < (double)(tex->height - 1)) {
-        i0 = (long)fx, j0 = (long)fy;
-        s.a = (float)(fx - (double)i0);
-        s.b = (float)(fy - (double)j0);
-        i1 = i0 + 1, j1 = j0 + 1;
-    } else {
-        double x0 = floor(fx), y0 = floor(fy);
-        if (!isfinite(x0) || fabs(x0) > 1e9) x0 = 0.0; /* garbage uv: a defined texel */
-        if (!isfinite(y0) || fabs(y0) > 1e9) y0 = 0.0;
-        s.a = (float)(isfinite(fx) ? fx - x0 : 0.0);
-        s.b = (float)(isfinite(fy) ? fy - y0 : 0.0);
-        if (!(s.a >= 0.0f && s.a <= 1.0f)) s.a = 0.0f;
-        if (!(s.b >= 0.0f && s.b <= 1.0f)) s.b = 0.0f;
-        i0 = wrap((long)x0, tex->width), i1 = wrap((long)x0 + 1, tex->width);
-        j0 = wrap((long)y0, tex->height), j1 = wrap((long)y0 + 1, tex->height);
-    }
+    const long i0 = (long)fx, j0 = (long)fy;
+    s.a = (float)(fx - (double)i0);
+    s.b = (float)(fy - (double)j0);
+    const size_t w = (size_t)tex->width, at = (size_t)j0 * w + (size_t)i0;
+    s.idx[0] = at, s.idx[1] = at + 1, s.idx[2] = at + w, s.idx[3] = at + w + 1;
+    s.row[0] = j0, s.row[1] = j0 + 1;
+    return s;
+}
+
+/* The lookup at texel coordinates (fx, fy) = (u W - 1/2, (1 - v) H - 1/2). The common case
+ * (bilinear_inside) gives the general branch's result bit for bit, without its tests and
+ * divisions. */
+INLINE bilinear bilinear_from(const pen_image *tex, double fx, double fy) {
+    if (fx >= 0.0 && fx < (double)(tex->width - 1) && fy >= 0.0 && fy < (double)(tex->height - 1))
+        return bilinear_inside(tex, fx, fy);
+    bilinear s;
+    double x0 = floor(fx), y0 = floor(fy);
+    if (!isfinite(x0) || fabs(x0) > 1e9) x0 = 0.0; /* garbage uv: a defined texel */
+    if (!isfinite(y0) || fabs(y0) > 1e9) y0 = 0.0;
+    s.a = (float)(isfinite(fx) ? fx - x0 : 0.0);
+    s.b = (float)(isfinite(fy) ? fy - y0 : 0.0);
+    if (!(s.a >= 0.0f && s.a <= 1.0f)) s.a = 0.0f;
+    if (!(s.b >= 0.0f && s.b <= 1.0f)) s.b = 0.0f;
+    const long i0 = wrap((long)x0, tex->width), i1 = wrap((long)x0 + 1, tex->width);
+    const long j0 = wrap((long)y0, tex->height), j1 = wrap((long)y0 + 1, tex->height);
     const size_t w = (size_t)tex->width;
     s.row[0] = j0, s.row[1] = j1;
     s.idx[0] = (size_t)j0 * w + (size_t)i0;
@@ -75,10 +82,14 @@ INLINE bilinear bilinear_at(const pen_image *tex, double u, double v) {
     return bilinear_from(tex, u * tex->width - 0.5, (1.0 - v) * tex->height - 0.5);
 }
 
-/* Adds the texel part of lerp_bwd for the texels of rows [r0, r1) only. */
-INLINE void lerp_bwd_rows(const pen_image *tex, const bilinear *s, const float d_rgb[3],
+/* The lerps take the channel count as an argument (tex->channels, or a constant where the
+ * footprint's loops are specialised for 3 or 4: the channel clamp and the offsets' products
+ * fold away). */
+
+/* Adds the texel part of the bilinear lookup's backward at s, for the texels of rows [r0, r1)
+ * only. */
+INLINE void lerp_bwd_rows(const pen_image *tex, int nch, const bilinear *s, const float d_rgb[3],
                           float *d_texels, long r0, long r1) {
-    const int nch = tex->channels;
     const float wt[4] = {(1 - s->a) * (1 - s->b), s->a * (1 - s->b), (1 - s->a) * s->b,
                          s->a * s->b};
     for (int q = 0; q < 4; ++q) {
@@ -90,10 +101,9 @@ INLINE void lerp_bwd_rows(const pen_image *tex, const bilinear *s, const float d
 }
 
 /* rgb = the bilinear lookup at s. */
-INLINE void lerp_fwd(const pen_image *tex, const bilinear *s, float rgb[3]) {
+INLINE void lerp_fwd(const pen_image *tex, int nch, const bilinear *s, float rgb[3]) {
     const float wt[4] = {(1 - s->a) * (1 - s->b), s->a * (1 - s->b), (1 - s->a) * s->b,
                          s->a * s->b};
-    const int nch = tex->channels;
     for (int ch = 0; ch < 3; ++ch) {
         const int c = ch < nch ? ch : nch - 1;
         float v = 0.0f;
@@ -103,46 +113,47 @@ INLINE void lerp_fwd(const pen_image *tex, const bilinear *s, float rgb[3]) {
     }
 }
 
-/* Adds the bilinear lookup's backward at s into d_texels and d_uv (each may be NULL). */
-INLINE void lerp_bwd(const pen_image *tex, const bilinear *s, const float d_rgb[3], float *d_texels,
-                     float d_uv[2]) {
-    const int nch = tex->channels;
-    if (d_texels) {
-        const float wt[4] = {(1 - s->a) * (1 - s->b), s->a * (1 - s->b), (1 - s->a) * s->b,
-                             s->a * s->b};
-        for (int q = 0; q < 4; ++q)
-            for (int ch = 0; ch < 3 && ch < nch; ++ch)
-                d_texels[s->idx[q] * (size_t)nch + (size_t)ch] += wt[q] * d_rgb[ch];
+/* Adds the uv part of the bilinear lookup's backward at s into d_uv. */
+INLINE void lerp_bwd_uv(const pen_image *tex, int nch, const bilinear *s, const float d_rgb[3],
+                        float d_uv[2]) {
+    /* rgb = (1-b)((1-a) t00 + a t10) + b((1-a) t01 + a t11); a grows with u (x W), b grows
+     * downwards, i.e. with -v (x H). */
+    float da = 0.0f, db = 0.0f;
+    for (int ch = 0; ch < 3; ++ch) {
+        const int c = ch < nch ? ch : nch - 1;
+        const float *t = tex->data;
+        const float t00 = t[s->idx[0] * (size_t)nch + (size_t)c];
+        const float t10 = t[s->idx[1] * (size_t)nch + (size_t)c];
+        const float t01 = t[s->idx[2] * (size_t)nch + (size_t)c];
+        const float t11 = t[s->idx[3] * (size_t)nch + (size_t)c];
+        da += d_rgb[ch] * ((1 - s->b) * (t10 - t00) + s->b * (t11 - t01));
+        db += d_rgb[ch] * ((1 - s->a) * (t01 - t00) + s->a * (t11 - t10));
     }
-    if (d_uv) {
-        /* rgb = (1-b)((1-a) t00 + a t10) + b((1-a) t01 + a t11); a grows with u (x W), b grows
-         * downwards, i.e. with -v (x H). */
-        float da = 0.0f, db = 0.0f;
-        for (int ch = 0; ch < 3; ++ch) {
-            const int c = ch < nch ? ch : nch - 1;
-            const float *t = tex->data;
-            const float t00 = t[s->idx[0] * (size_t)nch + (size_t)c];
-            const float t10 = t[s->idx[1] * (size_t)nch + (size_t)c];
-            const float t01 = t[s->idx[2] * (size_t)nch + (size_t)c];
-            const float t11 = t[s->idx[3] * (size_t)nch + (size_t)c];
-            da += d_rgb[ch] * ((1 - s->b) * (t10 - t00) + s->b * (t11 - t01));
-            db += d_rgb[ch] * ((1 - s->a) * (t01 - t00) + s->a * (t11 - t10));
-        }
-        d_uv[0] += da * (float)tex->width;
-        d_uv[1] -= db * (float)tex->height;
-    }
+    d_uv[0] += da * (float)tex->width;
+    d_uv[1] -= db * (float)tex->height;
 }
 
 void pen__texture_fwd(const pen_image *tex, const float uv[2], float rgb[3]) {
     const bilinear s = bilinear_at(tex, (double)uv[0], (double)uv[1]);
-    lerp_fwd(tex, &s, rgb);
+    lerp_fwd(tex, tex->channels, &s, rgb);
 }
 
 void pen__texture_bwd(const pen_image *tex, const float uv[2], const float d_rgb[3],
                       float *d_texels, float d_uv[2]) {
     const bilinear s = bilinear_at(tex, (double)uv[0], (double)uv[1]);
-    lerp_bwd(tex, &s, d_rgb, d_texels, d_uv);
+    if (d_texels) lerp_bwd_rows(tex, tex->channels, &s, d_rgb, d_texels, 0, tex->height);
+    if (d_uv) lerp_bwd_uv(tex, tex->channels, &s, d_rgb, d_uv);
 }
+
+/* ---- Footprint ----
+ * The three footprint calls (forward, backward, texel scatter) each set up their samples' texel
+ * coordinates together first (footprint_setup), which also decides once for all of them
+ * whether bilinear_from's common case holds, then run one loop over the samples, specialised
+ * for that case and for 3 and 4 channels (BY_CASE). Every value a sample contributes is
+ * computed with the operations, and summed in the order, of a lookup at a time, so the results
+ * are its bit for bit. */
+
+#define K PEN__TEXTURE_SAMPLES
 
 /* The grid's cell centres o_i = (i + 1/2) / n - 1/2, i < n, in double for the sample points and
  * in float for the backward's d_J: constants, where each sample used to divide for them (the
@@ -152,45 +163,139 @@ static const double grid_o[3] = {(0 + 0.5) / 3 - 0.5, (1 + 0.5) / 3 - 0.5, (2 + 
 static const float grid_of[3] = {(0.0f + 0.5f) / 3 - 0.5f, (1.0f + 0.5f) / 3 - 0.5f,
                                  (2.0f + 0.5f) / 3 - 0.5f};
 
-/* The k-th sample point of the footprint grid (k < PEN__TEXTURE_SAMPLES). */
-INLINE bilinear footprint_sample(const pen_image *tex, const float uv[2], const float J[4], int k) {
+/* A footprint's samples, sample k at the grid's cell (k % n, k / n): their texel coordinates
+ * (bilinear_from's fx, fy), and whether they all fall in bilinear_from's common case. */
+typedef struct footprint_set {
+    double fx[K], fy[K];
+    int inside;
+} footprint_set;
+
+INLINE void footprint_setup(const pen_image *tex, const float uv[2], const float J[4],
+                            footprint_set *fs) {
     const int n = PEN__TEXTURE_GRID;
-    const double ox = grid_o[k % n], oy = grid_o[k / n];
-    const double u = (double)uv[0] + (double)J[0] * ox + (double)J[1] * oy;
-    const double v = (double)uv[1] + (double)J[2] * ox + (double)J[3] * oy;
-    return bilinear_at(tex, u, v);
+    /* Sample k's point is (u + J0 o_x + J1 o_y, v + J2 o_x + J3 o_y), evaluated left to right:
+     * its first two terms depend only on the column, its last only on the row, so each is
+     * computed once per grid line, with the roundings it has sample by sample. */
+    double col_u[PEN__TEXTURE_GRID], col_v[PEN__TEXTURE_GRID];
+    double row_u[PEN__TEXTURE_GRID], row_v[PEN__TEXTURE_GRID];
+    for (int i = 0; i < n; ++i) {
+        col_u[i] = (double)uv[0] + (double)J[0] * grid_o[i];
+        col_v[i] = (double)uv[1] + (double)J[2] * grid_o[i];
+        row_u[i] = (double)J[1] * grid_o[i];
+        row_v[i] = (double)J[3] * grid_o[i];
+    }
+    /* the texel coordinates of bilinear_at */
+    const double W = (double)tex->width, H = (double)tex->height;
+    for (int j = 0; j < n; ++j)
+        for (int i = 0; i < n; ++i) {
+            fs->fx[n * j + i] = (col_u[i] + row_u[j]) * W - 0.5;
+            fs->fy[n * j + i] = (1.0 - (col_v[i] + row_v[j])) * H - 0.5;
+        }
+    /* All nine fall in bilinear_from's common case when the four corner samples do: rounding is
+     * monotone, so each coordinate of a sample lies between those of the corner samples of its
+     * row and column (or a corner's is not finite, and the test fails). */
+    const double x_end = (double)(tex->width - 1), y_end = (double)(tex->height - 1);
+    int inside = 1;
+    const int corners[4] = {0, n - 1, K - n, K - 1};
+    for (int c = 0; c < 4; ++c) {
+        const double x = fs->fx[corners[c]], y = fs->fy[corners[c]];
+        inside &= (x >= 0.0) & (x < x_end) & (y >= 0.0) & (y < y_end);
+    }
+    fs->inside = inside;
 }
 
-void pen__texture_footprint_fwd(const pen_image *tex, const float uv[2], const float J[4],
-                                float rgb[3]) {
+/* Sample k: bilinear_from, its test made once for all the samples (inside, a constant in the
+ * loops below). */
+INLINE bilinear footprint_sample(const pen_image *tex, const footprint_set *fs, int inside, int k) {
+    return inside ? bilinear_inside(tex, fs->fx[k], fs->fy[k])
+                  : bilinear_from(tex, fs->fx[k], fs->fy[k]);
+}
+
+/* The footprint's loops, for a texture of nch channels, over samples all in bilinear_from's
+ * common case or not (inside). */
+INLINE void footprint_fwd_n(const pen_image *tex, int nch, int inside, const footprint_set *fs,
+                            float rgb[3]) {
     double acc[3] = {0.0, 0.0, 0.0};
-    for (int k = 0; k < PEN__TEXTURE_SAMPLES; ++k) {
-        const bilinear s = footprint_sample(tex, uv, J, k);
+    for (int k = 0; k < K; ++k) {
+        const bilinear s = footprint_sample(tex, fs, inside, k);
         float c[3];
-        lerp_fwd(tex, &s, c);
+        lerp_fwd(tex, nch, &s, c);
         for (int ch = 0; ch < 3; ++ch)
             acc[ch] += (double)c[ch];
     }
     for (int ch = 0; ch < 3; ++ch)
-        rgb[ch] = (float)(acc[ch] / PEN__TEXTURE_SAMPLES);
+        rgb[ch] = (float)(acc[ch] / K);
+}
+
+INLINE void footprint_bwd_n(const pen_image *tex, int nch, int inside, const footprint_set *fs,
+                            const float d_rgb[3], float *d_texels, float d_uv[2], float d_J[4]) {
+    const int n = PEN__TEXTURE_GRID;
+    const float inv = 1.0f / K;
+    const float d_k[3] = {d_rgb[0] * inv, d_rgb[1] * inv, d_rgb[2] * inv};
+    /* d_uv and d_J summed in locals, stored once: the same additions in the same order, as
+     * neither is part of the texture, d_texels or the other */
+    float uv_sum[2] = {0.0f, 0.0f}, J_sum[4] = {0.0f, 0.0f, 0.0f, 0.0f};
+    if (d_uv) uv_sum[0] = d_uv[0], uv_sum[1] = d_uv[1];
+    if (d_J) J_sum[0] = d_J[0], J_sum[1] = d_J[1], J_sum[2] = d_J[2], J_sum[3] = d_J[3];
+    const int want_uv = d_uv || d_J;
+    for (int j = 0; j < n; ++j)
+        for (int i = 0; i < n; ++i) {
+            const bilinear s = footprint_sample(tex, fs, inside, n * j + i);
+            if (d_texels) lerp_bwd_rows(tex, nch, &s, d_k, d_texels, 0, tex->height);
+            if (!want_uv) continue;
+            float g[2] = {0.0f, 0.0f};
+            lerp_bwd_uv(tex, nch, &s, d_k, g);
+            uv_sum[0] += g[0], uv_sum[1] += g[1];
+            const float ox = grid_of[i], oy = grid_of[j];
+            J_sum[0] += g[0] * ox, J_sum[1] += g[0] * oy, J_sum[2] += g[1] * ox;
+            J_sum[3] += g[1] * oy;
+        }
+    if (d_uv) d_uv[0] = uv_sum[0], d_uv[1] = uv_sum[1];
+    if (d_J) d_J[0] = J_sum[0], d_J[1] = J_sum[1], d_J[2] = J_sum[2], d_J[3] = J_sum[3];
+}
+
+INLINE void footprint_scatter_n(const pen_image *tex, int nch, int inside, const footprint_set *fs,
+                                const float d_rgb[3], float *d_texels, long r0, long r1) {
+    const float inv = 1.0f / K;
+    const float d_k[3] = {d_rgb[0] * inv, d_rgb[1] * inv, d_rgb[2] * inv};
+    for (int k = 0; k < K; ++k) {
+        const bilinear s = footprint_sample(tex, fs, inside, k);
+        lerp_bwd_rows(tex, nch, &s, d_k, d_texels, r0, r1);
+    }
+}
+
+/* Runs CALL, which names nch and inside, with both constants: the common case (fs.inside)
+ * for 3 and 4 channels and for any, and the general one. */
+#define BY_CASE(tex, fs, CALL)                                                                     \
+    do {                                                                                           \
+        if ((fs).inside && (tex)->channels == 3) {                                                 \
+            const int nch = 3, inside = 1;                                                         \
+            CALL;                                                                                  \
+        } else if ((fs).inside && (tex)->channels == 4) {                                          \
+            const int nch = 4, inside = 1;                                                         \
+            CALL;                                                                                  \
+        } else if ((fs).inside) {                                                                  \
+            const int nch = (tex)->channels, inside = 1;                                           \
+            CALL;                                                                                  \
+        } else {                                                                                   \
+            const int nch = (tex)->channels, inside = 0;                                           \
+            CALL;                                                                                  \
+        }                                                                                          \
+    } while (0)
+
+void pen__texture_footprint_fwd(const pen_image *tex, const float uv[2], const float J[4],
+                                float rgb[3]) {
+    footprint_set fs;
+    footprint_setup(tex, uv, J, &fs);
+    BY_CASE(tex, fs, footprint_fwd_n(tex, nch, inside, &fs, rgb));
 }
 
 void pen__texture_footprint_bwd(const pen_image *tex, const float uv[2], const float J[4],
                                 const float d_rgb[3], float *d_texels, float d_uv[2],
                                 float d_J[4]) {
-    const int n = PEN__TEXTURE_GRID;
-    const float inv = 1.0f / PEN__TEXTURE_SAMPLES;
-    const float d_k[3] = {d_rgb[0] * inv, d_rgb[1] * inv, d_rgb[2] * inv};
-    for (int k = 0; k < PEN__TEXTURE_SAMPLES; ++k) {
-        const bilinear s = footprint_sample(tex, uv, J, k);
-        float g[2] = {0.0f, 0.0f};
-        lerp_bwd(tex, &s, d_k, d_texels, d_uv || d_J ? g : NULL);
-        if (d_uv) d_uv[0] += g[0], d_uv[1] += g[1];
-        if (d_J) {
-            const float ox = grid_of[k % n], oy = grid_of[k / n];
-            d_J[0] += g[0] * ox, d_J[1] += g[0] * oy, d_J[2] += g[1] * ox, d_J[3] += g[1] * oy;
-        }
-    }
+    footprint_set fs;
+    footprint_setup(tex, uv, J, &fs);
+    BY_CASE(tex, fs, footprint_bwd_n(tex, nch, inside, &fs, d_rgb, d_texels, d_uv, d_J));
 }
 
 int pen__texture_rows(const pen_image *tex, const float uv[2], const float J[4], long *first,
@@ -221,13 +326,10 @@ void pen__texture_scatter_rows(const pen_image *tex, const float uv[2], const fl
     if (!lookup_may_read_rows(tex, uv, J, r0, r1)) return;
     if (!J) {
         const bilinear s = bilinear_at(tex, (double)uv[0], (double)uv[1]);
-        lerp_bwd_rows(tex, &s, d_rgb, d_texels, r0, r1);
+        lerp_bwd_rows(tex, tex->channels, &s, d_rgb, d_texels, r0, r1);
         return;
     }
-    const float inv = 1.0f / PEN__TEXTURE_SAMPLES;
-    const float d_k[3] = {d_rgb[0] * inv, d_rgb[1] * inv, d_rgb[2] * inv};
-    for (int k = 0; k < PEN__TEXTURE_SAMPLES; ++k) {
-        const bilinear s = footprint_sample(tex, uv, J, k);
-        lerp_bwd_rows(tex, &s, d_k, d_texels, r0, r1);
-    }
+    footprint_set fs;
+    footprint_setup(tex, uv, J, &fs);
+    BY_CASE(tex, fs, footprint_scatter_n(tex, nch, inside, &fs, d_rgb, d_texels, r0, r1));
 }
