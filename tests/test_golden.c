@@ -43,7 +43,10 @@ typedef struct golden {
  * uninitialised, which optimisation runs then read once the object moved). The "grad" rows of
  * scenes with the self transfer were re-recorded when the backward began to refuse the groups the
  * transfer holds constant: they now hash the exact groups only (lighting, albedo, irradiance);
- * every image, sphere-set and optimisation row kept its value. */
+ * every image, sphere-set and optimisation row kept its value. The fast rows whose pixels the
+ * fast kernel lights with disk lights (no-shadows, ground-spheres, the lighting+pose
+ * optimisation) were re-recorded when that light term moved into the kernel's float lanes
+ * (docs/design.md sec. 1.13): every scalar row kept its value. */
 static const golden table[] = {
 #include "golden_table.inc"
     {NULL, 0, 0},

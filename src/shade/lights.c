@@ -27,10 +27,12 @@
  * - Derivatives of the two closed forms come from forward-mode dual numbers (3 partials) over the
  *   same expressions, so the derivative is the derivative of the value that was computed.
  * - Cost. A sun is small, so most (receiver, sphere) pairs of a tile cannot touch it: the
- *   renderer passes each receiver only the spheres that a float prefilter (lights_fast.c, in the
+ *   backward passes each receiver only the spheres that a float prefilter (lights_fast.c, in the
  *   machine's vector width) keeps, and a disk that is clear of a cap or wholly inside it is told
  *   from the cosines alone; only partial overlaps take the angles (atan2) and the lens formula.
- *   Both shortcuts take the branch the full computation would take, so the image is unchanged.
+ *   Both shortcuts take the branch the full computation would take, so the result is unchanged.
+ *   The fast kernel's forward runs the term itself in its lanes (pen__lights_fwd_block) and
+ *   comes here only for the partial overlaps (pen__lights_fraction).
  */
 #include "shade/lights.h"
 
@@ -296,6 +298,10 @@ double pen__lights_horizon(const pen__lights *L, int l, double t, double *d_t, d
 
 /* ---- Per pixel ------------------------------------------------------------------------------- */
 
+/* The per-pixel and per-pair tests below are inlined into the per-pixel loops: they run for
+ * every receiver or visited pair, and a call cost as much as their arithmetic. */
+#define HOT static inline __attribute__((always_inline))
+
 /* What a receiver (x, n) sees of sphere (c, r), as the SH path (sh.h, shade_ops.inc): v = c - x,
  * the self-shadowing weight w = w_h(h) g(q), h = n . v / r, q = |v| / r (sphere_view_weight,
  * cheap, first: the tangent-plane and inside rules of render_internal.h); then, for
@@ -313,8 +319,8 @@ typedef struct sphere_view {
  * derivatives are 0 (it hides nothing, no gradient): behind the tangent plane, or containing the
  * receiver deeper than PEN_RENDER_INSIDE_LO r. The weight is shade_ops.inc's, so that the disk
  * lights and the SH light see the same spheres. */
-static int sphere_view_weight(const double x[3], const double n[3], const double c[3], double r,
-                              sphere_view *sv) {
+HOT int sphere_view_weight(const double x[3], const double n[3], const double c[3], double r,
+                           sphere_view *sv) {
     for (int k = 0; k < 3; ++k)
         sv->v[k] = c[k] - x[k];
     sv->r = r;
@@ -341,8 +347,8 @@ static int sphere_view_weight(const double x[3], const double n[3], const double
  * r = D sin a, cos g <= cos(a + b) reads v . w + r sin b <= T cos b, tested without the square
  * root: true when the left side is <= 0, else compared squared. Receivers so close that the cap is
  * continued (t < t0) always pass. */
-static int cap_may_reach(const double v[3], double D2, double r, const double w[3], double sin_b,
-                         double cos_b) {
+HOT int cap_may_reach(const double v[3], double D2, double r, const double w[3], double sin_b,
+                      double cos_b) {
     const double r2 = r * r;
     if (D2 * (1.0 - PEN_SH_CAP_T0) <= r2) return 1;
     const double lhs = v[0] * w[0] + v[1] * w[1] + v[2] * w[2] + r * sin_b;
@@ -350,7 +356,7 @@ static int cap_may_reach(const double v[3], double D2, double r, const double w[
     return lhs * lhs > (D2 - r2) * cos_b * cos_b;
 }
 
-static int sphere_view_reaches(const pen__lights *L, int l, const sphere_view *sv) {
+HOT int sphere_view_reaches(const pen__lights *L, int l, const sphere_view *sv) {
     return cap_may_reach(sv->v, sv->D2, sv->r, L->w[l], L->sin_b[l], L->cos_b[l]);
 }
 
@@ -458,6 +464,17 @@ static double disk_fraction(const pen__lights *L, int l, sphere_view *sv, double
         fd[2] /= area;
     }
     return f;
+}
+
+double pen__lights_fraction(const pen__lights *L, int l, const float x[3], const float s[4]) {
+    sphere_view sv;
+    for (int k = 0; k < 3; ++k)
+        sv.v[k] = (double)s[k] - (double)x[k];
+    sv.D2 = sv.v[0] * sv.v[0] + sv.v[1] * sv.v[1] + sv.v[2] * sv.v[2];
+    sv.r = (double)s[3];
+    sv.cap = 0;
+    double sg;
+    return disk_fraction(L, l, &sv, NULL, &sg);
 }
 
 #define IN float

@@ -73,6 +73,32 @@ void pen__lights_candidates(const pen__lights *L, int n, const float *spheres, c
                             int cnt, const float *x, const float *nrm, const int *at, int *list,
                             int *count);
 
+/* The fast kernel's forward light term of cnt <= PEN_LIGHTS_BLOCK receivers at x + 3 at[k] (nrm,
+ * rho and rgb likewise; at NULL: k) over the n spheres idx (NULL: 0 .. n - 1): adds into rgb what
+ * pen__lights_fwd adds, and the lights' V into V_out + count at[k] (V_out may be NULL), in the
+ * variant's float lanes (lights_fast.c): the same fractions where they are 0 or 1 and the double
+ * lens for the rest, float rounding in D, the weights and the product. */
+void pen__lights_fwd_block(const pen__lights *L, const double *G, int n, const float *spheres,
+                           const float *kappa, const int *idx, int cnt, const float *x,
+                           const float *nrm, const float *rho, const int *at, float *rgb,
+                           float *V_out);
+
+/* The backward of the fast kernel's light term for cnt <= PEN_LIGHTS_BLOCK receivers k at
+ * x + 3 k (nrm, rho, d_x, d_n and d_rho likewise: compacted), whose d_rgb and forward V are at
+ * d_rgb + 3 pix[k] and V_in + count pix[k] (V_in NULL: recomputed): adds what pen__lights_bwd
+ * adds for each, in the variant's lanes where every pair's fraction is 0 or 1 (lights_fast.c) and
+ * by pen__lights_bwd for the other receivers. scratch: room for n PEN_LIGHTS_BLOCK floats and
+ * (n + 1) PEN_LIGHTS_BLOCK ints. */
+void pen__lights_bwd_block(const pen__lights *L, const double *G, int n, const float *spheres,
+                           const float *kappa, const int *idx, int cnt, const float *x,
+                           const float *nrm, const float *rho, const float *d_rgb,
+                           const float *V_in, const int *pix, void *scratch, double *d_spheres,
+                           float *d_x, float *d_n, float *d_rho, double *d_lights, double *d_G);
+
+/* The fraction of light l's disk inside the cap of sphere s (x, y, z, r) seen from x, in double
+ * (0 when the disk is certainly clear of it): the block's partial overlaps. */
+double pen__lights_fraction(const pen__lights *L, int l, const float x[3], const float s[4]);
+
 /* Adds the lights' radiance at a receiver (x, n, rho) into rgb:
  *   rgb[ch] += rho[ch] / pi * sum_l E_l[ch] D(n . w_l, b_l) G_l V_l(x),
  *   V_l = prod_i (1 - (1 - exp(-eps w_i kappa_i)) f_il),

@@ -1,16 +1,33 @@
-/* The disk lights' float prefilter (pen__lights_candidates, lights.h), compiled once
- * per instruction set like the fast kernel (CMakeLists.txt, shade_fast_dispatch.c), so that its
- * lanes are the machine's vector width: it visits every (receiver, sphere) pair of a tile, and the
- * exact double tests of lights.c then run only for the pairs it keeps.
+/* The disk lights in the machine's vector lanes, compiled once per instruction set like the fast
+ * kernel (CMakeLists.txt, shade_fast_dispatch.c): the float prefilter of the backward's pairs
+ * (pen__lights_candidates) and the fast kernel's forward light term (pen__lights_fwd_block).
  *
  * Design
- * - Exactness. The prefilter only drops pairs, and only those that the double tests in lights.c
- *   (sphere_view_weight, cap_may_reach) drop too, so the light term and its gradients are bit for
- *   bit what the unfiltered loop gives, in every variant (the golden test checks it).
+ * - The prefilter only drops pairs, and only those that the double tests in lights.c
+ *   (sphere_view_weight, cap_may_reach) drop too, so the backward's light term and gradients are
+ *   bit for bit what the unfiltered loop gives, in every variant (the golden test checks it).
+ * - The forward block (docs/design.md sec. 1.13, "Precision") runs the per-pixel term itself in
+ *   float lanes, PEN_LIGHTS_BLOCK receivers against each of the tile's spheres: the cosine D,
+ *   the sphere's weight w and opacity q = 1 - exp(-eps w kappa), the cap, and each light's
+ *   fraction f when it is 0 (the disk clear of the cap) or 1 (wholly inside), told from float
+ *   cosines with a margin (LANE_MARGIN) far above their rounding, so that f is exactly the double
+ *   path's there. Only the partial overlaps (the penumbrae) take the double lens of lights.c, one
+ *   pair at a time, and receivers whose disk meets their horizon take the whole double term. What
+ *   differs from pen__lights_fwd is the float rounding of D, w, q and the product (a few 1e-7 of
+ *   the light, below the image's own float rounding; tests/test_lights.c compares the two).
+ * - The backward block (pen__lights_bwd_block) visits the same pairs: where f is 0 or 1 it is
+ *   constant, so such a pair's gradient is its weight's alone (through q to the sphere, x and
+ *   n), taken in lanes in two passes (the pairs' d/dw first, so that a receiver found to have a
+ *   partial pair later adds nothing from the lanes); the per-light chain (rho, the light, its
+ *   horizon factor, n) in lanes too; a receiver with a partial pair takes pen__lights_bwd whole,
+ *   over its own candidates, with the forward's V.
  */
+#include "core/internal.h"
 #include "shade/shade.h"
 
 #include <math.h>
+#include <stdint.h>
+#include <string.h>
 
 #ifndef PEN_FAST_ISA
 #define PEN_FAST_ISA generic
@@ -18,10 +35,19 @@
 #define CAT_(a, b) a##b
 #define CAT(a, b) CAT_(a, b)
 
-void CAT(pen__lights_candidates_, PEN_FAST_ISA)(const pen__lights *L, int n, const float *spheres,
-                                                const int *idx, int cnt, const float *x,
-                                                const float *nrm, const int *at, int *list,
-                                                int *count);
+void CAT(pen__lights_candidates_,
+         PEN_FAST_ISA)(const pen__lights *L, int n, const float *spheres, const int *idx, int cnt,
+                       const float *x, const float *nrm, const int *at, int *list, int *count);
+void CAT(pen__lights_fwd_block_,
+         PEN_FAST_ISA)(const pen__lights *L, const double *G, int n, const float *spheres,
+                       const float *kappa, const int *idx, int cnt, const float *x,
+                       const float *nrm, const float *rho, const int *at, float *rgb, float *V_out);
+void CAT(pen__lights_bwd_block_,
+         PEN_FAST_ISA)(const pen__lights *L, const double *G, int n, const float *spheres,
+                       const float *kappa, const int *idx, int cnt, const float *x,
+                       const float *nrm, const float *rho, const float *d_rgb, const float *V_in,
+                       const int *pix, void *scratch, double *d_spheres, float *d_x, float *d_n,
+                       float *d_rho, double *d_lights, double *d_G);
 
 /* Receivers and spheres in float, PEN_LIGHTS_BLOCK receivers at a time over one sphere, so that
  * the compiler keeps them in vector lanes. A pair is dropped only when the exact double tests
@@ -30,9 +56,9 @@ void CAT(pen__lights_candidates_, PEN_FAST_ISA)(const pen__lights *L, int n, con
  * disk certainly clear of the cap (cap_may_reach). The margins cover the float rounding of v,
  * n . v, v . w and the squares (a few 1e-7 of |v| + r) many times over; a pair that a margin keeps
  * costs only the exact test. NaN receivers are kept (no comparison drops them). */
-void CAT(pen__lights_candidates_, PEN_FAST_ISA)(const pen__lights *L, int n, const float *spheres, const int *idx,
-                            int cnt, const float *x, const float *nrm, const int *at, int *list,
-                            int *count) {
+void CAT(pen__lights_candidates_,
+         PEN_FAST_ISA)(const pen__lights *L, int n, const float *spheres, const int *idx, int cnt,
+                       const float *x, const float *nrm, const int *at, int *list, int *count) {
     float X[3][PEN_LIGHTS_BLOCK], N[3][PEN_LIGHTS_BLOCK];
     float w[PEN_SCENE_MAX_LIGHTS][3], sb[PEN_SCENE_MAX_LIGHTS], cb2[PEN_SCENE_MAX_LIGHTS];
     for (int l = 0; l < L->count; ++l) {
@@ -74,3 +100,352 @@ void CAT(pen__lights_candidates_, PEN_FAST_ISA)(const pen__lights *L, int n, con
     }
 }
 
+/* The cosines' margin of the forward block: float v carries 6e-8 of its length, cos a (from
+ * t >= PEN_SH_CAP_T0) and cos g a few 1e-7, so a disk the float cosines put 1e-5 clear of the
+ * cap's edge is clear of it in double too (and likewise inside), where lights.c's own margin is
+ * 1e-9. Pairs within the margin take the double lens: the penumbra, widened by 2e-5 in cos g. */
+#define LANE_MARGIN 1e-5f
+
+/* exp(-y), y >= 0, in lanes: 2^z with z = -y log2 e split into the nearest integer m and
+ * r in [-1/2, 1/2], e^(r ln 2) by its Taylor series to degree 6 (relative error 1.2e-7 at
+ * |r ln 2| = 0.347) and 2^m put into the exponent; z is held above -125 (then q = 1 to float). */
+static inline float exp_neg(float y) {
+    float z = -y * 1.44269504f;
+    z = z < -125.0f ? -125.0f : z;
+    const float m = (z + 12582912.0f) - 12582912.0f; /* round to nearest, |z| < 2^22 */
+    const float t = (z - m) * 0.693147181f;
+    const float p =
+        1.0f +
+        t * (1.0f + t * (0.5f + t * (1.0f / 6 + t * (1.0f / 24 + t * (1.0f / 120 + t / 720)))));
+    const uint32_t bits = (uint32_t)((int32_t)m + 127) << 23;
+    float two_m;
+    memcpy(&two_m, &bits, sizeof two_m);
+    return p * two_m;
+}
+
+enum { B = PEN_LIGHTS_BLOCK, LMAX = PEN_SCENE_MAX_LIGHTS };
+
+/* A block's receivers in lanes and what is the same for all of its pairs. */
+typedef struct lanes {
+    int K;
+    float X[3][B], N[3][B];
+    float Dl[LMAX][B]; /* D = n . w where the disk is wholly above the horizon, else 0 */
+    int exact[B];      /* the double term's: a disk across the horizon, a point not finite */
+    float w[LMAX][3], sb[LMAX], cb[LMAX], cb2[LMAX];
+    float eps, h0, inv_span, lo, inv_width, t0, s0, cont, deep;
+} lanes;
+
+/* Fills the block's lanes from the points and normals at pt + 3 at(k) (padding lanes repeat the
+ * first receiver). The disk wholly above the horizon is c >= sin b with room for the float
+ * cosine; the double term decides the rest, the clamped integral included. */
+static void lanes_init(lanes *z, const pen__lights *L, int cnt, const float *x, const float *nrm,
+                       const int *at) {
+    const int K = z->K = L->count;
+    for (int l = 0; l < K; ++l) {
+        for (int a = 0; a < 3; ++a)
+            z->w[l][a] = (float)L->w[l][a];
+        z->sb[l] = (float)L->sin_b[l], z->cb[l] = (float)L->cos_b[l];
+        z->cb2[l] = (float)(L->cos_b[l] * L->cos_b[l]);
+    }
+    for (int k = 0; k < B; ++k) {
+        const int kk = k < cnt ? k : 0;
+        const size_t i = (size_t)(at ? at[kk] : kk);
+        for (int a = 0; a < 3; ++a)
+            z->X[a][k] = x[3 * i + a], z->N[a][k] = nrm[3 * i + a];
+        z->exact[k] = !(z->X[0][k] - z->X[0][k] == 0.0f) | !(z->X[1][k] - z->X[1][k] == 0.0f) |
+                      !(z->X[2][k] - z->X[2][k] == 0.0f);
+    }
+    for (int l = 0; l < K; ++l)
+        for (int k = 0; k < B; ++k) {
+            const float c =
+                z->N[0][k] * z->w[l][0] + z->N[1][k] * z->w[l][1] + z->N[2][k] * z->w[l][2];
+            z->Dl[l][k] = c >= z->sb[l] + LANE_MARGIN ? c : 0.0f;
+            z->exact[k] |= !(c >= z->sb[l] + LANE_MARGIN) & !(c <= -z->sb[l] - LANE_MARGIN);
+        }
+    z->eps = (float)L->eps;
+    z->h0 = (float)PEN_RENDER_SELF_H0;
+    z->inv_span = (float)(1.0 / (PEN_RENDER_SELF_H1 - PEN_RENDER_SELF_H0));
+    z->lo = (float)PEN_RENDER_INSIDE_LO, z->inv_width = (float)(1.0 / PEN_RENDER_INSIDE_WIDTH);
+    z->t0 = (float)PEN_SH_CAP_T0, z->s0 = sqrtf(z->t0);
+    z->cont = (float)(1.0 - PEN_SH_CAP_T0) * 0.999f; /* as pen__lights_candidates */
+    z->deep = (float)(0.99 * PEN_RENDER_INSIDE_LO * PEN_RENDER_INSIDE_LO);
+}
+
+/* The pairs of one sphere (centre and radius sp, overlap weight kap) with the block's lanes that
+ * skip[k] leaves: on[k] where its weight is above 0, ex[k] = exp(-eps w kappa) (the pair's
+ * factor where the disk is inside the cap: 1 - q), and per light cls[l][k]: 0 the disk clear of
+ * the cap, 1 wholly inside, 2 partial (the double lens). Returns 0, with nothing filled, when no
+ * lane is on. First the prefilter's tests (pen__lights_candidates): most of a tile's spheres
+ * shadow none of a block's receivers, and they cost only these. Both arms of every choice are
+ * computed and then selected, so that the compiler keeps the loops in lanes. */
+static inline __attribute__((always_inline)) int sphere_pairs(const lanes *z, const int *skip,
+                                                              const float *sp, float kap, int on[B],
+                                                              float ex[B], int cls[][B]) {
+    const float r = sp[3], r2 = r * r, m = LANE_MARGIN;
+    float vx[B], vy[B], vz[B], D2[B], nv[B], tol[B], m2[B], Dd[B], ca[B], sa[B];
+    int whole[B], any = 0;
+    for (int k = 0; k < B; ++k) {
+        vx[k] = sp[0] - z->X[0][k], vy[k] = sp[1] - z->X[1][k], vz[k] = sp[2] - z->X[2][k];
+        D2[k] = vx[k] * vx[k] + vy[k] * vy[k] + vz[k] * vz[k];
+        nv[k] = z->N[0][k] * vx[k] + z->N[1][k] * vy[k] + z->N[2][k] * vz[k];
+        const float mk = fabsf(vx[k]) + fabsf(vy[k]) + fabsf(vz[k]) + r;
+        tol[k] = 1e-5f * mk, m2[k] = 1e-5f * mk * mk;
+        on[k] = !(nv[k] < z->h0 * r - tol[k]) & !(D2[k] < z->deep * r2) & !skip[k];
+        whole[k] = !(D2[k] * z->cont <= r2); /* here: clear of every light so far */
+    }
+    for (int l = 0; l < z->K; ++l)
+        for (int k = 0; k < B; ++k) {
+            const float lhs =
+                vx[k] * z->w[l][0] + vy[k] * z->w[l][1] + vz[k] * z->w[l][2] + r * z->sb[l];
+            whole[k] &= (lhs < -tol[k]) | (lhs * lhs < (D2[k] - r2) * z->cb2[l] - m2[k]);
+        }
+    for (int k = 0; k < B; ++k) {
+        on[k] &= !whole[k] & (kap != 0.0f);
+        any |= on[k];
+    }
+    if (!any) return 0;
+    for (int k = 0; k < B; ++k) {
+        const float u = (nv[k] / r - z->h0) * z->inv_span;
+        Dd[k] = sqrtf(D2[k]);
+        const float e = (Dd[k] / r - z->lo) * z->inv_width;
+        on[k] &= (u > 0.0f) & (e > 0.0f);
+        const float whp = u * u * (3.0f - 2.0f * u), gp = e * e * (3.0f - 2.0f * e);
+        const float wh = u < 1.0f ? whp : 1.0f, g = e < 1.0f ? gp : 1.0f;
+        ex[k] = exp_neg(z->eps * wh * g * kap);
+        /* the cap, continued below t0 as sh.h continues it; a whole-sphere cap (and D ~ 0) is
+         * left to the double lens */
+        const float t = 1.0f - r2 / D2[k];
+        const float cc = z->s0 + (t - z->t0) * (0.5f / z->s0);
+        const float s2 = (1.0f - cc) * (1.0f + cc);
+        const float st = sqrtf(t > 0.0f ? t : 0.0f), sc = sqrtf(s2 > 0.0f ? s2 : 0.0f);
+        const float ra = r / Dd[k];
+        ca[k] = t >= z->t0 ? st : cc;
+        sa[k] = t >= z->t0 ? ra : sc;
+        whole[k] = !(t >= z->t0) & !(cc > -1.0f + 1e-3f);
+    }
+    for (int l = 0; l < z->K; ++l) {
+        const float wx = z->w[l][0], wy = z->w[l][1], wz = z->w[l][2];
+        const float cb = z->cb[l], sb = z->sb[l];
+        for (int k = 0; k < B; ++k) {
+            const float cg = (vx[k] * wx + vy[k] * wy + vz[k] * wz) / Dd[k];
+            const float A = sa[k] * cb + ca[k] * sb, Bm = sa[k] * cb - ca[k] * sb;
+            const float C1 = ca[k] * cb - sa[k] * sb, C2 = ca[k] * cb + sa[k] * sb;
+            const int clear = (A > m) & (cg < C1 - m) & !whole[k];
+            const int inside = (Bm > m) & (cg > C2 + m) & !whole[k];
+            cls[l][k] = clear ? 0 : inside ? 1 : 2;
+        }
+    }
+    return 1;
+}
+
+/* The forward light term of cnt <= PEN_LIGHTS_BLOCK receivers at x + 3 at[k] (nrm, rho, rgb
+ * likewise), over the n spheres idx (NULL: 0 .. n - 1), into rgb and V_out + count at[k] (V_out
+ * may be NULL); see the design notes above. */
+void CAT(pen__lights_fwd_block_, PEN_FAST_ISA)(const pen__lights *L, const double *G, int n,
+                                               const float *spheres, const float *kappa,
+                                               const int *idx, int cnt, const float *x,
+                                               const float *nrm, const float *rho, const int *at,
+                                               float *rgb, float *V_out) {
+    lanes z;
+    lanes_init(&z, L, cnt, x, nrm, at);
+    const int K = z.K;
+    float V[LMAX][B];
+    for (int l = 0; l < K; ++l)
+        for (int k = 0; k < B; ++k)
+            V[l][k] = 1.0f;
+    for (int j = 0; L->shadows && j < n; ++j) {
+        const int i = idx ? idx[j] : j;
+        const float *sp = spheres + 4 * (size_t)i;
+        int on[B], cls[LMAX][B];
+        float ex[B];
+        if (!sphere_pairs(&z, z.exact, sp, kappa ? kappa[i] : 1.0f, on, ex, cls)) continue;
+        for (int l = 0; l < K; ++l) {
+            int any_part = 0;
+            for (int k = 0; k < B; ++k) {
+                const float qi = on[k] & (cls[l][k] == 1) ? 1.0f - ex[k] : 0.0f;
+                V[l][k] *= 1.0f - qi;
+                any_part |= on[k] & (cls[l][k] == 2);
+            }
+            for (int k = 0; any_part && k < cnt; ++k)
+                if (on[k] & (cls[l][k] == 2)) {
+                    const float xk[3] = {z.X[0][k], z.X[1][k], z.X[2][k]};
+                    const double q = 1.0 - (double)ex[k];
+                    V[l][k] *= (float)(1.0 - q * pen__lights_fraction(L, l, xk, sp));
+                }
+        }
+    }
+    for (int k = 0; k < cnt; ++k) {
+        const size_t i = (size_t)(at ? at[k] : k);
+        float *Vo = V_out ? V_out + (size_t)K * i : NULL;
+        if (z.exact[k]) {
+            pen__lights_fwd(L, G, n, spheres, kappa, idx, x + 3 * i, nrm + 3 * i, rho + 3 * i,
+                            rgb + 3 * i, Vo);
+            continue;
+        }
+        float e[3] = {0.0f, 0.0f, 0.0f};
+        for (int l = 0; l < K; ++l) {
+            const float a = z.Dl[l][k] * V[l][k] * (G ? (float)G[l] : 1.0f);
+            for (int ch = 0; ch < 3; ++ch)
+                e[ch] += (float)L->E[l][ch] * a;
+            if (Vo) Vo[l] = z.Dl[l][k] > 0.0f ? V[l][k] : 1.0f; /* as the double term's unlit */
+        }
+        for (int ch = 0; ch < 3; ++ch)
+            rgb[3 * i + ch] += rho[3 * i + ch] * e[ch] * (float)(1.0 / PEN_PI);
+    }
+}
+
+/* The backward of the light term for cnt <= PEN_LIGHTS_BLOCK receivers k at x + 3 k (nrm, rho,
+ * d_x, d_n, d_rho likewise: the run's compacted arrays), whose d_rgb and forward V are at
+ * d_rgb + 3 pix[k] and V_in + count pix[k]: what pen__lights_bwd adds for each. In lanes, the
+ * pairs whose fraction is 0 or 1 (f constant: the gradient is the weight's alone) and the
+ * per-light chain; a receiver with a partial pair, a disk across its horizon or no kept V takes
+ * the double term, over its own candidates, after the lanes. scratch: room for n
+ * PEN_LIGHTS_BLOCK floats and for (n + 1) PEN_LIGHTS_BLOCK ints. */
+void CAT(pen__lights_bwd_block_,
+         PEN_FAST_ISA)(const pen__lights *L, const double *G, int n, const float *spheres,
+                       const float *kappa, const int *idx, int cnt, const float *x,
+                       const float *nrm, const float *rho, const float *d_rgb, const float *V_in,
+                       const int *pix, void *scratch, double *d_spheres, float *d_x, float *d_n,
+                       float *d_rho, double *d_lights, double *d_G) {
+    lanes z;
+    lanes_init(&z, L, cnt, x, nrm, NULL);
+    const int K = z.K;
+    float V[LMAX][B], VdV[LMAX][B], sl[LMAX][B], g3[3][B], dxl[3][B], dnl[3][B];
+    int skip[B]; /* not in the lanes: a double receiver, or one without a gradient */
+    for (int k = 0; k < B; ++k) {
+        const size_t p = (size_t)pix[k < cnt ? k : 0];
+        for (int a = 0; a < 3; ++a) {
+            g3[a][k] = d_rgb[3 * p + (size_t)a] * (float)(1.0 / PEN_PI);
+            dxl[a][k] = dnl[a][k] = 0.0f;
+        }
+        z.exact[k] |= !V_in;
+        skip[k] = z.exact[k] | (k >= cnt) |
+                  ((g3[0][k] == 0.0f) & (g3[1][k] == 0.0f) & (g3[2][k] == 0.0f));
+    }
+    /* Per light: the forward's V, s = sum_ch g rho E and dV V with dV = s D G. */
+    for (int l = 0; l < K; ++l) {
+        const float Gl = G ? (float)G[l] : 1.0f;
+        const float E0 = (float)L->E[l][0], E1 = (float)L->E[l][1], E2 = (float)L->E[l][2];
+        for (int k = 0; k < B; ++k) {
+            const int kk = k < cnt ? k : 0;
+            V[l][k] = V_in ? V_in[(size_t)K * (size_t)pix[kk] + (size_t)l] : 1.0f;
+            sl[l][k] = g3[0][k] * rho[3 * kk] * E0 + g3[1][k] * rho[3 * kk + 1] * E1 +
+                       g3[2][k] * rho[3 * kk + 2] * E2;
+            VdV[l][k] = sl[l][k] * z.Dl[l][k] * Gl * V[l][k];
+        }
+    }
+    /* The pairs are visited when a gradient needs them: the spheres, x and n through the
+     * weights, and the lights' own through the partial pairs (which only the double term has). */
+    const int geometry = d_spheres || d_x || d_n;
+    float *dw = scratch; /* d/dw of each (sphere, receiver), for the second pass */
+    for (int j = 0; L->shadows && (geometry || d_lights) && j < n; ++j) {
+        /* Pass 1: each pair's class and, for the lanes, d/dw; a partial pair of a lit light
+         * sends its receiver to the double term. */
+        const int i = idx ? idx[j] : j;
+        const float kap = kappa ? kappa[i] : 1.0f;
+        float *dwj = dw + (size_t)j * B, ex[B], dq[B];
+        int on[B], cls[LMAX][B];
+        for (int k = 0; k < B; ++k)
+            dwj[k] = 0.0f;
+        if (!sphere_pairs(&z, skip, spheres + 4 * (size_t)i, kap, on, ex, cls)) continue;
+        for (int k = 0; k < B; ++k)
+            dq[k] = 0.0f;
+        for (int l = 0; l < K; ++l)
+            for (int k = 0; k < B; ++k) {
+                const int lit = z.Dl[l][k] > 0.0f; /* an unlit light has dV = 0 */
+                z.exact[k] |= on[k] & lit & (cls[l][k] == 2);
+                /* f = 1: the factor 1 - q, whose d/dq is -1, times dV V / (1 - q) */
+                const float dqi = VdV[l][k] / ex[k];
+                dq[k] -= on[k] & lit & (cls[l][k] == 1) ? dqi : 0.0f;
+            }
+        for (int k = 0; k < B; ++k) /* d/dw = d/dq eps kappa exp(-eps w kappa) */
+            dwj[k] = on[k] ? dq[k] * z.eps * kap * ex[k] : 0.0f;
+    }
+    /* Pass 2: the lanes' d/dw through w = w_h(h) g(p), h = n . v / r, p = |v| / r, into the
+     * spheres (in the receivers' order), x and n. */
+    for (int j = 0; L->shadows && geometry && j < n; ++j) {
+        const float *dwj = dw + (size_t)j * B;
+        int any = 0;
+        for (int k = 0; k < cnt; ++k)
+            any |= (dwj[k] != 0.0f) & !z.exact[k];
+        if (!any) continue;
+        const int i = idx ? idx[j] : j;
+        const float *sp = spheres + 4 * (size_t)i, r = sp[3];
+        float dv[3][B], dr[B];
+        for (int k = 0; k < B; ++k) {
+            const float v[3] = {sp[0] - z.X[0][k], sp[1] - z.X[1][k], sp[2] - z.X[2][k]};
+            const float p = sqrtf(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) / r;
+            const float h = (z.N[0][k] * v[0] + z.N[1][k] * v[1] + z.N[2][k] * v[2]) / r;
+            const float u = (h - z.h0) * z.inv_span, e = (p - z.lo) * z.inv_width;
+            const float whp = u * u * (3.0f - 2.0f * u), gp = e * e * (3.0f - 2.0f * e);
+            const float dwhp = 6.0f * u * (1.0f - u) * z.inv_span;
+            const float dgp = 6.0f * e * (1.0f - e) * z.inv_width;
+            const float wh = u < 1.0f ? whp : 1.0f, g = e < 1.0f ? gp : 1.0f;
+            const float dwh = u < 1.0f ? dwhp : 0.0f, dg = e < 1.0f ? dgp : 0.0f;
+            const float d = z.exact[k] ? 0.0f : dwj[k];
+            const float dh = d * dwh * g, dp = d * wh * dg;
+            const float kp = dp / (p * r * r);
+            for (int a = 0; a < 3; ++a) {
+                dv[a][k] = dh * z.N[a][k] / r + kp * v[a];
+                dnl[a][k] += dh * v[a] / r;
+                dxl[a][k] -= dv[a][k];
+            }
+            dr[k] = -dh * h / r - dp * p / r;
+        }
+        if (d_spheres) {
+            double *ds = d_spheres + 4 * (size_t)i;
+            for (int k = 0; k < cnt; ++k) {
+                if (z.exact[k] || dwj[k] == 0.0f) continue;
+                ds[0] += (double)dv[0][k], ds[1] += (double)dv[1][k];
+                ds[2] += (double)dv[2][k], ds[3] += (double)dr[k];
+            }
+        }
+    }
+    /* The per-light chain of the lane receivers, in their order: rho, the light's own
+     * gradient, the horizon factor and n (the disk wholly above the horizon: dD/dc = 1,
+     * dD/db = 0). */
+    int nx = 0, xk[B];
+    for (int k = 0; k < cnt; ++k) {
+        if (skip[k] & !z.exact[k]) continue; /* no gradient */
+        if (z.exact[k]) {
+            xk[nx++] = k;
+            continue;
+        }
+        float drho[3] = {0.0f, 0.0f, 0.0f};
+        for (int l = 0; l < K; ++l) {
+            if (!(z.Dl[l][k] > 0.0f)) continue;
+            const float Gl = G ? (float)G[l] : 1.0f, DGV = z.Dl[l][k] * Gl * V[l][k];
+            const float dD = sl[l][k] * Gl * V[l][k];
+            for (int ch = 0; ch < 3; ++ch)
+                drho[ch] += g3[ch][k] * (float)L->E[l][ch] * DGV;
+            if (d_lights) {
+                double *dl = d_lights + PEN_LIGHT_GRAD_DOUBLES * l;
+                for (int a = 0; a < 3; ++a)
+                    dl[a] += (double)(dD * z.N[a][k]);
+                for (int ch = 0; ch < 3; ++ch)
+                    dl[4 + ch] += (double)(g3[ch][k] * rho[3 * k + ch] * DGV);
+            }
+            if (d_G && G) d_G[l] += (double)(sl[l][k] * z.Dl[l][k] * V[l][k]);
+            for (int a = 0; a < 3; ++a)
+                dnl[a][k] += dD * z.w[l][a];
+        }
+        for (int ch = 0; ch < 3; ++ch)
+            d_rho[3 * k + ch] += drho[ch];
+        for (int a = 0; a < 3; ++a) {
+            if (d_x) d_x[3 * k + a] += dxl[a][k];
+            if (d_n) d_n[3 * k + a] += dnl[a][k];
+        }
+    }
+    if (!nx) return;
+    /* The double term for the rest, over the spheres the prefilter keeps for each. */
+    int *list = scratch, *count = list + (size_t)n * B;
+    CAT(pen__lights_candidates_, PEN_FAST_ISA)(L, n, spheres, idx, nx, x, nrm, xk, list, count);
+    for (int f = 0; f < nx; ++f) {
+        const int k = xk[f];
+        const size_t p = (size_t)pix[k];
+        pen__lights_bwd(L, G, count[f], spheres, kappa, list + (size_t)f * (size_t)n, x + 3 * k,
+                        nrm + 3 * k, rho + 3 * k, d_rgb + 3 * p, V_in ? V_in + (size_t)K * p : NULL,
+                        d_spheres, d_x ? d_x + 3 * k : NULL, d_n ? d_n + 3 * k : NULL,
+                        d_rho + 3 * k, d_lights, d_G);
+    }
+}

@@ -33,6 +33,10 @@ static const pen__shade_fast_ops *const variants[] = {
     &pen__shade_fast_ops_avx512, &pen__shade_fast_ops_avx2, &pen__shade_fast_ops_sse2};
 #define CANDIDATES(isa) pen__lights_candidates_##isa
 #define CANDIDATE_VARIANTS {CANDIDATES(avx512), CANDIDATES(avx2), CANDIDATES(sse2)}
+#define LIGHTS_FWD(isa) pen__lights_fwd_block_##isa
+#define LIGHTS_FWD_VARIANTS {LIGHTS_FWD(avx512), LIGHTS_FWD(avx2), LIGHTS_FWD(sse2)}
+#define LIGHTS_BWD(isa) pen__lights_bwd_block_##isa
+#define LIGHTS_BWD_VARIANTS {LIGHTS_BWD(avx512), LIGHTS_BWD(avx2), LIGHTS_BWD(sse2)}
 
 static int cpu_runs(int v) {
     __builtin_cpu_init();
@@ -53,6 +57,10 @@ extern const pen__shade_fast_ops pen__shade_fast_ops_generic;
 static const pen__shade_fast_ops *const variants[] = {&pen__shade_fast_ops_generic};
 #define CANDIDATES(isa) pen__lights_candidates_##isa
 #define CANDIDATE_VARIANTS {CANDIDATES(generic)}
+#define LIGHTS_FWD(isa) pen__lights_fwd_block_##isa
+#define LIGHTS_FWD_VARIANTS {LIGHTS_FWD(generic)}
+#define LIGHTS_BWD(isa) pen__lights_bwd_block_##isa
+#define LIGHTS_BWD_VARIANTS {LIGHTS_BWD(generic)}
 
 static int cpu_runs(int v) {
     (void)v;
@@ -164,4 +172,63 @@ void pen__lights_candidates(const pen__lights *L, int n, const float *spheres, c
     (void)ops(); /* the variant chosen */
     candidates[__atomic_load_n(&chosen, __ATOMIC_ACQUIRE)](L, n, spheres, idx, cnt, x, nrm, at,
                                                             list, count);
+}
+
+/* The fast forward's light term (lights_fast.c), in the same variant. */
+#define LIGHTS_FWD_DECL(isa)                                                                     \
+    void LIGHTS_FWD(isa)(const pen__lights *L, const double *G, int n, const float *spheres,      \
+                         const float *kappa, const int *idx, int cnt, const float *x,             \
+                         const float *nrm, const float *rho, const int *at, float *rgb,           \
+                         float *V_out)
+#if defined(__x86_64__)
+LIGHTS_FWD_DECL(avx512);
+LIGHTS_FWD_DECL(avx2);
+LIGHTS_FWD_DECL(sse2);
+#else
+LIGHTS_FWD_DECL(generic);
+#endif
+typedef void (*lights_fwd_fn)(const pen__lights *, const double *, int, const float *,
+                              const float *, const int *, int, const float *, const float *,
+                              const float *, const int *, float *, float *);
+static const lights_fwd_fn lights_fwd[] = LIGHTS_FWD_VARIANTS;
+
+void pen__lights_fwd_block(const pen__lights *L, const double *G, int n, const float *spheres,
+                           const float *kappa, const int *idx, int cnt, const float *x,
+                           const float *nrm, const float *rho, const int *at, float *rgb,
+                           float *V_out) {
+    (void)ops(); /* the variant chosen */
+    lights_fwd[__atomic_load_n(&chosen, __ATOMIC_ACQUIRE)](L, G, n, spheres, kappa, idx, cnt, x,
+                                                            nrm, rho, at, rgb, V_out);
+}
+
+/* Its backward (lights_fast.c), in the same variant. */
+#define LIGHTS_BWD_DECL(isa)                                                                     \
+    void LIGHTS_BWD(isa)(const pen__lights *L, const double *G, int n, const float *spheres,      \
+                         const float *kappa, const int *idx, int cnt, const float *x,             \
+                         const float *nrm, const float *rho, const float *d_rgb,                  \
+                         const float *V_in, const int *pix, void *scratch, double *d_spheres,     \
+                         float *d_x, float *d_n, float *d_rho, double *d_lights, double *d_G)
+#if defined(__x86_64__)
+LIGHTS_BWD_DECL(avx512);
+LIGHTS_BWD_DECL(avx2);
+LIGHTS_BWD_DECL(sse2);
+#else
+LIGHTS_BWD_DECL(generic);
+#endif
+typedef void (*lights_bwd_fn)(const pen__lights *, const double *, int, const float *,
+                              const float *, const int *, int, const float *, const float *,
+                              const float *, const float *, const float *, const int *, void *,
+                              double *, float *, float *, float *, double *, double *);
+static const lights_bwd_fn lights_bwd[] = LIGHTS_BWD_VARIANTS;
+
+void pen__lights_bwd_block(const pen__lights *L, const double *G, int n, const float *spheres,
+                           const float *kappa, const int *idx, int cnt, const float *x,
+                           const float *nrm, const float *rho, const float *d_rgb,
+                           const float *V_in, const int *pix, void *scratch, double *d_spheres,
+                           float *d_x, float *d_n, float *d_rho, double *d_lights, double *d_G) {
+    (void)ops(); /* the variant chosen */
+    lights_bwd[__atomic_load_n(&chosen, __ATOMIC_ACQUIRE)](L, G, n, spheres, kappa, idx, cnt, x,
+                                                            nrm, rho, d_rgb, V_in, pix, scratch,
+                                                            d_spheres, d_x, d_n, d_rho, d_lights,
+                                                            d_G);
 }

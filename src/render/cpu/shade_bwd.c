@@ -235,18 +235,13 @@ static void shade_tile_bwd(const void *job_, int t, pen__tile_ws *ws, pen__shade
         if (store) store += pen__tile_run_store(st, cnt); /* the run's layout */
         for (int k0 = 0; st->lights.count && k0 < nk; k0 += PEN_LIGHTS_BLOCK) {
             const int nb = nk - k0 < PEN_LIGHTS_BLOCK ? nk - k0 : PEN_LIGHTS_BLOCK;
-            pen__lights_candidates(&st->lights, ncull, st->spheres.data, ws->cull, nb,
-                                   ws->x + 3 * k0, ws->n + 3 * k0, NULL, ws->cand, ws->ncand);
-            for (int kb = 0; kb < nb; ++kb) {
-                const int k = k0 + kb;
-                const size_t i = (size_t)ws->idx[k];
-                const int geom = g != 0 && bw->geom; /* ground pixels: no d_x, d_n wanted */
-                pen__lights_bwd(&st->lights, G, ws->ncand[kb], st->spheres.data, st->kappa.data,
-                                ws->cand + (size_t)kb * (size_t)ncull, ws->x + 3 * k, ws->n + 3 * k,
-                                ws->rho + 3 * k, st->d_color.data + 3 * i, lights_V(st, i), d_sph,
-                                geom ? ws->dx + 3 * k : NULL, geom ? ws->dn + 3 * k : NULL,
-                                ws->drho + 3 * k, d_lights, d_G);
-            }
+            const int geom = g != 0 && bw->geom; /* ground pixels: no d_x, d_n wanted */
+            /* the disk lights in the kernel's lanes (lights_fast.c), as the forward added them */
+            pen__lights_bwd_block(&st->lights, G, ncull, st->spheres.data, st->kappa.data,
+                                  ws->cull, nb, ws->x + 3 * k0, ws->n + 3 * k0, ws->rho + 3 * k0,
+                                  st->d_color.data, st->lights_V_valid ? st->lights_V.data : NULL,
+                                  ws->idx + k0, ws->cand, d_sph, geom ? ws->dx + 3 * k0 : NULL,
+                                  geom ? ws->dn + 3 * k0 : NULL, ws->drho + 3 * k0, d_lights, d_G);
         }
         for (int k = 0; k < nk; ++k) {
             const size_t i = (size_t)ws->idx[k];

@@ -8,9 +8,9 @@
  *   lookup, footprint.c), then go compacted to the fast kernel (src/shade/shade_fast.c, batches of
  *   SIMD lanes) or one by one to the scalar reference kernel (shade_ops.inc), as
  *   pen_render_options.kernel and the kernel's coverage decide.
- * - Disk lights (src/shade/lights.c) are added per pixel after the kernel's SH shading, by the
- *   same scalar function whichever kernel ran, after a float prefilter of the spheres that may
- *   shadow them (lights_fast.c).
+ * - Disk lights are added after the kernel's SH shading: under the scalar kernel by the double
+ *   per-pixel term (src/shade/lights.c), under the fast kernel by the same term in its lanes
+ *   (lights_fast.c, docs/design.md sec. 1.13, "Precision of the fast kernel's forward").
  * - Objects shaded with their own precomputed transfer (docs/design.md sec. 1.15): their pixels
  *   leave each run before the kernel and are shaded, SH and lights, by transfer_shade.c; under
  *   the fast kernel their other spheres' sum F comes from it (one call per object of the run,
@@ -101,13 +101,20 @@ static const double *group_horizon(const pen_render_state *st, int g) {
     return o >= 0 ? st->obj[o].light_G : NULL;
 }
 
-/* Adds the disk lights to the run's pixels (the same per-pixel term after either kernel), over
+/* Adds the disk lights to the run's pixels (the scalar kernel's frame: the double per-pixel term;
+ * the fast kernel's: the same term in lanes, pen__lights_fwd_block), over
  * the tile's ncull spheres ws->cull. */
 static void shade_lights_fwd(pen_render_state *st, const pen__tile_ws *ws, int ncull, int g,
                              const int *pix, int cnt) {
     const double *G = group_horizon(st, g);
     for (int k0 = 0; k0 < cnt; k0 += PEN_LIGHTS_BLOCK) {
         const int nb = cnt - k0 < PEN_LIGHTS_BLOCK ? cnt - k0 : PEN_LIGHTS_BLOCK;
+        if (st->fast) { /* the fast kernel's frame: the term in the variant's lanes */
+            pen__lights_fwd_block(&st->lights, G, ncull, st->spheres.data, st->kappa.data, ws->cull,
+                                  nb, st->x.data, st->n.data, st->rho.data, pix + k0,
+                                  st->color.data, st->lights_V_valid ? st->lights_V.data : NULL);
+            continue;
+        }
         pen__lights_candidates(&st->lights, ncull, st->spheres.data, ws->cull, nb, st->x.data,
                                st->n.data, pix + k0, ws->cand, ws->ncand);
         for (int k = 0; k < nb; ++k) {

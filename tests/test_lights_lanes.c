@@ -1,0 +1,202 @@
+/* The disk lights in the fast kernel's lanes (src/shade/lights_fast.c, docs/design.md sec. 1.13,
+ * "Precision of the fast kernel's term"): the forward block and its backward against the double
+ * per-pixel term (src/shade/lights.c, itself checked against finite differences in
+ * test_lights.c), in every variant this processor runs, on receivers placed behind spheres along
+ * a light (full shadows, penumbrae, clear, inside a sphere), normals across the horizon, kappa 0,
+ * horizon factors, no shadows, zero output gradients. */
+#include "io_fixtures.h" /* first: it sets the feature-test macros */
+
+#include "render_scenes.h"
+#include "shade/lights.h"
+#include "shade/shade.h"
+
+#include <math.h>
+
+static unsigned long long seed = 4242;
+
+enum { S = 12, B = PEN_LIGHTS_BLOCK };
+
+/* One random block: lights, spheres, receivers and output gradients. */
+typedef struct block_case {
+    pen__lights L;
+    int K, cnt;
+    float sph[4 * S], kap[S];
+    double G[PEN_SCENE_MAX_LIGHTS];
+    const double *Gp; /* G or NULL */
+    float x[3 * B], nrm[3 * B], rho[3 * B], drgb[3 * B];
+} block_case;
+
+static void make_case(block_case *c, int trial) {
+    pen_lighting lt;
+    memset(&lt, 0, sizeof lt);
+    const double radii[4] = {0.27, 0.6, 3.0, 20.0};
+    c->K = lt.light_count = 1 + trial % 3;
+    for (int l = 0; l < c->K; ++l) {
+        double d[3];
+        rs_unit_vector(&seed, d);
+        d[1] = fabs(d[1]) + 0.2;
+        const double E = rs_uniform(&seed, 0.5, 3.0);
+        for (int a = 0; a < 3; ++a) {
+            lt.lights[l].direction[a] = (float)d[a];
+            lt.lights[l].irradiance[a] = (float)(E * (1 + 0.3 * a));
+        }
+        lt.lights[l].angular_radius_deg = (float)radii[(trial + l) % 4];
+    }
+    pen__lights_init(&c->L, &lt, rs_uniform(&seed, 1.0, 6.0), trial % 17 != 0);
+    for (int i = 0; i < S; ++i) {
+        for (int a = 0; a < 3; ++a)
+            c->sph[4 * i + a] = (float)rs_uniform(&seed, -1, 1);
+        c->sph[4 * i + 3] = (float)rs_uniform(&seed, 0.05, 0.4);
+        c->kap[i] = i % 5 == 4 ? 0.0f : (float)rs_uniform(&seed, 0.3, 1.0);
+    }
+    for (int l = 0; l < c->K; ++l)
+        c->G[l] = rs_uniform(&seed, 0.2, 1.0);
+    c->Gp = trial % 2 ? c->G : NULL;
+    c->cnt = 1 + trial % B;
+    for (int k = 0; k < c->cnt; ++k) {
+        /* behind sphere i along light l, up to 1.3 r across; mostly facing the light */
+        const int i = (int)rs_uniform(&seed, 0, S - 0.001), l = k % c->K;
+        const double r = (double)c->sph[4 * i + 3], back = rs_uniform(&seed, 0.5 * r, 2.5);
+        const double across = rs_uniform(&seed, 0.0, 1.3 * r);
+        double off[3], nn[3];
+        rs_unit_vector(&seed, off);
+        rs_unit_vector(&seed, nn);
+        for (int a = 0; a < 3; ++a) {
+            c->x[3 * k + a] =
+                (float)((double)c->sph[4 * i + a] - back * c->L.w[l][a] + across * off[a]);
+            if (k % 4 != 3) nn[a] = c->L.w[l][a] + 0.6 * nn[a];
+        }
+        const double len = sqrt(nn[0] * nn[0] + nn[1] * nn[1] + nn[2] * nn[2]);
+        for (int a = 0; a < 3; ++a) {
+            c->nrm[3 * k + a] = (float)(nn[a] / len), c->rho[3 * k + a] = (float)(0.3 + 0.2 * a);
+            c->drgb[3 * k + a] = k % 7 == 6 ? 0.0f : (float)rs_uniform(&seed, -1, 1);
+        }
+    }
+}
+
+/* Runs check(case, variant, trial) over 300 cases in every variant this processor runs, then
+ * restores the variant in use; returns the number of variants. */
+static int each_variant(void (*check)(const block_case *, int, int)) {
+    const pen__shade_fast_ops *was = pen__shade_fast_current();
+    int variants = 0;
+    for (int v = 0; v < pen__shade_fast_variants(); ++v) {
+        if (!pen__shade_fast_use(v)) continue;
+        ++variants;
+        for (int trial = 0; trial < 300; ++trial) {
+            block_case c;
+            make_case(&c, trial);
+            check(&c, v, trial);
+        }
+    }
+    for (int v = 0; v < pen__shade_fast_variants(); ++v)
+        if (pen__shade_fast_variant_ops(v) == was) pen__shade_fast_use(v);
+    return variants;
+}
+
+static int shadowed, partial;
+static double worst, worst_V;
+
+/* The block's fractions are the double ones (0, 1 or the lens), so what differs is the float
+ * rounding of D, q and the product: a few 1e-7 of the light, a few 1e-6 of V. */
+static void check_fwd(const block_case *c, int v, int trial) {
+    const int K = c->K;
+    float got[3 * B] = {0}, Vg[PEN_SCENE_MAX_LIGHTS * B];
+    pen__lights_fwd_block(&c->L, c->Gp, S, c->sph, c->kap, NULL, c->cnt, c->x, c->nrm, c->rho,
+                          NULL, got, Vg);
+    double scale = 0.0;
+    for (int l = 0; l < K; ++l)
+        scale += c->L.E[l][0];
+    for (int k = 0; k < c->cnt; ++k) {
+        float want[3] = {0, 0, 0}, Vw[PEN_SCENE_MAX_LIGHTS];
+        pen__lights_fwd(&c->L, c->Gp, S, c->sph, c->kap, NULL, c->x + 3 * k, c->nrm + 3 * k,
+                        c->rho + 3 * k, want, Vw);
+        for (int ch = 0; ch < 3; ++ch) {
+            const double d = fabs((double)got[3 * k + ch] - (double)want[ch]);
+            worst = fmax(worst, d / scale);
+            CHECK_MSG(d <= 2e-6 * scale, "variant %d trial %d receiver %d: %.9g vs %.9g", v,
+                      trial, k, (double)got[3 * k + ch], (double)want[ch]);
+        }
+        for (int l = 0; l < K; ++l) {
+            worst_V = fmax(worst_V, fabs((double)Vg[K * k + l] - (double)Vw[l]));
+            CHECK_MSG(fabs((double)Vg[K * k + l] - (double)Vw[l]) <= 1e-5, "V %d: %.9g vs %.9g",
+                      l, (double)Vg[K * k + l], (double)Vw[l]);
+            shadowed += Vw[l] < 0.999f;
+            partial += Vw[l] > 0.01f && Vw[l] < 0.99f;
+        }
+    }
+}
+
+static void test_fwd_block(void) {
+    shadowed = partial = 0, worst = worst_V = 0.0;
+    const int variants = each_variant(check_fwd);
+    CHECK_MSG(variants > 0, "no variant of the fast kernel runs here");
+    CHECK_MSG(shadowed > 500 && partial > 100, "the cases shadowed %d receivers, %d partly",
+              shadowed, partial);
+    if (getenv("PEN_TEST_VERBOSE"))
+        printf("  %d variants; %d shadowed, %d partly; worst %.3g of the light, %.3g in V\n",
+               variants, shadowed, partial, worst, worst_V);
+}
+
+/* |a - b| <= 2e-5 size, the float lanes' sums against the double ones, relative to the size of
+ * the gradient group (sums of terms of both signs cancel). */
+static void close_to(double a, double b, double size, const char *what, int v, int trial, int i) {
+    worst = fmax(worst, fabs(a - b) / size);
+    CHECK_MSG(fabs(a - b) <= 2e-5 * size, "variant %d trial %d %s[%d]: %.9g vs %.9g", v, trial,
+              what, i, a, b);
+}
+
+/* The backward block against pen__lights_bwd of each receiver, both given the double V, every
+ * gradient, each into its own sums. */
+static void check_bwd(const block_case *c, int v, int trial) {
+    const int K = c->K, cnt = c->cnt;
+    float V[PEN_SCENE_MAX_LIGHTS * B] = {0};
+    int pix[B] = {0};
+    for (int k = 0; k < cnt; ++k) {
+        float rgb[3] = {0, 0, 0};
+        pen__lights_fwd(&c->L, c->Gp, S, c->sph, c->kap, NULL, c->x + 3 * k, c->nrm + 3 * k,
+                        c->rho + 3 * k, rgb, V + K * k);
+        pix[k] = k;
+    }
+    enum { NL = PEN_LIGHT_GRAD_DOUBLES * PEN_SCENE_MAX_LIGHTS };
+    double ds[2][4 * S] = {{0}}, dl[2][NL] = {{0}}, dG[2][PEN_SCENE_MAX_LIGHTS] = {{0}};
+    float dx[2][3 * B] = {{0}}, dn[2][3 * B] = {{0}}, dr[2][3 * B] = {{0}};
+    int scratch[(S + 1) * B];
+    pen__lights_bwd_block(&c->L, c->Gp, S, c->sph, c->kap, NULL, cnt, c->x, c->nrm, c->rho,
+                          c->drgb, V, pix, scratch, ds[0], dx[0], dn[0], dr[0], dl[0],
+                          c->Gp ? dG[0] : NULL);
+    for (int k = 0; k < cnt; ++k)
+        pen__lights_bwd(&c->L, c->Gp, S, c->sph, c->kap, NULL, c->x + 3 * k, c->nrm + 3 * k,
+                        c->rho + 3 * k, c->drgb + 3 * k, V + K * k, ds[1], dx[1] + 3 * k,
+                        dn[1] + 3 * k, dr[1] + 3 * k, dl[1], c->Gp ? dG[1] : NULL);
+    double geo = 1e-3, light = 1e-3, hor = 1e-3;
+    for (int a = 0; a < 4 * S; ++a)
+        geo = fmax(geo, fabs(ds[1][a]));
+    for (int a = 0; a < 3 * cnt; ++a)
+        geo = fmax(geo, fmax(fabs((double)dx[1][a]), fabs((double)dn[1][a])));
+    for (int a = 0; a < PEN_LIGHT_GRAD_DOUBLES * K; ++a)
+        light = fmax(light, fabs(dl[1][a]));
+    for (int l = 0; l < K; ++l)
+        hor = fmax(hor, fabs(dG[1][l]));
+    for (int a = 0; a < 4 * S; ++a)
+        close_to(ds[0][a], ds[1][a], geo, "d_sphere", v, trial, a);
+    for (int a = 0; a < 3 * cnt; ++a) {
+        close_to((double)dx[0][a], (double)dx[1][a], geo, "d_x", v, trial, a);
+        close_to((double)dn[0][a], (double)dn[1][a], geo, "d_n", v, trial, a);
+        close_to((double)dr[0][a], (double)dr[1][a], fmax(1e-3, fabs((double)dr[1][a])), "d_rho",
+                 v, trial, a);
+    }
+    for (int a = 0; a < PEN_LIGHT_GRAD_DOUBLES * K; ++a)
+        close_to(dl[0][a], dl[1][a], light, "d_light", v, trial, a);
+    for (int l = 0; l < K; ++l)
+        close_to(dG[0][l], dG[1][l], hor, "d_G", v, trial, l);
+}
+
+static void test_bwd_block(void) {
+    worst = 0.0;
+    const int variants = each_variant(check_bwd);
+    CHECK_MSG(variants > 0, "no variant of the fast kernel runs here");
+    if (getenv("PEN_TEST_VERBOSE"))
+        printf("  %d variants; worst %.3g of a gradient's size\n", variants, worst);
+}
+
+RUN_TESTS(TEST(test_fwd_block), TEST(test_bwd_block))
