@@ -2,8 +2,9 @@
  * disk's clamped-cosine integral, the overlap of a sphere's cap with a disk, a frame's lights,
  * and the per-pixel light term with its backward. Everything is computed in double; the
  * per-pixel pair exists for float inputs (the renderer) and double inputs (`_d`, the gradient
- * checks). Both shading kernels (scalar and fast) call the same per-pixel functions, so they give
- * the same light term. */
+ * checks). The scalar kernel's frame calls the per-pixel functions; the fast kernel's runs the
+ * same term in its lanes (pen__lights_fwd_block / bwd_block, lights_fast.c), which come back here
+ * for the partial overlaps. */
 #ifndef PEN_SHADE_LIGHTS_H
 #define PEN_SHADE_LIGHTS_H
 
