@@ -392,6 +392,10 @@ static void test_invalid_inputs(void) {
     sc.camera.width = 0;
     expect_error(&sc, "");
     sc.camera.width = 16;
+    /* an RGBA texture through the C API: refused (its gradient is 3 floats a texel) */
+    CHECK(pen_image_create(NULL, 4, 4, 4, &sc.objects[0].texture) == PEN_OK);
+    expect_error(&sc, "4 channels");
+    pen_image_free(&sc.objects[0].texture);
 
     /* Output image of the wrong shape; backward without forward; gradient of another scene. */
     pen_context *ctx = pen_context_create();

@@ -125,7 +125,7 @@ typedef enum pen_texture_filter {
 
 typedef struct pen_object {
     pen_mesh mesh;          /* object space */
-    pen_image texture;      /* albedo texture (linear RGB), data == NULL if constant albedo */
+    pen_image texture;      /* albedo texture (linear RGB, 3 channels), NULL data: constant */
     float albedo[3];        /* constant albedo (used when texture.data == NULL) */
     pen_spheres spheres;    /* object space; empty when none were given or fit_spheres is set */
     int fit_spheres;        /* "spheres": {"fit": N} asks for N fitted spheres (0: no request);

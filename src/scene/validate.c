@@ -141,9 +141,13 @@ pen_status pen__scene_validate(pen_context *ctx, const pen_scene *sc, const char
             return pen__error(ctx, s, "%s: objects[%d] (%s): %s", who, o, name, msg);
         }
         if (ob->texture.data) {
-            if (ob->texture.width < 1 || ob->texture.height < 1 || ob->texture.channels < 3)
+            /* RGB only: the texture's gradient (pen_object_grad.texture) is 3 floats a texel,
+             * as the flat ABI's; the loaders make every file RGB */
+            if (ob->texture.width < 1 || ob->texture.height < 1 || ob->texture.channels != 3)
                 return pen__error(ctx, PEN_ERROR_ARGUMENT,
-                                  "%s: objects[%d] (%s): texture must be RGB", who, o, name);
+                                  "%s: objects[%d] (%s): texture has %d channels; an albedo texture "
+                                  "is RGB (3)",
+                                  who, o, name, ob->texture.channels);
             if (ob->mesh.uv_count <= 0)
                 return pen__error(ctx, PEN_ERROR_ARGUMENT,
                                   "%s: objects[%d] (%s): texture but no texture coordinates", who,
