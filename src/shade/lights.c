@@ -477,6 +477,39 @@ double pen__lights_fraction(const pen__lights *L, int l, const float x[3], const
     return disk_fraction(L, l, &sv, NULL, &sg);
 }
 
+double pen__lights_pair_bwd(const pen__lights *L, int l, const float x[3], const float n[3],
+                            const float s[4], float kappa, double dVV, double dv[3], double *d_r,
+                            double *d_light) {
+    /* the pair's weight and opacity in double, as the double term has them: a small q from the
+     * lanes' 1 - exp would carry 6e-8 / q of itself into d_f */
+    const double xd[3] = {(double)x[0], (double)x[1], (double)x[2]};
+    const double nd[3] = {(double)n[0], (double)n[1], (double)n[2]};
+    const double c[3] = {(double)s[0], (double)s[1], (double)s[2]};
+    sphere_view sv;
+    if (!sphere_view_weight(xd, nd, c, (double)s[3], &sv)) return 0.0;
+    const double q = -expm1(-L->eps * sv.w * (double)kappa);
+    double fd[3], sg;
+    const double f = disk_fraction(L, l, &sv, fd, &sg);
+    if (f == 0.0 && fd[0] == 0.0 && fd[1] == 0.0 && fd[2] == 0.0) return 0.0;
+    /* as pen__lights_bwd's pair: d_g = dV V / (1 - q f), d_f = -q d_g */
+    const double d_g = dVV / (1.0 - q * f), d_f = -q * d_g, d_a = d_f * fd[0];
+    if (d_light) d_light[3] += d_f * fd[1];
+    if (sg > 1e-12) {
+        const double dg = d_f * fd[2] / sg, *w = L->w[l];
+        const double cg = sv.d[0] * w[0] + sv.d[1] * w[1] + sv.d[2] * w[2];
+        for (int a = 0; a < 3; ++a) {
+            dv[a] -= dg * (w[a] - cg * sv.d[a]) / sv.D;
+            if (d_light) d_light[a] -= dg * (sv.d[a] - cg * w[a]);
+        }
+    }
+    if (sv.cap) {
+        for (int a = 0; a < 3; ++a)
+            dv[a] += d_a * sv.da_dD * sv.d[a];
+        *d_r += d_a * sv.da_dr;
+    }
+    return f * d_g;
+}
+
 #define IN float
 #define SUF(name) name
 #include "shade/lights_ops.inc"

@@ -87,9 +87,10 @@ void pen__lights_fwd_block(const pen__lights *L, const double *G, int n, const f
 /* The backward of the fast kernel's light term for cnt <= PEN_LIGHTS_BLOCK receivers k at
  * x + 3 k (nrm, rho, d_x, d_n and d_rho likewise: compacted), whose d_rgb and forward V are at
  * d_rgb + 3 pix[k] and V_in + count pix[k] (V_in NULL: recomputed): adds what pen__lights_bwd
- * adds for each, in the variant's lanes where every pair's fraction is 0 or 1 (lights_fast.c) and
- * by pen__lights_bwd for the other receivers. scratch: room for n PEN_LIGHTS_BLOCK floats and
- * (n + 1) PEN_LIGHTS_BLOCK ints. */
+ * adds for each, in the variant's lanes (lights_fast.c; the partial pairs' own derivatives by
+ * pen__lights_pair_bwd), by pen__lights_bwd for a receiver whose disk meets its horizon.
+ * scratch: room for the larger of n PEN_LIGHTS_BLOCK floats and (n + 1) PEN_LIGHTS_BLOCK ints
+ * (used in turn). */
 void pen__lights_bwd_block(const pen__lights *L, const double *G, int n, const float *spheres,
                            const float *kappa, const int *idx, int cnt, const float *x,
                            const float *nrm, const float *rho, const float *d_rgb,
@@ -99,6 +100,16 @@ void pen__lights_bwd_block(const pen__lights *L, const double *G, int n, const f
 /* The fraction of light l's disk inside the cap of sphere s (x, y, z, r) seen from x, in double
  * (0 when the disk is certainly clear of it): the block's partial overlaps. */
 double pen__lights_fraction(const pen__lights *L, int l, const float x[3], const float s[4]);
+
+/* The backward block's partial pair (receiver x, n, sphere s with overlap weight kappa, light
+ * l, dV V of the light at the receiver): adds what f's own derivatives give besides the
+ * weight's, through the cap's angle, the disk's radius and the angle to the light, into dv (the
+ * sphere's centre; the receiver's point gets -dv), *d_r and d_light (the light's
+ * PEN_LIGHT_GRAD_DOUBLES; may be NULL), in double as pen__lights_bwd; returns f d_g, the pair's
+ * share of -d/dq. */
+double pen__lights_pair_bwd(const pen__lights *L, int l, const float x[3], const float n[3],
+                            const float s[4], float kappa, double dVV, double dv[3], double *d_r,
+                            double *d_light);
 
 /* Adds the lights' radiance at a receiver (x, n, rho) into rgb:
  *   rgb[ch] += rho[ch] / pi * sum_l E_l[ch] D(n . w_l, b_l) G_l V_l(x),

@@ -14,13 +14,14 @@
  *   path's there. Only the partial overlaps (the penumbrae) take the double lens of lights.c, one
  *   pair at a time, and receivers whose disk meets their horizon take the whole double term. What
  *   differs from pen__lights_fwd is the float rounding of D, w, q and the product (a few 1e-7 of
- *   the light, below the image's own float rounding; tests/test_lights.c compares the two).
+ *   the light, below the image's own float rounding; tests/test_lights_lanes.c compares the
+ *   two).
  * - The backward block (pen__lights_bwd_block) visits the same pairs: where f is 0 or 1 it is
  *   constant, so such a pair's gradient is its weight's alone (through q to the sphere, x and
- *   n), taken in lanes in two passes (the pairs' d/dw first, so that a receiver found to have a
- *   partial pair later adds nothing from the lanes); the per-light chain (rho, the light, its
- *   horizon factor, n) in lanes too; a receiver with a partial pair takes pen__lights_bwd whole,
- *   over its own candidates, with the forward's V.
+ *   n), taken in lanes in two passes (every pair's d/dw first, then the weights' chain); a
+ *   partial pair adds f's own derivatives in double (pen__lights_pair_bwd) during the first; the
+ *   per-light chain (rho, the light, its horizon factor, n) in lanes too. Only a receiver whose
+ *   disk meets its horizon (or without the forward's V) takes pen__lights_bwd whole.
  */
 #include "core/internal.h"
 #include "shade/shade.h"
@@ -262,8 +263,9 @@ void CAT(pen__lights_fwd_block_, PEN_FAST_ISA)(const pen__lights *L, const doubl
         for (int l = 0; l < K; ++l) {
             int any_part = 0;
             for (int k = 0; k < B; ++k) {
-                const float qi = on[k] & (cls[l][k] == 1) ? 1.0f - ex[k] : 0.0f;
-                V[l][k] *= 1.0f - qi;
+                /* inside: the factor 1 - q is exp(-eps w kappa) itself (1 - (1 - e) would
+                 * keep only 6e-8 of it in a deep shadow) */
+                V[l][k] *= on[k] & (cls[l][k] == 1) ? ex[k] : 1.0f;
                 any_part |= on[k] & (cls[l][k] == 2);
             }
             for (int k = 0; any_part && k < cnt; ++k)
@@ -298,9 +300,10 @@ void CAT(pen__lights_fwd_block_, PEN_FAST_ISA)(const pen__lights *L, const doubl
  * d_x, d_n, d_rho likewise: the run's compacted arrays), whose d_rgb and forward V are at
  * d_rgb + 3 pix[k] and V_in + count pix[k]: what pen__lights_bwd adds for each. In lanes, the
  * pairs whose fraction is 0 or 1 (f constant: the gradient is the weight's alone) and the
- * per-light chain; a receiver with a partial pair, a disk across its horizon or no kept V takes
- * the double term, over its own candidates, after the lanes. scratch: room for n
- * PEN_LIGHTS_BLOCK floats and for (n + 1) PEN_LIGHTS_BLOCK ints. */
+ * per-light chain; a partial pair adds f's own derivatives in double (pen__lights_pair_bwd); a
+ * receiver with a disk across its horizon or no kept V takes the double term, over its own
+ * candidates, after the lanes. scratch: room for the larger of n PEN_LIGHTS_BLOCK floats and
+ * (n + 1) PEN_LIGHTS_BLOCK ints (used in turn). */
 void CAT(pen__lights_bwd_block_,
          PEN_FAST_ISA)(const pen__lights *L, const double *G, int n, const float *spheres,
                        const float *kappa, const int *idx, int cnt, const float *x,
@@ -322,6 +325,16 @@ void CAT(pen__lights_bwd_block_,
         skip[k] = z.exact[k] | (k >= cnt) |
                   ((g3[0][k] == 0.0f) & (g3[1][k] == 0.0f) & (g3[2][k] == 0.0f));
     }
+    /* A pair's factor 1 - q f >= exp(-eps kappa): above 1e-200 (the double term's own limit,
+     * beyond which it takes the other factors' product instead) unless eps kappa > 460. */
+    float kmax = 1.0f;
+    for (int j = 0; kappa && j < n; ++j) {
+        const float kj = kappa[idx ? idx[j] : j];
+        kmax = kj > kmax ? kj : kmax;
+    }
+    if (!(L->eps * (double)kmax < 400.0))
+        for (int k = 0; k < B; ++k)
+            z.exact[k] = skip[k] = 1;
     /* Per light: the forward's V, s = sum_ch g rho E and dV V with dV = s D G. */
     for (int l = 0; l < K; ++l) {
         const float Gl = G ? (float)G[l] : 1.0f;
@@ -347,17 +360,38 @@ void CAT(pen__lights_bwd_block_,
         int on[B], cls[LMAX][B];
         for (int k = 0; k < B; ++k)
             dwj[k] = 0.0f;
-        if (!sphere_pairs(&z, skip, spheres + 4 * (size_t)i, kap, on, ex, cls)) continue;
+        const float *sp = spheres + 4 * (size_t)i;
+        if (!sphere_pairs(&z, skip, sp, kap, on, ex, cls)) continue;
         for (int k = 0; k < B; ++k)
             dq[k] = 0.0f;
-        for (int l = 0; l < K; ++l)
+        for (int l = 0; l < K; ++l) {
+            int any_part = 0;
             for (int k = 0; k < B; ++k) {
-                const int lit = z.Dl[l][k] > 0.0f; /* an unlit light has dV = 0 */
-                z.exact[k] |= on[k] & lit & (cls[l][k] == 2);
-                /* f = 1: the factor 1 - q, whose d/dq is -1, times dV V / (1 - q) */
+                /* f = 1: the factor 1 - q, whose d/dq is -1, times dV V / (1 - q); a light with
+                 * dV V = 0 (unlit, or no gradient) adds nothing, as in the double term */
+                const int use = on[k] & (VdV[l][k] != 0.0f);
                 const float dqi = VdV[l][k] / ex[k];
-                dq[k] -= on[k] & lit & (cls[l][k] == 1) ? dqi : 0.0f;
+                dq[k] -= use & (cls[l][k] == 1) ? dqi : 0.0f;
+                any_part |= use & (cls[l][k] == 2);
             }
+            /* partial: f's own derivatives in double, pair by pair, into the sphere, the point
+             * and the light at once (this receiver is in the lanes for good) */
+            for (int k = 0; any_part && k < cnt; ++k) {
+                if (!(on[k] & (VdV[l][k] != 0.0f) & (cls[l][k] == 2))) continue;
+                const float xk[3] = {z.X[0][k], z.X[1][k], z.X[2][k]};
+                double dv[3] = {0.0, 0.0, 0.0}, d_r = 0.0;
+                const float nk[3] = {z.N[0][k], z.N[1][k], z.N[2][k]};
+                dq[k] -= (float)pen__lights_pair_bwd(
+                    L, l, xk, nk, sp, kap, (double)VdV[l][k], dv, &d_r,
+                    d_lights ? d_lights + PEN_LIGHT_GRAD_DOUBLES * l : NULL);
+                for (int a = 0; a < 3; ++a)
+                    dxl[a][k] -= (float)dv[a];
+                if (d_spheres) {
+                    double *ds = d_spheres + 4 * (size_t)i;
+                    ds[0] += dv[0], ds[1] += dv[1], ds[2] += dv[2], ds[3] += d_r;
+                }
+            }
+        }
         for (int k = 0; k < B; ++k) /* d/dw = d/dq eps kappa exp(-eps w kappa) */
             dwj[k] = on[k] ? dq[k] * z.eps * kap * ex[k] : 0.0f;
     }
@@ -384,7 +418,7 @@ void CAT(pen__lights_bwd_block_,
             const float dwh = u < 1.0f ? dwhp : 0.0f, dg = e < 1.0f ? dgp : 0.0f;
             const float d = z.exact[k] ? 0.0f : dwj[k];
             const float dh = d * dwh * g, dp = d * wh * dg;
-            const float kp = dp / (p * r * r);
+            const float kpa = dp / (p * r * r), kp = dp != 0.0f ? kpa : 0.0f; /* p = 0: 0/0 */
             for (int a = 0; a < 3; ++a) {
                 dv[a][k] = dh * z.N[a][k] / r + kp * v[a];
                 dnl[a][k] += dh * v[a] / r;
