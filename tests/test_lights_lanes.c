@@ -101,8 +101,8 @@ static double worst, worst_V;
 static void check_fwd(const block_case *c, int v, int trial) {
     const int K = c->K;
     float got[3 * B] = {0}, Vg[PEN_SCENE_MAX_LIGHTS * B];
-    pen__lights_fwd_block(&c->L, c->Gp, S, c->sph, c->kap, NULL, c->cnt, c->x, c->nrm, c->rho,
-                          NULL, got, Vg);
+    pen__lights_fwd_block(&c->L, c->Gp, S, c->sph, c->kap, NULL, c->cnt, c->x, c->nrm, c->rho, NULL,
+                          got, Vg);
     double scale = 0.0;
     for (int l = 0; l < K; ++l)
         scale += c->L.E[l][0];
@@ -113,13 +113,13 @@ static void check_fwd(const block_case *c, int v, int trial) {
         for (int ch = 0; ch < 3; ++ch) {
             const double d = fabs((double)got[3 * k + ch] - (double)want[ch]);
             worst = fmax(worst, d / scale);
-            CHECK_MSG(d <= 2e-6 * scale, "variant %d trial %d receiver %d: %.9g vs %.9g", v,
-                      trial, k, (double)got[3 * k + ch], (double)want[ch]);
+            CHECK_MSG(d <= 2e-6 * scale, "variant %d trial %d receiver %d: %.9g vs %.9g", v, trial,
+                      k, (double)got[3 * k + ch], (double)want[ch]);
         }
         for (int l = 0; l < K; ++l) {
             worst_V = fmax(worst_V, fabs((double)Vg[K * k + l] - (double)Vw[l]));
-            CHECK_MSG(fabs((double)Vg[K * k + l] - (double)Vw[l]) <= 1e-5, "V %d: %.9g vs %.9g",
-                      l, (double)Vg[K * k + l], (double)Vw[l]);
+            CHECK_MSG(fabs((double)Vg[K * k + l] - (double)Vw[l]) <= 1e-5, "V %d: %.9g vs %.9g", l,
+                      (double)Vg[K * k + l], (double)Vw[l]);
             shadowed += Vw[l] < 0.999f;
             partial += Vw[l] > 0.01f && Vw[l] < 0.99f;
         }
@@ -165,10 +165,9 @@ static void check_bwd(const block_case *c, int v, int trial) {
     double ds[2][4 * S] = {{0}}, dl[2][NL] = {{0}}, dG[2][PEN_SCENE_MAX_LIGHTS] = {{0}};
     float dx[2][3 * B] = {{0}}, dn[2][3 * B] = {{0}}, dr[2][3 * B] = {{0}};
     int scratch[(S + 1) * B];
-    pen__lights_bwd_block(&c->L, c->Gp, S, c->sph, c->kap, NULL, cnt, c->x, c->nrm, c->rho,
-                          c->drgb, keep ? V : NULL, pix, scratch, with_s ? ds[0] : NULL,
-                          xn ? dx[0] : NULL, xn ? dn[0] : NULL, dr[0], dl[0],
-                          c->Gp ? dG[0] : NULL);
+    pen__lights_bwd_block(&c->L, c->Gp, S, c->sph, c->kap, NULL, cnt, c->x, c->nrm, c->rho, c->drgb,
+                          keep ? V : NULL, pix, scratch, with_s ? ds[0] : NULL, xn ? dx[0] : NULL,
+                          xn ? dn[0] : NULL, dr[0], dl[0], c->Gp ? dG[0] : NULL);
     for (int k = 0; k < cnt; ++k)
         pen__lights_bwd(&c->L, c->Gp, S, c->sph, c->kap, NULL, c->x + 3 * k, c->nrm + 3 * k,
                         c->rho + 3 * k, c->drgb + 3 * k, keep ? V + K * k : NULL,
@@ -188,8 +187,8 @@ static void check_bwd(const block_case *c, int v, int trial) {
     for (int a = 0; a < 3 * cnt; ++a) {
         close_to((double)dx[0][a], (double)dx[1][a], geo, "d_x", v, trial, a);
         close_to((double)dn[0][a], (double)dn[1][a], geo, "d_n", v, trial, a);
-        close_to((double)dr[0][a], (double)dr[1][a], fmax(1e-3, fabs((double)dr[1][a])), "d_rho",
-                 v, trial, a);
+        close_to((double)dr[0][a], (double)dr[1][a], fmax(1e-3, fabs((double)dr[1][a])), "d_rho", v,
+                 trial, a);
     }
     for (int a = 0; a < PEN_LIGHT_GRAD_DOUBLES * K; ++a)
         close_to(dl[0][a], dl[1][a], light, "d_light", v, trial, a);
@@ -228,8 +227,8 @@ static void test_bwd_centre(void) {
     double ds[2][4] = {{0}};
     float dx[2][6] = {{0}}, dn[2][6] = {{0}}, dr[2][6] = {{0}};
     int scratch[2 * PEN_LIGHTS_BLOCK];
-    pen__lights_bwd_block(&L, NULL, 1, sph, kap, NULL, 2, x, nrm, rho, drgb, V, pix, scratch,
-                          ds[0], dx[0], dn[0], dr[0], NULL, NULL);
+    pen__lights_bwd_block(&L, NULL, 1, sph, kap, NULL, 2, x, nrm, rho, drgb, V, pix, scratch, ds[0],
+                          dx[0], dn[0], dr[0], NULL, NULL);
     for (int k = 0; k < 2; ++k)
         pen__lights_bwd(&L, NULL, 1, sph, kap, NULL, x + 3 * k, nrm + 3 * k, rho + 3 * k,
                         drgb + 3 * k, V + k, ds[1], dx[1] + 3 * k, dn[1] + 3 * k, dr[1] + 3 * k,
@@ -241,4 +240,68 @@ static void test_bwd_centre(void) {
               "d_sphere y: %g vs %g", ds[0][1], ds[1][1]);
 }
 
-RUN_TESTS(TEST(test_fwd_block), TEST(test_bwd_block), TEST(test_bwd_centre))
+/* The loss sum_k,ch drgb rgb of the model in double (pen__lights_fwd_d), which the forward block
+ * renders to float rounding (test_fwd_block). */
+static double model_loss(const block_case *c, const double *sph, const double *x) {
+    double kap[S], sum = 0.0;
+    for (int i = 0; i < S; ++i)
+        kap[i] = (double)c->kap[i];
+    for (int k = 0; k < c->cnt; ++k) {
+        double n[3], rho[3], rgb[3] = {0, 0, 0};
+        for (int a = 0; a < 3; ++a)
+            n[a] = (double)c->nrm[3 * k + a], rho[a] = (double)c->rho[3 * k + a];
+        pen__lights_fwd_d(&c->L, c->Gp, S, sph, kap, NULL, x + 3 * k, n, rho, rgb, NULL);
+        for (int ch = 0; ch < 3; ++ch)
+            sum += (double)c->drgb[3 * k + ch] * rgb[ch];
+    }
+    return sum;
+}
+
+/* The backward block against central differences in double (step 1e-6) of the model it renders,
+ * in the spheres and the points, in the variant in use: penumbrae, full shadows and inside pairs
+ * as in the cases above. The block's gradient is float: within 1e-3 of the largest. */
+static void test_bwd_block_fd(void) {
+    double worst_fd = 0.0;
+    for (int trial = 0; trial < 60; ++trial) {
+        block_case c;
+        make_case(&c, trial);
+        const int cnt = c.cnt;
+        float V[PEN_SCENE_MAX_LIGHTS * B] = {0}, rgb[3 * B] = {0};
+        int pix[B];
+        for (int k = 0; k < B; ++k)
+            pix[k] = k < cnt ? k : 0;
+        pen__lights_fwd_block(&c.L, c.Gp, S, c.sph, c.kap, NULL, cnt, c.x, c.nrm, c.rho, NULL, rgb,
+                              V);
+        double ds[4 * S] = {0}, dl[PEN_LIGHT_GRAD_DOUBLES * PEN_SCENE_MAX_LIGHTS] = {0};
+        float dx[3 * B] = {0}, dn[3 * B] = {0}, dr[3 * B] = {0};
+        int scratch[(S + 1) * B];
+        pen__lights_bwd_block(&c.L, c.Gp, S, c.sph, c.kap, NULL, cnt, c.x, c.nrm, c.rho, c.drgb, V,
+                              pix, scratch, ds, dx, dn, dr, dl, NULL);
+        double sph[4 * S], x[3 * B];
+        for (int a = 0; a < 4 * S; ++a)
+            sph[a] = (double)c.sph[a];
+        for (int a = 0; a < 3 * cnt; ++a)
+            x[a] = (double)c.x[a];
+        double big = 1e-2;
+        for (int a = 0; a < 4 * S; ++a)
+            big = fmax(big, fabs(ds[a]));
+        const double h = 1e-6;
+        for (int a = 0; a < 4 * S + 3 * cnt; ++a) {
+            double *p = a < 4 * S ? sph + a : x + (a - 4 * S), keep = *p;
+            *p = keep + h;
+            const double up = model_loss(&c, sph, x);
+            *p = keep - h;
+            const double down = model_loss(&c, sph, x);
+            *p = keep;
+            const double fd = (up - down) / (2.0 * h);
+            const double an = a < 4 * S ? ds[a] : (double)dx[a - 4 * S];
+            worst_fd = fmax(worst_fd, fabs(fd - an) / big);
+            CHECK_MSG(fabs(fd - an) <= 1e-3 * big, "trial %d %s[%d]: lanes %.6g, fd %.6g", trial,
+                      a < 4 * S ? "d_sphere" : "d_x", a < 4 * S ? a : a - 4 * S, an, fd);
+        }
+    }
+    if (getenv("PEN_TEST_VERBOSE")) printf("  worst %.3g of the largest gradient\n", worst_fd);
+}
+
+RUN_TESTS(TEST(test_fwd_block), TEST(test_bwd_block), TEST(test_bwd_centre),
+          TEST(test_bwd_block_fd))
