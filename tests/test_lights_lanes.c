@@ -240,6 +240,74 @@ static void test_bwd_centre(void) {
               "d_sphere y: %g vs %g", ds[0][1], ds[1][1]);
 }
 
+/* Receivers just inside a sphere (|c - x| / r in [0.9, 0.93]), where the cap is continued below
+ * t0 almost to the whole sphere and its sine amplifies the float rounding of its cosine, each
+ * placed with the light's disk within 1e-4 rad of the cap's edge: the block must still give the
+ * double term's V there (the lanes leave the deepest of them to the double lens). */
+static void test_fwd_cap_end(void) {
+    pen_lighting lt;
+    memset(&lt, 0, sizeof lt);
+    lt.light_count = 1;
+    lt.lights[0].irradiance[0] = lt.lights[0].irradiance[1] = lt.lights[0].irradiance[2] = 1.0f;
+    const float sph[4] = {0.1f, -0.2f, 0.3f, 0.3f}, kap[1] = {1.0f};
+    double worst_cap = 0.0;
+    int variants = 0, checked = 0;
+    const pen__shade_fast_ops *was = pen__shade_fast_current();
+    for (int v = 0; v < pen__shade_fast_variants(); ++v) {
+        if (!pen__shade_fast_use(v)) continue;
+        ++variants;
+        for (int trial = 0; trial < 200; ++trial) {
+            double w[3];
+            rs_unit_vector(&seed, w);
+            for (int a = 0; a < 3; ++a)
+                lt.lights[0].direction[a] = (float)w[a];
+            lt.lights[0].angular_radius_deg = trial % 2 ? 0.27f : 3.0f;
+            pen__lights L;
+            pen__lights_init(&L, &lt, rs_uniform(&seed, 1.0, 6.0), 1);
+            float x[3 * B], nrm[3 * B], rho[3 * B], rgb[3 * B] = {0}, V[B];
+            for (int k = 0; k < B; ++k) {
+                /* the continued cap of sh.h at this depth, and v at its edge +- the disk */
+                const double s = rs_uniform(&seed, 0.9, 0.93), t = 1.0 - 1.0 / (s * s);
+                const double cc = 0.1 + (t - PEN_SH_CAP_T0) * 5.0;
+                const double b = (double)lt.lights[0].angular_radius_deg * (M_PI / 180.0);
+                const double th = acos(cc) + (k % 2 ? b : -b) + rs_uniform(&seed, -1e-4, 1e-4);
+                double u[3], e[3];
+                rs_unit_vector(&seed, e);
+                const double ew = e[0] * L.w[0][0] + e[1] * L.w[0][1] + e[2] * L.w[0][2];
+                double el = 0.0;
+                for (int a = 0; a < 3; ++a)
+                    e[a] -= ew * L.w[0][a], el += e[a] * e[a];
+                /* the normal just above the light's horizon, towards the centre's side: the
+                 * pair's weight is then large (h = n . v / r near 0.3) */
+                const double nl = sqrt(1.0 + 0.05 * 0.05);
+                for (int a = 0; a < 3; ++a) {
+                    u[a] = cos(th) * L.w[0][a] + sin(th) * e[a] / sqrt(el);
+                    nrm[3 * k + a] = (float)((0.05 * L.w[0][a] + e[a] / sqrt(el)) / nl);
+                    x[3 * k + a] = (float)((double)sph[a] - s * (double)sph[3] * u[a]);
+                    rho[3 * k + a] = 0.5f;
+                }
+            }
+            pen__lights_fwd_block(&L, NULL, 1, sph, kap, NULL, B, x, nrm, rho, NULL, rgb, V);
+            for (int k = 0; k < B; ++k) {
+                float want[3] = {0, 0, 0}, Vw[1];
+                pen__lights_fwd(&L, NULL, 1, sph, kap, NULL, x + 3 * k, nrm + 3 * k, rho + 3 * k,
+                                want, Vw);
+                worst_cap = fmax(worst_cap, fabs((double)V[k] - (double)Vw[0]));
+                checked += Vw[0] < 0.9999f;
+                CHECK_MSG(fabs((double)V[k] - (double)Vw[0]) <= 1e-5,
+                          "variant %d trial %d receiver %d: V %.9g vs %.9g", v, trial, k,
+                          (double)V[k], (double)Vw[0]);
+            }
+        }
+    }
+    for (int v = 0; v < pen__shade_fast_variants(); ++v)
+        if (pen__shade_fast_variant_ops(v) == was) pen__shade_fast_use(v);
+    CHECK_MSG(variants > 0 && checked > 100 * variants, "%d variants, %d shadowed receivers",
+              variants, checked);
+    if (getenv("PEN_TEST_VERBOSE"))
+        printf("  %d shadowed receivers; worst V %.3g\n", checked, worst_cap);
+}
+
 /* The loss sum_k,ch drgb rgb of the model in double (pen__lights_fwd_d), which the forward block
  * renders to float rounding (test_fwd_block). */
 static double model_loss(const block_case *c, const double *sph, const double *x) {
@@ -303,5 +371,5 @@ static void test_bwd_block_fd(void) {
     if (getenv("PEN_TEST_VERBOSE")) printf("  worst %.3g of the largest gradient\n", worst_fd);
 }
 
-RUN_TESTS(TEST(test_fwd_block), TEST(test_bwd_block), TEST(test_bwd_centre),
+RUN_TESTS(TEST(test_fwd_block), TEST(test_bwd_block), TEST(test_bwd_centre), TEST(test_fwd_cap_end),
           TEST(test_bwd_block_fd))

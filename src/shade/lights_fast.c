@@ -109,10 +109,12 @@ void CAT(pen__lights_candidates_,
 
 /* exp(-y), y >= 0, in lanes: 2^z with z = -y log2 e split into the nearest integer m and
  * r in [-1/2, 1/2], e^(r ln 2) by its Taylor series to degree 6 (relative error 1.2e-7 at
- * |r ln 2| = 0.347) and 2^m put into the exponent; z is held above -125 (then q = 1 to float). */
+ * |r ln 2| = 0.347) and 2^m put into the exponent; z is held above -125 (then q = 1 to float).
+ * The clamp is written so that a NaN y (a lane the double term takes, or padding) is held too:
+ * the float-to-integer conversion below never sees a NaN. */
 static inline float exp_neg(float y) {
     float z = -y * 1.44269504f;
-    z = z < -125.0f ? -125.0f : z;
+    z = z > -125.0f ? z : -125.0f;
     const float m = (z + 12582912.0f) - 12582912.0f; /* round to nearest, |z| < 2^22 */
     const float t = (z - m) * 0.693147181f;
     const float p =
@@ -213,8 +215,11 @@ static inline __attribute__((always_inline)) int sphere_pairs(const lanes *z, co
         const float whp = u * u * (3.0f - 2.0f * u), gp = e * e * (3.0f - 2.0f * e);
         const float wh = u < 1.0f ? whp : 1.0f, g = e < 1.0f ? gp : 1.0f;
         ex[k] = exp_neg(z->eps * wh * g * kap);
-        /* the cap, continued below t0 as sh.h continues it; a whole-sphere cap (and D ~ 0) is
-         * left to the double lens */
+        /* the cap, continued below t0 as sh.h continues it. Near the continued cap's end
+         * (cc -> -1, D/r -> 0.909) sin a = sqrt(1 - cc^2) amplifies the float rounding of cc
+         * (~1.5e-6: t's few 1e-7 times 1/(2 s0) = 5) by |cc|/sin a; from cc <= -0.9 (D/r <=
+         * 0.917, receivers just inside the sphere) that passes 3e-6 and would eat the margin,
+         * so those pairs, and a whole-sphere cap, are left to the double lens */
         const float t = 1.0f - r2 / D2[k];
         const float cc = z->s0 + (t - z->t0) * (0.5f / z->s0);
         const float s2 = (1.0f - cc) * (1.0f + cc);
@@ -222,7 +227,7 @@ static inline __attribute__((always_inline)) int sphere_pairs(const lanes *z, co
         const float ra = r / Dd[k];
         ca[k] = t >= z->t0 ? st : cc;
         sa[k] = t >= z->t0 ? ra : sc;
-        whole[k] = !(t >= z->t0) & !(cc > -1.0f + 1e-3f);
+        whole[k] = !(t >= z->t0) & !(cc > -0.9f);
     }
     for (int l = 0; l < z->K; ++l) {
         const float wx = z->w[l][0], wy = z->w[l][1], wz = z->w[l][2];
