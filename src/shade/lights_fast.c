@@ -11,17 +11,19 @@
  *   the sphere's weight w and opacity q = 1 - exp(-eps w kappa), the cap, and each light's
  *   fraction f when it is 0 (the disk clear of the cap) or 1 (wholly inside), told from float
  *   cosines with a margin (LANE_MARGIN) far above their rounding, so that f is exactly the double
- *   path's there. Only the partial overlaps (the penumbrae) take the double lens of lights.c, one
- *   pair at a time, and receivers whose disk meets their horizon take the whole double term. What
- *   differs from pen__lights_fwd is the float rounding of D, w, q and the product (a few 1e-7 of
- *   the light, below the image's own float rounding; tests/test_lights_lanes.c compares the
- *   two).
+ *   path's there. Only the partial overlaps (the penumbrae) take the double lens: a wide disk's
+ *   (PEN_LIGHTS_COS_LENS_DEG up: many penumbrae a block, and the cosine form's arithmetic) in
+ *   double lanes (wide_lens), the rest one pair at a time in lights.c; receivers whose disk meets
+ *   their horizon take the whole double term. What differs from pen__lights_fwd is the float
+ *   rounding of D, w, q and the product (a few 1e-7 of the light, below the image's own float
+ *   rounding; tests/test_lights_lanes.c compares the two).
  * - The backward block (pen__lights_bwd_block) visits the same pairs: where f is 0 or 1 it is
  *   constant, so such a pair's gradient is its weight's alone (through q to the sphere, x and
  *   n), taken in lanes in two passes (every pair's d/dw first, then the weights' chain); a
- *   partial pair adds f's own derivatives in double (pen__lights_pair_bwd) during the first; the
- *   per-light chain (rho, the light, its horizon factor, n) in lanes too. Only a receiver whose
- *   disk meets its horizon (or without the forward's V) takes pen__lights_bwd whole.
+ *   partial pair adds f's own derivatives in double (wide_pair_bwd from the double lanes, else
+ *   pen__lights_pair_bwd) during the first; the per-light chain (rho, the light, its horizon
+ *   factor, n) in lanes too. Only a receiver whose disk meets its horizon (or without the
+ *   forward's V) takes pen__lights_bwd whole.
  */
 #include "core/internal.h"
 #include "shade/shade.h"
@@ -134,6 +136,7 @@ typedef struct lanes {
     float X[3][B], N[3][B];
     float Dl[LMAX][B]; /* D = n . w where the disk is wholly above the horizon, else 0 */
     int exact[B];      /* the double term's: a disk across the horizon, a point not finite */
+    int wide[LMAX];    /* the disk's penumbrae in double lanes (wide_lens) */
     float w[LMAX][3], sb[LMAX], cb[LMAX], cb2[LMAX];
     float eps, h0, inv_span, lo, inv_width, t0, s0, cont, deep;
 } lanes;
@@ -149,6 +152,7 @@ static void lanes_init(lanes *z, const pen__lights *L, int cnt, const float *x, 
             z->w[l][a] = (float)L->w[l][a];
         z->sb[l] = (float)L->sin_b[l], z->cb[l] = (float)L->cos_b[l];
         z->cb2[l] = (float)(L->cos_b[l] * L->cos_b[l]);
+        z->wide[l] = L->b[l] >= PEN_LIGHTS_COS_LENS_DEG * (PEN_PI / 180.0);
     }
     for (int k = 0; k < B; ++k) {
         const int kk = k < cnt ? k : 0;
@@ -175,15 +179,16 @@ static void lanes_init(lanes *z, const pen__lights *L, int cnt, const float *x, 
 }
 
 /* The pairs of one sphere (centre and radius sp, overlap weight kap) with the block's lanes that
- * skip[k] leaves: on[k] where its weight is above 0, ex[k] = exp(-eps w kappa) (the pair's
- * factor where the disk is inside the cap: 1 - q), and per light cls[l][k]: 0 the disk clear of
- * the cap, 1 wholly inside, 2 partial (the double lens). Returns 0, with nothing filled, when no
+ * skip[k] leaves: on[k] where its weight is above 0, y[k] = eps w kappa, ex[k] = exp(-y) (the
+ * pair's factor where the disk is inside the cap: 1 - q), and per light cls[l][k]: 0 the disk clear
+ * of the cap, 1 wholly inside, 2 partial (the double lens). Returns 0, with nothing filled, when no
  * lane is on. First the prefilter's tests (pen__lights_candidates): most of a tile's spheres
  * shadow none of a block's receivers, and they cost only these. Both arms of every choice are
  * computed and then selected, so that the compiler keeps the loops in lanes. */
 static inline __attribute__((always_inline)) int sphere_pairs(const lanes *z, const int *skip,
                                                               const float *sp, float kap, int on[B],
-                                                              float ex[B], int cls[][B]) {
+                                                              float y[B], float ex[B],
+                                                              int cls[][B]) {
     const float r = sp[3], r2 = r * r, m = LANE_MARGIN;
     float vx[B], vy[B], vz[B], D2[B], nv[B], tol[B], m2[B], Dd[B], ca[B], sa[B];
     int whole[B], any = 0;
@@ -214,7 +219,8 @@ static inline __attribute__((always_inline)) int sphere_pairs(const lanes *z, co
         on[k] &= (u > 0.0f) & (e > 0.0f);
         const float whp = u * u * (3.0f - 2.0f * u), gp = e * e * (3.0f - 2.0f * e);
         const float wh = u < 1.0f ? whp : 1.0f, g = e < 1.0f ? gp : 1.0f;
-        ex[k] = exp_neg(z->eps * wh * g * kap);
+        y[k] = z->eps * wh * g * kap;
+        ex[k] = exp_neg(y[k]);
         /* the cap, continued below t0 as sh.h continues it. Near the continued cap's end
          * (cc -> -1, D/r -> 0.909) sin a = sqrt(1 - cc^2) amplifies the float rounding of cc
          * (~1.5e-6: t's few 1e-7 times 1/(2 s0) = 5) by |cc|/sin a; from cc <= -0.9 (D/r <=
@@ -244,6 +250,145 @@ static inline __attribute__((always_inline)) int sphere_pairs(const lanes *z, co
     return 1;
 }
 
+/* ---- The wide disks' penumbrae in double lanes ------------------------------------------------
+ */
+
+typedef long long lmask; /* a lane's flag, as wide as a double: masks of one width vectorise */
+
+/* atan(x) in lanes, to a few ulps: |x| > 1 through pi/2 - atan(1/|x|), then above tan(pi/12)
+ * through pi/6 + atan((t - 1/sqrt 3) / (1 + t/sqrt 3)), which leaves |u| <= tan(pi/12) = 0.268
+ * for the odd Taylor series to u^25 (its first term left out, 0.268^27/27, is below 1e-16 of u). */
+static inline double atan_lane(double x) {
+    const double ax = fabs(x), inv = 1.0 / ax;
+    const lmask big = ax > 1.0;
+    const double t = big ? inv : ax;
+    const lmask mid = t > 0.26794919243112270; /* tan(pi/12) */
+    const double u = mid ? (t - 0.57735026918962576) / (1.0 + t * 0.57735026918962576) : t;
+    const double u2 = u * u;
+    double p = 1.0 / 25;
+    for (int n = 23; n >= 1; n -= 2)
+        p = p * u2 + ((n / 2) % 2 ? -1.0 : 1.0) / n;
+    const double a = (mid ? 0.52359877559829887 : 0.0) + u * p;
+    const double b = big ? 1.5707963267948966 - a : a;
+    return x < 0.0 ? -b : b;
+}
+
+/* atan2(s, c) for s > 0 with one atan, as lights.c's angle_of. */
+static inline double angle_lane(double s, double c) {
+    const lmask pos = c > 0.0;
+    const double a = atan_lane(pos ? s / c : c / s);
+    return pos ? a : 1.5707963267948966 - a;
+}
+
+/* One light's partial pairs with one sphere, in double lanes, for the disks from
+ * PEN_LIGHTS_COS_LENS_DEG up, whose lens is the cosine form (lights.c, pen__cap_overlap_cos)
+ * with no angle but three arctangents: what lights.c's disk_fraction computes for the pair, in
+ * the same steps and order (the double cap test, the cap and its continuation, the 1e-9 clear
+ * and inside tests, the lens), lane by lane. f[k] is the fraction and fa, fb, fg its partials by
+ * a, b and g (disk_fraction's fd); back[k] marks the lanes this form does not take (the cap past
+ * a = pi or a centre at the receiver, a lens the cosine form declines): the caller takes those
+ * pair by pair in lights.c, as the narrow disks' penumbrae. */
+typedef struct wide_pairs {
+    double f[B], fa[B], fb[B], fg[B];
+    double d[3][B], D[B], cg[B], sg[B], da_dD[B], da_dr[B];
+    lmask back[B];
+} wide_pairs;
+
+static inline __attribute__((always_inline)) void wide_lens(const lanes *z, const pen__lights *L,
+                                                            int l, const float *sp, wide_pairs *o) {
+    const double r = (double)sp[3], r2 = r * r, t0 = PEN_SH_CAP_T0, s0 = sqrt(PEN_SH_CAP_T0);
+    const double *w = L->w[l], cb = L->cos_b[l], sb = L->sin_b[l], area = L->area[l];
+    double Xd[3][B]; /* in a loop of its own: a loop that mixes float and double stays scalar */
+    for (int a = 0; a < 3; ++a)
+        for (int k = 0; k < B; ++k)
+            Xd[a][k] = (double)z->X[a][k];
+    for (int k = 0; k < B; ++k) {
+        const double v[3] = {(double)sp[0] - Xd[0][k], (double)sp[1] - Xd[1][k],
+                             (double)sp[2] - Xd[2][k]};
+        const double D2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
+        /* cap_may_reach */
+        const double lhs = v[0] * w[0] + v[1] * w[1] + v[2] * w[2] + r * sb;
+        const lmask reach =
+            (D2 * (1.0 - t0) <= r2) | ((lhs > 0.0) & (lhs * lhs > (D2 - r2) * cb * cb));
+        /* sphere_view_cap */
+        const double D = sqrt(D2), Dd = D > 1e-6 * r ? D : 1.0;
+        const double t = 1.0 - r2 / (Dd * Dd);
+        const lmask cont = !(t >= t0);
+        const double cc = s0 + (t - t0) * (0.5 / s0);
+        /* x > 0 ? x : 0, not fmax: fmax's NaN rule keeps the loop out of the vector lanes */
+        const double s2 = (1.0 - cc) * (1.0 + cc), sc = sqrt(s2 > 0.0 ? s2 : 0.0);
+        const double st = sqrt(t > 0.0 ? t : 0.0);
+        const double ca = cont ? cc : st, sa = cont ? sc : r / Dd;
+        const double da_dt = -(0.5 / s0) / sc;
+        o->da_dD[k] = cont ? da_dt * 2.0 * r2 / (Dd * Dd * Dd) : -(r / (Dd * Dd)) / st;
+        o->da_dr[k] = cont ? da_dt * -2.0 * r / (Dd * Dd) : (1.0 / Dd) / st;
+        lmask back = reach & ((!(D > 1e-6 * r)) | (cont & (cc <= -1.0)));
+        o->D[k] = Dd;
+        double d[3];
+        for (int a = 0; a < 3; ++a)
+            o->d[a][k] = d[a] = v[a] / Dd;
+        const double cg = d[0] * w[0] + d[1] * w[1] + d[2] * w[2];
+        o->cg[k] = cg;
+        const lmask clear =
+            (!reach) | ((sa * cb + ca * sb > 0.0) & (cg < ca * cb - sa * sb - 1e-9));
+        const lmask inside = (sa * cb - ca * sb > 0.0) & (cg > ca * cb + sa * sb + 1e-9);
+        const double cx = d[1] * w[2] - d[2] * w[1], cy = d[2] * w[0] - d[0] * w[2],
+                     cz = d[0] * w[1] - d[1] * w[0];
+        const double sg = sqrt(cx * cx + cy * cy + cz * cz);
+        o->sg[k] = sg;
+        /* pen__cap_overlap_cos at (cg, sg) h, h the Newton step to unit length */
+        const double h = 1.5 - 0.5 * (cg * cg + sg * sg), cgh = cg * h, sgh = sg * h;
+        const double oa = ca > 0.0 ? sa * sa / (1.0 + ca) : 1.0 - ca;
+        const double ob = cb > 0.0 ? sb * sb / (1.0 + cb) : 1.0 - cb;
+        const double og = cgh > 0.0 ? sgh * sgh / (1.0 + cgh) : 1.0 - cgh;
+        const double Ya = oa + ca * og - ob, Yb = ob + cb * og - oa, Yc = oa + ca * ob - og;
+        const double Xa = sa * sgh, Xb = sb * sgh, Xc = sa * sb;
+        double X = Xa, Y = fabs(Ya);
+        const lmask ub = fabs(Yb) * X < Y * Xb;
+        X = ub ? Xb : X, Y = ub ? fabs(Yb) : Y;
+        const lmask uc = fabs(Yc) * X < Y * Xc;
+        X = uc ? Xc : X, Y = uc ? fabs(Yc) : Y;
+        const double Delta = (X - Y) * (X + Y), q = sqrt(Delta > 0.0 ? Delta : 0.0);
+        const double pa = angle_lane(q, Ya), pb = angle_lane(q, Yb);
+        const double E = 2.0 * angle_lane(q, 1.0 + ca + cb + cgh);
+        const double A = 2.0 * (pa * oa + pb * ob) - 2.0 * E, f = A / area;
+        back |= !clear & !inside & (!(ca + cb > 0.0) | !(sgh > 0.0) | !(Delta > 0.0));
+        const lmask part = !clear & !inside;
+        o->f[k] = clear ? 0.0 : inside ? 1.0 : f;
+        o->fa[k] = part ? 2.0 * pa * sa / area : 0.0;
+        o->fb[k] = part ? (2.0 * pb * sb - f * 2.0 * PEN_PI * sb) / area : 0.0;
+        o->fg[k] = part ? -2.0 * q / sgh / area : 0.0;
+        o->back[k] = back;
+    }
+}
+
+/* The backward of lane k's partial pair of light l from wide_lens, as lights.c's
+ * pen__lights_pair_bwd (the same chain: d_g = dV V / (1 - q f), d_f = -q d_g through f's
+ * partials by g, a and b), q = 1 - exp(-eps w kappa) in double from the lanes' exponent: into
+ * dq (d/dq), the lane's d_x (dxl), the sphere's d_s (4 doubles) and the light's d_l. */
+static void wide_pair_bwd(const pen__lights *L, int l, const wide_pairs *o, int k, double q,
+                          double dVV, float *dq, float dxl[3][B], double *d_s, double *d_l) {
+    /* clear after all: nothing, as there (its cap may not even be computed) */
+    if (o->f[k] == 0.0 && o->fa[k] == 0.0 && o->fb[k] == 0.0 && o->fg[k] == 0.0) return;
+    const double f = o->f[k], d_g = dVV / (1.0 - q * f), d_f = -q * d_g, d_a = d_f * o->fa[k];
+    const double *w = L->w[l], cg = o->cg[k];
+    double dv[3] = {0.0, 0.0, 0.0};
+    if (d_l) d_l[3] += d_f * o->fb[k];
+    if (o->sg[k] > 1e-12) {
+        const double dg = d_f * o->fg[k] / o->sg[k];
+        for (int a = 0; a < 3; ++a) {
+            dv[a] -= dg * (w[a] - cg * o->d[a][k]) / o->D[k];
+            if (d_l) d_l[a] -= dg * (o->d[a][k] - cg * w[a]);
+        }
+    }
+    for (int a = 0; a < 3; ++a) {
+        dv[a] += d_a * o->da_dD[k] * o->d[a][k];
+        dxl[a][k] -= (float)dv[a];
+    }
+    *dq -= (float)(f * d_g);
+    if (d_s) d_s[0] += dv[0], d_s[1] += dv[1], d_s[2] += dv[2], d_s[3] += d_a * o->da_dr[k];
+}
+
 /* The forward light term of cnt <= PEN_LIGHTS_BLOCK receivers at x + 3 at[k] (nrm, rho, rgb
  * likewise), over the n spheres idx (NULL: 0 .. n - 1), into rgb and V_out + count at[k] (V_out
  * may be NULL); see the design notes above. */
@@ -263,8 +408,8 @@ void CAT(pen__lights_fwd_block_, PEN_FAST_ISA)(const pen__lights *L, const doubl
         const int i = idx ? idx[j] : j;
         const float *sp = spheres + 4 * (size_t)i;
         int on[B], cls[LMAX][B];
-        float ex[B];
-        if (!sphere_pairs(&z, z.exact, sp, kappa ? kappa[i] : 1.0f, on, ex, cls)) continue;
+        float y[B], ex[B];
+        if (!sphere_pairs(&z, z.exact, sp, kappa ? kappa[i] : 1.0f, on, y, ex, cls)) continue;
         for (int l = 0; l < K; ++l) {
             int any_part = 0;
             for (int k = 0; k < B; ++k) {
@@ -273,11 +418,17 @@ void CAT(pen__lights_fwd_block_, PEN_FAST_ISA)(const pen__lights *L, const doubl
                 V[l][k] *= on[k] & (cls[l][k] == 1) ? ex[k] : 1.0f;
                 any_part |= on[k] & (cls[l][k] == 2);
             }
-            for (int k = 0; any_part && k < cnt; ++k)
+            if (!any_part) continue;
+            wide_pairs wp;
+            const int wide = z.wide[l];
+            if (wide) wide_lens(&z, L, l, sp, &wp);
+            for (int k = 0; k < cnt; ++k)
                 if (on[k] & (cls[l][k] == 2)) {
                     const float xk[3] = {z.X[0][k], z.X[1][k], z.X[2][k]};
                     const double q = 1.0 - (double)ex[k];
-                    V[l][k] *= (float)(1.0 - q * pen__lights_fraction(L, l, xk, sp));
+                    const double f =
+                        wide && !wp.back[k] ? wp.f[k] : pen__lights_fraction(L, l, xk, sp);
+                    V[l][k] *= (float)(1.0 - q * f);
                 }
         }
     }
@@ -361,12 +512,12 @@ void CAT(pen__lights_bwd_block_,
          * sends its receiver to the double term. */
         const int i = idx ? idx[j] : j;
         const float kap = kappa ? kappa[i] : 1.0f;
-        float *dwj = dw + (size_t)j * B, ex[B], dq[B];
+        float *dwj = dw + (size_t)j * B, y[B], ex[B], dq[B];
         int on[B], cls[LMAX][B];
         for (int k = 0; k < B; ++k)
             dwj[k] = 0.0f;
         const float *sp = spheres + 4 * (size_t)i;
-        if (!sphere_pairs(&z, skip, sp, kap, on, ex, cls)) continue;
+        if (!sphere_pairs(&z, skip, sp, kap, on, y, ex, cls)) continue;
         for (int k = 0; k < B; ++k)
             dq[k] = 0.0f;
         for (int l = 0; l < K; ++l) {
@@ -379,10 +530,21 @@ void CAT(pen__lights_bwd_block_,
                 dq[k] -= use & (cls[l][k] == 1) ? dqi : 0.0f;
                 any_part |= use & (cls[l][k] == 2);
             }
-            /* partial: f's own derivatives in double, pair by pair, into the sphere, the point
-             * and the light at once (this receiver is in the lanes for good) */
-            for (int k = 0; any_part && k < cnt; ++k) {
+            /* partial: f's own derivatives in double, into the sphere, the point and the light
+             * at once (this receiver is in the lanes for good); a wide disk's from the double
+             * lanes, the rest pair by pair */
+            if (!any_part) continue;
+            wide_pairs wp;
+            const int wide = z.wide[l];
+            if (wide) wide_lens(&z, L, l, sp, &wp);
+            for (int k = 0; k < cnt; ++k) {
                 if (!(on[k] & (VdV[l][k] != 0.0f) & (cls[l][k] == 2))) continue;
+                if (wide && !wp.back[k]) {
+                    wide_pair_bwd(L, l, &wp, k, -expm1(-(double)y[k]), (double)VdV[l][k], &dq[k],
+                                  dxl, d_spheres ? d_spheres + 4 * (size_t)i : NULL,
+                                  d_lights ? d_lights + PEN_LIGHT_GRAD_DOUBLES * l : NULL);
+                    continue;
+                }
                 const float xk[3] = {z.X[0][k], z.X[1][k], z.X[2][k]};
                 double dv[3] = {0.0, 0.0, 0.0}, d_r = 0.0;
                 const float nk[3] = {z.N[0][k], z.N[1][k], z.N[2][k]};
