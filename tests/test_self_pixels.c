@@ -8,6 +8,8 @@
  * - The backward reads the fractions the forward traced: the disk light's irradiance gradient on
  *   the pixels around the shadow against central differences summed in double (the image is
  *   linear in it).
+ * - The traces are kept while nothing they depend on changes (no pass over the pixels then),
+ *   and traced again when something does; a kept state renders as a fresh one, bit for bit.
  * - 1 and 2 threads render bitwise the same. */
 #include "check.h"
 #include "render_scenes.h"
@@ -215,6 +217,92 @@ static void test_backward_reads_them(void) {
     pen_scene_free(&sc);
 }
 
+#define SENTINEL (-2.0f)
+
+/* The per-pixel traces' caches (self_pfrac, and the ground's grid.pfrac under the plate) are
+ * decided from what the frame is made of, not from its pixels: a frame that changes nothing the
+ * traces depend on (the SH lighting, albedos, a light's irradiance) renders without the per-pixel
+ * pass; each input they depend on (the camera, the size, the pose, a vertex, a light's direction
+ * or radius, the ground, the grid) traces them again. Every frame of the kept state equals a fresh
+ * state's bit for bit. Whether the pass ran shows in an entry no pixel reads (a ground pixel's in
+ * self_pfrac, an object pixel's in the grid's): the pass rewrites every entry, a hit none. */
+static void test_cache_hit_and_misses(void) {
+    pen_scene sc = rod_plate_scene(64);
+    sc.ground.enabled = 1, sc.ground.height = -0.25f; /* under the plate: its shadow falls there */
+    pen_context *ctx = pen_context_create();
+    const pen_render_options opt = pen_render_options_default();
+    pen_image first;
+    pen_render_state *st = rs_render_kept(ctx, &sc, &opt, &first);
+    CHECK(st->self_pvalid && st->grid.on && st->grid.pvalid && st->lights.count == 1);
+    /* Each change on top of the ones before, and whether the object's pixels (self) and the
+     * ground's (grid) must be traced again; a float moved by `add` or an int by `iadd`. */
+    pen_object *ob = &sc.objects[0];
+    pen_light *L = &sc.lighting.lights[0];
+    const struct {
+        const char *what;
+        float *p;
+        float add;
+        int *ip, iadd, self, grid;
+    } changes[] = {
+        {"nothing", NULL, 0.0f, NULL, 0, 0, 0},
+        {"SH lighting", &sc.lighting.sh[2][1], 0.2f, NULL, 0, 0, 0},
+        {"albedo", &ob->albedo[0], -0.3f, NULL, 0, 0, 0},
+        {"ground albedo", &sc.ground.albedo[2], 0.3f, NULL, 0, 0, 0},
+        {"irradiance", &L->irradiance[1], 1.0f, NULL, 0, 0, 0},
+        {"eye", &sc.camera.eye[0], 0.05f, NULL, 0, 1, 1},
+        {"target", &sc.camera.target[2], 0.04f, NULL, 0, 1, 1},
+        {"fov", &sc.camera.fov_y_deg, 1.5f, NULL, 0, 1, 1},
+        {"width", NULL, 0.0f, &sc.camera.width, 8, 1, 1}, /* (grown: the sentinels stay inside) */
+        {"height", NULL, 0.0f, &sc.camera.height, 8, 1, 1},
+        {"translation", &ob->pose.translation[0], 0.02f, NULL, 0, 1, 1},
+        {"rotation", &ob->pose.rotation_axis_angle_deg[1], 2.0f, NULL, 0, 1, 1},
+        {"a rod corner in place", &ob->mesh.positions[3 * 4 + 1], 0.01f, NULL, 0, 1, 1},
+        {"light direction", &L->direction[2], 0.05f, NULL, 0, 1, 1},
+        {"light radius", &L->angular_radius_deg, 0.3f, NULL, 0, 1, 1},
+        {"ground height", &sc.ground.height, -0.05f, NULL, 0, 1, 1},
+        {"ground size", &sc.ground.half_size, -0.5f, NULL, 0, 1, 1},
+        {"ground grid", NULL, 0.0f, &sc.shadow.ground_grid, 48, 0, 1},
+    };
+    for (int c = 0; c < (int)(sizeof changes / sizeof changes[0]); ++c) {
+        /* the first ground pixel and the first object pixel of the frame before */
+        size_t ig = 0, io = 0;
+        const size_t np = (size_t)st->width * (size_t)st->height;
+        while (ig < np && st->gb.surface[ig] != PEN_SURFACE_GROUND)
+            ++ig;
+        while (io < np && st->gb.surface[io] != 0)
+            ++io;
+        CHECK(ig < np && io < np && st->self_pfrac.data[ig] == -1.0f &&
+              st->grid.pfrac.data[io] == -1.0f);
+        st->self_pfrac.data[ig] = SENTINEL, st->grid.pfrac.data[io] = SENTINEL;
+        if (changes[c].p) *changes[c].p += changes[c].add;
+        if (changes[c].ip) *changes[c].ip += changes[c].iadd;
+        pen_image a = {0, 0, 0, NULL}, b;
+        CHECK(pen_render_fwd(ctx, &sc, &opt, st, &a) == PEN_OK);
+        pen_render_state *fresh = rs_render_kept(ctx, &sc, &opt, &b);
+        const size_t bytes = sizeof(float) * 3 * (size_t)a.width * (size_t)a.height;
+        CHECK_MSG(a.data && b.data && a.width == b.width && !memcmp(a.data, b.data, bytes),
+                  "%s: the kept state's render differs from a fresh state's", changes[c].what);
+        if (c == 0)
+            CHECK_MSG(a.width == first.width && !memcmp(a.data, first.data, bytes),
+                      "the second render differs from the first");
+        CHECK_MSG((st->self_pfrac.data[ig] != SENTINEL) == changes[c].self,
+                  "%s: the object's pixels %s", changes[c].what,
+                  changes[c].self ? "not traced again" : "traced again");
+        CHECK_MSG((st->grid.pfrac.data[io] != SENTINEL) == changes[c].grid,
+                  "%s: the ground's pixels %s", changes[c].what,
+                  changes[c].grid ? "not traced again" : "traced again");
+        CHECK(st->self_pvalid && st->grid.pvalid);
+        if (st->self_pfrac.data[ig] == SENTINEL) st->self_pfrac.data[ig] = -1.0f;
+        if (st->grid.pfrac.data[io] == SENTINEL) st->grid.pfrac.data[io] = -1.0f;
+        pen_image_free(&a), pen_image_free(&b);
+        pen_render_state_free(fresh);
+    }
+    pen_image_free(&first);
+    pen_render_state_free(st);
+    pen_context_destroy(ctx);
+    pen_scene_free(&sc);
+}
+
 /* One kept state through frames that change what the traced fractions depend on (the camera, the
  * size, a frame without transfer pixels and back): each render equals a fresh state's bit for
  * bit, so the cache is never read where it no longer holds. */
@@ -244,8 +332,12 @@ static void test_cache_follows_the_frame(void) {
         CHECK_MSG(a.data && b.data &&
                       !memcmp(a.data, b.data, sizeof(float) * 3 * (size_t)a.width * a.height),
                   "frame %d: the kept state's render differs from a fresh state's", f);
-        CHECK_MSG(kept->self_pvalid == !frames[f].away, "frame %d: traced fractions %s", f,
-                  kept->self_pvalid ? "kept without transfer pixels" : "missing");
+        /* (without transfer pixels the fractions are valid too, all the nodes': none traced) */
+        int traced = 0;
+        for (size_t i = 0; i < (size_t)a.width * a.height; ++i)
+            traced += kept->self_pfrac.data[i] >= 0.0f;
+        CHECK_MSG(kept->self_pvalid && (traced > 0) == !frames[f].away,
+                  "frame %d: %d pixels traced, valid %d", f, traced, kept->self_pvalid);
         pen_image_free(&a), pen_image_free(&b);
         pen_render_state_free(fresh);
     }
@@ -270,6 +362,7 @@ int main(void) {
         {"test_rod_on_plate", test_rod_on_plate},
         {"test_backward_reads_them", test_backward_reads_them},
         {"test_cache_follows_the_frame", test_cache_follows_the_frame},
+        {"test_cache_hit_and_misses", test_cache_hit_and_misses},
         {"test_threads", test_threads},
     };
     return check_run_(tests, (int)(sizeof tests / sizeof tests[0]));

@@ -258,16 +258,21 @@ static void dilate(const pen_render_state *st, const unsigned char *flag, unsign
 
 /* The disk lights' fractions per pixel (gr->pfrac) where the grid cannot be trusted: one ray
  * per ground pixel towards each light's centre, then the full disk sampling of the transfer at
- * the flagged pixels and their neighbours. Keyed by the grid's key and the ground pixels'
- * points (the camera), so an optimisation of lighting or albedo pays it once. */
+ * the flagged pixels and their neighbours. Keyed by the grid's key and the frame's pixels_key
+ * (self.c: the view and the geometry, which make the ground pixels and their points), so an
+ * optimisation of lighting or albedo pays it once and its later frames do not visit the pixels
+ * here at all. A frame without ground pixels keeps its all -1 fractions as valid too. */
 static pen_status pixel_trace(pen_context *ctx, const pen_scene *sc, pen_render_state *st) {
     pen__ground_grid *gr = &st->grid;
     const int K = st->lights.count;
     const size_t np = (size_t)st->gb.width * (size_t)st->gb.height;
+    if (!K) return PEN_OK;
+    const uint64_t key = (gr->key ^ st->pixels_key) * 0x9E3779B97F4A7C15ull;
+    if (gr->pvalid && gr->pkey == key) return PEN_OK;
+    gr->pvalid = 0;
     size_t m = 0;
     for (size_t i = 0; i < np; ++i)
         m += st->gb.surface[i] == PEN_SURFACE_GROUND;
-    if (!K || !m) return PEN_OK;
     float *pts = pen__malloc(ctx, 6 * m + 1, sizeof(float), "ground pixels");
     float *c = pen__malloc(ctx, (size_t)K * m + 1, sizeof(float), "ground pixel rays");
     int *pix = pen__malloc(ctx, m + 1, sizeof(int), "ground pixel list");
@@ -282,15 +287,10 @@ static pen_status pixel_trace(pen_context *ctx, const pen_scene *sc, pen_render_
         nrm[3 * q] = 0.0f, nrm[3 * q + 1] = 1.0f, nrm[3 * q + 2] = 0.0f;
         pix[q++] = (int)i;
     }
-    const uint64_t key =
-        s ? 0
-          : (gr->key ^ pen__render_hash32(pts, 3 * m) ^ ((uint64_t)np << 40)) *
-                0x9E3779B97F4A7C15ull;
-    if (!s && !(gr->pvalid && gr->pkey == key)) {
-        gr->pvalid = 0;
+    if (!s) {
         pen__transfer_request rq = request(sc, st, meshes, (int)m, pts, nrm);
         if (!(s = PEN__BUF_RESERVE(ctx, gr->pfrac, (size_t)K * np + 1, "ground pixel lights")) &&
-            !(s = pen__transfer_lights(ctx, gr->blob->bvh, &rq, 1, c))) {
+            !(s = m ? pen__transfer_lights(ctx, gr->blob->bvh, &rq, 1, c) : PEN_OK)) {
             pixel_flags(st, m, pix, pts, c, flag);
             dilate(st, flag, flag + np);
             size_t f = 0; /* the flagged pixels, compacted in place */

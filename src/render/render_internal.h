@@ -127,8 +127,8 @@ typedef struct pen__ground_grid {
     int valid;
     uint64_t key;
     /* The disk lights' fractions per pixel where the grid cannot be trusted (one per light per
-     * pixel, negative: the grid's), for this camera: keyed by the grid's key and the ground
-     * pixels' points. */
+     * pixel, negative: the grid's), for this camera: keyed by the grid's key and the frame's
+     * pixels_key (the view and the geometry that make the ground pixels' points). */
     pen__buf_float pfrac;
     int pvalid;
     uint64_t pkey;
@@ -197,9 +197,14 @@ struct pen_render_state {
     int self_any;             /* some object shades with its transfer this frame (self.c) */
     pen__buf_float kappa_self; /* per object (sphere_count each): kappa, 0 on its own spheres */
     pen__ground_grid grid;     /* the ground's shadows of those objects (ground_shadow.c) */
+    /* What every pixel's surface, point and normal depend on, and the disk lights' directions
+     * and radii: the view, the posed meshes, the ground (self.c, pixels_key; made by
+     * pen__self_prepare). The per-pixel traces' keys start from it, so that a frame finds them
+     * valid without a pass over its pixels. */
+    uint64_t pixels_key;
     /* The transfer pixels' own disk fractions (K per pixel, -1: the nodes' interpolation),
      * traced where the nodes cannot be trusted (self.c, pixel_trace); kept between frames while
-     * self_pkey (the objects' transfer keys and their pixels' points) holds, so the backward
+     * self_pkey (pixels_key, which holds the objects' transfer keys) holds, so the backward
      * reads the forward's values and a lighting or albedo optimisation traces them once. */
     pen__buf_float self_pfrac;
     int self_pvalid;

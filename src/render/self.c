@@ -183,6 +183,7 @@ static pen_status self_cache(pen_context *ctx, const pen_scene *sc, pen_render_s
     return PEN_OK;
 }
 
+static uint64_t pixels_key(const pen_scene *sc, const pen_render_state *st);
 static pen_status pixel_trace(pen_context *ctx, const pen_scene *sc, pen_render_state *st);
 
 pen_status pen__self_prepare(pen_context *ctx, const pen_scene *sc, const pen_render_options *opt,
@@ -210,7 +211,9 @@ pen_status pen__self_prepare(pen_context *ctx, const pen_scene *sc, const pen_re
         s = self_cache(ctx, sc, st, o, &device);
     }
     pen__transfer_device_free(device);
-    return s ? s : pixel_trace(ctx, sc, st);
+    if (s) return s;
+    st->pixels_key = pixels_key(sc, st);
+    return pixel_trace(ctx, sc, st);
 }
 
 /* The blocked part (B, may be NULL) and the light fractions at pixel i of object o, interpolated
@@ -340,16 +343,63 @@ static int finer(const pen_scene *sc, const pen_render_state *st, const int *obj
     return 2.0 * foot <= edge / st->obj[o].self_lat.level;
 }
 
+/* The key of both per-pixel traces (this file's and ground_shadow.c's): everything the traced
+ * fractions depend on but the nodes' traces, whose keys the callers add. It is made from the
+ * frame's inputs, not from its pixels, so that a hit costs no pass over the image (listing the
+ * transfer pixels and hashing their points took a serial pass of every frame). What the
+ * fractions read per pixel is the G-buffer (surface, triangle, barycentrics, depth) and the points
+ * and normals interpolated from it; pen_raster_gbuffer makes it from the view, the meshes in
+ * world space and the ground square alone (whatever the thread count), and the points and normals
+ * follow from the same (forward.c, interpolate_attributes: the normals from the posed vertices).
+ * So: the whole view (the size, the camera's frame, focal lengths, principal point, near plane),
+ * each object's posed vertices and indices (its transfer key where it has one, which hashes them,
+ * or a hash of them: it still hides what lies behind it), which objects shade with their transfer,
+ * the ground's square, whether it occludes, and the disk lights' directions and radii, which the
+ * rays aim at. */
+static uint64_t pixels_key(const pen_scene *sc, const pen_render_state *st) {
+    const pen_view *v = &st->view;
+    const double view[19] = {v->width,    v->height,     v->eye[0],     v->eye[1],     v->eye[2],
+                             v->right[0], v->right[1],   v->right[2],   v->up[0],      v->up[1],
+                             v->up[2],    v->forward[0], v->forward[1], v->forward[2], v->focal[0],
+                             v->focal[1], v->cx,         v->cy,         v->near_plane};
+    uint64_t h = pen__render_hash32(view, sizeof view / 4) * 0x9E3779B97F4A7C15ull;
+    h = (h ^ (uint64_t)sc->object_count) * 0x9E3779B97F4A7C15ull;
+    for (int o = 0; o < sc->object_count; ++o) {
+        const pen__object_buf *b = &st->obj[o];
+        const pen_mesh *m = &sc->objects[o].mesh;
+        uint64_t g = b->self_key;
+        if (!b->self_on)
+            g = pen__render_hash32(b->world.data, 3 * (size_t)m->vertex_count) ^
+                pen__render_hash32(m->indices, 3 * (size_t)m->triangle_count) * 31u;
+        h = (h ^ (uint64_t)b->self_on) * 0x9E3779B97F4A7C15ull;
+        h = (h ^ g) * 0x9E3779B97F4A7C15ull;
+    }
+    const float ground[4] = {(float)sc->ground.enabled, (float)st->ground_occludes,
+                             sc->ground.height, sc->ground.half_size};
+    h = (h ^ pen__render_hash32(ground, 4)) * 0x9E3779B97F4A7C15ull;
+    const pen__lights *L = &st->lights;
+    h = (h ^ (uint64_t)L->count) * 0x9E3779B97F4A7C15ull;
+    for (int l = 0; l < L->count; ++l) {
+        const double wb[4] = {L->w[l][0], L->w[l][1], L->w[l][2], L->b[l]};
+        h = (h ^ pen__render_hash32(wb, sizeof wb / 4)) * 0x9E3779B97F4A7C15ull;
+    }
+    return h;
+}
+
 /* The disk lights' fractions per pixel (self_pfrac) where the nodes cannot be trusted, as the
  * ground's (ground_shadow.c, pixel_trace): per object, one ray per transfer pixel towards each
  * light's centre against its own mesh (and the ground when it occludes), then the transfer's disk
  * sampling at the pixels whose nodes disagree or whose ray disagrees with them, and around those.
- * Keyed by the objects' keys and their pixels' points (the camera): a lighting or albedo
- * optimisation pays it once. */
+ * Keyed by pixels_key (the objects' transfer keys among what it holds): a lighting or albedo
+ * optimisation pays it once, and its later frames do not visit the pixels here at all. A frame
+ * without transfer pixels keeps its all -1 fractions as valid too. */
 static pen_status pixel_trace(pen_context *ctx, const pen_scene *sc, pen_render_state *st) {
     const int K = st->lights.count, O = sc->object_count, W = st->width, H = st->height;
     const size_t np = (size_t)W * (size_t)H;
     if (!K) return PEN_OK;
+    const uint64_t key = st->pixels_key;
+    if (st->self_pvalid && st->self_pkey == key) return PEN_OK;
+    st->self_pvalid = 0;
     int *obj = pen__malloc(ctx, np + 1, sizeof(int), "transfer pixel objects");
     size_t *first = pen__calloc(ctx, (size_t)O + 2, sizeof(size_t), "transfer pixel counts");
     float *nall = pen__malloc(ctx, 3 * np + 1, sizeof(float), "transfer pixel normals");
@@ -357,24 +407,11 @@ static pen_status pixel_trace(pen_context *ctx, const pen_scene *sc, pen_render_
         free(obj), free(first), free(nall);
         return PEN_ERROR_MEMORY;
     }
-    uint64_t key = ((uint64_t)np << 40) * 0x9E3779B97F4A7C15ull;
     size_t m = 0;
     for (size_t i = 0; i < np; ++i) {
         obj[i] = pixel_object(sc, st, i, nall + 3 * i);
-        if (obj[i] < 0) continue;
-        ++first[obj[i] + 1], ++m;
-        key =
-            (key ^ pen__render_hash32(st->x.data + 3 * i, 3) ^ (uint64_t)i) * 0x9E3779B97F4A7C15ull;
-        key = (key ^ st->obj[obj[i]].self_key) * 0x9E3779B97F4A7C15ull;
+        if (obj[i] >= 0) ++first[obj[i] + 1], ++m;
     }
-    if (!m || (st->self_pvalid && st->self_pkey == key)) {
-        /* (no transfer pixel: an older frame's fractions, perhaps of fewer pixels, must not be
-         * read by a pixel that pen__self_object takes for one after all) */
-        if (!m) st->self_pvalid = 0;
-        free(obj), free(first), free(nall);
-        return PEN_OK;
-    }
-    st->self_pvalid = 0;
     for (int o = 0; o < O; ++o)
         first[o + 1] += first[o];
     float *pts = pen__malloc(ctx, 6 * m + 1, sizeof(float), "transfer pixels");
