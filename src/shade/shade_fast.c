@@ -236,14 +236,28 @@ static inline void scatter3(const vf v[3], int first, int count, float *dst, int
 
 /* ---- Frame constants ---------------------------------------------------------------------------- */
 
+/* One sphere of a call with the scalars its pairs share, formed once per call (the same float
+ * operations the sphere loop did per pair, so the results are the same bits). */
+typedef struct sphere_k {
+    float c[3], r;
+    float inv_r; /* 1 / r */
+    float kappa; /* scale of the log-visibility (1 without overlap weights) */
+    float nrr;   /* -r^2 */
+    float dmin2; /* (1e-6 r)^2: the floor of |c - x|^2 */
+    float rr2;   /* 2 r^2 */
+    float m2r;   /* -2 r */
+    int s;       /* index in the call's spheres */
+    int pad_;
+} sphere_k;
+
 /* What every batch of a call shares, in float. */
 typedef struct frame {
     int S;              /* spheres */
-    const float *sph;   /* 4 per sphere (world space) */
-    const float *inv_r; /* 1 / r per sphere */
-    const float *kappa; /* per-sphere scale of the log-visibility, or NULL */
+    int ns;             /* spheres that can contribute: those with kappa != 0 */
+    const sphere_k *sk; /* those spheres, in the call's order */
     int shadows;
     int squarings;                   /* fixed k (CALIBRATED), or -1: per lane (PAPER) */
+    float kscale;                    /* 2^-k for a fixed k (a libm call, once per call) */
     vf ce_v[PEN_SH_MAX_BANDS];       /* -eps 2 pi / (2l + 1), broadcast */
     float eps2pi;                    /* eps 2 pi */
     float win[PEN_SH_MAX_COEFFS];    /* window per coefficient */
@@ -254,12 +268,11 @@ typedef struct frame {
 } frame;
 
 static void frame_init(frame *fr, const pen__shade_params *p, const float (*sh)[3], int S,
-                       const float *spheres, const float *inv_r, const float *kappa) {
+                       const sphere_k *sk, int ns) {
     memset(fr, 0, sizeof *fr);
     fr->S = p->shadows ? S : 0;
-    fr->sph = spheres;
-    fr->inv_r = inv_r;
-    fr->kappa = kappa;
+    fr->sk = sk;
+    fr->ns = p->shadows ? ns : 0;
     fr->shadows = p->shadows;
     const double eps = p->epsilon;
     for (int l = 0; l < p->bands; ++l) {
@@ -274,6 +287,7 @@ static void frame_init(frame *fr, const pen__shade_params *p, const float (*sh)[
         fr->a1 = 0.1f, fr->a2 = 0.0f, fr->b1 = -0.2f, fr->b2 = 0.0f;
     } else {
         fr->squarings = m->squarings;
+        fr->kscale = ldexpf(1.0f, -m->squarings);
         fr->a1 = (float)m->a1, fr->a2 = (float)m->a2, fr->b1 = (float)m->b1, fr->b2 = (float)m->b2;
     }
     for (int l = 0; l < p->bands; ++l)
@@ -316,31 +330,50 @@ static size_t store_floats(const pen__shade_params *p, int count) {
     return nb * LANES * (size_t)p->bands * (size_t)p->bands;
 }
 
-/* Scratch: 1/r per sphere, then (aligned) the lane arrays: forward F and V of every batch;
- * backward the lane accumulators of d_sh (two sets: see bwd_FB) and d_spheres. */
+/* Scratch: the call's sphere list (sphere_k), then (aligned) the lane arrays: forward F and V of
+ * every batch; backward the lane accumulators of d_sh (two sets: see bwd_FB) and d_spheres. */
 static size_t scratch_bytes(const pen__shade_params *p, int sphere_count, int max_count) {
     const size_t nc = (size_t)p->bands * (size_t)p->bands;
     const size_t nb = ((size_t)max_count + LANES - 1) / LANES;
     size_t fwd = 2 * nb * nc, bwd = 6 * nc + 4 * (size_t)sphere_count;
-    return sizeof(float) * ((size_t)sphere_count + 1) + sizeof(vf) * (fwd > bwd ? fwd : bwd) +
+    return sizeof(sphere_k) * ((size_t)sphere_count + 1) + sizeof(vf) * (fwd > bwd ? fwd : bwd) +
            2 * sizeof(vf);
 }
 
 static unsigned char *scratch_lanes(void *scratch, int S) {
-    uintptr_t a = (uintptr_t)((float *)scratch + S + 1);
+    uintptr_t a = (uintptr_t)((sphere_k *)scratch + S + 1);
     a = (a + sizeof(vf) - 1) & ~(uintptr_t)(sizeof(vf) - 1);
     return (unsigned char *)a;
 }
 
-/* The call's frame constants (1/r per sphere into the scratch); returns the lane scratch. */
+/* The call's frame constants and sphere list (into the scratch); returns the lane scratch.
+ * A sphere with kappa = 0 is left out of the list: its every pair adds w 0 f = +-0 to F, and in
+ * the backward its every gradient term carries the factor kappa (w kappa, dw kappa), so it adds
+ * +-0 to accumulators that start at +0 and never become -0: leaving it out changes no bit (for
+ * finite inputs, which the renderer validates). */
 static unsigned char *frame_setup(frame *fr, const pen__shade_params *p, const float (*sh)[3],
                                   int sphere_count, const float *spheres, const float *kappa,
                                   void *scratch) {
     const int S = p->shadows ? sphere_count : 0;
-    float *inv_r = scratch;
-    for (int s = 0; s < S; ++s)
-        inv_r[s] = 1.0f / spheres[4 * (size_t)s + 3];
-    frame_init(fr, p, sh, S, spheres, inv_r, kappa);
+    sphere_k *sk = scratch;
+    int ns = 0;
+    for (int s = 0; s < S; ++s) {
+        const float *sp = spheres + 4 * (size_t)s;
+        const float kap = kappa ? kappa[s] : 1.0f;
+        if (kap == 0.0f) continue;
+        const float r = sp[3];
+        sphere_k *k = &sk[ns++];
+        k->c[0] = sp[0], k->c[1] = sp[1], k->c[2] = sp[2], k->r = r;
+        k->inv_r = 1.0f / r;
+        k->kappa = kap;
+        k->nrr = -r * r;
+        k->dmin2 = (1e-6f * r) * (1e-6f * r);
+        k->rr2 = 2.0f * r * r;
+        k->m2r = -2.0f * r;
+        k->s = s;
+        k->pad_ = 0;
+    }
+    frame_init(fr, p, sh, S, sk, ns);
     return scratch_lanes(scratch, S);
 }
 
