@@ -46,7 +46,8 @@ typedef struct golden {
  * every image, sphere-set and optimisation row kept its value. The fast rows whose pixels the
  * fast kernel lights with disk lights (no-shadows, ground-spheres, the lighting+pose
  * optimisation) were re-recorded when that light term moved into the kernel's float lanes
- * (docs/design.md sec. 1.13): every scalar row kept its value. */
+ * (docs/design.md sec. 1.13), and again when receivers whose disk crosses their horizon joined
+ * the lanes (their clamped cosine from the float n . w): every scalar row kept its value. */
 static const golden table[] = {
 #include "golden_table.inc"
     {NULL, 0, 0},

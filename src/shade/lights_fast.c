@@ -13,17 +13,17 @@
  *   cosines with a margin (LANE_MARGIN) far above their rounding, so that f is exactly the double
  *   path's there. Only the partial overlaps (the penumbrae) take the double lens: a wide disk's
  *   (PEN_LIGHTS_COS_LENS_DEG up: many penumbrae a block, and the cosine form's arithmetic) in
- *   double lanes (wide_lens), the rest one pair at a time in lights.c; receivers whose disk meets
- *   their horizon take the whole double term. What differs from pen__lights_fwd is the float
- *   rounding of D, w, q and the product (a few 1e-7 of the light, below the image's own float
- *   rounding; tests/test_lights_lanes.c compares the two).
+ *   double lanes (wide_lens), the rest one pair at a time in lights.c; a disk across its
+ *   receiver's horizon takes the clamped cosine in double (lanes_init). What differs from
+ *   pen__lights_fwd is the float rounding of D, w, q and the product (a few 1e-7 of the light,
+ *   below the image's own float rounding; tests/test_lights_lanes.c compares the two).
  * - The backward block (pen__lights_bwd_block) visits the same pairs: where f is 0 or 1 it is
  *   constant, so such a pair's gradient is its weight's alone (through q to the sphere, x and
  *   n), taken in lanes in two passes (every pair's d/dw first, then the weights' chain); a
  *   partial pair adds f's own derivatives in double (wide_pair_bwd from the double lanes, else
  *   pen__lights_pair_bwd) during the first; the per-light chain (rho, the light, its horizon
- *   factor, n) in lanes too. Only a receiver whose disk meets its horizon (or without the
- *   forward's V) takes pen__lights_bwd whole.
+ *   factor, n) in lanes too. Only a receiver without the forward's V (or not finite) takes
+ *   pen__lights_bwd whole.
  */
 #include "core/internal.h"
 #include "shade/shade.h"
@@ -134,16 +134,21 @@ enum { B = PEN_LIGHTS_BLOCK, LMAX = PEN_SCENE_MAX_LIGHTS };
 typedef struct lanes {
     int K;
     float X[3][B], N[3][B];
-    float Dl[LMAX][B]; /* D = n . w where the disk is wholly above the horizon, else 0 */
-    int exact[B];      /* the double term's: a disk across the horizon, a point not finite */
-    int wide[LMAX];    /* the disk's penumbrae in double lanes (wide_lens) */
+    float Dl[LMAX][B]; /* the disk's clamped cosine D (n . w where wholly above the horizon) */
+    float dDc[LMAX][B], dDb[LMAX][B]; /* its partials by n . w and by b */
+    float c[LMAX][B];                 /* n . w */
+    int cross[LMAX][B];               /* the disk across the horizon */
+    int exact[B];                     /* the double term's: a point not finite */
+    int wide[LMAX];                   /* the disk's penumbrae in double lanes (wide_lens) */
     float w[LMAX][3], sb[LMAX], cb[LMAX], cb2[LMAX];
     float eps, h0, inv_span, lo, inv_width, t0, s0, cont, deep;
 } lanes;
 
 /* Fills the block's lanes from the points and normals at pt + 3 at(k) (padding lanes repeat the
  * first receiver). The disk wholly above the horizon is c >= sin b with room for the float
- * cosine; the double term decides the rest, the clamped integral included. */
+ * cosine: D = c; one across it takes the clamped integral in double (pen__disk_clamped_cosine)
+ * from the float c, whose rounding moves D by as much (|dD/dc| <= 1), as it moves c above. The
+ * visibility does not depend on the horizon, so such a receiver stays in the lanes. */
 static void lanes_init(lanes *z, const pen__lights *L, int cnt, const float *x, const float *nrm,
                        const int *at) {
     const int K = z->K = L->count;
@@ -166,9 +171,20 @@ static void lanes_init(lanes *z, const pen__lights *L, int cnt, const float *x, 
         for (int k = 0; k < B; ++k) {
             const float c =
                 z->N[0][k] * z->w[l][0] + z->N[1][k] * z->w[l][1] + z->N[2][k] * z->w[l][2];
-            z->Dl[l][k] = c >= z->sb[l] + LANE_MARGIN ? c : 0.0f;
-            z->exact[k] |= !(c >= z->sb[l] + LANE_MARGIN) & !(c <= -z->sb[l] - LANE_MARGIN);
+            const int above = c >= z->sb[l] + LANE_MARGIN;
+            z->Dl[l][k] = above ? c : 0.0f;
+            z->dDc[l][k] = above ? 1.0f : 0.0f, z->dDb[l][k] = 0.0f;
+            z->cross[l][k] = !above & !(c <= -z->sb[l] - LANE_MARGIN);
+            z->c[l][k] = c;
         }
+    for (int l = 0; l < K; ++l)
+        for (int k = 0; k < B; ++k)
+            if (z->cross[l][k]) {
+                double dc, db;
+                z->Dl[l][k] =
+                    (float)pen__disk_clamped_cosine((double)z->c[l][k], L->b[l], &dc, &db);
+                z->dDc[l][k] = (float)dc, z->dDb[l][k] = (float)db;
+            }
     z->eps = (float)L->eps;
     z->h0 = (float)PEN_RENDER_SELF_H0;
     z->inv_span = (float)(1.0 / (PEN_RENDER_SELF_H1 - PEN_RENDER_SELF_H0));
@@ -456,10 +472,10 @@ void CAT(pen__lights_fwd_block_, PEN_FAST_ISA)(const pen__lights *L, const doubl
  * d_x, d_n, d_rho likewise: the run's compacted arrays), whose d_rgb and forward V are at
  * d_rgb + 3 pix[k] and V_in + count pix[k]: what pen__lights_bwd adds for each. In lanes, the
  * pairs whose fraction is 0 or 1 (f constant: the gradient is the weight's alone) and the
- * per-light chain; a partial pair adds f's own derivatives in double (pen__lights_pair_bwd); a
- * receiver with a disk across its horizon or no kept V takes the double term, over its own
- * candidates, after the lanes. scratch: room for the larger of n PEN_LIGHTS_BLOCK floats and
- * (n + 1) PEN_LIGHTS_BLOCK ints (used in turn). */
+ * per-light chain; a partial pair adds f's own derivatives in double (wide_pair_bwd,
+ * pen__lights_pair_bwd); a receiver without a kept V or not finite takes the double term, over
+ * its own candidates, after the lanes. scratch: room for the larger of n PEN_LIGHTS_BLOCK floats
+ * and (n + 1) PEN_LIGHTS_BLOCK ints (used in turn). */
 void CAT(pen__lights_bwd_block_,
          PEN_FAST_ISA)(const pen__lights *L, const double *G, int n, const float *spheres,
                        const float *kappa, const int *idx, int cnt, const float *x,
@@ -603,8 +619,8 @@ void CAT(pen__lights_bwd_block_,
         }
     }
     /* The per-light chain of the lane receivers, in their order: rho, the light's own
-     * gradient, the horizon factor and n (the disk wholly above the horizon: dD/dc = 1,
-     * dD/db = 0). */
+     * gradient, the horizon factor and n, through D's partials (dD/dc = 1, dD/db = 0 for a disk
+     * wholly above the horizon). */
     int nx = 0, xk[B];
     for (int k = 0; k < cnt; ++k) {
         if (skip[k] & !z.exact[k]) continue; /* no gradient */
@@ -622,13 +638,14 @@ void CAT(pen__lights_bwd_block_,
             if (d_lights) {
                 double *dl = d_lights + PEN_LIGHT_GRAD_DOUBLES * l;
                 for (int a = 0; a < 3; ++a)
-                    dl[a] += (double)(dD * z.N[a][k]);
+                    dl[a] += (double)(dD * z.dDc[l][k] * z.N[a][k]);
+                dl[3] += (double)(dD * z.dDb[l][k]);
                 for (int ch = 0; ch < 3; ++ch)
                     dl[4 + ch] += (double)(g3[ch][k] * rho[3 * k + ch] * DGV);
             }
             if (d_G && G) d_G[l] += (double)(sl[l][k] * z.Dl[l][k] * V[l][k]);
             for (int a = 0; a < 3; ++a)
-                dnl[a][k] += dD * z.w[l][a];
+                dnl[a][k] += dD * z.dDc[l][k] * z.w[l][a];
         }
         for (int ch = 0; ch < 3; ++ch)
             d_rho[3 * k + ch] += drho[ch];
