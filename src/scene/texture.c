@@ -481,7 +481,8 @@ static int lookup_may_read_rows(const pen_image *tex, const float uv[2], const f
 
 void pen__texture_scatter_rows(const pen_image *tex, const float uv[2], const float J[4],
                                const float d_rgb[3], float *d_texels, long r0, long r1) {
-    if (!lookup_may_read_rows(tex, uv, J, r0, r1)) return;
+    /* (a band of every row needs no test: the lookup reads some of them) */
+    if ((r0 > 0 || r1 < tex->height) && !lookup_may_read_rows(tex, uv, J, r0, r1)) return;
     if (!J) {
         const bilinear s = bilinear_at(tex, (double)uv[0], (double)uv[1]);
         lerp_bwd_rows(tex, tex->channels, &s, d_rgb, d_texels, r0, r1);
