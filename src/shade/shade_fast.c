@@ -19,9 +19,14 @@
  *   shade_fast_ops.inc are compiled once per band count. Other band counts and the EXACT
  *   exponential (a Taylor series in the product algebra, made for reference not speed) use the
  *   scalar kernel.
- * - Exact culling. A sphere whose self-shadowing weight is 0 in every lane of a batch (it lies
- *   behind every lane's tangent plane) contributes nothing and has no gradient there; it is
- *   skipped after the weight's dot product.
+ * - Exact culling. A sphere whose overlap weight kappa is 0 contributes nothing and has no
+ *   gradient anywhere: it is left out of the call's sphere list (frame_setup). A sphere whose
+ *   self-shadowing weight is 0 in every lane of a batch (it lies behind every lane's tangent
+ *   plane) contributes nothing and has no gradient there; it is skipped after the weight's dot
+ *   product. In the backward, the weight's two ramps are skipped where both are flat in every
+ *   lane. Each leaves out only exact zeros (shade_fast_ops.inc), so no result changes.
+ * - Per-sphere scalars (1/r, -r^2, the floor of |c - x|^2, kappa, ...) are formed once per call
+ *   in the sphere list rather than once per sphere and batch.
  * - The ground plane. A call's first `ground` pixels lie on the ground; batches made only of them
  *   (n = +Y) use the lighting's product with the ground's clamped cosine, formed once per call,
  *   instead of a product per pixel (shade_fast_ops.inc, "The ground plane"). The renderer's
@@ -239,7 +244,7 @@ static inline void scatter3(const vf v[3], int first, int count, float *dst, int
 /* One sphere of a call with the scalars its pairs share, formed once per call (the same float
  * operations the sphere loop did per pair, so the results are the same bits). */
 typedef struct sphere_k {
-    float c[3], r;
+    float c[3];  /* centre */
     float inv_r; /* 1 / r */
     float kappa; /* scale of the log-visibility (1 without overlap weights) */
     float nrr;   /* -r^2 */
@@ -247,7 +252,6 @@ typedef struct sphere_k {
     float rr2;   /* 2 r^2 */
     float m2r;   /* -2 r */
     int s;       /* index in the call's spheres */
-    int pad_;
 } sphere_k;
 
 /* What every batch of a call shares, in float. */
@@ -363,7 +367,7 @@ static unsigned char *frame_setup(frame *fr, const pen__shade_params *p, const f
         if (kap == 0.0f) continue;
         const float r = sp[3];
         sphere_k *k = &sk[ns++];
-        k->c[0] = sp[0], k->c[1] = sp[1], k->c[2] = sp[2], k->r = r;
+        k->c[0] = sp[0], k->c[1] = sp[1], k->c[2] = sp[2];
         k->inv_r = 1.0f / r;
         k->kappa = kap;
         k->nrr = -r * r;
@@ -371,7 +375,6 @@ static unsigned char *frame_setup(frame *fr, const pen__shade_params *p, const f
         k->rr2 = 2.0f * r * r;
         k->m2r = -2.0f * r;
         k->s = s;
-        k->pad_ = 0;
     }
     frame_init(fr, p, sh, S, sk, ns);
     return scratch_lanes(scratch, S);
