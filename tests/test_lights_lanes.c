@@ -268,7 +268,7 @@ static void test_fwd_cap_end(void) {
             for (int k = 0; k < B; ++k) {
                 /* the continued cap of sh.h at this depth, and v at its edge +- the disk */
                 const double s = rs_uniform(&seed, 0.9, 0.93), t = 1.0 - 1.0 / (s * s);
-                const double cc = 0.1 + (t - PEN_SH_CAP_T0) * 5.0;
+                const double cc = fmax(0.1 + (t - PEN_SH_CAP_T0) * 5.0, -1.0); /* a = pi */
                 const double b = (double)lt.lights[0].angular_radius_deg * (M_PI / 180.0);
                 const double th = acos(cc) + (k % 2 ? b : -b) + rs_uniform(&seed, -1e-4, 1e-4);
                 double u[3], e[3];
@@ -306,6 +306,43 @@ static void test_fwd_cap_end(void) {
               variants, checked);
     if (getenv("PEN_TEST_VERBOSE"))
         printf("  %d shadowed receivers; worst V %.3g\n", checked, worst_cap);
+}
+
+/* A receiver with a normal that is not finite, at a finite point in a sphere's shadow, beside
+ * a lit one: the double term leaves its light unlit (no colour, no gradient); so must the lanes,
+ * for a narrow and a wide disk, and the other receiver keeps the double term's values. */
+static void test_nan_normal(void) {
+    for (int wide = 0; wide < 2; ++wide) {
+        pen_lighting lt;
+        memset(&lt, 0, sizeof lt);
+        lt.light_count = 1;
+        lt.lights[0].direction[1] = 1.0f, lt.lights[0].angular_radius_deg = wide ? 3.0f : 0.27f;
+        lt.lights[0].irradiance[0] = lt.lights[0].irradiance[1] = lt.lights[0].irradiance[2] = 2.0f;
+        pen__lights L;
+        pen__lights_init(&L, &lt, 3.0, 1);
+        const float sph[4] = {0.0f, 0.0f, 0.0f, 0.3f}, kap[1] = {1.0f};
+        const float x[6] = {0.05f, -2, 0, 0.3f, -2, 0}, nrm[6] = {NAN, 1, 0, 0, 1, 0};
+        const float rho[6] = {0.5f, 0.5f, 0.5f, 0.5f, 0.5f, 0.5f}, drgb[6] = {1, 1, 1, 1, 1, 1};
+        float V[2], rgb[6] = {0}, want[6] = {0}, Vw[2];
+        const int pix[2] = {0, 1};
+        pen__lights_fwd_block(&L, NULL, 1, sph, kap, NULL, 2, x, nrm, rho, NULL, rgb, V);
+        for (int k = 0; k < 2; ++k)
+            pen__lights_fwd(&L, NULL, 1, sph, kap, NULL, x + 3 * k, nrm + 3 * k, rho + 3 * k,
+                            want + 3 * k, Vw + k);
+        for (int a = 0; a < 6; ++a)
+            CHECK_MSG(fabs((double)rgb[a] - (double)want[a]) <= 1e-6, "wide %d rgb[%d]: %g vs %g",
+                      wide, a, (double)rgb[a], (double)want[a]);
+        double ds[4] = {0};
+        float dx[6] = {0}, dn[6] = {0}, dr[6] = {0};
+        int scratch[2 * PEN_LIGHTS_BLOCK];
+        pen__lights_bwd_block(&L, NULL, 1, sph, kap, NULL, 2, x, nrm, rho, drgb, V, pix, scratch,
+                              ds, dx, dn, dr, NULL, NULL);
+        for (int a = 0; a < 3; ++a)
+            CHECK_MSG(dx[a] == 0.0f && dr[a] == 0.0f, "wide %d d_x[%d] %g, d_rho %g", wide, a,
+                      (double)dx[a], (double)dr[a]);
+        for (int a = 0; a < 4; ++a)
+            CHECK_MSG(isfinite(ds[a]), "wide %d d_sphere[%d] %g", wide, a, ds[a]);
+    }
 }
 
 /* The loss sum_k,ch drgb rgb of the model in double (pen__lights_fwd_d), which the forward block
@@ -372,4 +409,4 @@ static void test_bwd_block_fd(void) {
 }
 
 RUN_TESTS(TEST(test_fwd_block), TEST(test_bwd_block), TEST(test_bwd_centre), TEST(test_fwd_cap_end),
-          TEST(test_bwd_block_fd))
+          TEST(test_nan_normal), TEST(test_bwd_block_fd))

@@ -87,8 +87,9 @@ void pen__lights_fwd_block(const pen__lights *L, const double *G, int n, const f
 /* The backward of the fast kernel's light term for cnt <= PEN_LIGHTS_BLOCK receivers k at
  * x + 3 k (nrm, rho, d_x, d_n and d_rho likewise: compacted), whose d_rgb and forward V are at
  * d_rgb + 3 pix[k] and V_in + count pix[k] (V_in NULL: recomputed): adds what pen__lights_bwd
- * adds for each, in the variant's lanes (lights_fast.c; the partial pairs' own derivatives by
- * pen__lights_pair_bwd), by pen__lights_bwd for a receiver whose disk meets its horizon.
+ * adds for each, in the variant's lanes (lights_fast.c; the partial pairs' own derivatives in
+ * double lanes for wide disks, else by pen__lights_pair_bwd), by pen__lights_bwd for a receiver
+ * whose point or normal is not finite.
  * scratch: room for the larger of n PEN_LIGHTS_BLOCK floats and (n + 1) PEN_LIGHTS_BLOCK ints
  * (used in turn). */
 void pen__lights_bwd_block(const pen__lights *L, const double *G, int n, const float *spheres,

@@ -175,6 +175,7 @@ static void lanes_init(lanes *z, const pen__lights *L, int cnt, const float *x, 
             z->Dl[l][k] = above ? c : 0.0f;
             z->dDc[l][k] = above ? 1.0f : 0.0f, z->dDb[l][k] = 0.0f;
             z->cross[l][k] = !above & !(c <= -z->sb[l] - LANE_MARGIN);
+            z->exact[k] |= !(c == c); /* a normal not finite: the double term's unlit light */
             z->c[l][k] = c;
         }
     for (int l = 0; l < K; ++l)
@@ -302,8 +303,8 @@ static inline double angle_lane(double s, double c) {
  * the same steps and order (the double cap test, the cap and its continuation, the 1e-9 clear
  * and inside tests, the lens), lane by lane. f[k] is the fraction and fa, fb, fg its partials by
  * a, b and g (disk_fraction's fd); back[k] marks the lanes this form does not take (the cap past
- * a = pi or a centre at the receiver, a lens the cosine form declines): the caller takes those
- * pair by pair in lights.c, as the narrow disks' penumbrae. */
+ * a = pi or a centre at the receiver, a lens the cosine form declines or rounds below 0): the
+ * caller takes those pair by pair in lights.c, as the narrow disks' penumbrae. */
 typedef struct wide_pairs {
     double f[B], fa[B], fb[B], fg[B];
     double d[3][B], D[B], cg[B], sg[B], da_dD[B], da_dr[B];
@@ -336,7 +337,7 @@ static inline __attribute__((always_inline)) void wide_lens(const lanes *z, cons
         const double st = sqrt(t > 0.0 ? t : 0.0);
         const double ca = cont ? cc : st, sa = cont ? sc : r / Dd;
         const double da_dt = -(0.5 / s0) / sc;
-        o->da_dD[k] = cont ? da_dt * 2.0 * r2 / (Dd * Dd * Dd) : -(r / (Dd * Dd)) / st;
+        o->da_dD[k] = cont ? da_dt * 2.0 * r * r / (Dd * Dd * Dd) : -(r / (Dd * Dd)) / st;
         o->da_dr[k] = cont ? da_dt * -2.0 * r / (Dd * Dd) : (1.0 / Dd) / st;
         lmask back = reach & ((!(D > 1e-6 * r)) | (cont & (cc <= -1.0)));
         o->D[k] = Dd;
@@ -368,7 +369,7 @@ static inline __attribute__((always_inline)) void wide_lens(const lanes *z, cons
         const double pa = angle_lane(q, Ya), pb = angle_lane(q, Yb);
         const double E = 2.0 * angle_lane(q, 1.0 + ca + cb + cgh);
         const double A = 2.0 * (pa * oa + pb * ob) - 2.0 * E, f = A / area;
-        back |= !clear & !inside & (!(ca + cb > 0.0) | !(sgh > 0.0) | !(Delta > 0.0));
+        back |= !clear & !inside & (!(ca + cb > 0.0) | !(sgh > 0.0) | !(Delta > 0.0) | !(A >= 0.0));
         const lmask part = !clear & !inside;
         o->f[k] = clear ? 0.0 : inside ? 1.0 : f;
         o->fa[k] = part ? 2.0 * pa * sa / area : 0.0;
