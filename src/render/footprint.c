@@ -21,40 +21,54 @@
 
 #include <math.h>
 
-/* The per-pixel quantities of the derivation above. */
+/* The per-pixel quantities of the derivation above. Those of the triangle alone (e1, e2, w, n, a,
+ * b, duv) and of the view (Q) are kept from the object's previous pixel while it lies on the same
+ * triangle (tri), as neighbouring pixels mostly do: footprint_at recomputes only D and what
+ * depends on it, with the same operations, so the values are the same. */
 typedef struct footprint {
     double e1[3], e2[3], w[3], n[3], a[3], b[3], D[3];
     double dn, b1, b2, g1[3], g2[3];
     double Q[2][3];      /* dD/dx, dD/dy */
     double duv[2][2];    /* duv[r][m]: component r of uv_{m+1} - uv0 */
+    long tri;            /* the triangle of e1 .. duv, or -1 */
 } footprint;
+
+/* Sets f up for footprint_at: the view's part, no triangle yet. */
+static void footprint_init(const pen_render_state *st, footprint *f) {
+    const pen_view *vw = &st->view;
+    for (int c = 0; c < 3; ++c) {
+        f->Q[0][c] = vw->right[c] / vw->focal[0];
+        f->Q[1][c] = -vw->up[c] / vw->focal[1];
+    }
+    f->tri = -1;
+}
 
 /* Fills f for pixel i of object o; returns 0 when the triangle is edge-on to the ray. */
 static int footprint_at(const pen_render_state *st, const pen_object *ob, int o, size_t i,
                         footprint *f) {
     const pen_view *vw = &st->view;
     const size_t W = (size_t)st->width, t = (size_t)st->gb.triangle[i];
-    const uint32_t *vi = ob->mesh.indices + 3 * t, *ti = ob->mesh.uv_indices + 3 * t;
-    const float *world = st->obj[o].world.data;
-    double p[3][3];
-    for (int k = 0; k < 3; ++k)
-        for (int c = 0; c < 3; ++c)
-            p[k][c] = (double)world[3 * (size_t)vi[k] + (size_t)c];
-    pen__sub_d(p[1], p[0], f->e1), pen__sub_d(p[2], p[0], f->e2);
-    pen__sub_d(vw->eye, p[0], f->w);
-    pen__cross_d(f->e1, f->e2, f->n), pen__cross_d(f->w, f->e2, f->a);
-    pen__cross_d(f->e1, f->w, f->b);
+    if (f->tri != (long)t) {
+        const uint32_t *vi = ob->mesh.indices + 3 * t, *ti = ob->mesh.uv_indices + 3 * t;
+        const float *world = st->obj[o].world.data;
+        double p[3][3];
+        for (int k = 0; k < 3; ++k)
+            for (int c = 0; c < 3; ++c)
+                p[k][c] = (double)world[3 * (size_t)vi[k] + (size_t)c];
+        pen__sub_d(p[1], p[0], f->e1), pen__sub_d(p[2], p[0], f->e2);
+        pen__sub_d(vw->eye, p[0], f->w);
+        pen__cross_d(f->e1, f->e2, f->n), pen__cross_d(f->w, f->e2, f->a);
+        pen__cross_d(f->e1, f->w, f->b);
+        const float *uv0 = ob->mesh.uvs + 2 * (size_t)ti[0],
+                    *uv1 = ob->mesh.uvs + 2 * (size_t)ti[1],
+                    *uv2 = ob->mesh.uvs + 2 * (size_t)ti[2];
+        for (int r = 0; r < 2; ++r) {
+            f->duv[r][0] = (double)uv1[r] - (double)uv0[r];
+            f->duv[r][1] = (double)uv2[r] - (double)uv0[r];
+        }
+        f->tri = (long)t;
+    }
     pen_view_ray(vw, (double)(i % W) + 0.5, (double)(i / W) + 0.5, f->D);
-    for (int c = 0; c < 3; ++c) {
-        f->Q[0][c] = vw->right[c] / vw->focal[0];
-        f->Q[1][c] = -vw->up[c] / vw->focal[1];
-    }
-    const float *uv0 = ob->mesh.uvs + 2 * (size_t)ti[0], *uv1 = ob->mesh.uvs + 2 * (size_t)ti[1],
-                *uv2 = ob->mesh.uvs + 2 * (size_t)ti[2];
-    for (int r = 0; r < 2; ++r) {
-        f->duv[r][0] = (double)uv1[r] - (double)uv0[r];
-        f->duv[r][1] = (double)uv2[r] - (double)uv0[r];
-    }
     f->dn = pen__dot_d(f->D, f->n);
     if (!(fabs(f->dn) > 1e-300)) return 0;
     f->b1 = pen__dot_d(f->D, f->a) / f->dn, f->b2 = pen__dot_d(f->D, f->b) / f->dn;
@@ -67,24 +81,28 @@ static int footprint_at(const pen_render_state *st, const pen_object *ob, int o,
 
 void pen__uv_footprint_fwd(pen_render_state *st, const pen_object *ob, int o, int threads) {
     const long np = (long)st->width * (long)st->height;
-    /* every pixel on its own: the result does not depend on the threads */
-#pragma omp parallel for schedule(static) num_threads(threads) \
-    if (threads > 1 && np >= PEN_RENDER_PARALLEL_MIN_PIXELS)
-    for (long ii = 0; ii < np; ++ii) {
-        const size_t i = (size_t)ii;
-        if (st->gb.surface[i] != o) continue;
-        float *J = st->uvj.data + 4 * i;
+    /* every pixel on its own (a thread's footprint keeps only what footprint_at would recompute
+     * the same): the result does not depend on the threads */
+#pragma omp parallel num_threads(threads) if (threads > 1 && np >= PEN_RENDER_PARALLEL_MIN_PIXELS)
+    {
         footprint f;
-        if (!footprint_at(st, ob, o, i, &f)) {
-            J[0] = J[1] = J[2] = J[3] = 0.0f;
-            continue;
-        }
-        for (int r = 0; r < 2; ++r)
-            for (int c = 0; c < 2; ++c) {
-                const double j = f.duv[r][0] * pen__dot_d(f.g1, f.Q[c]) +
-                                 f.duv[r][1] * pen__dot_d(f.g2, f.Q[c]);
-                J[2 * r + c] = isfinite(j) ? (float)j : 0.0f;
+        footprint_init(st, &f);
+#pragma omp for schedule(static)
+        for (long ii = 0; ii < np; ++ii) {
+            const size_t i = (size_t)ii;
+            if (st->gb.surface[i] != o) continue;
+            float *J = st->uvj.data + 4 * i;
+            if (!footprint_at(st, ob, o, i, &f)) {
+                J[0] = J[1] = J[2] = J[3] = 0.0f;
+                continue;
             }
+            for (int r = 0; r < 2; ++r)
+                for (int c = 0; c < 2; ++c) {
+                    const double j = f.duv[r][0] * pen__dot_d(f.g1, f.Q[c]) +
+                                     f.duv[r][1] * pen__dot_d(f.g2, f.Q[c]);
+                    J[2 * r + c] = isfinite(j) ? (float)j : 0.0f;
+                }
+        }
     }
 }
 
@@ -119,11 +137,12 @@ static void bary_grad_bwd(const footprint *f, double beta, const double g[3], co
 void pen__uv_footprint_bwd(const pen_render_state *st, const pen_object *ob, int o,
                            float *d_world) {
     const size_t np = (size_t)st->width * (size_t)st->height;
+    footprint f;
+    footprint_init(st, &f);
     for (size_t i = 0; i < np; ++i) {
         if (st->gb.surface[i] != o) continue;
         const float *dJ = st->d_uvj.data + 4 * i;
         if (dJ[0] == 0.0f && dJ[1] == 0.0f && dJ[2] == 0.0f && dJ[3] == 0.0f) continue;
-        footprint f;
         if (!footprint_at(st, ob, o, i, &f)) continue;
         double d_g1[3] = {0, 0, 0}, d_g2[3] = {0, 0, 0};
         for (int r = 0; r < 2; ++r)
