@@ -200,6 +200,91 @@ static void test_interpolation_bary_fd(void) {
 /* ---- Vertex normals and normalization ------------------------------------------------------ */
 
 /* An icosahedron (vertex normals are radial by symmetry), jittered for the gradient test. */
+/* The frame's fused backward of one object's points, normals and UVs gives the bits of the three
+ * pen_interpolate_bwd calls into a cleared d_bary, writes d_bary only at the object's pixels,
+ * and turns a -0 there into +0 as the clear-and-add does. */
+static void test_interpolation_object_fused(void) {
+    ru_scene s;
+    ru_scene_init(&s);
+    const size_t n = (size_t)s.cam.width * s.cam.height;
+    pen_gbuffer gb = ru_gbuffer(s.cam.width, s.cam.height);
+    CHECK(ru_raster(&s.view, s.meshes, 2, &s.ground, &gb, 0) == PEN_OK);
+    float *W = malloc(3 * n * sizeof(float)), *V = malloc(3 * n * sizeof(float));
+    float *U = malloc(2 * n * sizeof(float)), nrm[12], uv[10];
+    unsigned long long seed = 53;
+    for (size_t i = 0; i < 3 * n; ++i) {
+        W[i] = (float)(2 * check_rand_(&seed) - 1);
+        V[i] = (float)(2 * check_rand_(&seed) - 1);
+    }
+    for (size_t i = 0; i < 2 * n; ++i)
+        U[i] = i % 7 == 0 ? -0.0f : (float)(2 * check_rand_(&seed) - 1);
+    for (int i = 0; i < 12; ++i)
+        nrm[i] = (float)(2 * check_rand_(&seed) - 1);
+    for (int i = 0; i < 10; ++i)
+        uv[i] = (float)check_rand_(&seed);
+    size_t first = n; /* an object pixel whose gradients are all -0 */
+    for (size_t i = 0; i < n && first == n; ++i)
+        if (gb.surface[i] == 0) first = i;
+    CHECK(first < n);
+    W[3 * first] = W[3 * first + 1] = W[3 * first + 2] = -0.0f;
+    V[3 * first] = V[3 * first + 1] = V[3 * first + 2] = -0.0f;
+    U[2 * first] = U[2 * first + 1] = -0.0f;
+    float dw_ref[12] = {0}, dn_ref[12] = {0}, dw[12] = {0}, dn[12] = {0};
+    float *bary_ref = calloc(2 * n, sizeof(float)), *bary = malloc(2 * n * sizeof(float));
+    for (size_t i = 0; i < 2 * n; ++i)
+        bary[i] = 7.0f; /* not cleared: the fused pass writes the object's pixels */
+    pen_interpolate_bwd(&gb, 0, s.idx0, s.pos0, 3, W, dw_ref, bary_ref);
+    pen_interpolate_bwd(&gb, 0, s.idx0, nrm, 3, V, dn_ref, bary_ref);
+    pen_interpolate_bwd(&gb, 0, s.cidx0, uv, 2, U, NULL, bary_ref);
+    pen__interpolate_bwd_object(&gb, 0, s.idx0, s.pos0, W, dw, nrm, V, dn, s.cidx0, uv, U, bary);
+    CHECK(memcmp(dw, dw_ref, sizeof dw) == 0 && memcmp(dn, dn_ref, sizeof dn) == 0);
+    int same = 1;
+    for (size_t i = 0; i < n; ++i)
+        for (int k = 0; k < 2; ++k)
+            same &= gb.surface[i] == 0 ? memcmp(&bary[2 * i + k], &bary_ref[2 * i + k], 4) == 0
+                                       : bary[2 * i + k] == 7.0f;
+    CHECK(same);
+    CHECK(!signbit(bary[2 * first]) && !signbit(bary[2 * first + 1]));
+    free(W), free(V), free(U), free(bary_ref), free(bary);
+    pen_gbuffer_free(&gb);
+}
+
+/* The rasterizer's points off the objects (the frame's: pen__raster_gbuffer_points) are
+ * pen_gbuffer_points' bits, for 1 and 2 threads; the objects' pixels are left alone. */
+static void test_gbuffer_points_with_raster(void) {
+    ru_scene s;
+    ru_scene_init(&s);
+    const size_t n = (size_t)s.cam.width * s.cam.height;
+    pen_gbuffer gb = ru_gbuffer(s.cam.width, s.cam.height);
+    CHECK(ru_raster(&s.view, s.meshes, 2, &s.ground, &gb, 0) == PEN_OK);
+    float *ref = malloc(3 * n * sizeof(float)), *pts = malloc(3 * n * sizeof(float));
+    pen_gbuffer_points(&s.view, &gb, ref);
+    int ground = 0, background = 0, object = 0;
+    for (size_t i = 0; i < n; ++i)
+        ground += gb.surface[i] == PEN_SURFACE_GROUND,
+            background += gb.surface[i] == PEN_SURFACE_BACKGROUND, object += gb.surface[i] >= 0;
+    CHECK(ground > 0 && background > 0 && object > 0);
+    for (int threads = 1; threads <= 2; ++threads) {
+        pen_gbuffer g2 = ru_gbuffer(s.cam.width, s.cam.height);
+        for (size_t i = 0; i < 3 * n; ++i)
+            pts[i] = 7.0f;
+        pen_context *ctx = pen_context_create();
+        pen_context_set_threads(ctx, threads);
+        CHECK(pen__raster_gbuffer_points(ctx, &s.view, s.meshes, 2, &s.ground, &g2, pts) == PEN_OK);
+        pen_context_destroy(ctx);
+        CHECK(memcmp(g2.surface, gb.surface, n * sizeof(int32_t)) == 0 &&
+              memcmp(g2.depth, gb.depth, n * sizeof(float)) == 0);
+        int same = 1;
+        for (size_t i = 0; i < n; ++i)
+            same &= gb.surface[i] < 0 ? memcmp(pts + 3 * i, ref + 3 * i, 3 * sizeof(float)) == 0
+                                      : pts[3 * i] == 7.0f && pts[3 * i + 2] == 7.0f;
+        CHECK(same);
+        pen_gbuffer_free(&g2);
+    }
+    free(ref), free(pts);
+    pen_gbuffer_free(&gb);
+}
+
 static void icosahedron(float *pos, uint32_t *idx) {
     const double t = (1 + sqrt(5.0)) / 2;
     const double v[12][3] = {{-1, t, 0}, {1, t, 0}, {-1, -t, 0}, {1, -t, 0},
@@ -293,4 +378,5 @@ static void test_normalize(void) {
 
 RUN_TESTS(TEST(test_ray_bary_backward_fd), TEST(test_interpolation_pipeline_fd),
           TEST(test_interpolation_bary_fd), TEST(test_bary_backward_threads),
+          TEST(test_interpolation_object_fused), TEST(test_gbuffer_points_with_raster),
           TEST(test_vertex_normals), TEST(test_normalize))

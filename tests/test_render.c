@@ -475,7 +475,33 @@ static void test_aovs(void) {
     pen_scene_free(&sc);
 }
 
+/* A non-finite texel anywhere (in the validation's vector blocks, across a block's end, in the
+ * tail) is refused with its message; the texture is 51 x 40 x 3 = 6120 floats: blocks of 4096
+ * and 2024, the second 126 vector steps and 8 left over. */
+static void test_invalid_texels(void) {
+    pen_scene sc = rs_ball_scene(16, 1, &seed);
+    pen_image_free(&sc.objects[0].texture);
+    sc.objects[0].texture = rs_texture(51, 40, &seed);
+    float *t = sc.objects[0].texture.data;
+    pen_context *ctx = pen_context_create();
+    CHECK(pen_scene_validate(ctx, &sc) == PEN_OK);
+    const size_t at[] = {0, 15, 16, 4095, 4096, 6111, 6112, 6119};
+    const float bad[] = {NAN, INFINITY, -INFINITY};
+    for (size_t k = 0; k < sizeof at / sizeof at[0]; ++k)
+        for (int b = 0; b < 3; ++b) {
+            const float keep = t[at[k]];
+            t[at[k]] = bad[b];
+            expect_error(&sc, "non-finite texel");
+            t[at[k]] = keep;
+        }
+    t[6119] = 3.0e38f; /* large but finite */
+    CHECK(pen_scene_validate(ctx, &sc) == PEN_OK);
+    pen_context_destroy(ctx);
+    pen_scene_free(&sc);
+}
+
 RUN_TESTS(TEST(test_aovs), TEST(test_golden_plane), TEST(test_golden_sphere),
           TEST(test_shadow_depth_against_exact_occlusion),
-          TEST(test_convex_object_does_not_shadow_itself), TEST(test_state_notices_new_topology), TEST(test_background_constant),
-          TEST(test_losses), TEST(test_invalid_inputs))
+          TEST(test_convex_object_does_not_shadow_itself), TEST(test_state_notices_new_topology),
+          TEST(test_background_constant), TEST(test_losses), TEST(test_invalid_inputs),
+          TEST(test_invalid_texels))

@@ -59,6 +59,9 @@
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 /* ---- Pair analysis --------------------------------------------------------------------------- */
 
@@ -70,7 +73,7 @@ typedef struct aa_ctx {
     const size_t *first_vertex; /* per mesh, into screen */
     const double *screen;       /* per vertex of every mesh: sx, sy, depth */
     const size_t *first_edge;   /* per mesh, into silhouette */
-    const uint8_t *silhouette;  /* per half-edge 3 t + k of every mesh: is_silhouette */
+    const uint8_t *silhouette;  /* per half-edge 3 t + k of every mesh: silhouettes */
 } aa_ctx;
 
 typedef struct aa_pair {
@@ -88,24 +91,32 @@ typedef struct aa_edge {
 /* The longest walk over triangles of a continuing surface (below) before a pair gives up. */
 #define AA_WALK_MAX 16
 
-/* 1 when the edge of triangle `t` from corner k to k+1, whose neighbour across it has half-edge
- * `neighbour` (pen_raster_adjacency; -1: none), is a silhouette seen from the eye. */
-static int is_silhouette(const pen_raster_mesh *mesh, const pen_view *view, int t, int k,
-                         int32_t neighbour) {
-    if (neighbour < 0) return 1;
+/* The silhouette flags of triangle t's three edges (k to k+1): an edge is one, seen from the
+ * eye, when it has no neighbour across it (pen_raster_adjacency: -1) or the neighbour's far
+ * vertex lies on the same side as t's own of the plane through the eye and the edge. The
+ * corners relative to the eye are taken once for the three edges. */
+static void silhouettes(const pen_raster_mesh *mesh, const pen_view *view, int t, uint8_t sil[3]) {
     const uint32_t *idx = mesh->indices + 3 * (size_t)t;
-    uint32_t far =
-        mesh->indices[(size_t)neighbour - (size_t)neighbour % 3 + ((size_t)neighbour % 3 + 2) % 3];
-    double p[4][3], a[3], b[3], c[3], o[3], nrm[3];
-    for (int j = 0; j < 3; ++j)
-        pen__load3_d(mesh->positions + 3 * (size_t)idx[j], p[j]);
-    pen__load3_d(mesh->positions + 3 * (size_t)far, p[3]);
-    pen__sub_d(p[k], view->eye, a);
-    pen__sub_d(p[(k + 1) % 3], view->eye, b);
-    pen__sub_d(p[(k + 2) % 3], view->eye, c);
-    pen__sub_d(p[3], view->eye, o);
-    pen__cross_d(a, b, nrm);
-    return pen__dot_d(nrm, c) * pen__dot_d(nrm, o) >= 0.0;
+    double q[3][3];
+    for (int j = 0; j < 3; ++j) {
+        double p[3];
+        pen__load3_d(mesh->positions + 3 * (size_t)idx[j], p);
+        pen__sub_d(p, view->eye, q[j]);
+    }
+    for (int k = 0; k < 3; ++k) {
+        const int32_t neighbour = mesh->adjacency[3 * (size_t)t + (size_t)k];
+        if (neighbour < 0) {
+            sil[k] = 1;
+            continue;
+        }
+        const size_t nb = (size_t)neighbour;
+        const uint32_t far = mesh->indices[nb - nb % 3 + (nb % 3 + 2) % 3];
+        double p[3], o[3], nrm[3];
+        pen__load3_d(mesh->positions + 3 * (size_t)far, p);
+        pen__sub_d(p, view->eye, o);
+        pen__cross_d(q[k], q[(k + 1) % 3], nrm);
+        sil[k] = (uint8_t)(pen__dot_d(nrm, q[(k + 2) % 3]) * pen__dot_d(nrm, o) >= 0.0);
+    }
 }
 
 /* The blend of a pair whose outline crosses the segment between the two pixel centres at alpha
@@ -284,6 +295,30 @@ static void aa_end(aa_state *st) {
     free(st->silhouette);
 }
 
+/* Pairs scanned at once for a difference: inside a surface's triangle, and on the ground and the
+ * background, whole runs of pairs match, and one test in vector lanes passes them instead of a
+ * test and a branch per pair. */
+#define AA_SCAN 8
+
+/* Whether all AA_SCAN pairs (sa[k], sb[k]) of surfaces and (ta[k], tb[k]) of triangles match. */
+static inline int pairs_match(const int32_t *sa, const int32_t *sb, const int32_t *ta,
+                              const int32_t *tb) {
+#if defined(__SSE2__)
+#define LOAD4(p) _mm_loadu_si128((const __m128i *)(const void *)(p))
+    const __m128i a =
+        _mm_and_si128(_mm_cmpeq_epi32(LOAD4(sa), LOAD4(sb)), _mm_cmpeq_epi32(LOAD4(ta), LOAD4(tb)));
+    const __m128i b = _mm_and_si128(_mm_cmpeq_epi32(LOAD4(sa + 4), LOAD4(sb + 4)),
+                                    _mm_cmpeq_epi32(LOAD4(ta + 4), LOAD4(tb + 4)));
+#undef LOAD4
+    return _mm_movemask_epi8(_mm_and_si128(a, b)) == 0xffff;
+#else
+    uint32_t d = 0;
+    for (int k = 0; k < AA_SCAN; ++k)
+        d |= (uint32_t)(sa[k] ^ sb[k]) | (uint32_t)(ta[k] ^ tb[k]);
+    return d == 0;
+#endif
+}
+
 /* Analyzes the pairs of rows [y0, y1), writing the blending ones from hits[at] on and their
  * ranges into row[3 y0 .. 3 y1). A pair of two pixels with the same surface and triangle never
  * blends (analyze_pair's first test), and most pairs are such: they are passed without a call. */
@@ -292,20 +327,29 @@ static void analyze_rows(const aa_ctx *ac, int y0, int y1, aa_hit *hits, size_t 
     const int32_t *surface = ac->gb->surface, *triangle = ac->gb->triangle;
     for (int y = y0; y < y1; ++y) {
         const size_t i = (size_t)y * (size_t)W;
+        const int32_t *s = surface + i, *t = triangle + i;
         row[3 * (size_t)y] = at;
-        for (int x = 0; x + 1 < W; ++x) {
-            if (surface[i + x] == surface[i + x + 1] && triangle[i + x] == triangle[i + x + 1])
-                continue;
-            aa_pair pr = analyze_pair(ac, x, y, 0, NULL);
-            if (pr.receiver) hits[at].x = x, hits[at++].pr = pr;
+        /* Horizontal pairs x = 0 .. W - 2, a block of AA_SCAN at a time, pair by pair in a
+         * block that differs somewhere (and in the last, short one). */
+        for (int x = 0, end; x + 1 < W; x = end) {
+            end = x + AA_SCAN < W ? x + AA_SCAN : W - 1;
+            if (end - x == AA_SCAN && pairs_match(s + x, s + x + 1, t + x, t + x + 1)) continue;
+            for (int u = x; u < end; ++u) {
+                if (s[u] == s[u + 1] && t[u] == t[u + 1]) continue;
+                aa_pair pr = analyze_pair(ac, u, y, 0, NULL);
+                if (pr.receiver) hits[at].x = u, hits[at++].pr = pr;
+            }
         }
         row[3 * (size_t)y + 1] = at;
-        if (y + 1 < H)
-            for (int x = 0; x < W; ++x) {
-                const size_t j = i + (size_t)x + (size_t)W;
-                if (surface[i + x] == surface[j] && triangle[i + x] == triangle[j]) continue;
-                aa_pair pr = analyze_pair(ac, x, y, 1, NULL);
-                if (pr.receiver) hits[at].x = x, hits[at++].pr = pr;
+        if (y + 1 < H) /* vertical pairs x = 0 .. W - 1, likewise */
+            for (int x = 0, end; x < W; x = end) {
+                end = x + AA_SCAN <= W ? x + AA_SCAN : W;
+                if (end - x == AA_SCAN && pairs_match(s + x, s + x + W, t + x, t + x + W)) continue;
+                for (int u = x; u < end; ++u) {
+                    if (s[u] == s[u + W] && t[u] == t[u + W]) continue;
+                    aa_pair pr = analyze_pair(ac, u, y, 1, NULL);
+                    if (pr.receiver) hits[at].x = u, hits[at++].pr = pr;
+                }
             }
         row[3 * (size_t)y + 2] = at;
     }
@@ -359,9 +403,7 @@ static pen_status aa_begin(pen_context *ctx, const pen_gbuffer *gb, const pen_vi
         int ethreads = pen__raster_threads_for(ctx, 3 * (size_t)mesh->triangle_count);
 #pragma omp parallel for num_threads(ethreads) schedule(static)
         for (int t = 0; t < mesh->triangle_count; ++t)
-            for (int k = 0; k < 3; ++k)
-                sil[3 * (size_t)t + (size_t)k] = (uint8_t)is_silhouette(
-                    mesh, view, t, k, mesh->adjacency[3 * (size_t)t + (size_t)k]);
+            silhouettes(mesh, view, t, sil + 3 * (size_t)t);
     }
     aa_ctx ac = {gb,         view,           meshes,        mesh_count, st->first_vertex,
                  st->screen, st->first_edge, st->silhouette};
@@ -380,7 +422,10 @@ static pen_status aa_begin(pen_context *ctx, const pen_gbuffer *gb, const pen_vi
 
 /* The blend is linear in the colours: out = A c with, for each pair (receiver R, source S,
  * weight w), A_RR -= w and A_RS += w on top of the identity. The forward applies A (each pixel
- * gathers its row), the backward A^T (each pixel gathers its column) and adds into dst. */
+ * gathers its row), the backward A^T (each pixel gathers its column) and adds into dst, or
+ * (BLEND_T_SET) writes into dst what adding into a cleared dst would (+0 + x: the same bits,
+ * a -0 made +0), which spares the caller clearing a whole image for it. */
+enum { BLEND_A = 0, BLEND_T_ADD = 1, BLEND_T_SET = 2 };
 
 /* Pixel i's row of A (its column with `transpose`) applied to v, from the n pairs touching it
  * (pr[j], with i its first pixel when first[j], the other pixel other[j]): written to out, the
@@ -405,7 +450,9 @@ static void blend_pixel(const aa_pair *pr, const int *first, const size_t *other
             else /* the other pixel receives from this one */
                 acc += w[j] * vo;
         }
-        if (transpose)
+        if (transpose == BLEND_T_SET)
+            out[c] = 0.0f + (float)acc;
+        else if (transpose)
             out[c] += (float)acc;
         else
             out[c] = (float)acc;
@@ -431,7 +478,10 @@ static void blend_row(const aa_state *st, int y, const float *v, int channels, i
         if (u < ue && u->x < x) x = u->x;
         if (d < de && d->x < x) x = d->x;
         const size_t i = base + (size_t)x, ch = (size_t)channels, k0 = (base + (size_t)done) * ch;
-        if (transpose)
+        if (transpose == BLEND_T_SET)
+            for (size_t k = k0; k < i * ch; ++k)
+                dst[k] = 0.0f + v[k];
+        else if (transpose)
             for (size_t k = k0; k < i * ch; ++k)
                 dst[k] += v[k];
         else
@@ -558,6 +608,25 @@ static int border_row(const pen_gbuffer *gb, int y, uint8_t *mask) {
     return count;
 }
 
+/* Bit 0: row y holds a ground pixel, bit 1: a background pixel (a branch-free pass that
+ * vectorizes). A border candidate needs both among its own row and the rows beside it, which
+ * only the few rows about the square's far border have: the other rows skip border_row. */
+static uint8_t row_kinds(const pen_gbuffer *gb, int y) {
+    const int32_t *s = gb->surface + (size_t)y * (size_t)gb->width;
+    int g = 0, b = 0;
+    for (int x = 0; x < gb->width; ++x)
+        g |= s[x] == PEN_SURFACE_GROUND, b |= s[x] == PEN_SURFACE_BACKGROUND;
+    return (uint8_t)(g | b << 1);
+}
+
+/* border_row, or 0 without looking when rows y - 1 .. y + 1 lack ground or background (kinds:
+ * row_kinds of every row). */
+static int border_row_if(const pen_gbuffer *gb, const uint8_t *kinds, int y, uint8_t *mask) {
+    const int near =
+        kinds[y] | (y > 0 ? kinds[y - 1] : 0) | (y + 1 < gb->height ? kinds[y + 1] : 0);
+    return near == 3 ? border_row(gb, y, mask) : 0;
+}
+
 /* The pairs touching a candidate pixel (x, y) (pixel_pairs' order) as the border sees them;
  * returns how many blend (0: the pixel keeps its colour). ground_pair leaves any pair but a
  * ground pixel and a background one alone. */
@@ -593,16 +662,20 @@ pen_status pen__ground_border_fwd(pen_context *ctx, const pen_gbuffer *gb, const
      * unchanged image, and written once every row is done (rows read their neighbours). */
     const int W = gb->width, H = gb->height;
     int *count = pen__calloc(ctx, (size_t)H + 1, sizeof *count, "ground border");
-    uint8_t *mask = pen__malloc(ctx, (size_t)W * (size_t)H, 1, "ground border");
+    uint8_t *mask = pen__malloc(ctx, (size_t)W * (size_t)H + (size_t)H, 1, "ground border");
     if (!count || !mask) {
         free(count);
         free(mask);
         return PEN_ERROR_MEMORY;
     }
+    uint8_t *kinds = mask + (size_t)W * (size_t)H;
     const int threads = pen__raster_threads_for(ctx, (size_t)W * (size_t)H);
 #pragma omp parallel for num_threads(threads) schedule(static)
+    for (int y = 0; y < H; ++y)
+        kinds[y] = row_kinds(gb, y);
+#pragma omp parallel for num_threads(threads) schedule(static)
     for (int y = 0; y < H; ++y) /* (room for each candidate: a bound) */
-        count[y + 1] = border_row(gb, y, mask + (size_t)y * (size_t)W);
+        count[y + 1] = border_row_if(gb, kinds, y, mask + (size_t)y * (size_t)W);
     for (int y = 0; y < H; ++y)
         count[y + 1] += count[y];
     border_out *staged = NULL;
@@ -627,7 +700,7 @@ pen_status pen__ground_border_fwd(pen_context *ctx, const pen_gbuffer *gb, const
             staged[at].i = SIZE_MAX; /* a candidate that does not blend */
             if (border_pixel(gb, view, ground, x, y, pr, first, other, &n)) {
                 staged[at].i = i;
-                blend_pixel(pr, first, other, n, i, color, channels, 0, staged[at].c);
+                blend_pixel(pr, first, other, n, i, color, channels, BLEND_A, staged[at].c);
             }
         }
     }
@@ -651,13 +724,17 @@ pen_status pen__ground_border_bwd(pen_context *ctx, const pen_gbuffer *gb, const
     if (!view || !gb->surface || !ground || !ground->enabled) return PEN_OK;
     /* Off the border A's column is the identity's (the copy above); on it each pixel gathers
      * its column from d_out, which nothing writes, so rows run in parallel. */
-    uint8_t *mask = pen__malloc(ctx, (size_t)W * (size_t)H, 1, "ground border");
+    uint8_t *mask = pen__malloc(ctx, (size_t)W * (size_t)H + (size_t)H, 1, "ground border");
     if (!mask) return PEN_ERROR_MEMORY;
+    uint8_t *kinds = mask + (size_t)W * (size_t)H;
     const int threads = pen__raster_threads_for(ctx, (size_t)W * (size_t)H);
+#pragma omp parallel for num_threads(threads) schedule(static)
+    for (int y = 0; y < H; ++y)
+        kinds[y] = row_kinds(gb, y);
 #pragma omp parallel for num_threads(threads) schedule(static)
     for (int y = 0; y < H; ++y) {
         uint8_t *m = mask + (size_t)y * (size_t)W;
-        int left = border_row(gb, y, m);
+        int left = border_row_if(gb, kinds, y, m);
         for (int x = 0; left > 0; ++x, --left) {
             x = (int)((uint8_t *)memchr(m + x, 1, (size_t)(W - x)) - m);
             aa_pair pr[4];
@@ -667,7 +744,7 @@ pen_status pen__ground_border_bwd(pen_context *ctx, const pen_gbuffer *gb, const
             float *out = d_color + i * (size_t)channels;
             for (int c = 0; c < channels; ++c)
                 out[c] = 0.0f;
-            blend_pixel(pr, first, other, n, i, d_out, channels, 1, out);
+            blend_pixel(pr, first, other, n, i, d_out, channels, BLEND_T_ADD, out);
         }
     }
     free(mask);
@@ -683,23 +760,23 @@ pen_status pen_antialias_fwd(pen_context *ctx, const pen_gbuffer *gb, const pen_
     pen_status status = aa_begin(ctx, gb, view, meshes, mesh_count, channels, &st);
     if (status) return status;
     apply_blend(pen__raster_threads_for(ctx, (size_t)gb->width * (size_t)gb->height), &st, color,
-                channels, 0, out);
+                channels, BLEND_A, out);
     aa_end(&st);
     return PEN_OK;
 }
 
 /* ---- Backward -------------------------------------------------------------------------------- */
 
-pen_status pen_antialias_bwd(pen_context *ctx, const pen_gbuffer *gb, const pen_view *view,
-                             const pen_raster_mesh *meshes, int mesh_count, const float *color,
-                             int channels, const float *d_out, float *d_color,
-                             float *const *d_positions) {
+static pen_status antialias_bwd(pen_context *ctx, const pen_gbuffer *gb, const pen_view *view,
+                                const pen_raster_mesh *meshes, int mesh_count, const float *color,
+                                int channels, const float *d_out, float *d_color, int mode,
+                                float *const *d_positions) {
     aa_state st;
     pen_status status = aa_begin(ctx, gb, view, meshes, mesh_count, channels, &st);
     if (status) return status;
     int W = gb->width, H = gb->height;
     if (d_color)
-        apply_blend(pen__raster_threads_for(ctx, (size_t)W * (size_t)H), &st, d_out, channels, 1,
+        apply_blend(pen__raster_threads_for(ctx, (size_t)W * (size_t)H), &st, d_out, channels, mode,
                     d_color);
     if (d_positions) {
         /* Serial, in pair order (every row's horizontal hits, then every row's vertical ones):
@@ -736,4 +813,20 @@ pen_status pen_antialias_bwd(pen_context *ctx, const pen_gbuffer *gb, const pen_
     }
     aa_end(&st);
     return PEN_OK;
+}
+
+pen_status pen_antialias_bwd(pen_context *ctx, const pen_gbuffer *gb, const pen_view *view,
+                             const pen_raster_mesh *meshes, int mesh_count, const float *color,
+                             int channels, const float *d_out, float *d_color,
+                             float *const *d_positions) {
+    return antialias_bwd(ctx, gb, view, meshes, mesh_count, color, channels, d_out, d_color,
+                         BLEND_T_ADD, d_positions);
+}
+
+pen_status pen__antialias_bwd_set(pen_context *ctx, const pen_gbuffer *gb, const pen_view *view,
+                                  const pen_raster_mesh *meshes, int mesh_count, const float *color,
+                                  int channels, const float *d_out, float *d_color,
+                                  float *const *d_positions) {
+    return antialias_bwd(ctx, gb, view, meshes, mesh_count, color, channels, d_out, d_color,
+                         BLEND_T_SET, d_positions);
 }

@@ -17,6 +17,9 @@
 #include "raster/raster_internal.h"
 
 #include <stdlib.h>
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 #define TINY_LENGTH 1e-20
 
@@ -63,6 +66,88 @@ void pen_interpolate_bwd(const pen_gbuffer *gb, int object, const uint32_t *indi
             d_bary[2 * i + 1] += (float)dv;
         }
     }
+}
+
+/* The frame's three interpolations of one object (points, raw normals, UVs: the last optional)
+ * in one pass: pen_interpolate_bwd three times costs three scans of every pixel and reloads each
+ * pixel's triangle and barycentrics; here each object pixel is visited once. Each sum runs in
+ * the same order as the three calls (every vertex's terms in pixel order; a pixel's barycentric
+ * terms points, normals, UVs), so the bits are the same. The pixel's d_bary is written, not
+ * added: its entry starts at +0 as after a clear (0 + g turns a -0 into +0, as the clear did),
+ * so the caller need not clear the buffer. */
+/* What pen__interpolate_bwd_object does for one pixel i of the object. */
+static inline void bwd_object_pixel(const pen_gbuffer *gb, size_t i, const uint32_t *indices,
+                                    const float *world, const float *d_x, float *d_world,
+                                    const float *vnormal, const float *d_nraw, float *d_vnormal,
+                                    const uint32_t *uv_indices, const float *uvs, const float *d_uv,
+                                    float *d_bary) {
+    const size_t t = 3 * (size_t)gb->triangle[i];
+    const uint32_t *idx = indices + t;
+    const double u = (double)gb->bary[2 * i], v = (double)gb->bary[2 * i + 1], w = 1.0 - u - v;
+    const size_t k0 = 3 * (size_t)idx[0], k1 = 3 * (size_t)idx[1], k2 = 3 * (size_t)idx[2];
+    const float *src[2] = {world, vnormal}, *grad[2] = {d_x + 3 * i, d_nraw + 3 * i};
+    float *dst[2] = {d_world, d_vnormal};
+    float bu = 0.0f, bv = 0.0f;
+    for (int a = 0; a < 2; ++a) {
+        /* The gradient and the corners read once, before the scatter (the buffers are distinct,
+         * so the order of reads and writes changes nothing but the reloads). */
+        const float *a0 = src[a] + k0, *a1 = src[a] + k1, *a2 = src[a] + k2;
+        const double g[3] = {(double)grad[a][0], (double)grad[a][1], (double)grad[a][2]};
+        double du = 0.0, dv = 0.0;
+        for (int c = 0; c < 3; ++c) {
+            du += g[c] * ((double)a1[c] - (double)a0[c]);
+            dv += g[c] * ((double)a2[c] - (double)a0[c]);
+        }
+        float *d = dst[a];
+        for (int c = 0; c < 3; ++c) {
+            d[k0 + c] += (float)(w * g[c]);
+            d[k1 + c] += (float)(u * g[c]);
+            d[k2 + c] += (float)(v * g[c]);
+        }
+        bu += (float)du;
+        bv += (float)dv;
+    }
+    if (uvs) {
+        const uint32_t *uidx = uv_indices + t;
+        const float *g = d_uv + 2 * i, *a0 = uvs + 2 * (size_t)uidx[0];
+        const float *a1 = uvs + 2 * (size_t)uidx[1], *a2 = uvs + 2 * (size_t)uidx[2];
+        double du = 0.0, dv = 0.0;
+        for (int c = 0; c < 2; ++c) {
+            du += (double)g[c] * ((double)a1[c] - (double)a0[c]);
+            dv += (double)g[c] * ((double)a2[c] - (double)a0[c]);
+        }
+        bu += (float)du;
+        bv += (float)dv;
+    }
+    d_bary[2 * i] = bu;
+    d_bary[2 * i + 1] = bv;
+}
+
+void pen__interpolate_bwd_object(const pen_gbuffer *gb, int object, const uint32_t *indices,
+                                 const float *world, const float *d_x, float *d_world,
+                                 const float *vnormal, const float *d_nraw, float *d_vnormal,
+                                 const uint32_t *uv_indices, const float *uvs, const float *d_uv,
+                                 float *d_bary) {
+    if (object < 0) return;
+    const size_t n = (size_t)gb->width * (size_t)gb->height;
+    size_t i = 0;
+#if defined(__SSE2__)
+    /* The object's pixels found 4 at a time (most of the image is other surfaces), in order. */
+    const __m128i want = _mm_set1_epi32(object);
+    for (; i + 4 <= n; i += 4) {
+        const __m128i s4 = _mm_loadu_si128((const __m128i *)(const void *)(gb->surface + i));
+        const int hit = _mm_movemask_ps(_mm_castsi128_ps(_mm_cmpeq_epi32(s4, want)));
+        if (!hit) continue;
+        for (int k = 0; k < 4; ++k)
+            if (hit >> k & 1)
+                bwd_object_pixel(gb, i + (size_t)k, indices, world, d_x, d_world, vnormal, d_nraw,
+                                 d_vnormal, uv_indices, uvs, d_uv, d_bary);
+    }
+#endif
+    for (; i < n; ++i)
+        if (gb->surface[i] == object)
+            bwd_object_pixel(gb, i, indices, world, d_x, d_world, vnormal, d_nraw, d_vnormal,
+                             uv_indices, uvs, d_uv, d_bary);
 }
 
 /* ---- Vertex normals -------------------------------------------------------------------------- */

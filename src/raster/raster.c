@@ -33,6 +33,9 @@
 
 #include <limits.h>
 #include <omp.h>
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 #include <stdlib.h>
 #include <string.h>
 
@@ -191,8 +194,65 @@ typedef struct tile_ctx {
     const int *bin_start; /* per tile, into bin_items */
     const int *bin_items;
     const double *rx, *ry; /* per column / row: camera-space ray of the pixel centre */
+    const double *rxr;     /* per column: rx right, pen_view_ray's first term (x, y, z: 3 rows) */
     pen_gbuffer *gb;
+    float *points; /* NULL, or pen_gbuffer_points' values of the pixels off the objects */
 } tile_ctx;
+
+/* The ground square over the columns x0 .. x1 of row y (the tile row's buffers, from column x0):
+ * the ray meets the plane at depth z = (height - eye_y) / D_y, a hit in front of the near plane,
+ * closer than the triangles and inside the square. D is pen_view_ray's sum from the tables
+ * ((rx right + ry up) + forward, the products the same), so its bits are too; with SSE2 two
+ * columns at a time, each lane the scalar's operations and comparisons (false on a NaN alike). */
+static void ground_row(const tile_ctx *tc, int y, double num, double hs, int x0, int x1,
+                       double *depth, double *bu, double *bv, int *surf, int *tri) {
+    const pen_view *view = tc->view;
+    const double ry = tc->ry[y], near = view->near_plane;
+    const double ryu[3] = {ry * view->up[0], ry * view->up[1], ry * view->up[2]};
+    const double *r0 = tc->rxr, *r1 = r0 + view->width, *r2 = r1 + view->width;
+    int x = x0;
+#if defined(__SSE2__)
+    const __m128d u0 = _mm_set1_pd(ryu[0]), u1 = _mm_set1_pd(ryu[1]), u2 = _mm_set1_pd(ryu[2]);
+    const __m128d f0 = _mm_set1_pd(view->forward[0]), f1 = _mm_set1_pd(view->forward[1]);
+    const __m128d f2 = _mm_set1_pd(view->forward[2]), e0 = _mm_set1_pd(view->eye[0]);
+    const __m128d e2 = _mm_set1_pd(view->eye[2]), nm = _mm_set1_pd(num), nr = _mm_set1_pd(near);
+    const __m128d h = _mm_set1_pd(hs), sign = _mm_set1_pd(-0.0);
+    for (; x + 1 <= x1; x += 2) {
+        const int i = x - x0;
+        const __m128d D0 = _mm_add_pd(_mm_add_pd(_mm_loadu_pd(r0 + x), u0), f0);
+        const __m128d D1 = _mm_add_pd(_mm_add_pd(_mm_loadu_pd(r1 + x), u1), f1);
+        const __m128d D2 = _mm_add_pd(_mm_add_pd(_mm_loadu_pd(r2 + x), u2), f2);
+        const __m128d z = _mm_div_pd(nm, D1);
+        const __m128d hx = _mm_add_pd(e0, _mm_mul_pd(z, D0));
+        const __m128d hz = _mm_add_pd(e2, _mm_mul_pd(z, D2));
+        const __m128d in =
+            _mm_and_pd(_mm_and_pd(_mm_cmpge_pd(z, nr), _mm_cmplt_pd(z, _mm_loadu_pd(depth + i))),
+                       _mm_and_pd(_mm_cmple_pd(_mm_andnot_pd(sign, hx), h),
+                                  _mm_cmple_pd(_mm_andnot_pd(sign, hz), h)));
+        const int hit = _mm_movemask_pd(in);
+        if (!hit) continue;
+        double zz[2];
+        _mm_storeu_pd(zz, z);
+        for (int k = 0; k < 2; ++k)
+            if (hit >> k & 1) {
+                depth[i + k] = zz[k], bu[i + k] = bv[i + k] = 0.0;
+                surf[i + k] = PEN_SURFACE_GROUND, tri[i + k] = -1;
+            }
+    }
+#endif
+    for (; x <= x1; ++x) {
+        const int i = x - x0;
+        const double D0 = r0[x] + ryu[0] + view->forward[0];
+        const double D1 = r1[x] + ryu[1] + view->forward[1];
+        const double D2 = r2[x] + ryu[2] + view->forward[2];
+        double z = num / D1;
+        double hx = view->eye[0] + z * D0, hz = view->eye[2] + z * D2;
+        if (z >= near && z < depth[i] && fabs(hx) <= hs && fabs(hz) <= hs) {
+            depth[i] = z, bu[i] = bv[i] = 0.0;
+            surf[i] = PEN_SURFACE_GROUND, tri[i] = -1;
+        }
+    }
+}
 
 static void raster_tile(const tile_ctx *tc, int tx, int ty, int tiles_x) {
     const pen_view *view = tc->view;
@@ -216,12 +276,13 @@ static void raster_tile(const tile_ctx *tc, int tx, int ty, int tiles_x) {
         int xa = s->x0 > X0 ? s->x0 : X0, xb = s->x1 < X1 ? s->x1 : X1;
         int ya = s->y0 > Y0 ? s->y0 : Y0, yb = s->y1 < Y1 ? s->y1 : Y1;
         for (int y = ya; y <= yb; ++y) {
-            double ry = tc->ry[y];
+            const double ry = tc->ry[y]; /* n[k][1] ry once a row: the same product */
+            const double nry[3] = {s->n[0][1] * ry, s->n[1][1] * ry, s->n[2][1] * ry};
             for (int x = xa; x <= xb; ++x) {
                 double rx = tc->rx[x], e[3];
                 int inside = 1;
                 for (int k = 0; k < 3 && inside; ++k) {
-                    e[k] = sign * (s->n[k][0] * rx + s->n[k][1] * ry + s->n[k][2]);
+                    e[k] = sign * (s->n[k][0] * rx + nry[k] + s->n[k][2]);
                     inside = e[k] > 0.0 || (e[k] == 0.0 && own[k]);
                 }
                 if (!inside) continue;
@@ -235,35 +296,56 @@ static void raster_tile(const tile_ctx *tc, int tx, int ty, int tiles_x) {
             }
         }
     }
+    /* The ground after the triangles, and the tile written out. */
     const pen_ground *g = tc->ground;
-    for (int y = Y0; y <= Y1; ++y)
+    const int ground = g && g->enabled;
+    const double num = ground ? (double)g->height - view->eye[1] : 0.0;
+    const double hs = ground ? (double)g->half_size : 0.0;
+    for (int y = Y0; y <= Y1; ++y) {
+        const int r = (y - Y0) * TILE;
+        if (ground)
+            ground_row(tc, y, num, hs, X0, X1, depth + r, bu + r, bv + r, surf + r, tri + r);
+        const size_t row = (size_t)y * (size_t)view->width;
+        /* With points: pen_gbuffer_points' value of each pixel off the objects, the point at
+         * the float depth on the pixel's ray (D as pen_view_ray's sum from the tables, as
+         * there), zeros on the background. */
+        float *pts = tc->points ? tc->points + 3 * row : NULL;
+        const double ry = tc->ry[y];
+        const double ryu[3] = {ry * view->up[0], ry * view->up[1], ry * view->up[2]};
+        const double e[3] = {view->eye[0], view->eye[1], view->eye[2]};
+        const double f[3] = {view->forward[0], view->forward[1], view->forward[2]};
+        const double *rr[3] = {tc->rxr, tc->rxr + view->width, tc->rxr + 2 * view->width};
         for (int x = X0; x <= X1; ++x) {
-            int i = (y - Y0) * TILE + (x - X0);
-            if (g && g->enabled) {
-                double D[3]; /* pen_view_ray from the tables */
-                for (int c = 0; c < 3; ++c)
-                    D[c] = tc->rx[x] * view->right[c] + tc->ry[y] * view->up[c] + view->forward[c];
-                double z = ((double)g->height - view->eye[1]) / D[1];
-                double hx = view->eye[0] + z * D[0], hz = view->eye[2] + z * D[2];
-                double hs = (double)g->half_size;
-                if (z >= near && z < depth[i] && fabs(hx) <= hs && fabs(hz) <= hs) {
-                    depth[i] = z, bu[i] = bv[i] = 0.0;
-                    surf[i] = PEN_SURFACE_GROUND, tri[i] = -1;
-                }
-            }
-            size_t o = (size_t)y * (size_t)view->width + (size_t)x;
+            const int i = r + (x - X0);
+            size_t o = row + (size_t)x;
+            const float d = (float)depth[i];
             tc->gb->surface[o] = surf[i];
             tc->gb->triangle[o] = tri[i];
             tc->gb->bary[2 * o] = (float)bu[i];
             tc->gb->bary[2 * o + 1] = (float)bv[i];
-            tc->gb->depth[o] = (float)depth[i];
+            tc->gb->depth[o] = d;
+            if (!pts || surf[i] >= 0) continue;
+            float *p = pts + 3 * (size_t)x;
+            if (surf[i] == PEN_SURFACE_BACKGROUND) {
+                p[0] = p[1] = p[2] = 0.0f;
+            } else if (surf[i] == PEN_SURFACE_GROUND) {
+                for (int c = 0; c < 3; ++c)
+                    p[c] = (float)(e[c] + (double)d * (rr[c][x] + ryu[c] + f[c]));
+            }
         }
+    }
 }
 
 /* ---- Rasterization --------------------------------------------------------------------------- */
 
 pen_status pen_raster_gbuffer(pen_context *ctx, const pen_view *view, const pen_raster_mesh *meshes,
                               int mesh_count, const pen_ground *ground, pen_gbuffer *gb) {
+    return pen__raster_gbuffer_points(ctx, view, meshes, mesh_count, ground, gb, NULL);
+}
+
+pen_status pen__raster_gbuffer_points(pen_context *ctx, const pen_view *view,
+                                      const pen_raster_mesh *meshes, int mesh_count,
+                                      const pen_ground *ground, pen_gbuffer *gb, float *points) {
     if (!view || !gb || !gb->surface)
         return pen__error(ctx, PEN_ERROR_ARGUMENT, "raster: NULL view or G-buffer");
     if (gb->width != view->width || gb->height != view->height)
@@ -292,15 +374,18 @@ pen_status pen_raster_gbuffer(pen_context *ctx, const pen_view *view, const pen_
     double *cam = pen__malloc(ctx, 3 * (max_vertices ? max_vertices : 1), sizeof(double),
                               "raster camera-space vertices");
     int *bin_start = pen__calloc(ctx, tiles + 1, sizeof(int), "raster bins");
-    double *rx = pen__malloc(ctx, (size_t)W + (size_t)H, sizeof(double), "raster rays");
+    double *rx = pen__malloc(ctx, 4 * (size_t)W + (size_t)H, sizeof(double), "raster rays");
     int *bin_items = NULL;
     if (!setups || !cam || !bin_start || !rx) {
         st = PEN_ERROR_MEMORY;
         goto done;
     }
-    double *ry = rx + W;
-    for (int x = 0; x < W; ++x)
+    double *ry = rx + W, *rxr = ry + H;
+    for (int x = 0; x < W; ++x) {
         rx[x] = (x + 0.5 - view->cx) / view->focal[0];
+        for (int c = 0; c < 3; ++c)
+            rxr[(size_t)c * (size_t)W + (size_t)x] = rx[x] * view->right[c];
+    }
     for (int y = 0; y < H; ++y)
         ry[y] = (view->cy - (y + 0.5)) / view->focal[1];
 
@@ -363,7 +448,7 @@ pen_status pen_raster_gbuffer(pen_context *ctx, const pen_view *view, const pen_
         free(fill);
     }
 
-    tile_ctx tc = {view, ground, setups, bin_start, bin_items, rx, ry, gb};
+    tile_ctx tc = {view, ground, setups, bin_start, bin_items, rx, ry, rxr, gb, points};
     int ntiles = (int)tiles;
     int threads = pen__raster_threads_for(ctx, (size_t)W * (size_t)H);
 #pragma omp parallel for num_threads(threads) schedule(dynamic, 1)
@@ -422,6 +507,46 @@ void pen__raster_ray_bary_bwd_d(const double eye[3], const double dir[3], const 
     }
 }
 
+/* pen_view_ray's first term rx right for every column (3 doubles a column; NULL when out of
+ * memory): with ry up per row, summed in its order ((rx right + ry up) + forward), a pixel's ray
+ * has the same bits without two divisions and a call a pixel. */
+static double *ray_right_terms(const pen_view *view) {
+    double *rxr = malloc(sizeof(double) * 3 * (size_t)view->width);
+    if (rxr)
+        for (int x = 0; x < view->width; ++x) {
+            const double rx = (x + 0.5 - view->cx) / view->focal[0];
+            for (int c = 0; c < 3; ++c)
+                rxr[3 * x + c] = rx * view->right[c];
+        }
+    return rxr;
+}
+
+/* pen__raster_ray_bary_d and then pen__raster_ray_bary_bwd_d at its solution, into dp (written,
+ * as the backward's sums into zeros), sharing the matrix, its cofactors and determinant: the same
+ * arithmetic, so the same bits. Returns 0 (dp untouched) when the ray is parallel to the plane. */
+static int ray_bary_solve_bwd(const double eye[3], const double dir[3], const double p[3][3],
+                              const double d_x[3], double dp[3][3]) {
+    double c[3][3], rhs[3], r[3][3];
+    for (int i = 0; i < 3; ++i)
+        c[0][i] = -dir[i], c[1][i] = p[1][i] - p[0][i], c[2][i] = p[2][i] - p[0][i];
+    pen__sub_d(eye, p[0], rhs);
+    for (int k = 0; k < 3; ++k)
+        pen__cross_d(c[(k + 1) % 3], c[(k + 2) % 3], r[k]);
+    double det = pen__dot_d(c[0], r[0]);
+    if (det == 0.0 || !isfinite(det)) return 0;
+    const double x1 = pen__dot_d(r[1], rhs) / det, x2 = pen__dot_d(r[2], rhs) / det;
+    double w[3];
+    for (int i = 0; i < 3; ++i)
+        w[i] = (d_x[0] * r[0][i] + d_x[1] * r[1][i] + d_x[2] * r[2][i]) / det;
+    const double b0 = 1.0 - x1 - x2;
+    for (int i = 0; i < 3; ++i) {
+        dp[0][i] = 0.0 - b0 * w[i];
+        dp[1][i] = 0.0 - x1 * w[i];
+        dp[2][i] = 0.0 - x2 * w[i];
+    }
+    return 1;
+}
+
 pen_status pen_raster_bary_bwd(pen_context *ctx, const pen_view *view,
                                const pen_raster_mesh *meshes, int mesh_count, const pen_gbuffer *gb,
                                const float *d_bary, float *const *d_positions) {
@@ -443,32 +568,47 @@ void pen_raster_bary_bwd_scratch(pen_context *ctx, const pen_view *view,
     /* Each pixel's three vertex gradients are solved in parallel into the scratch buffer, then
      * added to the shared vertices serially in pixel order, so sums do not depend on threads. */
     int W = gb->width, H = gb->height, threads = pen__raster_threads_for(ctx, n);
+    double *rxr = ray_right_terms(view); /* NULL: pen_view_ray per pixel */
 #pragma omp parallel for num_threads(threads) schedule(static)
-    for (int y = 0; y < H; ++y)
+    for (int y = 0; y < H; ++y) {
+        const double ry = (view->cy - (y + 0.5)) / view->focal[1];
         for (int x = 0; x < W; ++x) {
             size_t i = (size_t)y * (size_t)W + (size_t)x;
+            if ((x & 3) == 0 && x + 4 <= W && pen__no_mesh4(gb->surface + i)) {
+                x += 3;
+                continue;
+            }
             int m = gb->surface[i];
+            if (m < 0 || m >= mesh_count || !d_positions[m]) continue; /* (not read below) */
             float *gi = g + 9 * i;
             gi[0] = NAN; /* marks "nothing to add" */
-            if (m < 0 || m >= mesh_count || !d_positions[m]) continue;
             double dx[3] = {0.0, (double)d_bary[2 * i], (double)d_bary[2 * i + 1]};
             if (dx[1] == 0.0 && dx[2] == 0.0) continue;
             const pen_raster_mesh *mesh = meshes + m;
             const uint32_t *idx = mesh->indices + 3 * (size_t)gb->triangle[i];
-            double p[3][3], D[3], sol[3], dp[3][3] = {{0}};
+            double p[3][3], D[3], dp[3][3];
             for (int k = 0; k < 3; ++k)
                 pen__load3_d(mesh->positions + 3 * (size_t)idx[k], p[k]);
-            pen_view_ray(view, x + 0.5, y + 0.5, D);
-            if (!pen__raster_ray_bary_d(view->eye, D, p[0], p[1], p[2], sol)) continue;
-            pen__raster_ray_bary_bwd_d(view->eye, D, p[0], p[1], p[2], sol, dx, dp[0], dp[1],
-                                       dp[2]);
+            if (rxr)
+                for (int c = 0; c < 3; ++c) /* pen_view_ray's sum, from the tables */
+                    D[c] = rxr[3 * x + c] + ry * view->up[c] + view->forward[c];
+            else
+                pen_view_ray(view, x + 0.5, y + 0.5, D);
+            if (!ray_bary_solve_bwd(view->eye, D, p, dx, dp)) continue;
             for (int k = 0; k < 9; ++k)
                 gi[k] = (float)dp[k / 3][k % 3];
         }
+    }
+    free(rxr);
     for (size_t i = 0; i < n; ++i) {
+        if ((i & 3) == 0 && i + 4 <= n && pen__no_mesh4(gb->surface + i)) {
+            i += 3;
+            continue;
+        }
+        int m = gb->surface[i];
+        if (m < 0 || m >= mesh_count || !d_positions[m]) continue;
         const float *gi = g + 9 * i;
         if (isnan(gi[0])) continue;
-        int m = gb->surface[i];
         const uint32_t *idx = meshes[m].indices + 3 * (size_t)gb->triangle[i];
         for (int k = 0; k < 9; ++k)
             d_positions[m][3 * (size_t)idx[k / 3] + k % 3] += gi[k];
@@ -476,13 +616,11 @@ void pen_raster_bary_bwd_scratch(pen_context *ctx, const pen_view *view,
 }
 
 void pen_gbuffer_points(const pen_view *view, const pen_gbuffer *gb, float *out) {
-    pen__gbuffer_points_rows(view, gb, 0, gb->height, out);
-}
-
-void pen__gbuffer_points_rows(const pen_view *view, const pen_gbuffer *gb, int y0, int y1,
-                              float *out) {
     const int W = gb->width;
-    for (int y = y0; y < y1; ++y)
+    double *rxr = ray_right_terms(view); /* NULL: pen_view_ray per pixel */
+    for (int y = 0; y < gb->height; ++y) {
+        const double ry = (view->cy - (y + 0.5)) / view->focal[1];
+        const double ryu[3] = {ry * view->up[0], ry * view->up[1], ry * view->up[2]};
         for (int x = 0; x < W; ++x) {
             size_t i = (size_t)y * (size_t)W + (size_t)x;
             float *o = out + 3 * i;
@@ -491,10 +629,16 @@ void pen__gbuffer_points_rows(const pen_view *view, const pen_gbuffer *gb, int y
                 continue;
             }
             double D[3], z = (double)gb->depth[i];
-            pen_view_ray(view, x + 0.5, y + 0.5, D);
+            if (rxr)
+                for (int c = 0; c < 3; ++c)
+                    D[c] = rxr[3 * x + c] + ryu[c] + view->forward[c];
+            else
+                pen_view_ray(view, x + 0.5, y + 0.5, D);
             for (int c = 0; c < 3; ++c)
                 o[c] = (float)(view->eye[c] + z * D[c]);
         }
+    }
+    free(rxr);
 }
 
 /* ---- Edge adjacency -------------------------------------------------------------------------- */
@@ -522,16 +666,47 @@ pen_status pen_raster_adjacency(pen_context *ctx, int vertex_count, int triangle
             return pen__error(ctx, PEN_ERROR_ARGUMENT,
                               "adjacency: triangle %zu: index %u out of range [0, %d)", i / 3,
                               indices[i], vertex_count);
+    /* Sorted by (key, id) as one qsort would, but by a counting sort on the lower vertex (ids
+     * ascending within each vertex's bucket) and then each bucket by the upper one: a bucket holds
+     * a vertex's few edges, and a qsort of every half-edge cost more than the rest of a frame's
+     * setup. A stable insertion sort keeps equal keys in id order; a crowded vertex gets qsort. */
     half_edge *he = pen__malloc(ctx, n ? n : 1, sizeof *he, "adjacency half-edges");
-    if (!he) return PEN_ERROR_MEMORY;
+    size_t *start = pen__calloc(ctx, (size_t)vertex_count + 1, sizeof *start, "adjacency buckets");
+    if (!he || !start) {
+        free(he);
+        free(start);
+        return PEN_ERROR_MEMORY;
+    }
+    for (size_t i = 0; i < n; ++i) {
+        uint32_t a = indices[i], b = indices[i - i % 3 + (i % 3 + 1) % 3];
+        ++start[(a < b ? a : b) + 1];
+        adjacency[i] = -1;
+    }
+    for (int v = 0; v < vertex_count; ++v)
+        start[v + 1] += start[v];
     for (size_t i = 0; i < n; ++i) {
         uint32_t a = indices[i], b = indices[i - i % 3 + (i % 3 + 1) % 3];
         uint32_t lo = a < b ? a : b, hi = a < b ? b : a;
-        he[i].key = ((uint64_t)lo << 32) | hi;
-        he[i].id = (uint32_t)i;
-        adjacency[i] = -1;
+        half_edge *e = he + start[lo]++; /* start[lo] ends at the bucket's end */
+        e->key = ((uint64_t)lo << 32) | hi;
+        e->id = (uint32_t)i;
     }
-    qsort(he, n, sizeof *he, half_edge_cmp);
+    for (int v = 0; v < vertex_count; ++v) {
+        half_edge *b = he + (v ? start[v - 1] : 0);
+        const size_t count = (size_t)(he + start[v] - b);
+        if (count > 32) {
+            qsort(b, count, sizeof *b, half_edge_cmp);
+            continue;
+        }
+        for (size_t j = 1; j < count; ++j) {
+            const half_edge x = b[j];
+            size_t k = j;
+            for (; k > 0 && b[k - 1].key > x.key; --k)
+                b[k] = b[k - 1];
+            b[k] = x;
+        }
+    }
+    free(start);
     for (size_t i = 0; i < n;) {
         size_t j = i + 1;
         while (j < n && he[j].key == he[i].key)

@@ -178,21 +178,19 @@ unsigned pen_render_grad_model(pen_scene *sc, unsigned wrt) {
 }
 
 /* The geometry's serial scatter: the interpolations' backward into the vertices and barycentrics,
- * the footprints' into the vertices, the vertex normals'. */
+ * the footprints' into the vertices, the vertex normals'. Every object pixel's d_bary is written
+ * (pen__interpolate_bwd_object), and those are the only ones the barycentric backward reads. */
 static pen_status geometry_scatter(pen_context *ctx, const pen_scene *sc, pen_render_state *st) {
     pen_status s = PEN_OK;
     for (int o = 0; o < sc->object_count && !s; ++o) {
         const pen_object *ob = &sc->objects[o];
         pen__object_buf *b = &st->obj[o];
-        pen_interpolate_bwd(&st->gb, o, ob->mesh.indices, b->world.data, 3, st->d_x.data,
-                            b->d_world.data, st->d_bary.data);
-        pen_interpolate_bwd(&st->gb, o, ob->mesh.indices, b->vnormal.data, 3, st->d_nraw.data,
-                            b->d_vnormal.data, st->d_bary.data);
-        if (ob->texture.data) {
-            pen_interpolate_bwd(&st->gb, o, ob->mesh.uv_indices, ob->mesh.uvs, 2, st->d_uv.data,
-                                NULL, st->d_bary.data);
-            if (pen__render_footprint(ob)) pen__uv_footprint_bwd(st, ob, o, b->d_world.data);
-        }
+        const int tex = ob->texture.data != NULL;
+        pen__interpolate_bwd_object(&st->gb, o, ob->mesh.indices, b->world.data, st->d_x.data,
+                                    b->d_world.data, b->vnormal.data, st->d_nraw.data,
+                                    b->d_vnormal.data, ob->mesh.uv_indices,
+                                    tex ? ob->mesh.uvs : NULL, st->d_uv.data, st->d_bary.data);
+        if (tex && pen__render_footprint(ob)) pen__uv_footprint_bwd(st, ob, o, b->d_world.data);
         s = pen_vertex_normals_bwd(ctx, ob->mesh.vertex_count, b->world.data,
                                    ob->mesh.triangle_count, ob->mesh.indices, b->d_vnormal.data,
                                    b->d_world.data);
@@ -351,9 +349,8 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
         d_img = st->d_border.data;
     }
     if (opt->antialias && O > 0) {
-        memset(st->d_color.data, 0, sizeof(float) * 3 * np);
-        s = pen_antialias_bwd(ctx, &st->gb, &st->view, st->meshes, O, st->color.data, 3, d_img,
-                              st->d_color.data, want_geom ? d_world : NULL);
+        s = pen__antialias_bwd_set(ctx, &st->gb, &st->view, st->meshes, O, st->color.data, 3, d_img,
+                                   st->d_color.data, want_geom ? d_world : NULL);
         if (s) {
             free(d_world);
             return s;
@@ -383,7 +380,6 @@ pen_status pen_render_bwd(pen_context *ctx, const pen_scene *sc, const pen_rende
      * texel sums its pixels in the same order whatever the threads and bands
      * (pen__texture_scatter_rows). */
     pen_status s_geom = PEN_OK;
-    if (want_geom) memset(st->d_bary.data, 0, sizeof(float) * 2 * np);
     int textured = 0;
     for (int o = 0; o < O; ++o)
         textured |= sc->objects[o].texture.data != NULL;

@@ -67,43 +67,51 @@ static pen_status check_spheres(pen_context *ctx, const pen_scene *sc) {
     return PEN_OK;
 }
 
-/* Corner values of pixel i's triangle (indices) interpolated with its barycentrics: the sum of
- * pen_interpolate_fwd, in the same double arithmetic (the same bits). */
-static void interpolate_pixel(const pen_gbuffer *gb, size_t i, const uint32_t *indices,
-                              const float *values, int dim, float *out) {
-    const uint32_t *idx = indices + 3 * (size_t)gb->triangle[i];
-    const double u = (double)gb->bary[2 * i], v = (double)gb->bary[2 * i + 1], w = 1.0 - u - v;
-    const float *a0 = values + (size_t)idx[0] * (size_t)dim;
-    const float *a1 = values + (size_t)idx[1] * (size_t)dim;
-    const float *a2 = values + (size_t)idx[2] * (size_t)dim;
+/* Corner values (a0, a1, a2: dim floats each) interpolated with pixel barycentrics (u, v) and
+ * w = 1 - u - v: the sum of pen_interpolate_fwd, in the same double arithmetic (the same bits). */
+static inline void interpolate_corners(double u, double v, double w, const float *a0,
+                                       const float *a1, const float *a2, int dim, float *out) {
     for (int c = 0; c < dim; ++c)
         out[c] = (float)(w * (double)a0[c] + u * (double)a1[c] + v * (double)a2[c]);
 }
 
-/* Every pixel's point (pen_gbuffer_points: from the depth, on the ground and the objects), then the
- * objects' pixels' point, raw normal and UV, in one pass over the image, a band of rows a thread
- * (each pixel's values are its own, so any split gives the same bits). One pass, not a pass per
- * object (pen_interpolate_fwd), which costs objects x pixels: 2 x 4096 x 512^2 visits with many
- * small objects (bench/NOTES.md "Many small objects"). */
+/* The objects' pixels' point, raw normal and UV (the other pixels' points, pen_gbuffer_points',
+ * came with the G-buffer: pen__raster_gbuffer_points), in one pass over the image, a band of rows
+ * a thread (each pixel's values are its own, so any split gives the same bits). One pass, not a
+ * pass per object (pen_interpolate_fwd), which costs objects x pixels: 2 x 4096 x 512^2 visits with
+ * many small objects (bench/NOTES.md "Many small objects"). The point and the normal share the
+ * triangle's corners. */
 static void interpolate_attributes(const pen_scene *sc, pen_render_state *st, int nt) {
     const int W = st->width, H = st->height;
     const int chunks = nt > 1 && (size_t)W * (size_t)H >= PEN_RENDER_PARALLEL_MIN_PIXELS ? nt : 1;
+    const pen_gbuffer *gb = &st->gb;
 #pragma omp parallel for schedule(static) num_threads(chunks) if (chunks > 1)
     for (int c = 0; c < chunks; ++c) {
         const int y0 = (int)((long long)H * c / chunks),
                   y1 = (int)((long long)H * (c + 1) / chunks);
-        pen__gbuffer_points_rows(&st->view, &st->gb, y0, y1, st->x.data);
-        for (size_t i = (size_t)y0 * (size_t)W; i < (size_t)y1 * (size_t)W; ++i) {
-            const int o = st->gb.surface[i];
+        const size_t end = (size_t)y1 * (size_t)W;
+        for (size_t i = (size_t)y0 * (size_t)W; i < end; ++i) {
+            if ((i & 3) == 0 && i + 4 <= end && pen__no_mesh4(gb->surface + i)) {
+                i += 3;
+                continue;
+            }
+            const int o = gb->surface[i];
             if (o < 0) continue;
             const pen_object *ob = &sc->objects[o];
-            interpolate_pixel(&st->gb, i, ob->mesh.indices, st->obj[o].world.data, 3,
-                              st->x.data + 3 * i);
-            interpolate_pixel(&st->gb, i, ob->mesh.indices, st->obj[o].vnormal.data, 3,
-                              st->nraw.data + 3 * i);
-            if (ob->texture.data)
-                interpolate_pixel(&st->gb, i, ob->mesh.uv_indices, ob->mesh.uvs, 2,
-                                  st->uv.data + 2 * i);
+            const size_t t = 3 * (size_t)gb->triangle[i];
+            const uint32_t *idx = ob->mesh.indices + t;
+            const double u = (double)gb->bary[2 * i], v = (double)gb->bary[2 * i + 1],
+                         w = 1.0 - u - v;
+            const size_t k0 = 3 * (size_t)idx[0], k1 = 3 * (size_t)idx[1], k2 = 3 * (size_t)idx[2];
+            const float *p = st->obj[o].world.data, *n = st->obj[o].vnormal.data;
+            interpolate_corners(u, v, w, p + k0, p + k1, p + k2, 3, st->x.data + 3 * i);
+            interpolate_corners(u, v, w, n + k0, n + k1, n + k2, 3, st->nraw.data + 3 * i);
+            if (ob->texture.data) {
+                const uint32_t *uidx = ob->mesh.uv_indices + t;
+                const float *uv = ob->mesh.uvs;
+                interpolate_corners(u, v, w, uv + 2 * (size_t)uidx[0], uv + 2 * (size_t)uidx[1],
+                                    uv + 2 * (size_t)uidx[2], 2, st->uv.data + 2 * i);
+            }
         }
     }
 }
@@ -161,8 +169,8 @@ static pen_status prepare(pen_context *ctx, const pen_scene *sc, const pen_rende
     }
     if ((s = pen__render_overlap_weights(ctx, sc, st))) return s;
 
-    if ((s = pen_raster_gbuffer(ctx, &st->view, st->meshes, sc->object_count, &sc->ground,
-                                &st->gb)))
+    if ((s = pen__raster_gbuffer_points(ctx, &st->view, st->meshes, sc->object_count, &sc->ground,
+                                        &st->gb, st->x.data)))
         return s;
     interpolate_attributes(sc, st, pen__threads(ctx));
     for (int o = 0; o < sc->object_count; ++o) {

@@ -5,10 +5,10 @@
  *
  * Design
  * - It runs at the start of every forward, before anything is allocated or written, so it is
- *   cheap: one pass over each array, the float tests on exponent bits (a texture is millions of
- *   values). Meshes are checked by pen_mesh_validate (indices in range, finite positions and
- *   UVs) and the camera by pen_camera_validate; the mesh's messages come through behind the
- *   object's name, the camera's as they are ("camera: ...").
+ *   cheap: one pass over each array, the float tests branch-free in vector lanes (a texture is
+ *   millions of values). Meshes are checked by pen_mesh_validate (indices in range, finite
+ *   positions and UVs) and the camera by pen_camera_validate; the mesh's messages come through
+ *   behind the object's name, the camera's as they are ("camera: ...").
  * - Callers that build a pen_scene from other descriptions (the flat API, the optimizer) rely on
  *   this function for the scene's contents and keep only the checks about their own inputs.
  */
@@ -18,22 +18,38 @@
 #include "penumbra/mesh.h"
 
 #include <math.h>
+#if defined(__SSE__)
+#include <xmmintrin.h>
+#endif
 
 #include <stdio.h>
 #include <string.h>
 
 /* Whether all n floats are finite. Textures make this a per-frame scan of millions of values, so
- * it tests the exponent bits without branches (the compiler vectorises it) in blocks. */
+ * it is branch-free, in blocks: x * 0 is a zero for every finite x and a NaN for an Inf or a
+ * NaN, and a sum of such terms is a NaN exactly when one is: in vector lanes, a multiply and an
+ * add for every 4 values (the exponent-bit test took twice the instructions). */
 static int finite_n(const float *v, size_t n) {
     for (size_t i = 0; i < n; i += 4096) {
         const size_t end = n - i < 4096 ? n : i + 4096;
-        uint32_t bad = 0;
-        for (size_t j = i; j < end; ++j) {
-            uint32_t bits;
-            memcpy(&bits, v + j, sizeof bits);
-            bad |= (bits & 0x7f800000u) == 0x7f800000u; /* Inf or NaN */
+        size_t j = i;
+        float acc = 0.0f;
+#if defined(__SSE__)
+        const __m128 zero = _mm_setzero_ps();
+        __m128 a0 = zero, a1 = zero, a2 = zero, a3 = zero;
+        for (; j + 16 <= end; j += 16) {
+            a0 = _mm_add_ps(a0, _mm_mul_ps(_mm_loadu_ps(v + j), zero));
+            a1 = _mm_add_ps(a1, _mm_mul_ps(_mm_loadu_ps(v + j + 4), zero));
+            a2 = _mm_add_ps(a2, _mm_mul_ps(_mm_loadu_ps(v + j + 8), zero));
+            a3 = _mm_add_ps(a3, _mm_mul_ps(_mm_loadu_ps(v + j + 12), zero));
         }
-        if (bad) return 0;
+        float lanes[4];
+        _mm_storeu_ps(lanes, _mm_add_ps(_mm_add_ps(a0, a1), _mm_add_ps(a2, a3)));
+        acc = (lanes[0] + lanes[1]) + (lanes[2] + lanes[3]);
+#endif
+        for (; j < end; ++j)
+            acc += v[j] * 0.0f;
+        if (acc != acc) return 0; /* a NaN */
     }
     return 1;
 }

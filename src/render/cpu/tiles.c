@@ -21,6 +21,9 @@
 #include <math.h>
 #include <omp.h>
 #include <string.h>
+#if defined(__SSE__)
+#include <xmmintrin.h>
+#endif
 
 /* ---- Workspaces ------------------------------------------------------------------------------ */
 
@@ -73,7 +76,24 @@ int pen__tile_lights_cull(const pen_render_state *st, int t, pen__tile_ws *ws) {
     /* the box in float (a NaN coordinate left out, as fmin / fmax would), then widened exactly:
      * the same box as one taken in double, without a libm call per coordinate */
     float flo[3] = {INFINITY, INFINITY, INFINITY}, fhi[3] = {-INFINITY, -INFINITY, -INFINITY};
-    for (int k = 0; k < n; ++k) {
+    int k = 0;
+#if defined(__SSE__)
+    /* A pixel's point in one 4-lane load (its fourth lane, the next pixel's, is ignored; the
+     * image's last pixel, which has no next, goes below): minps (a < b ? a : b) and maxps are
+     * the scalar selects lane by lane, so the box has the same bits. */
+    const int last = st->width * st->height - 1;
+    __m128 lo4 = _mm_set1_ps(INFINITY), hi4 = _mm_set1_ps(-INFINITY);
+    for (; k < n; ++k) {
+        if (tg->pix[k] == last) break;
+        const __m128 x4 = _mm_loadu_ps(st->x.data + 3 * (size_t)tg->pix[k]);
+        lo4 = _mm_min_ps(x4, lo4), hi4 = _mm_max_ps(x4, hi4);
+    }
+    float l4[4], h4[4];
+    _mm_storeu_ps(l4, lo4), _mm_storeu_ps(h4, hi4);
+    for (int a = 0; a < 3; ++a)
+        flo[a] = l4[a], fhi[a] = h4[a];
+#endif
+    for (; k < n; ++k) {
         const float *x = st->x.data + 3 * (size_t)tg->pix[k];
         for (int a = 0; a < 3; ++a) {
             flo[a] = x[a] < flo[a] ? x[a] : flo[a];
@@ -147,32 +167,69 @@ const float (*pen__tile_group_lighting(const pen_scene *sc, const pen_render_sta
     return o >= 0 ? (const float(*)[3])st->obj[o].seen : (const float(*)[3])sc->lighting.sh;
 }
 
-/* The stable insertion sort moves each pixel past the earlier pixels of higher groups: nothing
- * for a tile of one group, but a pixels of one group above b of a lower one (an object over the
- * ground) cost a * b moves, up to PEN_TILE_PX^2 / 4. */
+/* The tile's shaded pixels in row order first, their runs of one group marked on the way; then,
+ * only when a pixel of a lower group follows a higher one (an object over the ground), a stable
+ * sort by group and the runs again: a counting sort over the few groups a tile holds, or (groups
+ * far apart: ground occlusion's per-object groups) an insertion sort, which costs a * b moves
+ * for a pixels of one group above b of a lower one. */
 void pen__tile_group(const void *job_, int t, pen__tile_ws *ws, pen__shade_fast_ticks *tk) {
     (void)ws, (void)tk;
     const pen_render_state *st = ((const pen__tile_job *)job_)->st;
     pen__tile_groups *tg = &st->groups.data[t];
-    int x0, y0, x1, y1, n = 0, grp[PEN_TILE_PX];
+    int x0, y0, x1, y1, n = 0, grp[PEN_TILE_PX], prev = INT32_MIN, unsorted = 0;
     pen__tile_rect(st, t, &x0, &y0, &x1, &y1);
-    for (int py = y0; py < y1; ++py)
-        for (int px = x0; px < x1; ++px) {
-            const size_t i = (size_t)py * (size_t)st->width + (size_t)px;
-            const int g = pixel_group(st, st->gb.surface[i]);
-            if (g < 0) continue;
-            int k = n++;
-            for (; k > 0 && grp[k - 1] > g; --k)
-                tg->pix[k] = tg->pix[k - 1], grp[k] = grp[k - 1];
-            tg->pix[k] = (int)i, grp[k] = g;
-        }
+    const int occludes = st->ground_occludes;
     tg->runs = 0, tg->store = 0; /* each run is one kernel call, its pixels in whole batches */
-    for (int a = 0, b; a < n; a = b) {
-        for (b = a; b < n && grp[b] == grp[a]; ++b) {
+    for (int py = y0; py < y1; ++py) {
+        const size_t row = (size_t)py * (size_t)st->width;
+        const int32_t *surf = st->gb.surface + row;
+        for (int px = x0; px < x1; ++px) {
+            const int32_t s = surf[px];
+            if (s == PEN_SURFACE_BACKGROUND) continue;
+            const int g = s == PEN_SURFACE_GROUND ? 0 : occludes ? 1 + s : 1; /* pixel_group */
+            if (g != prev) { /* a run ends here, if the pixels are in order */
+                unsorted |= g < prev;
+                if (n) tg->end[tg->runs++] = n;
+                prev = g;
+            }
+            tg->pix[n] = (int)(row + (size_t)px), grp[n++] = g;
         }
-        tg->end[tg->runs++] = b;
-        tg->store += pen__tile_run_store(st, b - a);
     }
+    if (n) tg->end[tg->runs++] = n;
+    if (unsorted) {
+        int lo = grp[0], hi = grp[0];
+        for (int k = 1; k < n; ++k)
+            lo = grp[k] < lo ? grp[k] : lo, hi = grp[k] > hi ? grp[k] : hi;
+        if (hi - lo < 64) {
+            int start[65] = {0}, pix[PEN_TILE_PX];
+            for (int k = 0; k < n; ++k)
+                ++start[grp[k] - lo + 1];
+            for (int g = 0; g < hi - lo; ++g)
+                start[g + 1] += start[g];
+            memcpy(pix, tg->pix, sizeof(int) * (size_t)n);
+            for (int k = 0; k < n; ++k)
+                tg->pix[start[grp[k] - lo]++] = pix[k];
+            for (int g = 0, k = 0; g <= hi - lo; ++g)
+                for (; k < start[g]; ++k)
+                    grp[k] = g + lo;
+        } else {
+            for (int j = 1; j < n; ++j) {
+                const int p = tg->pix[j], g = grp[j];
+                int k = j;
+                for (; k > 0 && grp[k - 1] > g; --k)
+                    tg->pix[k] = tg->pix[k - 1], grp[k] = grp[k - 1];
+                tg->pix[k] = p, grp[k] = g;
+            }
+        }
+        tg->runs = 0;
+        for (int a = 0, b; a < n; a = b) {
+            for (b = a; b < n && grp[b] == grp[a]; ++b) {
+            }
+            tg->end[tg->runs++] = b;
+        }
+    }
+    for (int r = 0; r < tg->runs; ++r)
+        tg->store += pen__tile_run_store(st, tg->end[r] - (r ? tg->end[r - 1] : 0));
 }
 
 size_t pen__tile_run_store(const pen_render_state *st, int count) {
