@@ -21,6 +21,7 @@
 
 #include <math.h>
 #include <stddef.h>
+#include <stdint.h>
 #if defined(__SSE2__)
 #include <emmintrin.h>
 #endif
@@ -150,11 +151,11 @@ void pen__texture_bwd(const pen_image *tex, const float uv[2], const float d_rgb
 
 /* ---- Footprint ----
  * The three footprint calls (forward, backward, texel scatter) each set up their samples' texel
- * coordinates together first (footprint_setup), which also decides once for all of them
- * whether bilinear_from's common case holds, then run one loop over the samples, specialised
- * for that case and for 3 and 4 channels (BY_CASE). Every value a sample contributes is
- * computed with the operations, and summed in the order, of a lookup at a time, so the results
- * are its bit for bit. */
+ * coordinates together first (footprint_setup, two doubles at a time in SSE2), which also
+ * decides once for all of them whether the vector loops apply (nearly always); otherwise one
+ * scalar loop over the samples runs, specialised for bilinear_from's common case and for 3 and
+ * 4 channels (BY_CASE). Every value a sample contributes is computed with the operations, and
+ * summed in the order, of a lookup at a time, so the results are its bit for bit. */
 
 #define K PEN__TEXTURE_SAMPLES
 
@@ -163,18 +164,78 @@ void pen__texture_bwd(const pen_image *tex, const float uv[2], const float d_rgb
  * same values: the compiler rounds the constant expressions as the divisions did). */
 _Static_assert(PEN__TEXTURE_GRID == 3, "grid_o and grid_of are written out for a 3 x 3 grid");
 static const double grid_o[3] = {(0 + 0.5) / 3 - 0.5, (1 + 0.5) / 3 - 0.5, (2 + 0.5) / 3 - 0.5};
-static const float grid_of[3] = {(0.0f + 0.5f) / 3 - 0.5f, (1.0f + 0.5f) / 3 - 0.5f,
-                                 (2.0f + 0.5f) / 3 - 0.5f};
+#define GRID_OF(i) (((float)(i) + 0.5f) / 3 - 0.5f)
+static const float grid_of[3] = {GRID_OF(0), GRID_OF(1), GRID_OF(2)};
 
 /* A footprint's samples, sample k at the grid's cell (k % n, k / n): their texel coordinates
- * (bilinear_from's fx, fy), whether they all fall in bilinear_from's common case, and whether
- * the vector loops below apply (vec: inside, 3 channels, and a row short of the last row, so
- * that a sample's 4-float loads stay inside the texture). */
+ * (bilinear_from's fx, fy), and whether the vector loops below apply (vec: all in
+ * bilinear_from's common case and a row short of the last row, so that a sample's 4-float loads
+ * stay inside the texture, 3 channels, and the texture's sides under 2^15). */
 typedef struct footprint_set {
     double f[K][2];
-    int inside, vec;
+    int vec;
 } footprint_set;
 
+/* The corner tests: all nine samples fall in a range when the four corner samples do (rounding is
+ * monotone, so each coordinate of a sample lies between those of the corner samples of its row
+ * and column, or a corner's is not finite and the test fails). */
+static const int corners[4] = {0, PEN__TEXTURE_GRID - 1, K - PEN__TEXTURE_GRID, K - 1};
+
+/* Whether all nine samples fall in bilinear_from's common case (the scalar loops' test; the
+ * vector case's is footprint_setup's). */
+static int footprint_inside(const pen_image *tex, const footprint_set *fs) {
+    const double x_end = (double)(tex->width - 1), y_end = (double)(tex->height - 1);
+    int inside = 1;
+    for (int c = 0; c < 4; ++c) {
+        const double x = fs->f[corners[c]][0], y = fs->f[corners[c]][1];
+        inside &= (x >= 0.0) & (x < x_end) & (y >= 0.0) & (y < y_end);
+    }
+    return inside;
+}
+
+#if defined(__SSE2__)
+/* Sample k's point is (u + J0 o_x + J1 o_y, v + J2 o_x + J3 o_y), evaluated left to right: its
+ * first two terms depend only on the column, its last only on the row, so each is computed once
+ * per grid line, with the roundings it has sample by sample. The set-up runs two doubles at a
+ * time, lane 0 the column coordinate and lane 1 the row's, with v's terms negated: -(v + J2 o)
+ * is (-v) + (-J2) o and 1 - x is (-x) + 1 in IEEE arithmetic, whose rounding is symmetric; the
+ * two differ only in the sign of a zero sum, which the added 1 drops (and lane 0 adds -0, which
+ * changes nothing). So every f is bilinear_at's, bit for bit. */
+INLINE void footprint_setup(const pen_image *tex, const float uv[2], const float J[4],
+                            footprint_set *fs) {
+    const int n = PEN__TEXTURE_GRID;
+    const __m128 neg13 = _mm_setr_ps(0.0f, -0.0f, 0.0f, -0.0f);
+    const __m128 uvf = _mm_loadl_pi(_mm_setzero_ps(), (const __m64 *)uv);
+    const __m128 Jf = _mm_loadu_ps(J);
+    const __m128d p = _mm_cvtps_pd(_mm_xor_ps(uvf, neg13)); /* {u, -v} */
+    /* {J0, -J2, J1, -J3}: the column's and the row's factors */
+    const __m128 Jx = _mm_xor_ps(_mm_shuffle_ps(Jf, Jf, _MM_SHUFFLE(3, 1, 2, 0)), neg13);
+    const __m128d Jc = _mm_cvtps_pd(Jx), Jr = _mm_cvtps_pd(_mm_movehl_ps(Jx, Jx));
+    __m128d col[PEN__TEXTURE_GRID], row[PEN__TEXTURE_GRID];
+    for (int i = 0; i < n; ++i) {
+        const __m128d o = _mm_set1_pd(grid_o[i]);
+        col[i] = _mm_add_pd(p, _mm_mul_pd(Jc, o));
+        row[i] = _mm_mul_pd(Jr, o);
+    }
+    /* the texel coordinates of bilinear_at: {x W - 0.5, (1 - y) H - 0.5} */
+    const __m128d one = _mm_setr_pd(-0.0, 1.0), half = _mm_set1_pd(0.5);
+    const __m128d WH = _mm_setr_pd((double)tex->width, (double)tex->height);
+    for (int j = 0; j < n; ++j)
+        for (int i = 0; i < n; ++i) {
+            const __m128d x = _mm_add_pd(_mm_add_pd(col[i], row[j]), one);
+            _mm_storeu_pd(fs->f[n * j + i], _mm_sub_pd(_mm_mul_pd(x, WH), half));
+        }
+    /* vec: 0 <= x < W - 1 and 0 <= y < H - 2 at the corners */
+    const __m128d end = _mm_sub_pd(WH, _mm_setr_pd(1.0, 2.0));
+    __m128d in = _mm_castsi128_pd(_mm_set1_epi32(-1));
+    for (int c = 0; c < 4; ++c) {
+        const __m128d f = _mm_loadu_pd(fs->f[corners[c]]);
+        in = _mm_and_pd(in, _mm_and_pd(_mm_cmpge_pd(f, _mm_setzero_pd()), _mm_cmplt_pd(f, end)));
+    }
+    fs->vec = (_mm_movemask_pd(in) == 3) & (tex->channels == 3) &
+              ((unsigned)(tex->width | tex->height) < 32768u);
+}
+#else
 INLINE void footprint_setup(const pen_image *tex, const float uv[2], const float J[4],
                             footprint_set *fs) {
     const int n = PEN__TEXTURE_GRID;
@@ -196,20 +257,9 @@ INLINE void footprint_setup(const pen_image *tex, const float uv[2], const float
             fs->f[n * j + i][0] = (col_u[i] + row_u[j]) * W - 0.5;
             fs->f[n * j + i][1] = (1.0 - (col_v[i] + row_v[j])) * H - 0.5;
         }
-    /* All nine fall in bilinear_from's common case when the four corner samples do: rounding is
-     * monotone, so each coordinate of a sample lies between those of the corner samples of its
-     * row and column (or a corner's is not finite, and the test fails). */
-    const double x_end = (double)(tex->width - 1), y_end = (double)(tex->height - 1);
-    int inside = 1, short_of_last = 1;
-    const int corners[4] = {0, n - 1, K - n, K - 1};
-    for (int c = 0; c < 4; ++c) {
-        const double x = fs->f[corners[c]][0], y = fs->f[corners[c]][1];
-        inside &= (x >= 0.0) & (x < x_end) & (y >= 0.0) & (y < y_end);
-        short_of_last &= y < y_end - 1.0;
-    }
-    fs->inside = inside;
-    fs->vec = inside & short_of_last & (tex->channels == 3);
+    fs->vec = 0; /* (no vector loops) */
 }
+#endif
 
 /* Sample k: bilinear_from, its test made once for all the samples (inside, a constant in the
  * loops below). */
@@ -281,32 +331,46 @@ INLINE void footprint_scatter_n(const pen_image *tex, int nch, int inside, const
  * texture instructions). */
 #if defined(__SSE2__)
 
+/* Lanes of one vector, by the integer shuffle: one instruction where shufps needs a copy. */
+#define SHUF(v, q3, q2, q1, q0)                                                                    \
+    _mm_castsi128_ps(_mm_shuffle_epi32(_mm_castps_si128(v), _MM_SHUFFLE(q3, q2, q1, q0)))
+#define LANE(v, q) SHUF(v, q, q, q, q)
+
 /* Sample k: the offset of its texel (i0, j0), its row j0, and its bilinear weights
- * {(1-a)(1-b), a(1-b), (1-a)b, ab} (lerp_fwd's wt), from bilinear_inside's truncation. */
-INLINE __m128 vec_sample(const pen_image *tex, const footprint_set *fs, int k, size_t *at, long *j0,
-                         __m128 *ab) {
+ * {(1-a)(1-b), a(1-b), (1-a)b, ab} (lerp_fwd's wt), with x = {1-a, a, 1-b, b}, from
+ * bilinear_inside's truncation. wi is {1, W} in 16-bit lanes: i0 and j0 lie in [0, 2^15)
+ * (fs->vec), so j0 W + i0 is one multiply-add of their 16-bit halves. */
+INLINE __m128 vec_sample(const footprint_set *fs, int k, __m128i wi, size_t *at, long *j0,
+                         __m128 *x) {
     const __m128d f = _mm_loadu_pd(fs->f[k]);
-    const __m128i ij = _mm_cvttpd_epi32(f); /* (long)fx, (long)fy: both in [0, 2^31) */
-    *ab = _mm_cvtpd_ps(_mm_sub_pd(f, _mm_cvtepi32_pd(ij))); /* {a, b, 0, 0} */
-    const long i = _mm_cvtsi128_si32(ij), j = _mm_cvtsi128_si32(_mm_shuffle_epi32(ij, 1));
-    *at = (size_t)j * (size_t)tex->width + (size_t)i, *j0 = j;
-    const __m128 x = _mm_unpacklo_ps(_mm_sub_ps(_mm_set1_ps(1.0f), *ab), *ab); /* 1-a a 1-b b */
-    return _mm_mul_ps(_mm_shuffle_ps(x, x, _MM_SHUFFLE(1, 0, 1, 0)),
-                      _mm_shuffle_ps(x, x, _MM_SHUFFLE(3, 3, 2, 2)));
+    const __m128i ij = _mm_cvttpd_epi32(f);                             /* (long)fx, (long)fy */
+    const __m128 ab = _mm_cvtpd_ps(_mm_sub_pd(f, _mm_cvtepi32_pd(ij))); /* {a, b, 0, 0} */
+    const __m128i ij16 = _mm_packs_epi32(ij, ij);
+    *at = (size_t)(uint32_t)_mm_cvtsi128_si32(_mm_madd_epi16(ij16, wi));
+    *j0 = _mm_extract_epi16(ij16, 1);
+    *x = _mm_unpacklo_ps(_mm_sub_ps(_mm_set1_ps(1.0f), ab), ab);
+    return _mm_mul_ps(SHUF(*x, 1, 0, 1, 0), SHUF(*x, 3, 3, 2, 2));
 }
 
-#define LANE(v, q) _mm_shuffle_ps((v), (v), _MM_SHUFFLE(q, q, q, q))
+/* wi of vec_sample */
+INLINE __m128i vec_wi(const pen_image *tex) {
+    return _mm_setr_epi16(1, (short)tex->width, 0, 0, 0, 0, 0, 0);
+}
 
 INLINE void footprint_fwd_vec(const pen_image *tex, const footprint_set *fs, float rgb[3]) {
     const size_t w3 = 3 * (size_t)tex->width;
+    const __m128i wi = vec_wi(tex);
+    const float *data = tex->data;
     __m128d acc01 = _mm_setzero_pd(), acc2 = _mm_setzero_pd();
     for (int k = 0; k < K; ++k) {
         size_t at;
         long j0;
-        __m128 ab;
-        const __m128 wt = vec_sample(tex, fs, k, &at, &j0, &ab);
-        const float *t = tex->data + 3 * at;
-        __m128 v = _mm_add_ps(_mm_setzero_ps(), _mm_mul_ps(LANE(wt, 0), _mm_loadu_ps(t)));
+        __m128 x;
+        const __m128 wt = vec_sample(fs, k, wi, &at, &j0, &x);
+        const float *t = data + 3 * at;
+        /* (lerp_fwd's v starts at 0, and 0 + x is x but for a zero's sign, which the sum in
+         * acc, never -0, drops) */
+        __m128 v = _mm_mul_ps(LANE(wt, 0), _mm_loadu_ps(t));
         v = _mm_add_ps(v, _mm_mul_ps(LANE(wt, 1), _mm_loadu_ps(t + 3)));
         v = _mm_add_ps(v, _mm_mul_ps(LANE(wt, 2), _mm_loadu_ps(t + w3)));
         v = _mm_add_ps(v, _mm_mul_ps(LANE(wt, 3), _mm_loadu_ps(t + w3 + 3)));
@@ -330,15 +394,14 @@ INLINE void vec_scatter_row(float *p, __m128 wa, __m128 wb, __m128 dka, __m128 d
 }
 
 /* The texel part of sample (at, j0, wt) for rows [r0, r1) (lerp_bwd_rows), dk as in
- * vec_scatter_row. */
-INLINE void vec_scatter(const pen_image *tex, size_t at, long j0, __m128 wt, __m128 dka, __m128 dkb,
-                        float *d_texels, long r0, long r1) {
+ * vec_scatter_row, w3 = 3 W; band 0 (a constant) when the band holds both rows. */
+INLINE void vec_scatter(size_t w3, size_t at, long j0, __m128 wt, __m128 dka, __m128 dkb,
+                        float *d_texels, int band, long r0, long r1) {
     float *p = d_texels + 3 * at;
-    if (j0 >= r0 && j0 < r1)
-        vec_scatter_row(p, _mm_shuffle_ps(wt, wt, _MM_SHUFFLE(1, 0, 0, 0)), LANE(wt, 1), dka, dkb);
-    if (j0 + 1 >= r0 && j0 + 1 < r1)
-        vec_scatter_row(p + 3 * (size_t)tex->width, _mm_shuffle_ps(wt, wt, _MM_SHUFFLE(3, 2, 2, 2)),
-                        LANE(wt, 3), dka, dkb);
+    if (!band || (j0 >= r0 && j0 < r1))
+        vec_scatter_row(p, SHUF(wt, 1, 0, 0, 0), LANE(wt, 1), dka, dkb);
+    if (!band || (j0 + 1 >= r0 && j0 + 1 < r1))
+        vec_scatter_row(p + w3, SHUF(wt, 3, 2, 2, 2), LANE(wt, 3), dka, dkb);
 }
 
 /* {d_rgb[ch] / K} as dka and dkb of vec_scatter_row, and in lanes 0-2 of the result. */
@@ -346,14 +409,26 @@ INLINE __m128 vec_d_k(const float d_rgb[3], __m128 *dka, __m128 *dkb) {
     const float inv = 1.0f / K;
     const __m128 d =
         _mm_mul_ps(_mm_setr_ps(d_rgb[0], d_rgb[1], d_rgb[2], d_rgb[0]), _mm_set1_ps(inv));
-    *dka = d, *dkb = _mm_shuffle_ps(d, d, _MM_SHUFFLE(2, 1, 2, 1));
+    *dka = d, *dkb = SHUF(d, 2, 1, 2, 1);
     return d;
 }
 
+/* The grid's offsets {o_x, o_y, o_x, o_y} of sample k, the factors of its d_J terms. */
+static _Alignas(16) const float grid_oxy[K][4] = {{GRID_OF(0), GRID_OF(0), GRID_OF(0), GRID_OF(0)},
+                                                  {GRID_OF(1), GRID_OF(0), GRID_OF(1), GRID_OF(0)},
+                                                  {GRID_OF(2), GRID_OF(0), GRID_OF(2), GRID_OF(0)},
+                                                  {GRID_OF(0), GRID_OF(1), GRID_OF(0), GRID_OF(1)},
+                                                  {GRID_OF(1), GRID_OF(1), GRID_OF(1), GRID_OF(1)},
+                                                  {GRID_OF(2), GRID_OF(1), GRID_OF(2), GRID_OF(1)},
+                                                  {GRID_OF(0), GRID_OF(2), GRID_OF(0), GRID_OF(2)},
+                                                  {GRID_OF(1), GRID_OF(2), GRID_OF(1), GRID_OF(2)},
+                                                  {GRID_OF(2), GRID_OF(2), GRID_OF(2), GRID_OF(2)}};
+
+/* footprint_bwd_n for the vector case, with texels (d_texels) and uvj (d_uv or d_J) constants. */
 INLINE void footprint_bwd_vec(const pen_image *tex, const footprint_set *fs, const float d_rgb[3],
-                              float *d_texels, float d_uv[2], float d_J[4]) {
-    const int n = PEN__TEXTURE_GRID;
+                              float *d_texels, float d_uv[2], float d_J[4], int texels, int uvj) {
     const size_t w3 = 3 * (size_t)tex->width;
+    const float *data = tex->data;
     __m128 dka, dkb;
     const __m128 dk = vec_d_k(d_rgb, &dka, &dkb);
     /* {uv_sum} and {J_sum} of footprint_bwd_n; g = {da W, -(db H)} */
@@ -362,55 +437,65 @@ INLINE void footprint_bwd_vec(const pen_image *tex, const footprint_set *fs, con
     if (d_J) J_sum = _mm_loadu_ps(d_J);
     const __m128 scale = _mm_setr_ps((float)tex->width, (float)tex->height, 0.0f, 0.0f);
     const __m128 flip = _mm_setr_ps(0.0f, -0.0f, 0.0f, 0.0f);
-    const int want_uv = d_uv || d_J;
-    for (int j = 0; j < n; ++j)
-        for (int i = 0; i < n; ++i) {
-            size_t at;
-            long j0;
-            __m128 ab;
-            const __m128 wt = vec_sample(tex, fs, n * j + i, &at, &j0, &ab);
-            if (d_texels) vec_scatter(tex, at, j0, wt, dka, dkb, d_texels, 0, tex->height);
-            if (!want_uv) continue;
-            const float *t = tex->data + 3 * at;
-            const __m128 t00 = _mm_loadu_ps(t), t10 = _mm_loadu_ps(t + 3);
-            const __m128 t01 = _mm_loadu_ps(t + w3), t11 = _mm_loadu_ps(t + w3 + 3);
-            const __m128 a = LANE(ab, 0), b = LANE(ab, 1), one = _mm_set1_ps(1.0f);
-            /* lerp_bwd_uv's per-channel terms of da (x) and db (y) */
-            const __m128 x =
-                _mm_mul_ps(dk, _mm_add_ps(_mm_mul_ps(_mm_sub_ps(one, b), _mm_sub_ps(t10, t00)),
-                                          _mm_mul_ps(b, _mm_sub_ps(t11, t01))));
-            const __m128 y =
-                _mm_mul_ps(dk, _mm_add_ps(_mm_mul_ps(_mm_sub_ps(one, a), _mm_sub_ps(t01, t00)),
-                                          _mm_mul_ps(a, _mm_sub_ps(t11, t10))));
-            /* {da, db}: the channels summed in order from 0, lanes 0 and 1 */
-            const __m128 lo = _mm_unpacklo_ps(x, y), hi = _mm_unpackhi_ps(x, y);
-            __m128 s = _mm_add_ps(_mm_add_ps(_mm_setzero_ps(), lo), _mm_movehl_ps(lo, lo));
-            s = _mm_add_ps(s, hi);
-            /* g = {0 + da W, 0 - db H}; x - y is x + (-y) in IEEE arithmetic */
-            const __m128 g = _mm_add_ps(_mm_setzero_ps(), _mm_xor_ps(_mm_mul_ps(s, scale), flip));
-            uv_sum = _mm_add_ps(uv_sum, g);
-            const float ox = grid_of[i], oy = grid_of[j];
-            J_sum = _mm_add_ps(J_sum, _mm_mul_ps(_mm_shuffle_ps(g, g, _MM_SHUFFLE(1, 1, 0, 0)),
-                                                 _mm_setr_ps(ox, oy, ox, oy)));
-        }
+    const __m128i wi = vec_wi(tex);
+    for (int k = 0; k < K; ++k) {
+        size_t at;
+        long j0;
+        __m128 x;
+        const __m128 wt = vec_sample(fs, k, wi, &at, &j0, &x);
+        /* (every row: both of the sample's are in the texture) */
+        if (texels) vec_scatter(w3, at, j0, wt, dka, dkb, d_texels, 0, 0, 0);
+        if (!uvj) continue;
+        const float *t = data + 3 * at;
+        const __m128 t00 = _mm_loadu_ps(t), t10 = _mm_loadu_ps(t + 3);
+        const __m128 t01 = _mm_loadu_ps(t + w3), t11 = _mm_loadu_ps(t + w3 + 3);
+        /* lerp_bwd_uv's per-channel terms of da (x) and db (y); x's lanes are 1-a, a, 1-b, b */
+        const __m128 da = _mm_mul_ps(dk, _mm_add_ps(_mm_mul_ps(LANE(x, 2), _mm_sub_ps(t10, t00)),
+                                                    _mm_mul_ps(LANE(x, 3), _mm_sub_ps(t11, t01))));
+        const __m128 db = _mm_mul_ps(dk, _mm_add_ps(_mm_mul_ps(LANE(x, 0), _mm_sub_ps(t01, t00)),
+                                                    _mm_mul_ps(LANE(x, 1), _mm_sub_ps(t11, t10))));
+        /* {da, db}: the channels summed in order, lanes 0 and 1 (lerp_bwd_uv's sums start at 0,
+         * but 0 + x differs from x only in a zero's sign, which g's 0 + drops) */
+        const __m128 lo = _mm_unpacklo_ps(da, db), hi = _mm_unpackhi_ps(da, db);
+        const __m128 s = _mm_add_ps(_mm_add_ps(lo, _mm_movehl_ps(lo, lo)), hi);
+        /* g = {0 + da W, 0 - db H}; x - y is x + (-y) in IEEE arithmetic (here with the sign
+         * of a NaN flipped, as the vector loop has always had it) */
+        const __m128 g = _mm_add_ps(_mm_setzero_ps(), _mm_xor_ps(_mm_mul_ps(s, scale), flip));
+        uv_sum = _mm_add_ps(uv_sum, g);
+        J_sum = _mm_add_ps(J_sum, _mm_mul_ps(SHUF(g, 1, 1, 0, 0), _mm_load_ps(grid_oxy[k])));
+    }
     if (d_uv) _mm_storel_pi((__m64 *)d_uv, uv_sum);
     if (d_J) _mm_storeu_ps(d_J, J_sum);
 }
 
-INLINE void footprint_scatter_vec(const pen_image *tex, const footprint_set *fs,
-                                  const float d_rgb[3], float *d_texels, long r0, long r1) {
+INLINE void footprint_scatter_band(const pen_image *tex, const footprint_set *fs,
+                                   const float d_rgb[3], float *d_texels, int band, long r0,
+                                   long r1) {
     __m128 dka, dkb;
     vec_d_k(d_rgb, &dka, &dkb);
+    const __m128i wi = vec_wi(tex);
+    const size_t w3 = 3 * (size_t)tex->width;
     for (int k = 0; k < K; ++k) {
         size_t at;
         long j0;
-        __m128 ab;
-        const __m128 wt = vec_sample(tex, fs, k, &at, &j0, &ab);
-        vec_scatter(tex, at, j0, wt, dka, dkb, d_texels, r0, r1);
+        __m128 x;
+        const __m128 wt = vec_sample(fs, k, wi, &at, &j0, &x);
+        vec_scatter(w3, at, j0, wt, dka, dkb, d_texels, band, r0, r1);
     }
 }
 
+/* A band of every row (one thread's scatter) needs no row tests: the samples' rows are in the
+ * texture (fs->vec). */
+INLINE void footprint_scatter_vec(const pen_image *tex, const footprint_set *fs,
+                                  const float d_rgb[3], float *d_texels, long r0, long r1) {
+    if (r0 <= 0 && r1 >= tex->height)
+        footprint_scatter_band(tex, fs, d_rgb, d_texels, 0, 0, 0);
+    else
+        footprint_scatter_band(tex, fs, d_rgb, d_texels, 1, r0, r1);
+}
+
 #undef LANE
+#undef SHUF
 #define VEC_CASE(fs, CALL)                                                                         \
     if ((fs).vec) {                                                                                \
         CALL;                                                                                      \
@@ -420,17 +505,18 @@ INLINE void footprint_scatter_vec(const pen_image *tex, const footprint_set *fs,
 #define VEC_CASE(fs, CALL)
 #endif
 
-/* Runs CALL, which names nch and inside, with both constants: the common case (fs.inside)
+/* Runs CALL, which names nch and inside, with both constants: the common case (footprint_inside)
  * for 3 and 4 channels and for any, and the general one. */
 #define BY_CASE(tex, fs, CALL)                                                                     \
     do {                                                                                           \
-        if ((fs).inside && (tex)->channels == 3) {                                                 \
+        const int in_ = footprint_inside(tex, fs);                                                 \
+        if (in_ && (tex)->channels == 3) {                                                         \
             const int nch = 3, inside = 1;                                                         \
             CALL;                                                                                  \
-        } else if ((fs).inside && (tex)->channels == 4) {                                          \
+        } else if (in_ && (tex)->channels == 4) {                                                  \
             const int nch = 4, inside = 1;                                                         \
             CALL;                                                                                  \
-        } else if ((fs).inside) {                                                                  \
+        } else if (in_) {                                                                          \
             const int nch = (tex)->channels, inside = 1;                                           \
             CALL;                                                                                  \
         } else {                                                                                   \
@@ -439,12 +525,30 @@ INLINE void footprint_scatter_vec(const pen_image *tex, const footprint_set *fs,
         }                                                                                          \
     } while (0)
 
+/* The scalar loops, out of line: inlined, their registers and spills would weigh on every call,
+ * the vector case's (nearly all) too. */
+#define NOINLINE static __attribute__((noinline))
+
+NOINLINE void footprint_fwd_any(const pen_image *tex, const footprint_set *fs, float rgb[3]) {
+    BY_CASE(tex, fs, footprint_fwd_n(tex, nch, inside, fs, rgb));
+}
+
+NOINLINE void footprint_bwd_any(const pen_image *tex, const footprint_set *fs, const float d_rgb[3],
+                                float *d_texels, float d_uv[2], float d_J[4]) {
+    BY_CASE(tex, fs, footprint_bwd_n(tex, nch, inside, fs, d_rgb, d_texels, d_uv, d_J));
+}
+
+NOINLINE void footprint_scatter_any(const pen_image *tex, const footprint_set *fs,
+                                    const float d_rgb[3], float *d_texels, long r0, long r1) {
+    BY_CASE(tex, fs, footprint_scatter_n(tex, nch, inside, fs, d_rgb, d_texels, r0, r1));
+}
+
 void pen__texture_footprint_fwd(const pen_image *tex, const float uv[2], const float J[4],
                                 float rgb[3]) {
     footprint_set fs;
     footprint_setup(tex, uv, J, &fs);
     VEC_CASE(fs, footprint_fwd_vec(tex, &fs, rgb));
-    BY_CASE(tex, fs, footprint_fwd_n(tex, nch, inside, &fs, rgb));
+    footprint_fwd_any(tex, &fs, rgb);
 }
 
 void pen__texture_footprint_bwd(const pen_image *tex, const float uv[2], const float J[4],
@@ -452,8 +556,18 @@ void pen__texture_footprint_bwd(const pen_image *tex, const float uv[2], const f
                                 float d_J[4]) {
     footprint_set fs;
     footprint_setup(tex, uv, J, &fs);
-    VEC_CASE(fs, footprint_bwd_vec(tex, &fs, d_rgb, d_texels, d_uv, d_J));
-    BY_CASE(tex, fs, footprint_bwd_n(tex, nch, inside, &fs, d_rgb, d_texels, d_uv, d_J));
+#if defined(__SSE2__)
+    if (fs.vec) { /* (with constants for the loop's two parts) */
+        if (d_texels && (d_uv || d_J))
+            footprint_bwd_vec(tex, &fs, d_rgb, d_texels, d_uv, d_J, 1, 1);
+        else if (d_texels)
+            footprint_bwd_vec(tex, &fs, d_rgb, d_texels, d_uv, d_J, 1, 0);
+        else if (d_uv || d_J)
+            footprint_bwd_vec(tex, &fs, d_rgb, d_texels, d_uv, d_J, 0, 1);
+        return;
+    }
+#endif
+    footprint_bwd_any(tex, &fs, d_rgb, d_texels, d_uv, d_J);
 }
 
 int pen__texture_rows(const pen_image *tex, const float uv[2], const float J[4], long *first,
@@ -491,5 +605,5 @@ void pen__texture_scatter_rows(const pen_image *tex, const float uv[2], const fl
     footprint_set fs;
     footprint_setup(tex, uv, J, &fs);
     VEC_CASE(fs, footprint_scatter_vec(tex, &fs, d_rgb, d_texels, r0, r1));
-    BY_CASE(tex, fs, footprint_scatter_n(tex, nch, inside, &fs, d_rgb, d_texels, r0, r1));
+    footprint_scatter_any(tex, &fs, d_rgb, d_texels, r0, r1);
 }
