@@ -465,9 +465,56 @@ static void test_texture_footprint(void) {
     CHECK_MSG(bad * 20 <= checked, "%d of %d uv / J derivatives off", bad, checked);
 }
 
+/* One footprint lookup, two implementations: a 3-channel texture takes the vector loops (SSE2)
+ * where the samples fall inside it, the same texels as a 4-channel texture the scalar loops; the
+ * lookup, its uv and J gradients and the texel gradients (the backward's and the scatter's, all
+ * rows and a band) must agree bit for bit. */
+static void test_texture_footprint_vector_scalar(void) {
+    enum { W = 37, H = 23 };
+    static float t3[W * H * 3 + 1], t4[W * H * 4], g3[W * H * 3 + 1], g4[W * H * 4];
+    static float s3[W * H * 3 + 1], s4[W * H * 4];
+    for (int i = 0; i < W * H; ++i)
+        for (int ch = 0; ch < 4; ++ch) {
+            const float v = (float)urand(-0.5, 1.5);
+            if (ch < 3) t3[3 * i + ch] = v;
+            t4[4 * i + ch] = ch < 3 ? v : 7.0f;
+        }
+    pen_image tex3 = {W, H, 3, t3}, tex4 = {W, H, 4, t4};
+    int differ = 0;
+    for (int trial = 0; trial < 400; ++trial) {
+        const float uv[2] = {(float)urand(-0.1, 1.1), (float)urand(-0.1, 1.1)};
+        float J[4];
+        for (int k = 0; k < 4; ++k)
+            J[k] = (float)urand(-0.05, 0.05) * (trial % 5 == 0 ? 0.0f : 1.0f);
+        const float d[3] = {(float)urand(-2, 2), (float)urand(-2, 2), (float)urand(-2, 2)};
+        float a[3], b[3];
+        pen__texture_footprint_fwd(&tex3, uv, J, a);
+        pen__texture_footprint_fwd(&tex4, uv, J, b);
+        differ += memcmp(a, b, sizeof a) != 0;
+        memset(g3, 0, sizeof g3), memset(g4, 0, sizeof g4);
+        memset(s3, 0, sizeof s3), memset(s4, 0, sizeof s4);
+        float uv3[2] = {0.25f, -0.0f}, uv4[2] = {0.25f, -0.0f}, J3[4] = {0}, J4[4] = {0};
+        pen__texture_footprint_bwd(&tex3, uv, J, d, g3, uv3, J3);
+        pen__texture_footprint_bwd(&tex4, uv, J, d, g4, uv4, J4);
+        differ += memcmp(uv3, uv4, sizeof uv3) != 0 || memcmp(J3, J4, sizeof J3) != 0;
+        pen__texture_footprint_bwd(&tex3, uv, J, d, NULL, uv3, NULL);
+        pen__texture_footprint_bwd(&tex4, uv, J, d, NULL, uv4, NULL);
+        differ += memcmp(uv3, uv4, sizeof uv3) != 0;
+        const long r0 = trial % 3 ? 0 : (long)(trial % H), r1 = trial % 3 ? H : r0 + 3;
+        pen__texture_scatter_rows(&tex3, uv, J, d, s3, 0, H);
+        pen__texture_scatter_rows(&tex4, uv, J, d, s4, 0, H);
+        pen__texture_scatter_rows(&tex3, uv, J, d, s3, r0, r1);
+        pen__texture_scatter_rows(&tex4, uv, J, d, s4, r0, r1);
+        for (int i = 0; i < W * H; ++i)
+            differ += memcmp(g3 + 3 * i, g4 + 4 * i, 3 * sizeof(float)) != 0 ||
+                      memcmp(s3 + 3 * i, s4 + 4 * i, 3 * sizeof(float)) != 0;
+    }
+    CHECK_MSG(differ == 0, "%d lookups differ between the 3- and 4-channel textures", differ);
+}
+
 RUN_TESTS(TEST(test_irradiance_closed_form), TEST(test_bwd_fd_calibrated), TEST(test_bwd_fd_exact),
           TEST(test_bwd_fd_no_shadows), TEST(test_bwd_fd_overlap_weights),
           TEST(test_overlap_weights_linear), TEST(test_float_matches_double),
           TEST(test_self_shadowing_rule), TEST(test_inside_rule_fd),
           TEST(test_inside_rule_continuous), TEST(test_singular_inputs_finite), TEST(test_texture),
-          TEST(test_texture_footprint))
+          TEST(test_texture_footprint), TEST(test_texture_footprint_vector_scalar))

@@ -18,8 +18,12 @@
  */
 #include "core/vec.h"
 #include "render/render_internal.h"
+#include "scene/camera.h"
 
 #include <math.h>
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 /* The per-pixel quantities of the derivation above. Those of the triangle alone (e1, e2, w, n, a,
  * b, duv) and of the view (Q) are kept from the object's previous pixel while it lies on the same
@@ -68,7 +72,9 @@ static int footprint_at(const pen_render_state *st, const pen_object *ob, int o,
         }
         f->tri = (long)t;
     }
-    pen_view_ray(vw, (double)(i % W) + 0.5, (double)(i / W) + 0.5, f->D);
+    /* pen_view_ray, inlined */
+    pen__camera_ray_d(vw->right, vw->up, vw->forward, vw->focal, vw->cx, vw->cy,
+                      (double)(i % W) + 0.5, (double)(i / W) + 0.5, f->D);
     f->dn = pen__dot_d(f->D, f->n);
     if (!(fabs(f->dn) > 1e-300)) return 0;
     f->b1 = pen__dot_d(f->D, f->a) / f->dn, f->b2 = pen__dot_d(f->D, f->b) / f->dn;
@@ -77,6 +83,39 @@ static int footprint_at(const pen_render_state *st, const pen_object *ob, int o,
         f->g2[c] = (f->b[c] - f->b2 * f->n[c]) / f->dn;
     }
     return 1;
+}
+
+/* J = duv [g1.Q; g2.Q] at the pixel of f, each entry finite or 0. */
+static void footprint_J(const footprint *f, float J[4]) {
+#if defined(__SSE2__)
+    /* Two entries at a time, lane c for Q[c]: each with the scalar loop's operations in its order
+     * (pen__dot_d left to right, then duv's two terms); cvtpd2ps rounds as the (float) cast. */
+    __m128d q1 = _mm_setzero_pd(), q2 = _mm_setzero_pd();
+    for (int k = 0; k < 3; ++k) {
+        const __m128d Qk = _mm_setr_pd(f->Q[0][k], f->Q[1][k]);
+        const __m128d t1 = _mm_mul_pd(_mm_set1_pd(f->g1[k]), Qk);
+        const __m128d t2 = _mm_mul_pd(_mm_set1_pd(f->g2[k]), Qk);
+        q1 = k ? _mm_add_pd(q1, t1) : t1, q2 = k ? _mm_add_pd(q2, t2) : t2;
+    }
+    const __m128d mag = _mm_castsi128_pd(_mm_set1_epi64x(0x7fffffffffffffffLL));
+    const __m128d inf = _mm_set1_pd(INFINITY);
+    __m128 v[2], ok[2];
+    for (int r = 0; r < 2; ++r) {
+        const __m128d j = _mm_add_pd(_mm_mul_pd(_mm_set1_pd(f->duv[r][0]), q1),
+                                     _mm_mul_pd(_mm_set1_pd(f->duv[r][1]), q2));
+        v[r] = _mm_cvtpd_ps(j);
+        ok[r] = _mm_castpd_ps(_mm_cmplt_pd(_mm_and_pd(j, mag), inf)); /* isfinite */
+    }
+    const __m128 m = _mm_shuffle_ps(ok[0], ok[1], _MM_SHUFFLE(2, 0, 2, 0));
+    _mm_storeu_ps(J, _mm_and_ps(_mm_movelh_ps(v[0], v[1]), m));
+#else
+    for (int r = 0; r < 2; ++r)
+        for (int c = 0; c < 2; ++c) {
+            const double j = f->duv[r][0] * pen__dot_d(f->g1, f->Q[c]) +
+                             f->duv[r][1] * pen__dot_d(f->g2, f->Q[c]);
+            J[2 * r + c] = isfinite(j) ? (float)j : 0.0f;
+        }
+#endif
 }
 
 void pen__uv_footprint_fwd(pen_render_state *st, const pen_object *ob, int o, int threads) {
@@ -96,12 +135,7 @@ void pen__uv_footprint_fwd(pen_render_state *st, const pen_object *ob, int o, in
                 J[0] = J[1] = J[2] = J[3] = 0.0f;
                 continue;
             }
-            for (int r = 0; r < 2; ++r)
-                for (int c = 0; c < 2; ++c) {
-                    const double j = f.duv[r][0] * pen__dot_d(f.g1, f.Q[c]) +
-                                     f.duv[r][1] * pen__dot_d(f.g2, f.Q[c]);
-                    J[2 * r + c] = isfinite(j) ? (float)j : 0.0f;
-                }
+            footprint_J(&f, J);
         }
     }
 }
