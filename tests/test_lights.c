@@ -228,6 +228,7 @@ static void set_light(pen__lights *L, int l, const double dir[3], double b_deg, 
     L->len[l] = 1.0;
     L->b[l] = b_deg * M_PI / 180, L->sin_b[l] = sin(L->b[l]), L->cos_b[l] = cos(L->b[l]);
     L->area[l] = 4 * M_PI * sin(L->b[l] / 2) * sin(L->b[l] / 2);
+    L->widest[l] = l; /* any order of the lights will do for the culls */
     if (l + 1 > L->count) L->count = l + 1;
 }
 

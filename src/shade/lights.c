@@ -272,6 +272,15 @@ void pen__lights_init(pen__lights *L, const pen_lighting *lighting, double eps, 
         L->cos_b[l] = cos(L->b[l]);
         L->area[l] = 4.0 * PEN_PI * sin(0.5 * L->b[l]) * sin(0.5 * L->b[l]);
     }
+    /* a sphere that reaches any light is kept: asking the widest first ends the test soonest */
+    for (int l = 0; l < L->count; ++l) {
+        int k = l;
+        while (k > 0 && L->b[L->widest[k - 1]] < L->b[l]) {
+            L->widest[k] = L->widest[k - 1];
+            --k;
+        }
+        L->widest[k] = l;
+    }
 }
 
 /* The directions y > -t are the cap of half-angle acos(-t) around +Y. */
@@ -363,26 +372,40 @@ HOT int sphere_view_reaches(const pen__lights *L, int l, const sphere_view *sv) 
 /* Every receiver x within R of the centre m sees sphere (c, r) inside the cap that (c, r + R)
  * covers seen from m (a ray from x that hits the sphere, shifted to start at m, passes within
  * r + R of c), unless x may be close enough for the continued cap (|c - m| - R below
- * r / sqrt(1 - t0)): then the sphere is kept. */
-int pen__lights_cull(const pen__lights *L, int sphere_count, const float *spheres,
-                     const double lo[3], const double hi[3], int *idx) {
-    double m[3], R2 = 0.0;
+ * r / sqrt(1 - t0)): then the sphere is kept. R is widened by far more than the rounding of the
+ * box, m and R themselves. */
+static void box_ball(const double lo[3], const double hi[3], double m[3], double *R) {
+    double R2 = 0.0;
     for (int a = 0; a < 3; ++a) {
         m[a] = 0.5 * (lo[a] + hi[a]);
         R2 += 0.25 * (hi[a] - lo[a]) * (hi[a] - lo[a]);
     }
-    const double R = sqrt(R2) * (1.0 + 1e-6) + 1e-9 * (fabs(m[0]) + fabs(m[1]) + fabs(m[2]));
-    int n = 0;
-    for (int i = 0; i < sphere_count; ++i) {
-        const float *s = spheres + 4 * (size_t)i;
-        const double v[3] = {(double)s[0] - m[0], (double)s[1] - m[1], (double)s[2] - m[2]};
-        const double D2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2], r = (double)s[3];
-        const double near = 1.01 * r + R;
-        int keep = D2 <= near * near;
-        for (int l = 0; l < L->count && !keep; ++l)
-            keep = cap_may_reach(v, D2, r + R, L->w[l], L->sin_b[l], L->cos_b[l]);
-        if (keep) idx[n++] = i;
+    *R = sqrt(R2) * (1.0 + 1e-6) + 1e-9 * (fabs(m[0]) + fabs(m[1]) + fabs(m[2]));
+}
+
+HOT int may_shadow(const pen__lights *L, const float s[4], const double m[3], double R) {
+    const double v[3] = {(double)s[0] - m[0], (double)s[1] - m[1], (double)s[2] - m[2]};
+    const double D2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2], r = (double)s[3];
+    const double near = 1.01 * r + R;
+    int keep = D2 <= near * near;
+    for (int j = 0; j < L->count && !keep; ++j) {
+        const int l = L->widest[j];
+        keep = cap_may_reach(v, D2, r + R, L->w[l], L->sin_b[l], L->cos_b[l]);
     }
+    return keep;
+}
+
+int pen__lights_may_shadow(const pen__lights *L, const float s[4], const double m[3], double R) {
+    return may_shadow(L, s, m, R);
+}
+
+int pen__lights_cull(const pen__lights *L, int sphere_count, const float *spheres,
+                     const double lo[3], const double hi[3], int *idx) {
+    double m[3], R;
+    box_ball(lo, hi, m, &R);
+    int n = 0;
+    for (int i = 0; i < sphere_count; ++i)
+        if (may_shadow(L, spheres + 4 * (size_t)i, m, R)) idx[n++] = i;
     return n;
 }
 

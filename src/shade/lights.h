@@ -47,6 +47,8 @@ typedef struct pen__lights {
     double sin_b[PEN_SCENE_MAX_LIGHTS], cos_b[PEN_SCENE_MAX_LIGHTS];
     double area[PEN_SCENE_MAX_LIGHTS];    /* the disk's solid angle, 4 pi sin^2(b/2) */
     double E[PEN_SCENE_MAX_LIGHTS][3];    /* irradiance */
+    int widest[PEN_SCENE_MAX_LIGHTS];     /* 0 .. count - 1 by b, widest first (the culls' order;
+                                             any order gives the same result) */
 } pen__lights;
 
 void pen__lights_init(pen__lights *L, const pen_lighting *lighting, double eps, int shadows);
@@ -61,6 +63,10 @@ double pen__lights_horizon(const pen__lights *L, int l, double t, double *d_t, d
  * a sphere left out has f = 0 for every light at every receiver of the box. */
 int pen__lights_cull(const pen__lights *L, int sphere_count, const float *spheres,
                      const double lo[3], const double hi[3], int *idx);
+
+/* pen__lights_cull's test for one sphere s (centre, radius) and the receivers within R of m: 0
+ * only where f = 0 for every light at all of them. */
+int pen__lights_may_shadow(const pen__lights *L, const float s[4], const double m[3], double R);
 
 /* Receivers that pen__lights_candidates takes at once. */
 #define PEN_LIGHTS_BLOCK 16

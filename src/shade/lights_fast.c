@@ -11,16 +11,18 @@
  *   the sphere's weight w and opacity q = 1 - exp(-eps w kappa), the cap, and each light's
  *   fraction f when it is 0 (the disk clear of the cap) or 1 (wholly inside), told from float
  *   cosines with a margin (LANE_MARGIN) far above their rounding, so that f is exactly the double
- *   path's there. Only the partial overlaps (the penumbrae) take the double lens: a wide disk's
- *   (PEN_LIGHTS_COS_LENS_DEG up: many penumbrae a block, and the cosine form's arithmetic) in
- *   double lanes (wide_lens), the rest one pair at a time in lights.c; a disk across its
- *   receiver's horizon takes the clamped cosine in double (lanes_init). What differs from
+ *   path's there. Only the partial overlaps (the penumbrae) take the double lens: a disk's from
+ *   PEN_LIGHTS_COS_LENS_DEG up (the cosine form's arithmetic) in double lanes, a block's partial
+ *   pairs packed (wide_lens), a narrower one's one pair at a time in lights.c; a disk across its
+ *   receiver's horizon takes the clamped cosine in double (lanes_init). Receivers that no light
+ *   reaches take no pairs, and a sphere clear of every disk at all of the others, by the tile
+ *   cull's test for a ball around them (block_bound), costs that one test. What differs from
  *   pen__lights_fwd is the float rounding of D, w, q and the product (a few 1e-7 of the light,
  *   below the image's own float rounding; tests/test_lights_lanes.c compares the two).
  * - The backward block (pen__lights_bwd_block) visits the same pairs: where f is 0 or 1 it is
  *   constant, so such a pair's gradient is its weight's alone (through q to the sphere, x and
  *   n), taken in lanes in two passes (every pair's d/dw first, then the weights' chain); a
- *   partial pair adds f's own derivatives in double (wide_pair_bwd from the double lanes, else
+ *   partial pair adds f's own derivatives in double (wide_bwd in the double lanes, else
  *   pen__lights_pair_bwd) during the first; the per-light chain (rho, the light, its horizon
  *   factor, n) in lanes too. Only a receiver without the forward's V (or not finite) takes
  *   pen__lights_bwd whole.
@@ -130,6 +132,10 @@ static inline float exp_neg(float y) {
 
 enum { B = PEN_LIGHTS_BLOCK, LMAX = PEN_SCENE_MAX_LIGHTS };
 
+/* Before a loop over the block's lanes whose body selects: GCC 12 unrolls such a loop of 16 whole
+ * before it vectorises, and the unrolled selections become branches, lane by lane. */
+#define LANES _Pragma("GCC unroll 1")
+
 /* A block's receivers in lanes and what is the same for all of its pairs. */
 typedef struct lanes {
     int K;
@@ -140,9 +146,22 @@ typedef struct lanes {
     int cross[LMAX][B];               /* the disk across the horizon */
     int exact[B];                     /* the double term's: a point not finite */
     int wide[LMAX];                   /* the disk's penumbrae in double lanes (wide_lens) */
+    double m[3], R; /* a ball around the receivers that need their pairs (block_bound) */
     float w[LMAX][3], sb[LMAX], cb[LMAX], cb2[LMAX];
     float eps, h0, inv_span, lo, inv_width, t0, s0, cont, deep;
 } lanes;
+
+/* The sum of v over the lanes that use marks, in float, by halving (block_bound's mean). */
+static inline float lane_sum(const float v[B], const int use[B]) {
+    float h[B];
+    LANES
+    for (int k = 0; k < B; ++k)
+        h[k] = use[k] ? v[k] : 0.0f;
+    for (int w = B / 2; w >= 1; w /= 2)
+        for (int k = 0; k < w; ++k)
+            h[k] += h[k + w];
+    return h[0];
+}
 
 /* Fills the block's lanes from the points and normals at pt + 3 at(k) (padding lanes repeat the
  * first receiver). The disk wholly above the horizon is c >= sin b with room for the float
@@ -159,14 +178,20 @@ static void lanes_init(lanes *z, const pen__lights *L, int cnt, const float *x, 
         z->cb2[l] = (float)(L->cos_b[l] * L->cos_b[l]);
         z->wide[l] = L->b[l] >= PEN_LIGHTS_COS_LENS_DEG * (PEN_PI / 180.0);
     }
-    for (int k = 0; k < B; ++k) {
-        const int kk = k < cnt ? k : 0;
-        const size_t i = (size_t)(at ? at[kk] : kk);
-        for (int a = 0; a < 3; ++a)
-            z->X[a][k] = x[3 * i + a], z->N[a][k] = nrm[3 * i + a];
+    if (!at && cnt == B) /* consecutive receivers: a loop the compiler can take in lanes */
+        for (int k = 0; k < B; ++k)
+            for (int a = 0; a < 3; ++a)
+                z->X[a][k] = x[3 * k + a], z->N[a][k] = nrm[3 * k + a];
+    else
+        for (int k = 0; k < B; ++k) {
+            const int kk = k < cnt ? k : 0;
+            const size_t i = (size_t)(at ? at[kk] : kk);
+            for (int a = 0; a < 3; ++a)
+                z->X[a][k] = x[3 * i + a], z->N[a][k] = nrm[3 * i + a];
+        }
+    for (int k = 0; k < B; ++k) /* apart from the gather, which keeps a loop scalar */
         z->exact[k] = !(z->X[0][k] - z->X[0][k] == 0.0f) | !(z->X[1][k] - z->X[1][k] == 0.0f) |
                       !(z->X[2][k] - z->X[2][k] == 0.0f);
-    }
     for (int l = 0; l < K; ++l)
         for (int k = 0; k < B; ++k) {
             const float c =
@@ -195,17 +220,61 @@ static void lanes_init(lanes *z, const pen__lights *L, int cnt, const float *x, 
     z->deep = (float)(0.99 * PEN_RENDER_INSIDE_LO * PEN_RENDER_INSIDE_LO);
 }
 
+/* Marks in skip the lanes that need no pairs, besides those already marked: padding, and receivers
+ * that no light reaches (D = 0: their V is not used, forward or backward), and sets the ball
+ * (m, R) around the rest that pen__lights_may_shadow tests each sphere against, so that a sphere
+ * that shadows none of them costs one test instead of the lanes' (exact: such a sphere's pairs are
+ * all clear, f = 0, and add nothing). Returns 0 when no lane needs its pairs. */
+static int block_bound(lanes *z, int cnt, int skip[B]) {
+    int lit[B], use[B], n = 0;
+    for (int k = 0; k < B; ++k)
+        lit[k] = 0;
+    for (int l = 0; l < z->K; ++l)
+        for (int k = 0; k < B; ++k)
+            lit[k] |= z->Dl[l][k] > 0.0f;
+    for (int k = 0; k < B; ++k) {
+        skip[k] |= !lit[k] | (k >= cnt);
+        use[k] = !skip[k];
+        n += use[k];
+    }
+    if (!n) return 0;
+    /* the centre: the mean; the radius: the largest distance from it, found on the squares' bits
+     * (non-negative floats order as their bits do, and an integer maximum stays in lanes), then
+     * widened by far more than the float rounding of the squares (a few 1e-7 of them) */
+    float m[3];
+    for (int a = 0; a < 3; ++a)
+        m[a] = lane_sum(z->X[a], use) / (float)n;
+    int32_t bits[B], top = 0;
+    LANES
+    for (int k = 0; k < B; ++k) {
+        const float dx = z->X[0][k] - m[0], dy = z->X[1][k] - m[1], dz = z->X[2][k] - m[2];
+        const float d2 = use[k] ? dx * dx + dy * dy + dz * dz : 0.0f;
+        memcpy(&bits[k], &d2, sizeof d2);
+    }
+    for (int k = 0; k < B; ++k)
+        top = bits[k] > top ? bits[k] : top;
+    float d2max;
+    memcpy(&d2max, &top, sizeof d2max);
+    for (int a = 0; a < 3; ++a)
+        z->m[a] = (double)m[a];
+    z->R =
+        sqrt((double)d2max) * (1.0 + 1e-6) + 1e-9 * (fabs(z->m[0]) + fabs(z->m[1]) + fabs(z->m[2]));
+    return 1;
+}
+
 /* The pairs of one sphere (centre and radius sp, overlap weight kap) with the block's lanes that
  * skip[k] leaves: on[k] where its weight is above 0, y[k] = eps w kappa, ex[k] = exp(-y) (the
- * pair's factor where the disk is inside the cap: 1 - q), and per light cls[l][k]: 0 the disk clear
- * of the cap, 1 wholly inside, 2 partial (the double lens). Returns 0, with nothing filled, when no
- * lane is on. First the prefilter's tests (pen__lights_candidates): most of a tile's spheres
- * shadow none of a block's receivers, and they cost only these. Both arms of every choice are
- * computed and then selected, so that the compiler keeps the loops in lanes. */
+ * pair's factor where the disk is inside the cap: 1 - q), and per light l the lanes on whose disk
+ * is wholly inside the cap (in[l][k]) or partly (part[l][k], the double lens; any_part[l] where
+ * any lane is), the rest clear of it. Returns 0, with nothing filled, when no lane is on. The
+ * classes are flags, not one code per lane: the callers' loops over them then stay in lanes. First
+ * the prefilter's tests (pen__lights_candidates): most of a tile's spheres shadow none of a block's
+ * receivers, and they cost only these. Both arms of every choice are computed and then selected, so
+ * that the compiler keeps the loops in lanes. */
 static inline __attribute__((always_inline)) int sphere_pairs(const lanes *z, const int *skip,
                                                               const float *sp, float kap, int on[B],
-                                                              float y[B], float ex[B],
-                                                              int cls[][B]) {
+                                                              float y[B], float ex[B], int in[][B],
+                                                              int part[][B], int any_part[]) {
     const float r = sp[3], r2 = r * r, m = LANE_MARGIN;
     float vx[B], vy[B], vz[B], D2[B], nv[B], tol[B], m2[B], Dd[B], ca[B], sa[B];
     int whole[B], any = 0;
@@ -224,6 +293,7 @@ static inline __attribute__((always_inline)) int sphere_pairs(const lanes *z, co
                 vx[k] * z->w[l][0] + vy[k] * z->w[l][1] + vz[k] * z->w[l][2] + r * z->sb[l];
             whole[k] &= (lhs < -tol[k]) | (lhs * lhs < (D2[k] - r2) * z->cb2[l] - m2[k]);
         }
+    LANES
     for (int k = 0; k < B; ++k) {
         on[k] &= !whole[k] & (kap != 0.0f);
         any |= on[k];
@@ -255,14 +325,18 @@ static inline __attribute__((always_inline)) int sphere_pairs(const lanes *z, co
     for (int l = 0; l < z->K; ++l) {
         const float wx = z->w[l][0], wy = z->w[l][1], wz = z->w[l][2];
         const float cb = z->cb[l], sb = z->sb[l];
+        int ap = 0;
         for (int k = 0; k < B; ++k) {
             const float cg = (vx[k] * wx + vy[k] * wy + vz[k] * wz) / Dd[k];
             const float A = sa[k] * cb + ca[k] * sb, Bm = sa[k] * cb - ca[k] * sb;
             const float C1 = ca[k] * cb - sa[k] * sb, C2 = ca[k] * cb + sa[k] * sb;
             const int clear = (A > m) & (cg < C1 - m) & !whole[k];
             const int inside = (Bm > m) & (cg > C2 + m) & !whole[k];
-            cls[l][k] = clear ? 0 : inside ? 1 : 2;
+            in[l][k] = on[k] & !clear & inside;
+            part[l][k] = on[k] & !clear & !inside;
+            ap |= part[l][k];
         }
+        any_part[l] = ap;
     }
     return 1;
 }
@@ -301,10 +375,12 @@ static inline double angle_lane(double s, double c) {
  * PEN_LIGHTS_COS_LENS_DEG up, whose lens is the cosine form (lights.c, pen__cap_overlap_cos)
  * with no angle but three arctangents: what lights.c's disk_fraction computes for the pair, in
  * the same steps and order (the double cap test, the cap and its continuation, the 1e-9 clear
- * and inside tests, the lens), lane by lane. f[k] is the fraction and fa, fb, fg its partials by
- * a, b and g (disk_fraction's fd); back[k] marks the lanes this form does not take (the cap past
- * a = pi or a centre at the receiver, a lens the cosine form declines or rounds below 0): the
- * caller takes those pair by pair in lights.c, as the narrow disks' penumbrae. */
+ * and inside tests, the lens), lane by lane. The pairs are the np lanes P[0 .. np) of the block,
+ * packed (a block has a few penumbra receivers, and each costs ~100 double operations), so pair p
+ * is lane P[p]: f[p] is its fraction and fa, fb, fg the partials by a, b and g (disk_fraction's
+ * fd); back[p] marks the pairs this form does not take (the cap past a = pi or a centre at the
+ * receiver, a lens the cosine form declines or rounds below 0): the caller takes those pair by
+ * pair in lights.c, as the narrow disks' penumbrae. */
 typedef struct wide_pairs {
     double f[B], fa[B], fb[B], fg[B];
     double d[3][B], D[B], cg[B], sg[B], da_dD[B], da_dr[B];
@@ -312,14 +388,20 @@ typedef struct wide_pairs {
 } wide_pairs;
 
 static inline __attribute__((always_inline)) void wide_lens(const lanes *z, const pen__lights *L,
-                                                            int l, const float *sp, wide_pairs *o) {
+                                                            int l, const float *sp, const int *P,
+                                                            int np, wide_pairs *o) {
     const double r = (double)sp[3], r2 = r * r, t0 = PEN_SH_CAP_T0, s0 = sqrt(PEN_SH_CAP_T0);
     const double *w = L->w[l], cb = L->cos_b[l], sb = L->sin_b[l], area = L->area[l];
-    double Xd[3][B]; /* in a loop of its own: a loop that mixes float and double stays scalar */
-    for (int a = 0; a < 3; ++a)
-        for (int k = 0; k < B; ++k)
-            Xd[a][k] = (double)z->X[a][k];
-    for (int k = 0; k < B; ++k) {
+    /* the pairs' points, padded to whole vectors of doubles by repeating the last: in a loop of
+     * its own, as a loop that mixes float and double, or gathers, stays scalar */
+    const int npad = (np + 3) & ~3;
+    double Xd[3][B];
+    for (int p = 0; p < npad; ++p) {
+        const int k = P[p < np ? p : np - 1];
+        for (int a = 0; a < 3; ++a)
+            Xd[a][p] = (double)z->X[a][k];
+    }
+    for (int k = 0; k < npad; ++k) { /* k: the pair */
         const double v[3] = {(double)sp[0] - Xd[0][k], (double)sp[1] - Xd[1][k],
                              (double)sp[2] - Xd[2][k]};
         const double D2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
@@ -379,31 +461,70 @@ static inline __attribute__((always_inline)) void wide_lens(const lanes *z, cons
     }
 }
 
-/* The backward of lane k's partial pair of light l from wide_lens, as lights.c's
- * pen__lights_pair_bwd (the same chain: d_g = dV V / (1 - q f), d_f = -q d_g through f's
- * partials by g, a and b), q = 1 - exp(-eps w kappa) in double from the lanes' exponent: into
- * dq (d/dq), the lane's d_x (dxl), the sphere's d_s (4 doubles) and the light's d_l. */
-static void wide_pair_bwd(const pen__lights *L, int l, const wide_pairs *o, int k, double q,
-                          double dVV, float *dq, float dxl[3][B], double *d_s, double *d_l) {
-    /* clear after all: nothing, as there (its cap may not even be computed) */
-    if (o->f[k] == 0.0 && o->fa[k] == 0.0 && o->fb[k] == 0.0 && o->fg[k] == 0.0) return;
-    const double f = o->f[k], d_g = dVV / (1.0 - q * f), d_f = -q * d_g, d_a = d_f * o->fa[k];
-    const double *w = L->w[l], cg = o->cg[k];
-    double dv[3] = {0.0, 0.0, 0.0};
-    if (d_l) d_l[3] += d_f * o->fb[k];
-    if (o->sg[k] > 1e-12) {
-        const double dg = d_f * o->fg[k] / o->sg[k];
+/* q = 1 - exp(-y) = -expm1(-y), y >= 0, in double lanes to a few ulps: below 1/2 its series to
+ * y^15 (what it leaves out, 0.5^16 / 16!, is 1e-18 of q), above as 1 - exp(-y), where exp(-y) <=
+ * 0.61 costs q at most 1.3 bits: exp(-y) = 2^n e^r, n = round(-y / ln 2) (held above -1000),
+ * r = -y - n ln 2 with ln 2 in two parts (fdlibm's), |r| <= 0.347, e^r by its series to r^13
+ * (4e-18), 2^n put into the exponent through the integer in the low bits of n + 1023 + 1.5 2^52. */
+static inline double expm1_neg_lane(double y) {
+    double h = 1.0;
+    for (int n = 15; n >= 2; --n)
+        h = 1.0 - y * (1.0 / n) * h;
+    const double qs = y * h;
+    double z = -y * 1.4426950408889634;
+    z = z > -1000.0 ? z : -1000.0;
+    const double m = (z + 6755399441055744.0) - 6755399441055744.0; /* round to nearest */
+    const double r = (-y - m * 6.93147180369123816490e-01) - m * 1.90821492927058770002e-10;
+    double e = 1.0;
+    for (int n = 13; n >= 1; --n)
+        e = 1.0 + r * (1.0 / n) * e;
+    const double big = (m + 1023.0) + 6755399441055744.0;
+    uint64_t bits;
+    memcpy(&bits, &big, sizeof bits);
+    bits <<= 52;
+    double two_m;
+    memcpy(&two_m, &bits, sizeof two_m);
+    return y < 0.5 ? qs : 1.0 - e * two_m;
+}
+
+/* The backward terms of wide_lens's packed pairs, in double lanes: lights.c's
+ * pen__lights_pair_bwd chain (d_g = dV V / (1 - q f), d_f = -q d_g through f's partials by g, a
+ * and b), q = 1 - exp(-eps w kappa) from the lanes' exponent y[P[p]], dV V from VdV[P[p]]: the
+ * pair's d/dv (dv, into x and the sphere's centre), d/dr, d/d of the light's direction (dl[0..2],
+ * where tang: sin g > 1e-12) and radius (dl[3]), and its d/dq (dq); nz where any of f's partials is
+ * not 0 (else the pair adds nothing, as there). The caller adds them up in the pairs' order. */
+typedef struct wide_terms {
+    double dv[3][B], dr[B], dl[4][B], dq[B];
+    lmask nz[B], tang[B];
+} wide_terms;
+
+static inline __attribute__((always_inline)) void wide_bwd(const pen__lights *L, int l,
+                                                           const wide_pairs *o, const int *P,
+                                                           int np, const float *y, const float *VdV,
+                                                           wide_terms *t) {
+    const int npad = (np + 3) & ~3;
+    const double *w = L->w[l];
+    double yd[B], vv[B];
+    for (int p = 0; p < npad; ++p) { /* the gather on its own, as in wide_lens */
+        const int k = P[p < np ? p : np - 1];
+        yd[p] = (double)y[k], vv[p] = (double)VdV[k];
+    }
+    for (int p = 0; p < npad; ++p) {
+        const double q = expm1_neg_lane(yd[p]), f = o->f[p];
+        const double d_g = vv[p] / (1.0 - q * f), d_f = -q * d_g, d_a = d_f * o->fa[p];
+        t->nz[p] = !((f == 0.0) & (o->fa[p] == 0.0) & (o->fb[p] == 0.0) & (o->fg[p] == 0.0));
+        t->dl[3][p] = d_f * o->fb[p];
+        const lmask tang = o->sg[p] > 1e-12;
+        t->tang[p] = tang;
+        const double dg = d_f * o->fg[p] / o->sg[p], cg = o->cg[p];
         for (int a = 0; a < 3; ++a) {
-            dv[a] -= dg * (w[a] - cg * o->d[a][k]) / o->D[k];
-            if (d_l) d_l[a] -= dg * (o->d[a][k] - cg * w[a]);
+            const double u = 0.0 - dg * (w[a] - cg * o->d[a][p]) / o->D[p];
+            t->dl[a][p] = dg * (o->d[a][p] - cg * w[a]);
+            t->dv[a][p] = (tang ? u : 0.0) + d_a * o->da_dD[p] * o->d[a][p];
         }
+        t->dr[p] = d_a * o->da_dr[p];
+        t->dq[p] = f * d_g;
     }
-    for (int a = 0; a < 3; ++a) {
-        dv[a] += d_a * o->da_dD[k] * o->d[a][k];
-        dxl[a][k] -= (float)dv[a];
-    }
-    *dq -= (float)(f * d_g);
-    if (d_s) d_s[0] += dv[0], d_s[1] += dv[1], d_s[2] += dv[2], d_s[3] += d_a * o->da_dr[k];
 }
 
 /* The forward light term of cnt <= PEN_LIGHTS_BLOCK receivers at x + 3 at[k] (nrm, rho, rgb
@@ -421,32 +542,55 @@ void CAT(pen__lights_fwd_block_, PEN_FAST_ISA)(const pen__lights *L, const doubl
     for (int l = 0; l < K; ++l)
         for (int k = 0; k < B; ++k)
             V[l][k] = 1.0f;
-    for (int j = 0; L->shadows && j < n; ++j) {
+    int skip[B];
+    for (int k = 0; k < B; ++k)
+        skip[k] = z.exact[k];
+    const int pairs = L->shadows && block_bound(&z, cnt, skip);
+    for (int j = 0; pairs && j < n; ++j) {
         const int i = idx ? idx[j] : j;
         const float *sp = spheres + 4 * (size_t)i;
-        int on[B], cls[LMAX][B];
+        int on[B], in[LMAX][B], part[LMAX][B], any_part[LMAX];
         float y[B], ex[B];
-        if (!sphere_pairs(&z, z.exact, sp, kappa ? kappa[i] : 1.0f, on, y, ex, cls)) continue;
+        if (!pen__lights_may_shadow(L, sp, z.m, z.R)) continue;
+        if (!sphere_pairs(&z, skip, sp, kappa ? kappa[i] : 1.0f, on, y, ex, in, part, any_part))
+            continue;
         for (int l = 0; l < K; ++l) {
-            int any_part = 0;
-            for (int k = 0; k < B; ++k) {
-                /* inside: the factor 1 - q is exp(-eps w kappa) itself (1 - (1 - e) would
-                 * keep only 6e-8 of it in a deep shadow) */
-                V[l][k] *= on[k] & (cls[l][k] == 1) ? ex[k] : 1.0f;
-                any_part |= on[k] & (cls[l][k] == 2);
-            }
-            if (!any_part) continue;
+            /* inside: the factor 1 - q is exp(-eps w kappa) itself (1 - (1 - e) would keep only
+             * 6e-8 of it in a deep shadow) */
+            LANES
+            for (int k = 0; k < B; ++k)
+                V[l][k] = in[l][k] ? V[l][k] * ex[k] : V[l][k];
+            if (!any_part[l]) continue;
+            int P[B], np = 0;
+            for (int k = 0; k < cnt; ++k)
+                if (part[l][k]) P[np++] = k;
+            if (!np) continue;
             wide_pairs wp;
             const int wide = z.wide[l];
-            if (wide) wide_lens(&z, L, l, sp, &wp);
-            for (int k = 0; k < cnt; ++k)
-                if (on[k] & (cls[l][k] == 2)) {
-                    const float xk[3] = {z.X[0][k], z.X[1][k], z.X[2][k]};
-                    const double q = 1.0 - (double)ex[k];
-                    const double f =
-                        wide && !wp.back[k] ? wp.f[k] : pen__lights_fraction(L, l, xk, sp);
-                    V[l][k] *= (float)(1.0 - q * f);
-                }
+            if (wide) wide_lens(&z, L, l, sp, P, np, &wp);
+            for (int p = 0; p < np; ++p) {
+                const int k = P[p];
+                const float xk[3] = {z.X[0][k], z.X[1][k], z.X[2][k]};
+                const double q = 1.0 - (double)ex[k];
+                const double f = wide && !wp.back[p] ? wp.f[p] : pen__lights_fraction(L, l, xk, sp);
+                V[l][k] *= (float)(1.0 - q * f);
+            }
+        }
+    }
+    /* the lights' sum in lanes, then each receiver's colour and V (V = 1 where D = 0, as the
+     * double term's unlit) */
+    float e[3][B];
+    for (int ch = 0; ch < 3; ++ch)
+        for (int k = 0; k < B; ++k)
+            e[ch][k] = 0.0f;
+    for (int l = 0; l < K; ++l) {
+        const float Gl = G ? (float)G[l] : 1.0f;
+        const float E[3] = {(float)L->E[l][0], (float)L->E[l][1], (float)L->E[l][2]};
+        for (int k = 0; k < B; ++k) {
+            const float a = z.Dl[l][k] * V[l][k] * Gl;
+            for (int ch = 0; ch < 3; ++ch)
+                e[ch][k] += E[ch] * a;
+            V[l][k] = z.Dl[l][k] > 0.0f ? V[l][k] : 1.0f;
         }
     }
     for (int k = 0; k < cnt; ++k) {
@@ -457,15 +601,10 @@ void CAT(pen__lights_fwd_block_, PEN_FAST_ISA)(const pen__lights *L, const doubl
                             rgb + 3 * i, Vo);
             continue;
         }
-        float e[3] = {0.0f, 0.0f, 0.0f};
-        for (int l = 0; l < K; ++l) {
-            const float a = z.Dl[l][k] * V[l][k] * (G ? (float)G[l] : 1.0f);
-            for (int ch = 0; ch < 3; ++ch)
-                e[ch] += (float)L->E[l][ch] * a;
-            if (Vo) Vo[l] = z.Dl[l][k] > 0.0f ? V[l][k] : 1.0f; /* as the double term's unlit */
-        }
+        for (int l = 0; Vo && l < K; ++l)
+            Vo[l] = V[l][k];
         for (int ch = 0; ch < 3; ++ch)
-            rgb[3 * i + ch] += rho[3 * i + ch] * e[ch] * (float)(1.0 / PEN_PI);
+            rgb[3 * i + ch] += rho[3 * i + ch] * e[ch][k] * (float)(1.0 / PEN_PI);
     }
 }
 
@@ -473,7 +612,7 @@ void CAT(pen__lights_fwd_block_, PEN_FAST_ISA)(const pen__lights *L, const doubl
  * d_x, d_n, d_rho likewise: the run's compacted arrays), whose d_rgb and forward V are at
  * d_rgb + 3 pix[k] and V_in + count pix[k]: what pen__lights_bwd adds for each. In lanes, the
  * pairs whose fraction is 0 or 1 (f constant: the gradient is the weight's alone) and the
- * per-light chain; a partial pair adds f's own derivatives in double (wide_pair_bwd,
+ * per-light chain; a partial pair adds f's own derivatives in double (wide_bwd,
  * pen__lights_pair_bwd); a receiver without a kept V or not finite takes the double term, over
  * its own candidates, after the lanes. scratch: room for the larger of n PEN_LIGHTS_BLOCK floats
  * and (n + 1) PEN_LIGHTS_BLOCK ints (used in turn). */
@@ -486,12 +625,13 @@ void CAT(pen__lights_bwd_block_,
     lanes z;
     lanes_init(&z, L, cnt, x, nrm, NULL);
     const int K = z.K;
-    float V[LMAX][B], VdV[LMAX][B], sl[LMAX][B], g3[3][B], dxl[3][B], dnl[3][B];
+    float V[LMAX][B], VdV[LMAX][B], sl[LMAX][B], g3[3][B], rl[3][B], dxl[3][B], dnl[3][B];
     int skip[B]; /* not in the lanes: a double receiver, or one without a gradient */
     for (int k = 0; k < B; ++k) {
         const size_t p = (size_t)pix[k < cnt ? k : 0];
         for (int a = 0; a < 3; ++a) {
             g3[a][k] = d_rgb[3 * p + (size_t)a] * (float)(1.0 / PEN_PI);
+            rl[a][k] = rho[3 * (k < cnt ? k : 0) + a];
             dxl[a][k] = dnl[a][k] = 0.0f;
         }
         z.exact[k] |= !V_in;
@@ -508,15 +648,16 @@ void CAT(pen__lights_bwd_block_,
     if (!(L->eps * (double)kmax < 400.0))
         for (int k = 0; k < B; ++k)
             z.exact[k] = skip[k] = 1;
+    const int pairs = block_bound(&z, cnt, skip);
     /* Per light: the forward's V, s = sum_ch g rho E and dV V with dV = s D G. */
     for (int l = 0; l < K; ++l) {
         const float Gl = G ? (float)G[l] : 1.0f;
         const float E0 = (float)L->E[l][0], E1 = (float)L->E[l][1], E2 = (float)L->E[l][2];
+        for (int k = 0; k < B; ++k) /* the gather in a loop of its own, the rest in lanes */
+            V[l][k] = V_in ? V_in[(size_t)K * (size_t)pix[k < cnt ? k : 0] + (size_t)l] : 1.0f;
         for (int k = 0; k < B; ++k) {
-            const int kk = k < cnt ? k : 0;
-            V[l][k] = V_in ? V_in[(size_t)K * (size_t)pix[kk] + (size_t)l] : 1.0f;
-            sl[l][k] = g3[0][k] * rho[3 * kk] * E0 + g3[1][k] * rho[3 * kk + 1] * E1 +
-                       g3[2][k] * rho[3 * kk + 2] * E2;
+            sl[l][k] =
+                g3[0][k] * rl[0][k] * E0 + g3[1][k] * rl[1][k] * E1 + g3[2][k] * rl[2][k] * E2;
             VdV[l][k] = sl[l][k] * z.Dl[l][k] * Gl * V[l][k];
         }
     }
@@ -524,64 +665,76 @@ void CAT(pen__lights_bwd_block_,
      * weights, and the lights' own through the partial pairs (which only the double term has). */
     const int geometry = d_spheres || d_x || d_n;
     float *dw = scratch; /* d/dw of each (sphere, receiver), for the second pass */
-    for (int j = 0; L->shadows && (geometry || d_lights) && j < n; ++j) {
+    for (int j = 0; pairs && L->shadows && (geometry || d_lights) && j < n; ++j) {
         /* Pass 1: each pair's class and, for the lanes, d/dw; a partial pair of a lit light
          * sends its receiver to the double term. */
         const int i = idx ? idx[j] : j;
         const float kap = kappa ? kappa[i] : 1.0f;
         float *dwj = dw + (size_t)j * B, y[B], ex[B], dq[B];
-        int on[B], cls[LMAX][B];
+        int on[B], in[LMAX][B], part[LMAX][B], any_part[LMAX];
         for (int k = 0; k < B; ++k)
             dwj[k] = 0.0f;
         const float *sp = spheres + 4 * (size_t)i;
-        if (!sphere_pairs(&z, skip, sp, kap, on, y, ex, cls)) continue;
+        if (!pen__lights_may_shadow(L, sp, z.m, z.R)) continue;
+        if (!sphere_pairs(&z, skip, sp, kap, on, y, ex, in, part, any_part)) continue;
         for (int k = 0; k < B; ++k)
             dq[k] = 0.0f;
         for (int l = 0; l < K; ++l) {
-            int any_part = 0;
+            LANES
             for (int k = 0; k < B; ++k) {
                 /* f = 1: the factor 1 - q, whose d/dq is -1, times dV V / (1 - q); a light with
                  * dV V = 0 (unlit, or no gradient) adds nothing, as in the double term */
-                const int use = on[k] & (VdV[l][k] != 0.0f);
                 const float dqi = VdV[l][k] / ex[k];
-                dq[k] -= use & (cls[l][k] == 1) ? dqi : 0.0f;
-                any_part |= use & (cls[l][k] == 2);
+                dq[k] = in[l][k] & (VdV[l][k] != 0.0f) ? dq[k] - dqi : dq[k];
             }
             /* partial: f's own derivatives in double, into the sphere, the point and the light
              * at once (this receiver is in the lanes for good); a wide disk's from the double
              * lanes, the rest pair by pair */
-            if (!any_part) continue;
+            if (!any_part[l]) continue;
+            int P[B], np = 0;
+            for (int k = 0; k < cnt; ++k)
+                if (part[l][k] & (VdV[l][k] != 0.0f)) P[np++] = k;
+            if (!np) continue;
             wide_pairs wp;
+            wide_terms wt;
             const int wide = z.wide[l];
-            if (wide) wide_lens(&z, L, l, sp, &wp);
-            for (int k = 0; k < cnt; ++k) {
-                if (!(on[k] & (VdV[l][k] != 0.0f) & (cls[l][k] == 2))) continue;
-                if (wide && !wp.back[k]) {
-                    wide_pair_bwd(L, l, &wp, k, -expm1(-(double)y[k]), (double)VdV[l][k], &dq[k],
-                                  dxl, d_spheres ? d_spheres + 4 * (size_t)i : NULL,
-                                  d_lights ? d_lights + PEN_LIGHT_GRAD_DOUBLES * l : NULL);
+            double *ds = d_spheres ? d_spheres + 4 * (size_t)i : NULL;
+            double *dl = d_lights ? d_lights + PEN_LIGHT_GRAD_DOUBLES * l : NULL;
+            if (wide) {
+                wide_lens(&z, L, l, sp, P, np, &wp);
+                wide_bwd(L, l, &wp, P, np, y, VdV[l], &wt);
+            }
+            for (int p = 0; p < np; ++p) {
+                const int k = P[p];
+                if (wide && !wp.back[p]) {
+                    if (!wt.nz[p]) continue;
+                    if (dl) dl[3] += wt.dl[3][p];
+                    for (int a = 0; dl && wt.tang[p] && a < 3; ++a)
+                        dl[a] -= wt.dl[a][p];
+                    for (int a = 0; a < 3; ++a)
+                        dxl[a][k] -= (float)wt.dv[a][p];
+                    dq[k] -= (float)wt.dq[p];
+                    if (ds) ds[0] += wt.dv[0][p], ds[1] += wt.dv[1][p], ds[2] += wt.dv[2][p];
+                    if (ds) ds[3] += wt.dr[p];
                     continue;
                 }
                 const float xk[3] = {z.X[0][k], z.X[1][k], z.X[2][k]};
                 double dv[3] = {0.0, 0.0, 0.0}, d_r = 0.0;
                 const float nk[3] = {z.N[0][k], z.N[1][k], z.N[2][k]};
-                dq[k] -= (float)pen__lights_pair_bwd(
-                    L, l, xk, nk, sp, kap, (double)VdV[l][k], dv, &d_r,
-                    d_lights ? d_lights + PEN_LIGHT_GRAD_DOUBLES * l : NULL);
+                dq[k] -= (float)pen__lights_pair_bwd(L, l, xk, nk, sp, kap, (double)VdV[l][k], dv,
+                                                     &d_r, dl);
                 for (int a = 0; a < 3; ++a)
                     dxl[a][k] -= (float)dv[a];
-                if (d_spheres) {
-                    double *ds = d_spheres + 4 * (size_t)i;
-                    ds[0] += dv[0], ds[1] += dv[1], ds[2] += dv[2], ds[3] += d_r;
-                }
+                if (ds) ds[0] += dv[0], ds[1] += dv[1], ds[2] += dv[2], ds[3] += d_r;
             }
         }
+        LANES
         for (int k = 0; k < B; ++k) /* d/dw = d/dq eps kappa exp(-eps w kappa) */
             dwj[k] = on[k] ? dq[k] * z.eps * kap * ex[k] : 0.0f;
     }
     /* Pass 2: the lanes' d/dw through w = w_h(h) g(p), h = n . v / r, p = |v| / r, into the
      * spheres (in the receivers' order), x and n. */
-    for (int j = 0; L->shadows && geometry && j < n; ++j) {
+    for (int j = 0; pairs && L->shadows && geometry && j < n; ++j) {
         const float *dwj = dw + (size_t)j * B;
         int any = 0;
         for (int k = 0; k < cnt; ++k)
@@ -619,37 +772,51 @@ void CAT(pen__lights_bwd_block_,
             }
         }
     }
-    /* The per-light chain of the lane receivers, in their order: rho, the light's own
-     * gradient, the horizon factor and n, through D's partials (dD/dc = 1, dD/db = 0 for a disk
-     * wholly above the horizon). */
+    /* The per-light chain of the lane receivers: rho, the light's own gradient, the horizon
+     * factor and n, through D's partials (dD/dc = 1, dD/db = 0 for a disk wholly above the
+     * horizon), in lanes; the light's sums over the receivers in their order. */
+    float drho[3][B];
+    for (int ch = 0; ch < 3; ++ch)
+        for (int k = 0; k < B; ++k)
+            drho[ch][k] = 0.0f;
+    for (int l = 0; l < K; ++l) {
+        const float Gl = G ? (float)G[l] : 1.0f;
+        const float E[3] = {(float)L->E[l][0], (float)L->E[l][1], (float)L->E[l][2]};
+        const float *Dl = z.Dl[l], *dDc = z.dDc[l], *dDb = z.dDb[l], *Vl = V[l], *sll = sl[l];
+        const float wl[3] = {z.w[l][0], z.w[l][1], z.w[l][2]};
+        float tl[7][B], tG[B];
+        int lit[B];
+        LANES
+        for (int k = 0; k < B; ++k) {
+            lit[k] = !skip[k] & (Dl[k] > 0.0f);
+            const float DGV = Dl[k] * Gl * Vl[k], dD = sll[k] * Gl * Vl[k];
+            for (int ch = 0; ch < 3; ++ch) {
+                const float t = drho[ch][k] + g3[ch][k] * E[ch] * DGV;
+                drho[ch][k] = lit[k] ? t : drho[ch][k];
+                tl[4 + ch][k] = g3[ch][k] * rl[ch][k] * DGV;
+            }
+            for (int a = 0; a < 3; ++a) {
+                const float t = dnl[a][k] + dD * dDc[k] * wl[a];
+                dnl[a][k] = lit[k] ? t : dnl[a][k];
+                tl[a][k] = dD * dDc[k] * z.N[a][k];
+            }
+            tl[3][k] = dD * dDb[k];
+            tG[k] = sll[k] * Dl[k] * Vl[k];
+        }
+        double *dl = d_lights ? d_lights + PEN_LIGHT_GRAD_DOUBLES * l : NULL;
+        for (int k = 0; k < cnt; ++k) {
+            if (!lit[k]) continue;
+            for (int a = 0; dl && a < 7; ++a)
+                dl[a] += (double)tl[a][k];
+            if (d_G && G) d_G[l] += (double)tG[k];
+        }
+    }
     int nx = 0, xk[B];
     for (int k = 0; k < cnt; ++k) {
-        if (skip[k] & !z.exact[k]) continue; /* no gradient */
-        if (z.exact[k]) {
-            xk[nx++] = k;
-            continue;
-        }
-        float drho[3] = {0.0f, 0.0f, 0.0f};
-        for (int l = 0; l < K; ++l) {
-            if (!(z.Dl[l][k] > 0.0f)) continue;
-            const float Gl = G ? (float)G[l] : 1.0f, DGV = z.Dl[l][k] * Gl * V[l][k];
-            const float dD = sl[l][k] * Gl * V[l][k];
-            for (int ch = 0; ch < 3; ++ch)
-                drho[ch] += g3[ch][k] * (float)L->E[l][ch] * DGV;
-            if (d_lights) {
-                double *dl = d_lights + PEN_LIGHT_GRAD_DOUBLES * l;
-                for (int a = 0; a < 3; ++a)
-                    dl[a] += (double)(dD * z.dDc[l][k] * z.N[a][k]);
-                dl[3] += (double)(dD * z.dDb[l][k]);
-                for (int ch = 0; ch < 3; ++ch)
-                    dl[4 + ch] += (double)(g3[ch][k] * rho[3 * k + ch] * DGV);
-            }
-            if (d_G && G) d_G[l] += (double)(sl[l][k] * z.Dl[l][k] * V[l][k]);
-            for (int a = 0; a < 3; ++a)
-                dnl[a][k] += dD * z.dDc[l][k] * z.w[l][a];
-        }
+        if (z.exact[k]) xk[nx++] = k;
+        if (skip[k]) continue; /* the double term's, or no gradient */
         for (int ch = 0; ch < 3; ++ch)
-            d_rho[3 * k + ch] += drho[ch];
+            d_rho[3 * k + ch] += drho[ch][k];
         for (int a = 0; a < 3; ++a) {
             if (d_x) d_x[3 * k + a] += dxl[a][k];
             if (d_n) d_n[3 * k + a] += dnl[a][k];
