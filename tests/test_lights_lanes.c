@@ -204,17 +204,22 @@ static void test_bwd_block(void) {
         printf("  %d variants; worst %.3g of a gradient's size\n", variants, worst);
 }
 
-/* A receiver at a sphere's very centre (its weight 0, |c - x| / r = 0) in a block where another
- * receiver is in that sphere's full shadow: the lanes compute the pair's chain for every lane,
- * and this one's must stay 0, not 0 / 0. */
-static void test_bwd_centre(void) {
+/* One 0.27 deg sun straight up, eps 3. */
+static void sun_overhead(pen__lights *L) {
     pen_lighting lt;
     memset(&lt, 0, sizeof lt);
     lt.light_count = 1;
     lt.lights[0].direction[1] = 1.0f, lt.lights[0].angular_radius_deg = 0.27f;
     lt.lights[0].irradiance[0] = lt.lights[0].irradiance[1] = lt.lights[0].irradiance[2] = 2.0f;
+    pen__lights_init(L, &lt, 3.0, 1);
+}
+
+/* A receiver at a sphere's very centre (its weight 0, |c - x| / r = 0) in a block where another
+ * receiver is in that sphere's full shadow: the lanes compute the pair's chain for every lane,
+ * and this one's must stay 0, not 0 / 0. */
+static void test_bwd_centre(void) {
     pen__lights L;
-    pen__lights_init(&L, &lt, 3.0, 1);
+    sun_overhead(&L);
     const float sph[4] = {0.0f, 0.0f, 0.0f, 0.3f}, kap[1] = {1.0f};
     /* the second's normal nearly across the sphere (h = n . v / r = 0.66: its weight in the
      * smoothstep, so the pair has a gradient) but above the horizon for the light */
@@ -345,6 +350,34 @@ static void test_nan_normal(void) {
     }
 }
 
+/* Receivers near the end of the float range: the block's ball (its float mean overflows to +-inf,
+ * or to NaN where both meet) must still keep the spheres that shadow them, as the double term's
+ * own test does: each receiver has a sphere just above it, under a light straight up. */
+static void test_huge_points(void) {
+    enum { NB = PEN_LIGHTS_BLOCK };
+    pen__lights L;
+    sun_overhead(&L);
+    float x[3 * NB], nrm[3 * NB], rho[3 * NB], sph[4 * NB], kap[NB], rgb[3 * NB] = {0}, V[NB];
+    for (int k = 0; k < NB; ++k) {
+        const float at = (k % 2 ? -2e38f : 2e38f) * (1.0f - 0.01f * (float)k);
+        for (int a = 0; a < 3; ++a)
+            x[3 * k + a] = a == 0 ? at : 0.0f, nrm[3 * k + a] = a == 1 ? 1.0f : 0.0f;
+        for (int a = 0; a < 3; ++a)
+            rho[3 * k + a] = 0.5f;
+        sph[4 * k] = at, sph[4 * k + 1] = 1.0f, sph[4 * k + 2] = 0.0f, sph[4 * k + 3] = 0.5f;
+        kap[k] = 1.0f;
+    }
+    pen__lights_fwd_block(&L, NULL, NB, sph, kap, NULL, NB, x, nrm, rho, NULL, rgb, V);
+    for (int k = 0; k < NB; ++k) {
+        float want[3] = {0}, Vw;
+        pen__lights_fwd(&L, NULL, NB, sph, kap, NULL, x + 3 * k, nrm + 3 * k, rho + 3 * k, want,
+                        &Vw);
+        CHECK_MSG(Vw < 0.5f, "receiver %d: the double term sees no shadow (V %g)", k, (double)Vw);
+        CHECK_MSG(fabs((double)V[k] - (double)Vw) <= 1e-6, "receiver %d: V %g, double term %g", k,
+                  (double)V[k], (double)Vw);
+    }
+}
+
 /* The loss sum_k,ch drgb rgb of the model in double (pen__lights_fwd_d), which the forward block
  * renders to float rounding (test_fwd_block). */
 static double model_loss(const block_case *c, const double *sph, const double *x) {
@@ -409,4 +442,4 @@ static void test_bwd_block_fd(void) {
 }
 
 RUN_TESTS(TEST(test_fwd_block), TEST(test_bwd_block), TEST(test_bwd_centre), TEST(test_fwd_cap_end),
-          TEST(test_nan_normal), TEST(test_bwd_block_fd))
+          TEST(test_nan_normal), TEST(test_huge_points), TEST(test_bwd_block_fd))

@@ -25,7 +25,8 @@
  *   partial pair adds f's own derivatives in double (wide_bwd in the double lanes, else
  *   pen__lights_pair_bwd) during the first; the per-light chain (rho, the light, its horizon
  *   factor, n) in lanes too. Only a receiver without the forward's V (or not finite) takes
- *   pen__lights_bwd whole.
+ *   pen__lights_bwd whole, and every receiver of a block where eps kappa reaches 400 (a factor
+ *   that could fall below the double term's 1e-200).
  */
 #include "core/internal.h"
 #include "shade/shade.h"
@@ -259,6 +260,9 @@ static int block_bound(lanes *z, int cnt, int skip[B]) {
         z->m[a] = (double)m[a];
     z->R =
         sqrt((double)d2max) * (1.0 + 1e-6) + 1e-9 * (fabs(z->m[0]) + fabs(z->m[1]) + fabs(z->m[2]));
+    /* receivers near the float range's end (a mean that overflows, or a NaN from inf - inf):
+     * a ball that holds everything, so that every sphere is kept */
+    if (!(z->R < HUGE_VAL)) z->m[0] = z->m[1] = z->m[2] = 0.0, z->R = HUGE_VAL;
     return 1;
 }
 
@@ -268,9 +272,9 @@ static int block_bound(lanes *z, int cnt, int skip[B]) {
  * is wholly inside the cap (in[l][k]) or partly (part[l][k], the double lens; any_part[l] where
  * any lane is), the rest clear of it. Returns 0, with nothing filled, when no lane is on. The
  * classes are flags, not one code per lane: the callers' loops over them then stay in lanes. First
- * the prefilter's tests (pen__lights_candidates): most of a tile's spheres shadow none of a block's
- * receivers, and they cost only these. Both arms of every choice are computed and then selected, so
- * that the compiler keeps the loops in lanes. */
+ * the prefilter's tests (pen__lights_candidates), for the spheres that pen__lights_may_shadow
+ * keeps: most of those still shadow none of the block's receivers, and cost only these. Both arms
+ * of every choice are computed and then selected, so that the compiler keeps the loops in lanes. */
 static inline __attribute__((always_inline)) int sphere_pairs(const lanes *z, const int *skip,
                                                               const float *sp, float kap, int on[B],
                                                               float y[B], float ex[B], int in[][B],
@@ -491,8 +495,9 @@ static inline double expm1_neg_lane(double y) {
  * pen__lights_pair_bwd chain (d_g = dV V / (1 - q f), d_f = -q d_g through f's partials by g, a
  * and b), q = 1 - exp(-eps w kappa) from the lanes' exponent y[P[p]], dV V from VdV[P[p]]: the
  * pair's d/dv (dv, into x and the sphere's centre), d/dr, d/d of the light's direction (dl[0..2],
- * where tang: sin g > 1e-12) and radius (dl[3]), and its d/dq (dq); nz where any of f's partials is
- * not 0 (else the pair adds nothing, as there). The caller adds them up in the pairs' order. */
+ * where tang: sin g > 1e-12) and radius (dl[3]), and its d/dq (dq); nz where f or any of its
+ * partials is not 0 (else the pair adds nothing, as there). The caller adds them up in the pairs'
+ * order. */
 typedef struct wide_terms {
     double dv[3][B], dr[B], dl[4][B], dq[B];
     lmask nz[B], tang[B];
@@ -667,7 +672,7 @@ void CAT(pen__lights_bwd_block_,
     float *dw = scratch; /* d/dw of each (sphere, receiver), for the second pass */
     for (int j = 0; pairs && L->shadows && (geometry || d_lights) && j < n; ++j) {
         /* Pass 1: each pair's class and, for the lanes, d/dw; a partial pair of a lit light
-         * sends its receiver to the double term. */
+         * adds f's own derivatives in double as it goes. */
         const int i = idx ? idx[j] : j;
         const float kap = kappa ? kappa[i] : 1.0f;
         float *dwj = dw + (size_t)j * B, y[B], ex[B], dq[B];
