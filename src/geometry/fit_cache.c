@@ -29,8 +29,9 @@
 /* Bump when a change of the fitter changes its results, so old cache files are not reused (3:
  * the fits cached by an earlier fitter differed from what the fitter now computes under the
  * same key, found when a fresh clone's demo disagreed with the working tree's; 4: spheres
- * allocated to thin parts, fits independent of the thread count, the coverage report). */
-#define FIT_VERSION "penumbra-fit-4"
+ * allocated to thin parts, fits independent of the thread count, the coverage report; 5: Embree
+ * capped at AVX2, so fits made on an AVX-512 processor changed). */
+#define FIT_VERSION "penumbra-fit-5"
 /* Cache files are small (a few kB per hundred spheres); anything larger is not ours. */
 #define FIT_CACHE_MAX_BYTES (16u << 20)
 

@@ -207,7 +207,7 @@ pen_status pen__fit_medial_balls(pen_context *ctx, const pen_mesh *mesh, const f
     double side;
     pen_status st = pen__fit_mesh_side(ctx, mesh, &side);
     if (st) return st;
-    RTCDevice device = rtcNewDevice("threads=1"); /* as in voxelize.c: the build is milliseconds */
+    RTCDevice device = rtcNewDevice(PEN__FIT_EMBREE_CONFIG);
     if (!device) return pen__error(ctx, PEN_ERROR_INTERNAL, "fit: cannot create an Embree device");
     RTCScene scene = pen__fit_embree_scene(ctx, device, mesh, NULL);
     if (!scene) {

@@ -251,9 +251,7 @@ pen_status pen__fit_voxelize(pen_context *ctx, const pen_mesh *mesh, int voxels,
     uint8_t *votes = pen__calloc(ctx, total, 1, "fit: voxel votes");
     if (!votes) return PEN_ERROR_MEMORY;
 
-    /* One build thread: the BVH of a mesh of this kind builds in milliseconds, less than it takes
-     * to start Embree's worker pool for every fit. */
-    RTCDevice device = rtcNewDevice("threads=1");
+    RTCDevice device = rtcNewDevice(PEN__FIT_EMBREE_CONFIG);
     if (!device) {
         free(votes);
         return pen__error(ctx, PEN_ERROR_INTERNAL, "fit: cannot create an Embree device");
