@@ -146,8 +146,9 @@ static void test_cap_overlap(void) {
 /* The cosine form of the lens (the wide disks' path) against the closed form, relative to the
  * disk's area, and its partials against central differences of its own value, over random
  * partial overlaps: caps from 0.1 deg to 143 deg, centres within 1.2 b of the cap's edge. The
- * renderer takes it from PEN_LIGHTS_COS_LENS_DEG up; below, the two forms part further (at
- * 0.27 deg about 4e-13, at 0.01 deg about 1e-11 of the disk's area), hence the closed form there.
+ * renderer takes it from PEN_LIGHTS_COS_LENS_DEG (0.25 deg) up, where the two forms agree to 5e-13
+ * of the disk's area; below, they part further (at 0.01 deg about 1e-11), hence the closed form
+ * there.
  */
 static void test_cap_overlap_cos(void) {
     const double bs[] = {PEN_LIGHTS_COS_LENS_DEG, 2.45, 5, 10, 30, 60};

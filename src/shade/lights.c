@@ -20,10 +20,11 @@
  *   half-angle forms of differences of the sides (s - a, s - b, s - g), the lens is two sectors
  *   minus the kite of two triangles (L'Huilier's formula), so the overlap keeps about 1e-12 of its
  *   relative precision down to the smallest radius accepted (0.01 deg). Disks from
- *   PEN_LIGHTS_COS_LENS_DEG (1 deg) up take the same lens from the cosines the visibility test
- *   already has (pen__cap_overlap_cos: three atan, no sincos, partials from the boundary arcs):
- *   there it agrees with the angle form to under 1e-13 of the disk's area (1e-12 checked), while
- *   under 0.1 deg the cosines' cancellation would cost it digits (tests/test_lights.c).
+ *   PEN_LIGHTS_COS_LENS_DEG (0.25 deg, under the sun's 0.27) up take the same lens from the
+ *   cosines the visibility test already has (pen__cap_overlap_cos: three atan, no sincos, partials
+ *   from the boundary arcs): there it agrees with the angle form to 5e-13 of the disk's area (1e-12
+ *   checked; 1e-13 from 1 deg up), far under a float image's 6e-8, while under 0.1 deg the
+ *   cosines' cancellation would cost it digits (tests/test_lights.c).
  * - Derivatives of the two closed forms come from forward-mode dual numbers (3 partials) over the
  *   same expressions, so the derivative is the derivative of the value that was computed.
  * - Cost. A sun is small, so most (receiver, sphere) pairs of a tile cannot touch it: the

@@ -30,9 +30,11 @@ double pen__cap_overlap(double a, double b, double g, double d[3]);
  * (the Gram determinant of the triangle of the two centres and a corner of the lens), and its
  * partials d[0..2] by a, b, g (d may be NULL); -1 where it does not apply (a + b >= pi, or the
  * caps tangent or one inside the other to rounding): then pen__cap_overlap. Cheaper than the
- * angle form (three atan, no sincos), and as precise relative to the disk's area only for disks
- * wider than PEN_LIGHTS_COS_LENS_DEG (tests/test_lights.c checks both). */
-#define PEN_LIGHTS_COS_LENS_DEG 1.0
+ * angle form (three atan, no sincos); relative to the disk's area within 1e-12 of it for disks from
+ * PEN_LIGHTS_COS_LENS_DEG up (5e-13 at 0.25 deg, 1e-13 from 1 deg; tests/test_lights.c checks
+ * both), 1e-11 at 0.01 deg. From 0.25 deg, so that a sun's penumbrae (0.27 deg) take it too, and
+ * with it the fast kernel's packed double lanes. */
+#define PEN_LIGHTS_COS_LENS_DEG 0.25
 double pen__cap_overlap_cos(double ca, double sa, double cb, double sb, double cg, double sg,
                             double d[3]);
 
