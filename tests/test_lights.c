@@ -346,7 +346,10 @@ static void test_pixel_grad(void) {
             if (d[0] * r2.n[0] + d[1] * r2.n[1] + d[2] * r2.n[2] < 0)
                 for (int a = 0; a < 3; ++a)
                     d[a] = -d[a];
-            set_light(&r2.L, l, d, rs_uniform(&seed, 0.3, 30.0), rs_uniform(&seed, 0.5, 3.0));
+            /* every third trial's first light under PEN_LIGHTS_COS_LENS_DEG: the angle form */
+            const double b = trial % 3 == 0 && l == 0 ? rs_uniform(&seed, 0.05, 0.2)
+                                                      : rs_uniform(&seed, 0.3, 30.0);
+            set_light(&r2.L, l, d, b, rs_uniform(&seed, 0.5, 3.0));
         }
         r2.S = 1 + trial % 5;
         for (int i = 0; i < r2.S; ++i) {
@@ -375,7 +378,10 @@ static void test_pixel_grad(void) {
         for (int l = 0; l < 2; ++l) {
             rs_unit_vector(&seed, d);
             if (d[1] < 0) d[1] = -d[1];
-            set_light(&r2.L, l, d, rs_uniform(&seed, 0.3, 30.0), rs_uniform(&seed, 0.5, 3.0));
+            /* every third trial's first light under PEN_LIGHTS_COS_LENS_DEG: the angle form */
+            const double b = trial % 3 == 0 && l == 0 ? rs_uniform(&seed, 0.05, 0.2)
+                                                      : rs_uniform(&seed, 0.3, 30.0);
+            set_light(&r2.L, l, d, b, rs_uniform(&seed, 0.5, 3.0));
         }
         r2.S = 3;
         const double qs[3] = {rs_uniform(&seed, 0.905, 0.995), rs_uniform(&seed, 0.2, 0.88),

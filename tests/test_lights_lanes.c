@@ -29,7 +29,9 @@ typedef struct block_case {
 static void make_case(block_case *c, int trial) {
     pen_lighting lt;
     memset(&lt, 0, sizeof lt);
-    const double radii[4] = {0.27, 0.6, 3.0, 20.0};
+    /* 0.1 deg: under PEN_LIGHTS_COS_LENS_DEG, its penumbrae pair by pair; the rest in the packed
+     * double lanes (a sun's 0.27 deg among them) */
+    const double radii[4] = {0.1, 0.27, 3.0, 20.0};
     c->K = lt.light_count = 1 + trial % 3;
     for (int l = 0; l < c->K; ++l) {
         double d[3];
@@ -266,7 +268,7 @@ static void test_fwd_cap_end(void) {
             rs_unit_vector(&seed, w);
             for (int a = 0; a < 3; ++a)
                 lt.lights[0].direction[a] = (float)w[a];
-            lt.lights[0].angular_radius_deg = trial % 2 ? 0.27f : 3.0f;
+            lt.lights[0].angular_radius_deg = trial % 3 == 0 ? 3.0f : trial % 3 == 1 ? 0.27f : 0.1f;
             pen__lights L;
             pen__lights_init(&L, &lt, rs_uniform(&seed, 1.0, 6.0), 1);
             float x[3 * B], nrm[3 * B], rho[3 * B], rgb[3 * B] = {0}, V[B];
@@ -315,13 +317,14 @@ static void test_fwd_cap_end(void) {
 
 /* A receiver with a normal that is not finite, at a finite point in a sphere's shadow, beside
  * a lit one: the double term leaves its light unlit (no colour, no gradient); so must the lanes,
- * for a narrow and a wide disk, and the other receiver keeps the double term's values. */
+ * for a narrow disk (under PEN_LIGHTS_COS_LENS_DEG) and a wide one, and the other receiver keeps
+ * the double term's values. */
 static void test_nan_normal(void) {
     for (int wide = 0; wide < 2; ++wide) {
         pen_lighting lt;
         memset(&lt, 0, sizeof lt);
         lt.light_count = 1;
-        lt.lights[0].direction[1] = 1.0f, lt.lights[0].angular_radius_deg = wide ? 3.0f : 0.27f;
+        lt.lights[0].direction[1] = 1.0f, lt.lights[0].angular_radius_deg = wide ? 3.0f : 0.1f;
         lt.lights[0].irradiance[0] = lt.lights[0].irradiance[1] = lt.lights[0].irradiance[2] = 2.0f;
         pen__lights L;
         pen__lights_init(&L, &lt, 3.0, 1);

@@ -8,6 +8,14 @@
 #include <stddef.h>
 #include <stdint.h>
 
+/* The instruction set every Embree device here is capped at, appended to its configuration.
+ * Embree picks its kernels (BVH width, triangle tests) by the processor, and its AVX-512 kernels
+ * round a few hits of the same ray differently from its AVX2 kernels: enough to move a sphere fit
+ * (Spot's 32 spheres came out different on an AVX-512 and an AVX2 machine). Capped, a fit, a
+ * transfer and a reference render are the same on every processor with AVX2; one without it gets
+ * Embree's SSE kernels. */
+#define PEN__EMBREE_ISA "max_isa=avx2"
+
 /* Gives a triangle geometry (RTC_GEOMETRY_TYPE_TRIANGLE, not yet committed) new vertex and index
  * buffers holding copies of `positions` (3 floats a vertex) and `indices` (3 a triangle). Copies,
  * not shared buffers: Embree reads up to 16 bytes past the last vertex, which a caller's array

@@ -188,7 +188,7 @@ static void point_transfer(RTCScene scene, const pen__transfer_request *rq, doub
 
 void *pen__transfer_device(pen_context *ctx) {
     char config[64];
-    snprintf(config, sizeof config, "threads=%d", pen__threads(ctx));
+    snprintf(config, sizeof config, "threads=%d," PEN__EMBREE_ISA, pen__threads(ctx));
     RTCDevice dev = rtcNewDevice(config);
     if (!dev)
         pen__error(ctx, PEN_ERROR_INTERNAL, "self transfer: Embree device: error %d",

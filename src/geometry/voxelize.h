@@ -42,12 +42,8 @@ pen_status pen__fit_sample_surface(pen_context *ctx, const pen_mesh *mesh, int c
 
 /* The Embree device configuration of every fit step (voxels, medial balls). One build thread: the
  * BVH of such a mesh builds in milliseconds, less than it takes to start Embree's worker pool for
- * every fit. The instruction set capped at AVX2: Embree picks its kernels (BVH width, triangle
- * test) by the processor, and its AVX-512 and AVX2 kernels round a few hits of the same ray
- * differently, which moved a voxel or a medial ball and so the whole fit (Spot's 32 spheres came
- * out different on an AVX-512 and an AVX2 machine). Capped, a fit is the same on every processor
- * with AVX2; one without it gets Embree's SSE kernels. */
-#define PEN__FIT_EMBREE_CONFIG "threads=1,max_isa=avx2"
+ * every fit. */
+#define PEN__FIT_EMBREE_CONFIG "threads=1," PEN__EMBREE_ISA
 
 /* A committed Embree scene of the mesh's triangles on `device` (geometry 0, primitive = triangle
  * index), with `filter` as its intersection filter when not NULL. NULL on failure (recorded in

@@ -465,9 +465,9 @@ static pen_status embree_status(pen_context *ctx, RTCDevice device, const char *
 
 static pen_status build_embree(pen_context *ctx, pen_reference *ref) {
     const pen_scene *sc = ref->scene;
-    char config[64] = "";
+    char config[64] = PEN__EMBREE_ISA;
     int threads = pen_context_threads(ctx);
-    if (threads > 0) snprintf(config, sizeof config, "threads=%d", threads);
+    if (threads > 0) snprintf(config, sizeof config, "threads=%d," PEN__EMBREE_ISA, threads);
     ref->device = rtcNewDevice(config);
     if (!ref->device)
         return pen__error(ctx, PEN_ERROR_INTERNAL, "reference: Embree device: error %d",
