@@ -50,7 +50,7 @@ typedef struct golden {
  * the lanes (their clamped cosine from the float n . w): every scalar row kept its value. The
  * rows that depend on Spot's fitted spheres (its sphere set, the ground-spheres renders, the
  * lighting+pose optimisation) were re-recorded on an AVX2 machine when the fitter's Embree was
- * capped at AVX2 (src/geometry/voxelize.h): Embree's AVX-512 kernels had given another fit. Their
+ * capped at AVX2 (src/geometry/embree.h): Embree's AVX-512 kernels had given another fit. Their
  * 16-lane rows wait for a recording on an AVX-512 machine; until then a run there checks every
  * other row and exits 77 naming them. */
 static const golden table[] = {
